@@ -1,0 +1,56 @@
+"""The ``tactex`` command: discovers the sub-commands in :mod:`tactex.commands`."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from tactex import __version__
+from tactex.errors import TactexError
+
+__all__ = ["build_parser", "main"]
+
+
+def _command_modules() -> list:
+    import tactex.commands as pkg
+
+    mods = [importlib.import_module(f"tactex.commands.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)]
+    return sorted((m for m in mods if hasattr(m, "run")), key=lambda m: m.NAME)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tactex",
+        description="Tactile exploration: ergodic coverage on point clouds and visuo-tactile force control.",
+    )
+    parser.add_argument("--version", action="version", version=f"tactex {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in _command_modules():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
+        mod.register(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; bad input prints one line and returns a non-zero code, never a traceback."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not hasattr(args, "_run"):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except TactexError as exc:
+        print(f"tactex {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"tactex {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

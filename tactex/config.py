@@ -1,0 +1,110 @@
+"""Parameter dataclasses ↔ command-line options.
+
+Every parameter set in tactex is a dataclass whose defaults are the papers' values and whose
+fields carry ``metadata={"help": "... [unit]"}``. :func:`add_dataclass_arguments` turns such a
+class into argparse options (``agent_radius`` → ``--agent-radius``), so the CLI never drifts from
+the code; :func:`dataclass_from_args` builds the instance back, validating through the class.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from tactex.errors import ConfigError
+
+__all__ = ["add_dataclass_arguments", "dataclass_from_args", "param", "to_jsonable", "write_json"]
+
+T = TypeVar("T")
+
+
+def param(default: Any, help: str, **kw: Any) -> Any:
+    """A dataclass field with a help text (units in brackets) used by the generated CLI."""
+    if isinstance(default, (list, dict, np.ndarray)):
+        return dataclasses.field(default_factory=lambda: default, metadata={"help": help, **kw})
+    return dataclasses.field(default=default, metadata={"help": help, **kw})
+
+
+def _option(name: str, prefix: str) -> str:
+    return "--" + (prefix + name).replace("_", "-")
+
+
+def add_dataclass_arguments(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    cls: type,
+    *,
+    prefix: str = "",
+    skip: tuple[str, ...] = (),
+) -> None:
+    """Add one option per scalar/bool/tuple field of dataclass ``cls``; defaults stay ``None``
+    so that only options the user gave override the dataclass defaults."""
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if f.name in skip or f.metadata.get("cli") is False:
+            continue
+        typ = hints[f.name]
+        origin = typing.get_origin(typ)
+        args = typing.get_args(typ)
+        help_text = f.metadata.get("help", "")
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        help_text = f"{help_text} (default: {default})" if help_text else f"default: {default}"
+        opt = _option(f.name, prefix)
+        dest = prefix + f.name
+        if typ is bool:
+            parser.add_argument(opt, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        elif typ in (int, float, str):
+            parser.add_argument(opt, dest=dest, type=typ, default=None, help=help_text)
+        elif origin is tuple and args and all(a in (int, float) for a in args if a is not Ellipsis):
+            n = "+" if Ellipsis in args else len(args)
+            parser.add_argument(opt, dest=dest, type=float, nargs=n, default=None, help=help_text)
+        elif origin in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
+            base = next(a for a in args if a is not type(None))
+            if base in (int, float, str):
+                parser.add_argument(opt, dest=dest, type=base, default=None, help=help_text)
+
+
+def dataclass_from_args(cls: type[T], args: argparse.Namespace, *, prefix: str = "", **overrides: Any) -> T:
+    """Instantiate ``cls`` from parsed options (those left at None keep the class default)."""
+    kwargs: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        value = getattr(args, prefix + f.name, None)
+        if value is not None:
+            kwargs[f.name] = tuple(value) if isinstance(value, list) else value
+    kwargs.update(overrides)
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"invalid parameters for {cls.__name__}: {exc}") from exc
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Convert dataclasses, numpy arrays/scalars and paths into JSON-ready values."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_json(data: Any, path: str | Path) -> Path:
+    """Write ``data`` as indented JSON (NaN/inf become null)."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(to_jsonable(data), indent=2) + "\n")
+    return out

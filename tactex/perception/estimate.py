@@ -1,0 +1,45 @@
+"""The surface estimate the vision pipeline hands to VA-UFIC (VA-UFIC §II-B, eq. 14–16)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["SurfaceEstimate"]
+
+_NAN3 = np.full(3, np.nan)
+
+
+@dataclass(frozen=True)
+class SurfaceEstimate:
+    """Local surface in front of the tool.
+
+    Attributes:
+        valid: False when no usable segment was found; ``reason`` says why and the vectors are NaN.
+        timestamp: time of the frame it came from [s].
+        normal_camera: (3,) unit surface normal n_s^c in the camera frame, pointing to the camera.
+        normal_world: (3,) the same in the world frame.
+        e1_world, e2_world: (3,) principal in-plane directions of the segment (PCA).
+        centroid_world: (3,) segment centroid [m].
+        curvature: l_s = |λ3 / tr Σ| (eq. 16), dimensionless, 0 for a plane, ≤ 1/3.
+        theta_rad: orientation error θ between the tool axis and the surface normal (eq. 15) [rad].
+        segment_size: number of points in the segment.
+    """
+
+    valid: bool
+    timestamp: float
+    normal_camera: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    normal_world: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    e1_world: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    e2_world: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    centroid_world: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    curvature: float = float("nan")
+    theta_rad: float = float("nan")
+    segment_size: int = 0
+    reason: str = ""
+
+    @classmethod
+    def invalid(cls, timestamp: float, reason: str) -> SurfaceEstimate:
+        """An estimate that must not be used, with the reason."""
+        return cls(valid=False, timestamp=timestamp, reason=reason)

@@ -1,0 +1,173 @@
+"""The :class:`SurfaceCloud` type: a point-sampled surface with an exploration target."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tactex.errors import CloudError, UnitsError
+
+__all__ = ["MAX_EXTENT_M", "SurfaceCloud", "mean_spacing", "validate_points"]
+
+#: A cloud wider than this is almost surely in millimetres (a robot workspace is ~1 m).
+MAX_EXTENT_M = 5.0
+
+
+def validate_points(points: object, name: str = "points", min_points: int = 1) -> np.ndarray:
+    """Return ``points`` as a C-contiguous float64 (N, 3) array, or raise :class:`CloudError`.
+
+    Checks shape, finiteness, the minimum count and the units (extent ≤ 5 m).
+    """
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise CloudError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if arr.shape[0] < min_points:
+        raise CloudError(
+            f"{name} holds {arr.shape[0]} point(s) but at least {min_points} are needed"
+            + (" (the cloud is empty)" if arr.shape[0] == 0 else "")
+        )
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        raise CloudError(
+            f"{name} holds {idx.size} point(s) with NaN/inf coordinates (first at index "
+            f"{idx[0]}: {arr[idx[0]].tolist()}); drop them first, e.g. points[np.isfinite(points).all(1)]"
+        )
+    extent = float(np.max(np.ptp(arr, axis=0))) if arr.shape[0] else 0.0
+    if extent > MAX_EXTENT_M:
+        raise UnitsError(
+            f"{name} spans {extent:.3g} along one axis; tactex works in metres and a surface "
+            f"wider than {MAX_EXTENT_M:g} m is probably in millimetres. Rescale it "
+            "(e.g. points * 1e-3) before use."
+        )
+    return np.ascontiguousarray(arr)
+
+
+def mean_spacing(points: np.ndarray, tree: cKDTree | None = None) -> float:
+    """Mean distance from each point to its nearest neighbour [m] (TEC §IV-A's h)."""
+    if points.shape[0] < 2:
+        raise CloudError("the mean spacing needs at least 2 points")
+    tree = tree if tree is not None else cKDTree(points)
+    dist, _ = tree.query(points, k=2)
+    d = dist[:, 1]
+    if not np.all(d > 0):
+        raise CloudError(
+            f"{int(np.sum(d <= 0))} point(s) coincide with another point; remove duplicates "
+            "first with SurfaceCloud.deduplicated() or a voxel filter"
+        )
+    return float(d.mean())
+
+
+def _optional_rows(value: object, n: int, name: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (n, 3):
+        raise CloudError(f"{name} must have shape ({n}, 3) to match the points, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise CloudError(f"{name} holds NaN/inf values")
+    return np.ascontiguousarray(arr)
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceCloud:
+    """A surface sampled by points, with the target mass to explore.
+
+    Attributes:
+        points: (N, 3) positions [m] in the world (or object) frame.
+        normals: (N, 3) unit normals, or None.
+        colors: (N, 3) RGB in [0, 1], or None.
+        target: (N,) unnormalised target mass ≥ 0 (zeros when no target is set).
+        spacing: mean nearest-neighbour spacing h [m]; computed when not given.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    target: np.ndarray | None = None
+    spacing: float = field(default=0.0)
+
+    def __post_init__(self) -> None:
+        pts = validate_points(self.points)
+        n = pts.shape[0]
+        normals = _optional_rows(self.normals, n, "normals")
+        if normals is not None:
+            norm = np.linalg.norm(normals, axis=1)
+            if np.any(norm < 1e-12):
+                raise CloudError("normals hold zero-length vectors; estimate them again or drop them")
+            normals = normals / norm[:, None]
+        colors = _optional_rows(self.colors, n, "colors")
+        if colors is not None and (colors.min() < 0.0 or colors.max() > 1.0):
+            raise CloudError(
+                f"colors must lie in [0, 1], got range [{colors.min():.3g}, {colors.max():.3g}]; "
+                "divide 8-bit colours by 255"
+            )
+        if self.target is None:
+            target = np.zeros(n)
+        else:
+            target = np.asarray(self.target, dtype=np.float64)
+            if target.shape != (n,):
+                raise CloudError(f"target must have shape ({n},), got {target.shape}")
+            if not np.isfinite(target).all() or target.min() < 0.0:
+                raise CloudError("target must be finite and ≥ 0 everywhere")
+        spacing = float(self.spacing)
+        if spacing <= 0.0:
+            spacing = mean_spacing(pts) if n >= 2 else 0.0
+        elif not np.isfinite(spacing):
+            raise CloudError(f"spacing must be a positive finite number of metres, got {self.spacing}")
+        for name, value in (("points", pts), ("normals", normals), ("colors", colors), ("target", target)):
+            if value is not None:
+                value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "spacing", spacing)
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def n_target(self) -> int:
+        """Number of points carrying target mass."""
+        return int(np.count_nonzero(self.target))
+
+    def with_target(self, target: np.ndarray) -> SurfaceCloud:
+        """A copy with another target mass (N,) ≥ 0."""
+        return replace(self, target=np.asarray(target, dtype=np.float64))
+
+    def with_normals(self, normals: np.ndarray) -> SurfaceCloud:
+        """A copy with (N, 3) normals."""
+        return replace(self, normals=normals)
+
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> SurfaceCloud:
+        """A copy moved rigidly: x' = R x + t (normals rotated). Spacing is kept."""
+        rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
+        t = np.asarray(translation, dtype=np.float64).reshape(3)
+        normals = None if self.normals is None else self.normals @ rot.T
+        return replace(self, points=self.points @ rot.T + t, normals=normals)
+
+    def subset(self, mask_or_index: np.ndarray) -> SurfaceCloud:
+        """A copy keeping the selected points (boolean mask or index array); spacing recomputed."""
+        sel = np.asarray(mask_or_index)
+
+        def take(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[sel]
+
+        return SurfaceCloud(
+            points=self.points[sel],
+            normals=take(self.normals),
+            colors=take(self.colors),
+            target=take(self.target),
+        )
+
+    def deduplicated(self, tolerance_m: float = 0.0) -> SurfaceCloud:
+        """A copy without points closer than ``tolerance_m`` to an earlier one (exact duplicates at 0)."""
+        if tolerance_m <= 0.0:
+            _, first = np.unique(self.points, axis=0, return_index=True)
+            keep = np.sort(first)
+        else:
+            tree = cKDTree(self.points)
+            pairs = tree.query_pairs(tolerance_m, output_type="ndarray")
+            drop = np.unique(pairs.max(axis=1)) if len(pairs) else np.empty(0, dtype=int)
+            keep = np.setdiff1d(np.arange(len(self)), drop)
+        return self.subset(keep)

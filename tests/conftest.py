@@ -1,0 +1,38 @@
+"""Shared fixtures: the TEC point clouds in ../shared/data (skipped with a reason when absent)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("TACTEX_SHARED_DATA", REPO.parent / "shared" / "data")) / "tactile_ergodic_control"
+TEC_CLOUDS = ("bun270_X", "cup_X", "plate_shapes")
+
+
+def tec_cloud_path(name: str) -> Path:
+    """Path of a TEC cloud; skips the calling test when ../shared/data is not there."""
+    path = SHARED_DATA / f"{name}.ply"
+    if not path.is_file():
+        pytest.skip(f"TEC point cloud {path} not found: these tests need ../shared/data beside the repository")
+    return path
+
+
+def tec_initial_positions(name: str) -> np.ndarray:
+    """The authors' ten initial agent positions (10, 3) [m] for a TEC cloud."""
+    path = SHARED_DATA / f"{name}_x0_arr_10.npz"
+    if not path.is_file():
+        pytest.skip(f"{path} not found: these tests need ../shared/data beside the repository")
+    with np.load(path, allow_pickle=False) as z:
+        return np.array(z["x0_arr"], dtype=float)
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
