@@ -1,0 +1,220 @@
+"""The Laplace eigenbasis of a surface cloud (TEC eq. 20), built once per cloud and cached."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from tactex.errors import CacheError, CloudError, ConfigError, SpectralError
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.spectral.cache import basis_key, default_cache_dir, load_arrays, save_arrays
+from tactex.spectral.eigen import laplace_eigenpairs
+from tactex.spectral.laplacian import point_cloud_laplacian
+
+__all__ = ["LaplaceBasis", "build_basis", "load_basis"]
+
+
+@dataclass(frozen=True, eq=False)
+class LaplaceBasis:
+    """Weak Laplacian, mass matrix and the n_K smallest Laplace–Beltrami eigenpairs of a cloud.
+
+    Attributes:
+        L: (N, N) CSR weak Laplacian [1], symmetric PSD, zero row sums.
+        M: (N, N) CSR diagonal mass matrix [m²] (Voronoi areas).
+        mass: (N,) diagonal of M [m²].
+        evals: (K,) eigenvalues λ_k [1/m²], ascending, ≥ 0.
+        evecs: (N, K) eigenvectors Φ [1/m], M-orthonormal: Φᵀ M Φ = I.
+        spacing: mean spacing h between neighbouring points [m] (from the cloud).
+        n_neighbors: neighbour count the Laplacian was built with.
+        key: content hash of the points and parameters (the cache file name).
+        mollify_factor: robust_laplacian's mollification.
+        n_components: connected parts of the cloud as the Laplacian sees them (TEC §VI-D).
+    """
+
+    L: sp.csr_matrix
+    M: sp.csr_matrix
+    mass: np.ndarray
+    evals: np.ndarray
+    evecs: np.ndarray
+    spacing: float
+    n_neighbors: int
+    key: str
+    mollify_factor: float = 1e-5
+    n_components: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("mass", "evals", "evecs"):
+            getattr(self, name).setflags(write=False)
+
+    @property
+    def n_points(self) -> int:
+        """N, the number of points."""
+        return int(self.evecs.shape[0])
+
+    @property
+    def n_eigen(self) -> int:
+        """K, the number of eigenpairs."""
+        return int(self.evecs.shape[1])
+
+    def project(self, u: np.ndarray) -> np.ndarray:
+        """Spectral coefficients Φᵀ M u of a field u (N,) or (N, B)."""
+        return self.evecs.T @ (self.mass[:, None] * u if u.ndim == 2 else self.mass * u)
+
+    def reconstruct(self, coefficients: np.ndarray) -> np.ndarray:
+        """The field Φ c on the points from spectral coefficients c (K,) or (K, B)."""
+        return self.evecs @ coefficients
+
+
+def _check_n_eigen(n_eigen: object, n_points: int) -> int:
+    if isinstance(n_eigen, bool) or not isinstance(n_eigen, (int, np.integer)):
+        raise ConfigError(f"n_eigen must be an integer, got {n_eigen!r}")
+    k = int(n_eigen)
+    if k < 1:
+        raise ConfigError(f"n_eigen must be ≥ 1, got {k} (the paper uses 100–200)")
+    if k >= n_points:
+        suggestion = max(1, min(200, n_points // 2))
+        raise SpectralError(
+            f"n_eigen={k} eigenpairs requested but the cloud has only {n_points} points; n_eigen must be "
+            f"< {n_points}. Use e.g. n_eigen={suggestion}, or a denser cloud (smaller voxel size)"
+        )
+    return k
+
+
+def _count_components(L: sp.csr_matrix) -> int:
+    graph = sp.csr_matrix(L, copy=True)
+    graph.setdiag(0.0)
+    graph.eliminate_zeros()
+    return int(connected_components(graph, directed=False)[0])
+
+
+def compute_basis(
+    points: np.ndarray, spacing: float, n_eigen: int, n_neighbors: int, mollify_factor: float, key: str
+) -> LaplaceBasis:
+    """Build a basis without any caching (see :func:`build_basis`)."""
+    L, M = point_cloud_laplacian(points, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
+    mass = M.diagonal().copy()
+    evals, evecs = laplace_eigenpairs(L, mass, n_eigen)
+    return LaplaceBasis(
+        L=L,
+        M=M,
+        mass=mass,
+        evals=evals,
+        evecs=evecs,
+        spacing=float(spacing),
+        n_neighbors=int(n_neighbors),
+        key=key,
+        mollify_factor=float(mollify_factor),
+        n_components=_count_components(L),
+    )
+
+
+def save_basis(basis: LaplaceBasis, path: str | Path) -> Path:
+    """Write a basis to an ``.npz`` file (no pickle)."""
+    p = Path(path)
+    save_arrays(
+        p,
+        basis.L,
+        {
+            "mass": basis.mass,
+            "evals": basis.evals,
+            "evecs": basis.evecs,
+            "spacing": np.asarray(basis.spacing),
+            "n_neighbors": np.asarray(basis.n_neighbors),
+            "mollify_factor": np.asarray(basis.mollify_factor),
+            "n_components": np.asarray(basis.n_components),
+            "key": np.asarray(basis.key),
+        },
+    )
+    return p
+
+
+def load_basis(path: str | Path, expected_key: str | None = None) -> LaplaceBasis:
+    """Read a basis written by :func:`save_basis`.
+
+    Raises:
+        CacheError: the file is unreadable, inconsistent, holds NaN, or its key differs from
+            ``expected_key`` (it describes other points or parameters).
+    """
+    p = Path(path)
+    L, a = load_arrays(p)
+    try:
+        key = str(a["key"])
+        mass, evals, evecs = (np.asarray(a[n], dtype=np.float64) for n in ("mass", "evals", "evecs"))
+        n = mass.shape[0]
+        ok_shapes = mass.ndim == 1 and evals.ndim == 1 and evecs.shape == (n, evals.shape[0]) and L.shape == (n, n)
+        if not ok_shapes:
+            raise CacheError(
+                f"basis cache file '{p}' has inconsistent shapes: mass {mass.shape}, evals {evals.shape}, "
+                f"evecs {evecs.shape}, L {L.shape}; delete it"
+            )
+        if not all(np.isfinite(x).all() for x in (mass, evals, evecs, L.data)):
+            raise CacheError(f"basis cache file '{p}' holds NaN/inf values; delete it")
+        basis = LaplaceBasis(
+            L=L,
+            M=sp.diags(mass, format="csr"),
+            mass=mass,
+            evals=evals,
+            evecs=evecs,
+            spacing=float(a["spacing"]),
+            n_neighbors=int(a["n_neighbors"]),
+            key=key,
+            mollify_factor=float(a["mollify_factor"]),
+            n_components=int(a["n_components"]),
+        )
+    except KeyError as exc:
+        raise CacheError(f"basis cache file '{p}' lacks the array {exc}; delete it") from exc
+    if expected_key is not None and key != expected_key:
+        raise CacheError(f"basis cache file '{p}' describes other points or parameters (key {key[:12]}…)")
+    return basis
+
+
+def build_basis(
+    cloud: SurfaceCloud,
+    n_eigen: int = 200,
+    n_neighbors: int = 30,
+    cache_dir: str | Path | None = None,
+    *,
+    cache: bool = True,
+    mollify_factor: float = 1e-5,
+) -> LaplaceBasis:
+    """The Laplace basis of ``cloud``: L, M and the ``n_eigen`` smallest eigenpairs (TEC eq. 20).
+
+    Args:
+        cloud: the surface; its spacing becomes the basis spacing h [m].
+        n_eigen: number of eigenpairs n_K, 1 ≤ n_K < N (TEC §VI-B: 100 is a good trade-off).
+        n_neighbors: neighbour count of the Laplacian; decides which parts are connected.
+        cache_dir: where basis files live; None → ``$TACTEX_CACHE_DIR`` or ``~/.cache/tactex/basis``.
+        cache: False computes without reading or writing any file.
+        mollify_factor: robust_laplacian's intrinsic mollification.
+
+    A corrupt or mismatching cache file is reported with a ``RuntimeWarning``, recomputed and
+    overwritten (use :func:`load_basis` to get a :class:`CacheError` instead).
+    """
+    if not isinstance(cloud, SurfaceCloud):
+        raise CloudError(f"build_basis needs a SurfaceCloud, got {type(cloud).__name__}")
+    k = _check_n_eigen(n_eigen, len(cloud))
+    key = basis_key(cloud.points, k, n_neighbors, mollify_factor)
+    path = None
+    if cache:
+        path = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+        path = path / f"{key}.npz"
+        if path.is_file():
+            try:
+                basis = load_basis(path, expected_key=key)
+                if basis.n_points == len(cloud) and basis.n_eigen == k:
+                    return basis
+                raise CacheError(f"basis cache file '{path}' has {basis.n_points}×{basis.n_eigen} vectors")
+            except CacheError as exc:
+                warnings.warn(f"{exc}; recomputing the basis", RuntimeWarning, stacklevel=2)
+    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key)
+    if path is not None:
+        try:
+            save_basis(basis, path)
+        except OSError as exc:
+            warnings.warn(f"could not write the basis cache '{path}': {exc}", RuntimeWarning, stacklevel=2)
+    return basis
