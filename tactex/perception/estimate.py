@@ -25,6 +25,11 @@ class SurfaceEstimate:
         curvature: l_s = |λ3 / tr Σ| (eq. 16), dimensionless, 0 for a plane, ≤ 1/3.
         theta_rad: orientation error θ between the tool axis and the surface normal (eq. 15) [rad].
         segment_size: number of points in the segment.
+        reason: why the estimate is invalid ("" when valid).
+        e1_camera, e2_camera: (3,) the PCA edges in the camera frame.
+        centroid_camera: (3,) segment centroid in the camera frame [m].
+        eigenvalues: (3,) λ1 ≥ λ2 ≥ λ3 of the segment covariance Σ [m²].
+        roi_points: number of valid points in the region of interest around the tool axis.
     """
 
     valid: bool
@@ -38,8 +43,19 @@ class SurfaceEstimate:
     theta_rad: float = float("nan")
     segment_size: int = 0
     reason: str = ""
+    e1_camera: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    e2_camera: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    centroid_camera: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    eigenvalues: np.ndarray = field(default_factory=lambda: _NAN3.copy())
+    roi_points: int = 0
 
     @classmethod
-    def invalid(cls, timestamp: float, reason: str) -> SurfaceEstimate:
+    def invalid(cls, timestamp: float, reason: str, roi_points: int = 0) -> SurfaceEstimate:
         """An estimate that must not be used, with the reason."""
-        return cls(valid=False, timestamp=timestamp, reason=reason)
+        return cls(valid=False, timestamp=timestamp, reason=reason, roi_points=roi_points)
+
+    @property
+    def tool_z_world(self) -> np.ndarray:
+        """(3,) the tool z axis that aligns the tool with the surface: −normal_world (VA-UFIC eq. 24
+        with the tool axis pressing into the surface)."""
+        return -self.normal_world

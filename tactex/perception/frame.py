@@ -51,6 +51,26 @@ class CameraIntrinsics:
     def fovy_deg(self) -> float:
         return float(np.rad2deg(2.0 * np.arctan(0.5 * self.height / self.fy)))
 
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] [px]."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def to_array(self) -> np.ndarray:
+        """(9,) float array [width, height, fx, fy, cx, cy, depth_scale, min_depth_m, max_depth_m] (for .npz)."""
+        return np.array(
+            [self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.depth_scale,
+             self.min_depth_m, self.max_depth_m], dtype=np.float64,
+        )
+
+    @classmethod
+    def from_array(cls, values: np.ndarray) -> CameraIntrinsics:
+        """Inverse of :meth:`to_array`."""
+        v = np.asarray(values, dtype=np.float64).reshape(-1)
+        if v.shape != (9,) or not np.isfinite(v).all():
+            raise PerceptionError(f"intrinsics array must hold 9 finite numbers, got {v.tolist()}")
+        return cls(int(v[0]), int(v[1]), *(float(x) for x in v[2:]))
+
     def scaled(self, width: int, height: int) -> CameraIntrinsics:
         """The same camera at another resolution (same field of view)."""
         sx, sy = width / self.width, height / self.height
@@ -60,6 +80,9 @@ class CameraIntrinsics:
         )
 
 
+# The presets are typical factory values, not a calibration: read the real ones from the device
+# (RealSenseSource does) or from a recording. At 640×480 the D435i depth stream has fx ≈ 383 px
+# (≈ 80°×64°; the 87°×58° datasheet figure is for 16:9), the D415 fx ≈ 604 px (≈ 56°×43°).
 #: Typical factory calibration of an Intel RealSense D435i depth stream at 640×480 (87°×58° FOV class).
 D435I_DEPTH_640x480 = CameraIntrinsics(640, 480, 383.0, 383.0, 319.5, 239.5)
 #: Typical factory calibration of an Intel RealSense D415 depth stream at 640×480 (65°×40° FOV class).
