@@ -1,0 +1,66 @@
+"""Virtual exploration agents moving on the tangent plane (TEC eq. 6, Table II limits).
+
+An agent turns the unit gradient direction ĝ (in the tangent plane) into a displacement for one
+step. Its velocity lives in the tangent plane of the previous step; it is carried to the new
+tangent plane by removing its normal component and restoring its length (a first-order parallel
+transport), so a turn of the surface does not count as acceleration. Limits are exact for the
+tangential dynamics: ‖v‖ ≤ v_max and ‖v_new − transport(v_old)‖ ≤ a_max·dt.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+__all__ = ["Agent", "FirstOrderAgent", "SecondOrderAgent", "make_agent", "transport"]
+
+
+def transport(v: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """v carried to the plane ⊥ ``normal`` (unit), keeping its length."""
+    vt = v - (v @ normal) * normal
+    nt = float(np.sqrt(vt @ vt))
+    nv = float(np.sqrt(v @ v))
+    return vt * (nv / nt) if nt > 1e-300 else vt
+
+
+class Agent(ABC):
+    """Base class: state = velocity [m/s] (3,); limits in SI units."""
+
+    def __init__(self, max_velocity: float, max_acceleration: float, dt: float) -> None:
+        self.max_velocity = float(max_velocity)
+        self.max_acceleration = float(max_acceleration)
+        self.dt = float(dt)
+        self.velocity = np.zeros(3)
+
+    def reset(self) -> None:
+        self.velocity = np.zeros(3)
+
+    @abstractmethod
+    def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """New velocity [m/s] from the unit gradient direction (tangent, or zero) and the unit normal."""
+
+    def _clip(self, v: np.ndarray) -> np.ndarray:
+        nv = float(np.sqrt(v @ v))
+        return v * (self.max_velocity / nv) if nv > self.max_velocity else v
+
+
+class FirstOrderAgent(Agent):
+    """ẋ = v_max ĝ: full speed along the gradient."""
+
+    def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        return self._clip(self.max_velocity * direction)
+
+
+class SecondOrderAgent(Agent):
+    """ẍ = a_max ĝ (eq. 6 with the acceleration limit), then ‖ẋ‖ ≤ v_max."""
+
+    def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        v = transport(self.velocity, normal)
+        return self._clip(v + (self.max_acceleration * self.dt) * direction)
+
+
+def make_agent(order: int, max_velocity: float, max_acceleration: float, dt: float) -> Agent:
+    """The agent of the given order (1 or 2) with limits in m/s and m/s²."""
+    cls = FirstOrderAgent if order == 1 else SecondOrderAgent
+    return cls(max_velocity, max_acceleration, dt)

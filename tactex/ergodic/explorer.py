@@ -1,0 +1,388 @@
+"""HEDAC spectral ergodic exploration on a point cloud (TEC eq. 1–6, §IV-A).
+
+One step for each agent:
+
+1. the n_N nearest cloud points of the agent (K-D tree) and those within the footprint radius;
+2. the sphere-or-plane fit of eq. 23–26 and the agent's projection onto it (eq. 27), with the
+   normal line (eq. 28) and tangent plane (eq. 29);
+3. coverage: the Gaussian footprint φ(r) = exp(−ε² r²) (eq. 30) of the footprint points,
+   with r measured on the tangent plane (eq. 31), added to the coverage sum c̃ (eq. 3);
+4. source s = max(p̂ − c, 0)² with p̂ and c normalised (eq. 1–2), injected into the spectral
+   coefficients of the potential, which diffuse by e^{−λ δt}, δt = α h² (eq. 19–21):
+   a ← e^{−λδt} ⊙ a + Φᵀ M s. The potential therefore carries the heat of past sources, as in
+   eq. 19 and the authors' released code; u(x, 0) = p̂ (eq. 5);
+5. the gradient of u on the tangent plane from the weighted cubic fit (eq. 32–33);
+6. the agent's velocity update (first or second order, limits kept, see :mod:`.agents`), the
+   new point projected back onto the fitted surface, the step clamped to v_max·dt.
+
+Cost per step is independent of N where it matters: s vanishes off the target, so Φᵀ M s only
+needs the target rows of Φ (n_target × K, premultiplied by the mass), and u is only needed at
+the n_N neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally.
+
+Starting and measured positions farther than ``max_snap_distance`` voxels from the cloud are
+rejected with :class:`~tactex.errors.ExplorationError` (a robot that far from the surface is not
+in contact, and a silent snap would hide it); nearer ones are projected onto the surface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tactex.ergodic.agents import Agent, make_agent
+from tactex.ergodic.command import ExplorationCommand
+from tactex.ergodic.config import HedacConfig
+from tactex.ergodic.gradient import _fit_cubic
+from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
+from tactex.errors import ConfigError, ExplorationError, InputError
+from tactex.geometry.fit import SurfacePatch, fit_sphere_or_plane
+from tactex.pointcloud import SurfaceCloud
+
+__all__ = ["HedacExplorer"]
+
+_Z = np.array([0.0, 0.0, 1.0])
+
+
+def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = a - (a @ n) * n
+    t1 /= np.sqrt(t1 @ t1)
+    t2 = np.array([n[1] * t1[2] - n[2] * t1[1], n[2] * t1[0] - n[0] * t1[2], n[0] * t1[1] - n[1] * t1[0]])
+    return t1, t2
+
+
+class HedacExplorer:
+    """Spectral HEDAC on a :class:`SurfaceCloud` with a Laplace eigenbasis.
+
+    Args:
+        cloud: the surface and its target mass (``cloud.target``, must hold mass somewhere).
+        basis: a :class:`tactex.spectral.LaplaceBasis` of ``cloud`` (anything with ``mass`` (N,),
+            ``evals`` (K,), ``evecs`` (N, K) M-orthonormal, ``spacing`` [m]).
+        config: :class:`HedacConfig`.
+    """
+
+    def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None) -> None:
+        self.config = config if config is not None else HedacConfig()
+        if not isinstance(self.config, HedacConfig):
+            raise ConfigError(f"config must be a HedacConfig, got {type(self.config).__name__}")
+        if not isinstance(cloud, SurfaceCloud):
+            raise InputError(f"cloud must be a SurfaceCloud, got {type(cloud).__name__}")
+        n = len(cloud)
+        evecs = np.asarray(basis.evecs, dtype=np.float64)
+        if evecs.shape[0] != n:
+            raise InputError(f"the basis has {evecs.shape[0]} points but the cloud {n}; build it from this cloud")
+        if evecs.shape[1] < self.config.n_eigen:
+            raise ConfigError(
+                f"HedacConfig.n_eigen = {self.config.n_eigen} but the basis holds {evecs.shape[1]} eigenpairs; "
+                "build the basis with at least n_eigen pairs or lower n_eigen"
+            )
+        if n < self.config.n_neighbors_fit:
+            raise ExplorationError(
+                f"the cloud has {n} points, fewer than n_neighbors_fit = {self.config.n_neighbors_fit}"
+            )
+        k = self.config.n_eigen
+        self.cloud = cloud
+        self.basis = basis
+        self._points = cloud.points
+        self._phi = np.ascontiguousarray(evecs[:, :k])
+        self._mass = np.asarray(basis.mass, dtype=np.float64)
+        self._evals = np.asarray(basis.evals, dtype=np.float64)[:k]
+        self.spacing = float(getattr(basis, "spacing", 0.0) or cloud.spacing)
+        self._tree = cKDTree(self._points)
+        cfg = self.config
+        self._r_a = cfg.agent_radius_m
+        self._eps2 = (cfg.footprint_sharpness / cfg.agent_radius_m) ** 2
+        self._dt = cfg.step_duration_s
+        self._v_max = cfg.max_velocity * self.spacing / self._dt
+        self._step_max = cfg.max_velocity * self.spacing
+        self._snap = cfg.max_snap_distance * self.spacing
+        area_pts = np.pi * (self._r_a / self.spacing) ** 2
+        self._k_query = int(min(n, max(cfg.n_neighbors_fit, np.ceil(2.0 * area_pts) + 8)))
+        self._rng = np.random.default_rng(cfg.seed)
+        self._decay_alpha = np.nan
+        self._decay = np.ones(k)
+        self._set_target(cloud.target)
+        self._agents: list[Agent] = []
+        self._x = np.zeros((0, 3))
+        self._normals = np.zeros((0, 3))
+        self.step_count = 0
+
+    # ------------------------------------------------------------------ target and state
+    def _set_target(self, mass: np.ndarray) -> None:
+        p = np.asarray(mass, dtype=np.float64)
+        if p.shape != (len(self.cloud),):
+            raise InputError(f"target mass must have shape ({len(self.cloud)},), got {p.shape}")
+        if not np.all(np.isfinite(p)) or p.min() < 0:
+            raise InputError("target mass must be finite and ≥ 0 everywhere")
+        total = float(p.sum())
+        if total <= 0:
+            raise ExplorationError(
+                "the target has no mass (all zeros): nothing to explore; mark target points first "
+                "(e.g. tactex.pointcloud.target_from_channel)"
+            )
+        self._target = p
+        self._tidx = np.flatnonzero(p > 0)
+        self._p_t = p[self._tidx] / total
+        self._tpos = np.full(len(p), -1, dtype=np.intp)
+        self._tpos[self._tidx] = np.arange(self._tidx.size)
+        # Rows of Φᵀ M restricted to the target: s vanishes elsewhere.
+        self._phitm_t = np.ascontiguousarray(self._phi[self._tidx] * self._mass[self._tidx, None])
+
+    def _reset_fields(self) -> None:
+        n = len(self.cloud)
+        self._cov = np.zeros(n)
+        self._cov_sum = 0.0
+        self._visits = np.zeros(n)
+        self._coef = self._p_t @ self._phitm_t  # u(x, 0) = p̂ (eq. 5)
+        self._s_t = np.zeros(self._tidx.size)
+
+    def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
+        """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
+
+        Clears coverage, potential and path length. Returns each agent's starting command.
+        """
+        x = np.asarray(x0, dtype=np.float64)
+        if x.ndim == 1:
+            x = x[None, :]
+        if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] < 1:
+            raise InputError(f"x0 must have shape (3,) or (n_agents, 3), got {np.shape(x0)}")
+        if not np.all(np.isfinite(x)):
+            raise InputError(f"x0 holds NaN/inf: {x.tolist()}")
+        cfg = self.config
+        self._agents = [
+            make_agent(cfg.order, self._v_max, cfg.max_acceleration * self.spacing / self._dt**2, self._dt)
+            for _ in range(x.shape[0])
+        ]
+        self._reset_fields()
+        self._x = np.zeros_like(x)
+        self._normals = np.zeros_like(x)
+        self.path_lengths = np.zeros(x.shape[0])
+        self.step_count = 0
+        out = []
+        for i, xi in enumerate(x):
+            self._check_distance(xi, "x0" if x.shape[0] == 1 else f"x0[{i}]")
+            nb = self._tree.query(xi, k=self.config.n_neighbors_fit)[1]
+            patch = fit_sphere_or_plane(self._points[nb], validate=False)
+            ref = self._initial_normal(xi)
+            p, nrm = patch.project(xi, ref)
+            if nrm @ ref < 0:
+                nrm = -nrm
+            self._x[i], self._normals[i] = p, nrm
+            t1, t2 = _tangent_basis(nrm)
+            out.append(ExplorationCommand(p.copy(), np.zeros(3), nrm.copy(), t1, t2, 0, i))
+        return out
+
+    def _initial_normal(self, x: np.ndarray) -> np.ndarray:
+        """Outward side: the cloud's normal at the nearest point when it has normals, else +z (up)."""
+        if self.cloud.normals is not None:
+            return self.cloud.normals[int(self._tree.query(x)[1])].copy()
+        return _Z.copy()
+
+    def _check_distance(self, x: np.ndarray, name: str) -> float:
+        d = float(self._tree.query(x)[0])
+        if d > self._snap:
+            raise ExplorationError(
+                f"{name} = {np.round(x, 4).tolist()} m is {d * 1e3:.1f} mm from the nearest cloud point, farther "
+                f"than max_snap_distance = {self.config.max_snap_distance:g} voxels ({self._snap * 1e3:.1f} mm); "
+                "start on (or just above) the surface, or raise HedacConfig.max_snap_distance"
+            )
+        return d
+
+    def update_target(self, mass: np.ndarray, keep_coverage: bool = False) -> None:
+        """Replace the target mass (N,) while running (vision feedback); the basis is kept.
+
+        By default a new exploration cycle starts: coverage and potential restart from the new
+        target (the old coverage would hide dirt that is still there). ``keep_coverage=True``
+        keeps the accumulated coverage and the diffused potential.
+        """
+        self._set_target(mass)
+        if not keep_coverage or not hasattr(self, "_cov"):
+            if self._agents:
+                self._reset_fields()
+        else:
+            self._s_t = np.zeros(self._tidx.size)
+
+    # ------------------------------------------------------------------ stepping
+    @property
+    def n_agents(self) -> int:
+        return len(self._agents)
+
+    def step(self, measured_position: np.ndarray | None = None) -> ExplorationCommand:
+        """One exploration step of a single agent; ``measured_position`` (3,) [m], e.g. the robot's
+        TCP, replaces the virtual agent's position first (closed loop)."""
+        if self.n_agents != 1:
+            raise ExplorationError(
+                f"step() drives one agent but {self.n_agents} are running; call reset() first or use step_all()"
+            )
+        return self.step_all(None if measured_position is None else np.asarray(measured_position)[None, :])[0]
+
+    def step_all(self, measured_positions: np.ndarray | None = None) -> list[ExplorationCommand]:
+        """One exploration step of every agent (they share the coverage, eq. 3)."""
+        if not self._agents:
+            raise ExplorationError("the explorer has no agent: call reset(x0) first")
+        if measured_positions is not None:
+            m = np.asarray(measured_positions, dtype=np.float64)
+            if m.shape != self._x.shape:
+                raise InputError(f"measured positions must have shape {self._x.shape}, got {m.shape}")
+            if not np.all(np.isfinite(m)):
+                raise InputError(f"measured position holds NaN/inf: {m.tolist()}")
+            for i, mi in enumerate(m):
+                self._check_distance(mi, "measured position" if m.shape[0] == 1 else f"measured position {i}")
+            self._x = m.copy()
+        self._update_decay()
+        cmds = [self._step_agent(i) for i in range(self.n_agents)]
+        self.step_count += 1
+        return cmds
+
+    def _update_decay(self) -> None:
+        alpha = self.config.alpha_at(self.step_count)
+        if alpha != self._decay_alpha:
+            self._decay = np.exp(-self._evals * (alpha * self.spacing**2))
+            self._decay_alpha = alpha
+
+    def _step_agent(self, i: int) -> ExplorationCommand:
+        pts = self._points
+        x = self._x[i]
+        n_n = self.config.n_neighbors_fit
+        dist, idx = self._tree.query(x, k=self._k_query)
+        nbr = idx[:n_n]
+        patch = fit_sphere_or_plane(pts[nbr], validate=False)
+        p_a, nrm = self._project(patch, x, self._normals[i])
+
+        # Footprint on the tangent plane (eq. 30–31); the query radius covers the projection shift.
+        shift = float(np.sqrt((p_a - x) @ (p_a - x)))
+        reach = self._r_a + shift
+        if dist[-1] <= reach and self._k_query < len(pts):
+            cand = np.asarray(self._tree.query_ball_point(x, reach), dtype=np.intp)
+        else:
+            cand = idx[dist <= reach]
+        d = pts[cand] - p_a
+        d2 = np.einsum("ij,ij->i", d, d)
+        inside = d2 <= self._r_a * self._r_a
+        fp = cand[inside]
+        dn = d[inside] @ nrm
+        phi = np.exp(-self._eps2 * (d2[inside] - dn * dn))
+        self._cov[fp] += phi
+        self._cov_sum += float(phi.sum())
+        self._visits[fp] += 1.0
+
+        # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
+        if self._cov_sum > 0:
+            c_t = self._cov[self._tidx] * (1.0 / self._cov_sum)
+            s = self._p_t - c_t
+            np.maximum(s, 0.0, out=s)
+            s *= s
+            tot = float(s.sum())
+            if tot > 0:
+                s *= 1.0 / tot
+        else:
+            s = self._p_t * self._p_t
+            s *= 1.0 / float(s.sum())
+        self._s_t = s
+        coef = self._coef
+        coef *= self._decay
+        coef += s @ self._phitm_t
+        u = self._phi[nbr] @ coef
+        if self.config.source_in_potential:
+            tp = self._tpos[nbr]
+            on = tp >= 0
+            if on.any():
+                u[on] += s[tp[on]]
+
+        # Gradient on the tangent plane (eq. 32–33).
+        t1, t2 = _tangent_basis(nrm)
+        dq = pts[nbr] - p_a
+        uv = np.empty((n_n, 2))
+        uv[:, 0] = dq @ t1
+        uv[:, 1] = dq @ t2
+        w = np.exp(-self._eps2 * np.einsum("ij,ij->i", uv, uv))
+        c = _fit_cubic(uv, u - u.mean(), w)
+        g = c[1] * t1 + c[2] * t2
+        gn = float(np.sqrt(g @ g))
+        if gn > 0 and np.isfinite(gn):
+            direction = g / gn
+        else:
+            r = self._rng.normal(size=2)
+            direction = (r[0] * t1 + r[1] * t2) / float(np.hypot(r[0], r[1]))
+
+        # Agent update, back onto the surface, step clamped to v_max·dt.
+        agent = self._agents[i]
+        v = agent.command_velocity(direction, nrm)
+        x_new, n_new = self._project(patch, p_a + v * self._dt, nrm)
+        step = x_new - x
+        sl = float(np.sqrt(step @ step))
+        if sl > self._step_max:
+            step *= self._step_max / sl
+            x_new = x + step
+            sl = self._step_max
+        vel = step / self._dt
+        agent.velocity = vel - (vel @ n_new) * n_new
+        self.path_lengths[i] += sl
+        self._x[i] = x_new
+        self._normals[i] = n_new
+        u1, u2 = _tangent_basis(n_new)
+        return ExplorationCommand(x_new.copy(), vel, n_new.copy(), u1, u2, self.step_count, i)
+
+    @staticmethod
+    def _project(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p, n = patch.project(x, ref)
+        if n @ ref < 0:
+            n = -n
+        return p, n
+
+    # ------------------------------------------------------------------ read-outs
+    @property
+    def positions(self) -> np.ndarray:
+        """Agents' current points on the surface [m] (n_agents, 3)."""
+        return self._x.copy()
+
+    @property
+    def path_length(self) -> float:
+        """Total path travelled on the surface by all agents [m]."""
+        return float(self.path_lengths.sum()) if self._agents else 0.0
+
+    @property
+    def target(self) -> np.ndarray:
+        """The current target mass (N,) (unnormalised)."""
+        return self._target.copy()
+
+    @property
+    def coverage(self) -> np.ndarray:
+        """Accumulated footprint sum c̃ (N,) (eq. 3 up to the 1/(N t) factor, which normalisation removes)."""
+        self._require_state()
+        return self._cov.copy()
+
+    @property
+    def visits(self) -> np.ndarray:
+        """How many steps each point spent inside an agent's footprint disc (N,)."""
+        self._require_state()
+        return self._visits.copy()
+
+    @property
+    def potential(self) -> np.ndarray:
+        """The potential u (N,) on the cloud as the agents see it (eq. 19, plus the source)."""
+        self._require_state()
+        u = self._phi @ self._coef
+        if self.config.source_in_potential:
+            u[self._tidx] += self._s_t
+        return u
+
+    def ergodicity(self, normalize: str = "l2") -> float:
+        """Normalised ergodicity ε of eq. 48 (see :func:`tactex.ergodic.metrics.normalized_ergodicity`)."""
+        self._require_state()
+        return normalized_ergodicity(self._target, self._cov, self._mass, normalize)
+
+    def coverage_residual(self) -> float:
+        """Share of target not yet inside an agent's footprint disc (metric of the authors' code)."""
+        self._require_state()
+        return coverage_residual(self._target, self._visits)
+
+    def _require_state(self) -> None:
+        if not hasattr(self, "_cov"):
+            raise ExplorationError("the explorer has no state yet: call reset(x0) first")
+
+    def with_config(self, **changes) -> HedacExplorer:
+        """A fresh explorer on the same cloud and basis with some parameters changed."""
+        return HedacExplorer(self.cloud, self.basis, replace(self.config, **changes))
