@@ -1,0 +1,157 @@
+"""Virtual energy tanks of VA-UFIC §II-C: the force tank (eq. 37–45) and the impedance tank (eq. 55–63).
+
+Both are ports of a power-preserving Dirac structure (eq. 42, 61): the power the tank gives to
+the controller port, f_varᵀẋ, is exactly what leaves the tank, −u_t·y_t. We integrate the tank
+energy S = ½x² directly (explicit Euler on S, then x = √(2S)) so the discrete balance is exact to
+round-off, and the valve σ is reduced within a step if a draw would cross the lower limit, so
+S never goes below S_low (the singularity the paper guards against with S_low).
+
+``enabled=False`` keeps the accounting (a "shadow" tank, which may then run below its lower
+limit or negative) but opens every valve: the controller behaves as if it had no tank, which is
+what the passivity comparison needs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactex.errors import ConfigError
+
+__all__ = ["EnergyTank", "ForceTank", "ImpedanceTank", "TankStep", "smooth_fill_gate", "smooth_valve"]
+
+
+def smooth_valve(energy: float, lower: float, band: float) -> float:
+    """σ(S) of eq. 44/63: 0 at or below ``lower``, rising smoothly (cosine) to 1 at ``lower + band``."""
+    if energy <= lower:
+        return 0.0
+    if band <= 0.0 or energy >= lower + band:
+        return 1.0
+    return 0.5 * (1.0 - math.cos(math.pi * (energy - lower) / band))
+
+
+def smooth_fill_gate(energy: float, upper: float, band: float) -> float:
+    """β(S) of eq. 45/60 with the smooth κ: 1 below ``upper − band``, cosine to 0, 0 at or above ``upper``."""
+    if energy >= upper:
+        return 0.0
+    if band <= 0.0 or energy <= upper - band:
+        return 1.0
+    return 0.5 * (1.0 + math.cos(math.pi * (energy - (upper - band)) / band))
+
+
+@dataclass(frozen=True, slots=True)
+class TankStep:
+    """One tick of a tank, for tests and logs. Powers in [W], energies in [J].
+
+    port_power: f_varᵀẋ, power the tank's port delivers to the robot.
+    tank_port_power: u_t·y_t, power entering the tank through the port (= −port_power).
+    harvest_power: power stored from dissipation (β·ẋᵀDẋ, and λ·(−ẋᵀf_f) for the force tank).
+    valve: σ used this tick; gate: β used this tick; lam: λ (force tank, else 1).
+    """
+
+    port_power: float
+    tank_port_power: float
+    harvest_power: float
+    valve: float
+    gate: float
+    lam: float
+    energy: float
+
+
+class EnergyTank:
+    """State x_t, energy S_t = ½x_t², limits S_low < S_up, smooth valve and fill gate."""
+
+    def __init__(self, x0: float, upper_j: float, lower_j: float, band_j: float = 0.1, enabled: bool = True) -> None:
+        if not (np.isfinite([x0, upper_j, lower_j, band_j]).all() and 0.0 < lower_j < upper_j and band_j >= 0.0):
+            raise ConfigError(
+                f"energy tank needs 0 < lower < upper and band ≥ 0, got x0={x0}, lower={lower_j}, upper={upper_j}, "
+                f"band={band_j}"
+            )
+        if 0.5 * x0 * x0 <= lower_j:
+            raise ConfigError(f"energy tank initial state x0={x0} holds {0.5 * x0 * x0} J ≤ lower limit {lower_j} J")
+        self.x0, self.upper, self.lower = float(x0), float(upper_j), float(lower_j)
+        self.band, self.enabled = float(band_j), bool(enabled)
+        self.energy = 0.5 * self.x0 * self.x0
+        self.delivered = 0.0  # ∫ port power [J] (energy given to the robot through the port)
+        self.harvested = 0.0  # ∫ harvest power [J]
+        self.last: TankStep | None = None
+
+    def reset(self) -> None:
+        self.energy = 0.5 * self.x0 * self.x0
+        self.delivered = 0.0
+        self.harvested = 0.0
+        self.last = None
+
+    @property
+    def state(self) -> float:
+        """x_t = √(2 S_t) (0 when a disabled shadow tank ran dry)."""
+        return math.sqrt(max(2.0 * self.energy, 0.0))
+
+    def valve(self) -> float:
+        return 1.0 if not self.enabled else smooth_valve(self.energy, self.lower, self.band)
+
+    def gate(self) -> float:
+        return smooth_fill_gate(self.energy, self.upper, self.band)
+
+    def _commit(self, demand_w: float, valve: float, harvest_w: float, gate: float, lam: float, dt: float) -> float:
+        """Apply one step. ``demand_w`` is the power the port would deliver with the valve fully
+        open; returns the valve actually used (reduced so S stays ≥ S_low when enabled)."""
+        if self.enabled and demand_w > 0.0 and valve > 0.0:
+            room = self.energy - self.lower
+            if valve * demand_w * dt > room:
+                valve = max(0.0, room / (demand_w * dt))
+        port = valve * demand_w
+        harvest = max(0.0, harvest_w)
+        if harvest > 0.0:
+            harvest = min(harvest, max(0.0, (self.upper - self.energy) / dt))
+        self.energy += dt * (harvest - port)
+        self.delivered += dt * port
+        self.harvested += dt * harvest
+        self.last = TankStep(port, -port, harvest, valve, gate, lam, self.energy)
+        return valve
+
+
+class ForceTank(EnergyTank):
+    """VA-UFIC eq. 37–45. Defaults from Table I: x_t,f(0) = 2, S̄ = 2 J, S_low = 1 J."""
+
+    def __init__(self, x0: float = 2.0, upper_j: float = 2.0, lower_j: float = 1.0, band_j: float = 0.1,
+                 enabled: bool = True) -> None:
+        super().__init__(x0, upper_j, lower_j, band_j, enabled)
+
+    def step(self, xdot: np.ndarray, damping: np.ndarray, f_force: np.ndarray, dt: float) -> float:
+        """One tick. ``f_force`` is the force-control wrench that would be applied (world [f; m]);
+        returns the multiplier λ + σ(1−λ) of eq. 51/73 for it.
+
+        λ = 1 when the force controller dissipates (ẋᵀf_f < 0, eq. 38): it acts unmodified and the
+        tank stores β·(ẋᵀDẋ − ẋᵀf_f) (eq. 39). Otherwise it is routed through the tank: the port
+        force f_f,var = ω_f y_t = σ f_f (eq. 42–43 with y_t in the denominator of ω_f) and the
+        tank loses u_t y_t = −σ ẋᵀf_f.
+        """
+        p_f = float(xdot @ f_force)
+        lam = 1.0 if p_f < 0.0 else 0.0
+        gate = self.gate()
+        if lam == 1.0:
+            harvest = gate * (float(xdot @ (damping @ xdot)) - p_f)
+            self._commit(0.0, 0.0, harvest, gate, lam, dt)
+            return 1.0
+        valve = self._commit(p_f, self.valve(), 0.0, gate, lam, dt)
+        return valve
+
+
+class ImpedanceTank(EnergyTank):
+    """VA-UFIC eq. 55–63. Defaults from Table I: x_t,i(0) = 7, S̄ = 32 J, S_low = 1 J."""
+
+    def __init__(self, x0: float = 7.0, upper_j: float = 32.0, lower_j: float = 1.0, band_j: float = 0.5,
+                 enabled: bool = True) -> None:
+        super().__init__(x0, upper_j, lower_j, band_j, enabled)
+
+    def step(self, xdot: np.ndarray, damping: np.ndarray, kvar_err: np.ndarray, dt: float) -> float:
+        """One tick with ``kvar_err`` = K_var(t)·x̃ (world). Returns σ(S_t,i) of eq. 62/72: the
+        variable spring force applied is f_i,var = ω_i y_t = −σ·K_var·x̃, delivering −σ ẋᵀK_var x̃,
+        and the tank stores β·ẋᵀDẋ (eq. 57)."""
+        demand = -float(xdot @ kvar_err)
+        gate = self.gate()
+        harvest = gate * float(xdot @ (damping @ xdot))
+        return self._commit(demand, self.valve(), harvest, gate, 1.0, dt)

@@ -1,0 +1,151 @@
+"""TEC's geometric-algebra line-and-force impedance controller (TEC §IV-B, eq. 34–47).
+
+Per tick, in the tool (end-effector) frame, the frame the paper's Jacobian J_G^ee uses (eq. 42–45):
+
+1. target line L_a,⊥ through the agent point along −n (eq. 28), tool line L_ee = the tool z-axis
+   through the TCP (eq. 35);
+2. motor M from L_ee to L_a,⊥ (eq. 36, normalisation of [54]) and its logarithm V (eq. 37);
+3. V → wrench W_L (eq. 38; see :func:`tactex.geometry.twist_to_wrench` for the pairing);
+4. wrench PID on the measured F/T wrench in the tool frame (eq. 39–41);
+5. twist damping W_V (eq. 46) and τ = −J^T·(K W_L − D W_V + W_C) (eq. 47), which in numpy's
+   [linear; angular] convention is τ = J_worldᵀ · blockdiag(R, R) · (K⊙V − D⊙v_tool + w_C).
+
+Steps 2–3 are evaluated with the closed forms of :mod:`tactex.geometry.motor`, which
+``tests/test_geometry_motor.py`` checks against ``pygafro.Line.getMotor`` / ``Motor.log``; a
+pygafro round trip per tick would cost more than the whole 100 µs budget.
+
+The screw of M lies on the common perpendicular of the two lines, so its rotation has no
+component about the tool axis and, when the tool axis is parallel to the target line, its
+translation has none along it: the line term never pushes along the line, the force loop owns
+that direction (``tests/test_control_ga.py`` checks it). Moving the agent point along its line
+leaves the wrench unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.controller import Controller
+from tactex.control.references import LineForceReference
+from tactex.control.state import RobotState
+from tactex.errors import ConfigError, ControllerFault
+from tactex.geometry.motor import line_motor, motor_log, twist_to_wrench
+
+__all__ = ["GaLineForceController", "GaLineForceParams"]
+
+_EZ = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class GaLineForceParams:
+    """Gains of TEC §V-A3. The paper lists K = diag(30,30,30,750,750,300) and
+    D = diag(10,10,10,150,150,50) in gafro's twist order [e12, e13, e23, e1i, e2i, e3i], i.e.
+    angular first: 30 N·m/rad and 750/750/300 N/m; here they are split by unit."""
+
+    stiffness_linear: tuple[float, float, float] = param((750.0, 750.0, 300.0), "line stiffness, tool x/y/z [N/m]")
+    stiffness_angular: tuple[float, float, float] = param((30.0, 30.0, 30.0), "line stiffness, rotation [N·m/rad]")
+    damping_linear: tuple[float, float, float] = param((150.0, 150.0, 50.0), "twist damping, tool x/y/z [N·s/m]")
+    damping_angular: tuple[float, float, float] = param((10.0, 10.0, 10.0), "twist damping, rotation [N·m·s/rad]")
+    kp: float = param(0.5, "wrench PID proportional gain K_p,W [-]")
+    ki: float = param(5.0, "wrench PID integral gain K_i,W [1/s]")
+    kd: float = param(0.5, "wrench PID derivative gain K_d,W [s]")
+    derivative_cutoff_hz: float = param(20.0, "low-pass cut-off of the wrench-error derivative [Hz]")
+    force_axes: tuple[float, float, float, float, float, float] = param(
+        (0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
+        "wrench components the PID regulates (1) or ignores (0), tool frame [f; m]. The paper applies "
+        "scalar gains to all six; with a zero set point the tangential and moment integrators cancel "
+        "friction against the line stiffness, so by default only the pressing force is regulated",
+    )
+    integral_limit: float = param(40.0, "bound on |K_i ∫W_e| per component (anti-windup) [N or N·m]")
+    dt: float = param(1e-3, "nominal control period, used when state.t does not advance [s]")
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness_linear", "stiffness_angular", "damping_linear", "damping_angular"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
+                raise ConfigError(f"GaLineForceParams.{name} must be 3 finite values ≥ 0, got {getattr(self, name)!r}")
+        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0 or (name in ("dt", "derivative_cutoff_hz") and v == 0):
+                raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
+        axes = np.asarray(self.force_axes, dtype=float)
+        if axes.shape != (6,) or not np.isin(axes, (0.0, 1.0)).all():
+            raise ConfigError(f"GaLineForceParams.force_axes must be six 0/1 flags, got {self.force_axes!r}")
+
+
+class GaLineForceController(Controller):
+    """TEC eq. 47 on a :class:`LineForceReference`. Reference: agent point, normal, force."""
+
+    name = "ga_line_force"
+
+    def __init__(self, params: GaLineForceParams | None = None) -> None:
+        self.params = params or GaLineForceParams()
+        p = self.params
+        self._k = np.concatenate([p.stiffness_linear, p.stiffness_angular]).astype(float)
+        self._d = np.concatenate([p.damping_linear, p.damping_angular]).astype(float)
+        self._axes = np.asarray(p.force_axes, dtype=float)
+        self._integral = np.zeros(6)
+        self._err_prev = np.zeros(6)
+        self._derr = np.zeros(6)
+        self._t_prev: float | None = None
+        self._last: dict[str, float] = {}
+
+    def reset(self, state: RobotState) -> None:
+        self._integral[:] = 0.0
+        self._err_prev[:] = 0.0
+        self._derr[:] = 0.0
+        self._t_prev = None
+        self._last = {}
+
+    def line_error(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
+        """log of the motor from the tool z-line to the target line, in the tool frame, [t; ω]."""
+        rot = state.ee_rotation
+        point_tool = rot.T @ (reference.point_world - state.ee_position)
+        dir_tool = rot.T @ (-reference.normal_world)
+        m_rot, m_trans = line_motor(np.zeros(3), _EZ, point_tool, dir_tool)
+        return motor_log(m_rot, m_trans)
+
+    def line_wrench(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
+        """K·W_L (eq. 38 scaled by the stiffness), tool frame [f; m]."""
+        return self._k * twist_to_wrench(self.line_error(state, reference))
+
+    def torque(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
+        if not isinstance(reference, LineForceReference):
+            raise ControllerFault(f"{self.name} needs a LineForceReference, got {type(reference).__name__}")
+        p = self.params
+        dt = p.dt if self._t_prev is None or not (0.0 < state.t - self._t_prev < 0.1) else state.t - self._t_prev
+        first = self._t_prev is None
+        self._t_prev = state.t
+        rot = state.ee_rotation
+
+        w_line = self.line_wrench(state, reference)
+        v_tool = np.concatenate([rot.T @ state.ee_twist[:3], rot.T @ state.ee_twist[3:]])
+        w_damp = self._d * v_tool
+
+        w_des = np.array([0.0, 0.0, reference.force_n, 0.0, 0.0, 0.0])
+        err = self._axes * (w_des - state.wrench_tool)
+        lim = p.integral_limit / p.ki if p.ki > 0 else 0.0
+        self._integral = np.clip(self._integral + err * dt, -lim, lim)
+        if first:
+            self._err_prev = err
+        alpha = dt / (dt + 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz))
+        self._derr += alpha * ((err - self._err_prev) / dt - self._derr)
+        self._err_prev = err
+        w_c = p.kp * err + p.ki * self._integral + p.kd * self._derr
+
+        w_tool = w_line - w_damp + w_c
+        f_world = np.concatenate([rot @ w_tool[:3], rot @ w_tool[3:]])
+        tau = state.jacobian.T @ f_world
+        self._last = {
+            "line_offset_m": float(np.linalg.norm(w_line[:2] / np.maximum(self._k[:2], 1e-12))),
+            "line_angle_rad": float(np.linalg.norm(w_line[3:5] / np.maximum(self._k[3:5], 1e-12))),
+            "force_error_n": float(err[2]),
+            "force_cmd_n": float(w_c[2]),
+        }
+        return tau
+
+    def telemetry(self) -> dict[str, float]:
+        return dict(self._last)

@@ -1,0 +1,79 @@
+"""Reference types the controllers track: small frozen dataclasses, validated on construction."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tactex.errors import InputError
+from tactex.perception.estimate import SurfaceEstimate
+
+__all__ = ["LineForceReference", "PoseForceReference"]
+
+
+def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != shape or not np.isfinite(arr).all():
+        raise InputError(f"{name} must be a finite array of shape {shape}, got {arr!r} (shape {arr.shape})")
+    return arr
+
+
+@dataclass(frozen=True, slots=True)
+class LineForceReference:
+    """TEC reference: the line orthogonal to the surface through the agent point, and a force.
+
+    Attributes:
+        point_world: (3,) agent point on the surface P'_a [m].
+        normal_world: (3,) outward surface normal at the agent point (unit after construction).
+            The target line L_a,⊥ (TEC eq. 28) runs through ``point_world`` along
+            ``-normal_world``, i.e. along the tool z-axis when the tool presses on the surface.
+        force_n: pressing force along the tool z-axis [N], ≥ 0.
+    """
+
+    point_world: np.ndarray
+    normal_world: np.ndarray
+    force_n: float = 10.0
+
+    def __post_init__(self) -> None:
+        p = _finite("LineForceReference.point_world", self.point_world, (3,))
+        n = _finite("LineForceReference.normal_world", self.normal_world, (3,))
+        norm = float(np.linalg.norm(n))
+        if norm < 1e-9:
+            raise InputError(f"LineForceReference.normal_world must be non-zero, got {n!r}")
+        f = float(self.force_n)
+        if not np.isfinite(f) or f < 0.0:
+            raise InputError(f"LineForceReference.force_n must be a finite force ≥ 0 N, got {self.force_n!r}")
+        object.__setattr__(self, "point_world", p)
+        object.__setattr__(self, "normal_world", n / norm)
+        object.__setattr__(self, "force_n", f)
+
+
+@dataclass(frozen=True, slots=True)
+class PoseForceReference:
+    """UFIC / VA-UFIC / Cartesian-impedance reference: a TCP pose, a wrench and a twist.
+
+    Attributes:
+        position_world: (3,) desired TCP position x_d [m].
+        rotation_world: (3, 3) desired orientation world_R_tool.
+        wrench_tool: (6,) desired contact wrench f_d^ee in the tool frame [N, N·m]
+            (``[0, 0, 15, 0, 0, 0]`` presses 15 N along the tool axis).
+        twist_world: (6,) desired TCP twist [m/s, rad/s] (feed-forward for the damping term).
+        surface: latest vision estimate (VA-UFIC only; None when there is none).
+    """
+
+    position_world: np.ndarray
+    rotation_world: np.ndarray
+    wrench_tool: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    twist_world: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    surface: SurfaceEstimate | None = None
+
+    def __post_init__(self) -> None:
+        pos = _finite("PoseForceReference.position_world", self.position_world, (3,))
+        object.__setattr__(self, "position_world", pos)
+        rot = _finite("PoseForceReference.rotation_world", self.rotation_world, (3, 3))
+        if np.abs(rot @ rot.T - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) < 0.0:
+            raise InputError(f"PoseForceReference.rotation_world must be a rotation matrix, got {rot!r}")
+        object.__setattr__(self, "rotation_world", rot)
+        object.__setattr__(self, "wrench_tool", _finite("PoseForceReference.wrench_tool", self.wrench_tool, (6,)))
+        object.__setattr__(self, "twist_world", _finite("PoseForceReference.twist_world", self.twist_world, (6,)))

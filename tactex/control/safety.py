@@ -1,0 +1,217 @@
+"""The safety layer every controller runs behind: limits, NaN guard, force guard, joint limits.
+
+:class:`SafetyLayer` wraps any :class:`Controller` and is itself one. Per tick:
+
+1. non-finite state → hold (last safe command, decaying) and raise a ``nan_state`` event; a
+   non-finite F/T wrench alone is replaced by the last finite one (``nan_wrench``) so control goes on;
+2. contact force above ``max_contact_force`` for ``force_trip_ticks`` ticks → compliant retreat
+   (damping plus a small pull back along −tool z) for ``retreat_time``, then the inner controller
+   is reset from the current state and resumes (``force_limit`` / ``retreat_end`` events);
+3. the inner controller's torque; an exception or a non-finite torque → hold (``controller_fault`` /
+   ``nan_torque``);
+4. joint-limit repulsion inside ``joint_limit_margin`` of a limit (``joint_limit``);
+5. saturation to the Franka torque limits and the torque-rate limit (``torque_limit`` /
+   ``torque_rate_limit``, reported when saturation starts, counted every tick).
+
+Events are small frozen dataclasses in :attr:`SafetyLayer.events`; nothing non-finite ever leaves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.controller import Controller
+from tactex.control.state import RobotState
+from tactex.errors import ConfigError, TactexError
+
+__all__ = ["FRANKA_Q_MAX", "FRANKA_Q_MIN", "FRANKA_TAU_MAX", "SafetyEvent", "SafetyLayer", "SafetyLimits"]
+
+FRANKA_TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+FRANKA_Q_MIN = (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973)
+FRANKA_Q_MAX = (2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973)
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyEvent:
+    """One trip of the safety layer: time [s], kind, and a human-readable detail."""
+
+    t: float
+    kind: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Franka Emika limits by default."""
+
+    tau_max: tuple[float, ...] = param(FRANKA_TAU_MAX, "joint torque limits [N·m]")
+    tau_rate_max: float = param(1000.0, "joint torque-rate limit [N·m/s]")
+    q_min: tuple[float, ...] = param(FRANKA_Q_MIN, "lower joint limits [rad]")
+    q_max: tuple[float, ...] = param(FRANKA_Q_MAX, "upper joint limits [rad]")
+    joint_limit_margin: float = param(0.1, "repulsion starts this close to a joint limit [rad]")
+    joint_limit_stiffness: float = param(50.0, "repulsion stiffness inside the margin [N·m/rad]")
+    joint_limit_damping: float = param(2.0, "joint damping inside the margin [N·m·s/rad]")
+    max_contact_force: float = param(40.0, "contact force that trips the retreat [N]")
+    force_trip_ticks: int = param(3, "consecutive ticks above the force limit before tripping (sensor spikes) [-]")
+    retreat_time: float = param(0.3, "duration of the compliant retreat [s]")
+    retreat_force: float = param(5.0, "pull back along −tool z during the retreat [N]")
+    retreat_damping: float = param(60.0, "translational damping during the retreat [N·s/m]")
+    retreat_angular_damping: float = param(3.0, "rotational damping during the retreat [N·m·s/rad]")
+    hold_decay_time: float = param(0.1, "a held command decays to zero with this time constant [s]")
+    dt: float = param(1e-3, "control period [s]")
+
+    def __post_init__(self) -> None:
+        n = len(self.tau_max)
+        if len(self.q_min) != n or len(self.q_max) != n:
+            raise ConfigError(f"SafetyLimits: tau_max, q_min, q_max need the same length, got {n}, "
+                              f"{len(self.q_min)}, {len(self.q_max)}")
+        if not (np.all(np.asarray(self.tau_max) > 0) and np.all(np.asarray(self.q_max) > np.asarray(self.q_min))):
+            raise ConfigError(f"SafetyLimits: tau_max must be > 0 and q_max > q_min, got tau_max={self.tau_max}, "
+                              f"q_min={self.q_min}, q_max={self.q_max}")
+        for name in ("tau_rate_max", "max_contact_force", "dt", "retreat_time"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ConfigError(f"SafetyLimits.{name} must be finite and > 0, got {v!r}")
+        if self.force_trip_ticks < 1:
+            raise ConfigError(f"SafetyLimits.force_trip_ticks must be ≥ 1, got {self.force_trip_ticks!r}")
+
+
+class SafetyLayer(Controller):
+    """Wraps ``inner``; see the module docstring for what it guards."""
+
+    def __init__(self, inner: Controller, limits: SafetyLimits | None = None) -> None:
+        self.inner = inner
+        self.limits = limits or SafetyLimits()
+        self.name = f"safe_{inner.name}"
+        lim = self.limits
+        self._tau_max = np.asarray(lim.tau_max, dtype=float)
+        self._q_min = np.asarray(lim.q_min, dtype=float)
+        self._q_max = np.asarray(lim.q_max, dtype=float)
+        self.events: list[SafetyEvent] = []
+        self.counts: dict[str, int] = {}
+        self._tau_prev = np.zeros_like(self._tau_max)
+        self._wrench_last = np.zeros(6)
+        self._over = 0
+        self._retreat_until: float | None = None
+        self._saturating = {"torque_limit": False, "torque_rate_limit": False}
+        self._held = False
+
+    # -- bookkeeping ----------------------------------------------------------------------
+    def _event(self, t: float, kind: str, detail: str) -> None:
+        self.events.append(SafetyEvent(float(t) if np.isfinite(t) else float("nan"), kind, detail))
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+
+    def reset(self, state: RobotState) -> None:
+        self.events.clear()
+        self.counts.clear()
+        self._tau_prev = np.zeros_like(self._tau_max)
+        self._wrench_last = np.zeros(6)
+        self._over = 0
+        self._retreat_until = None
+        self._held = False
+        self.inner.reset(state)
+
+    @property
+    def retreating(self) -> bool:
+        return self._retreat_until is not None
+
+    # -- the tick ---------------------------------------------------------------------------
+    def _hold(self) -> np.ndarray:
+        lim = self.limits
+        return self._tau_prev * float(np.exp(-lim.dt / lim.hold_decay_time))
+
+    def torque(self, state: RobotState, reference: Any) -> np.ndarray:
+        lim = self.limits
+        if state.n_joints != self._tau_max.shape[0]:
+            raise ConfigError(f"SafetyLayer configured for {self._tau_max.shape[0]} joints, state has {state.n_joints}")
+        wrench = state.wrench_tool
+        if not np.isfinite(wrench).all():
+            self._event(state.t, "nan_wrench", f"non-finite F/T wrench {wrench!r}; using the last finite one")
+            state = _replace_wrench(state, self._wrench_last)
+        if not state.is_finite():
+            self._event(state.t, "nan_state", "non-finite robot state; holding the last safe command")
+            return self._finish(state, self._hold(), finite_state=False)
+        self._wrench_last = state.wrench_tool.copy()
+
+        force = float(np.linalg.norm(state.wrench_tool[:3]))
+        self._over = self._over + 1 if force > lim.max_contact_force else 0
+        if self._retreat_until is None and self._over >= lim.force_trip_ticks:
+            self._retreat_until = state.t + lim.retreat_time
+            msg = f"contact force {force:.1f} N > {lim.max_contact_force:.1f} N; retreating"
+            self._event(state.t, "force_limit", msg)
+        if self._retreat_until is not None:
+            if state.t >= self._retreat_until and self._over == 0:
+                self._retreat_until = None
+                self.inner.reset(state)
+                self._event(state.t, "retreat_end", "retreat finished; inner controller reset and resumed")
+            else:
+                return self._finish(state, self._retreat_torque(state))
+
+        try:
+            tau = np.asarray(self.inner.torque(state, reference), dtype=float)
+        except TactexError as exc:
+            self._event(state.t, "controller_fault", f"{type(exc).__name__}: {exc}")
+            return self._finish(state, self._hold())
+        if tau.shape != self._tau_max.shape or not np.isfinite(tau).all():
+            self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
+            return self._finish(state, self._hold())
+        return self._finish(state, tau)
+
+    def _retreat_torque(self, state: RobotState) -> np.ndarray:
+        lim = self.limits
+        rot = state.ee_rotation
+        f = np.concatenate([-lim.retreat_force * rot[:, 2] - lim.retreat_damping * state.ee_twist[:3],
+                            -lim.retreat_angular_damping * state.ee_twist[3:]])
+        return state.jacobian.T @ f
+
+    def _finish(self, state: RobotState, tau: np.ndarray, finite_state: bool = True) -> np.ndarray:
+        lim = self.limits
+        tau = np.array(tau, dtype=float)
+        if finite_state:
+            lo = state.q - self._q_min
+            hi = self._q_max - state.q
+            rep = np.zeros_like(tau)
+            m = lim.joint_limit_margin
+            near_lo, near_hi = lo < m, hi < m
+            if near_lo.any() or near_hi.any():
+                k, d = lim.joint_limit_stiffness, lim.joint_limit_damping
+                rep[near_lo] += k * (m - lo[near_lo]) - d * state.dq[near_lo]
+                rep[near_hi] -= k * (m - hi[near_hi]) + d * state.dq[near_hi]
+                if not self._held:
+                    joints = np.flatnonzero(near_lo | near_hi).tolist()
+                    self._event(state.t, "joint_limit", f"joints {joints} within {m} rad of a limit; repelling")
+                self._held = True
+                tau = tau + rep
+            else:
+                self._held = False
+        tau = np.where(np.isfinite(tau), tau, 0.0)
+        clipped = np.clip(tau, -self._tau_max, self._tau_max)
+        self._flag(state.t, "torque_limit", bool(np.any(clipped != tau)), "torque saturated at the joint limits")
+        step = lim.tau_rate_max * lim.dt
+        limited = np.clip(clipped, self._tau_prev - step, self._tau_prev + step)
+        self._flag(state.t, "torque_rate_limit", bool(np.any(limited != clipped)), "torque rate saturated")
+        self._tau_prev = limited
+        return limited.copy()
+
+    def _flag(self, t: float, kind: str, active: bool, detail: str) -> None:
+        if active:
+            self.counts[kind] = self.counts.get(kind, 0) + 1
+            if not self._saturating[kind]:
+                self.events.append(SafetyEvent(float(t) if np.isfinite(t) else float("nan"), kind, detail))
+        self._saturating[kind] = active
+
+    def telemetry(self) -> dict[str, float]:
+        out = dict(self.inner.telemetry())
+        out["safety_retreating"] = float(self.retreating)
+        out["safety_events"] = float(len(self.events))
+        return out
+
+
+def _replace_wrench(state: RobotState, wrench: np.ndarray) -> RobotState:
+    from dataclasses import replace
+
+    return replace(state, wrench_tool=wrench.copy())

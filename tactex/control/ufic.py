@@ -1,0 +1,138 @@
+"""Unified force-impedance control, VA-UFIC §II-A (eq. 1–13).
+
+f = −K_C(t)·x̃ − D_C·ẋ (compliance, eq. 7–9) plus the PI force controller rotated into the base
+frame (eq. 10–12), τ = Jᵀ(f_i + f_f) (eq. 13); gravity is compensated by the robot.
+
+Sign of the force error: eq. 12 prints f̃ = f_ext − f_d, which is positive feedback when f_ext is
+the contact force the robot applies (our ``wrench_tool``, f_z > 0 when pressing). We use
+f̃ = f_d − f_meas, the negative-feedback reading, so the PI drives f_meas to f_d.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.controller import Controller
+from tactex.control.references import PoseForceReference
+from tactex.control.state import RobotState
+from tactex.errors import ConfigError, ControllerFault
+from tactex.geometry.so3 import rotation_error_world
+
+__all__ = ["UficController", "UficParams"]
+
+
+@dataclass(frozen=True)
+class UficParams:
+    """Defaults from VA-UFIC Table I (K_max, damping ratio, K_p, K_i)."""
+
+    stiffness_max: tuple[float, float, float, float, float, float] = param(
+        (1000.0, 1000.0, 10.0, 200.0, 200.0, 200.0), "K_max, tool frame [N/m ×3, N·m/rad ×3]")
+    damping_ratio: tuple[float, float, float, float, float, float] = param(
+        (0.7, 0.7, 0.7, 1.0, 1.0, 1.0), "damping coefficient ζ per tool axis [-]")
+    apparent_mass: tuple[float, float, float, float, float, float] = param(
+        (3.0, 3.0, 3.0, 0.1, 0.1, 0.1), "nominal Cartesian inertia used to turn ζ into D_C [kg ×3, kg·m² ×3]")
+    damping_reference_stiffness: tuple[float, float, float, float, float, float] = param(
+        (1000.0, 1000.0, 1000.0, 200.0, 200.0, 200.0),
+        "stiffness the damping is designed for, D = 2ζ√(m·k) [N/m, N·m/rad]; K_max,z = 10 N/m would leave "
+        "the pressing direction almost undamped in free flight",
+    )
+    kp: float = param(0.6, "force PI proportional gain K_p [-]")
+    ki: float = param(0.3, "force PI integral gain K_i [1/s]")
+    force_axes: tuple[float, float, float, float, float, float] = param(
+        (0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
+        "tool-frame wrench components under force control (1) or not (0); the paper's K_p, K_i are 6×6 "
+        "identities, which with f_d = 0 tangentially would integrate friction against the stiffness",
+    )
+    integral_limit: float = param(30.0, "bound on |K_i ∫f̃| per component [N or N·m]")
+    stiffness_scale: float = param(1.0, "translational stiffness scale ρ (time-varying K_C(t) = ρ·K_max,t) [-]")
+    dt: float = param(1e-3, "nominal control period [s]")
+
+    def __post_init__(self) -> None:
+        for name in ("stiffness_max", "damping_ratio", "apparent_mass", "damping_reference_stiffness", "force_axes"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (6,) or not np.isfinite(v).all() or (v < 0).any():
+                raise ConfigError(f"UficParams.{name} must be 6 finite values ≥ 0, got {getattr(self, name)!r}")
+        for name in ("kp", "ki", "integral_limit", "dt", "stiffness_scale"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0 or (name == "dt" and v == 0):
+                raise ConfigError(f"UficParams.{name} must be finite and ≥ 0 (dt > 0), got {v!r}")
+
+    def damping_tool(self) -> np.ndarray:
+        """Diagonal of D_C in the tool frame [N·s/m ×3, N·m·s/rad ×3]."""
+        return 2.0 * np.asarray(self.damping_ratio) * np.sqrt(
+            np.asarray(self.apparent_mass) * np.asarray(self.damping_reference_stiffness))
+
+
+def rotate_diag(rot: np.ndarray, diag6: np.ndarray) -> np.ndarray:
+    """blockdiag(R, R)·diag(d)·blockdiag(R, R)ᵀ: a tool-frame diagonal gain in the world frame."""
+    out = np.zeros((6, 6))
+    out[:3, :3] = (rot * diag6[:3]) @ rot.T
+    out[3:, 3:] = (rot * diag6[3:]) @ rot.T
+    return out
+
+
+class UficController(Controller):
+    """Unified force-impedance control (eq. 1–13) on a :class:`PoseForceReference`."""
+
+    name = "ufic"
+
+    def __init__(self, params: UficParams | None = None) -> None:
+        self.params = params or UficParams()
+        self.stiffness_scale = self.params.stiffness_scale
+        self._axes = np.asarray(self.params.force_axes, dtype=float)
+        self._d_tool = self.params.damping_tool()
+        self._k_max = np.asarray(self.params.stiffness_max, dtype=float)
+        self._integral = np.zeros(6)
+        self._t_prev: float | None = None
+        self._last: dict[str, float] = {}
+
+    def reset(self, state: RobotState) -> None:
+        self._integral[:] = 0.0
+        self._t_prev = None
+        self.stiffness_scale = self.params.stiffness_scale
+        self._last = {}
+
+    # -- pieces shared with VA-UFIC -------------------------------------------------------
+    def _dt(self, state: RobotState) -> float:
+        tp = self._t_prev
+        dt = state.t - tp if tp is not None and 0.0 < state.t - tp < 0.1 else self.params.dt
+        self._t_prev = state.t
+        return dt
+
+    @staticmethod
+    def pose_error_world(state: RobotState, position_d: np.ndarray, rotation_d: np.ndarray) -> np.ndarray:
+        """x̃ = x − x_d (eq. 7) in the world frame: [position [m]; rotation vector log(R R_dᵀ) [rad]]."""
+        return np.concatenate([state.ee_position - position_d, rotation_error_world(state.ee_rotation, rotation_d)])
+
+    def force_wrench_world(self, state: RobotState, wrench_des_tool: np.ndarray, dt: float, integrate: bool = True
+                           ) -> np.ndarray:
+        """f_f of eq. 11: R·(f_d + K_p f̃ + K_i ∫f̃), f̃ = f_d − f_meas on the selected axes."""
+        p = self.params
+        err = self._axes * (wrench_des_tool - state.wrench_tool)
+        if integrate:
+            lim = p.integral_limit / p.ki if p.ki > 0 else 0.0
+            self._integral = np.clip(self._integral + err * dt, -lim, lim)
+        f_tool = self._axes * wrench_des_tool + p.kp * err + p.ki * self._integral
+        rot = state.ee_rotation
+        return np.concatenate([rot @ f_tool[:3], rot @ f_tool[3:]])
+
+    # -- controller ------------------------------------------------------------------------
+    def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
+        if not isinstance(reference, PoseForceReference):
+            raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
+        dt = self._dt(state)
+        rot = state.ee_rotation
+        x_err = self.pose_error_world(state, reference.position_world, reference.rotation_world)
+        k_tool = self._k_max.copy()
+        k_tool[:3] *= self.stiffness_scale
+        f_i = -rotate_diag(rot, k_tool) @ x_err - rotate_diag(rot, self._d_tool) @ state.ee_twist
+        f_f = self.force_wrench_world(state, reference.wrench_tool, dt)
+        self._last = {"pose_error_m": float(np.linalg.norm(x_err[:3])),
+                      "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2])}
+        return state.jacobian.T @ (f_i + f_f)
+
+    def telemetry(self) -> dict[str, float]:
+        return dict(self._last)

@@ -1,0 +1,207 @@
+"""Vision-augmented unified force-impedance control with energy tanks (VA-UFIC §II-B/C).
+
+Per tick:
+1. pose error x̃ (world) and x̃^ee (tool frame) against the effective desired pose;
+2. contact-alignment monitor C (eq. 17) from the tactile error f_extᵀx̃, the orientation error θ
+   and the curvature l_s of the latest :class:`SurfaceEstimate`; h = 1 − C/C_m (eq. 18);
+3. ρ_align dynamics (eq. 20–21); K_C,t = ρ_align R K_max,t Rᵀ (eq. 19);
+4. while ρ_align = 0 the actual translation is fed back as the desired one (the motion policy is
+   shifted to where the tool is), and if the camera sees the surface tilted w.r.t. the tool a
+   re-orientation to the surface normal starts (eq. 22–27), interpolated over T (eq. 28–29);
+5. force shaping ρ_frc (eq. 30) with margin δ_c;
+6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
+   f = −K_const x̃ − D ẋ − σ_i ρ_align K_max x̃ + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f.
+
+A missing, invalid or stale estimate (older than ``surface_max_age``) contributes θ = l_s = 0 and
+never triggers a re-orientation: the controller then runs on touch alone.
+
+Convention: ``SurfaceEstimate.normal_world`` points out of the surface (to the camera); the paper's
+n_s is the direction the tool z-axis should take, so r'_z = −normal_world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.alignment import AlignmentShaper, alignment_coefficient, contact_alignment, force_shaping
+from tactex.control.energy_tank import ForceTank, ImpedanceTank
+from tactex.control.references import PoseForceReference
+from tactex.control.state import RobotState
+from tactex.control.ufic import UficController, UficParams, rotate_diag
+from tactex.errors import ConfigError, ControllerFault
+from tactex.geometry.so3 import interpolate_rotation
+from tactex.perception.estimate import SurfaceEstimate
+
+__all__ = ["VaUficController", "VaUficParams", "desired_rotation_from_normal"]
+
+
+@dataclass(frozen=True)
+class VaUficParams:
+    """VA-UFIC Table I defaults; the UFIC gains live in ``ufic``."""
+
+    ufic: UficParams = field(default_factory=UficParams, metadata={"cli": False})
+    c_margin: float = param(0.9, "contact alignment margin C_m [-]")
+    alpha: float = param(1.0, "signal strength of the tactile error α [1/(N·m)]")
+    xi: float = param(0.08, "signal strength of the orientation error ξ [1/rad]")
+    gamma: float = param(10.0, "signal strength of the curvature γ [-]")
+    rho_min: float = param(0.001, "ρ_min of eq. 21 [1/s]")
+    delta_c: float = param(0.04, "force-shaping margin δ_c [m]")
+    stiffness_const: tuple[float, float, float, float, float, float] = param(
+        (0.0, 0.0, 0.0, 200.0, 200.0, 200.0),
+        "K_const, tool frame (eq. 56); the rotational part of K_max is kept constant (eq. 19 shapes "
+        "only the translation) [N/m ×3, N·m/rad ×3]",
+    )
+    realign_time: float = param(1.0, "T of eq. 28, duration of a re-orientation [s]")
+    realign_min_angle: float = param(math.radians(2.0), "smallest tilt that triggers a re-orientation [rad]")
+    surface_max_age: float = param(0.5, "older surface estimates are ignored [s]")
+    tanks_enabled: bool = param(True, "energy tanks on (False: plain VA-UFIC, for the passivity comparison)")
+    tank_i_x0: float = param(7.0, "x_t,i(0) [√J]")
+    tank_i_upper: float = param(32.0, "S̄_t,i [J]")
+    tank_i_lower: float = param(1.0, "S_t,i lower limit [J]")
+    tank_f_x0: float = param(2.0, "x_t,f(0) [√J]")
+    tank_f_upper: float = param(2.0, "S̄_t,f [J]")
+    tank_f_lower: float = param(1.0, "S_t,f lower limit [J]")
+
+    def __post_init__(self) -> None:
+        for name in ("c_margin", "delta_c", "realign_time"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ConfigError(f"VaUficParams.{name} must be finite and > 0, got {v!r}")
+        for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ConfigError(f"VaUficParams.{name} must be finite and ≥ 0, got {v!r}")
+        k = np.asarray(self.stiffness_const, dtype=float)
+        if k.shape != (6,) or not np.isfinite(k).all() or (k < 0).any():
+            raise ConfigError(f"VaUficParams.stiffness_const must be 6 finite values ≥ 0, got {self.stiffness_const!r}")
+
+
+def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarray) -> np.ndarray:
+    """Eq. 23–27: keep the current x-axis projected on the plane ⟂ r'_z, r'_y = r'_z × r'_x."""
+    rz = tool_z_world / np.linalg.norm(tool_z_world)
+    rx = rot_current[:, 0] - float(rot_current[:, 0] @ rz) * rz
+    n = float(np.linalg.norm(rx))
+    if n < 1e-6:  # current x-axis along the normal: fall back to the current y-axis
+        rx = rot_current[:, 1] - float(rot_current[:, 1] @ rz) * rz
+        rx = np.cross(rx, rz)
+        n = float(np.linalg.norm(rx))
+    rx = rx / n
+    return np.column_stack([rx, np.cross(rz, rx), rz])
+
+
+class VaUficController(UficController):
+    """VA-UFIC (eq. 1–73). Reference: :class:`PoseForceReference` whose ``surface`` carries the
+    latest :class:`SurfaceEstimate` (or None)."""
+
+    name = "va_ufic"
+
+    def __init__(self, params: VaUficParams | None = None) -> None:
+        self.va = params or VaUficParams()
+        super().__init__(self.va.ufic)
+        v = self.va
+        self.shaper = AlignmentShaper(v.rho_min)
+        self.tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
+        self.tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
+        self._k_const = np.asarray(v.stiffness_const, dtype=float)
+        self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
+        self._offset = np.zeros(3)
+        self._rot_d: np.ndarray | None = None
+        self._realign: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._tel: dict[str, float] = {}
+
+    def reset(self, state: RobotState) -> None:
+        super().reset(state)
+        self.shaper.reset()
+        self.tank_i.reset()
+        self.tank_f.reset()
+        self._offset = np.zeros(3)
+        self._rot_d = None
+        self._realign = None
+        self._tel = {}
+
+    def _surface(self, state: RobotState, est: SurfaceEstimate | None) -> tuple[bool, float, float, np.ndarray | None]:
+        """(usable, θ [rad], l_s, desired tool z in the world) from the latest estimate."""
+        if est is None or not est.valid or not (0.0 <= state.t - est.timestamp <= self.va.surface_max_age):
+            return False, 0.0, 0.0, None
+        n = np.asarray(est.normal_world, dtype=float)
+        ls = float(est.curvature)
+        if n.shape != (3,) or not np.isfinite(n).all() or not np.isfinite(ls) or np.linalg.norm(n) < 1e-9:
+            return False, 0.0, 0.0, None
+        z_des = -n / np.linalg.norm(n)
+        theta = math.acos(max(-1.0, min(1.0, float(state.ee_rotation[:, 2] @ z_des))))  # eq. 15, now
+        return True, theta, ls, z_des
+
+    def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
+        if not isinstance(reference, PoseForceReference):
+            raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
+        v = self.va
+        dt = self._dt(state)
+        rot = state.ee_rotation
+        if self._rot_d is None:
+            self._rot_d = reference.rotation_world.copy()
+        if self._realign is not None:  # eq. 28–29
+            t0, r_init, r_goal = self._realign
+            zeta = (state.t - t0) / v.realign_time
+            self._rot_d = interpolate_rotation(r_init, r_goal, zeta)
+            if zeta >= 1.0:
+                self._realign = None
+
+        pos_d = reference.position_world + self._offset
+        x_err = self.pose_error_world(state, pos_d, self._rot_d)
+        x_err_tool = np.concatenate([rot.T @ x_err[:3], rot.T @ x_err[3:]])
+        usable, theta, ls, z_des = self._surface(state, reference.surface)
+
+        c = contact_alignment(state.wrench_tool, x_err_tool, theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
+        h = alignment_coefficient(c, v.c_margin)  # eq. 18
+        rho_align = self.shaper.step(h, dt)  # eq. 20–21
+
+        if rho_align <= 0.0:  # fully compliant: feed the actual translation back as desired
+            self._offset = state.ee_position - reference.position_world
+            x_err[:3] = 0.0
+            x_err_tool[:3] = 0.0
+            if usable and self._realign is None:
+                tilt = math.acos(max(-1.0, min(1.0, float(self._rot_d[:, 2] @ z_des))))
+                if tilt > v.realign_min_angle:  # eq. 22–27
+                    self._realign = (state.t, self._rot_d.copy(), desired_rotation_from_normal(rot, z_des))
+
+        rho_frc = force_shaping(reference.wrench_tool, x_err_tool, v.delta_c)  # eq. 30
+        d_world = rotate_diag(rot, self._d_tool)
+        k_const = rotate_diag(rot, self._k_const)
+        kvar_err = rho_align * (rotate_diag(rot, self._k_max_t) @ x_err)  # K_var(t)·x̃, eq. 56
+        xdot = state.ee_twist
+        f_f = rho_frc * self.force_wrench_world(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
+
+        sigma_i = self.tank_i.step(xdot, d_world, kvar_err, dt)  # eq. 57–63
+        m_f = self.tank_f.step(xdot, d_world, f_f, dt)  # eq. 38–45: λ + σ_f(1 − λ)
+        f = -k_const @ x_err - d_world @ xdot - sigma_i * kvar_err + m_f * f_f  # eq. 72–73
+
+        self._tel = {
+            "rho_align": rho_align,
+            "rho_frc": rho_frc,
+            "alignment_c": c,
+            "alignment_h": h,
+            "theta_rad": theta,
+            "curvature": ls,
+            "surface_usable": float(usable),
+            "realigning": float(self._realign is not None),
+            "tank_i_energy_j": self.tank_i.energy,
+            "tank_f_energy_j": self.tank_f.energy,
+            "tank_i_state": self.tank_i.state,
+            "tank_f_state": self.tank_f.state,
+            "tank_i_valve": sigma_i,
+            "tank_f_multiplier": m_f,
+            "tank_i_delivered_j": self.tank_i.delivered,
+            "tank_f_delivered_j": self.tank_f.delivered,
+            "tank_i_harvested_j": self.tank_i.harvested,
+            "tank_f_harvested_j": self.tank_f.harvested,
+            "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2]),
+            "pose_error_m": float(np.linalg.norm(x_err[:3])),
+        }
+        return state.jacobian.T @ f
+
+    def telemetry(self) -> dict[str, float]:
+        return dict(self._tel)
