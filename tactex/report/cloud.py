@@ -1,0 +1,82 @@
+"""3-D scatter plots of a cloud coloured by per-point fields, with an agent path (PNG)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from tactex.report._validate import as_fields, as_path, as_points
+
+__all__ = ["plot_cloud"]
+
+
+def _equal_aspect(ax, points: np.ndarray) -> None:
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-6)
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+
+
+def plot_cloud(
+    points: np.ndarray,
+    fields: Mapping[str, np.ndarray] | np.ndarray | None,
+    path: str | Path,
+    *,
+    trajectory: np.ndarray | None = None,
+    title: str | None = None,
+    cmaps: Mapping[str, str] | None = None,
+    point_size: float = 2.0,
+    view: tuple[float, float] = (35.0, -60.0),
+    dpi: int = 110,
+) -> Path:
+    """One 3-D scatter panel per field (N,) of the cloud, each with the path drawn on top.
+
+    Args:
+        points: (N, 3) positions [m].
+        fields: {name: (N,) values} (a bare array is one field; None → grey cloud).
+        path: output PNG file.
+        trajectory: (T, 3) agent path [m]: black line, start green, end purple (as TEC Fig. 8).
+        title: figure title.
+        cmaps: colour map per field name (default "viridis").
+        point_size: marker size [pt²].
+        view: (elevation, azimuth) of the camera [deg].
+        dpi: resolution.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    pts = as_points(points)
+    data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
+    traj = as_path(trajectory)
+    cmaps = dict(cmaps or {})
+    n = len(data)
+    fig = Figure(figsize=(4.6 * n, 4.6), dpi=dpi)
+    FigureCanvasAgg(fig)
+    for i, (name, values) in enumerate(data.items()):
+        ax = fig.add_subplot(1, n, i + 1, projection="3d")
+        sc = ax.scatter(
+            pts[:, 0], pts[:, 1], pts[:, 2], c=values, s=point_size, cmap=cmaps.get(name, "viridis"), depthshade=False
+        )
+        if np.ptp(values) > 0:
+            fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.14)
+        if traj is not None and traj.shape[0] > 0:
+            ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=0.9)
+            ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False)
+            ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False)
+        _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
+        ax.view_init(*view)
+        ax.set_title(name)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_zlabel("z [m]")
+        ax.tick_params(labelsize=6)
+    if title:
+        fig.suptitle(title)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, format="png")
+    return out

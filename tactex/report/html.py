@@ -1,0 +1,110 @@
+"""Interactive 3-D view of a cloud (plotly HTML): colourings switchable from a menu, agent path.
+
+The plotly library is embedded in the page by default so that it opens without a network
+connection (robot PCs often have none); ``include_plotlyjs="cdn"`` writes a small file instead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from tactex.errors import ConfigError
+from tactex.report._validate import as_fields, as_path, as_points
+
+__all__ = ["cloud_html"]
+
+
+def cloud_html(
+    points: np.ndarray,
+    fields: Mapping[str, np.ndarray] | np.ndarray | None,
+    path: str | Path,
+    *,
+    trajectory: np.ndarray | None = None,
+    title: str | None = None,
+    colorscales: Mapping[str, str] | None = None,
+    point_size: float = 2.5,
+    include_plotlyjs: bool | str = True,
+) -> Path:
+    """Write an HTML page with the cloud coloured by each field (switchable) and the path.
+
+    Args:
+        points: (N, 3) positions [m].
+        fields: {name: (N,) values}; the first is shown first. None → a plain cloud.
+        path: output HTML file.
+        trajectory: (T, 3) agent path [m] (start green, end purple).
+        title: page title.
+        colorscales: plotly colour scale per field name (default "Viridis").
+        point_size: marker size [px].
+        include_plotlyjs: True (inline, works offline), "cdn", or False.
+    """
+    import plotly.graph_objects as go
+
+    if include_plotlyjs not in (True, False, "cdn"):
+        raise ConfigError(f"include_plotlyjs must be True, False or 'cdn', got {include_plotlyjs!r}")
+    pts = as_points(points)
+    data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
+    traj = as_path(trajectory)
+    scales = dict(colorscales or {})
+    names = list(data)
+    traces = []
+    for i, name in enumerate(names):
+        traces.append(
+            go.Scatter3d(
+                x=pts[:, 0],
+                y=pts[:, 1],
+                z=pts[:, 2],
+                mode="markers",
+                name=name,
+                visible=i == 0,
+                marker={
+                    "size": point_size,
+                    "color": data[name],
+                    "colorscale": scales.get(name, "Viridis"),
+                    "colorbar": {"title": {"text": name}},
+                },
+                hovertemplate=f"{name}: %{{marker.color:.4g}}<extra></extra>",
+            )
+        )
+    extra = 0
+    if traj is not None and traj.shape[0] > 0:
+        traces.append(
+            go.Scatter3d(
+                x=traj[:, 0], y=traj[:, 1], z=traj[:, 2], mode="lines", name="path", line={"color": "black", "width": 4}
+            )
+        )
+        traces.append(
+            go.Scatter3d(
+                x=traj[[0, -1], 0],
+                y=traj[[0, -1], 1],
+                z=traj[[0, -1], 2],
+                mode="markers",
+                name="start / end",
+                marker={"size": 6, "color": ["limegreen", "purple"], "line": {"color": "black", "width": 1}},
+            )
+        )
+        extra = 2
+    buttons = [
+        {
+            "label": name,
+            "method": "restyle",
+            "args": [{"visible": [j == i for j in range(len(names))] + [True] * extra}],
+        }
+        for i, name in enumerate(names)
+    ]
+    fig = go.Figure(data=traces)
+    fig.update_layout(
+        title={"text": title or ""},
+        scene={"aspectmode": "data", "xaxis_title": "x [m]", "yaxis_title": "y [m]", "zaxis_title": "z [m]"},
+        updatemenus=[{"buttons": buttons, "direction": "down", "x": 0.0, "y": 1.08, "xanchor": "left"}]
+        if len(names) > 1
+        else [],
+        margin={"l": 0, "r": 0, "t": 40, "b": 0},
+        legend={"x": 0.8, "y": 0.95},
+    )
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.write_html(str(out), include_plotlyjs=include_plotlyjs, full_html=True)
+    return out

@@ -1,0 +1,143 @@
+"""Report helpers: files are produced, well formed, and carry the data (not pixels)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+from tactex.errors import ConfigError, InputError
+from tactex.report import cloud_html, plot_cloud, plot_series, read_metrics, write_metrics
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def png_size(path) -> tuple[int, int]:
+    """(width, height) from the IHDR chunk of a PNG file."""
+    head = path.read_bytes()[:24]
+    assert head[:8] == PNG_MAGIC and head[12:16] == b"IHDR"
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
+@pytest.fixture
+def cloud(rng: np.random.Generator) -> np.ndarray:
+    return rng.random((300, 3)) * 0.1
+
+
+def test_plot_series_writes_png(tmp_path, rng: np.random.Generator) -> None:
+    out = plot_series(
+        {"ergodicity [-]": rng.random(50), "path [m]": np.cumsum(rng.random(50)), "runs": rng.random((4, 50))},
+        tmp_path / "sub" / "series.png",
+        title="demo",
+        logy=["ergodicity [-]"],
+    )
+    w, h = png_size(out)
+    # Three stacked panels: the figure is taller than a single-panel one.
+    single = plot_series({"a": [1.0, 2.0, 3.0]}, tmp_path / "single.png")
+    assert h > png_size(single)[1] and w == png_size(single)[0]
+
+
+def test_plot_series_keeps_nan_as_gap(tmp_path) -> None:
+    out = plot_series({"a": [1.0, np.nan, 3.0]}, tmp_path / "nan.png", x=[0.0, 0.5, 1.0], xlabel="time [s]")
+    assert png_size(out)[0] > 0
+
+
+@pytest.mark.parametrize(
+    ("series", "kwargs", "match"),
+    [
+        ({}, {}, "at least one"),
+        ({"a": []}, {}, "non-empty"),
+        ({"a": np.zeros((2, 2, 2))}, {}, "1-D"),
+        ({"a": [1.0, 2.0, 3.0]}, {"x": [0.0, 1.0]}, "x only 2"),
+    ],
+)
+def test_plot_series_bad_input(tmp_path, series, kwargs, match) -> None:
+    with pytest.raises(InputError, match=match):
+        plot_series(series, tmp_path / "bad.png", **kwargs)
+
+
+def test_plot_cloud_panels_and_path(tmp_path, cloud) -> None:
+    one = plot_cloud(cloud, cloud[:, 2], tmp_path / "one.png")
+    three = plot_cloud(
+        cloud,
+        {"target": cloud[:, 0] > 0.05, "coverage": cloud[:, 1], "potential": cloud[:, 2]},
+        tmp_path / "three.png",
+        trajectory=cloud[:20],
+        title="run",
+        cmaps={"target": "Reds"},
+    )
+    (w1, h1), (w3, h3) = png_size(one), png_size(three)
+    assert w3 > 2.5 * w1 and h3 == h1  # one panel per field, side by side
+    assert png_size(plot_cloud(cloud, None, tmp_path / "plain.png"))[0] == w1
+
+
+@pytest.mark.parametrize(
+    ("points", "fields", "trajectory", "match"),
+    [
+        (np.zeros((0, 3)), None, None, r"shape \(N, 3\)"),
+        (np.full((4, 3), np.nan), None, None, "NaN"),
+        (np.zeros((4, 3)), {"a": np.zeros(5)}, None, r"field 'a' must have shape \(4,\)"),
+        (np.zeros((4, 3)), None, np.zeros((3, 2)), r"trajectory must have shape \(T, 3\)"),
+        (np.zeros((4, 3)), None, np.array([[0.0, 0.0, np.nan]]), "trajectory holds NaN"),
+    ],
+)
+def test_plot_cloud_bad_input(tmp_path, points, fields, trajectory, match) -> None:
+    with pytest.raises(InputError, match=match):
+        plot_cloud(points, fields, tmp_path / "x.png", trajectory=trajectory)
+    with pytest.raises(InputError, match=match):
+        cloud_html(points, fields, tmp_path / "x.html", trajectory=trajectory, include_plotlyjs=False)
+
+
+def test_cloud_html_offline_with_data_and_menu(tmp_path, cloud) -> None:
+    fields = {"target": (cloud[:, 0] > 0.05).astype(float), "coverage": cloud[:, 1] * 7.0}
+    out = cloud_html(cloud, fields, tmp_path / "view.html", trajectory=cloud[:10], title="explore demo")
+    html = out.read_text()
+    assert html.lstrip().lower().startswith(("<html", "<!doctype html>")) and html.rstrip().endswith("</html>")
+    # Inline plotly: no network needed to open it.
+    assert "<script src=" not in html and len(html) > 1_000_000
+    assert "explore demo" in html and '"target"' in html and '"coverage"' in html and '"path"' in html
+    # The coordinates and each colouring are in the page (plotly stores them as base64 float64).
+    arrays = [
+        np.frombuffer(base64.b64decode(b.replace("\\u002f", "/")), dtype="<f8")
+        for b in re.findall(r'"dtype":"f8","bdata":"([^"]+)"', html)
+    ]
+    for expected in (cloud[:, 0], cloud[:, 2], fields["target"], fields["coverage"], cloud[:10, 1]):
+        assert any(a.shape == expected.shape and np.array_equal(a, expected) for a in arrays)
+    assert html.count('"method":"restyle"') == 2 or html.count('"method": "restyle"') == 2
+
+
+def test_cloud_html_cdn_is_small(tmp_path, cloud) -> None:
+    out = cloud_html(cloud, cloud[:, 0], tmp_path / "cdn.html", include_plotlyjs="cdn")
+    html = out.read_text()
+    assert re.search(r'<script[^>]+src="https://cdn\.plot\.ly/', html) and len(html) < 200_000
+
+
+def test_cloud_html_bad_mode(tmp_path, cloud) -> None:
+    with pytest.raises(ConfigError, match="include_plotlyjs"):
+        cloud_html(cloud, None, tmp_path / "x.html", include_plotlyjs="offline")
+
+
+def test_metrics_round_trip_with_numpy_and_nan(tmp_path) -> None:
+    metrics = {"n_points": np.int64(12), "ergodicity": np.array([0.5, 0.25]), "bad": math.nan, "cfg": {"a": 1.5}}
+    path = write_metrics(metrics, tmp_path / "m" / "metrics.json")
+    back = read_metrics(path)
+    assert back == {"n_points": 12, "ergodicity": [0.5, 0.25], "bad": None, "cfg": {"a": 1.5}}
+    json.loads(path.read_text())  # strict JSON (no NaN literal)
+    assert "NaN" not in path.read_text()
+
+
+def test_metrics_bad_input(tmp_path) -> None:
+    with pytest.raises(InputError, match="mapping"):
+        write_metrics([1, 2], tmp_path / "x.json")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="does not exist"):
+        read_metrics(tmp_path / "missing.json")
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(InputError, match="not valid JSON"):
+        read_metrics(tmp_path / "bad.json")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(InputError, match="JSON object"):
+        read_metrics(tmp_path / "list.json")
