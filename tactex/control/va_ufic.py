@@ -5,8 +5,8 @@ Per tick:
 2. contact-alignment monitor C (eq. 17) from the tactile error f_extᵀx̃, the orientation error θ
    and the curvature l_s of the latest :class:`SurfaceEstimate`; h = 1 − C/C_m (eq. 18);
 3. ρ_align dynamics (eq. 20–21); K_C,t = ρ_align R K_max,t Rᵀ (eq. 19);
-4. while ρ_align = 0 the actual translation is fed back as the desired one (the motion policy is
-   shifted to where the tool is), and if the camera sees the surface tilted w.r.t. the tool a
+4. while ρ_align ≈ 0 (below ``compliant_below``) the actual translation is fed back as the
+   desired one (the motion policy is shifted to where the tool is), and if the camera sees the surface tilted w.r.t. the tool a
    re-orientation to the surface normal starts (eq. 22–27), interpolated over T (eq. 28–29);
 5. force shaping ρ_frc (eq. 30) with margin δ_c;
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
@@ -50,6 +50,11 @@ class VaUficParams:
     gamma: float = param(10.0, "signal strength of the curvature γ [-]")
     rho_min: float = param(0.001, "ρ_min of eq. 21 [1/s]")
     delta_c: float = param(0.04, "force-shaping margin δ_c [m]")
+    compliant_below: float = param(
+        0.01,
+        "ρ_align under which the robot counts as fully compliant (the paper's ρ_align = 0): with ρ_min > 0, "
+        "eq. 20–21 settle at −ρ_min/h > 0 when misaligned and never reach 0 exactly [-]",
+    )
     stiffness_const: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 0.0, 200.0, 200.0, 200.0),
         "K_const, tool frame (eq. 56); the rotational part of K_max is kept constant (eq. 19 shapes "
@@ -71,7 +76,7 @@ class VaUficParams:
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and > 0, got {v!r}")
-        for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age"):
+        for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age", "compliant_below"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and ≥ 0, got {v!r}")
@@ -159,7 +164,7 @@ class VaUficController(UficController):
         h = alignment_coefficient(c, v.c_margin)  # eq. 18
         rho_align = self.shaper.step(h, dt)  # eq. 20–21
 
-        if rho_align <= 0.0:  # fully compliant: feed the actual translation back as desired
+        if rho_align <= v.compliant_below:  # fully compliant: feed the actual translation back as desired
             self._offset = state.ee_position - reference.position_world
             x_err[:3] = 0.0
             x_err_tool[:3] = 0.0

@@ -1,0 +1,140 @@
+"""TEC's GA line-and-force controller (eq. 34–47): line error, wrench mapping, non-interference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactex.control import GaLineForceController, GaLineForceParams, LineForceReference
+from tactex.errors import ConfigError, ControllerFault, InputError
+from tactex.geometry import Line3, exp_so3, motor_between_lines, motor_log
+from tests.test_control_common import make_state
+
+TOL = 1e-9
+DOWN = np.diag([1.0, -1.0, -1.0])  # tool z along world −z
+
+
+def _ctrl(**kw) -> GaLineForceController:
+    return GaLineForceController(GaLineForceParams(**kw))
+
+
+def test_line_error_is_the_pygafro_motor_log_in_the_tool_frame(rng):
+    rot = exp_so3(rng.normal(size=3))
+    state = make_state(position=np.array([0.4, 0.1, 0.2]), rotation=rot)
+    ref = LineForceReference(np.array([0.45, 0.05, 0.1]), rng.normal(size=3), 10.0)
+    # reference computation through pygafro: target line in the tool frame, motor from the z-axis
+    p_tool = rot.T @ (ref.point_world - state.ee_position)
+    d_tool = rot.T @ (-ref.normal_world)
+    target = Line3(p_tool, d_tool)
+    z_axis = Line3(np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    m = z_axis.to_gafro().getMotor(target.to_gafro()).toTransformationMatrix()
+    expected = motor_log(m[:3, :3], m[:3, 3])
+    np.testing.assert_allclose(_ctrl().line_error(state, ref), expected, atol=TOL)
+    rot_m, _ = motor_between_lines(z_axis, target)
+    np.testing.assert_allclose(rot_m, m[:3, :3], atol=TOL)
+
+
+def test_parallel_offset_pulls_towards_the_line_and_not_along_it():
+    state = make_state(position=np.array([0.5, 0.0, 0.3]), rotation=DOWN)
+    ref = LineForceReference(np.array([0.52, 0.01, 0.0]), np.array([0.0, 0.0, 1.0]), 0.0)
+    w = _ctrl().line_wrench(state, ref)
+    offset_tool = DOWN.T @ np.array([0.02, 0.01, 0.0])
+    np.testing.assert_allclose(w[:3], np.array([750.0, 750.0, 300.0]) * offset_tool, atol=TOL)
+    assert w[2] == pytest.approx(0.0, abs=TOL)  # nothing along the line: the force loop owns it
+    np.testing.assert_allclose(w[3:], 0.0, atol=TOL)
+
+
+def test_tilted_line_gives_no_torque_about_the_tool_axis(rng):
+    ctrl = _ctrl()
+    for _ in range(20):
+        state = make_state(rotation=exp_so3(rng.normal(size=3)))
+        ref = LineForceReference(state.ee_position + 0.05 * rng.normal(size=3), rng.normal(size=3), 5.0)
+        w = ctrl.line_wrench(state, ref)
+        assert w[5] == pytest.approx(0.0, abs=TOL)
+
+
+def test_sliding_along_the_line_does_not_change_the_line_wrench(rng):
+    """The paper's claim that tracking and pressing do not fight: the agent point may move along its
+    line, and (when aligned) the tool may move along its own axis, without any line wrench change."""
+    ctrl = _ctrl()
+    rot = exp_so3(rng.normal(size=3))
+    state = make_state(position=np.array([0.5, 0.1, 0.3]), rotation=rot)
+    n = rng.normal(size=3)
+    ref = LineForceReference(state.ee_position + 0.03 * rng.normal(size=3), n, 10.0)
+    w0 = ctrl.line_wrench(state, ref)
+    for s in (-0.2, 0.05, 0.3):
+        moved = LineForceReference(ref.point_world + s * ref.normal_world, n, 10.0)
+        np.testing.assert_allclose(ctrl.line_wrench(state, moved), w0, atol=TOL)
+    # aligned tool (z along −n) offset sideways: sliding the TCP along its axis changes nothing
+    z = -ref.normal_world
+    x = np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    aligned = np.column_stack([x, np.cross(z, x), z])
+    base = make_state(position=ref.point_world + 0.02 * x, rotation=aligned)
+    wa = ctrl.line_wrench(base, ref)
+    assert wa[2] == pytest.approx(0.0, abs=TOL)
+    for s in (-0.1, 0.07):
+        slid = make_state(position=base.ee_position + s * z, rotation=aligned)
+        np.testing.assert_allclose(ctrl.line_wrench(slid, ref), wa, atol=TOL)
+
+
+def test_torque_is_jacobian_transpose_of_the_world_wrench(rng):
+    """τ = Jᵀ·blockdiag(R,R)·(K⊙V − D⊙v + W_C): with no motion and no integrator yet, check it exactly."""
+    ctrl = _ctrl(ki=0.0, kd=0.0)
+    rot = exp_so3(rng.normal(size=3))
+    state = make_state(rotation=rot, wrench_tool=np.array([0, 0, 4.0, 0, 0, 0]), seed=7)
+    ref = LineForceReference(state.ee_position + 0.01 * rng.normal(size=3), -rot[:, 2] + 0.1 * rng.normal(size=3), 10.0)
+    tau = ctrl.torque(state, ref)
+    w_tool = ctrl.line_wrench(state, ref) + np.array([0, 0, 0.5 * (10.0 - 4.0), 0, 0, 0])
+    w_world = np.concatenate([rot @ w_tool[:3], rot @ w_tool[3:]])
+    np.testing.assert_allclose(tau, state.jacobian.T @ w_world, atol=TOL)
+
+
+def test_force_pid_presses_along_tool_z_and_integrates():
+    ctrl = _ctrl(kp=0.5, ki=5.0, kd=0.0)
+    jac = np.zeros((6, 7))
+    jac[:6, :6] = np.eye(6)
+    state = make_state(rotation=DOWN, jacobian=jac)
+    ref = LineForceReference(state.ee_position, np.array([0.0, 0.0, 1.0]), 10.0)
+    tau1 = ctrl.torque(state, ref)
+    # tool z is world −z: pressing 10 N with no measured force → world f_z = −(0.5·10 + 5·10·dt)
+    assert tau1[2] == pytest.approx(-(5.0 + 5.0 * 10.0 * 1e-3), rel=1e-9)
+    state2 = make_state(t=1e-3, rotation=DOWN, jacobian=jac)
+    tau2 = ctrl.torque(state2, ref)
+    assert tau2[2] == pytest.approx(-(5.0 + 5.0 * 10.0 * 2e-3), rel=1e-9)
+
+
+def test_damping_opposes_tool_velocity():
+    ctrl = _ctrl(kp=0.0, ki=0.0, kd=0.0)
+    jac = np.zeros((6, 7))
+    jac[:6, :6] = np.eye(6)
+    twist = np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.2])
+    state = make_state(rotation=DOWN, jacobian=jac, twist=twist)
+    ref = LineForceReference(state.ee_position, np.array([0.0, 0.0, 1.0]), 0.0)
+    tau = ctrl.torque(state, ref)
+    np.testing.assert_allclose(tau[:6], [-150 * 0.1, 0, 0, 0, 0, -10 * 0.2], atol=TOL)
+
+
+def test_wrong_reference_type_is_a_fault():
+    with pytest.raises(ControllerFault, match="LineForceReference"):
+        _ctrl().torque(make_state(), object())
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"stiffness_linear": (1.0, 2.0)}, "stiffness_linear"), ({"damping_angular": (-1.0, 0, 0)}, "damping_angular"),
+     ({"kp": float("nan")}, "kp"), ({"dt": 0.0}, "dt"), ({"force_axes": (0, 0, 2, 0, 0, 0)}, "force_axes")],
+)
+def test_params_validation(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        GaLineForceParams(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("point", "normal", "force", "match"),
+    [([0, 0, np.nan], [0, 0, 1], 1.0, "point_world"), ([0, 0, 0], [0, 0, 0], 1.0, "normal_world"),
+     ([0, 0, 0], [0, 0, 1], -1.0, "force_n"), ([0, 0, 0], [0, 1], 1.0, "normal_world")],
+)
+def test_reference_validation(point, normal, force, match):
+    with pytest.raises(InputError, match=match):
+        LineForceReference(np.asarray(point, float), np.asarray(normal, float), force)

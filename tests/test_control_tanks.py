@@ -1,0 +1,135 @@
+"""Energy tanks (VA-UFIC eq. 37–45, 55–63): Dirac power balance, valves, fill gate."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from tactex.control import ForceTank, ImpedanceTank, smooth_fill_gate, smooth_valve
+from tactex.errors import ConfigError
+
+DT = 1e-3
+BALANCE_TOL = 1e-9
+D = np.diag([50.0, 50.0, 50.0, 2.0, 2.0, 2.0])
+
+
+def _check_balance(tank, energy_before: float) -> None:
+    step = tank.last
+    # eq. 42 / 61: f_varᵀẋ + u_t y_t = 0 (power-preserving interconnection)
+    assert step.port_power + step.tank_port_power == pytest.approx(0.0, abs=BALANCE_TOL)
+    # and the tank's energy changes by exactly the port and harvest powers over the step
+    expected = DT * (step.harvest_power + step.tank_port_power)
+    assert tank.energy - energy_before == pytest.approx(expected, abs=BALANCE_TOL)
+
+
+def test_impedance_tank_balance_per_step(rng):
+    tank = ImpedanceTank()
+    for _ in range(2000):
+        xdot = rng.normal(size=6) * 0.2
+        kvar_err = rng.normal(size=6) * 20.0
+        s0 = tank.energy
+        sigma = tank.step(xdot, D, kvar_err, DT)
+        _check_balance(tank, s0)
+        # the port force is −σ K_var x̃; its power is what the tank reports as delivered
+        assert float(xdot @ (-sigma * kvar_err)) == pytest.approx(tank.last.port_power, abs=BALANCE_TOL)
+
+
+def test_force_tank_balance_per_step(rng):
+    tank = ForceTank(x0=2.0, upper_j=3.0, lower_j=1.0)
+    for _ in range(2000):
+        xdot = rng.normal(size=6) * 0.2
+        f_f = rng.normal(size=6) * 10.0
+        s0 = tank.energy
+        m = tank.step(xdot, D, f_f, DT)
+        _check_balance(tank, s0)
+        lam = 1.0 if xdot @ f_f < 0 else 0.0
+        assert tank.last.lam == lam  # eq. 38
+        if lam == 1.0:
+            assert m == 1.0 and tank.last.port_power == 0.0  # dissipating: passes unmodified, tank fills
+        else:
+            assert float(xdot @ (m * f_f)) == pytest.approx(tank.last.port_power, abs=BALANCE_TOL)
+
+
+def test_impedance_valve_closes_at_lower_limit():
+    tank = ImpedanceTank(x0=2.0, upper_j=32.0, lower_j=1.0)
+    xdot = np.array([0.1, 0, 0, 0, 0, 0])
+    kvar_err = np.array([-100.0, 0, 0, 0, 0, 0])  # stiffness pushing along the motion: drains 10 W
+    sigmas = []
+    for _ in range(20000):
+        sigmas.append(tank.step(xdot, np.zeros((6, 6)), kvar_err, DT))
+        assert tank.energy >= 1.0  # never below the lower limit, not even by one step
+    assert sigmas[0] == 1.0
+    # the smooth valve closes as S reaches S_low: the drain slows to nothing right at the limit
+    assert tank.energy - 1.0 < 2e-3 and sigmas[-1] < 0.01
+    assert all(b <= a + 1e-15 for a, b in itertools.pairwise(sigmas[1000:]))
+
+
+def test_valve_clamps_a_large_single_draw_at_the_lower_limit():
+    tank = ImpedanceTank(x0=2.0, upper_j=32.0, lower_j=1.0, band_j=0.0)  # hard valve
+    sigma = tank.step(np.array([1.0, 0, 0, 0, 0, 0]), np.zeros((6, 6)), np.array([-5000.0, 0, 0, 0, 0, 0]), DT)
+    assert tank.energy == pytest.approx(1.0, abs=1e-12)  # drew exactly the 1 J above the limit
+    assert sigma == pytest.approx(1.0 / 5.0)
+    assert tank.step(np.array([1.0, 0, 0, 0, 0, 0]), np.zeros((6, 6)), np.array([-5000.0, 0, 0, 0, 0, 0]), DT) == 0.0
+
+
+def test_force_valve_closes_at_lower_limit():
+    tank = ForceTank(x0=2.0, upper_j=2.0, lower_j=1.0)
+    xdot = np.array([0, 0, 0.2, 0, 0, 0])
+    f_f = np.array([0, 0, 15.0, 0, 0, 0])  # contact lost: force control accelerates the tool (3 W)
+    for _ in range(5000):
+        m = tank.step(xdot, np.zeros((6, 6)), f_f, DT)
+        assert tank.energy >= 1.0
+    assert m < 0.01 and tank.energy - 1.0 < 1e-3
+    assert tank.delivered == pytest.approx(2.0 - tank.energy, abs=1e-9)  # all it gave came out of the tank
+
+
+def test_fill_stops_at_upper_limit():
+    tank = ImpedanceTank(x0=7.0, upper_j=32.0, lower_j=1.0)
+    xdot = np.array([0.5, 0.5, 0, 0, 0, 0])
+    for _ in range(20000):
+        tank.step(xdot, D, np.zeros(6), DT)
+        assert tank.energy <= 32.0 + 1e-12
+    assert 32.0 - tank.energy < 1e-3  # β fades to 0 as S reaches S̄
+    assert tank.last.gate < 0.01 and tank.last.harvest_power < 0.01 * float(xdot @ D @ xdot)
+    full = ImpedanceTank(x0=8.0, upper_j=32.0, lower_j=1.0)  # ½·8² = 32 J: at the limit
+    full.step(xdot, D, np.zeros(6), DT)
+    assert full.last.gate == 0.0 and full.last.harvest_power == 0.0 and full.energy == 32.0
+
+
+def test_force_tank_table_defaults_stay_full():
+    """Table I: x_t,f(0)=2 → S = 2 J = S̄: β = 0, the tank cannot overfill (paper Fig. 3d: constant 2 J)."""
+    tank = ForceTank()
+    xdot = np.array([0, 0, -0.1, 0, 0, 0])
+    for _ in range(100):
+        assert tank.step(xdot, D, np.array([0, 0, 15.0, 0, 0, 0]), DT) == 1.0
+    assert tank.energy == pytest.approx(2.0)
+
+
+def test_disabled_tank_keeps_accounting_but_never_closes():
+    tank = ImpedanceTank(x0=2.0, enabled=False)
+    xdot = np.array([0.1, 0, 0, 0, 0, 0])
+    for _ in range(3000):
+        assert tank.step(xdot, np.zeros((6, 6)), np.array([-100.0, 0, 0, 0, 0, 0]), DT) == 1.0
+    assert tank.energy < 0.0  # the shadow tank shows the energy a real tank could not have given
+
+
+def test_smooth_valve_and_gate_shapes():
+    assert smooth_valve(1.0, 1.0, 0.1) == 0.0
+    assert smooth_valve(0.5, 1.0, 0.1) == 0.0
+    assert 0.0 < smooth_valve(1.05, 1.0, 0.1) < 1.0
+    assert smooth_valve(1.2, 1.0, 0.1) == 1.0
+    assert smooth_fill_gate(2.0, 2.0, 0.1) == 0.0
+    assert 0.0 < smooth_fill_gate(1.95, 2.0, 0.1) < 1.0
+    assert smooth_fill_gate(1.0, 2.0, 0.1) == 1.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs"),
+    [{"x0": 1.0, "upper_j": 32.0, "lower_j": 1.0}, {"x0": 7.0, "upper_j": 1.0, "lower_j": 2.0},
+     {"x0": 7.0, "upper_j": 32.0, "lower_j": 0.0}, {"x0": float("nan"), "upper_j": 32.0, "lower_j": 1.0}],
+)
+def test_tank_config_validation(kwargs):
+    with pytest.raises(ConfigError, match="energy tank"):
+        ImpedanceTank(**kwargs)
