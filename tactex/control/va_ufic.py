@@ -6,8 +6,8 @@ Per tick:
    and the curvature l_s of the latest :class:`SurfaceEstimate`; h = 1 − C/C_m (eq. 18);
 3. ρ_align dynamics (eq. 20–21); K_C,t = ρ_align R K_max,t Rᵀ (eq. 19);
 4. while ρ_align ≈ 0 (below ``compliant_below``) the actual translation is fed back as the
-   desired one (the motion policy is shifted to where the tool is), and if the camera sees the surface tilted w.r.t. the tool a
-   re-orientation to the surface normal starts (eq. 22–27), interpolated over T (eq. 28–29);
+   desired one (the motion policy is shifted to where the tool is), and if the camera sees the
+   surface tilted w.r.t. the tool a re-orientation to the surface normal starts (eq. 22–27), interpolated over T (eq. 28–29);
 5. force shaping ρ_frc (eq. 30) with margin δ_c;
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
    f = −K_const x̃ − D ẋ − σ_i ρ_align K_max x̃ + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f.
