@@ -245,6 +245,31 @@ class SurfaceEstimator:
         return r0, r1, c0, c1
 
     # ---------------------------------------------------------------- stage 2: estimation
+    def segment(self, patch: PreparedPatch) -> tuple[np.ndarray, NormalField, np.ndarray]:
+        """Normals and region growing on a prepared patch's valid points.
+
+        Returns:
+            (points (N, 3) camera frame [m], normals/curvature, labels (N,) with −1 = noise).
+        """
+        cfg = self.config
+        n_valid = patch.n_valid
+        vi, ui = np.nonzero(patch.valid)
+        points = patch.points_grid[vi, ui]
+        if cfg.neighbourhood == "grid":
+            z_med = float(np.median(points[:, 2])) if n_valid else 1.0
+            radius_px = int(np.clip(round(cfg.normal_radius_m * patch.focal_px / (z_med * patch.stride)), 1,
+                                    cfg.max_normal_radius_px))
+            field: NormalField = grid_normals(patch.points_grid, patch.valid, radius_px,
+                                              min_count=cfg.min_window_points)
+            cell = np.full(patch.valid.shape, -1, dtype=np.int64)
+            cell[vi, ui] = np.arange(n_valid)
+            footprint = patch.stride * points[:, 2] / patch.focal_px
+            edges = grid_edges(cell, points, cfg.edge_gate * np.sqrt(2.0) * footprint)
+        else:
+            field = knn_normals(points, cfg.knn_k)
+            edges = knn_edges(points, cfg.knn_k)
+        return points, field, region_growing(field.normals, field.curvature, edges, self._rg)
+
     def estimate_prepared(self, patch: PreparedPatch) -> SurfaceEstimate:
         """Normals, region growing and PCA on a prepared patch."""
         cfg = self.config
@@ -259,26 +284,11 @@ class SurfaceEstimator:
                 "the surface is too far, too small or not seen",
                 n_valid,
             )
-        vi, ui = np.nonzero(patch.valid)
-        points = patch.points_grid[vi, ui]
-        if cfg.neighbourhood == "grid":
-            z_med = float(np.median(points[:, 2]))
-            radius_px = int(np.clip(round(cfg.normal_radius_m * patch.focal_px / (z_med * patch.stride)), 1,
-                                    cfg.max_normal_radius_px))
-            field: NormalField = grid_normals(patch.points_grid, patch.valid, radius_px,
-                                              min_count=cfg.min_window_points)
-            cell = np.full(patch.valid.shape, -1, dtype=np.int64)
-            cell[vi, ui] = np.arange(n_valid)
-            footprint = patch.stride * points[:, 2] / patch.focal_px
-            edges = grid_edges(cell, points, cfg.edge_gate * np.sqrt(2.0) * footprint)
-        else:
-            if n_valid <= cfg.knn_k:
-                return SurfaceEstimate.invalid(
-                    ts, f"{n_valid} points in the region of interest are too few for {cfg.knn_k} neighbours", n_valid
-                )
-            field = knn_normals(points, cfg.knn_k)
-            edges = knn_edges(points, cfg.knn_k)
-        labels = region_growing(field.normals, field.curvature, edges, self._rg)
+        if cfg.neighbourhood == "knn" and n_valid <= cfg.knn_k:
+            return SurfaceEstimate.invalid(
+                ts, f"{n_valid} points in the region of interest are too few for {cfg.knn_k} neighbours", n_valid
+            )
+        points, _, labels = self.segment(patch)
         labelled = np.flatnonzero(labels >= 0)
         if labelled.size == 0:
             return SurfaceEstimate.invalid(
