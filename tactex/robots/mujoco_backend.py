@@ -1,0 +1,324 @@
+"""The MuJoCo robot backend: a torque-controlled Franka with wrist F/T sensor, wiping pad and
+RGB-D camera, in front of one object with dirt (see :mod:`tactex.sim`).
+
+Timing: each :meth:`MujocoBackend.step` advances 1 ms with MuJoCo's split step (``mj_step2`` then
+``mj_step1``) so that kinematics, Jacobian and mass matrix always describe the current state. The
+F/T reading is the one of the step just integrated — one tick old, like a real sensor's.
+"""
+
+from __future__ import annotations
+
+import os
+
+import mujoco
+import numpy as np
+
+from tactex.control.state import RobotState
+from tactex.errors import ControllerFault, InputError, MissingDependencyError, SimulationError
+from tactex.perception.frame import CameraFrame
+from tactex.sim.camera import RayCastCamera
+from tactex.sim.franka import FRANKA_HOME_Q
+from tactex.sim.ft_sensor import FTSensorModel
+from tactex.sim.ik import solve_site_ik
+from tactex.sim.scene import Scene, SceneConfig, build_scene
+
+__all__ = ["MujocoBackend"]
+
+_BADQACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+class MujocoBackend:
+    """:class:`~tactex.robots.backend.RobotBackend` on a MuJoCo scene.
+
+    ``apply_torque`` takes torques without gravity (the backend adds g(q), as the Franka firmware
+    does; ``SceneConfig.gravity_compensation=False`` turns that off) and clips them to the Franka
+    torque limits. ``camera_frame`` returns a new frame when one is due at ``camera_rate_hz``, else
+    None; ``render_depth`` captures one now.
+    """
+
+    n_joints = 7
+
+    def __init__(self, config: SceneConfig | None = None) -> None:
+        self.config = config or SceneConfig()
+        self.scene: Scene = build_scene(self.config)
+        self.model = self.scene.model
+        self.data = mujoco.MjData(self.model)
+        self.dt = float(self.model.opt.timestep)
+        ids = self.scene.ids
+        self._ids = ids
+        self._qadr = self.scene.arm_qpos
+        self._dadr = self.scene.arm_dof
+        # the arm comes first in the model: slices are much cheaper than fancy indexing at 1 kHz
+        if not (np.array_equal(self._qadr, np.arange(7)) and np.array_equal(self._dadr, np.arange(7))):
+            raise SimulationError("the arm joints must be the first 7 of the scene model")
+        self._arm = slice(0, 7)
+        self._limits = self.scene.torque_limits
+        self._jacp = np.zeros((3, self.model.nv))
+        self._jacr = np.zeros((3, self.model.nv))
+        self._mfull = np.zeros((self.model.nv, self.model.nv))
+        self._contact = np.zeros(6)
+        self._pad_vel = np.zeros(6)
+        tool = self.config.tool
+        mass, com = tool.calibrated_mass_properties()
+        self.ft_sensor = FTSensorModel(
+            mass, com, tool.tcp_offset_m, bias=self.config.ft_bias, noise_n=self.config.ft_noise_n,
+            noise_nm=self.config.ft_noise_nm, cutoff_hz=self.config.ft_cutoff_hz, dt_s=self.dt,
+            gravity=self.model.opt.gravity.copy(),
+        )
+        self.camera = RayCastCamera(self.model, ids["camera"], self.config.intrinsics, self.config.depth_noise_m)
+        self._renderer = None
+        self._viewer = None
+        self._state: RobotState | None = None
+        self._last_contact: tuple[float, np.ndarray | None] = (0.0, None)
+        self.reset(self.config.seed)
+
+    # -- protocol -------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, q0: np.ndarray | None = None) -> RobotState:
+        """Robot at ``q0`` (default home) at rest, object at its configured pose, dirt restored."""
+        q = FRANKA_HOME_Q if q0 is None else self._check_q(q0, "q0")
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[self._qadr] = q
+        pos, rot = self.config.object_pose()
+        self._set_object_pose(pos, rot)
+        self._rng = np.random.default_rng(self.config.seed if seed is None else seed)
+        self._tau = np.zeros(self.n_joints)
+        self.scene.dirt.reset()
+        self.ft_sensor.reset()
+        self._next_camera_t = 0.0
+        mujoco.mj_forward(m, d)
+        self._check_finite("reset")
+        self._after_tick()
+        return self.state()
+
+    def state(self) -> RobotState:
+        """The current state (computed once per tick)."""
+        if self._state is None:
+            self._state = self._make_state()
+        return self._state
+
+    def apply_torque(self, tau: np.ndarray) -> None:
+        """Command joint torques (7,) [N·m] without gravity; clipped to the torque limits."""
+        t = np.asarray(tau, dtype=float)
+        if t.shape != (self.n_joints,):
+            raise ControllerFault(f"torque command must have shape ({self.n_joints},), got {t.shape}")
+        if not np.isfinite(t).all():
+            raise ControllerFault(f"torque command holds NaN/inf: {t.tolist()}; refusing to send it to the robot")
+        self._tau = np.clip(t, -self._limits, self._limits)
+
+    def step(self) -> RobotState:
+        """Advance one control period with the last commanded torque; returns the new state."""
+        m, d = self.model, self.data
+        d.ctrl[:] = self._tau
+        if not self.config.gravity_compensation:
+            d.qfrc_applied[:] = -d.qfrc_gravcomp
+        mujoco.mj_step2(m, d)
+        self._wipe()
+        mujoco.mj_step1(m, d)
+        self._check_finite("step")
+        self._after_tick()
+        return self.state()
+
+    def camera_frame(self) -> CameraFrame | None:
+        """A new RGB-D frame when one is due at the camera rate, else None."""
+        if self.data.time + 1e-9 < self._next_camera_t:
+            return None
+        self._next_camera_t += 1.0 / self.config.camera_rate_hz
+        while self._next_camera_t <= self.data.time:
+            self._next_camera_t += 1.0 / self.config.camera_rate_hz
+        return self.render_depth()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+    # -- extras ---------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def dirt(self):
+        """The :class:`~tactex.sim.dirt.DirtField` of the object."""
+        return self.scene.dirt
+
+    def dirt_remaining(self) -> float:
+        """Ground-truth fraction of the initial dirt still on the object."""
+        return self.scene.dirt.remaining_fraction()
+
+    def render_depth(self) -> CameraFrame:
+        """Capture an RGB-D frame now (ray cast)."""
+        obj = self.scene.sim_object
+        return self.camera.capture(
+            self.data, self.time, dirt=self.scene.dirt, object_geom=self._ids["object_geom"],
+            object_body=self._ids["object_body"], object_rgb=np.asarray(obj.rgb), table_geom=self._ids["table_geom"],
+            rng=self._rng,
+        )
+
+    def object_pose(self, name: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """World position [m] and rotation of the object frame."""
+        self._check_object_name(name)
+        b = self._ids["object_body"]
+        return self.data.xpos[b].copy(), self.data.xmat[b].reshape(3, 3).copy()
+
+    def move_object(self, name: str, position: np.ndarray, rotation: np.ndarray | None = None) -> None:
+        """Move the object (its frame origin to ``position`` [m], orientation ``rotation``), e.g. to
+        simulate a surface that was bumped; the robot and the dirt are untouched."""
+        self._check_object_name(name)
+        pos = np.asarray(position, dtype=float).reshape(-1)
+        if pos.shape != (3,) or not np.isfinite(pos).all():
+            raise InputError(f"object position must be 3 finite numbers [m], got {position!r}")
+        rot = self.object_pose()[1] if rotation is None else np.asarray(rotation, dtype=float)
+        if rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+            raise InputError(f"object rotation must be a 3×3 rotation matrix, got {rotation!r}")
+        self._set_object_pose(pos, rot)
+        mujoco.mj_step1(self.model, self.data)
+        self._state = None
+
+    def pad_contact(self) -> tuple[float, np.ndarray | None]:
+        """Ground truth of the last step: total normal force of the pad on the scene [N] and the
+        force-weighted contact point in the world [m] (None without contact)."""
+        return self._last_contact
+
+    def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
+                 q_init: np.ndarray | None = None) -> np.ndarray:
+        """Joint positions (7,) putting the TCP at ``position_world`` [m] with tool orientation
+        ``rotation_world`` (3×3, optional), by damped least squares from ``q_init`` (default: the
+        current q), preferring postures near home. Does not move the robot."""
+        q_start = self.data.qpos[self._qadr].copy() if q_init is None else self._check_q(q_init, "q_init")
+        return solve_site_ik(
+            self.model, self._ids["tcp"], self._qadr, self._dadr, position_world, rotation_world, q_start,
+            FRANKA_HOME_Q,
+        )
+
+    def render_rgb(self, width: int = 640, height: int = 480, camera: str | int = -1) -> np.ndarray:
+        """An OpenGL image (H, W, 3) uint8 of the scene (needs MUJOCO_GL=egl/osmesa/glfw)."""
+        if os.environ.get("MUJOCO_GL", "") == "disable":
+            raise MissingDependencyError("an OpenGL context (MUJOCO_GL=egl or osmesa)", "dev", "GL rendering")
+        try:
+            if self._renderer is None or (self._renderer.width, self._renderer.height) != (width, height):
+                if self._renderer is not None:
+                    self._renderer.close()
+                self._renderer = mujoco.Renderer(self.model, height, width)
+            self._renderer.update_scene(self.data, camera=camera)
+            return self._renderer.render().copy()
+        except Exception as exc:  # GL back-ends fail in many ways without a GPU/display
+            self._renderer = None
+            raise MissingDependencyError("a working OpenGL context", "dev", f"GL rendering ({exc})") from exc
+
+    def launch_viewer(self):
+        """Open MuJoCo's passive viewer (needs a display); call ``viewer.sync()`` after steps."""
+        if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+            raise MissingDependencyError("a display (DISPLAY is not set)", "dev", "the interactive viewer")
+        import mujoco.viewer
+
+        self._viewer = mujoco.viewer.launch_passive(self.model, self.data)
+        return self._viewer
+
+    # -- internals ------------------------------------------------------------------------------
+    def _check_q(self, q, label: str) -> np.ndarray:
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (self.n_joints,) or not np.isfinite(q).all():
+            raise InputError(f"{label} must be {self.n_joints} finite joint angles [rad], got {q.tolist()}")
+        return q
+
+    def _check_object_name(self, name: str | None) -> None:
+        if name is not None and name not in ("object", self.scene.sim_object.name):
+            raise InputError(f"no object named '{name}' in this scene; it holds '{self.scene.sim_object.name}'")
+
+    def _set_object_pose(self, pos: np.ndarray, rot: np.ndarray) -> None:
+        mid = self._ids["object_mocap"]
+        self.data.mocap_pos[mid] = pos
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, np.asarray(rot, dtype=float).reshape(9))
+        self.data.mocap_quat[mid] = quat
+
+    def _check_finite(self, where: str) -> None:
+        d = self.data
+        bad_acc = d.warning[_BADQACC].number > 0
+        if bad_acc or not np.isfinite(d.qpos.sum() + d.qvel.sum()):
+            raise SimulationError(
+                f"the simulation diverged at t = {d.time:.4f} s ({where}): MuJoCo reported "
+                f"{'an unstable acceleration' if bad_acc else 'NaN/inf joint states'}. Hint: lower the "
+                "controller gains or the tool stiffness, or check the commanded torques."
+            )
+
+    def _after_tick(self) -> None:
+        d = self.data
+        ids = self._ids
+        a, b = ids["ft_force_adr"], ids["ft_torque_adr"]
+        self._wrench = self.ft_sensor.measure(
+            d.sensordata[a:a + 3], d.sensordata[b:b + 3], d.site_xmat[ids["ft_site"]].reshape(3, 3), self._rng
+        )
+        self._state = None
+
+    def _pad_contacts(self) -> tuple[float, np.ndarray | None, np.ndarray | None, int]:
+        """Sum of pad normal forces [N], weighted point, mean normal (world) and the other geom."""
+        m, d = self.model, self.data
+        pad = self._ids["pad_geom"]
+        total, point, normal, other = 0.0, np.zeros(3), np.zeros(3), -1
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if c.geom1 != pad and c.geom2 != pad:
+                continue
+            mujoco.mj_contactForce(m, d, i, self._contact)
+            fn = float(self._contact[0])
+            if fn <= 0:
+                continue
+            frame_n = c.frame[:3]
+            # contact normal points from geom1 to geom2; make it point from the surface to the pad
+            n = frame_n if c.geom2 == pad else -frame_n
+            total += fn
+            point += fn * c.pos
+            normal += fn * n
+            other = c.geom2 if c.geom1 == pad else c.geom1
+        if total <= 0:
+            return 0.0, None, None, -1
+        return total, point / total, normal / np.linalg.norm(normal), other
+
+    def _wipe(self) -> None:
+        force, point, normal, other = self._pad_contacts()
+        self._last_contact = (force, point)
+        if point is None or other != self._ids["object_geom"]:
+            return
+        m, d = self.model, self.data
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._ids["pad_body"], self._pad_vel, 0)
+        v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (object is at rest)
+        slip = float(np.linalg.norm(v - (v @ normal) * normal))
+        b = self._ids["object_body"]
+        point_obj = (point - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
+        self.scene.dirt.wipe(point_obj, force, slip, self.dt)
+
+    def _make_state(self) -> RobotState:
+        m, d = self.model, self.data
+        arm = self._arm
+        tcp = self._ids["tcp"]
+        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, tcp)
+        jac = np.vstack([self._jacp[:, arm], self._jacr[:, arm]])
+        mujoco.mj_fullM(m, d, self._mfull)
+        dq = d.qvel[arm].copy()
+        gravity = d.qfrc_gravcomp[arm].copy()
+        mass = self._mfull[arm, arm].copy()
+        coriolis = d.qfrc_bias[arm] - gravity
+        tau = d.qfrc_actuator[arm] + gravity if self.config.gravity_compensation else d.qfrc_actuator[arm].copy()
+        # one sum is finite iff every term is (a NaN or inf anywhere propagates)
+        if not np.isfinite(jac.sum() + mass.sum() + coriolis.sum() + tau.sum() + self._wrench.sum()):
+            raise SimulationError(f"non-finite robot state at t = {d.time:.4f} s; hint: the simulation diverged")
+        return RobotState(
+            t=float(d.time),
+            q=d.qpos[arm].copy(),
+            dq=dq,
+            tau_measured=tau,
+            ee_position=d.site_xpos[tcp].copy(),
+            ee_rotation=d.site_xmat[tcp].reshape(3, 3).copy(),
+            ee_twist=jac @ dq,
+            jacobian=jac,
+            mass_matrix=mass,
+            coriolis=coriolis,
+            gravity=gravity,
+            wrench_tool=self._wrench.copy(),
+        )
