@@ -46,6 +46,9 @@ from tactex.perception.region_growing import RegionGrowingParams, grid_edges, kn
 __all__ = ["PreparedPatch", "SurfaceEstimator", "SurfaceEstimatorConfig"]
 
 
+_AXIS_WINDOW_PX = 3  # half-width of the window read where the tool axis crosses the image
+
+
 @dataclass(frozen=True)
 class SurfaceEstimatorConfig:
     """Parameters of the surface estimator (VA-UFIC gives none; these suit a D435i on a wrist)."""
@@ -205,9 +208,25 @@ class SurfaceEstimator:
         ui, vi = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
         inside = (ui >= 0) & (ui < intr.width) & (vi >= 0) & (vi < intr.height)
         t, q, ui, vi = t[inside], q[inside], ui[inside], vi[inside]
-        d = depth[vi, ui].astype(np.float64)
+        if t.size == 0:
+            return None
+        # Real depth has holes: read the median valid depth of a small window around each pixel
+        # (once per distinct pixel; an axis parallel to the optical axis projects to one pixel).
+        pix, inverse = np.unique(np.stack([vi, ui], axis=1), axis=0, return_inverse=True)
+        w = _AXIS_WINDOW_PX
+        off = np.arange(-w, w + 1)
+        rr = np.clip(pix[:, 0, None, None] + off[None, :, None], 0, intr.height - 1)
+        cc = np.clip(pix[:, 1, None, None] + off[None, None, :], 0, intr.width - 1)
+        win = depth[rr, cc].reshape(pix.shape[0], -1).astype(np.float64)
         with np.errstate(invalid="ignore"):
-            ok = np.isfinite(d) & (d >= intr.min_depth_m) & (d <= intr.max_depth_m)
+            good = np.isfinite(win) & (win >= intr.min_depth_m) & (win <= intr.max_depth_m)
+        win[~good] = np.nan
+        has = good.any(axis=1)
+        med = np.full(pix.shape[0], np.nan)
+        if has.any():
+            med[has] = np.nanmedian(win[has], axis=1)
+        d = med[inverse.reshape(-1)]
+        ok = np.isfinite(d)
         t, q, d = t[ok], q[ok], d[ok]
         behind = q[:, 2] >= d
         if not behind.any():
