@@ -94,14 +94,24 @@ def test_force_pid_presses_along_tool_z_and_integrates():
     ctrl = _ctrl(kp=0.5, ki=5.0, kd=0.0)
     jac = np.zeros((6, 7))
     jac[:6, :6] = np.eye(6)
-    state = make_state(rotation=DOWN, jacobian=jac)
-    ref = LineForceReference(state.ee_position, np.array([0.0, 0.0, 1.0]), 10.0)
-    tau1 = ctrl.torque(state, ref)
-    # tool z is world −z: pressing 10 N with no measured force → world f_z = −(0.5·10 + 5·10·dt)
-    assert tau1[2] == pytest.approx(-(5.0 + 5.0 * 10.0 * 1e-3), rel=1e-9)
-    state2 = make_state(t=1e-3, rotation=DOWN, jacobian=jac)
-    tau2 = ctrl.torque(state2, ref)
-    assert tau2[2] == pytest.approx(-(5.0 + 5.0 * 10.0 * 2e-3), rel=1e-9)
+    w = np.array([0, 0, 4.0, 0, 0, 0])  # in contact, pressing 4 N of the 10 N wanted
+    ref = LineForceReference(np.array([0.5, 0.0, 0.3]), np.array([0.0, 0.0, 1.0]), 10.0)
+    tau1 = ctrl.torque(make_state(rotation=DOWN, jacobian=jac, wrench_tool=w), ref)
+    # tool z is world −z: error 6 N → world f_z = −(0.5·6 + 5·6·dt)
+    assert tau1[2] == pytest.approx(-(3.0 + 5.0 * 6.0 * 1e-3), rel=1e-9)
+    tau2 = ctrl.torque(make_state(t=1e-3, rotation=DOWN, jacobian=jac, wrench_tool=w), ref)
+    assert tau2[2] == pytest.approx(-(3.0 + 5.0 * 6.0 * 2e-3), rel=1e-9)
+
+
+def test_force_integrator_frozen_in_free_flight():
+    """No contact (measured force under the threshold): only K_p·F pushes; no wind-up before impact."""
+    ctrl = _ctrl(kp=0.5, ki=5.0, kd=0.0)
+    jac = np.zeros((6, 7))
+    jac[:6, :6] = np.eye(6)
+    ref = LineForceReference(np.array([0.5, 0.0, 0.3]), np.array([0.0, 0.0, 1.0]), 10.0)
+    for k in range(100):
+        tau = ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac), ref)
+    assert tau[2] == pytest.approx(-5.0, rel=1e-12)
 
 
 def test_damping_opposes_tool_velocity():

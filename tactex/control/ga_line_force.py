@@ -52,7 +52,12 @@ class GaLineForceParams:
     kp: float = param(0.5, "wrench PID proportional gain K_p,W [-]")
     ki: float = param(5.0, "wrench PID integral gain K_i,W [1/s]")
     kd: float = param(0.5, "wrench PID derivative gain K_d,W [s]")
-    derivative_cutoff_hz: float = param(20.0, "low-pass cut-off of the wrench-error derivative [Hz]")
+    derivative_cutoff_hz: float = param(
+        2.0,
+        "low-pass cut-off of the wrench-error derivative [Hz]; the F/T signal carries the tool's inertial "
+        "force, and K_d = 0.5 on a less filtered derivative destabilised the simulated Franka (20 Hz: diverged, "
+        "5 Hz: lost contact)",
+    )
     force_axes: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
         "wrench components the PID regulates (1) or ignores (0), tool frame [f; m]. The paper applies "
@@ -60,6 +65,11 @@ class GaLineForceParams:
         "friction against the line stiffness, so by default only the pressing force is regulated",
     )
     integral_limit: float = param(40.0, "bound on |K_i ∫W_e| per component (anti-windup) [N or N·m]")
+    contact_threshold_n: float = param(
+        1.0,
+        "the integrator runs only while the measured pressing force exceeds this [N]: in free flight it would "
+        "wind up (K_i·F per second) and the tool would hit the surface at speed",
+    )
     dt: float = param(1e-3, "nominal control period, used when state.t does not advance [s]")
 
     def __post_init__(self) -> None:
@@ -67,7 +77,7 @@ class GaLineForceParams:
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"GaLineForceParams.{name} must be 3 finite values ≥ 0, got {getattr(self, name)!r}")
-        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz"):
+        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "contact_threshold_n"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0 or (name in ("dt", "derivative_cutoff_hz") and v == 0):
                 raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
@@ -128,7 +138,8 @@ class GaLineForceController(Controller):
         w_des = np.array([0.0, 0.0, reference.force_n, 0.0, 0.0, 0.0])
         err = self._axes * (w_des - state.wrench_tool)
         lim = p.integral_limit / p.ki if p.ki > 0 else 0.0
-        self._integral = np.clip(self._integral + err * dt, -lim, lim)
+        if state.wrench_tool[2] >= p.contact_threshold_n:
+            self._integral = np.clip(self._integral + err * dt, -lim, lim)
         if first:
             self._err_prev = err
         alpha = dt / (dt + 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz))

@@ -56,7 +56,8 @@ class SafetyLimits:
     joint_limit_stiffness: float = param(50.0, "repulsion stiffness inside the margin [N·m/rad]")
     joint_limit_damping: float = param(2.0, "joint damping inside the margin [N·m·s/rad]")
     max_contact_force: float = param(40.0, "contact force that trips the retreat [N]")
-    force_trip_ticks: int = param(3, "consecutive ticks above the force limit before tripping (sensor spikes) [-]")
+    force_trip_ticks: int = param(
+        10, "consecutive ticks above the force limit before tripping: impacts and sensor glitches last less [-]")
     retreat_time: float = param(0.3, "duration of the compliant retreat [s]")
     retreat_force: float = param(5.0, "pull back along −tool z during the retreat [N]")
     retreat_damping: float = param(60.0, "translational damping during the retreat [N·s/m]")

@@ -7,7 +7,8 @@ Per tick:
 3. ρ_align dynamics (eq. 20–21); K_C,t = ρ_align R K_max,t Rᵀ (eq. 19);
 4. while ρ_align ≈ 0 (below ``compliant_below``) the actual translation is fed back as the
    desired one (the motion policy is shifted to where the tool is), and if the camera sees the
-   surface tilted w.r.t. the tool a re-orientation to the surface normal starts (eq. 22–27), interpolated over T (eq. 28–29);
+   surface tilted w.r.t. the tool a re-orientation to the surface normal starts (eq. 22–27),
+   interpolated over T (eq. 28–29);
 5. force shaping ρ_frc (eq. 30) with margin δ_c;
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
    f = −K_const x̃ − D ẋ − σ_i ρ_align K_max x̃ + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f.
@@ -49,6 +50,7 @@ class VaUficParams:
     xi: float = param(0.08, "signal strength of the orientation error ξ [1/rad]")
     gamma: float = param(10.0, "signal strength of the curvature γ [-]")
     rho_min: float = param(0.001, "ρ_min of eq. 21 [1/s]")
+    rho_align_initial: float = param(0.0, "ρ_align(0) (the paper starts compliant: 0) [-]")
     delta_c: float = param(0.04, "force-shaping margin δ_c [m]")
     compliant_below: float = param(
         0.01,
@@ -80,6 +82,8 @@ class VaUficParams:
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and ≥ 0, got {v!r}")
+        if not 0.0 <= self.rho_align_initial <= 1.0:
+            raise ConfigError(f"VaUficParams.rho_align_initial must be in [0, 1], got {self.rho_align_initial!r}")
         k = np.asarray(self.stiffness_const, dtype=float)
         if k.shape != (6,) or not np.isfinite(k).all() or (k < 0).any():
             raise ConfigError(f"VaUficParams.stiffness_const must be 6 finite values ≥ 0, got {self.stiffness_const!r}")
@@ -108,7 +112,7 @@ class VaUficController(UficController):
         self.va = params or VaUficParams()
         super().__init__(self.va.ufic)
         v = self.va
-        self.shaper = AlignmentShaper(v.rho_min)
+        self.shaper = AlignmentShaper(v.rho_min, v.rho_align_initial)
         self.tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
         self.tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
         self._k_const = np.asarray(v.stiffness_const, dtype=float)
