@@ -24,7 +24,11 @@ from tactex.sim.scene import Scene, SceneConfig, build_scene
 
 __all__ = ["MujocoBackend"]
 
-_BADQACC = int(mujoco.mjtWarning.mjWARN_BADQACC)
+_BAD = {
+    int(mujoco.mjtWarning.mjWARN_BADQACC): "an unstable acceleration",
+    int(mujoco.mjtWarning.mjWARN_BADQVEL): "NaN/huge joint velocities",
+    int(mujoco.mjtWarning.mjWARN_BADQPOS): "NaN/huge joint positions",
+}
 
 
 class MujocoBackend:
@@ -87,7 +91,7 @@ class MujocoBackend:
         self.ft_sensor.reset()
         self._next_camera_t = 0.0
         mujoco.mj_forward(m, d)
-        self._check_finite("reset")
+        self._check_finite("reset", 0.0)
         self._after_tick()
         return self.state()
 
@@ -112,10 +116,11 @@ class MujocoBackend:
         d.ctrl[:] = self._tau
         if not self.config.gravity_compensation:
             d.qfrc_applied[:] = -d.qfrc_gravcomp
+        t_before = float(d.time)
         mujoco.mj_step2(m, d)
         self._wipe()
         mujoco.mj_step1(m, d)
-        self._check_finite("step")
+        self._check_finite("step", t_before + self.dt)
         self._after_tick()
         return self.state()
 
@@ -237,14 +242,15 @@ class MujocoBackend:
         mujoco.mju_mat2Quat(quat, np.asarray(rot, dtype=float).reshape(9))
         self.data.mocap_quat[mid] = quat
 
-    def _check_finite(self, where: str) -> None:
+    def _check_finite(self, where: str, t: float) -> None:
         d = self.data
-        bad_acc = d.warning[_BADQACC].number > 0
-        if bad_acc or not np.isfinite(d.qpos.sum() + d.qvel.sum()):
+        # MuJoCo resets the data itself when it detects a blow-up, so its warnings are the evidence
+        bad = [what for code, what in _BAD.items() if d.warning[code].number > 0]
+        if bad or not np.isfinite(d.qpos.sum() + d.qvel.sum()):
             raise SimulationError(
-                f"the simulation diverged at t = {d.time:.4f} s ({where}): MuJoCo reported "
-                f"{'an unstable acceleration' if bad_acc else 'NaN/inf joint states'}. Hint: lower the "
-                "controller gains or the tool stiffness, or check the commanded torques."
+                f"the simulation diverged at t = {t:.4f} s ({where}): MuJoCo reported "
+                f"{', '.join(bad) or 'NaN/inf joint states'}. Hint: lower the controller gains or the tool "
+                "stiffness, or check the commanded torques."
             )
 
     def _after_tick(self) -> None:
@@ -256,11 +262,13 @@ class MujocoBackend:
         )
         self._state = None
 
-    def _pad_contacts(self) -> tuple[float, np.ndarray | None, np.ndarray | None, int]:
-        """Sum of pad normal forces [N], weighted point, mean normal (world) and the other geom."""
+    def _pad_contacts(self) -> tuple[float, np.ndarray | None, float, np.ndarray | None, np.ndarray | None]:
+        """Pad contacts of the last step: total normal force [N] and force-weighted point (world),
+        and the same for the object only, with its mean normal (pointing from the surface to the pad)."""
         m, d = self.model, self.data
-        pad = self._ids["pad_geom"]
-        total, point, normal, other = 0.0, np.zeros(3), np.zeros(3), -1
+        pad, obj = self._ids["pad_geom"], self._ids["object_geom"]
+        total, point = 0.0, np.zeros(3)
+        f_obj, p_obj, n_obj = 0.0, np.zeros(3), np.zeros(3)
         for i in range(d.ncon):
             c = d.contact[i]
             if c.geom1 != pad and c.geom2 != pad:
@@ -269,28 +277,31 @@ class MujocoBackend:
             fn = float(self._contact[0])
             if fn <= 0:
                 continue
-            frame_n = c.frame[:3]
-            # contact normal points from geom1 to geom2; make it point from the surface to the pad
-            n = frame_n if c.geom2 == pad else -frame_n
             total += fn
             point += fn * c.pos
-            normal += fn * n
-            other = c.geom2 if c.geom1 == pad else c.geom1
+            if obj in (c.geom1, c.geom2):
+                # the contact normal points from geom1 to geom2
+                n = c.frame[:3] if c.geom2 == pad else -c.frame[:3]
+                f_obj += fn
+                p_obj += fn * c.pos
+                n_obj += fn * n
         if total <= 0:
-            return 0.0, None, None, -1
-        return total, point / total, normal / np.linalg.norm(normal), other
+            return 0.0, None, 0.0, None, None
+        if f_obj <= 0:
+            return total, point / total, 0.0, None, None
+        return total, point / total, f_obj, p_obj / f_obj, n_obj / np.linalg.norm(n_obj)
 
     def _wipe(self) -> None:
-        force, point, normal, other = self._pad_contacts()
-        self._last_contact = (force, point)
-        if point is None or other != self._ids["object_geom"]:
+        total, point, force, point_w, normal = self._pad_contacts()
+        self._last_contact = (total, point)
+        if point_w is None:
             return
         m, d = self.model, self.data
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._ids["pad_body"], self._pad_vel, 0)
-        v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (object is at rest)
+        v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (the object is at rest)
         slip = float(np.linalg.norm(v - (v @ normal) * normal))
         b = self._ids["object_body"]
-        point_obj = (point - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
+        point_obj = (point_w - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
         self.scene.dirt.wipe(point_obj, force, slip, self.dt)
 
     def _make_state(self) -> RobotState:

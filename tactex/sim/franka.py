@@ -23,6 +23,7 @@ __all__ = [
     "FrankaLink",
     "franka_arm_xml",
     "franka_links",
+    "gafro_comparison_xml",
     "gafro_hand_payload",
     "gafro_robot",
     "mat_to_quat",
@@ -119,7 +120,7 @@ def base_link_inertial() -> tuple[float, np.ndarray, np.ndarray]:
     return float(link.getMass()), com, _inertia_tensor(link)
 
 
-def gafro_hand_payload() -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+def gafro_hand_payload(include_fingers: bool = True) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """pygafro's gripper as a rigid payload on the flange: mass [kg], centre of mass (3,) [m] and
     inertia at the centre of mass (3, 3) in flange axes, and flange_T_tcp (4, 4) of pygafro's
     end effector (fingers included, at their zero position). Used to compare with pygafro."""
@@ -129,7 +130,8 @@ def gafro_hand_payload() -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     parts = []
     hand = system.getLink("panda_hand")
     parts.append((hand_joint, hand))
-    for fj, fl in (("panda_finger_joint1", "panda_leftfinger"), ("panda_finger_joint2", "panda_rightfinger")):
+    fingers = (("panda_finger_joint1", "panda_leftfinger"), ("panda_finger_joint2", "panda_rightfinger"))
+    for fj, fl in fingers if include_fingers else ():
         frame = hand_joint @ np.array(system.getJoint(fj).getFrame().toTransformationMatrix())
         parts.append((frame, system.getLink(fl)))
     total = sum(float(link.getMass()) for _, link in parts)
@@ -225,3 +227,20 @@ def franka_arm_xml(
         f"{flange_children}</body>"
     )
     return head + body + flange + tail
+
+
+def gafro_comparison_xml(*, include_fingers: bool = True) -> str:
+    """MJCF of the bare arm carrying pygafro's gripper as a rigid payload, with a site ``ee`` at
+    pygafro's end effector: the model whose kinematics and dynamics must equal pygafro's."""
+    mass, com, inertia, flange_t_ee = gafro_hand_payload(include_fingers=include_fingers)
+    children = (
+        f'<body name="hand">{_inertial_xml(mass, com, inertia)}'
+        f'<site name="ee" pos="{_fmt(flange_t_ee[:3, 3])}" quat="{_fmt(mat_to_quat(flange_t_ee[:3, :3]))}"/></body>'
+    )
+    arm = franka_arm_xml(children, gravcomp=False)
+    return (
+        '<mujoco model="franka_gafro"><compiler angle="radian" autolimits="true"/>'
+        '<option timestep="0.001" gravity="0 0 -9.81"/>'
+        '<default><default class="arm_visual"><geom contype="0" conaffinity="0" density="0"/></default></default>'
+        f"<worldbody>{arm}</worldbody></mujoco>"
+    )

@@ -206,7 +206,7 @@ def _bumps_height(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def _register_builtins() -> None:
-    register_object(SimObject("plane", SURFACES["plane"], marking="blobs"))
+    register_object(SimObject("plane", SURFACES["plane"], lift_m=0.01, marking="blobs"))
     register_object(SimObject("tilted_plane", SURFACES["plane"], intrinsic_rpy_deg=(15.0, 0.0, 0.0), lift_m=0.05,
                               marking="blobs"))
     register_object(SimObject("sine_panel", SURFACES["sine_panel"], rgb=(0.8, 0.8, 0.78), marking="full"))
