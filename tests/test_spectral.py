@@ -184,6 +184,7 @@ def test_cache_round_trip(tmp_path, patch_cloud, monkeypatch: pytest.MonkeyPatch
     np.testing.assert_array_equal(second.evals, first.evals)
     np.testing.assert_array_equal(second.L.toarray(), first.L.toarray())
     assert second.spacing == first.spacing and second.key == first.key and second.n_neighbors == 30
+    assert second.from_cache and not first.from_cache
 
 
 def test_cache_key_depends_on_points_and_parameters(tmp_path, patch_cloud) -> None:

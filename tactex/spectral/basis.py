@@ -34,6 +34,7 @@ class LaplaceBasis:
         key: content hash of the points and parameters (the cache file name).
         mollify_factor: robust_laplacian's mollification.
         n_components: connected parts of the cloud as the Laplacian sees them (TEC §VI-D).
+        from_cache: True when the basis was read from a cache file rather than computed.
     """
 
     L: sp.csr_matrix
@@ -46,6 +47,7 @@ class LaplaceBasis:
     key: str
     mollify_factor: float = 1e-5
     n_components: int = 1
+    from_cache: bool = False
 
     def __post_init__(self) -> None:
         for name in ("mass", "evals", "evecs"):
@@ -165,6 +167,7 @@ def load_basis(path: str | Path, expected_key: str | None = None) -> LaplaceBasi
             key=key,
             mollify_factor=float(a["mollify_factor"]),
             n_components=int(a["n_components"]),
+            from_cache=True,
         )
     except KeyError as exc:
         raise CacheError(f"basis cache file '{p}' lacks the array {exc}; delete it") from exc

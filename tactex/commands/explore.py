@@ -1,0 +1,60 @@
+"""``tactex explore CLOUD --out DIR``: ergodic exploration of a cloud file or a built-in object."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tactex.config import add_dataclass_arguments, dataclass_from_args
+
+NAME = "explore"
+HELP = "explore a point cloud (file or built-in object) with spectral HEDAC and write metrics and plots"
+
+# Explorer fields that ExploreConfig already exposes under the names of the TEC experiments.
+_SHARED = ("alpha", "n_eigen", "agent_radius_m", "max_velocity", "seed")
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    from tactex.ergodic import HedacConfig
+    from tactex.experiments.explore import ExploreConfig
+    from tactex.pointcloud.shapes import surface_names
+
+    parser.add_argument(
+        "cloud",
+        metavar="CLOUD",
+        help=f"a .ply/.pcd/.npz file, or a built-in object: {', '.join(surface_names())}",
+    )
+    parser.add_argument("--out", required=True, metavar="DIR", help="run directory for metrics, trajectory and plots")
+    add_dataclass_arguments(parser, ExploreConfig)
+    parser.add_argument(
+        "--x0",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        default=None,
+        help=ExploreConfig.__dataclass_fields__["x0"].metadata["help"],
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    group = parser.add_argument_group("explorer (advanced)", "further HEDAC parameters (TEC Table II)")
+    add_dataclass_arguments(group, HedacConfig, skip=_SHARED)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tactex.ergodic import HedacConfig
+    from tactex.experiments.explore import ExploreConfig, run_explore
+
+    cfg = dataclass_from_args(ExploreConfig, args, x0=tuple(args.x0) if args.x0 is not None else None)
+    hedac = dataclass_from_args(HedacConfig, args)
+
+    def progress(msg: str) -> None:
+        print(f"tactex explore: {msg}", file=sys.stderr, flush=True)
+
+    result = run_explore(args.cloud, args.out, cfg, hedac=hedac, progress=None if args.quiet else progress)
+    m = result.metrics
+    print(
+        f"{m['n_points']} points, {m['n_target']} target; preprocessing {m['preprocess_time_s']:.3f} s; "
+        f"step median {m['step_time_median_s'] * 1e3:.3f} ms; after {len(result.trajectory)} steps: "
+        f"ergodicity {m['final_ergodicity']:.4f}, coverage residual {m['final_coverage_residual']:.4f}, "
+        f"path {m['final_path_length_m']:.3f} m; report in {result.out_dir}"
+    )
+    return 0

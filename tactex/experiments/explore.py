@@ -1,0 +1,357 @@
+"""`tactex explore`: kinematic ergodic exploration of one cloud, with metrics and plots (TEC §V-B).
+
+The run follows the paper's simulated experiments: voxelise the cloud (3 mm), take the target
+from the red channel (or draw a marking on a built-in object), build the Laplace basis once,
+then step the HEDAC explorer kinematically and record the normalised ergodicity (eq. 48), the
+coverage residual and the path length after every step.
+
+Outputs in the run directory: ``metrics.json``, ``trajectory.npy`` (steps × 3 [m]),
+``fields.npz`` (points, target, coverage, potential), ``metrics.png``, ``cloud.png`` and
+``explore.html`` (interactive, works offline).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param, to_jsonable
+from tactex.errors import ConfigError, ExplorationError, InputError
+from tactex.pointcloud import SurfaceCloud, load_cloud, target_from_channel, voxel_down_sample
+from tactex.pointcloud.io import SUPPORTED_SUFFIXES
+from tactex.pointcloud.markings import marked_cloud, marking_names
+from tactex.pointcloud.shapes import get_surface, surface_names
+
+__all__ = [
+    "DEFAULT_MARKINGS",
+    "TARGET_CHANNELS",
+    "ExploreConfig",
+    "ExploreResult",
+    "load_explore_cloud",
+    "run_explore",
+]
+
+#: TEC §V-C marks its plate with shapes, its bowl with 'RLI' and its cup with an 'X'.
+DEFAULT_MARKINGS = {"plate": "shapes", "bowl": "RLI", "cup": "X"}
+#: Where the target comes from for a cloud file.
+TARGET_CHANNELS = ("auto", "red", "green", "blue", "stored", "all")
+#: TEC §V-B: r_a = 15 mm on the (larger) plate, 7.5 mm on the cup and the bunny.
+PLATE_AGENT_RADIUS_M = 0.015
+AGENT_RADIUS_M = 0.0075
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class ExploreConfig:
+    """One exploration run; defaults are TEC's (§V-B, Table II, Fig. 11: K = 200, α = 10)."""
+
+    voxel_size: float = param(0.003, "voxel edge of the down-sampling (sampling spacing of built-ins); 0 = none [m]")
+    n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion (TEC eq. 19) [-]")
+    n_neighbors: int = param(30, "neighbours of the Laplacian; decides which parts connect (TEC §VI-D) [-]")
+    alpha: float = param(10.0, "diffusion scale α of δt = α h² (TEC eq. 21) [-]")
+    steps: int = param(1000, "exploration steps [-]")
+    agent_radius: float | None = param(
+        None, "agent footprint radius r_a; default 15 mm on plates, 7.5 mm otherwise (TEC §V-B) [m]"
+    )
+    max_velocity: float = param(1.0, "agent speed limit (Table II: 3 mm/s at 3 mm voxels) [voxels/step]")
+    x0: tuple[float, float, float] | None = param(
+        None,
+        "start position; default: the authors' start #seed mod 10 when <cloud>_x0_arr_10.npz lies beside "
+        "the file, else a cloud point drawn with the seed [m]",
+        cli=False,
+    )
+    seed: int = param(0, "seed of the start position and of the explorer [-]")
+    target_channel: str = param(
+        "auto",
+        "target of a cloud file: auto (red channel if coloured, else the stored target), red, green, blue, "
+        "stored, or all (the whole surface)",
+    )
+    target_threshold: float = param(1.0, "colour level marking the target, 0–1 (TEC: red = 255 → 1.0) [-]")
+    marking: str | None = param(None, "drawn target of a built-in object (default: plate shapes, bowl RLI, else X)")
+    cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
+    html: bool = param(True, "write the interactive explore.html (inline plotly, ~5 MB)")
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.voxel_size) or self.voxel_size < 0:
+            raise ConfigError(f"voxel_size must be ≥ 0 m (0 = keep the cloud), got {self.voxel_size}")
+        if self.voxel_size > 0.1:
+            raise ConfigError(f"voxel_size = {self.voxel_size} m is larger than 10 cm; it is in metres (0.003 = 3 mm)")
+        for name in ("steps", "n_eigen", "n_neighbors"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+        if not math.isfinite(self.alpha) or self.alpha <= 0:
+            raise ConfigError(f"alpha must be a positive number, got {self.alpha}")
+        if not math.isfinite(self.max_velocity) or self.max_velocity <= 0:
+            raise ConfigError(f"max_velocity must be a positive number of voxels per step, got {self.max_velocity}")
+        if self.agent_radius is not None and (not math.isfinite(self.agent_radius) or not 0 < self.agent_radius <= 1):
+            raise ConfigError(
+                f"agent_radius must be a positive number of metres (0.0075 = 7.5 mm), got {self.agent_radius}"
+            )
+        if self.x0 is not None:
+            x0 = np.asarray(self.x0, dtype=float)
+            if x0.shape != (3,) or not np.isfinite(x0).all():
+                raise ConfigError(f"x0 must be three finite coordinates [m], got {self.x0!r}")
+        if self.target_channel not in TARGET_CHANNELS:
+            raise ConfigError(f"unknown target channel '{self.target_channel}'; valid: {', '.join(TARGET_CHANNELS)}")
+        if not 0.0 <= self.target_threshold <= 1.0:
+            raise ConfigError(f"target_threshold must lie in [0, 1], got {self.target_threshold}")
+        if self.marking is not None and self.marking not in marking_names():
+            raise ConfigError(f"unknown marking '{self.marking}'; valid: {', '.join(marking_names())}")
+
+
+@dataclass
+class ExploreResult:
+    """What a run produced: the metrics written to ``metrics.json`` and the files."""
+
+    out_dir: Path
+    metrics: dict[str, Any]
+    trajectory: np.ndarray
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def _is_file_source(source: str) -> bool:
+    p = Path(source)
+    return p.suffix.lower() in SUPPORTED_SUFFIXES or p.exists() or "/" in source or "\\" in source
+
+
+def _target_from_file_cloud(cloud: SurfaceCloud, cfg: ExploreConfig, source: str) -> SurfaceCloud:
+    channel = cfg.target_channel
+    if channel == "all":
+        return cloud.with_target(np.ones(len(cloud)))
+    if channel == "auto":
+        channel = "red" if cloud.colors is not None else "stored"
+    if channel == "stored":
+        if cloud.n_target == 0:
+            raise InputError(
+                f"'{source}' carries no target (no colours, no non-zero 'target' array); mark the target in red, "
+                "or pass --target-channel all to explore the whole surface"
+            )
+        return cloud
+    if cloud.colors is None:
+        raise InputError(f"'{source}' has no colours, so --target-channel {channel} cannot select a target")
+    marked = target_from_channel(cloud, channel, cfg.target_threshold)
+    if marked.n_target == 0:
+        raise InputError(
+            f"no point of '{source}' has {channel} ≥ {cfg.target_threshold:g} (after {cfg.voxel_size * 1e3:g} mm "
+            "voxels); lower --target-threshold, choose another --target-channel, or use --target-channel all"
+        )
+    return marked
+
+
+def load_explore_cloud(source: str | Path, cfg: ExploreConfig) -> tuple[SurfaceCloud, dict[str, Any]]:
+    """The cloud to explore, with its target, and a description of where it came from.
+
+    ``source`` is a .ply/.pcd/.npz file (voxelised at ``cfg.voxel_size``, target by
+    ``cfg.target_channel``) or a built-in object name (sampled at ``cfg.voxel_size`` with a marking).
+    """
+    src = str(source)
+    if src in surface_names():
+        if cfg.voxel_size <= 0:
+            raise ConfigError("a built-in object needs voxel_size > 0: it is its sampling spacing [m]")
+        marking = cfg.marking or DEFAULT_MARKINGS.get(src, "X")
+        cloud = marked_cloud(get_surface(src), marking, spacing_m=cfg.voxel_size)
+        if cloud.n_target == 0:
+            raise InputError(f"the marking '{marking}' leaves no target point on '{src}' at {cfg.voxel_size} m spacing")
+        return cloud, {"kind": "builtin", "name": src, "marking": marking}
+    if not _is_file_source(src):
+        raise ConfigError(
+            f"'{src}' is neither a built-in object ({', '.join(surface_names())}) nor a cloud file "
+            f"({', '.join(SUPPORTED_SUFFIXES)})"
+        )
+    path = Path(src)
+    if not path.is_file():
+        raise InputError(f"point cloud file '{path}' does not exist")
+    if cfg.marking is not None:
+        raise ConfigError("--marking applies to built-in objects; a file's target comes from --target-channel")
+    raw = load_cloud(path)
+    cloud = voxel_down_sample(raw, cfg.voxel_size) if cfg.voxel_size > 0 else raw
+    cloud = _target_from_file_cloud(cloud, cfg, src)
+    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw)}
+
+
+def _default_agent_radius(source_info: dict[str, Any]) -> float:
+    name = source_info.get("name") or Path(source_info.get("path", "")).stem
+    return PLATE_AGENT_RADIUS_M if str(name).startswith("plate") else AGENT_RADIUS_M
+
+
+def _start_position(cloud: SurfaceCloud, cfg: ExploreConfig, source_info: dict[str, Any]) -> tuple[np.ndarray, str]:
+    if cfg.x0 is not None:
+        return np.asarray(cfg.x0, dtype=float), "given"
+    if source_info["kind"] == "file":
+        p = Path(source_info["path"])
+        authors = p.with_name(f"{p.stem}_x0_arr_10.npz")
+        if authors.is_file():
+            with np.load(authors, allow_pickle=False) as z:
+                arr = np.asarray(z["x0_arr"], dtype=float).reshape(-1, 3)
+            if arr.shape[0] and np.isfinite(arr).all():
+                i = cfg.seed % arr.shape[0]
+                return arr[i], f"{authors.name}[{i}]"
+    i = int(np.random.default_rng(cfg.seed).integers(len(cloud)))
+    return cloud.points[i].copy(), f"cloud point {i} (seed {cfg.seed})"
+
+
+def _hedac_config(cfg: ExploreConfig, base, radius: float):
+    from tactex.ergodic import HedacConfig
+
+    base = base if base is not None else HedacConfig()
+    return replace(
+        base, alpha=cfg.alpha, n_eigen=cfg.n_eigen, agent_radius_m=radius, max_velocity=cfg.max_velocity, seed=cfg.seed
+    )
+
+
+def run_explore(
+    source: str | Path,
+    out_dir: str | Path,
+    config: ExploreConfig | None = None,
+    *,
+    hedac=None,
+    progress: Progress | None = None,
+) -> ExploreResult:
+    """Explore ``source`` (file or built-in object) for ``config.steps`` steps and write the report.
+
+    Args:
+        source: cloud file or built-in object name.
+        out_dir: run directory (created).
+        config: run parameters.
+        hedac: a :class:`tactex.ergodic.HedacConfig` for the explorer's other parameters; its
+            alpha, n_eigen, agent radius, max velocity and seed are taken from ``config``.
+        progress: called with one-line progress messages (e.g. print to stderr).
+    """
+    from tactex.ergodic import HedacExplorer
+    from tactex.spectral import build_basis
+
+    cfg = config if config is not None else ExploreConfig()
+    say = progress or (lambda msg: None)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output directory '{out}' exists and is not a directory")
+
+    t0 = time.perf_counter()
+    cloud, source_info = load_explore_cloud(source, cfg)
+    load_s = time.perf_counter() - t0
+    radius = cfg.agent_radius if cfg.agent_radius is not None else _default_agent_radius(source_info)
+    hcfg = _hedac_config(cfg, hedac, radius)
+    say(f"cloud: {len(cloud)} points, {cloud.n_target} target points, spacing {cloud.spacing * 1e3:.2f} mm")
+
+    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
+    t0 = time.perf_counter()
+    basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache)
+    basis_s = time.perf_counter() - t0
+    explorer = HedacExplorer(cloud, basis, hcfg)
+    preprocess_s = time.perf_counter() - t0
+    say(f"basis: {preprocess_s:.3f} s ({basis.n_components} connected part(s))")
+
+    x0, x0_source = _start_position(cloud, cfg, source_info)
+    start = explorer.reset(x0)[0].point
+    n = cfg.steps
+    trajectory = np.empty((n, 3))
+    ergodicity = np.empty(n)
+    residual = np.empty(n)
+    path_length = np.empty(n)
+    step_s = np.empty(n)
+    every = max(1, n // 10)
+    for k in range(n):
+        t = time.perf_counter()
+        cmd = explorer.step()
+        step_s[k] = time.perf_counter() - t
+        trajectory[k] = cmd.point
+        ergodicity[k] = explorer.ergodicity()
+        residual[k] = explorer.coverage_residual()
+        path_length[k] = explorer.path_length
+        if (k + 1) % every == 0 or k + 1 == n:
+            say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}")
+    if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
+        raise ExplorationError("the exploration produced NaN/inf values; please report this with the cloud and seed")
+
+    coverage = explorer.coverage
+    potential = explorer.potential
+    metrics: dict[str, Any] = {
+        "source": source_info,
+        "n_points": len(cloud),
+        "n_target": cloud.n_target,
+        "spacing_m": cloud.spacing,
+        "n_components": basis.n_components,
+        "load_time_s": load_s,
+        "basis_time_s": basis_s,
+        "preprocess_time_s": preprocess_s,
+        "basis_from_cache": basis.from_cache,
+        "step_time_median_s": statistics.median(step_s.tolist()),
+        "step_time_max_s": float(step_s.max()),
+        "x0": x0,
+        "x0_source": x0_source,
+        "start_on_surface": start,
+        "final_ergodicity": float(ergodicity[-1]),
+        "final_coverage_residual": float(residual[-1]),
+        "final_path_length_m": float(path_length[-1]),
+        "ergodicity": ergodicity,
+        "coverage_residual": residual,
+        "path_length_m": path_length,
+        "config": dataclasses.asdict(cfg),
+        "explorer_config": dataclasses.asdict(hcfg),
+    }
+    say(f"writing the report to {out}")
+    files = write_explore_report(out, cloud, trajectory, coverage, potential, metrics, html=cfg.html)
+    return ExploreResult(out_dir=out, metrics=to_jsonable(metrics), trajectory=trajectory, files=files)
+
+
+def write_explore_report(
+    out: Path,
+    cloud: SurfaceCloud,
+    trajectory: np.ndarray,
+    coverage: np.ndarray,
+    potential: np.ndarray,
+    metrics: dict[str, Any],
+    *,
+    html: bool = True,
+) -> dict[str, Path]:
+    """Write metrics.json, trajectory.npy, fields.npz and the plots of one run into ``out``."""
+    from tactex.report import cloud_html, plot_cloud, plot_series, write_metrics
+
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"metrics": write_metrics(metrics, out / "metrics.json")}
+    np.save(out / "trajectory.npy", trajectory, allow_pickle=False)
+    files["trajectory"] = out / "trajectory.npy"
+    np.savez(out / "fields.npz", points=cloud.points, target=cloud.target, coverage=coverage, potential=potential)
+    files["fields"] = out / "fields.npz"
+    name = metrics["source"].get("name") or Path(metrics["source"].get("path", "cloud")).stem
+    title = f"{name}: {metrics['n_points']} points, K={metrics['config']['n_eigen']}, α={metrics['config']['alpha']:g}"
+    steps = np.arange(1, trajectory.shape[0] + 1)
+    files["metrics_png"] = plot_series(
+        {
+            "ergodicity ε (eq. 48)": metrics["ergodicity"],
+            "coverage residual": metrics["coverage_residual"],
+            "path length [m]": metrics["path_length_m"],
+        },
+        out / "metrics.png",
+        x=steps,
+        title=title,
+    )
+    fields = {"target": cloud.target, "coverage": coverage, "potential": potential}
+    files["cloud_png"] = plot_cloud(
+        cloud.points,
+        fields,
+        out / "cloud.png",
+        trajectory=trajectory,
+        title=title,
+        cmaps={"target": "Reds", "coverage": "viridis", "potential": "inferno"},
+    )
+    if html:
+        files["html"] = cloud_html(
+            cloud.points,
+            fields,
+            out / "explore.html",
+            trajectory=trajectory,
+            title=title,
+            colorscales={"target": "Reds", "coverage": "Viridis", "potential": "Inferno"},
+        )
+    return files

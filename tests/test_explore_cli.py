@@ -1,0 +1,201 @@
+"""`tactex explore`: end-to-end runs through tactex.cli.main, outputs, and bad-input handling."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tactex.cli import main
+from tactex.experiments import ExploreConfig, load_explore_cloud, run_explore
+from tactex.pointcloud import SurfaceCloud, save_npz, save_ply
+from tests.conftest import tec_cloud_path
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+STEPS = 50
+
+
+@pytest.fixture(autouse=True)
+def _cache_dir(tmp_path_factory, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Never write into the user's ~/.cache from tests.
+    monkeypatch.setenv("TACTEX_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "basis-cache"))
+
+
+def _check_run(out, steps: int) -> dict:
+    metrics = json.loads((out / "metrics.json").read_text())
+    traj = np.load(out / "trajectory.npy", allow_pickle=False)
+    assert traj.shape == (steps, 3) and np.isfinite(traj).all()
+    for key in ("ergodicity", "coverage_residual", "path_length_m"):
+        series = np.asarray(metrics[key], dtype=float)
+        assert series.shape == (steps,) and np.isfinite(series).all(), key
+    erg, res, path = (np.asarray(metrics[k], dtype=float) for k in ("ergodicity", "coverage_residual", "path_length_m"))
+    assert np.all(erg >= 0) and np.all(erg <= 1.0 + 1e-9)
+    assert np.all(res >= 0) and np.all(res <= 1.0 + 1e-9)
+    assert np.all(np.diff(path) >= -1e-12) and path[0] >= 0
+    # The path length is the sum of the steps between recorded positions (plus the first step).
+    steps_len = np.linalg.norm(np.diff(traj, axis=0), axis=1).sum()
+    assert path[-1] >= steps_len - 1e-9
+    assert metrics["n_points"] > 0 and 0 < metrics["n_target"] <= metrics["n_points"]
+    assert metrics["preprocess_time_s"] > 0 and metrics["step_time_median_s"] > 0
+    for name in ("metrics.png", "cloud.png"):
+        assert (out / name).read_bytes()[:8] == PNG_MAGIC
+    fields = np.load(out / "fields.npz", allow_pickle=False)
+    assert fields["points"].shape == (metrics["n_points"], 3)
+    assert np.isfinite(fields["coverage"]).all() and np.isfinite(fields["potential"]).all()
+    return metrics
+
+
+def test_explore_builtin_plate_end_to_end(tmp_path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "run"
+    code = main(["explore", "plate", "--steps", str(STEPS), "--n-eigen", "60", "--out", str(out), "--seed", "3"])
+    assert code == 0
+    metrics = _check_run(out, STEPS)
+    assert metrics["source"] == {"kind": "builtin", "name": "plate", "marking": "shapes"}
+    assert metrics["explorer_config"]["agent_radius_m"] == pytest.approx(0.015)  # TEC: 15 mm on the plate
+    assert metrics["config"]["n_eigen"] == 60 and metrics["explorer_config"]["n_eigen"] == 60
+    # Exploring covers target: the residual falls from its start.
+    assert metrics["coverage_residual"][-1] < metrics["coverage_residual"][0]
+    html = (out / "explore.html").read_text()
+    assert "<script src=" not in html and '"potential"' in html and '"path"' in html
+    captured = capsys.readouterr()
+    assert f"step {STEPS}/{STEPS}" in captured.err and "ergodicity" in captured.out
+
+
+def test_explore_is_reproducible(tmp_path) -> None:
+    args = ["explore", "cup", "--steps", "20", "--n-eigen", "40", "--no-html", "--quiet", "--seed", "5"]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    a = np.load(tmp_path / "a" / "trajectory.npy")
+    b = np.load(tmp_path / "b" / "trajectory.npy")
+    np.testing.assert_array_equal(a, b)
+    assert not (tmp_path / "a" / "explore.html").exists()
+
+
+def test_explore_file_with_red_target_and_x0(tmp_path) -> None:
+    g = np.linspace(-0.05, 0.05, 34)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([x.ravel(), y.ravel(), 0.02 * x.ravel() ** 2])
+    red = (np.abs(x.ravel()) < 0.015) & (np.abs(y.ravel()) < 0.03)
+    colors = np.where(red[:, None], [1.0, 0.0, 0.0], [0.5, 0.5, 0.5])
+    path = save_ply(SurfaceCloud(points=pts, colors=colors), tmp_path / "patch.ply")
+    out = tmp_path / "run"
+    base = ["explore", str(path), "--voxel-size", "0", "--steps", "30", "--n-eigen", "50", "--quiet", "--no-html"]
+    code = main([*base, "--x0", "0.0", "0.0", "0.01", "--agent-radius", "0.006", "--out", str(out)])
+    assert code == 0
+    metrics = _check_run(out, 30)
+    assert metrics["n_target"] == int(red.sum()) and metrics["n_points"] == pts.shape[0]
+    assert metrics["x0_source"] == "given" and metrics["explorer_config"]["agent_radius_m"] == 0.006
+    # The start is projected onto the surface (z = 0.02 x², so ≈ 0 at the origin).
+    assert abs(metrics["start_on_surface"][2]) < 1e-3
+
+
+def test_explore_tec_bunny_uses_authors_start(tmp_path) -> None:
+    path = tec_cloud_path("bun270_X")
+    out = tmp_path / "bunny"
+    assert (
+        main(["explore", str(path), "--steps", "30", "--n-eigen", "50", "--quiet", "--no-html", "--out", str(out)]) == 0
+    )
+    metrics = _check_run(out, 30)
+    assert metrics["n_points"] == 2996 and metrics["n_target"] == 210  # the dataset README's counts
+    assert metrics["x0_source"] == "bun270_X_x0_arr_10.npz[0]"
+    assert metrics["explorer_config"]["agent_radius_m"] == pytest.approx(0.0075)
+
+
+def test_run_explore_api_returns_metrics(tmp_path) -> None:
+    messages: list[str] = []
+    result = run_explore(
+        "bowl",
+        tmp_path / "bowl",
+        ExploreConfig(steps=10, n_eigen=30, html=False, cache=False),
+        progress=messages.append,
+    )
+    assert result.trajectory.shape == (10, 3) and result.metrics["source"]["marking"] == "RLI"
+    assert set(result.files) >= {"metrics", "trajectory", "fields", "metrics_png", "cloud_png"}
+    assert any("basis" in m for m in messages) and result.metrics["basis_from_cache"] is False
+
+
+# --- bad input: one line, exit code 2, no traceback ---------------------------------------------
+
+
+def _fails(argv: list[str], capsys: pytest.CaptureFixture, *fragments: str) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("tactex explore: error:")]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def test_unknown_object(tmp_path, capsys) -> None:
+    _fails(["explore", "teapot", "--out", str(tmp_path)], capsys, "'teapot'", "plate")
+
+
+def test_missing_file(tmp_path, capsys) -> None:
+    _fails(["explore", str(tmp_path / "nope.ply"), "--out", str(tmp_path / "o")], capsys, "does not exist")
+
+
+def test_too_many_eigenpairs(tmp_path, capsys) -> None:
+    _fails(
+        ["explore", "cup", "--voxel-size", "0.01", "--n-eigen", "5000", "--quiet", "--out", str(tmp_path / "o")],
+        capsys,
+        "n_eigen=5000",
+        "must be <",
+    )
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "fragment"),
+    [
+        ("--voxel-size", "-0.003", "voxel_size"),
+        ("--steps", "0", "steps"),
+        ("--alpha", "-10", "alpha"),
+        ("--agent-radius", "-0.0075", "agent_radius"),
+        ("--max-velocity", "0", "max_velocity"),
+        ("--target-channel", "purple", "target channel"),
+        ("--marking", "Z", "marking"),
+        ("--voxel-size", "3", "in metres"),
+    ],
+)
+def test_bad_values(tmp_path, capsys, option: str, value: str, fragment: str) -> None:
+    _fails(["explore", "plate", option, value, "--out", str(tmp_path / "o")], capsys, fragment)
+
+
+def test_bad_explorer_option(tmp_path, capsys) -> None:
+    _fails(["explore", "plate", "--order", "3", "--quiet", "--out", str(tmp_path / "o")], capsys, "order")
+
+
+def test_file_without_target(tmp_path, capsys) -> None:
+    rng = np.random.default_rng(0)
+    path = save_npz(SurfaceCloud(points=rng.random((200, 3)) * 0.05), tmp_path / "plain.npz")
+    _fails(["explore", str(path), "--voxel-size", "0", "--out", str(tmp_path / "o")], capsys, "no target", "all")
+    cfg = ExploreConfig(voxel_size=0.0, target_channel="all")
+    cloud, info = load_explore_cloud(path, cfg)
+    assert cloud.n_target == 200 and info["kind"] == "file"
+
+
+def test_no_point_above_the_threshold(tmp_path, capsys) -> None:
+    rng = np.random.default_rng(0)
+    cloud = SurfaceCloud(points=rng.random((200, 3)) * 0.05, colors=np.full((200, 3), 0.5))
+    path = save_ply(cloud, tmp_path / "grey.ply")
+    _fails(["explore", str(path), "--voxel-size", "0", "--out", str(tmp_path / "o")], capsys, "red ≥ 1")
+
+
+def test_marking_on_a_file_is_refused(tmp_path, capsys) -> None:
+    path = save_npz(SurfaceCloud(points=np.random.default_rng(1).random((50, 3))), tmp_path / "c.npz")
+    _fails(["explore", str(path), "--marking", "X", "--out", str(tmp_path / "o")], capsys, "--marking")
+
+
+def test_start_far_from_the_surface(tmp_path, capsys) -> None:
+    _fails(
+        ["explore", "cup", "--n-eigen", "30", "--x0", "1", "1", "1", "--quiet", "--out", str(tmp_path / "o")],
+        capsys,
+        "x0",
+        "mm from the nearest cloud point",
+    )
+
+
+def test_output_path_is_a_file(tmp_path, capsys) -> None:
+    (tmp_path / "f").write_text("x")
+    _fails(["explore", "cup", "--quiet", "--out", str(tmp_path / "f")], capsys, "not a directory")
