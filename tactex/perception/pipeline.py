@@ -115,6 +115,7 @@ class AsyncSurfacePipeline:
         self._patch_slot: tuple[PreparedPatch, float] | None = None
         self._published: _Published | None = None
         self._stop = threading.Event()
+        self._source_done = threading.Event()
         self._threads: list[threading.Thread] = []
         self._received = self._dropped = self._errors = 0
         self._last_error = ""
@@ -125,6 +126,7 @@ class AsyncSurfacePipeline:
         if self._threads:
             return self
         self._stop.clear()
+        self._source_done.clear()
         self._threads = [
             threading.Thread(target=self._acquire_loop, name="tactex-perception-acquire", daemon=True),
             threading.Thread(target=self._estimate_loop, name="tactex-perception-estimate", daemon=True),
@@ -141,6 +143,12 @@ class AsyncSurfacePipeline:
         for th in self._threads:
             th.join(timeout_s)
         self._threads = []
+
+    def join(self, timeout_s: float | None = None) -> bool:
+        """Wait until a finite ``source`` is exhausted and its last frame estimated; True when done."""
+        for th in self._threads:
+            th.join(timeout_s)
+        return not self.running
 
     def __enter__(self) -> AsyncSurfacePipeline:
         return self.start()
@@ -226,7 +234,10 @@ class AsyncSurfacePipeline:
                 continue
             if item is None:
                 if self.source is not None:
-                    break  # the source is exhausted
+                    with self._cond:
+                        self._source_done.set()  # the source is exhausted
+                        self._cond.notify_all()
+                    return
                 continue
             frame, pose, arrived = item
             try:
@@ -244,7 +255,7 @@ class AsyncSurfacePipeline:
     def _estimate_loop(self) -> None:
         while True:
             with self._cond:
-                while self._patch_slot is None and not self._stop.is_set():
+                while self._patch_slot is None and not (self._stop.is_set() or self._source_done.is_set()):
                     self._cond.wait()
                 if self._patch_slot is None:
                     return
