@@ -47,6 +47,9 @@ TARGET_CHANNELS = ("auto", "red", "green", "blue", "stored", "all")
 PLATE_AGENT_RADIUS_M = 0.015
 AGENT_RADIUS_M = 0.0075
 
+#: Target in red on a grey surface (TEC Fig. 8 style); a white zero would hide the cloud.
+TARGET_COLORSCALE = [[0.0, "lightgrey"], [1.0, "red"]]
+
 Progress = Callable[[str], None]
 
 
@@ -315,7 +318,11 @@ def write_explore_report(
     html: bool = True,
 ) -> dict[str, Path]:
     """Write metrics.json, trajectory.npy, fields.npz and the plots of one run into ``out``."""
+    from matplotlib.colors import LinearSegmentedColormap
+
     from tactex.report import cloud_html, plot_cloud, plot_series, write_metrics
+
+    target_cmap = LinearSegmentedColormap.from_list("target", [c for _, c in TARGET_COLORSCALE])
 
     out.mkdir(parents=True, exist_ok=True)
     files = {"metrics": write_metrics(metrics, out / "metrics.json")}
@@ -343,7 +350,7 @@ def write_explore_report(
         out / "cloud.png",
         trajectory=trajectory,
         title=title,
-        cmaps={"target": "Reds", "coverage": "viridis", "potential": "inferno"},
+        cmaps={"target": target_cmap, "coverage": "viridis", "potential": "inferno"},
     )
     if html:
         files["html"] = cloud_html(
@@ -352,6 +359,6 @@ def write_explore_report(
             out / "explore.html",
             trajectory=trajectory,
             title=title,
-            colorscales={"target": "Reds", "coverage": "Viridis", "potential": "Inferno"},
+            colorscales={"target": TARGET_COLORSCALE, "coverage": "Viridis", "potential": "Inferno"},
         )
     return files

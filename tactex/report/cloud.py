@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ def plot_cloud(
     *,
     trajectory: np.ndarray | None = None,
     title: str | None = None,
-    cmaps: Mapping[str, str] | None = None,
+    cmaps: Mapping[str, Any] | None = None,
     point_size: float = 2.0,
     view: tuple[float, float] = (35.0, -60.0),
     dpi: int = 110,
@@ -41,7 +42,7 @@ def plot_cloud(
         path: output PNG file.
         trajectory: (T, 3) agent path [m]: black line, start green, end purple (as TEC Fig. 8).
         title: figure title.
-        cmaps: colour map per field name (default "viridis").
+        cmaps: colour map (name or matplotlib Colormap) per field name (default "viridis").
         point_size: marker size [pt²].
         view: (elevation, azimuth) of the camera [deg].
         dpi: resolution.
@@ -58,15 +59,24 @@ def plot_cloud(
     FigureCanvasAgg(fig)
     for i, (name, values) in enumerate(data.items()):
         ax = fig.add_subplot(1, n, i + 1, projection="3d")
+        # Draw in call order: the depth-sorted default hides a path lying on the surface.
+        ax.computed_zorder = False
         sc = ax.scatter(
-            pts[:, 0], pts[:, 1], pts[:, 2], c=values, s=point_size, cmap=cmaps.get(name, "viridis"), depthshade=False
+            pts[:, 0],
+            pts[:, 1],
+            pts[:, 2],
+            c=values,
+            s=point_size,
+            cmap=cmaps.get(name, "viridis"),
+            depthshade=False,
+            zorder=1,
         )
         if np.ptp(values) > 0:
             fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.14)
         if traj is not None and traj.shape[0] > 0:
-            ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=0.9)
-            ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False)
-            ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False)
+            ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=1.2, zorder=3)
+            ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False, zorder=4)
+            ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False, zorder=4)
         _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
         ax.view_init(*view)
         ax.set_title(name)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,7 +25,7 @@ def cloud_html(
     *,
     trajectory: np.ndarray | None = None,
     title: str | None = None,
-    colorscales: Mapping[str, str] | None = None,
+    colorscales: Mapping[str, Any] | None = None,
     point_size: float = 2.5,
     include_plotlyjs: bool | str = True,
 ) -> Path:
@@ -36,7 +37,7 @@ def cloud_html(
         path: output HTML file.
         trajectory: (T, 3) agent path [m] (start green, end purple).
         title: page title.
-        colorscales: plotly colour scale per field name (default "Viridis").
+        colorscales: plotly colour scale (name or [[0, colour], …, [1, colour]]) per field (default "Viridis").
         point_size: marker size [px].
         include_plotlyjs: True (inline, works offline), "cdn", or False.
     """
