@@ -50,7 +50,14 @@ def _as_cloud(cloud: Any) -> tuple[SurfaceCloud, bool]:
 def _keep(cloud: SurfaceCloud, mask: np.ndarray, from_o3d: bool, what: str) -> Any:
     if not mask.any():
         raise CloudError(f"{what} removed every one of the {len(cloud)} points; widen its limits")
-    out = cloud if mask.all() else cloud.subset(mask)
+    # Removing points keeps the sampling density: the spacing (e.g. TEC's h = voxel size) is kept.
+    out = cloud if mask.all() else SurfaceCloud(
+        points=cloud.points[mask],
+        normals=None if cloud.normals is None else cloud.normals[mask],
+        colors=None if cloud.colors is None else cloud.colors[mask],
+        target=cloud.target[mask],
+        spacing=cloud.spacing,
+    )
     if from_o3d:
         from tactex.pointcloud.io import to_open3d
 
