@@ -29,28 +29,59 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.linalg.lapack import dposv as _dposv
 from scipy.spatial import cKDTree
 
 from tactex.ergodic.agents import Agent, make_agent
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
-from tactex.ergodic.gradient import _fit_cubic
+from tactex.ergodic.gradient import CUBIC_EXPONENTS, RIDGE_RTOL
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.errors import ConfigError, ExplorationError, InputError
-from tactex.geometry.fit import SurfacePatch, fit_sphere_or_plane
+from tactex.geometry.fit import SurfacePatch, fit_local, fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
 
 __all__ = ["HedacExplorer"]
 
 _Z = np.array([0.0, 0.0, 1.0])
+_ZERO3 = np.zeros(3)
+_PI = np.array([e[0] for e in CUBIC_EXPONENTS], dtype=float)
+_PJ = np.array([e[1] for e in CUBIC_EXPONENTS], dtype=float)
+_DIAG10 = np.diag_indices(10)
+
+
+def _tangent_matrix(n: np.ndarray) -> np.ndarray:
+    """(3, 2) orthonormal tangent basis [t_u, t_v] with (t_u, t_v, n) right-handed."""
+    n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
+    if abs(n0) < 0.9:  # t_u = normalised e_x − (e_x·n) n
+        a0, a1, a2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
+    else:  # t_u from e_y
+        a0, a1, a2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
+    inv = 1.0 / (a0 * a0 + a1 * a1 + a2 * a2) ** 0.5
+    a0, a1, a2 = a0 * inv, a1 * inv, a2 * inv
+    return np.array([[a0, n1 * a2 - n2 * a1], [a1, n2 * a0 - n0 * a2], [a2, n0 * a1 - n1 * a0]])
 
 
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = a - (a @ n) * n
-    t1 /= np.sqrt(t1 @ t1)
-    t2 = np.array([n[1] * t1[2] - n[2] * t1[1], n[2] * t1[0] - n[0] * t1[2], n[0] * t1[1] - n[1] * t1[0]])
-    return t1, t2
+    t = _tangent_matrix(n)
+    return t[:, 0].copy(), t[:, 1].copy()
+
+
+def _project_local(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point of the patch to x and the unit normal there, oriented along ``ref``."""
+    if patch.kind == "sphere":
+        u = x - patch.center
+        nu = float(u @ u) ** 0.5
+        if nu > 1e-12 * patch.radius:
+            n = u * (1.0 / nu)
+            p = patch.center + patch.radius * n
+            return p, (n if float(n @ ref) >= 0.0 else -n)
+    elif patch.kind == "plane":
+        n = patch.direction
+        p = x - float((x - patch.center) @ n) * n
+        return p, (n if float(n @ ref) >= 0.0 else -n)
+    p, n = patch.project(x, ref)
+    return p, (n if float(n @ ref) >= 0.0 else -n)
 
 
 class HedacExplorer:
@@ -98,8 +129,12 @@ class HedacExplorer:
         self._v_max = cfg.max_velocity * self.spacing / self._dt
         self._step_max = cfg.max_velocity * self.spacing
         self._snap = cfg.max_snap_distance * self.spacing
-        area_pts = np.pi * (self._r_a / self.spacing) ** 2
-        self._k_query = int(min(n, max(cfg.n_neighbors_fit, np.ceil(2.0 * area_pts) + 8)))
+        self._r_a2 = self._r_a**2
+        self._h2 = self.spacing**2
+        self._source_in_u = bool(cfg.source_in_potential)
+        self._n_n = cfg.n_neighbors_fit
+        self._build_neighbourhoods()
+        self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
         self._decay_alpha = np.nan
         self._decay = np.ones(k)
@@ -134,7 +169,6 @@ class HedacExplorer:
         n = len(self.cloud)
         self._cov = np.zeros(n)
         self._cov_sum = 0.0
-        self._visits = np.zeros(n)
         self._coef = self._p_t @ self._phitm_t  # u(x, 0) = p̂ (eq. 5)
         self._s_t = np.zeros(self._tidx.size)
 
@@ -159,16 +193,15 @@ class HedacExplorer:
         self._x = np.zeros_like(x)
         self._normals = np.zeros_like(x)
         self.path_lengths = np.zeros(x.shape[0])
+        self._near = np.zeros(x.shape[0], dtype=np.intp)
         self.step_count = 0
         out = []
         for i, xi in enumerate(x):
             self._check_distance(xi, "x0" if x.shape[0] == 1 else f"x0[{i}]")
             nb = self._tree.query(xi, k=self.config.n_neighbors_fit)[1]
+            self._near[i] = int(nb[0])
             patch = fit_sphere_or_plane(self._points[nb], validate=False)
-            ref = self._initial_normal(xi)
-            p, nrm = patch.project(xi, ref)
-            if nrm @ ref < 0:
-                nrm = -nrm
+            p, nrm = _project_local(patch, xi, self._initial_normal(xi))
             self._x[i], self._normals[i] = p, nrm
             t1, t2 = _tangent_basis(nrm)
             out.append(ExplorationCommand(p.copy(), np.zeros(3), nrm.copy(), t1, t2, 0, i))
@@ -232,7 +265,8 @@ class HedacExplorer:
                 self._check_distance(mi, "measured position" if m.shape[0] == 1 else f"measured position {i}")
             self._x = m.copy()
         self._update_decay()
-        cmds = [self._step_agent(i) for i in range(self.n_agents)]
+        exact = measured_positions is not None
+        cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
         self.step_count += 1
         return cmds
 
@@ -242,95 +276,125 @@ class HedacExplorer:
             self._decay = np.exp(-self._evals * (alpha * self.spacing**2))
             self._decay_alpha = alpha
 
-    def _step_agent(self, i: int) -> ExplorationCommand:
+    def _build_neighbourhoods(self) -> None:
+        """Per cloud point j, the indices within R_j = max(r_a, d_j,n_N) + (2 + v_max)·h.
+
+        The agent is at most (1 + v_max)·h from the point nearest to it one step earlier, so the
+        ball of that point holds every cloud point within max(r_a, kNN radius) + h of the agent:
+        the footprint and the n_N nearest neighbours come from one small distance computation
+        instead of two K-D tree queries per step.
+        """
+        cfg = self.config
+        h = self.spacing
+        dk = self._tree.query(self._points, k=cfg.n_neighbors_fit)[0][:, -1]
+        radius = np.maximum(self._r_a, dk) + (2.0 + cfg.max_velocity) * h
+        self._ball = [np.asarray(b, dtype=np.intp) for b in self._tree.query_ball_point(self._points, radius)]
+
+    def _candidates(self, i: int, x: np.ndarray, exact: bool) -> np.ndarray:
+        if not exact:
+            return self._ball[self._near[i]]
+        d, j = self._tree.query(x)
+        self._near[i] = int(j)
+        if d <= self.spacing:
+            return self._ball[int(j)]
+        # Off the surface (a measured position): gather the footprint and the kNN directly.
+        knn = self._tree.query(x, k=self.config.n_neighbors_fit)[1]
+        ball = self._tree.query_ball_point(x, self._r_a + float(d))
+        return np.union1d(knn, np.asarray(ball, dtype=np.intp))
+
+    def _step_agent(self, i: int, exact: bool) -> ExplorationCommand:
+        # The per-step hot path: every line is a few µs, so vector algebra reuses the squared
+        # distances dd instead of recomputing them (|d − s|² = dd − 2 d·s + |s|²).
         pts = self._points
         x = self._x[i]
-        n_n = self.config.n_neighbors_fit
-        dist, idx = self._tree.query(x, k=self._k_query)
-        nbr = idx[:n_n]
-        patch = fit_sphere_or_plane(pts[nbr], validate=False)
-        p_a, nrm = self._project(patch, x, self._normals[i])
+        n_n = self._n_n
+        cand = self._candidates(i, x, exact)
+        d = pts[cand] - x
+        dd = np.einsum("ij,ij->i", d, d)
+        self._near[i] = cand[dd.argmin()]
+        part = np.argpartition(dd, n_n - 1)[:n_n]
+        nbr = cand[part]
+        dd_n = dd[part]
+        scale2 = float(dd_n.max())
+        scale = scale2**0.5 if scale2 > 0.0 else self.spacing
+        inv = 1.0 / scale
 
-        # Footprint on the tangent plane (eq. 30–31); the query radius covers the projection shift.
-        shift = float(np.sqrt((p_a - x) @ (p_a - x)))
-        reach = self._r_a + shift
-        if dist[-1] <= reach and self._k_query < len(pts):
-            cand = np.asarray(self._tree.query_ball_point(x, reach), dtype=np.intp)
-        else:
-            cand = idx[dist <= reach]
-        d = pts[cand] - p_a
-        d2 = np.einsum("ij,ij->i", d, d)
-        inside = d2 <= self._r_a * self._r_a
+        # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
+        patch = fit_local(d[part] * inv, dd_n * (inv * inv))
+        shift, nrm = _project_local(patch, _ZERO3, self._normals[i])
+        shift *= scale
+
+        # Footprint on the tangent plane (eq. 30–31).
+        ds = d @ shift
+        d2 = dd - 2.0 * ds + float(shift @ shift)
+        inside = d2 <= self._r_a2
         fp = cand[inside]
-        dn = d[inside] @ nrm
+        dn = d[inside] @ nrm - float(shift @ nrm)
         phi = np.exp(-self._eps2 * (d2[inside] - dn * dn))
         self._cov[fp] += phi
         self._cov_sum += float(phi.sum())
-        self._visits[fp] += 1.0
 
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
-        if self._cov_sum > 0:
-            c_t = self._cov[self._tidx] * (1.0 / self._cov_sum)
-            s = self._p_t - c_t
+        if self._cov_sum > 0.0:
+            s = self._p_t - self._cov[self._tidx] * (1.0 / self._cov_sum)
             np.maximum(s, 0.0, out=s)
             s *= s
-            tot = float(s.sum())
-            if tot > 0:
-                s *= 1.0 / tot
         else:
             s = self._p_t * self._p_t
-            s *= 1.0 / float(s.sum())
+        tot = float(s.sum())
+        if tot > 0.0:
+            s *= 1.0 / tot
         self._s_t = s
+        # Diffuse after adding the source: the truncated projection of a sharp source rings
+        # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
         coef = self._coef
-        coef *= self._decay
         coef += s @ self._phitm_t
+        coef *= self._decay
         u = self._phi[nbr] @ coef
-        if self.config.source_in_potential:
+        if self._source_in_u:
             tp = self._tpos[nbr]
             on = tp >= 0
-            if on.any():
-                u[on] += s[tp[on]]
+            u[on] += s[tp[on]]
 
-        # Gradient on the tangent plane (eq. 32–33).
-        t1, t2 = _tangent_basis(nrm)
-        dq = pts[nbr] - p_a
-        uv = np.empty((n_n, 2))
-        uv[:, 0] = dq @ t1
-        uv[:, 1] = dq @ t2
-        w = np.exp(-self._eps2 * np.einsum("ij,ij->i", uv, uv))
-        c = _fit_cubic(uv, u - u.mean(), w)
-        g = c[1] * t1 + c[2] * t2
-        gn = float(np.sqrt(g @ g))
-        if gn > 0 and np.isfinite(gn):
-            direction = g / gn
+        # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
+        tb = _tangent_matrix(nrm)
+        uv = ((d[part] - shift) @ tb) * inv
+        w = np.exp(-(self._eps2 * scale2) * np.einsum("ij,ij->i", uv, uv))
+        xf = uv[:, :1] ** _PI * uv[:, 1:] ** _PJ
+        xw = xf * w[:, None]
+        a = xw.T @ xf
+        a.ravel()[::11] += RIDGE_RTOL * float(a[0, 0]) + 1e-300
+        u -= u[0]
+        _, c, info = _dposv(a, xw.T @ u)
+        g = tb @ c[1:3]
+        gn = float(g @ g) ** 0.5 if info == 0 else 0.0
+        if gn > 0.0 and gn < np.inf:
+            direction = g * (1.0 / gn)
         else:
             r = self._rng.normal(size=2)
-            direction = (r[0] * t1 + r[1] * t2) / float(np.hypot(r[0], r[1]))
+            direction = tb @ (r / float(np.hypot(r[0], r[1])))
 
-        # Agent update, back onto the surface, step clamped to v_max·dt.
+        # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
         v = agent.command_velocity(direction, nrm)
-        x_new, n_new = self._project(patch, p_a + v * self._dt, nrm)
-        step = x_new - x
-        sl = float(np.sqrt(step @ step))
+        xl, n_new = _project_local(patch, (shift + v * self._dt) * inv, nrm)
+        step = xl * scale
+        dq2 = dd - 2.0 * (d @ step) + float(step @ step)
+        k = dq2.argmin()
+        if dq2[k] > self._h2:
+            # Past the edge of the cloud: back to one voxel from its nearest point (eq. 5's boundary).
+            step = d[k] + (step - d[k]) * (self.spacing / float(dq2[k]) ** 0.5)
+        sl = float(step @ step) ** 0.5
         if sl > self._step_max:
             step *= self._step_max / sl
-            x_new = x + step
             sl = self._step_max
-        vel = step / self._dt
-        agent.velocity = vel - (vel @ n_new) * n_new
+        x_new = x + step
+        vel = step * (1.0 / self._dt)
+        agent.velocity = vel - float(vel @ n_new) * n_new
         self.path_lengths[i] += sl
         self._x[i] = x_new
         self._normals[i] = n_new
-        u1, u2 = _tangent_basis(n_new)
-        return ExplorationCommand(x_new.copy(), vel, n_new.copy(), u1, u2, self.step_count, i)
-
-    @staticmethod
-    def _project(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        p, n = patch.project(x, ref)
-        if n @ ref < 0:
-            n = -n
-        return p, n
+        return ExplorationCommand(x_new, vel, n_new, tb[:, 0], tb[:, 1], self.step_count, i)
 
     # ------------------------------------------------------------------ read-outs
     @property
@@ -355,12 +419,6 @@ class HedacExplorer:
         return self._cov.copy()
 
     @property
-    def visits(self) -> np.ndarray:
-        """How many steps each point spent inside an agent's footprint disc (N,)."""
-        self._require_state()
-        return self._visits.copy()
-
-    @property
     def potential(self) -> np.ndarray:
         """The potential u (N,) on the cloud as the agents see it (eq. 19, plus the source)."""
         self._require_state()
@@ -375,9 +433,9 @@ class HedacExplorer:
         return normalized_ergodicity(self._target, self._cov, self._mass, normalize)
 
     def coverage_residual(self) -> float:
-        """Share of target not yet inside an agent's footprint disc (metric of the authors' code)."""
+        """Coverage residual of the authors' code (√share of target never inside a footprint)."""
         self._require_state()
-        return coverage_residual(self._target, self._visits)
+        return coverage_residual(self._target, self._cov)
 
     def _require_state(self) -> None:
         if not hasattr(self, "_cov"):

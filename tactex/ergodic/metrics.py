@@ -7,9 +7,9 @@
   ε = 1 before any coverage and 0 when the coverage covers the target (the scale of the paper's
   figures); ``normalize="integral"`` is the literal form.
 * :func:`coverage_residual` — what the authors' released code reports:
-  ‖max(p̂ − c̃, 0)‖₂ / ‖p̂‖₂ with p̂ the target scaled to a unit maximum and c̃ the accumulated,
-  un-normalised footprint sum; with a 0/1 footprint it is the √share of target points not yet
-  inside the agent's footprint.
+  ‖max(p̂ − c̃, 0)‖₂ / ‖p̂‖₂ with p̂ the target normalised to unit sum and c̃ the accumulated,
+  un-normalised footprint sum. A point touched once by the footprint has c̃ ≥ φ(r_a) ≫ p̂_i, so
+  for a uniform target this is √(share of target points never inside an agent's footprint).
 """
 
 from __future__ import annotations
@@ -52,11 +52,11 @@ def normalized_ergodicity(
 
 
 def coverage_residual(target: np.ndarray, footprint_sum: np.ndarray) -> float:
-    """‖max(p̂ − c̃, 0)‖₂ / ‖p̂‖₂ with p̂ = target / max(target) and c̃ the raw footprint sum."""
+    """‖max(p̂ − c̃, 0)‖₂ / ‖p̂‖₂ with p̂ = target / Σ target and c̃ the raw footprint sum."""
     p = _as_field("target", target)
     c = _as_field("footprint_sum", footprint_sum, p.shape[0])
-    pmax = float(p.max()) if p.size else 0.0
-    if pmax <= 0:
+    total = float(p.sum())
+    if total <= 0:
         raise ExplorationError("the target has no mass: the coverage residual is undefined")
-    p_hat = p / pmax
+    p_hat = p / total
     return float(np.linalg.norm(np.maximum(p_hat - c, 0.0)) / np.linalg.norm(p_hat))

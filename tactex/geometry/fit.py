@@ -30,6 +30,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.linalg.lapack import dsyev as _dsyev
 
 from tactex.errors import InputError
 
@@ -37,11 +38,13 @@ __all__ = [
     "SurfacePatch",
     "cga_design_matrix",
     "cga_fit_vector",
+    "fit_local",
     "fit_sphere_or_plane",
     "gafro_normal_line",
     "gafro_primitive",
     "gafro_project",
     "gafro_tangent_plane",
+    "to_world",
 ]
 
 #: Relative eigenvalue below which a neighbourhood counts as lower-dimensional (line/plane/circle).
@@ -50,6 +53,7 @@ DEGENERACY_RTOL = 1e-10
 MAX_RADIUS_RATIO = 1e6
 
 _Z = np.array([0.0, 0.0, 1.0])
+_ZERO3 = np.zeros(3)
 
 
 class SurfacePatch(NamedTuple):
@@ -135,49 +139,75 @@ def _check_points(points: np.ndarray) -> np.ndarray:
 def fit_sphere_or_plane(points: np.ndarray, *, validate: bool = True) -> SurfacePatch:
     """Fit the sphere or plane of eq. 23–26 to a neighbourhood (n, 3) [m]; see the module doc.
 
-    ``validate=False`` skips the shape/finiteness check (the explorer's hot loop passes rows of a
-    validated cloud).
+    ``validate=False`` skips the shape/finiteness check (for rows of an already validated cloud).
     """
     p = _check_points(points) if validate else points
-    mu = p.mean(axis=0)
+    mu = p.sum(axis=0) * (1.0 / p.shape[0])
     q = p - mu
     scale = float(np.sqrt(np.einsum("ij,ij->", q, q) / p.shape[0]))
     if scale == 0.0:
         return SurfacePatch("point", mu, np.inf, np.zeros(3))
-    q = q / scale
-    w = np.empty((p.shape[0], 5))
+    local = fit_local(q * (1.0 / scale))
+    return to_world(local, mu, scale)
+
+
+def to_world(local: SurfacePatch, origin: np.ndarray, scale: float) -> SurfacePatch:
+    """Map a patch fitted in coordinates q = (p − origin) / scale back to world coordinates."""
+    return SurfacePatch(local.kind, origin + scale * local.center, scale * local.radius, local.direction)
+
+
+def fit_local(q: np.ndarray, q_sq: np.ndarray | None = None) -> SurfacePatch:
+    """Eq. 24–26 on points q (n, 3) already centred near the data and scaled to about unit size.
+
+    This is the per-step fast path (the explorer centres on the agent and scales by the
+    neighbourhood radius, and passes the squared norms ``q_sq`` it already has);
+    :func:`fit_sphere_or_plane` wraps it for arbitrary world points.
+    """
+    n = q.shape[0]
+    w = np.empty((n, 5))
     w[:, :3] = q
     w[:, 3] = -1.0
-    w[:, 4] = -0.5 * np.einsum("ij,ij->i", q, q)
-    evals, vecs = np.linalg.eigh(w.T @ w)
-    if p.shape[0] < 5 or evals[1] <= DEGENERACY_RTOL * evals[4]:
-        return _degenerate_patch(q, mu, scale)
+    w[:, 4] = -0.5 * (np.einsum("ij,ij->i", q, q) if q_sq is None else q_sq)
+    evals, vecs, info = _dsyev(w.T @ w)
+    if info != 0 or n < 5 or evals[1] <= DEGENERACY_RTOL * evals[4]:
+        return _degenerate_patch(q)
     v = vecs[:, 0]
-    vv, vinf, v0 = v[:3], v[3], v[4]
+    vv = v[:3]
+    vinf = float(v[3])
+    v0 = float(v[4])
     nv = float(np.sqrt(vv @ vv))
     if abs(v0) * MAX_RADIUS_RATIO > nv:
-        c = vv / v0
+        c = vv * (1.0 / v0)
         r2 = float(c @ c) - 2.0 * vinf / v0
         if r2 > 0.0:
-            return SurfacePatch("sphere", mu + scale * c, scale * float(np.sqrt(r2)), np.zeros(3))
-        # An imaginary sphere (r² < 0) fits only noise; the plane below is the sane limit.
-        return _pca_plane(q, mu, scale)
+            return SurfacePatch("sphere", c, float(np.sqrt(r2)), _ZERO3)
+        # An imaginary sphere (r² < 0) fits only noise; the plane is the sane limit.
+        return _pca_plane(q)
     if nv == 0.0:
-        return _pca_plane(q, mu, scale)
-    n = vv / nv
-    return SurfacePatch("plane", mu + scale * (vinf / nv) * n, np.inf, n)
+        return _pca_plane(q)
+    nrm = vv * (1.0 / nv)
+    return SurfacePatch("plane", (vinf / nv) * nrm, np.inf, nrm)
 
 
-def _degenerate_patch(q: np.ndarray, mu: np.ndarray, scale: float) -> SurfacePatch:
-    """Collinear → line; coplanar or fewer than 5 points → PCA plane (module doc)."""
-    evals, vecs = np.linalg.eigh(q.T @ q)
+def _pca(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    mu = q.sum(axis=0) * (1.0 / q.shape[0])
+    qc = q - mu
+    evals, vecs = np.linalg.eigh(qc.T @ qc)
+    return mu, evals, vecs
+
+
+def _degenerate_patch(q: np.ndarray) -> SurfacePatch:
+    """Collinear → line; a single point → point; otherwise (coplanar, concyclic, < 5 points) → PCA plane."""
+    mu, evals, vecs = _pca(q)
+    if evals[2] <= 1e-300:
+        return SurfacePatch("point", mu, np.inf, np.zeros(3))
     if evals[1] <= DEGENERACY_RTOL * evals[2]:
         return SurfacePatch("line", mu, np.inf, vecs[:, 2].copy())
     return SurfacePatch("plane", mu, np.inf, vecs[:, 0].copy())
 
 
-def _pca_plane(q: np.ndarray, mu: np.ndarray, scale: float) -> SurfacePatch:
-    _, vecs = np.linalg.eigh(q.T @ q)
+def _pca_plane(q: np.ndarray) -> SurfacePatch:
+    mu, _, vecs = _pca(q)
     return SurfacePatch("plane", mu, np.inf, vecs[:, 0].copy())
 
 
