@@ -74,6 +74,7 @@ class MujocoBackend:
         self._viewer = None
         self._state: RobotState | None = None
         self._last_contact: tuple[float, np.ndarray | None] = (0.0, None)
+        self._pad_bottom = tool.pad_thickness_m / 2 if tool.pad_shape == "cylinder" else None
         self.reset(self.config.seed)
 
     # -- protocol -------------------------------------------------------------------------------
@@ -186,7 +187,8 @@ class MujocoBackend:
 
     def pad_contact(self) -> tuple[float, np.ndarray | None]:
         """Ground truth of the last step: total normal force of the pad on the scene [N] and the
-        force-weighted contact point in the world [m] (None without contact)."""
+        centre of its footprint on the object in the world [m] (the force-weighted contact point
+        when it touches something else; None without contact)."""
         return self._last_contact
 
     def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
@@ -293,11 +295,18 @@ class MujocoBackend:
 
     def _wipe(self) -> None:
         total, point, force, point_w, normal = self._pad_contacts()
-        self._last_contact = (total, point)
         if point_w is None:
+            self._last_contact = (total, point)
             return
         m, d = self.model, self.data
-        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, self._ids["pad_body"], self._pad_vel, 0)
+        pad = self._ids["pad_body"]
+        if self._pad_bottom is not None:
+            # flat sponge: the footprint is the pad disc, centred under the pad whatever contact
+            # points the collider reports (a tilted disc touches at its rim)
+            centre = d.xpos[pad] + d.xmat[pad].reshape(3, 3)[:, 2] * self._pad_bottom
+            point_w = centre + ((point_w - centre) @ normal) * normal
+        self._last_contact = (total, point_w)
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, pad, self._pad_vel, 0)
         v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (the object is at rest)
         slip = float(np.linalg.norm(v - (v @ normal) * normal))
         b = self._ids["object_body"]
