@@ -351,3 +351,34 @@ def test_zero_dt_is_identity_on_the_span(patch_basis, rng: np.random.Generator) 
         warnings.simplefilter("error")
         np.testing.assert_allclose(SpectralDiffusion(patch_basis, 0.0)(u), u, atol=1e-9 * np.abs(u).max())
     np.testing.assert_allclose(patch_basis.project(u), c, atol=1e-9)
+
+
+def test_near_full_spectrum_on_large_clouds_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    L, M = point_cloud_laplacian(curved_patch(16))  # 256 points
+    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+    monkeypatch.setattr(eigen_mod, "DENSE_LIMIT_POINTS", 100)
+    with pytest.raises(SpectralError, match="n_eigen ≤ 128"):
+        laplace_eigenpairs(L, M, 255)
+    # Just below the limit ARPACK still runs, with as many Lanczos vectors as there are points.
+    vals, _ = laplace_eigenpairs(L, M, 200)
+    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10_000)
+    dense, _ = laplace_eigenpairs(L, M, 200)
+    np.testing.assert_allclose(vals, dense, rtol=1e-7, atol=1e-7 * dense[-1])
+
+
+def test_default_cache_dir_is_under_home(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    from tactex.spectral import default_cache_dir
+
+    monkeypatch.delenv("TACTEX_CACHE_DIR", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert default_cache_dir() == tmp_path / ".cache" / "tactex" / "basis"
+
+
+def test_solver_runs_without_threadpoolctl(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, "threadpoolctl", None)  # import now raises ImportError
+    L, M = point_cloud_laplacian(curved_patch(30))
+    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+    vals, vecs = laplace_eigenpairs(L, M, 8)
+    assert vals.shape == (8,) and np.all(np.isfinite(vecs))

@@ -22,6 +22,8 @@ __all__ = ["DENSE_MAX_POINTS", "laplace_eigenpairs"]
 
 #: Below this many points dense LAPACK beats ARPACK and never fails to converge.
 DENSE_MAX_POINTS = 800
+#: Largest problem sent to dense LAPACK when n_K is too close to N for ARPACK (N² doubles of memory).
+DENSE_LIMIT_POINTS = 4000
 
 
 def _single_threaded_blas() -> contextlib.AbstractContextManager:
@@ -84,8 +86,13 @@ def laplace_eigenpairs(
     if not 1 <= k < n:
         raise SpectralError(f"n_eigen must satisfy 1 ≤ n_eigen < {n} (the number of points), got {k}")
     A, s = _symmetric_form(L, mass)
-    if n <= DENSE_MAX_POINTS or 2 * k + 1 >= n:
+    if n <= DENSE_MAX_POINTS or (2 * k + 1 >= n and n <= DENSE_LIMIT_POINTS):
         evals, W = _dense(A, k)
+    elif k >= n - 1:
+        raise SpectralError(
+            f"n_eigen={k} on {n} points is too close to the full spectrum for the sparse solver "
+            f"(and too large for a dense one); use n_eigen ≤ {n // 2}"
+        )
     else:
         with _single_threaded_blas():
             evals, W = _shift_invert(A, k, seed)
