@@ -188,7 +188,7 @@ class SurfaceEstimator:
         grid[..., 1] = (rows - intr.cy) * z / intr.fy
         grid[..., 2] = z
         rel = grid - origin
-        t = rel @ axis
+        t = np.einsum("...i,i->...", rel, axis)
         radial2 = np.einsum("...i,...i->...", rel, rel) - t * t
         valid &= (radial2 <= cfg.roi_radius_m**2) & (t >= t_lo) & (t <= t_hi)
         return PreparedPatch(frame.timestamp, w_T_c, origin, axis, grid, valid, stride, focal)
@@ -315,7 +315,7 @@ class SurfaceEstimator:
                 f"{cfg.min_cluster_size} points in the region of interest", n_valid
             )
         rel = points[labelled] - patch.axis_origin
-        t = rel @ patch.axis_dir
+        t = np.einsum("ij,j->i", rel, patch.axis_dir)
         dist = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - t * t, 0.0))
         nearest = int(np.argmin(dist))
         if dist[nearest] > cfg.capture_radius_m:

@@ -43,6 +43,15 @@ class NormalField(NamedTuple):
     ok: np.ndarray
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross is several times slower on these)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def smallest_eigpairs(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smallest eigenvalue and its unit eigenvector of symmetric 3×3 matrices, in closed form.
 
@@ -73,7 +82,7 @@ def smallest_eigpairs(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     lam0 = np.maximum(lam0, 0.0)
     m = cov - lam0[:, None, None] * np.eye(3)
     r0, r1, r2 = m[:, 0], m[:, 1], m[:, 2]
-    crosses = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=1)
+    crosses = np.stack([_cross(r0, r1), _cross(r0, r2), _cross(r1, r2)], axis=1)
     norms = np.linalg.norm(crosses, axis=2)
     best = np.argmax(norms, axis=1)
     idx = np.arange(cov.shape[0])

@@ -63,7 +63,7 @@ def segment_pca(points: np.ndarray, viewpoint: np.ndarray | None = None) -> Segm
         raise CloudError("segment points hold NaN/inf")
     centroid = pts.mean(axis=0)
     d = pts - centroid
-    cov = d.T @ d / pts.shape[0]
+    cov = np.einsum("ni,nj->ij", d, d) / pts.shape[0]  # not BLAS: no thread pool for a 3×3 result
     lam, vec = np.linalg.eigh(cov)  # ascending
     if not lam[1] > 1e-12 * max(lam[2], 1e-300):
         raise CloudError("segment points are collinear (or coincide): no normal is defined")

@@ -63,7 +63,7 @@ class Plane(Surface):
 
     def hit(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         n = np.asarray(self.normal_vec, float)
-        den = d @ n
+        den = np.einsum("ij,j->i", d, n)
         with np.errstate(divide="ignore", invalid="ignore"):
             s = ((np.asarray(self.point, float) - o) @ n) / den
         return np.where((np.abs(den) > 1e-12) & (s > 0), s, np.nan)
@@ -81,7 +81,7 @@ class Sphere(Surface):
     def hit(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         w = o - np.asarray(self.center, float)
         a = np.einsum("ij,ij->i", d, d)
-        b = 2.0 * (d @ w)
+        b = 2.0 * np.einsum("ij,j->i", d, w)
         c = w @ w - self.radius**2
         disc = b * b - 4.0 * a * c
         with np.errstate(invalid="ignore"):
@@ -109,7 +109,7 @@ class Cylinder(Surface):
         w = self._perp(o - np.asarray(self.point, float))
         dp = self._perp(d)
         a = np.einsum("ij,ij->i", dp, dp)
-        b = 2.0 * (dp @ w)
+        b = 2.0 * np.einsum("ij,j->i", dp, w)
         c = w @ w - self.radius**2
         disc = b * b - 4.0 * a * c
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -136,7 +136,10 @@ class HeightField(Surface):
                 x, y = o[0] + s * d[:, 0], o[1] + s * d[:, 1]
                 g = o[2] + s * d[:, 2] - self.h(x, y)
                 gx, gy = self.grad(x, y)
-                s = s - g / (d[:, 2] - gx * d[:, 0] - gy * d[:, 1])
+                step = g / (d[:, 2] - gx * d[:, 0] - gy * d[:, 1])
+                s = s - step
+                if not np.nanmax(np.abs(step), initial=0.0) > 1e-13:
+                    break
             x, y = o[0] + s * d[:, 0], o[1] + s * d[:, 1]
             residual = np.abs(o[2] + s * d[:, 2] - self.h(x, y))
         return np.where((residual < 1e-10) & (s > 0), s, np.nan)
@@ -174,7 +177,7 @@ def render_depth(
     d_c = np.stack([(u - intrinsics.cx) / intrinsics.fx, (v - intrinsics.cy) / intrinsics.fy, np.ones((H, W))], -1)
     d_c = d_c.reshape(-1, 3)
     rot, o = world_T_camera[:3, :3], world_T_camera[:3, 3]
-    d_w = d_c @ rot.T
+    d_w = np.einsum("ij,kj->ik", d_c, rot)
     best = np.full(H * W, np.inf)
     which = np.full(H * W, -1)
     for k, surf in enumerate(surfaces):
