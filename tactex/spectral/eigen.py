@@ -27,8 +27,8 @@ DENSE_LIMIT_POINTS = 4000
 
 
 def _single_threaded_blas() -> contextlib.AbstractContextManager:
-    """ARPACK's BLAS calls are small (N × ncv mat-vecs): two OpenBLAS threads gain ~10 % on an idle
-    2-core machine but spin against any other busy process (measured 2–7× slower under load)."""
+    """The solvers' BLAS calls are small (N × ncv mat-vecs, ≤ 800² dense): two OpenBLAS threads gain
+    ~10 % on an idle 2-core machine but spin against any other busy process (2–7× slower under load)."""
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # optional: without it the solver runs with the default thread count
@@ -86,16 +86,14 @@ def laplace_eigenpairs(
     if not 1 <= k < n:
         raise SpectralError(f"n_eigen must satisfy 1 ≤ n_eigen < {n} (the number of points), got {k}")
     A, s = _symmetric_form(L, mass)
-    if n <= DENSE_MAX_POINTS or (2 * k + 1 >= n and n <= DENSE_LIMIT_POINTS):
-        evals, W = _dense(A, k)
-    elif k >= n - 1:
+    dense = n <= DENSE_MAX_POINTS or (2 * k + 1 >= n and n <= DENSE_LIMIT_POINTS)
+    if not dense and k >= n - 1:
         raise SpectralError(
             f"n_eigen={k} on {n} points is too close to the full spectrum for the sparse solver "
             f"(and too large for a dense one); use n_eigen ≤ {n // 2}"
         )
-    else:
-        with _single_threaded_blas():
-            evals, W = _shift_invert(A, k, seed)
+    with _single_threaded_blas():
+        evals, W = _dense(A, k) if dense else _shift_invert(A, k, seed)
     order = np.argsort(evals)
     evals = evals[order]
     W = W[:, order]
