@@ -283,3 +283,38 @@ def test_synchronous_estimate_is_deterministic() -> None:
     a, b = est.estimate(frame), est.estimate(frame)
     np.testing.assert_array_equal(a.normal_world, b.normal_world)
     assert a.curvature == b.curvature and a.segment_size == b.segment_size
+
+
+def test_region_growing_follows_pcl_rules() -> None:
+    from tactex.perception import RegionGrowingParams, region_growing
+
+    # A chain 0-1-2-3-4-5-6 (edges i, i+1). Points 0-2 and 4-6 are seeds (low curvature); point 3
+    # has high curvature: it joins a region but does not let it grow, so the two sides stay apart.
+    up = np.array([0.0, 0.0, 1.0])
+    normals = np.tile(up, (7, 1))
+    curvature = np.array([0.01, 0.01, 0.01, 0.2, 0.005, 0.005, 0.005])
+    edges = (np.arange(6), np.arange(1, 7))
+    labels = region_growing(normals, curvature, edges, RegionGrowingParams(10.0, 0.05, 1))
+    assert labels[0] == labels[1] == labels[2] != labels[4] == labels[5] == labels[6]
+    # Point 3 goes to the region PCL grows first: the one whose lowest seed curvature is smaller.
+    assert labels[3] == labels[4]
+    # With the curvature test off (threshold 1) everything is one region.
+    assert np.unique(region_growing(normals, curvature, edges, RegionGrowingParams(10.0, 1.0, 1))).size == 1
+    # A normal 30° off breaks the smoothness test (10°) but not a 40° one.
+    tilted = normals.copy()
+    tilted[4:] = [np.sin(np.radians(30)), 0.0, np.cos(np.radians(30))]
+    flat_curv = np.full(7, 0.01)
+    lab = region_growing(tilted, flat_curv, edges, RegionGrowingParams(10.0, 0.05, 1))
+    assert lab[3] != lab[4]
+    assert np.unique(region_growing(tilted, flat_curv, edges, RegionGrowingParams(40.0, 0.05, 1))).size == 1
+    # Opposite normals are the same plane (|n_i·n_j|, as in PCL).
+    flipped = normals.copy()
+    flipped[::2] *= -1
+    assert np.unique(region_growing(flipped, flat_curv, edges, RegionGrowingParams(10.0, 0.05, 1))).size == 1
+    # Segments below min_cluster_size become noise; NaN normals never belong to a region.
+    small = region_growing(tilted, flat_curv, edges, RegionGrowingParams(10.0, 0.05, 4))
+    assert (small[:4] == 0).all() and (small[4:] == -1).all()
+    nan_normals = normals.copy()
+    nan_normals[2] = np.nan
+    lab = region_growing(nan_normals, flat_curv, edges, RegionGrowingParams(10.0, 0.05, 1))
+    assert lab[2] == -1 and lab[1] != lab[3]
