@@ -253,3 +253,24 @@ def test_segment_pca_rejects_degenerate_segments() -> None:
     with pytest.raises(CloudError, match="trace"):
         local_curvature(np.zeros(3))
     assert local_curvature(np.array([1.0, 1.0, 1.0])) == pytest.approx(1.0 / 3.0)
+
+
+def test_configs_generate_cli_options() -> None:
+    import argparse
+
+    from tactex.config import add_dataclass_arguments, dataclass_from_args
+    from tactex.perception import AcquisitionConfig
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_arguments(parser, SurfaceEstimatorConfig)
+    add_dataclass_arguments(parser, AcquisitionConfig, prefix="acq_")
+    args = parser.parse_args(
+        ["--roi-radius-m", "0.02", "--neighbourhood", "knn", "--acq-crop-min-m", "-1", "-1", "0", "--acq-color-method",
+         "channel"]
+    )
+    cfg = dataclass_from_args(SurfaceEstimatorConfig, args)
+    acq = dataclass_from_args(AcquisitionConfig, args, prefix="acq_")
+    assert cfg.roi_radius_m == 0.02 and cfg.neighbourhood == "knn" and cfg.stride == 2
+    assert acq.crop_min_m == (-1.0, -1.0, 0.0) and acq.color_method == "channel"
+    with pytest.raises(ConfigError, match="neighbourhood"):
+        dataclass_from_args(SurfaceEstimatorConfig, parser.parse_args(["--neighbourhood", "mesh"]))

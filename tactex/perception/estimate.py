@@ -23,7 +23,10 @@ class SurfaceEstimate:
         e1_world, e2_world: (3,) principal in-plane directions of the segment (PCA).
         centroid_world: (3,) segment centroid [m].
         curvature: l_s = |λ3 / tr Σ| (eq. 16), dimensionless, 0 for a plane, ≤ 1/3.
-        theta_rad: orientation error θ between the tool axis and the surface normal (eq. 15) [rad].
+        theta_rad: orientation error θ (eq. 15) [rad] in [0, π]: the angle between the tool z axis
+            and the inward normal −n_s, so 0 when the tool presses straight into the surface. With
+            the paper's mount (camera z ∥ tool z) this is θ = |acos(n_s^cᵀ [0 0 1]ᵀ)| for the
+            inward-pointing n_s^c (see tactex.perception.pca).
         segment_size: number of points in the segment.
         reason: why the estimate is invalid ("" when valid).
         e1_camera, e2_camera: (3,) the PCA edges in the camera frame.
