@@ -1,0 +1,148 @@
+"""The safety layer: NaN guard, limits, force trip and retreat, joint-limit repulsion, events."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tactex.control import FRANKA_Q_MAX, FRANKA_TAU_MAX, Controller, SafetyLayer, SafetyLimits
+from tactex.errors import ConfigError, ControllerFault
+from tests.test_control_common import N_JOINTS, make_state
+
+TAU_MAX = np.asarray(FRANKA_TAU_MAX)
+RATE_STEP = 1000.0 * 1e-3
+Q_MID = np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0])
+
+
+class Constant(Controller):
+    """Returns a fixed torque (or raises / returns NaN when told)."""
+
+    name = "constant"
+
+    def __init__(self, tau, fail: str = "") -> None:
+        self.tau = np.asarray(tau, dtype=float)
+        self.fail = fail
+        self.resets = 0
+
+    def reset(self, state) -> None:
+        self.resets += 1
+
+    def torque(self, state, reference):
+        if self.fail == "raise":
+            raise ControllerFault("inner failed on purpose")
+        if self.fail == "nan":
+            return np.full(N_JOINTS, np.nan)
+        return self.tau.copy()
+
+
+def _layer(tau, **kw):
+    inner = Constant(tau, kw.pop("fail", ""))
+    layer = SafetyLayer(inner, SafetyLimits(**kw) if kw else None)
+    layer.reset(make_state(q=Q_MID))
+    return layer, inner
+
+
+def _state(k: int, **kw):
+    kw.setdefault("q", Q_MID)
+    return make_state(t=k * 1e-3, **kw)
+
+
+def test_rate_and_torque_limits():
+    layer, _ = _layer(np.array([200.0, -200.0, 5.0, 0.5, 30.0, -30.0, 0.0]))
+    prev = np.zeros(N_JOINTS)
+    for k in range(300):
+        tau = layer.torque(_state(k), None)
+        assert (np.abs(tau) <= TAU_MAX).all()
+        assert (np.abs(tau - prev) <= RATE_STEP + 1e-12).all()
+        prev = tau
+    np.testing.assert_allclose(tau, [87.0, -87.0, 5.0, 0.5, 12.0, -12.0, 0.0])
+    kinds = [e.kind for e in layer.events]
+    assert kinds.count("torque_limit") == 1 and "torque_rate_limit" in kinds  # reported once, when it starts
+    assert layer.counts["torque_limit"] > 200
+
+
+def test_nan_wrench_is_replaced_and_reported():
+    layer, _ = _layer(np.ones(N_JOINTS))
+    layer.torque(_state(0, wrench_tool=np.array([0, 0, 3.0, 0, 0, 0])), None)
+    tau = layer.torque(_state(1, wrench_tool=np.array([np.nan, 0, 0, 0, 0, np.inf])), None)
+    assert np.isfinite(tau).all()
+    assert layer.events[-1].kind == "nan_wrench" and layer.events[-1].t == pytest.approx(1e-3)
+
+
+def test_nan_state_holds_and_decays():
+    layer, _ = _layer(np.full(N_JOINTS, 0.5))
+    for k in range(10):
+        tau = layer.torque(_state(k), None)
+    bad = replace(_state(10), q=np.full(N_JOINTS, np.nan))
+    held = layer.torque(bad, None)
+    assert np.isfinite(held).all()
+    assert (np.abs(held) < np.abs(tau)).all() and (np.abs(held) > 0.9 * np.abs(tau)).all()
+    assert any(e.kind == "nan_state" for e in layer.events)
+
+
+@pytest.mark.parametrize("fail", ["raise", "nan"])
+def test_inner_fault_holds(fail):
+    layer, _ = _layer(np.ones(N_JOINTS), fail=fail)
+    tau = layer.torque(_state(0), None)
+    assert np.isfinite(tau).all()
+    assert layer.events[-1].kind == ("controller_fault" if fail == "raise" else "nan_torque")
+
+
+def test_force_trip_retreat_and_resume():
+    limits = {"max_contact_force": 20.0, "force_trip_ticks": 3, "retreat_time": 0.05}
+    layer, inner = _layer(np.full(N_JOINTS, 0.3), **limits)
+    over = np.array([0, 0, 50.0, 0, 0, 0])
+    for k in range(2):  # shorter than the debounce: no trip
+        layer.torque(_state(k, wrench_tool=over), None)
+    assert not layer.retreating
+    layer.torque(_state(2, wrench_tool=over), None)
+    assert layer.retreating and "force_limit" in [e.kind for e in layer.events]
+    # during the retreat the command is the compliant pull back along −tool z (J = I on the first 6 rows)
+    jac = np.zeros((6, N_JOINTS))
+    jac[:6, :6] = np.eye(6)
+    tau = layer.torque(_state(3, jacobian=jac), None)
+    assert not np.allclose(tau, 0.3)
+    resets = inner.resets
+    for k in range(4, 60):
+        layer.torque(_state(k), None)
+    assert not layer.retreating and inner.resets == resets + 1
+    assert [e.kind for e in layer.events].count("retreat_end") == 1
+
+
+def test_retreat_pulls_away_from_the_surface():
+    layer, _ = _layer(np.zeros(N_JOINTS), max_contact_force=20.0, force_trip_ticks=1, tau_rate_max=1e6)
+    jac = np.zeros((6, N_JOINTS))
+    jac[:6, :6] = np.eye(6)
+    down = np.diag([1.0, -1.0, -1.0])  # tool z = world −z
+    tau = layer.torque(_state(0, jacobian=jac, rotation=down, wrench_tool=np.array([0, 0, 30.0, 0, 0, 0])), None)
+    assert tau[2] > 0.0  # world +z: away from the surface
+
+
+def test_joint_limit_repulsion():
+    layer, _ = _layer(np.zeros(N_JOINTS), tau_rate_max=1e6)
+    q = Q_MID.copy()
+    q[0] = FRANKA_Q_MAX[0] - 0.02  # 0.02 rad from the upper limit
+    tau = layer.torque(_state(0, q=q), None)
+    assert tau[0] == pytest.approx(-50.0 * (0.1 - 0.02))
+    assert np.allclose(tau[1:], 0.0)
+    assert layer.events[-1].kind == "joint_limit"
+
+
+def test_wrong_joint_count_is_a_config_error():
+    layer, _ = _layer(np.zeros(N_JOINTS))
+    bad = replace(_state(0), q=np.zeros(6), dq=np.zeros(6))
+    with pytest.raises(ConfigError, match="joints"):
+        layer.torque(bad, None)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"tau_max": (1.0, 2.0)}, "same length"), ({"tau_rate_max": 0.0}, "tau_rate_max"),
+     ({"max_contact_force": -1.0}, "max_contact_force"), ({"force_trip_ticks": 0}, "force_trip_ticks"),
+     ({"q_min": (1.0,) * 7, "q_max": (0.0,) * 7}, "q_max > q_min")],
+)
+def test_limits_validation(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        SafetyLimits(**kwargs)
