@@ -7,6 +7,8 @@ number below is derived from the geometry, not from the code under test.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.integrate import quad
@@ -16,6 +18,7 @@ from tactex.perception import (
     D435I_DEPTH_640x480,
     SurfaceEstimator,
     SurfaceEstimatorConfig,
+    frame_to_cloud,
     grid_normals,
     knn_normals,
     segment_pca,
@@ -318,3 +321,31 @@ def test_region_growing_follows_pcl_rules() -> None:
     nan_normals[2] = np.nan
     lab = region_growing(nan_normals, flat_curv, edges, RegionGrowingParams(10.0, 0.05, 1))
     assert lab[2] == -1 and lab[1] != lab[3]
+
+
+NOISY_NORMAL_TOL_DEG = 1.0
+
+
+def test_noisy_depth_still_gives_the_normal(rng: np.random.Generator) -> None:
+    # 1 mm Gaussian depth noise (D435i-class at 0.3 m) and 10 % missing pixels on a 30° plane.
+    n_true = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
+    frame, _ = render_frame(K, down_camera(0.0, 0.0, 0.3), [Plane((0.0, 0.0, 0.0), tuple(n_true))])
+    depth = frame.depth_m + rng.normal(0.0, 0.001, frame.depth_m.shape).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    est = SurfaceEstimator().estimate(dataclasses.replace(frame, depth_m=depth))
+    assert est.valid, est.reason
+    assert angle_deg(est.normal_world, n_true) < NOISY_NORMAL_TOL_DEG
+    assert abs(np.degrees(est.theta_rad) - 30.0) < NOISY_NORMAL_TOL_DEG
+
+
+def test_cloud_in_camera_and_world_frames() -> None:
+    frame, _ = render_frame(K, look_at([0.1, -0.05, 0.35], [0.0, 0.0, 0.0]), [Sphere((0.0, 0.0, 0.0), 0.1)])
+    cam = frame_to_cloud(frame, in_world=False, stride=4)
+    world = frame_to_cloud(frame, in_world=True, stride=4)
+    rot, t = frame.world_T_camera[:3, :3], frame.world_T_camera[:3, 3]
+    np.testing.assert_allclose(cam.points @ rot.T + t, world.points, atol=1e-12)
+    # Every world point lies on the sphere (float32 depth → ~1e-7 relative).
+    np.testing.assert_allclose(np.linalg.norm(world.points, axis=1), 0.1, atol=1e-6)
+    # Camera-frame depth is the optical z of the point, i.e. the image value.
+    assert np.all(cam.points[:, 2] > 0)
+    assert cam.spacing == pytest.approx(4 * np.median(cam.points[:, 2]) / K.fx)
