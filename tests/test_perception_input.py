@@ -192,6 +192,8 @@ def test_bad_rgb_and_timestamp_raise() -> None:
         validate_frame(dataclasses.replace(frame, timestamp=float("nan")))
     with pytest.raises(PerceptionError, match="CameraFrame"):
         validate_frame(frame.depth_m)  # type: ignore[arg-type]
+    with pytest.raises(PerceptionError, match="CameraFrame"):
+        SurfaceEstimator().estimate(frame.depth_m)  # type: ignore[arg-type]
     with pytest.raises(PerceptionError, match="stride"):
         deproject(frame.depth_m, K, stride=0)
 

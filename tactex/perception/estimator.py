@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import CloudError, ConfigError
+from tactex.errors import CloudError, ConfigError, PerceptionError
 from tactex.perception.depth import check_pose, depth_in_meters
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.frame import CameraFrame, CameraIntrinsics
@@ -145,7 +145,7 @@ class SurfaceEstimator:
         """
         cfg = self.config
         if not isinstance(frame, CameraFrame):
-            raise ConfigError(f"expected a CameraFrame, got {type(frame).__name__}")
+            raise PerceptionError(f"expected a CameraFrame, got {type(frame).__name__}")
         intr = frame.intrinsics
         depth = depth_in_meters(frame.depth_m, intr)
         w_T_c = check_pose(frame.world_T_camera, "frame.world_T_camera")

@@ -17,6 +17,7 @@ from tactex.errors import InputError
 from tactex.perception.frame import CameraFrame, CameraIntrinsics
 
 __all__ = [
+    "Cylinder",
     "HeightField",
     "Plane",
     "Sphere",
