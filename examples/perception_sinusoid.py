@@ -23,7 +23,9 @@ def main() -> None:
     for k, y in enumerate(np.linspace(-0.15, 0.15, 7)):
         z0 = float(surf.h(np.zeros(1), np.array([y]))[0])
         frame, _ = render_frame(
-            D435I_DEPTH_640x480, look_at([0.0, y, z0 + 0.25], [0.0, y, z0], up=(0.0, 1.0, 0.0)), [surf],
+            D435I_DEPTH_640x480,
+            look_at([0.0, y, z0 + 0.25], [0.0, y, z0], up=(0.0, 1.0, 0.0)),
+            [surf],
             timestamp=k / 30.0,
         )
         frames.append(frame)
@@ -44,6 +46,7 @@ def main() -> None:
             f"async: latest estimate from t={latest.estimate.timestamp:.3f} s, valid={latest.estimate.valid}, "
             f"age {latest.age_s * 1e3:.1f} ms, stale={latest.stale}; {pipe.stats()}"
         )
+
 
 if __name__ == "__main__":
     main()
