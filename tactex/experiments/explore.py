@@ -253,9 +253,20 @@ def run_explore(
     explorer = HedacExplorer(cloud, basis, hcfg)
     preprocess_s = time.perf_counter() - t0
     say(f"basis: {preprocess_s:.3f} s ({basis.n_components} connected part(s))")
+    labels = basis.component_labels()
+    sizes = np.bincount(labels)
+    if basis.n_components > 1:
+        say(
+            f"warning: the Laplacian sees {basis.n_components} separate parts (sizes {sorted(sizes.tolist())[::-1]}); "
+            f"heat does not diffuse between them (TEC §VI-D): raise --n-neighbors (now {cfg.n_neighbors}) to join them"
+        )
 
     x0, x0_source = _start_position(cloud, cfg, source_info)
     start = explorer.reset(x0)[0].point
+    start_part = int(labels[int(np.argmin(np.linalg.norm(cloud.points - start, axis=1)))])
+    start_part_target = float(cloud.target[labels == start_part].sum())
+    if start_part_target <= 0:
+        say("warning: the start lies in a part without target; the agent will not find any (see above)")
     n = cfg.steps
     trajectory = np.empty((n, 3))
     ergodicity = np.empty(n)
@@ -284,6 +295,8 @@ def run_explore(
         "n_target": cloud.n_target,
         "spacing_m": cloud.spacing,
         "n_components": basis.n_components,
+        "component_sizes": sorted(sizes.tolist(), reverse=True),
+        "start_part_has_target": start_part_target > 0,
         "load_time_s": load_s,
         "basis_time_s": basis_s,
         "preprocess_time_s": preprocess_s,

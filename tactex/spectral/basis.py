@@ -63,6 +63,10 @@ class LaplaceBasis:
         """K, the number of eigenpairs."""
         return int(self.evecs.shape[1])
 
+    def component_labels(self) -> np.ndarray:
+        """Connected part (N,) of each point as the Laplacian links them (0 … n_components−1)."""
+        return _component_labels(self.L)[1]
+
     def project(self, u: np.ndarray) -> np.ndarray:
         """Spectral coefficients Φᵀ M u of a field u (N,) or (N, B)."""
         return self.evecs.T @ (self.mass[:, None] * u if u.ndim == 2 else self.mass * u)
@@ -87,11 +91,16 @@ def _check_n_eigen(n_eigen: object, n_points: int) -> int:
     return k
 
 
-def _count_components(L: sp.csr_matrix) -> int:
+def _component_labels(L: sp.spmatrix) -> tuple[int, np.ndarray]:
     graph = sp.csr_matrix(L, copy=True)
     graph.setdiag(0.0)
     graph.eliminate_zeros()
-    return int(connected_components(graph, directed=False)[0])
+    n, labels = connected_components(graph, directed=False)
+    return int(n), labels
+
+
+def _count_components(L: sp.csr_matrix) -> int:
+    return _component_labels(L)[0]
 
 
 def compute_basis(
