@@ -199,3 +199,23 @@ def test_start_far_from_the_surface(tmp_path, capsys) -> None:
 def test_output_path_is_a_file(tmp_path, capsys) -> None:
     (tmp_path / "f").write_text("x")
     _fails(["explore", "cup", "--quiet", "--out", str(tmp_path / "f")], capsys, "not a directory")
+
+
+def test_separate_parts_are_reported(tmp_path) -> None:
+    g = np.linspace(0.0, 0.06, 21)
+    x, y = np.meshgrid(g, g)
+    patch = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    pts = np.vstack([patch, patch + np.array([0.3, 0.0, 0.0])])  # two plates 30 cm apart
+    target = np.r_[np.ones(len(patch)), np.zeros(len(patch))]
+    path = save_npz(SurfaceCloud(points=pts, target=target), tmp_path / "two.npz")
+    messages: list[str] = []
+    cfg = ExploreConfig(
+        voxel_size=0.0, n_eigen=20, n_neighbors=10, steps=5, x0=(0.33, 0.03, 0.0), html=False, cache=False
+    )
+    result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
+    assert any("2 separate parts" in m and "--n-neighbors" in m for m in messages)
+    assert any("part without target" in m for m in messages)
+    assert result.metrics["component_sizes"] == [len(patch), len(patch)]
+    assert result.metrics["start_part_has_target"] is False
+    # Without heat reaching it, the agent covers none of the target.
+    assert result.metrics["final_ergodicity"] == pytest.approx(1.0)
