@@ -26,14 +26,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="run directory for metrics, trajectory and plots")
     add_dataclass_arguments(parser, ExploreConfig)
-    parser.add_argument(
-        "--x0",
-        type=float,
-        nargs=3,
-        metavar=("X", "Y", "Z"),
-        default=None,
-        help=ExploreConfig.__dataclass_fields__["x0"].metadata["help"],
-    )
+    x0_help = ExploreConfig.__dataclass_fields__["x0"].metadata["help"]
+    parser.add_argument("--x0", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None, help=x0_help)
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     group = parser.add_argument_group("explorer (advanced)", "further HEDAC parameters (TEC Table II)")
     add_dataclass_arguments(group, HedacConfig, skip=_SHARED)
