@@ -30,7 +30,7 @@ def test_impedance_tank_balance_per_step(rng):
         xdot = rng.normal(size=6) * 0.2
         kvar_err = rng.normal(size=6) * 20.0
         s0 = tank.energy
-        sigma = tank.step(xdot, D, kvar_err, DT)
+        sigma = tank.step(float(xdot @ D @ xdot), float(xdot @ kvar_err), DT)
         _check_balance(tank, s0)
         # the port force is −σ K_var x̃; its power is what the tank reports as delivered
         assert float(xdot @ (-sigma * kvar_err)) == pytest.approx(tank.last.port_power, abs=BALANCE_TOL)
@@ -42,7 +42,7 @@ def test_force_tank_balance_per_step(rng):
         xdot = rng.normal(size=6) * 0.2
         f_f = rng.normal(size=6) * 10.0
         s0 = tank.energy
-        m = tank.step(xdot, D, f_f, DT)
+        m = tank.step(float(xdot @ D @ xdot), float(xdot @ f_f), DT)
         _check_balance(tank, s0)
         lam = 1.0 if xdot @ f_f < 0 else 0.0
         assert tank.last.lam == lam  # eq. 38
@@ -58,7 +58,7 @@ def test_impedance_valve_closes_at_lower_limit():
     kvar_err = np.array([-100.0, 0, 0, 0, 0, 0])  # stiffness pushing along the motion: drains 10 W
     sigmas = []
     for _ in range(20000):
-        sigmas.append(tank.step(xdot, np.zeros((6, 6)), kvar_err, DT))
+        sigmas.append(tank.step(0.0, float(xdot @ kvar_err), DT))
         assert tank.energy >= 1.0  # never below the lower limit, not even by one step
     assert sigmas[0] == 1.0
     # the smooth valve closes as S reaches S_low: the drain slows to nothing right at the limit
@@ -68,10 +68,10 @@ def test_impedance_valve_closes_at_lower_limit():
 
 def test_valve_clamps_a_large_single_draw_at_the_lower_limit():
     tank = ImpedanceTank(x0=2.0, upper_j=32.0, lower_j=1.0, band_j=0.0)  # hard valve
-    sigma = tank.step(np.array([1.0, 0, 0, 0, 0, 0]), np.zeros((6, 6)), np.array([-5000.0, 0, 0, 0, 0, 0]), DT)
+    sigma = tank.step(0.0, -5000.0, DT)
     assert tank.energy == pytest.approx(1.0, abs=1e-12)  # drew exactly the 1 J above the limit
     assert sigma == pytest.approx(1.0 / 5.0)
-    assert tank.step(np.array([1.0, 0, 0, 0, 0, 0]), np.zeros((6, 6)), np.array([-5000.0, 0, 0, 0, 0, 0]), DT) == 0.0
+    assert tank.step(0.0, -5000.0, DT) == 0.0
 
 
 def test_force_valve_closes_at_lower_limit():
@@ -79,7 +79,7 @@ def test_force_valve_closes_at_lower_limit():
     xdot = np.array([0, 0, 0.2, 0, 0, 0])
     f_f = np.array([0, 0, 15.0, 0, 0, 0])  # contact lost: force control accelerates the tool (3 W)
     for _ in range(5000):
-        m = tank.step(xdot, np.zeros((6, 6)), f_f, DT)
+        m = tank.step(0.0, float(xdot @ f_f), DT)
         assert tank.energy >= 1.0
     assert m < 0.01 and tank.energy - 1.0 < 1e-3
     assert tank.delivered == pytest.approx(2.0 - tank.energy, abs=1e-9)  # all it gave came out of the tank
@@ -89,12 +89,12 @@ def test_fill_stops_at_upper_limit():
     tank = ImpedanceTank(x0=7.0, upper_j=32.0, lower_j=1.0)
     xdot = np.array([0.5, 0.5, 0, 0, 0, 0])
     for _ in range(20000):
-        tank.step(xdot, D, np.zeros(6), DT)
+        tank.step(float(xdot @ D @ xdot), 0.0, DT)
         assert tank.energy <= 32.0 + 1e-12
     assert 32.0 - tank.energy < 1e-3  # β fades to 0 as S reaches S̄
     assert tank.last.gate < 0.01 and tank.last.harvest_power < 0.01 * float(xdot @ D @ xdot)
     full = ImpedanceTank(x0=8.0, upper_j=32.0, lower_j=1.0)  # ½·8² = 32 J: at the limit
-    full.step(xdot, D, np.zeros(6), DT)
+    full.step(float(xdot @ D @ xdot), 0.0, DT)
     assert full.last.gate == 0.0 and full.last.harvest_power == 0.0 and full.energy == 32.0
 
 
@@ -103,7 +103,7 @@ def test_force_tank_table_defaults_stay_full():
     tank = ForceTank()
     xdot = np.array([0, 0, -0.1, 0, 0, 0])
     for _ in range(100):
-        assert tank.step(xdot, D, np.array([0, 0, 15.0, 0, 0, 0]), DT) == 1.0
+        assert tank.step(float(xdot @ D @ xdot), float(xdot @ np.array([0, 0, 15.0, 0, 0, 0])), DT) == 1.0
     assert tank.energy == pytest.approx(2.0)
 
 
@@ -111,7 +111,7 @@ def test_disabled_tank_keeps_accounting_but_never_closes():
     tank = ImpedanceTank(x0=2.0, enabled=False)
     xdot = np.array([0.1, 0, 0, 0, 0, 0])
     for _ in range(3000):
-        assert tank.step(xdot, np.zeros((6, 6)), np.array([-100.0, 0, 0, 0, 0, 0]), DT) == 1.0
+        assert tank.step(0.0, float(xdot @ np.array([-100.0, 0, 0, 0, 0, 0])), DT) == 1.0
     assert tank.energy < 0.0  # the shadow tank shows the energy a real tank could not have given
 
 

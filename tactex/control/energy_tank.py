@@ -120,24 +120,21 @@ class ForceTank(EnergyTank):
                  enabled: bool = True) -> None:
         super().__init__(x0, upper_j, lower_j, band_j, enabled)
 
-    def step(self, xdot: np.ndarray, damping: np.ndarray, f_force: np.ndarray, dt: float) -> float:
-        """One tick. ``f_force`` is the force-control wrench that would be applied (world [f; m]);
-        returns the multiplier λ + σ(1−λ) of eq. 51/73 for it.
+    def step(self, damping_power: float, force_power: float, dt: float) -> float:
+        """One tick with ẋᵀD_Cẋ [W] and ẋᵀf_f [W] of the force-control wrench f_f that would be
+        applied; returns the multiplier λ + σ(1−λ) of eq. 51/73 for f_f.
 
         λ = 1 when the force controller dissipates (ẋᵀf_f < 0, eq. 38): it acts unmodified and the
         tank stores β·(ẋᵀDẋ − ẋᵀf_f) (eq. 39). Otherwise it is routed through the tank: the port
-        force f_f,var = ω_f y_t = σ f_f (eq. 42–43 with y_t in the denominator of ω_f) and the
-        tank loses u_t y_t = −σ ẋᵀf_f.
+        force f_f,var = ω_f y_t = σ f_f (eq. 42–43; ω_f has y_t, not u_t, in its denominator, as
+        f_f,var = ω_f y_t requires) and the tank loses u_t y_t = −σ ẋᵀf_f.
         """
-        p_f = float(xdot @ f_force)
-        lam = 1.0 if p_f < 0.0 else 0.0
+        lam = 1.0 if force_power < 0.0 else 0.0
         gate = self.gate()
         if lam == 1.0:
-            harvest = gate * (float(xdot @ (damping @ xdot)) - p_f)
-            self._commit(0.0, 0.0, harvest, gate, lam, dt)
+            self._commit(0.0, 0.0, gate * (damping_power - force_power), gate, lam, dt)
             return 1.0
-        valve = self._commit(p_f, self.valve(), 0.0, gate, lam, dt)
-        return valve
+        return self._commit(force_power, self.valve(), 0.0, gate, lam, dt)
 
 
 class ImpedanceTank(EnergyTank):
@@ -147,11 +144,9 @@ class ImpedanceTank(EnergyTank):
                  enabled: bool = True) -> None:
         super().__init__(x0, upper_j, lower_j, band_j, enabled)
 
-    def step(self, xdot: np.ndarray, damping: np.ndarray, kvar_err: np.ndarray, dt: float) -> float:
-        """One tick with ``kvar_err`` = K_var(t)·x̃ (world). Returns σ(S_t,i) of eq. 62/72: the
-        variable spring force applied is f_i,var = ω_i y_t = −σ·K_var·x̃, delivering −σ ẋᵀK_var x̃,
-        and the tank stores β·ẋᵀDẋ (eq. 57)."""
-        demand = -float(xdot @ kvar_err)
+    def step(self, damping_power: float, spring_power: float, dt: float) -> float:
+        """One tick with ẋᵀD_Cẋ [W] and ẋᵀK_var(t)x̃ [W]. Returns σ(S_t,i) of eq. 62/72: the variable
+        spring force applied is f_i,var = ω_i y_t = −σ·K_var·x̃, delivering −σ ẋᵀK_var x̃ to the
+        robot, and the tank stores β·ẋᵀDẋ (eq. 57)."""
         gate = self.gate()
-        harvest = gate * float(xdot @ (damping @ xdot))
-        return self._commit(demand, self.valve(), harvest, gate, 1.0, dt)
+        return self._commit(-spring_power, self.valve(), gate * damping_power, gate, 1.0, dt)

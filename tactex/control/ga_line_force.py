@@ -32,12 +32,9 @@ from tactex.control.controller import Controller
 from tactex.control.references import LineForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
-from tactex.geometry.motor import line_motor, motor_log, twist_to_wrench
+from tactex.geometry.motor import twist_to_wrench, z_line_motor_log
 
 __all__ = ["GaLineForceController", "GaLineForceParams"]
-
-_EZ = np.array([0.0, 0.0, 1.0])
-
 
 @dataclass(frozen=True)
 class GaLineForceParams:
@@ -101,22 +98,26 @@ class GaLineForceController(Controller):
         self._err_prev = np.zeros(6)
         self._derr = np.zeros(6)
         self._t_prev: float | None = None
-        self._last: dict[str, float] = {}
+        self._w_des = np.zeros(6)
+        self._ilim = p.integral_limit / p.ki if p.ki > 0 else 0.0
+        self._tau_d = 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz)
+        self._w_line: np.ndarray | None = None
+        self._w_c2 = 0.0
+        self._err2 = 0.0
 
     def reset(self, state: RobotState) -> None:
         self._integral[:] = 0.0
-        self._err_prev[:] = 0.0
+        self._err_prev = np.zeros(6)
         self._derr[:] = 0.0
         self._t_prev = None
-        self._last = {}
+        self._w_line = None
 
     def line_error(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
         """log of the motor from the tool z-line to the target line, in the tool frame, [t; ω]."""
         rot = state.ee_rotation
-        point_tool = rot.T @ (reference.point_world - state.ee_position)
-        dir_tool = rot.T @ (-reference.normal_world)
-        m_rot, m_trans = line_motor(np.zeros(3), _EZ, point_tool, dir_tool)
-        return motor_log(m_rot, m_trans)
+        point_tool = (reference.point_world - state.ee_position) @ rot
+        dir_tool = -(reference.normal_world @ rot)
+        return z_line_motor_log(point_tool, dir_tool)
 
     def line_wrench(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
         """K·W_L (eq. 38 scaled by the stiffness), tool frame [f; m]."""
@@ -126,37 +127,43 @@ class GaLineForceController(Controller):
         if not isinstance(reference, LineForceReference):
             raise ControllerFault(f"{self.name} needs a LineForceReference, got {type(reference).__name__}")
         p = self.params
-        dt = p.dt if self._t_prev is None or not (0.0 < state.t - self._t_prev < 0.1) else state.t - self._t_prev
-        first = self._t_prev is None
+        tp = self._t_prev
+        dt = state.t - tp if tp is not None and 0.0 < state.t - tp < 0.1 else p.dt
         self._t_prev = state.t
         rot = state.ee_rotation
 
-        w_line = self.line_wrench(state, reference)
-        v_tool = np.concatenate([rot.T @ state.ee_twist[:3], rot.T @ state.ee_twist[3:]])
-        w_damp = self._d * v_tool
+        w_line = self._k * self.line_error(state, reference)  # eq. 36–38
+        v_tool = (state.ee_twist.reshape(2, 3) @ rot).ravel()  # J^ee q̇ (eq. 46)
 
-        w_des = np.array([0.0, 0.0, reference.force_n, 0.0, 0.0, 0.0])
-        err = self._axes * (w_des - state.wrench_tool)
-        lim = p.integral_limit / p.ki if p.ki > 0 else 0.0
+        w_des = self._w_des
+        w_des[2] = reference.force_n
+        err = self._axes * (w_des - state.wrench_tool)  # eq. 39–41
         if state.wrench_tool[2] >= p.contact_threshold_n:
-            self._integral = np.clip(self._integral + err * dt, -lim, lim)
-        if first:
+            self._integral += err * dt
+            np.clip(self._integral, -self._ilim, self._ilim, out=self._integral)
+        if tp is None:
             self._err_prev = err
-        alpha = dt / (dt + 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz))
-        self._derr += alpha * ((err - self._err_prev) / dt - self._derr)
+        self._derr += self._alpha(dt) * ((err - self._err_prev) / dt - self._derr)
         self._err_prev = err
-        w_c = p.kp * err + p.ki * self._integral + p.kd * self._derr
+        w_c = p.kp * err + p.ki * self._integral + p.kd * self._derr  # eq. 40
 
-        w_tool = w_line - w_damp + w_c
-        f_world = np.concatenate([rot @ w_tool[:3], rot @ w_tool[3:]])
-        tau = state.jacobian.T @ f_world
-        self._last = {
-            "line_offset_m": float(np.linalg.norm(w_line[:2] / np.maximum(self._k[:2], 1e-12))),
-            "line_angle_rad": float(np.linalg.norm(w_line[3:5] / np.maximum(self._k[3:5], 1e-12))),
-            "force_error_n": float(err[2]),
-            "force_cmd_n": float(w_c[2]),
-        }
-        return tau
+        w_tool = w_line - self._d * v_tool + w_c  # eq. 47 in [linear; angular]
+        self._w_line = w_line
+        self._w_c2 = float(w_c[2])
+        self._err2 = float(err[2])
+        return state.jacobian.T @ (w_tool.reshape(2, 3) @ rot.T).ravel()
+
+    def _alpha(self, dt: float) -> float:
+        return dt / (dt + self._tau_d)
 
     def telemetry(self) -> dict[str, float]:
-        return dict(self._last)
+        """Line offset [m] and angle [rad] (from the line twist), force error and command [N]."""
+        if self._w_line is None:
+            return {}
+        xi = self._w_line / np.maximum(self._k, 1e-12)
+        return {
+            "line_offset_m": float(np.hypot(xi[0], xi[1])),
+            "line_angle_rad": float(np.hypot(xi[3], xi[4])),
+            "force_error_n": self._err2,
+            "force_cmd_n": self._w_c2,
+        }

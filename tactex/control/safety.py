@@ -18,6 +18,7 @@ Events are small frozen dataclasses in :attr:`SafetyLayer.events`; nothing non-f
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -92,6 +93,10 @@ class SafetyLayer(Controller):
         self._tau_max = np.asarray(lim.tau_max, dtype=float)
         self._q_min = np.asarray(lim.q_min, dtype=float)
         self._q_max = np.asarray(lim.q_max, dtype=float)
+        self._neg_tau_max = -self._tau_max
+        self._q_lo_margin = self._q_min + lim.joint_limit_margin
+        self._q_hi_margin = self._q_max - lim.joint_limit_margin
+        self._rate_step = lim.tau_rate_max * lim.dt
         self.events: list[SafetyEvent] = []
         self.counts: dict[str, int] = {}
         self._tau_prev = np.zeros_like(self._tau_max)
@@ -130,7 +135,7 @@ class SafetyLayer(Controller):
         if state.n_joints != self._tau_max.shape[0]:
             raise ConfigError(f"SafetyLayer configured for {self._tau_max.shape[0]} joints, state has {state.n_joints}")
         wrench = state.wrench_tool
-        if not np.isfinite(wrench).all():
+        if not np.isfinite(wrench.sum()):
             self._event(state.t, "nan_wrench", f"non-finite F/T wrench {wrench!r}; using the last finite one")
             state = _replace_wrench(state, self._wrench_last)
         if not state.is_finite():
@@ -138,7 +143,8 @@ class SafetyLayer(Controller):
             return self._finish(state, self._hold(), finite_state=False)
         self._wrench_last = state.wrench_tool.copy()
 
-        force = float(np.linalg.norm(state.wrench_tool[:3]))
+        w = state.wrench_tool
+        force = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
         self._over = self._over + 1 if force > lim.max_contact_force else 0
         if self._retreat_until is None and self._over >= lim.force_trip_ticks:
             self._retreat_until = state.t + lim.retreat_time
@@ -157,7 +163,7 @@ class SafetyLayer(Controller):
         except TactexError as exc:
             self._event(state.t, "controller_fault", f"{type(exc).__name__}: {exc}")
             return self._finish(state, self._hold())
-        if tau.shape != self._tau_max.shape or not np.isfinite(tau).all():
+        if tau.shape != self._tau_max.shape or not np.isfinite(tau.sum()):
             self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
             return self._finish(state, self._hold())
         return self._finish(state, tau)
@@ -173,32 +179,41 @@ class SafetyLayer(Controller):
         lim = self.limits
         tau = np.array(tau, dtype=float)
         if finite_state:
-            lo = state.q - self._q_min
-            hi = self._q_max - state.q
-            rep = np.zeros_like(tau)
-            m = lim.joint_limit_margin
-            near_lo, near_hi = lo < m, hi < m
-            if near_lo.any() or near_hi.any():
-                k, d = lim.joint_limit_stiffness, lim.joint_limit_damping
-                rep[near_lo] += k * (m - lo[near_lo]) - d * state.dq[near_lo]
-                rep[near_hi] -= k * (m - hi[near_hi]) + d * state.dq[near_hi]
+            q = state.q
+            near_lo = q < self._q_lo_margin
+            near_hi = q > self._q_hi_margin
+            if (near_lo | near_hi).any():
+                m, k, d = lim.joint_limit_margin, lim.joint_limit_stiffness, lim.joint_limit_damping
+                rep = np.zeros_like(tau)
+                rep[near_lo] += k * (self._q_lo_margin[near_lo] - q[near_lo]) - d * state.dq[near_lo]
+                rep[near_hi] -= k * (q[near_hi] - self._q_hi_margin[near_hi]) + d * state.dq[near_hi]
                 if not self._held:
                     joints = np.flatnonzero(near_lo | near_hi).tolist()
                     self._event(state.t, "joint_limit", f"joints {joints} within {m} rad of a limit; repelling")
                 self._held = True
-                tau = tau + rep
+                tau += rep
             else:
                 self._held = False
-        tau = np.where(np.isfinite(tau), tau, 0.0)
-        clipped = np.clip(tau, -self._tau_max, self._tau_max)
-        self._flag(state.t, "torque_limit", bool(np.any(clipped != tau)), "torque saturated at the joint limits")
-        step = lim.tau_rate_max * lim.dt
-        limited = np.clip(clipped, self._tau_prev - step, self._tau_prev + step)
-        self._flag(state.t, "torque_rate_limit", bool(np.any(limited != clipped)), "torque rate saturated")
-        self._tau_prev = limited
-        return limited.copy()
+        if not np.isfinite(tau.sum()):
+            tau = np.where(np.isfinite(tau), tau, 0.0)
+        prev = self._tau_prev
+        lo = np.maximum(self._neg_tau_max, prev - self._rate_step)
+        hi = np.minimum(self._tau_max, prev + self._rate_step)
+        out = np.minimum(np.maximum(tau, lo), hi)
+        if (out != tau).any():
+            over = bool((np.abs(tau) > self._tau_max).any())
+            clipped = np.minimum(np.maximum(tau, self._neg_tau_max), self._tau_max) if over else tau
+            self._flag(state.t, "torque_limit", over, "torque saturated at the joint limits")
+            self._flag(state.t, "torque_rate_limit", bool((out != clipped).any()), "torque rate saturated")
+        else:
+            self._flag(state.t, "torque_limit", False, "")
+            self._flag(state.t, "torque_rate_limit", False, "")
+        self._tau_prev = out
+        return out.copy()
 
     def _flag(self, t: float, kind: str, active: bool, detail: str) -> None:
+        if not active and not self._saturating[kind]:
+            return
         if active:
             self.counts[kind] = self.counts.get(kind, 0) + 1
             if not self._saturating[kind]:

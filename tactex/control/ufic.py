@@ -67,12 +67,14 @@ class UficParams:
             np.asarray(self.apparent_mass) * np.asarray(self.damping_reference_stiffness))
 
 
-def rotate_diag(rot: np.ndarray, diag6: np.ndarray) -> np.ndarray:
-    """blockdiag(R, R)·diag(d)·blockdiag(R, R)ᵀ: a tool-frame diagonal gain in the world frame."""
-    out = np.zeros((6, 6))
-    out[:3, :3] = (rot * diag6[:3]) @ rot.T
-    out[3:, 3:] = (rot * diag6[3:]) @ rot.T
-    return out
+def to_tool(rot: np.ndarray, v_world: np.ndarray) -> np.ndarray:
+    """[Rᵀa; Rᵀb] of a world 6-vector [a; b] (one matrix product)."""
+    return (v_world.reshape(2, 3) @ rot).ravel()
+
+
+def to_world(rot: np.ndarray, v_tool: np.ndarray) -> np.ndarray:
+    """[Ra; Rb] of a tool 6-vector [a; b]."""
+    return (v_tool.reshape(2, 3) @ rot.T).ravel()
 
 
 class UficController(Controller):
@@ -87,6 +89,7 @@ class UficController(Controller):
         self._d_tool = self.params.damping_tool()
         self._k_max = np.asarray(self.params.stiffness_max, dtype=float)
         self._integral = np.zeros(6)
+        self._ilim = self.params.integral_limit / self.params.ki if self.params.ki > 0 else 0.0
         self._t_prev: float | None = None
         self._last: dict[str, float] = {}
 
@@ -106,19 +109,21 @@ class UficController(Controller):
     @staticmethod
     def pose_error_world(state: RobotState, position_d: np.ndarray, rotation_d: np.ndarray) -> np.ndarray:
         """x̃ = x − x_d (eq. 7) in the world frame: [position [m]; rotation vector log(R R_dᵀ) [rad]]."""
-        return np.concatenate([state.ee_position - position_d, rotation_error_world(state.ee_rotation, rotation_d)])
+        out = np.empty(6)
+        out[:3] = state.ee_position - position_d
+        out[3:] = rotation_error_world(state.ee_rotation, rotation_d)
+        return out
 
-    def force_wrench_world(self, state: RobotState, wrench_des_tool: np.ndarray, dt: float, integrate: bool = True
-                           ) -> np.ndarray:
-        """f_f of eq. 11: R·(f_d + K_p f̃ + K_i ∫f̃), f̃ = f_d − f_meas on the selected axes."""
+    def force_wrench_tool(self, state: RobotState, wrench_des_tool: np.ndarray, dt: float, integrate: bool = True
+                          ) -> np.ndarray:
+        """f_f of eq. 11 before the rotation R into the base frame: f_d + K_p f̃ + K_i ∫f̃, with
+        f̃ = f_d − f_meas on the selected axes (tool frame)."""
         p = self.params
         err = self._axes * (wrench_des_tool - state.wrench_tool)
         if integrate:
-            lim = p.integral_limit / p.ki if p.ki > 0 else 0.0
-            self._integral = np.clip(self._integral + err * dt, -lim, lim)
-        f_tool = self._axes * wrench_des_tool + p.kp * err + p.ki * self._integral
-        rot = state.ee_rotation
-        return np.concatenate([rot @ f_tool[:3], rot @ f_tool[3:]])
+            self._integral += err * dt
+            np.clip(self._integral, -self._ilim, self._ilim, out=self._integral)
+        return self._axes * wrench_des_tool + p.kp * err + p.ki * self._integral
 
     # -- controller ------------------------------------------------------------------------
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
@@ -126,14 +131,14 @@ class UficController(Controller):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
         dt = self._dt(state)
         rot = state.ee_rotation
-        x_err = self.pose_error_world(state, reference.position_world, reference.rotation_world)
+        x_err_tool = to_tool(rot, self.pose_error_world(state, reference.position_world, reference.rotation_world))
         k_tool = self._k_max.copy()
         k_tool[:3] *= self.stiffness_scale
-        f_i = -rotate_diag(rot, k_tool) @ x_err - rotate_diag(rot, self._d_tool) @ state.ee_twist
-        f_f = self.force_wrench_world(state, reference.wrench_tool, dt)
-        self._last = {"pose_error_m": float(np.linalg.norm(x_err[:3])),
+        f_tool = -k_tool * x_err_tool - self._d_tool * to_tool(rot, state.ee_twist)  # eq. 8 (gains in tool axes)
+        f_tool += self.force_wrench_tool(state, reference.wrench_tool, dt)  # eq. 10–12
+        self._last = {"pose_error_m": float(np.linalg.norm(x_err_tool[:3])),
                       "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2])}
-        return state.jacobian.T @ (f_i + f_f)
+        return state.jacobian.T @ to_world(rot, f_tool)  # eq. 9, 13
 
     def telemetry(self) -> dict[str, float]:
         return dict(self._last)

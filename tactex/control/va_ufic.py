@@ -32,7 +32,7 @@ from tactex.control.alignment import AlignmentShaper, alignment_coefficient, con
 from tactex.control.energy_tank import ForceTank, ImpedanceTank
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
-from tactex.control.ufic import UficController, UficParams, rotate_diag
+from tactex.control.ufic import UficController, UficParams, to_tool, to_world
 from tactex.errors import ConfigError, ControllerFault
 from tactex.geometry.so3 import interpolate_rotation
 from tactex.perception.estimate import SurfaceEstimate
@@ -120,7 +120,7 @@ class VaUficController(UficController):
         self._offset = np.zeros(3)
         self._rot_d: np.ndarray | None = None
         self._realign: tuple[float, np.ndarray, np.ndarray] | None = None
-        self._tel: dict[str, float] = {}
+        self._raw: tuple | None = None
 
     def reset(self, state: RobotState) -> None:
         super().reset(state)
@@ -130,18 +130,22 @@ class VaUficController(UficController):
         self._offset = np.zeros(3)
         self._rot_d = None
         self._realign = None
-        self._tel = {}
+        self._raw = None
 
     def _surface(self, state: RobotState, est: SurfaceEstimate | None) -> tuple[bool, float, float, np.ndarray | None]:
         """(usable, θ [rad], l_s, desired tool z in the world) from the latest estimate."""
         if est is None or not est.valid or not (0.0 <= state.t - est.timestamp <= self.va.surface_max_age):
             return False, 0.0, 0.0, None
-        n = np.asarray(est.normal_world, dtype=float)
+        n = est.normal_world
         ls = float(est.curvature)
-        if n.shape != (3,) or not np.isfinite(n).all() or not np.isfinite(ls) or np.linalg.norm(n) < 1e-9:
+        nx, ny, nz = float(n[0]), float(n[1]), float(n[2])
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if not (math.isfinite(norm) and math.isfinite(ls)) or norm < 1e-9:
             return False, 0.0, 0.0, None
-        z_des = -n / np.linalg.norm(n)
-        theta = math.acos(max(-1.0, min(1.0, float(state.ee_rotation[:, 2] @ z_des))))  # eq. 15, now
+        z_des = np.array([-nx / norm, -ny / norm, -nz / norm])
+        tz = state.ee_rotation[:, 2]
+        cos_t = float(tz[0] * z_des[0] + tz[1] * z_des[1] + tz[2] * z_des[2])
+        theta = math.acos(max(-1.0, min(1.0, cos_t)))  # eq. 15, now
         return True, theta, ls, z_des
 
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
@@ -160,8 +164,7 @@ class VaUficController(UficController):
                 self._realign = None
 
         pos_d = reference.position_world + self._offset
-        x_err = self.pose_error_world(state, pos_d, self._rot_d)
-        x_err_tool = np.concatenate([rot.T @ x_err[:3], rot.T @ x_err[3:]])
+        x_err_tool = to_tool(rot, self.pose_error_world(state, pos_d, self._rot_d))  # x̃^ee
         usable, theta, ls, z_des = self._surface(state, reference.surface)
 
         c = contact_alignment(state.wrench_tool, x_err_tool, theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
@@ -170,7 +173,6 @@ class VaUficController(UficController):
 
         if rho_align <= v.compliant_below:  # fully compliant: feed the actual translation back as desired
             self._offset = state.ee_position - reference.position_world
-            x_err[:3] = 0.0
             x_err_tool[:3] = 0.0
             if usable and self._realign is None:
                 tilt = math.acos(max(-1.0, min(1.0, float(self._rot_d[:, 2] @ z_des))))
@@ -178,17 +180,30 @@ class VaUficController(UficController):
                     self._realign = (state.t, self._rot_d.copy(), desired_rotation_from_normal(rot, z_des))
 
         rho_frc = force_shaping(reference.wrench_tool, x_err_tool, v.delta_c)  # eq. 30
-        d_world = rotate_diag(rot, self._d_tool)
-        k_const = rotate_diag(rot, self._k_const)
-        kvar_err = rho_align * (rotate_diag(rot, self._k_max_t) @ x_err)  # K_var(t)·x̃, eq. 56
-        xdot = state.ee_twist
-        f_f = rho_frc * self.force_wrench_world(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
+        # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
+        # taken there; the powers ẋᵀ(·) are frame-independent.
+        xdot_tool = to_tool(rot, state.ee_twist)
+        d_xdot = self._d_tool * xdot_tool
+        kvar_err = rho_align * self._k_max_t * x_err_tool  # K_var(t)·x̃, eq. 56
+        f_f = rho_frc * self.force_wrench_tool(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
 
-        sigma_i = self.tank_i.step(xdot, d_world, kvar_err, dt)  # eq. 57–63
-        m_f = self.tank_f.step(xdot, d_world, f_f, dt)  # eq. 38–45: λ + σ_f(1 − λ)
-        f = -k_const @ x_err - d_world @ xdot - sigma_i * kvar_err + m_f * f_f  # eq. 72–73
+        p_damp = float(xdot_tool @ d_xdot)
+        sigma_i = self.tank_i.step(p_damp, float(xdot_tool @ kvar_err), dt)  # eq. 57–63
+        m_f = self.tank_f.step(p_damp, float(xdot_tool @ f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
+        f_tool = -self._k_const * x_err_tool - d_xdot - sigma_i * kvar_err + m_f * f_f  # eq. 72–73
 
-        self._tel = {
+        # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
+        self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
+                     float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool[:3].copy())
+        return state.jacobian.T @ to_world(rot, f_tool)
+
+    def telemetry(self) -> dict[str, float]:
+        """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""
+        if self._raw is None:
+            return {}
+        rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, f_err, x_err = self._raw
+        ti, tf = self.tank_i, self.tank_f
+        return {
             "rho_align": rho_align,
             "rho_frc": rho_frc,
             "alignment_c": c,
@@ -197,20 +212,16 @@ class VaUficController(UficController):
             "curvature": ls,
             "surface_usable": float(usable),
             "realigning": float(self._realign is not None),
-            "tank_i_energy_j": self.tank_i.energy,
-            "tank_f_energy_j": self.tank_f.energy,
-            "tank_i_state": self.tank_i.state,
-            "tank_f_state": self.tank_f.state,
+            "tank_i_energy_j": ti.energy,
+            "tank_f_energy_j": tf.energy,
+            "tank_i_state": ti.state,
+            "tank_f_state": tf.state,
             "tank_i_valve": sigma_i,
             "tank_f_multiplier": m_f,
-            "tank_i_delivered_j": self.tank_i.delivered,
-            "tank_f_delivered_j": self.tank_f.delivered,
-            "tank_i_harvested_j": self.tank_i.harvested,
-            "tank_f_harvested_j": self.tank_f.harvested,
-            "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2]),
-            "pose_error_m": float(np.linalg.norm(x_err[:3])),
+            "tank_i_delivered_j": ti.delivered,
+            "tank_f_delivered_j": tf.delivered,
+            "tank_i_harvested_j": ti.harvested,
+            "tank_f_harvested_j": tf.harvested,
+            "force_error_n": f_err,
+            "pose_error_m": float(np.linalg.norm(x_err)),
         }
-        return state.jacobian.T @ f
-
-    def telemetry(self) -> dict[str, float]:
-        return dict(self._tel)

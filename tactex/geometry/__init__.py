@@ -11,6 +11,7 @@ from tactex.geometry.motor import (
     motor_to_gafro,
     twist_from_gafro_generator,
     twist_to_wrench,
+    z_line_motor_log,
 )
 from tactex.geometry.so3 import exp_so3, hat, interpolate_rotation, log_so3, orthonormalize, rotation_error_world
 
@@ -30,4 +31,5 @@ __all__ = [
     "rotation_error_world",
     "twist_from_gafro_generator",
     "twist_to_wrench",
+    "z_line_motor_log",
 ]

@@ -28,6 +28,7 @@ __all__ = [
     "motor_to_gafro",
     "twist_from_gafro_generator",
     "twist_to_wrench",
+    "z_line_motor_log",
 ]
 
 
@@ -52,25 +53,38 @@ def line_motor(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -
     cross = np.cross(d1, d2)
     s = math.sqrt(float(cross @ cross))
     c = float(d1 @ d2)
-    if s < 1e-12:
+    if c < -1.0 + 1e-9:
         perp = w - float(w @ d1) * d1
-        if c > 0.0:
-            return np.eye(3), perp
         if float(perp @ perp) > 1e-18:
             axis = np.cross(d1, perp)
         else:
             axis = np.cross(d1, np.eye(3)[int(np.argmin(np.abs(d1)))])
         rot = exp_so3(math.pi * axis / np.linalg.norm(axis))
         return rot, p1 + perp - rot @ p1
-    axis = cross / s
-    angle = math.atan2(s, c)
-    # Closest points c1 on line 1 and c2 on line 2 (both on the common perpendicular, the screw axis).
-    dw1, dw2 = float(d1 @ w), float(d2 @ w)
-    den = 1.0 - c * c
-    c1 = p1 + ((dw1 - c * dw2) / den) * d1
-    c2 = p2 + ((c * dw1 - dw2) / den) * d2
-    rot = exp_so3(angle * axis)
-    return rot, c2 - rot @ c1
+    rot = exp_so3(cross * (math.atan2(s, c) / s)) if s > 1e-12 else np.eye(3)
+    # The screw axis is the common perpendicular: t = c2 − R·c1 for the closest points c1, c2, and
+    # since R·d1 = d2 this is p2 − R·p1 + (s2 − s1)·d2 with s2 − s1 = −(d1·w + d2·w)/(1 + d1·d2),
+    # a form that stays well conditioned when the lines become parallel.
+    return rot, p2 - rot @ p1 - (float(d1 @ w + d2 @ w) / (1.0 + c)) * d2
+
+
+def z_line_motor_log(point: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """``motor_log(*line_motor(0, e_z, point, direction))`` in scalar closed form (the per-tick path).
+
+    For the z-axis through the origin and a line (p, d) with d_z > −1 the screw axis is
+    a = e_z × d / |e_z × d| and the angle φ = atan2(|e_z × d|, d_z), so ω = φ·a (no z-component);
+    the closest points give t = p − ((p_z + d·p) / (1 + d_z))·d, which reduces to the lateral offset
+    (p_x, p_y, 0) for parallel lines. Anti-parallel lines (d_z = −1) fall back to :func:`line_motor`.
+    """
+    px, py, pz = float(point[0]), float(point[1]), float(point[2])
+    dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
+    s = math.sqrt(dx * dx + dy * dy)
+    if dz <= -1.0 + 1e-12:
+        return motor_log(*line_motor(np.zeros(3), np.array([0.0, 0.0, 1.0]), np.asarray(point, float),
+                                     np.asarray(direction, float)))
+    scale = math.atan2(s, dz) / s if s > 1e-12 else 1.0
+    k = (pz + dx * px + dy * py + dz * pz) / (1.0 + dz)
+    return np.array([px - k * dx, py - k * dy, pz - k * dz, -dy * scale, dx * scale, 0.0])
 
 
 def motor_log(rot: np.ndarray, trans: np.ndarray) -> np.ndarray:
