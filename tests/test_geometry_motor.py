@@ -10,12 +10,14 @@ from tactex.errors import InputError
 from tactex.geometry import (
     Line3,
     gafro_generator_from_twist,
+    line_motor,
     motor_between_lines,
     motor_exp,
     motor_log,
     motor_to_gafro,
     twist_from_gafro_generator,
     twist_to_wrench,
+    z_line_motor_log,
 )
 from tactex.geometry.so3 import exp_so3
 
@@ -112,3 +114,23 @@ def test_literal_conjugate_pseudoscalar_pairs_translation_with_torque():
 def test_line_rejects_bad_input(point, direction):
     with pytest.raises(InputError, match="Line3"):
         Line3(np.asarray(point, float), np.asarray(direction, float))
+
+
+def test_z_line_fast_path_matches_general_motor(rng):
+    """The controller's per-tick closed form against line_motor and against pygafro's getMotor/log."""
+    z_axis = Line3(np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    for k in range(200):
+        p = rng.normal(size=3)
+        d = rng.normal(size=3)
+        if k % 4 == 0:  # nearly parallel, down to 1e-12 rad
+            d = np.array([0.0, 0.0, 1.0]) + 10.0 ** rng.uniform(-12, -3) * rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        fast = z_line_motor_log(p, d)
+        np.testing.assert_allclose(fast, motor_log(*line_motor(np.zeros(3), np.array([0.0, 0.0, 1.0]), p, d)),
+                                   atol=1e-9)
+        assert fast[5] == 0.0  # never a rotation about the tool axis
+        if k % 4 != 0:
+            m = z_axis.to_gafro().getMotor(Line3(p, d).to_gafro())
+            lg = m.log()
+            b = np.array([lg.get_e12(), lg.get_e13(), lg.get_e23(), lg.get_e1i(), lg.get_e2i(), lg.get_e3i()])
+            np.testing.assert_allclose(fast, twist_from_gafro_generator(b), atol=1e-7)
