@@ -7,6 +7,9 @@ Measures, with the cache disabled and as the median of several runs:
 - ``spectral.<cloud>.spectral_step_s`` / ``implicit_step_s``: one diffusion step (K = 100) and the
   sparse implicit reference (Fig. 5);
 - ``spectral.table1``: {n_points: Laplacian seconds} for the raw bunny voxelised to ≈ 3k…18k points.
+
+``*_min_s`` are the fastest of the repeats: on a 2-core machine shared with other jobs the median
+measures the load as much as the code; targets are checked on the medians.
 """
 
 from __future__ import annotations
@@ -34,12 +37,18 @@ TARGETS = {
 }
 
 
-def _median_time(fn, repeats: int) -> float:
+_MINIMA: dict[str, float] = {}
+
+
+def _median_time(fn, repeats: int, key: str | None = None) -> float:
+    """Median wall time [s]; the minimum is kept under ``key`` (the intrinsic cost on a busy machine)."""
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
+    if key is not None:
+        _MINIMA[key] = min(times)
     return statistics.median(times)
 
 
@@ -75,12 +84,15 @@ def run(args) -> dict:
             continue
         cloud = voxel_down_sample(load_cloud(path), VOXEL_M)
         res: dict = {"n_points": len(cloud)}
-        res["laplacian_s"] = _median_time(lambda c=cloud: point_cloud_laplacian(c.points), repeats)
+        res["laplacian_s"] = _median_time(lambda c=cloud: point_cloud_laplacian(c.points), repeats, "lap")
+        res["laplacian_min_s"] = _MINIMA["lap"]
         for k in (100, 200):
             res[f"laplacian_eig{k}_s"] = _median_time(
                 lambda c=cloud, k=k: build_basis(c, n_eigen=k, cache=False),
                 repeats if k == 100 else max(2, repeats // 2),
+                "eig",
             )
+            res[f"laplacian_eig{k}_min_s"] = _MINIMA["eig"]
         basis = build_basis(cloud, n_eigen=100, cache=False)
         dt = diffusion_timestep(10.0, basis.spacing)
         u = np.random.default_rng(0).random(len(cloud))
