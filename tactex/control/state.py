@@ -55,15 +55,15 @@ class RobotState:
         return np.concatenate([rot @ self.wrench_tool[:3], rot @ self.wrench_tool[3:]])
 
     def is_finite(self) -> bool:
-        """True when every array of the state is finite (the safety layer's first check)."""
-        return bool(
-            np.isfinite(self.t)
-            and all(
-                np.isfinite(a).all()
-                for a in (
-                    self.q, self.dq, self.tau_measured, self.ee_position, self.ee_rotation,
-                    self.ee_twist, self.jacobian, self.mass_matrix, self.coriolis, self.gravity,
-                    self.wrench_tool,
-                )
-            )
-        )
+        """True when every array of the state is finite (the safety layer's first check).
+
+        One running sum is finite iff every term is (NaN/inf propagate); a finite overflow to inf
+        also reads as non-finite, which is the safe side. Much cheaper at 1 kHz than 12 checks.
+        """
+        total = self.t
+        for a in (
+            self.q, self.dq, self.tau_measured, self.ee_position, self.ee_rotation, self.ee_twist,
+            self.jacobian, self.mass_matrix, self.coriolis, self.gravity, self.wrench_tool,
+        ):
+            total += float(a.sum())
+        return bool(np.isfinite(total))

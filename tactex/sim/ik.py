@@ -73,6 +73,10 @@ def solve_site_ik(model: mujoco.MjModel, site_id: int, qpos_adr: np.ndarray, dof
         if step > 0.2:
             dq *= 0.2 / step
         q = np.clip(q + dq, lo, hi)
+    # The null-space posture pull can keep the last micrometres from the tight tolerances; a pose
+    # within 0.1 mm and 0.05° is reached for every purpose of the tasks.
+    if err_norms[0] < 1e-4 and err_norms[1] < np.deg2rad(0.05):
+        return q
     raise SimulationError(
         f"IK did not reach the target (position error {err_norms[0] * 1e3:.2f} mm, rotation error "
         f"{np.rad2deg(err_norms[1]):.3f}°): is {p_target.round(4).tolist()} m within the arm's reach?"

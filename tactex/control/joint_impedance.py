@@ -1,0 +1,76 @@
+"""Joint impedance with a minimum-jerk joint trajectory: how TEC moves between its pre-recorded
+capture and hover poses (§V-A3: "a simple joint impedance controller")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.controller import Controller
+from tactex.control.state import RobotState
+from tactex.errors import ConfigError, ControllerFault
+
+__all__ = ["JointImpedanceController", "JointImpedanceParams", "JointTarget", "min_jerk"]
+
+
+def min_jerk(s: float) -> tuple[float, float]:
+    """Minimum-jerk profile at normalised time s ∈ [0, 1]: (position fraction, d/ds)."""
+    s = min(max(s, 0.0), 1.0)
+    return 10 * s**3 - 15 * s**4 + 6 * s**5, 30 * s**2 - 60 * s**3 + 30 * s**4
+
+
+@dataclass(frozen=True)
+class JointImpedanceParams:
+    """Gains of the Franka example joint impedance controller.
+
+    The stiffness is the example's; the wrist damping is lower (15, 10, 5 instead of 30, 25, 15):
+    with the small wrist inertias of the model (no reflected rotor inertia) the example's values make
+    the explicit 1 kHz damping chatter at the torque-rate limit, and the arm can go unstable.
+    """
+
+    stiffness: tuple[float, ...] = param((600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0), "joint stiffness [N·m/rad]")
+    damping: tuple[float, ...] = param((50.0, 50.0, 50.0, 50.0, 15.0, 10.0, 5.0), "joint damping [N·m·s/rad]")
+
+    def __post_init__(self) -> None:
+        k, d = np.asarray(self.stiffness, float), np.asarray(self.damping, float)
+        if k.shape != d.shape or not (np.all(k >= 0) and np.all(d >= 0) and np.isfinite(k).all() and np.isfinite(d).all()):
+            raise ConfigError(f"joint stiffness and damping must be ≥ 0 and of equal length, got {k} and {d}")
+
+
+@dataclass(frozen=True)
+class JointTarget:
+    """Move from ``q_start`` to ``q_goal`` [rad] between ``t_start`` and ``t_start + duration_s`` [s]."""
+
+    q_start: np.ndarray
+    q_goal: np.ndarray
+    t_start: float
+    duration_s: float
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Desired joint position [rad] and velocity [rad/s] at time t [s]."""
+        if self.duration_s <= 0:
+            return self.q_goal, np.zeros_like(self.q_goal)
+        s, ds = min_jerk((t - self.t_start) / self.duration_s)
+        delta = self.q_goal - self.q_start
+        return self.q_start + s * delta, ds * delta / self.duration_s
+
+
+class JointImpedanceController(Controller):
+    """τ = K (q_d − q) + D (dq_d − dq) + C(q, dq)·dq on a :class:`JointTarget` (gravity by the robot)."""
+
+    name = "joint_impedance"
+
+    def __init__(self, params: JointImpedanceParams | None = None) -> None:
+        self.params = params or JointImpedanceParams()
+        self._k = np.asarray(self.params.stiffness, dtype=float)
+        self._d = np.asarray(self.params.damping, dtype=float)
+
+    def torque(self, state: RobotState, reference: JointTarget) -> np.ndarray:
+        if not isinstance(reference, JointTarget):
+            raise ControllerFault(f"{self.name} needs a JointTarget, got {type(reference).__name__}")
+        if reference.q_goal.shape != state.q.shape:
+            raise ControllerFault(f"joint target has shape {reference.q_goal.shape}, the robot {state.q.shape}")
+        q_d, dq_d = reference.at(state.t)
+        return self._k * (q_d - state.q) + self._d * (dq_d - state.dq) + state.coriolis

@@ -1,0 +1,72 @@
+"""Null-space posture control for a redundant arm, as a wrapper around any task-space controller.
+
+A 7-DoF Franka under a 6-D task controller (TEC's GA line controller, UFIC, VA-UFIC) has one
+uncontrolled direction: over seconds of contact the elbow drifts, the arm wanders to its joint
+limits and into poor postures. The Franka example Cartesian impedance controller adds
+τ_ns = (I − Jᵀ J⁺ᵀ)(k (q_d − q) − d dq); so do we, for every task controller. The projection
+keeps the task wrench untouched (it lives in the null space of Jᵀ's left inverse).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.controller import Controller
+from tactex.control.state import RobotState
+from tactex.errors import ConfigError
+
+__all__ = ["NullspaceParams", "NullspacePosture", "nullspace_projector"]
+
+
+def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarray:
+    """N = I − Jᵀ J⁺ᵀ (n, n), with J⁺ the damped pseudo-inverse Jᵀ (J Jᵀ + δ² I)⁻¹."""
+    j = jacobian
+    jjt = j @ j.T + damping**2 * np.eye(j.shape[0])
+    j_pinv_t = np.linalg.solve(jjt, j)  # (J⁺)ᵀ = (J Jᵀ + δ²I)⁻¹ J
+    return np.eye(j.shape[1]) - j.T @ j_pinv_t
+
+
+@dataclass(frozen=True)
+class NullspaceParams:
+    """Posture spring in the null space (Franka example: stiffness 20, damping 2·√20)."""
+
+    stiffness: float = param(20.0, "null-space posture stiffness [N·m/rad]")
+    damping: float = param(2.0 * np.sqrt(20.0), "null-space joint damping [N·m·s/rad]")
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.stiffness) and np.isfinite(self.damping) and self.stiffness >= 0 and self.damping >= 0):
+            raise ConfigError(f"null-space gains must be finite and ≥ 0, got {self.stiffness}, {self.damping}")
+
+
+class NullspacePosture(Controller):
+    """``inner``'s torque plus a posture spring towards ``q_posture`` projected in the null space.
+
+    ``q_posture`` defaults to the joint positions at :meth:`reset`.
+    """
+
+    def __init__(self, inner: Controller, q_posture: np.ndarray | None = None,
+                 params: NullspaceParams | None = None) -> None:
+        self.inner = inner
+        self.params = params or NullspaceParams()
+        self.name = f"{inner.name}+nullspace"
+        self._fixed = None if q_posture is None else np.asarray(q_posture, dtype=float).copy()
+        self.q_posture = self._fixed
+
+    def reset(self, state: RobotState) -> None:
+        self.q_posture = state.q.copy() if self._fixed is None else self._fixed
+        self.inner.reset(state)
+
+    def torque(self, state: RobotState, reference: Any) -> np.ndarray:
+        tau = self.inner.torque(state, reference)
+        if self.q_posture is None:
+            self.q_posture = state.q.copy()
+        p = self.params
+        tau_ns = p.stiffness * (self.q_posture - state.q) - p.damping * state.dq
+        return tau + nullspace_projector(state.jacobian) @ tau_ns
+
+    def telemetry(self) -> dict[str, float]:
+        return self.inner.telemetry()

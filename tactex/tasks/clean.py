@@ -1,0 +1,342 @@
+"""Tactile ergodic cleaning (TEC §V-A, Fig. 3, Fig. 12) in simulation.
+
+The state machine of TEC §V-A3:
+
+1. **capture** — joint move to a capture pose, take an RGB-D frame, pre-process it (crop, voxel
+   grid, outlier removal) and segment the dirt by colour: the target distribution;
+2. **hover** — move above the surface while the Laplacian eigenbasis is computed;
+3. **contact exploration** — each tick the GA line-and-force controller tracks the normal line of
+   the HEDAC agent and presses with the set force; the agent steps at ``explorer_rate_hz``;
+4. every ``vision_every_steps`` exploration steps (TEC §VI-B: ~200) the robot returns to the
+   capture pose, re-measures the remaining dirt and updates the target on the same points (no new
+   basis), then goes back to contact. The run stops when vision sees less than ``stop_remaining``
+   of the initial dirt, or when the time budget ends.
+
+Baselines (same controller, force and robot): ``raster`` — a boustrophedon path over the whole
+surface; ``no_feedback`` — HEDAC on the first capture only, never re-measuring.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.ga_line_force import GaLineForceController, GaLineForceParams
+from tactex.control.nullspace import NullspacePosture
+from tactex.control.references import LineForceReference
+from tactex.ergodic.command import ExplorationCommand
+from tactex.ergodic.config import HedacConfig
+from tactex.ergodic.explorer import HedacExplorer
+from tactex.errors import ConfigError, ExplorationError
+from tactex.perception.acquisition import AcquisitionConfig
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.shapes import CylinderWallSurface
+from tactex.robots.mujoco_backend import MujocoBackend
+from tactex.sim.objects import get_object
+from tactex.sim.scene import SceneConfig
+from tactex.spectral.basis import build_basis
+from tactex.tasks.progress import Progress
+from tactex.tasks.raster import RasterPath
+from tactex.tasks.recorder import Recorder
+from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
+from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
+
+__all__ = ["CLEAN_BASELINES", "PHASES", "CleanConfig", "CleanResult", "run_clean"]
+
+CLEAN_BASELINES = ("", "raster", "no_feedback")
+#: Phase codes recorded in the time series.
+PHASES = {"move": 0, "capture": 1, "approach": 2, "explore": 3, "retract": 4}
+
+
+@dataclass(frozen=True)
+class CleanConfig:
+    """Parameters of ``tactex clean`` (TEC §V-A3 and Table II where the paper gives them)."""
+
+    object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)")
+    marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full")
+    force_n: float = param(10.0, "pressing force set point along the tool axis [N]")
+    n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion [-]")
+    alpha: float = param(10.0, "diffusion scale α, δt = α h² (TEC eq. 21) [-]")
+    agent_radius_m: float = param(0.02, "agent footprint radius r_a, about the sponge radius [m]")
+    voxel_size_m: float = param(0.003, "voxel grid of the captured cloud [m] (TEC: 3 mm)")
+    max_velocity: float = param(1.0, "agent speed limit [voxels/step] (Table II)")
+    explorer_rate_hz: float = param(20.0, "exploration steps per second of robot time [Hz]")
+    vision_every_steps: int = param(200, "exploration steps between visual re-measurements (TEC §VI-B) [-]")
+    stop_remaining: float = param(0.02, "stop when vision sees less than this fraction of the first target [-]")
+    budget_s: float = param(120.0, "simulated time budget of the whole program [s]")
+    capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose [m]")
+    hover_height_m: float = param(0.04, "hover above the surface before contact [m]")
+    approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
+    force_ramp_s: float = param(0.5, "ramp from the approach force to the set point after touch-down [s]")
+    contact_threshold_n: float = param(1.0, "measured normal force that counts as contact [N]")
+    agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
+    baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
+    camera_width: int = param(320, "capture image width [px]")
+    camera_height: int = param(240, "capture image height [px]")
+    record_hz: float = param(100.0, "rate of the recorded time series [Hz]")
+    seed: int = param(0, "seed of the simulation and the explorer")
+    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
+
+    def __post_init__(self) -> None:
+        get_object(self.object_name)  # unknown names raise with the valid list
+        if self.baseline not in CLEAN_BASELINES:
+            raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
+        positive = ("force_n", "alpha", "agent_radius_m", "voxel_size_m", "max_velocity", "explorer_rate_hz",
+                    "budget_s", "capture_distance_m", "hover_height_m", "approach_force_n", "record_hz")
+        for name in positive:
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if self.approach_force_n > self.force_n:
+            raise ConfigError(f"approach_force_n ({self.approach_force_n}) must not exceed force_n ({self.force_n})")
+        if self.vision_every_steps < 1 or self.n_eigen < 1:
+            raise ConfigError("vision_every_steps and n_eigen must be ≥ 1")
+        if not 0.0 <= self.stop_remaining < 1.0:
+            raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
+
+    def scene(self) -> SceneConfig:
+        return SceneConfig(
+            object_name=self.object_name, marking=self.marking, object_position=self.object_position,
+            camera_width=self.camera_width, camera_height=self.camera_height, seed=self.seed,
+        )
+
+
+@dataclass
+class CleanResult:
+    """What a cleaning run produced."""
+
+    config: CleanConfig
+    metrics: dict[str, Any]
+    series: dict[str, np.ndarray]
+    cloud: SurfaceCloud
+    fields: dict[str, np.ndarray]
+    agent_path: np.ndarray
+    tcp_path: np.ndarray
+    events: list[Any] = field(default_factory=list)
+
+
+class _Log:
+    """Per-tick bookkeeping: force statistics every tick, a time series at ``record_hz``."""
+
+    def __init__(self, backend: MujocoBackend, cfg: CleanConfig) -> None:
+        self.backend = backend
+        self.cfg = cfg
+        self.rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
+        self.phase = PHASES["move"]
+        self.agent = np.full(3, np.nan)
+        self.contact_ticks = 0
+        self.within_ticks = 0
+        self.over_2x_ticks = 0
+        self.explore_contact_ticks = 0
+        self.max_force = 0.0
+        self.set_point = cfg.force_n
+
+    def __call__(self, state, reference, controller) -> None:
+        f = state.wrench_tool
+        fn = float(f[2])
+        fmag = float(np.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
+        self.max_force = max(self.max_force, fmag)
+        if fn >= self.cfg.contact_threshold_n and self.phase == PHASES["explore"]:
+            self.contact_ticks += 1
+            if abs(fn - self.set_point) <= 0.2 * self.set_point:
+                self.within_ticks += 1
+            if fn > 2.0 * self.set_point:
+                self.over_2x_ticks += 1
+        if self.rec.due():
+            self.rec.add(
+                t=state.t, phase=self.phase, tcp=state.ee_position, agent=self.agent, force_z_n=fn,
+                force_norm_n=fmag, set_point_n=self.set_point if self.phase == PHASES["explore"] else 0.0,
+                pad_force_n=self.backend.pad_contact()[0], dirt_remaining=self.backend.dirt_remaining(),
+            )
+        else:
+            self.rec.add()
+
+
+def _capture_pose(backend: MujocoBackend, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Where the robot looks from: above a height field, beside a cylinder wall (camera ⟂ surface)."""
+    pos, rot = backend.object_pose()
+    surface = backend.scene.sim_object.surface
+    if isinstance(surface, CylinderWallSurface):
+        out = rot @ np.array([0.0, -1.0, 0.0])  # the side the cup's marking faces
+        centre = pos + rot @ np.array([0.0, 0.0, surface.height_m / 2])
+        return centre + out * (surface.radius_m + cfg.capture_distance_m), tool_rotation_for_normal(out)
+    top = pos + rot @ np.array([0.0, 0.0, float(surface.bounds_m[1, 2])])
+    return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
+
+
+def _acquisition(backend: MujocoBackend) -> AcquisitionConfig:
+    pos, _ = backend.object_pose()
+    half = float(np.max(np.abs(backend.scene.sim_object.surface.bounds_m[:, :2]))) + 0.01
+    lo, hi = workspace_crop(pos, half)
+    return AcquisitionConfig(crop_min_m=lo, crop_max_m=hi, voxel_size_m=0.0, sor_mean_k=20, sor_std_mul=2.0)
+
+
+def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> CleanResult:
+    """Run the cleaning program in simulation and return its metrics, series and fields."""
+    cfg = config or CleanConfig()
+    wall0 = time.perf_counter()
+    backend = MujocoBackend(cfg.scene())
+    log = _Log(backend, cfg)
+    loop = ControlLoop(backend, on_tick=log)
+    bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
+    acq = replace(_acquisition(backend), voxel_size_m=cfg.voxel_size_m)
+    cap_pos, cap_rot = _capture_pose(backend, cfg)
+    q_capture = backend.solve_ik(cap_pos, cap_rot)  # TEC's pre-recorded capture posture
+
+    def capture() -> SurfaceCloud:
+        log.phase = PHASES["move"]
+        loop.move_joints(q_capture, settle_s=0.3)
+        log.phase = PHASES["capture"]
+        return capture_target_cloud(backend.render_depth(), acq)
+
+    # 1. capture and segment the dirt
+    cloud = capture()
+    n_target0 = cloud.n_target
+    if n_target0 == 0:
+        raise ExplorationError("the first capture sees no dirt: nothing to clean (check the marking and the view)")
+
+    # 2. hover while the eigenbasis is computed (wall-clock work; the robot holds still)
+    t_basis = time.perf_counter()
+    basis = None
+    if cfg.baseline != "raster":
+        basis = build_basis(cloud, n_eigen=min(cfg.n_eigen, len(cloud) - 1), cache=False)
+    basis_s = time.perf_counter() - t_basis
+    dt_step = 1.0 / cfg.explorer_rate_hz
+    if cfg.baseline == "raster":
+        source: Any = RasterPath(cloud, lane_spacing_m=1.5 * cfg.agent_radius_m, max_step_m=cfg.max_velocity * cloud.spacing)
+    else:
+        hcfg = HedacConfig(
+            alpha=cfg.alpha, n_eigen=basis.evecs.shape[1], agent_radius_m=cfg.agent_radius_m,
+            max_velocity=cfg.max_velocity, max_acceleration=cfg.max_velocity, step_duration_s=dt_step, seed=cfg.seed,
+        )
+        source = HedacExplorer(cloud, basis, hcfg)
+    targets = np.flatnonzero(cloud.target > 0)
+    x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
+    cmd: ExplorationCommand = source.reset(x0)
+    cmd = cmd[0] if isinstance(cmd, list) else cmd
+
+    # the posture of the capture pose keeps the redundant elbow where it was planned
+    ga = NullspacePosture(GaLineForceController(GaLineForceParams()), q_posture=q_capture)
+    t_end = cfg.budget_s
+    vision_updates = 0
+    remaining_seen = 1.0
+    agent_path: list[np.ndarray] = []
+    ergodicity: list[tuple[float, float]] = []
+    explore_time = 0.0
+
+    while loop.t < t_end:
+        # 3a. hover over the agent and approach along its normal line
+        log.phase = PHASES["move"]
+        hover = cmd.point + cfg.hover_height_m * cmd.normal
+        loop.move_to_pose(hover, tool_rotation_for_normal(cmd.normal), settle_s=0.1, q_seed=q_capture)
+        log.phase = PHASES["approach"]
+        loop.use(ga)
+        t_touch = None
+        t_approach_end = loop.t + 3.0
+        while loop.t < min(t_approach_end, t_end):
+            s = loop.tick(LineForceReference(cmd.point, cmd.normal, cfg.approach_force_n))
+            if s.wrench_tool[2] >= cfg.contact_threshold_n:
+                t_touch = loop.t
+                break
+        if t_touch is None:
+            raise ExplorationError(
+                f"no contact within 3 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
+                "surface and the real one disagree (object moved?)"
+            )
+        # 3b. contact exploration
+        log.phase = PHASES["explore"]
+        prev = cmd
+        next_step = loop.t
+        steps_since_vision = 0
+        t_phase = loop.t
+        while loop.t < t_end:
+            if loop.t >= next_step - 1e-9:
+                prev = cmd
+                measured = loop.state.ee_position if cfg.agent_feedback else None
+                cmd = source.step(measured)
+                next_step += dt_step
+                steps_since_vision += 1
+                agent_path.append(cmd.point)
+                log.agent = cmd.point
+                if isinstance(source, HedacExplorer) and steps_since_vision % 20 == 0:
+                    ergodicity.append((loop.t, source.ergodicity()))
+            frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
+            point = prev.point + frac * (cmd.point - prev.point)
+            normal = prev.normal + frac * (cmd.normal - prev.normal)
+            ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
+            force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
+            log.set_point = force
+            loop.tick(LineForceReference(point, normal, force))
+            if int(loop.t * 1000) % 250 == 0:
+                bar.update(loop.t, dirt=backend.dirt_remaining(), vision=vision_updates)
+            if cfg.baseline == "raster" and source.done:
+                break
+            if cfg.baseline == "" and steps_since_vision >= cfg.vision_every_steps:
+                break
+        explore_time += loop.t - t_phase
+        if cfg.baseline == "raster" and source.done:
+            break
+        if cfg.baseline != "" or loop.t >= t_end:
+            break
+        # 4. back to vision: re-measure the dirt on the same points, update the target
+        log.phase = PHASES["retract"]
+        lift = loop.state.ee_position - 0.05 * loop.state.ee_rotation[:, 2]
+        loop.move_to_pose(lift, loop.state.ee_rotation, duration_s=0.4, settle_s=0.0)
+        new_capture = capture()
+        vision_updates += 1
+        mass = remeasure_target(cloud, new_capture)
+        remaining_seen = float(np.count_nonzero(mass)) / n_target0
+        bar.update(loop.t, dirt=backend.dirt_remaining(), vision=vision_updates)
+        if remaining_seen < cfg.stop_remaining or not np.any(mass > 0):
+            break
+        source.update_target(mass)
+        # restart from the dirt nearest to where the robot is
+        left = np.flatnonzero(mass > 0)
+        x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
+        cmd = source.reset(x0)
+        cmd = cmd[0] if isinstance(cmd, list) else cmd
+
+    # lift off at the end so the final state is out of contact
+    log.phase = PHASES["retract"]
+    if loop.state.wrench_tool[2] > cfg.contact_threshold_n:
+        lift = loop.state.ee_position - 0.05 * loop.state.ee_rotation[:, 2]
+        loop.move_to_pose(lift, loop.state.ee_rotation, duration_s=0.4, settle_s=0.0)
+    bar.close(f"dirt removed {100 * (1 - backend.dirt_remaining()):.1f} %")
+
+    series = log.rec.arrays()
+    contact = max(log.contact_ticks, 1)
+    fields = {"target_initial": cloud.target.copy()}
+    if isinstance(source, HedacExplorer):
+        fields.update(target=source.target.copy(), coverage=source.coverage.copy(), potential=source.potential.copy())
+    metrics = {
+        "dirt_removed_fraction": 1.0 - backend.dirt_remaining(),
+        "force_within_20pct_fraction": log.within_ticks / contact,
+        "max_contact_force_n": log.max_force,
+        "force_over_2x_ticks": log.over_2x_ticks,
+        "contact_time_s": log.contact_ticks * backend.dt,
+        "sim_time_s": loop.t,
+        "explore_time_s": explore_time,
+        "vision_updates": vision_updates,
+        "vision_remaining_fraction": remaining_seen,
+        "basis_time_s": basis_s,
+        "wall_time_s": time.perf_counter() - wall0,
+        "n_points": len(cloud),
+        "n_target_initial": n_target0,
+        "agent_path_length_m": float(getattr(source, "path_length", 0.0)),
+        "force_set_point_n": cfg.force_n,
+        "baseline": cfg.baseline or "tactex",
+        "object": cfg.object_name,
+        "marking": cfg.marking,
+        "safety_events": len(loop.safety.events),
+        "ergodicity": ergodicity,
+    }
+    backend.close()
+    return CleanResult(
+        config=cfg, metrics=metrics, series=series, cloud=cloud, fields=fields,
+        agent_path=np.asarray(agent_path).reshape(-1, 3), tcp_path=series.get("tcp", np.zeros((0, 3))),
+        events=list(loop.safety.events),
+    )

@@ -1,0 +1,108 @@
+"""The 1 kHz loop shared by the tasks: one backend, one safety layer, swappable controllers."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from tactex.control.controller import Controller
+from tactex.control.joint_impedance import JointImpedanceController, JointTarget
+from tactex.control.safety import SafetyLayer, SafetyLimits
+from tactex.control.state import RobotState
+from tactex.robots.backend import RobotBackend
+
+__all__ = ["TOOL_DOWN", "ControlLoop", "tool_rotation_for_normal"]
+
+#: Tool pointing straight down (tool z = −world z), tool x along world x.
+TOOL_DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+def tool_rotation_for_normal(normal_out: np.ndarray, x_hint: np.ndarray | None = None) -> np.ndarray:
+    """world_R_tool with the tool z axis along −``normal_out`` (pressing into the surface) and the
+    tool x axis as close as possible to ``x_hint`` (default world x)."""
+    z = -np.asarray(normal_out, dtype=float)
+    z = z / np.linalg.norm(z)
+    hint = np.array([1.0, 0.0, 0.0]) if x_hint is None else np.asarray(x_hint, dtype=float)
+    x = hint - (hint @ z) * z
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 1.0, 0.0]) - z[1] * z
+    x = x / np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+class ControlLoop:
+    """Runs controllers on a backend tick by tick behind one :class:`SafetyLayer`.
+
+    The safety layer (torque, torque-rate and joint limits, NaN guard, force trip) persists when
+    the task switches controllers, so torque-rate limits hold across phase changes.
+
+    Args:
+        backend: the robot (simulated or real).
+        limits: safety limits (Franka defaults).
+        on_tick: called after every tick with (state, reference, controller) — logging, dirt, vision.
+    """
+
+    def __init__(self, backend: RobotBackend, limits: SafetyLimits | None = None,
+                 on_tick: Callable[[RobotState, Any, Controller], None] | None = None) -> None:
+        self.backend = backend
+        self.joint = JointImpedanceController()
+        self.safety = SafetyLayer(self.joint, limits)
+        self.state = backend.state()
+        self.safety.reset(self.state)
+        self.on_tick = on_tick
+
+    @property
+    def t(self) -> float:
+        return float(self.state.t)
+
+    def use(self, controller: Controller) -> None:
+        """Switch the active controller (reset on the current state); the safety layer stays."""
+        if self.safety.inner is not controller:
+            self.safety.inner = controller
+            controller.reset(self.state)
+
+    def tick(self, reference: Any) -> RobotState:
+        tau = self.safety.torque(self.state, reference)
+        self.backend.apply_torque(tau)
+        self.state = self.backend.step()
+        if self.on_tick is not None:
+            self.on_tick(self.state, reference, self.safety.inner)
+        return self.state
+
+    def move_joints(self, q_goal: np.ndarray, duration_s: float | None = None, settle_s: float = 0.2,
+                    max_joint_speed: float = 0.8) -> RobotState:
+        """Minimum-jerk joint move with joint impedance (TEC's capture/hover transitions).
+
+        ``duration_s`` defaults to what keeps every joint under ``max_joint_speed`` [rad/s] (the
+        min-jerk peak speed is 1.875 × the mean speed), at least 0.5 s.
+        """
+        self.use(self.joint)
+        q_goal = np.asarray(q_goal, dtype=float)
+        if duration_s is None:
+            duration_s = max(0.5, 1.875 * float(np.max(np.abs(q_goal - self.state.q))) / max_joint_speed)
+        target = JointTarget(self.state.q.copy(), q_goal, self.t, float(duration_s))
+        t_end = self.t + duration_s + settle_s
+        while self.t < t_end - 1e-9:
+            self.tick(target)
+        return self.state
+
+    def move_to_pose(self, position_world: np.ndarray, rotation_world: np.ndarray, duration_s: float | None = None,
+                     settle_s: float = 0.2, q_seed: np.ndarray | None = None) -> RobotState:
+        """Joint move to the IK solution of a TCP pose, searched from ``q_seed`` (default: the
+        current q). Seeding from a known posture keeps the arm on one IK branch: a far jump of
+        branch would sweep the arm through the scene."""
+        seed = self.state.q if q_seed is None else q_seed
+        q_goal = self.backend.solve_ik(position_world, rotation_world, seed)  # type: ignore[attr-defined]
+        return self.move_joints(q_goal, duration_s, settle_s)
+
+    def hold(self, duration_s: float) -> RobotState:
+        """Hold the current joint position."""
+        self.use(self.joint)
+        q = self.state.q.copy()
+        target = JointTarget(q, q, self.t, 0.0)
+        t_end = self.t + duration_s
+        while self.t < t_end - 1e-9:
+            self.tick(target)
+        return self.state
