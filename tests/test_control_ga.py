@@ -104,7 +104,8 @@ def test_force_pid_presses_along_tool_z_and_integrates():
 
 
 def test_force_integrator_frozen_in_free_flight():
-    """No contact (measured force under the threshold): only K_p·F pushes; no wind-up before impact."""
+    """No contact (measured force under the threshold): only K_p·F pushes; no wind-up before impact,
+    and what was integrated in contact leaks away."""
     ctrl = _ctrl(kp=0.5, ki=5.0, kd=0.0)
     jac = np.zeros((6, 7))
     jac[:6, :6] = np.eye(6)
@@ -112,6 +113,14 @@ def test_force_integrator_frozen_in_free_flight():
     for k in range(100):
         tau = ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac), ref)
     assert tau[2] == pytest.approx(-5.0, rel=1e-12)
+    w = np.array([0, 0, 4.0, 0, 0, 0])
+    for k in range(100, 400):  # in contact, pressing 4 N: the integrator grows
+        ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac, wrench_tool=w), ref)
+    held = ctrl._integral[2]
+    assert held == pytest.approx(6.0 * 0.3, rel=1e-9)
+    for k in range(400, 600):  # contact lost for 0.2 s = one leak time constant
+        ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac), ref)
+    assert ctrl._integral[2] == pytest.approx(held * (1 - 1e-3 / (1e-3 + 0.2)) ** 200, rel=1e-9)
 
 
 def test_damping_opposes_tool_velocity():

@@ -67,6 +67,9 @@ class GaLineForceParams:
         "the integrator runs only while the measured pressing force exceeds this [N]: in free flight it would "
         "wind up (K_i·F per second) and the tool would hit the surface at speed",
     )
+    integral_leak_time: float = param(
+        0.2, "out of contact the integrator decays with this time constant, so a lost contact is approached "
+        "again with K_p·F only and not the whole held force [s]")
     dt: float = param(1e-3, "nominal control period, used when state.t does not advance [s]")
 
     def __post_init__(self) -> None:
@@ -74,9 +77,10 @@ class GaLineForceParams:
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"GaLineForceParams.{name} must be 3 finite values ≥ 0, got {getattr(self, name)!r}")
-        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "contact_threshold_n"):
+        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "contact_threshold_n",
+                     "integral_leak_time"):
             v = getattr(self, name)
-            if not np.isfinite(v) or v < 0 or (name in ("dt", "derivative_cutoff_hz") and v == 0):
+            if not np.isfinite(v) or v < 0 or (name in ("dt", "derivative_cutoff_hz", "integral_leak_time") and v == 0):
                 raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
         axes = np.asarray(self.force_axes, dtype=float)
         if axes.shape != (6,) or not np.isin(axes, (0.0, 1.0)).all():
@@ -141,6 +145,8 @@ class GaLineForceController(Controller):
         if state.wrench_tool[2] >= p.contact_threshold_n:
             self._integral += err * dt
             np.clip(self._integral, -self._ilim, self._ilim, out=self._integral)
+        else:
+            self._integral *= 1.0 - dt / (dt + p.integral_leak_time)
         if tp is None:
             self._err_prev = err
         self._derr += self._alpha(dt) * ((err - self._err_prev) / dt - self._derr)

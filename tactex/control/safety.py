@@ -61,7 +61,9 @@ class SafetyLimits:
         10, "consecutive ticks above the force limit before tripping: impacts and sensor glitches last less [-]")
     retreat_time: float = param(0.3, "duration of the compliant retreat [s]")
     retreat_force: float = param(5.0, "pull back along −tool z during the retreat [N]")
-    retreat_damping: float = param(60.0, "translational damping during the retreat [N·s/m]")
+    retreat_damping: float = param(60.0, "lateral translational damping during the retreat [N·s/m]")
+    retreat_axial_damping: float = param(
+        10.0, "damping along the tool axis during the retreat: low, so a surface that pushes is yielded to [N·s/m]")
     retreat_angular_damping: float = param(3.0, "rotational damping during the retreat [N·m·s/rad]")
     hold_decay_time: float = param(0.1, "a held command decays to zero with this time constant [s]")
     dt: float = param(1e-3, "control period [s]")
@@ -170,9 +172,12 @@ class SafetyLayer(Controller):
 
     def _retreat_torque(self, state: RobotState) -> np.ndarray:
         lim = self.limits
-        rot = state.ee_rotation
-        f = np.concatenate([-lim.retreat_force * rot[:, 2] - lim.retreat_damping * state.ee_twist[:3],
-                            -lim.retreat_angular_damping * state.ee_twist[3:]])
+        z = state.ee_rotation[:, 2]
+        v = state.ee_twist[:3]
+        v_ax = float(v @ z) * z
+        f = np.empty(6)
+        f[:3] = -lim.retreat_force * z - lim.retreat_damping * (v - v_ax) - lim.retreat_axial_damping * v_ax
+        f[3:] = -lim.retreat_angular_damping * state.ee_twist[3:]
         return state.jacobian.T @ f
 
     def _finish(self, state: RobotState, tau: np.ndarray, finite_state: bool = True) -> np.ndarray:
