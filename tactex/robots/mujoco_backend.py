@@ -20,6 +20,7 @@ from tactex.sim.camera import RayCastCamera
 from tactex.sim.franka import FRANKA_HOME_Q
 from tactex.sim.ft_sensor import FTSensorModel
 from tactex.sim.ik import solve_site_ik
+from tactex.sim.raycast import SceneRayCaster
 from tactex.sim.scene import Scene, SceneConfig, build_scene
 
 __all__ = ["MujocoBackend"]
@@ -60,7 +61,6 @@ class MujocoBackend:
         self._jacp = np.zeros((3, self.model.nv))
         self._jacr = np.zeros((3, self.model.nv))
         self._mfull = np.zeros((self.model.nv, self.model.nv))
-        self._contact = np.zeros(6)
         self._pad_vel = np.zeros(6)
         tool = self.config.tool
         mass, com = tool.calibrated_mass_properties()
@@ -69,12 +69,19 @@ class MujocoBackend:
             noise_nm=self.config.ft_noise_nm, cutoff_hz=self.config.ft_cutoff_hz, dt_s=self.dt,
             gravity=self.model.opt.gravity.copy(),
         )
-        self.camera = RayCastCamera(self.model, ids["camera"], self.config.intrinsics, self.config.depth_noise_m)
+        self.camera = RayCastCamera(
+            self.model, ids["camera"], self.config.intrinsics, self.config.depth_noise_m,
+            method=self.config.camera_raycast, caster=SceneRayCaster(self.scene.sim_object),
+        )
         self._renderer = None
         self._viewer = None
+        self._pending: CameraFrame | None = None
+        self._pending_ready_t = 0.0
         self._state: RobotState | None = None
         self._last_contact: tuple[float, np.ndarray | None] = (0.0, None)
         self._pad_bottom = tool.pad_thickness_m / 2 if tool.pad_shape == "cylinder" else None
+        self._wear_period = 5  # ticks between dirt updates
+        self._wear, self._wear_point, self._wear_ticks = 0.0, np.zeros(3), 0
         self.reset(self.config.seed)
 
     # -- protocol -------------------------------------------------------------------------------
@@ -86,9 +93,13 @@ class MujocoBackend:
         d.qpos[self._qadr] = q
         pos, rot = self.config.object_pose()
         self._set_object_pose(pos, rot)
-        self._rng = np.random.default_rng(self.config.seed if seed is None else seed)
+        self._seed = int(self.config.seed if seed is None else seed)
+        self._rng = np.random.default_rng(self._seed)
+        self._pending = None
+        self._frame_index = 0
         self._tau = np.zeros(self.n_joints)
         self.scene.dirt.reset()
+        self._wear, self._wear_point, self._wear_ticks = 0.0, np.zeros(3), 0
         self.ft_sensor.reset()
         self._next_camera_t = 0.0
         mujoco.mj_forward(m, d)
@@ -126,13 +137,41 @@ class MujocoBackend:
         return self.state()
 
     def camera_frame(self) -> CameraFrame | None:
-        """A new RGB-D frame when one is due at the camera rate, else None."""
-        if self.data.time + 1e-9 < self._next_camera_t:
-            return None
-        self._next_camera_t += 1.0 / self.config.camera_rate_hz
-        while self._next_camera_t <= self.data.time:
-            self._next_camera_t += 1.0 / self.config.camera_rate_hz
-        return self.render_depth()
+        """A new RGB-D frame when one is due, else None.
+
+        Frames are exposed at ``camera_rate_hz`` and delivered ``camera_latency_s`` later (like a real
+        camera; ``CameraFrame.timestamp`` is the exposure time). The frame is rendered at exposure
+        from a snapshot (a worker thread was tried: the GIL hand-overs with the 1 kHz loop made it
+        slower on two cores). Noise is seeded per frame, so runs are reproducible.
+        """
+        now = self.time
+        frame = None
+        due = now + 1e-9 >= self._next_camera_t
+        # a frame is delivered once its latency has passed, or at the latest when the next is exposed
+        if self._pending is not None and (now + 1e-9 >= self._pending_ready_t or due):
+            frame = self._pending
+            self._pending = None
+        if due:
+            period = 1.0 / self.config.camera_rate_hz
+            exposure_t = self._next_camera_t
+            while self._next_camera_t <= now + 1e-9:
+                self._next_camera_t += period
+            latency = self.config.camera_latency_s
+            if latency <= 0.0:
+                return self.render_depth()
+            self._pending = self.render_depth()
+            self._pending_ready_t = exposure_t + latency
+        return frame
+
+    def _snapshot(self) -> tuple:
+        world_T_cam, pos, rot = self.camera.snapshot(self.data, self._ids["object_body"])
+        self._frame_index += 1
+        rng = np.random.default_rng([self._seed, self._frame_index])
+        return world_T_cam, pos, rot, self.time, self.scene.dirt.level.copy(), rng
+
+    def _render_snapshot(self, world_T_cam, pos, rot, timestamp, level, rng) -> CameraFrame:
+        return self.camera.render(world_T_cam, pos, rot, timestamp, dirt=self.scene.dirt, dirt_level=level,
+                                  object_rgb=np.asarray(self.scene.sim_object.rgb), rng=rng)
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -157,12 +196,15 @@ class MujocoBackend:
         return self.scene.dirt.remaining_fraction()
 
     def render_depth(self) -> CameraFrame:
-        """Capture an RGB-D frame now (ray cast)."""
+        """Capture an RGB-D frame now (ray cast), synchronously."""
+        if self.camera.method == "analytic":
+            return self._render_snapshot(*self._snapshot())
         obj = self.scene.sim_object
+        self._frame_index += 1
         return self.camera.capture(
             self.data, self.time, dirt=self.scene.dirt, object_geom=self._ids["object_geom"],
             object_body=self._ids["object_body"], object_rgb=np.asarray(obj.rgb), table_geom=self._ids["table_geom"],
-            rng=self._rng,
+            rng=np.random.default_rng([self._seed, self._frame_index]),
         )
 
     def object_pose(self, name: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -267,36 +309,41 @@ class MujocoBackend:
     def _pad_contacts(self) -> tuple[float, np.ndarray | None, float, np.ndarray | None, np.ndarray | None]:
         """Pad contacts of the last step: total normal force [N] and force-weighted point (world),
         and the same for the object only, with its mean normal (pointing from the surface to the pad)."""
-        m, d = self.model, self.data
-        pad, obj = self._ids["pad_geom"], self._ids["object_geom"]
-        total, point = 0.0, np.zeros(3)
-        f_obj, p_obj, n_obj = 0.0, np.zeros(3), np.zeros(3)
-        for i in range(d.ncon):
-            c = d.contact[i]
-            if c.geom1 != pad and c.geom2 != pad:
-                continue
-            mujoco.mj_contactForce(m, d, i, self._contact)
-            fn = float(self._contact[0])
-            if fn <= 0:
-                continue
-            total += fn
-            point += fn * c.pos
-            if obj in (c.geom1, c.geom2):
-                # the contact normal points from geom1 to geom2
-                n = c.frame[:3] if c.geom2 == pad else -c.frame[:3]
-                f_obj += fn
-                p_obj += fn * c.pos
-                n_obj += fn * n
-        if total <= 0:
+        d = self.data
+        if d.ncon == 0:
             return 0.0, None, 0.0, None, None
-        if f_obj <= 0:
-            return total, point / total, 0.0, None, None
-        return total, point / total, f_obj, p_obj / f_obj, n_obj / np.linalg.norm(n_obj)
+        # a handful of contacts: plain Python on lists beats numpy's per-call overhead here
+        con = d.contact
+        geoms = con.geom.tolist()
+        adr = con.efc_address.tolist()
+        efc = d.efc_force
+        pad, obj = self._ids["pad_geom"], self._ids["object_geom"]
+        rows = []
+        for i, (g1, g2) in enumerate(geoms):
+            if (g1 == pad or g2 == pad) and adr[i] >= 0:
+                fn = float(efc[adr[i]])  # elliptic cones: the first row of a contact is its normal force
+                if fn > 0:
+                    rows.append((i, fn, obj in (g1, g2), 1.0 if g2 == pad else -1.0))
+        if not rows:
+            return 0.0, None, 0.0, None, None
+        pos = con.pos
+        frame = con.frame
+        total = sum(r[1] for r in rows)
+        point = sum(r[1] * pos[r[0]] for r in rows) / total
+        on_obj = [r for r in rows if r[2]]
+        if not on_obj:
+            return total, point, 0.0, None, None
+        f_obj = sum(r[1] for r in on_obj)
+        p_obj = sum(r[1] * pos[r[0]] for r in on_obj) / f_obj
+        # the contact normal (first row of the contact frame) points from geom1 to geom2
+        n = sum((r[1] * r[3]) * frame[r[0], :3] for r in on_obj)
+        return total, point, f_obj, p_obj, n / np.sqrt(n @ n)
 
     def _wipe(self) -> None:
         total, point, force, point_w, normal = self._pad_contacts()
         if point_w is None:
             self._last_contact = (total, point)
+            self._flush_wear()
             return
         m, d = self.model, self.data
         pad = self._ids["pad_body"]
@@ -306,12 +353,32 @@ class MujocoBackend:
             centre = d.xpos[pad] + d.xmat[pad].reshape(3, 3)[:, 2] * self._pad_bottom
             point_w = centre + ((point_w - centre) @ normal) * normal
         self._last_contact = (total, point_w)
+        if force <= self.scene.dirt.params.force_threshold_n:
+            self._flush_wear()
+            return
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, pad, self._pad_vel, 0)
         v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (the object is at rest)
-        slip = float(np.linalg.norm(v - (v @ normal) * normal))
-        b = self._ids["object_body"]
-        point_obj = (point_w - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
-        self.scene.dirt.wipe(point_obj, force, slip, self.dt)
+        vn = v @ normal
+        slip = float(np.sqrt(max(v @ v - vn * vn, 0.0)))
+        # Preston wear is applied every few ticks at the mean footprint (the pad moves < 1 mm
+        # meanwhile); it integrates F·v·dt tick by tick, so the removed amount is unchanged
+        wear = force * slip * self.dt
+        self._wear += wear
+        self._wear_point += wear * point_w
+        self._wear_ticks += 1
+        if self._wear_ticks >= self._wear_period:
+            self._flush_wear()
+
+    def _flush_wear(self) -> None:
+        if self._wear > 0:
+            d = self.data
+            b = self._ids["object_body"]
+            point_w = self._wear_point / self._wear
+            point_obj = (point_w - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
+            self.scene.dirt.apply_wear(point_obj, self._wear)
+        self._wear = 0.0
+        self._wear_point = np.zeros(3)
+        self._wear_ticks = 0
 
     def _make_state(self) -> RobotState:
         m, d = self.model, self.data

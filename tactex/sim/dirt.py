@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.markings import BASE_RGB, MARK_RGB, marking_mask
@@ -76,7 +75,11 @@ class DirtField:
         self.valid = valid
         self.initial = (marking_mask(marking, self.uv) & valid).astype(float)
         self.level = self.initial.copy()
-        self._tree = cKDTree(self.points)
+        self._extent = extent
+        self._points_grid = self.points.reshape(nv, nu, 3)
+        # half-size of the cell window that contains the pad footprint (+1 cell of margin)
+        self._win = (int(np.ceil(self.params.pad_radius_m / (extent[1] / nv))) + 1,
+                     int(np.ceil(self.params.pad_radius_m / (extent[0] / nu))) + 1)
 
     def _cell_points(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         s = self.surface
@@ -109,27 +112,56 @@ class DirtField:
         p = self.params
         if not (normal_force_n > p.force_threshold_n) or slip_speed_m_s <= 0.0:
             return 0
-        idx = self._tree.query_ball_point(np.asarray(contact_obj, dtype=float), p.pad_radius_m)
-        if not idx:
-            return 0
-        pressure = normal_force_n / (np.pi * p.pad_radius_m**2)
-        removal = p.coefficient * pressure * slip_speed_m_s * dt_s
-        cells = np.asarray(idx)
-        self.level[cells] = np.maximum(self.level[cells] - removal, 0.0)
-        return len(cells)
+        return self.apply_wear(contact_obj, normal_force_n * slip_speed_m_s * dt_s)
 
-    def level_at(self, points_obj: np.ndarray) -> np.ndarray:
-        """Dirt level (N,) at surface points (N, 3) in the object frame (nearest cell)."""
+    def apply_wear(self, contact_obj: np.ndarray, force_slip_integral: float) -> int:
+        """Remove k_p·∫F·v dt / (π r²) of dirt under a pad centred at ``contact_obj`` (object frame)
+        [m]; ``force_slip_integral`` = ∫ F_n·v dt [N·m] over ticks above the force threshold."""
+        p = self.params
+        if not force_slip_integral > 0.0:
+            return 0
+        c = np.asarray(contact_obj, dtype=float).reshape(3)
+        # only a window of cells around the footprint is examined (this runs at 1 kHz)
+        iu, iv = self._cell_index(c)
+        nv, nu = self.shape
+        v0, v1 = max(iv - self._win[0], 0), min(iv + self._win[0] + 1, nv)
+        u0, u1 = max(iu - self._win[1], 0), min(iu + self._win[1] + 1, nu)
+        block = self._points_grid[v0:v1, u0:u1]
+        d2 = ((block - c) ** 2).sum(axis=-1)
+        inside = d2 <= p.pad_radius_m**2
+        count = int(inside.sum())
+        if count == 0:
+            return 0
+        removal = p.coefficient * force_slip_integral / (np.pi * p.pad_radius_m**2)
+        levels = self.level.reshape(nv, nu)[v0:v1, u0:u1]
+        levels[inside] = np.maximum(levels[inside] - removal, 0.0)
+        return count
+
+    def _cell_index(self, point_obj: np.ndarray) -> tuple[int, int]:
+        """(column u, row v) of the cell nearest to a point in the object frame."""
+        s = self.surface
+        nv, nu = self.shape
+        if isinstance(s, HeightFieldSurface):
+            u = point_obj[0] / s.size_x_m + 0.5
+            v = point_obj[1] / s.size_y_m + 0.5
+        else:
+            u, v = s.uv(point_obj[None])[0]
+        return min(max(int(u * nu), 0), nu - 1), min(max(int(v * nv), 0), nv - 1)
+
+    def level_at(self, points_obj: np.ndarray, level: np.ndarray | None = None) -> np.ndarray:
+        """Dirt level (N,) at surface points (N, 3) in the object frame (nearest cell), from the
+        current levels or from ``level`` (a snapshot of :attr:`level`)."""
         uv = self.surface.uv(points_obj)
         nv, nu = self.shape
         iu = np.clip((uv[:, 0] * nu).astype(int), 0, nu - 1)
         iv = np.clip((uv[:, 1] * nv).astype(int), 0, nv - 1)
-        return self.level[iv * nu + iu]
+        return (self.level if level is None else level)[iv * nu + iu]
 
-    def colors(self, points_obj: np.ndarray, base_rgb: np.ndarray | None = None) -> np.ndarray:
+    def colors(self, points_obj: np.ndarray, base_rgb: np.ndarray | None = None,
+               level: np.ndarray | None = None) -> np.ndarray:
         """RGB (N, 3) in [0, 1] of surface points: the clean colour blended with the marking colour."""
         base = BASE_RGB if base_rgb is None else np.asarray(base_rgb, dtype=float)
-        d = self.level_at(points_obj)[:, None]
+        d = self.level_at(points_obj, level)[:, None]
         return (1.0 - d) * base + d * MARK_RGB
 
     def level_image(self) -> np.ndarray:

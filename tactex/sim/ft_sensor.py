@@ -14,11 +14,6 @@ import numpy as np
 
 __all__ = ["FTSensorModel"]
 
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    # np.cross costs ~30 µs per call (axis handling); this runs at 1 kHz.
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
 _GRAVITY_WORLD = np.array([0.0, 0.0, -9.81])
 
 
@@ -53,14 +48,23 @@ class FTSensorModel:
     def measure(self, raw_force: np.ndarray, raw_torque: np.ndarray, world_R_sensor: np.ndarray,
                 rng: np.random.Generator | None = None) -> np.ndarray:
         """Contact wrench (6,) at the TCP, tool frame, [f (N), m (N·m)]; f_z > 0 when pressing."""
-        raw = np.concatenate([raw_force, raw_torque]) + self.bias
+        raw = np.concatenate([raw_force, raw_torque])
+        raw += self.bias
         if rng is not None and self.noise.any():
-            raw = raw + rng.normal(0.0, 1.0, 6) * self.noise
-        weight = self.mass * (np.asarray(world_R_sensor).T @ self.gravity)
-        force = raw[:3] + weight
-        moment_sensor = raw[3:] + _cross(self.com, weight)
-        moment_tcp = moment_sensor + _cross(-self.tcp, force)
-        wrench = np.concatenate([force, moment_tcp])
+            raw += rng.normal(0.0, 1.0, 6) * self.noise
+        # gravity of the tool in the sensor frame: m·Rᵀg (plain floats: this runs at 1 kHz)
+        rot = np.asarray(world_R_sensor)
+        gw = self.gravity
+        mg = [self.mass * float(rot[0, i] * gw[0] + rot[1, i] * gw[1] + rot[2, i] * gw[2]) for i in range(3)]
+        fx, fy, fz, mx, my, mz = raw.tolist()
+        fx, fy, fz = fx + mg[0], fy + mg[1], fz + mg[2]
+        cx, cy, cz = self.com.tolist()
+        mx += cy * mg[2] - cz * mg[1]
+        my += cz * mg[0] - cx * mg[2]
+        mz += cx * mg[1] - cy * mg[0]
+        # move the moment from the sensor origin to the TCP at (0, 0, L): m_tcp = m + (−L·ẑ) × f
+        length = float(self.tcp[2])
+        wrench = np.array([fx, fy, fz, mx + length * fy, my - length * fx, mz])
         if self._filtered is None or self.alpha >= 1.0:
             self._filtered = wrench
         else:

@@ -51,7 +51,9 @@ class SimObject:
             raised so that it does not cut the table).
         rgb: clean colour in [0, 1].
         marking: default dirt pattern (a name of tactex.pointcloud.markings.MARKINGS).
-        hfield_spacing_m: height-field grid spacing [m].
+        hfield_spacing_m: height-field grid spacing [m]. Contact cost grows with the number of grid
+            cells under the pad, so it is as coarse as the curvature allows: the linear-interpolation
+            error h''·s²/8 is 0.07 mm for the sine panel at 1 cm and ≤ 0.1 mm for the others at 5 mm.
         base_thickness_m: solid below z = 0 of the object frame [m].
     """
 
@@ -61,7 +63,7 @@ class SimObject:
     lift_m: float = 0.0
     rgb: tuple[float, float, float] = (0.85, 0.85, 0.82)
     marking: str = "X"
-    hfield_spacing_m: float = 0.003
+    hfield_spacing_m: float = 0.005
     base_thickness_m: float = 0.01
     extra: dict = field(default_factory=dict)
 
@@ -209,7 +211,8 @@ def _register_builtins() -> None:
     register_object(SimObject("plane", SURFACES["plane"], lift_m=0.01, marking="blobs"))
     register_object(SimObject("tilted_plane", SURFACES["plane"], intrinsic_rpy_deg=(15.0, 0.0, 0.0), lift_m=0.05,
                               marking="blobs"))
-    register_object(SimObject("sine_panel", SURFACES["sine_panel"], rgb=(0.8, 0.8, 0.78), marking="full"))
+    register_object(SimObject("sine_panel", SURFACES["sine_panel"], rgb=(0.8, 0.8, 0.78), marking="full",
+                              hfield_spacing_m=0.01))
     register_object(SimObject("plate", SURFACES["plate"], rgb=(0.95, 0.95, 0.92), marking="shapes"))
     register_object(SimObject("bowl", SURFACES["bowl"], rgb=(0.75, 0.82, 0.9), marking="RLI"))
     register_object(SimObject("cup", SURFACES["cup"], rgb=(0.9, 0.9, 0.95), marking="X"))

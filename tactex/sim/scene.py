@@ -44,6 +44,8 @@ class SceneConfig:
     camera_width: int = param(160, "camera image width [px]")
     camera_height: int = param(120, "camera image height [px]")
     camera_rate_hz: float = param(30.0, "camera frame rate [Hz]")
+    camera_latency_s: float = param(0.0, "camera exposure-to-delivery delay [s], ≤ one frame period")
+    camera_raycast: str = param("analytic", "depth ray casting: analytic (table + object) or mujoco (mj_multiRay)")
     depth_noise_m: float = param(0.0, "depth noise standard deviation at 1 m, grows with depth² [m]")
     ft_noise_n: float = param(0.0, "F/T force noise standard deviation [N]")
     ft_noise_nm: float = param(0.0, "F/T torque noise standard deviation [N·m]")
@@ -66,6 +68,8 @@ class SceneConfig:
             raise ConfigError(f"unknown marking '{self.marking}'; valid: {', '.join(sorted(MARKINGS))} or ''")
         if self.camera_preset not in CAMERA_PRESETS:
             raise ConfigError(f"unknown camera preset '{self.camera_preset}'; valid: {', '.join(CAMERA_PRESETS)}")
+        if self.camera_raycast not in ("analytic", "mujoco"):
+            raise ConfigError(f"camera_raycast must be 'analytic' or 'mujoco', got '{self.camera_raycast}'")
         if self.tool_pad_shape not in ("cylinder", "sphere"):
             raise ConfigError(f"tool_pad_shape must be 'cylinder' or 'sphere', got '{self.tool_pad_shape}'")
         positive = {
@@ -85,6 +89,11 @@ class SceneConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be a finite number ≥ 0, got {v}")
+        if not (0.0 <= self.camera_latency_s <= 1.0 / self.camera_rate_hz + 1e-9):
+            raise ConfigError(
+                f"camera_latency_s must be in [0, 1/camera_rate_hz = {1.0 / self.camera_rate_hz:.4g}] s, "
+                f"got {self.camera_latency_s}"
+            )
         if not (8 <= self.camera_width <= 4096 and 8 <= self.camera_height <= 4096):
             raise ConfigError(f"camera size must be within 8..4096 px, got {self.camera_width}×{self.camera_height}")
         for name, n in (("object_position", 3), ("object_rpy_deg", 3), ("ft_bias", 6)):
