@@ -1,0 +1,246 @@
+"""Run reports of the closed-loop tasks on synthetic results: files, contract keys, data in the page."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tactex.control.va_ufic import VaUficParams
+from tactex.errors import InputError
+from tactex.pointcloud import SurfaceCloud
+from tactex.report import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS, summary_table, write_index_html, write_run_report
+from tactex.report.run_report import CLEAN_PHASES, missing_metric_keys, run_kind, vision_update_times
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+DT = 0.01  # 100 Hz recorder
+
+
+@dataclass(frozen=True)
+class FakeCleanConfig:
+    object_name: str = "plate"
+    force_n: float = 10.0
+    baseline: str = ""
+
+
+@dataclass(frozen=True)
+class FakeWipeConfig:
+    force_n: float = 15.0
+    controller: VaUficParams = field(default_factory=VaUficParams)
+
+
+@dataclass
+class FakeEvent:
+    t: float
+    kind: str
+    detail: str
+
+
+def _plate(n_side: int = 20) -> SurfaceCloud:
+    g = np.linspace(-0.1, 0.1, n_side)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([x.ravel() + 0.5, y.ravel(), np.full(x.size, 0.02)])
+    target = (np.abs(x.ravel() - y.ravel()) < 0.02).astype(float)
+    return SurfaceCloud(points=pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=target, spacing=0.01)
+
+
+def _clean_phases() -> np.ndarray:
+    """move, capture, approach, explore, retract, move, capture (re-measure), approach, explore, retract."""
+    spans = [("move", 50), ("capture", 10), ("approach", 20), ("explore", 200), ("retract", 20), ("move", 40),
+             ("capture", 10), ("approach", 20), ("explore", 200), ("retract", 30)]
+    return np.concatenate([np.full(n, CLEAN_PHASES[p], float) for p, n in spans])
+
+
+def fake_clean(baseline: str = "") -> SimpleNamespace:
+    phase = _clean_phases()
+    n = len(phase)
+    t = np.arange(n) * DT
+    explore = phase == CLEAN_PHASES["explore"]
+    cloud = _plate()
+    tcp = np.tile([0.5, 0.0, 0.3], (n, 1))
+    tcp[explore] = cloud.points[np.arange(explore.sum()) % len(cloud)]
+    agent = np.full((n, 3), np.nan)
+    agent[explore] = tcp[explore]
+    force = np.where(explore, 10.0 + np.sin(t * 7.0), 0.0)
+    metrics = {
+        "dirt_removed_fraction": 0.62, "force_within_20pct_fraction": 0.91, "max_contact_force_n": 14.5,
+        "sim_time_s": float(t[-1]), "vision_updates": 1, "force_set_point_n": 10.0, "baseline": baseline or "tactex",
+        "object": "plate", "ergodicity": [] if baseline == "raster" else [(1.0, 0.9), (2.0, 0.7), (3.0, 0.55)],
+    }
+    fields = {"target_initial": cloud.target.copy()}
+    if baseline != "raster":
+        fields.update(target=cloud.target * 0.5, coverage=np.linspace(0, 1, len(cloud)),
+                      potential=np.cos(cloud.points[:, 0]))
+    return SimpleNamespace(
+        config=FakeCleanConfig(baseline=baseline), metrics=metrics,
+        series={"t": t, "phase": phase, "tcp": tcp, "agent": agent, "force_z_n": force, "force_norm_n": np.abs(force),
+                "set_point_n": np.where(explore, 10.0, 0.0), "pad_force_n": force,
+                "dirt_remaining": np.linspace(1.0, 0.38, n)},
+        cloud=cloud, fields=fields, agent_path=cloud.points[:40], tcp_path=tcp,
+        events=[FakeEvent(1.5, "torque_rate_limit", "torque rate saturated")],
+    )
+
+
+def fake_wipe(label: str = "") -> SimpleNamespace:
+    n = 500
+    t = np.arange(n) * DT
+    y = np.linspace(-0.1, 0.1, n)
+    z = 0.02 * np.sin(2 * np.pi * y / 0.1)
+    tcp_obj = np.column_stack([np.zeros(n), y, z + 0.001])
+    tcp = tcp_obj + np.array([0.5, 0.0, 0.05])
+    contact = (t > 0.5).astype(float)
+    curv = np.abs(np.sin(np.linspace(0, 3, 80))) * 40.0
+    explored = SurfaceCloud(points=tcp[::6][:80], normals=np.tile([0.0, 0.0, 1.0], (80, 1)))
+    metrics = {
+        "force_mae_n": 0.4, "force_rmse_n": 0.8, "motion_mae_m": [0.001, 0.002, 0.0005],
+        "motion_rmse_m": [0.002, 0.003, 0.001], "tank_impedance_energy_j": {"min": 5.2, "max": 30.1},
+        "tank_force_energy_j": {"min": 1.1, "max": 2.0}, "explore_time_s": 4.5, "contact_fraction": 0.9,
+        "sim_time_s": float(t[-1]), "baseline": label or "tactex",
+    }
+    series = {
+        "t": t, "tcp": tcp, "desired": tcp + 0.001, "motion_error_tool": np.full((n, 3), 0.001),
+        "force_z_n": 15.0 * contact + 0.3 * np.sin(t), "force_set_n": 15.0 * contact, "in_contact": contact,
+        "rho_align": np.clip(t / 3, 0, 1), "rho_frc": np.clip(t / 2, 0, 1), "tank_i_energy_j": 30 - 0.01 * t,
+        "tank_f_energy_j": np.full(n, 2.0), "tcp_object": tcp_obj,
+    }
+    return SimpleNamespace(config=FakeWipeConfig(), metrics=metrics, series=series, profile={"y_m": y, "z_m": z},
+                           explored=explored, explored_curvature=curv, events=[])
+
+
+def _pngs_ok(rep) -> list[str]:
+    names = []
+    for role, path in rep.files.items():
+        if role.endswith("_png"):
+            assert path.read_bytes()[:8] == PNG_MAGIC, path
+            names.append(path.name)
+    return names
+
+
+def test_clean_report_files_and_contract(tmp_path) -> None:
+    res = fake_clean()
+    rep = write_run_report(res, tmp_path / "clean")
+    assert rep.kind == "clean" and rep.label == "tactex" and rep.notes == []
+    metrics = json.loads((tmp_path / "clean" / "metrics.json").read_text())
+    assert set(CLEAN_METRIC_KEYS) <= set(metrics) and metrics["dirt_removed_fraction"] == 0.62
+    assert json.loads((tmp_path / "clean" / "config.json").read_text()) == {"object_name": "plate", "force_n": 10.0,
+                                                                             "baseline": ""}
+    assert sorted(_pngs_ok(rep)) == sorted(["dirt.png", "force.png", "phases.png", "cloud.png", "cloud_tcp.png",
+                                            "ergodicity.png"])
+    with np.load(tmp_path / "clean" / "series.npz", allow_pickle=False) as z:
+        assert set(z.files) == set(res.series)
+        np.testing.assert_array_equal(z["dirt_remaining"], res.series["dirt_remaining"])
+        assert np.isnan(z["agent"]).any()  # NaN where no agent is kept, not filled
+    with np.load(tmp_path / "clean" / "cloud.npz", allow_pickle=False) as z:
+        np.testing.assert_array_equal(z["field_coverage"], res.fields["coverage"])
+        # Only TCP samples of the exploration phases are the tool path in contact.
+        assert z["tcp_path_contact"].shape == (400, 3)
+    events = json.loads((tmp_path / "clean" / "events.json").read_text())
+    assert events == [{"t": 1.5, "kind": "torque_rate_limit", "detail": "torque rate saturated"}]
+    page = rep.html.read_text()
+    assert "<script src=" not in page and '"coverage"' in page and '"potential"' in page and '"path"' in page
+    assert page.count("src='data:image/png;base64,") == 6 and "dirt_removed_fraction" in page
+    assert page.rstrip().endswith("</html>")
+
+
+def test_clean_report_raster_baseline_notes_missing_ergodicity(tmp_path) -> None:
+    rep = write_run_report(fake_clean("raster"), tmp_path / "raster")
+    assert rep.label == "raster" and "ergodicity_png" not in rep.files
+    assert any("ergodicity" in n for n in rep.notes)
+    assert '"dirt (first capture)"' in rep.html.read_text()
+
+
+def test_vision_update_times_are_the_recaptures() -> None:
+    phase = _clean_phases()
+    t = np.arange(len(phase)) * DT
+    # The second capture starts after 50+10+20+200+20+40 samples.
+    np.testing.assert_allclose(vision_update_times(t, phase), [340 * DT])
+
+
+def test_missing_contract_keys_are_noted(tmp_path) -> None:
+    res = fake_clean()
+    del res.metrics["vision_updates"]
+    rep = write_run_report(res, tmp_path / "c")
+    assert rep.notes == ["metrics lack contract keys: vision_updates"]
+    assert missing_metric_keys("wipe", {}) == list(WIPE_METRIC_KEYS)
+    with pytest.raises(InputError, match="unknown run kind 'sweep'"):
+        missing_metric_keys("sweep", {})
+
+
+def test_wipe_report_files_and_contract(tmp_path) -> None:
+    res = fake_wipe()
+    rep = write_run_report(res, tmp_path / "wipe")
+    assert rep.kind == "wipe" and rep.notes == []
+    metrics = json.loads((tmp_path / "wipe" / "metrics.json").read_text())
+    assert set(WIPE_METRIC_KEYS) <= set(metrics)
+    assert metrics["motion_mae_m"] == [0.001, 0.002, 0.0005] and metrics["tank_force_energy_j"]["max"] == 2.0
+    cfg = json.loads((tmp_path / "wipe" / "config.json").read_text())
+    assert cfg["controller"]["tank_i_upper"] == 32.0
+    assert sorted(_pngs_ok(rep)) == sorted(["fig2_profile.png", "fig3a_alignment.png", "fig3b_motion.png",
+                                            "fig3c_force.png", "fig3d_tanks.png", "explored.png"])
+    with np.load(tmp_path / "wipe" / "cloud.npz", allow_pickle=False) as z:
+        np.testing.assert_array_equal(z["explored_curvature"], res.explored_curvature)
+        np.testing.assert_array_equal(z["profile_z_m"], res.profile["z_m"])
+        assert z["tcp_path_contact"].shape == (int(res.series["in_contact"].sum()), 3)
+    page = rep.html.read_text()
+    assert '"curvature [1\\u002fm]"' in page and '"path"' in page and page.count("src='data:image/png;base64,") == 6
+
+
+def test_wipe_report_without_contact(tmp_path) -> None:
+    res = fake_wipe()
+    res.series["in_contact"][:] = 0.0
+    res.explored = None  # a run that never touched the surface
+    res.explored_curvature = np.zeros(0)
+    rep = write_run_report(res, tmp_path / "w")
+    assert "explored_png" not in rep.files and any("no explored points" in n for n in rep.notes)
+    assert "fig3d_png" in rep.files and rep.html.read_text().rstrip().endswith("</html>")
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda r: r.series.pop("rho_align"), "lacks rho_align"),
+        (lambda r: r.series.__setitem__("force_z_n", np.zeros(3)), "'force_z_n' has shape"),
+        (lambda r: setattr(r, "explored_curvature", np.zeros(5)), "5 values for 80 explored points"),
+        (lambda r: setattr(r, "series", None), "no 'series' mapping"),
+    ],
+)
+def test_wipe_report_bad_result(tmp_path, mutate, match) -> None:
+    res = fake_wipe()
+    mutate(res)
+    with pytest.raises(InputError, match=match):
+        write_run_report(res, tmp_path / "bad")
+
+
+def test_run_kind_refuses_other_objects() -> None:
+    assert run_kind(fake_clean()) == "clean" and run_kind(fake_wipe()) == "wipe"
+    with pytest.raises(InputError, match="cannot report a dict"):
+        run_kind({})
+
+
+def test_summary_table_side_by_side() -> None:
+    rows = [("tactex", fake_clean().metrics), ("raster", {**fake_clean("raster").metrics, "dirt_removed_fraction": 0.4,
+                                                          "vision_updates": 0})]
+    text = summary_table(rows)
+    lines = text.splitlines()
+    assert len(lines) == 4 and lines[0].split()[0] == "run" and "dirt removed" in lines[0]
+    assert "62.0 %" in lines[2] and "40.0 %" in lines[3] and "91.0 %" in lines[2]
+    assert "force MAE" not in text  # no wipe metric in these rows
+    wipe = summary_table({"tactex": fake_wipe().metrics, "cartesian": {"force_mae_n": 2.5}})
+    assert "1.0/2.0/0.5" in wipe and "5.20–30.10" in wipe and "2.50" in wipe
+    assert wipe.splitlines()[3].count("–") >= 3  # the baseline lacks motion and tank metrics
+    with pytest.raises(InputError, match="at least one run"):
+        summary_table([])
+    with pytest.raises(InputError, match="pairs"):
+        summary_table([("a", 3)])  # type: ignore[list-item]
+
+
+def test_index_links_runs(tmp_path) -> None:
+    reps = [write_run_report(fake_clean(), tmp_path / "clean", html_page=False),
+            write_run_report(fake_clean("raster"), tmp_path / "clean_raster"),
+            write_run_report(fake_wipe(), tmp_path / "wipe")]
+    page = write_index_html(tmp_path / "index.html", reps, title="demo").read_text()
+    assert "href='clean_raster/report.html'" in page and "href='wipe/report.html'" in page
+    assert "<h2>clean</h2>" in page and "<h2>wipe</h2>" in page and "62.0 %" in page and "0.40" in page
