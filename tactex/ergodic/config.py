@@ -11,6 +11,13 @@ from tactex.errors import ConfigError
 __all__ = ["HedacConfig"]
 
 
+def _check_number(name: str, value: object, strict: bool) -> None:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or (value <= 0 if strict else value < 0):  # type: ignore[operator]
+        kind = "a positive finite number" if strict else "a finite number ≥ 0"
+        raise ConfigError(f"HedacConfig.{name} must be {kind}, got {value!r}")
+
+
 @dataclass(frozen=True)
 class HedacConfig:
     """HEDAC spectral exploration on a point cloud.
@@ -37,32 +44,48 @@ class HedacConfig:
     max_acceleration: float = param(1.0, "acceleration limit ẍmax [voxels/step²] (Table II: 3 mm/s²)")
     step_duration_s: float = param(1.0, "duration of one exploration step, converts voxels/step to m/s [s]")
     order: int = param(2, "agent dynamics: 1 (velocity along the gradient) or 2 (acceleration, eq. 6) [-]")
-    source_in_potential: bool = param(True, "add the undiffused source to the potential at the neighbours")
+    source_weight: float = param(
+        1.0, "weight of the undiffused source added to the potential (the authors' code: 1; 0 = diffused only) [-]"
+    )
+    max_off_cloud: float = param(
+        1.0,
+        "farthest the agent may stray from the nearest cloud point (it stays on the fitted surface, so this "
+        "lets it bridge scan holes the Laplacian connects) [voxels]",
+    )
     max_snap_distance: float = param(
         10.0, "farthest start/measured position from the cloud that is projected onto it [voxels]"
+    )
+    coverage_mode: str = param(
+        "ergodic",
+        "'ergodic': c = c̃/∫c̃ (eq. 2, time-averaged statistics match the target); 'saturating': "
+        "c = c̃·p̂_max/φ(r_a), a point stops being a source once a footprint has touched it (coverage)",
     )
     seed: int = param(0, "seed of the random heading used when the potential is exactly flat [-]")
 
     def __post_init__(self) -> None:
-        positive = {
-            "alpha": self.alpha,
-            "agent_radius_m": self.agent_radius_m,
-            "footprint_sharpness": self.footprint_sharpness,
-            "max_velocity": self.max_velocity,
-            "max_acceleration": self.max_acceleration,
-            "step_duration_s": self.step_duration_s,
-            "max_snap_distance": self.max_snap_distance,
-        }
-        for name, value in positive.items():
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ConfigError(f"HedacConfig.{name} must be a positive finite number, got {value!r}")
-        if not math.isfinite(self.alpha_final) or self.alpha_final < 0:
-            raise ConfigError(f"HedacConfig.alpha_final must be ≥ 0 (0 = no schedule), got {self.alpha_final!r}")
+        positive = (
+            "alpha",
+            "agent_radius_m",
+            "footprint_sharpness",
+            "max_velocity",
+            "max_acceleration",
+            "step_duration_s",
+            "max_off_cloud",
+            "max_snap_distance",
+        )
+        for name in positive:
+            _check_number(name, getattr(self, name), strict=True)
+        for name in ("alpha_final", "source_weight"):
+            _check_number(name, getattr(self, name), strict=False)
         for name, low in (("n_eigen", 1), ("n_neighbors_fit", 5), ("alpha_decay_steps", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"HedacConfig.{name} must be an integer ≥ {low}, got {value!r}")
-        if self.order not in (1, 2):
+        if self.coverage_mode not in ("ergodic", "saturating"):
+            raise ConfigError(
+                f"HedacConfig.coverage_mode must be 'ergodic' or 'saturating', got {self.coverage_mode!r}"
+            )
+        if self.order not in (1, 2) or isinstance(self.order, bool):
             raise ConfigError(f"HedacConfig.order must be 1 or 2, got {self.order!r}")
         if self.agent_radius_m > 1.0:
             raise ConfigError(

@@ -130,9 +130,11 @@ class HedacExplorer:
         self._step_max = cfg.max_velocity * self.spacing
         self._snap = cfg.max_snap_distance * self.spacing
         self._r_a2 = self._r_a**2
-        self._h2 = self.spacing**2
-        self._source_in_u = bool(cfg.source_in_potential)
+        self._off2 = (cfg.max_off_cloud * self.spacing) ** 2
+        self._off = cfg.max_off_cloud * self.spacing
+        self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
+        self._saturating = cfg.coverage_mode == "saturating"
         self._build_neighbourhoods()
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
@@ -160,6 +162,8 @@ class HedacExplorer:
         self._target = p
         self._tidx = np.flatnonzero(p > 0)
         self._p_t = p[self._tidx] / total
+        # "saturating" coverage: one pass of the footprint edge, φ(r_a), fills the densest target point.
+        self._sat_gain = float(self._p_t.max()) / float(np.exp(-self.config.footprint_sharpness**2))
         self._tpos = np.full(len(p), -1, dtype=np.intp)
         self._tpos[self._tidx] = np.arange(self._tidx.size)
         # Rows of Φᵀ M restricted to the target: s vanishes elsewhere.
@@ -336,7 +340,7 @@ class HedacExplorer:
 
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         if self._cov_sum > 0.0:
-            s = self._p_t - self._cov[self._tidx] * (1.0 / self._cov_sum)
+            s = self._p_t - self._cov[self._tidx] * (self._sat_gain if self._saturating else 1.0 / self._cov_sum)
             np.maximum(s, 0.0, out=s)
             s *= s
         else:
@@ -351,10 +355,10 @@ class HedacExplorer:
         coef += s @ self._phitm_t
         coef *= self._decay
         u = self._phi[nbr] @ coef
-        if self._source_in_u:
+        if self._source_w > 0.0:
             tp = self._tpos[nbr]
             on = tp >= 0
-            u[on] += s[tp[on]]
+            u[on] += self._source_w * s[tp[on]]
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
@@ -381,9 +385,21 @@ class HedacExplorer:
         step = xl * scale
         dq2 = dd - 2.0 * (d @ step) + float(step @ step)
         k = dq2.argmin()
-        if dq2[k] > self._h2:
-            # Past the edge of the cloud: back to one voxel from its nearest point (eq. 5's boundary).
-            step = d[k] + (step - d[k]) * (self.spacing / float(dq2[k]) ** 0.5)
+        if dq2[k] > self._off2:
+            # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
+            # the agent slides along the edge, and stay within one voxel of the nearest point.
+            out = step - d[k]
+            out -= float(out @ nrm) * nrm
+            no = float(out @ out) ** 0.5
+            if no > 0.0:
+                out *= 1.0 / no
+                v = v - max(float(v @ out), 0.0) * out
+                xl, n_new = _project_local(patch, (shift + v * self._dt) * inv, nrm)
+                step = xl * scale
+                dq2 = dd - 2.0 * (d @ step) + float(step @ step)
+                k = dq2.argmin()
+            if dq2[k] > self._off2:
+                step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
         sl = float(step @ step) ** 0.5
         if sl > self._step_max:
             step *= self._step_max / sl
@@ -423,8 +439,7 @@ class HedacExplorer:
         """The potential u (N,) on the cloud as the agents see it (eq. 19, plus the source)."""
         self._require_state()
         u = self._phi @ self._coef
-        if self.config.source_in_potential:
-            u[self._tidx] += self._s_t
+        u[self._tidx] += self.config.source_weight * self._s_t
         return u
 
     def ergodicity(self, normalize: str = "l2") -> float:

@@ -1,0 +1,209 @@
+"""CGA sphere-or-plane fit (TEC eq. 23–29) against pygafro and known primitives."""
+
+from __future__ import annotations
+
+import numpy as np
+import pygafro as g
+import pytest
+
+from tactex.errors import InputError
+from tactex.geometry.fit import (
+    SurfacePatch,
+    cga_design_matrix,
+    cga_fit_vector,
+    fit_sphere_or_plane,
+    gafro_normal_line,
+    gafro_primitive,
+    gafro_project,
+    gafro_tangent_plane,
+)
+
+EXACT_TOL = 1e-6  # [m] / [-]: recovery from exact points (task acceptance)
+GAFRO_TOL = 1e-9  # closed form vs pygafro expressions
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _sphere_cap(rng, center, radius, n=20, half_angle=0.3):
+    """Points on a cap of the sphere (a neighbourhood sees a small cap, not the whole sphere)."""
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    t1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(axis, t1)
+    th = rng.uniform(0, half_angle, n)
+    ph = rng.uniform(0, 2 * np.pi, n)
+    d = np.cos(th)[:, None] * axis + np.sin(th)[:, None] * (np.cos(ph)[:, None] * t1 + np.sin(ph)[:, None] * t2)
+    return center + radius * d, axis
+
+
+def _plane_patch(rng, n=20, half=0.006):
+    rot = _rotation(rng)
+    origin = rng.uniform(-0.5, 0.5, 3)
+    uv = rng.uniform(-half, half, (n, 2))
+    pts = origin + uv[:, :1] * rot[:, 0] + uv[:, 1:] * rot[:, 1]
+    return pts, origin, rot[:, 2]
+
+
+def test_design_matrix_rows_give_the_conformal_inner_product(rng):
+    """w_i · (v, v∞, v0) = P_i · X* with pygafro's inner product (eq. 24–25)."""
+    pts = rng.uniform(-0.3, 0.3, (6, 3))
+    x_dual = g.Sphere(g.Point(0.1, -0.2, 0.05), 0.07).dual()
+    dv = np.asarray(x_dual.vector())  # [e0, e1, e2, e3, e∞]
+    w = cga_design_matrix(pts)
+    ours = w @ np.array([dv[1], dv[2], dv[3], dv[4], dv[0]])
+    theirs = [np.asarray((g.Point(*p) | x_dual).vector())[0] for p in pts]
+    np.testing.assert_allclose(ours, theirs, atol=GAFRO_TOL)
+
+
+def test_eigen_formulation_matches_pygafro_sphere(rng):
+    center, radius = np.array([0.45, -0.1, 0.2]), 0.04
+    pts, _ = _sphere_cap(rng, center, radius, half_angle=1.0)
+    v = cga_fit_vector(pts)
+    ref = np.asarray(g.Sphere(g.Point(*center), radius).dual().vector())
+    np.testing.assert_allclose(v / v[0], ref / ref[0], atol=EXACT_TOL)
+    for p in pts:  # every point lies on the fitted primitive: P · X* = 0 (eq. 23)
+        assert abs(np.asarray((g.Point(*p) | g.Sphere(g.Point(*center), radius).dual()).vector())[0]) < 1e-12
+
+
+def test_eigen_formulation_gives_a_plane_with_v0_zero(rng):
+    pts, origin, normal = _plane_patch(rng, half=0.05)
+    v = cga_fit_vector(pts)
+    assert abs(v[0]) < EXACT_TOL * np.linalg.norm(v[1:4])
+    prim = gafro_primitive(SurfacePatch("plane", origin, np.inf, normal))
+    ref = np.asarray(prim.dual().vector())  # a plane's dual has no e0: [e1, e2, e3, e∞]
+    np.testing.assert_allclose(v[1:] / v[1], ref / ref[0], atol=EXACT_TOL)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_fit_recovers_a_known_sphere(seed):
+    rng = np.random.default_rng(seed)
+    center = rng.uniform(-0.5, 0.5, 3)
+    radius = rng.uniform(0.01, 0.2)
+    pts, _ = _sphere_cap(rng, center, radius, half_angle=0.006 / radius * 3)
+    patch = fit_sphere_or_plane(pts)
+    assert patch.kind == "sphere"
+    np.testing.assert_allclose(patch.center, center, atol=EXACT_TOL)
+    assert abs(patch.radius - radius) < EXACT_TOL
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_fit_recovers_a_known_plane(seed):
+    rng = np.random.default_rng(seed)
+    pts, origin, normal = _plane_patch(rng)
+    patch = fit_sphere_or_plane(pts)
+    assert patch.kind == "plane"
+    assert 1 - abs(patch.direction @ normal) < EXACT_TOL
+    assert abs((patch.center - origin) @ normal) < EXACT_TOL
+
+
+def test_fit_degrades_gracefully_with_noise():
+    """Surface error of the projected agent grows with the noise, stays a few σ, never NaN."""
+    rng = np.random.default_rng(7)
+    center, radius = np.array([0.3, 0.2, 0.1]), 0.05
+    errors = []
+    for sigma in (0.0, 1e-5, 1e-4, 3e-4):
+        worst = 0.0
+        for _ in range(30):
+            pts, axis = _sphere_cap(rng, center, radius, n=20, half_angle=0.12)
+            pts = pts + rng.normal(scale=sigma, size=pts.shape)
+            x = center + (radius + 0.001) * axis
+            p, n = fit_sphere_or_plane(pts).project(x)
+            assert np.all(np.isfinite(p)) and np.all(np.isfinite(n))
+            surf_err = abs(np.linalg.norm(p - center) - radius)
+            worst = max(worst, surf_err)
+        errors.append(worst)
+    assert errors[0] < 1e-9
+    # a few σ off the surface at most (σ = 0.3 mm is a tenth of a voxel)
+    for sigma, err in zip((1e-5, 1e-4, 3e-4), errors[1:], strict=True):
+        assert err < 5 * sigma, (sigma, err)
+
+
+@pytest.mark.parametrize("kind", ["sphere", "plane"])
+def test_projection_normal_line_and_tangent_plane_match_pygafro(kind, rng):
+    if kind == "sphere":
+        center, radius = np.array([0.2, 0.1, 0.3]), 0.03
+        pts, axis = _sphere_cap(rng, center, radius, half_angle=0.5)
+        x = center + 0.035 * axis + 0.002 * rng.normal(size=3)
+    else:
+        pts, origin, normal = _plane_patch(rng)
+        x = origin + 0.004 * normal + 0.002 * rng.normal(size=3)
+    patch = fit_sphere_or_plane(pts)
+    p, n = patch.project(x)
+    np.testing.assert_allclose(p, gafro_project(patch, x), atol=GAFRO_TOL)  # eq. 27
+    line = gafro_normal_line(patch, p)  # eq. 28: the line holds P' + t n
+    for t in (0.01, -0.02):
+        assert np.abs(np.asarray((g.Point(*(p + t * n)) ^ line).vector())).max() < GAFRO_TOL
+    tu = np.cross(n, [1.0, 0.0, 0.0])
+    tu /= np.linalg.norm(tu)
+    plane = gafro_tangent_plane(patch, p)  # eq. 29: the plane holds P' + t u, not P' + t n
+    assert np.abs(np.asarray((g.Point(*(p + 0.01 * tu)) ^ plane).vector())).max() < GAFRO_TOL
+    assert np.abs(np.asarray((g.Point(*(p + 0.01 * n)) ^ plane).vector())).max() > 1e-4
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_projected_point_lies_on_the_surface_in_any_orientation(seed):
+    """Orientation independence: the same cap rotated anywhere (incl. vertical) fits the same."""
+    rng = np.random.default_rng(seed)
+    center, radius = np.zeros(3), 0.04
+    pts, axis = _sphere_cap(rng, center, radius, half_angle=0.2)
+    x = 1.03 * radius * axis
+    p0, n0 = fit_sphere_or_plane(pts).project(x)
+    for rot in (_rotation(rng), np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])):
+        off = rng.uniform(-0.4, 0.4, 3)
+        p, n = fit_sphere_or_plane(pts @ rot.T + off).project(rot @ x + off)
+        np.testing.assert_allclose(p, rot @ p0 + off, atol=EXACT_TOL)
+        np.testing.assert_allclose(n, rot @ n0, atol=EXACT_TOL)
+        assert abs(np.linalg.norm(p - off) - radius) < EXACT_TOL
+
+
+def test_collinear_neighbourhood_falls_back_to_a_line():
+    pts = np.c_[np.linspace(0, 0.01, 12), np.zeros(12), np.zeros(12)] + [0.3, 0.1, 0.0]
+    patch = fit_sphere_or_plane(pts)
+    assert patch.kind == "line"
+    p, n = patch.project(np.array([0.305, 0.1, 0.002]))
+    np.testing.assert_allclose(p, [0.305, 0.1, 0.0], atol=1e-12)
+    np.testing.assert_allclose(n, [0.0, 0.0, 1.0], atol=1e-12)
+    # on the line itself the normal is undefined: the reference direction (default +z) is used
+    p, n = patch.project(np.array([0.304, 0.1, 0.0]))
+    assert np.all(np.isfinite(p)) and abs(n @ [1, 0, 0]) < 1e-12 and abs(np.linalg.norm(n) - 1) < 1e-12
+    p, n = patch.project(np.array([0.304, 0.1, 0.0]), reference_normal=np.array([1.0, 0.0, 0.0]))
+    assert np.all(np.isfinite(n)) and abs(n @ [1, 0, 0]) < 1e-12  # a reference along the line is skipped
+
+
+def test_concyclic_or_few_points_fall_back_to_the_plane():
+    th = np.linspace(0, 2 * np.pi, 9)[:-1]
+    circle = np.c_[0.01 * np.cos(th), 0.01 * np.sin(th), np.full(8, 0.2)]
+    patch = fit_sphere_or_plane(circle)  # every sphere through the circle fits: the plane is chosen
+    assert patch.kind == "plane" and abs(abs(patch.direction[2]) - 1) < 1e-12
+    tri = np.array([[0.0, 0, 0], [0.01, 0, 0], [0, 0.01, 0]])
+    assert fit_sphere_or_plane(tri).kind == "plane"
+    point = fit_sphere_or_plane(np.tile([0.1, 0.2, 0.3], (5, 1)))
+    assert point.kind == "point"
+    p, n = point.project(np.array([0.1, 0.2, 0.4]))
+    np.testing.assert_allclose(p, [0.1, 0.2, 0.3])
+    np.testing.assert_allclose(n, [0, 0, 1.0])
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((0, 3)), r"\(n >= 1, 3\)"),
+        (np.zeros((5, 2)), r"\(5, 2\)"),
+        (np.array([[0.0, 0.0, np.nan]] * 6), "NaN"),
+    ],
+)
+def test_fit_rejects_bad_points(bad, match):
+    with pytest.raises(InputError, match=match):
+        fit_sphere_or_plane(bad)
+    with pytest.raises(InputError, match=match):
+        cga_fit_vector(bad)
+
+
+def test_gafro_primitive_refuses_a_line_patch():
+    with pytest.raises(InputError, match="line"):
+        gafro_primitive(SurfacePatch("line", np.zeros(3), np.inf, np.array([1.0, 0, 0])))
