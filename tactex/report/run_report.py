@@ -326,9 +326,13 @@ def write_clean_report(
 # --------------------------------------------------------------------------------------------- wipe
 
 
-def _tank_limits(cfg: Any) -> dict[str, tuple[float, float]]:
-    """(lower, upper) tank energies [J] from the VaUficParams inside the config (or VA-UFIC Table I)."""
+def _tank_limits(cfg: Any, metrics: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    """(lower, upper) tank energies [J]: from the metrics (``tank_impedance_limits_j``, ``tank_force_limits_j``),
+    else from VaUficParams inside the config, else VA-UFIC Table I."""
     limits = dict(DEFAULT_TANK_LIMITS)
+    if "tank_impedance_limits_j" in metrics and "tank_force_limits_j" in metrics:
+        lim_i, lim_f = metrics["tank_impedance_limits_j"], metrics["tank_force_limits_j"]
+        return {"impedance": (float(lim_i[0]), float(lim_i[1])), "force": (float(lim_f[0]), float(lim_f[1]))}
     if dataclasses.is_dataclass(cfg):
         for f in dataclasses.fields(cfg):
             v = getattr(cfg, f.name)
@@ -434,7 +438,7 @@ def write_wipe_report(
     rep.files["fig3a_png"] = _plot_rho(s, out / "fig3a_alignment.png")
     rep.files["fig3b_png"] = _plot_motion(s, out / "fig3b_motion.png")
     rep.files["fig3c_png"] = _plot_wipe_force(s, out / "fig3c_force.png")
-    rep.files["fig3d_png"] = _plot_tanks(s, _tank_limits(cfg), out / "fig3d_tanks.png")
+    rep.files["fig3d_png"] = _plot_tanks(s, _tank_limits(cfg, metrics), out / "fig3d_tanks.png")
     if len(pts):
         _try_plot(rep, "explored_png", plot_cloud, pts, {"curvature [1/m]": curv}, out / "explored.png",
                   trajectory=tcp_contact if len(tcp_contact) else None, title=f"{label}: explored surface",

@@ -1,0 +1,22 @@
+"""``tactex clean --out DIR``: ergodic cleaning of a built-in object in simulation (TEC §V-A)."""
+
+from __future__ import annotations
+
+import argparse
+
+from tactex.commands._task import register_task, run_task_command
+
+NAME = "clean"
+HELP = "clean the marked dirt off a built-in object in simulation (tactile ergodic control) and write a report"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    from tactex.tasks.clean import CleanConfig
+
+    register_task(parser, "clean", CleanConfig)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tactex.tasks.clean import CleanConfig
+
+    return run_task_command("clean", CleanConfig, args)
