@@ -76,13 +76,18 @@ class EnergyTank:
         self.energy = 0.5 * self.x0 * self.x0
         self.delivered = 0.0  # ∫ port power [J] (energy given to the robot through the port)
         self.harvested = 0.0  # ∫ harvest power [J]
-        self.last: TankStep | None = None
+        self._last: tuple | None = None
 
     def reset(self) -> None:
         self.energy = 0.5 * self.x0 * self.x0
         self.delivered = 0.0
         self.harvested = 0.0
-        self.last = None
+        self._last = None
+
+    @property
+    def last(self) -> TankStep | None:
+        """The last tick's powers and valves (built on demand: the tick itself only stores a tuple)."""
+        return None if self._last is None else TankStep(*self._last)
 
     @property
     def state(self) -> float:
@@ -109,7 +114,7 @@ class EnergyTank:
         self.energy += dt * (harvest - port)
         self.delivered += dt * port
         self.harvested += dt * harvest
-        self.last = TankStep(port, -port, harvest, valve, gate, lam, self.energy)
+        self._last = (port, -port, harvest, valve, gate, lam, self.energy)
         return valve
 
 

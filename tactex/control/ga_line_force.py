@@ -144,7 +144,8 @@ class GaLineForceController(Controller):
         err = self._axes * (w_des - state.wrench_tool)  # eq. 39–41
         if state.wrench_tool[2] >= p.contact_threshold_n:
             self._integral += err * dt
-            np.clip(self._integral, -self._ilim, self._ilim, out=self._integral)
+            np.minimum(self._integral, self._ilim, out=self._integral)  # np.clip costs ~4 µs more
+            np.maximum(self._integral, -self._ilim, out=self._integral)
         else:
             self._integral *= 1.0 - dt / (dt + p.integral_leak_time)
         if tp is None:

@@ -137,10 +137,10 @@ class SafetyLayer(Controller):
         if state.n_joints != self._tau_max.shape[0]:
             raise ConfigError(f"SafetyLayer configured for {self._tau_max.shape[0]} joints, state has {state.n_joints}")
         wrench = state.wrench_tool
-        if not np.isfinite(wrench.sum()):
+        if not math.isfinite(float(_add(wrench))):
             self._event(state.t, "nan_wrench", f"non-finite F/T wrench {wrench!r}; using the last finite one")
             state = _replace_wrench(state, self._wrench_last)
-        if not state.is_finite():
+        if not _state_finite(state):
             self._event(state.t, "nan_state", "non-finite robot state; holding the last safe command")
             return self._finish(state, self._hold(), finite_state=False)
         self._wrench_last = state.wrench_tool.copy()
@@ -165,7 +165,7 @@ class SafetyLayer(Controller):
         except TactexError as exc:
             self._event(state.t, "controller_fault", f"{type(exc).__name__}: {exc}")
             return self._finish(state, self._hold())
-        if tau.shape != self._tau_max.shape or not np.isfinite(tau.sum()):
+        if tau.shape != self._tau_max.shape or not math.isfinite(float(_add(tau))):
             self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
             return self._finish(state, self._hold())
         return self._finish(state, tau)
@@ -187,7 +187,7 @@ class SafetyLayer(Controller):
             q = state.q
             near_lo = q < self._q_lo_margin
             near_hi = q > self._q_hi_margin
-            if (near_lo | near_hi).any():
+            if _count(near_lo) or _count(near_hi):
                 m, k, d = lim.joint_limit_margin, lim.joint_limit_stiffness, lim.joint_limit_damping
                 rep = np.zeros_like(tau)
                 rep[near_lo] += k * (self._q_lo_margin[near_lo] - q[near_lo]) - d * state.dq[near_lo]
@@ -199,18 +199,18 @@ class SafetyLayer(Controller):
                 tau += rep
             else:
                 self._held = False
-        if not np.isfinite(tau.sum()):
+        if not math.isfinite(float(_add(tau))):
             tau = np.where(np.isfinite(tau), tau, 0.0)
         prev = self._tau_prev
         lo = np.maximum(self._neg_tau_max, prev - self._rate_step)
         hi = np.minimum(self._tau_max, prev + self._rate_step)
         out = np.minimum(np.maximum(tau, lo), hi)
-        if (out != tau).any():
-            over = bool((np.abs(tau) > self._tau_max).any())
+        if _count(out != tau):
+            over = bool(_count(np.abs(tau) > self._tau_max))
             clipped = np.minimum(np.maximum(tau, self._neg_tau_max), self._tau_max) if over else tau
             self._flag(state.t, "torque_limit", over, "torque saturated at the joint limits")
-            self._flag(state.t, "torque_rate_limit", bool((out != clipped).any()), "torque rate saturated")
-        else:
+            self._flag(state.t, "torque_rate_limit", bool(_count(out != clipped)), "torque rate saturated")
+        elif self._saturating["torque_limit"] or self._saturating["torque_rate_limit"]:
             self._flag(state.t, "torque_limit", False, "")
             self._flag(state.t, "torque_rate_limit", False, "")
         self._tau_prev = out
@@ -230,6 +230,20 @@ class SafetyLayer(Controller):
         out["safety_retreating"] = float(self.retreating)
         out["safety_events"] = float(len(self.events))
         return out
+
+
+_add = np.add.reduce
+_count = np.count_nonzero
+
+
+def _state_finite(state: RobotState) -> bool:
+    """Every number of the state is finite. One concatenation and one reduction (NaN and inf
+    propagate through a sum): ~4× cheaper at 1 kHz than a check per array."""
+    flat = np.concatenate((
+        state.q, state.dq, state.tau_measured, state.ee_position, state.ee_rotation.ravel(), state.ee_twist,
+        state.jacobian.ravel(), state.mass_matrix.ravel(), state.coriolis, state.gravity, state.wrench_tool,
+    ))
+    return math.isfinite(float(_add(flat)) + state.t)
 
 
 def _replace_wrench(state: RobotState, wrench: np.ndarray) -> RobotState:

@@ -122,7 +122,8 @@ class UficController(Controller):
         err = self._axes * (wrench_des_tool - state.wrench_tool)
         if integrate:
             self._integral += err * dt
-            np.clip(self._integral, -self._ilim, self._ilim, out=self._integral)
+            np.minimum(self._integral, self._ilim, out=self._integral)  # np.clip costs ~4 µs more
+            np.maximum(self._integral, -self._ilim, out=self._integral)
         return self._axes * wrench_des_tool + p.kp * err + p.ki * self._integral
 
     # -- controller ------------------------------------------------------------------------

@@ -34,7 +34,7 @@ from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.control.ufic import UficController, UficParams, to_tool, to_world
 from tactex.errors import ConfigError, ControllerFault
-from tactex.geometry.so3 import interpolate_rotation
+from tactex.geometry.so3 import exp_so3, log_so3
 from tactex.perception.estimate import SurfaceEstimate
 
 __all__ = ["VaUficController", "VaUficParams", "desired_rotation_from_normal"]
@@ -119,7 +119,7 @@ class VaUficController(UficController):
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
         self._offset = np.zeros(3)
         self._rot_d: np.ndarray | None = None
-        self._realign: tuple[float, np.ndarray, np.ndarray] | None = None
+        self._realign: tuple[float, np.ndarray, np.ndarray] | None = None  # (t0, R_init, log(R_d R_initᵀ))
         self._raw: tuple | None = None
 
     def reset(self, state: RobotState) -> None:
@@ -156,15 +156,16 @@ class VaUficController(UficController):
         rot = state.ee_rotation
         if self._rot_d is None:
             self._rot_d = reference.rotation_world.copy()
-        if self._realign is not None:  # eq. 28–29
-            t0, r_init, r_goal = self._realign
-            zeta = (state.t - t0) / v.realign_time
-            self._rot_d = interpolate_rotation(r_init, r_goal, zeta)
+        if self._realign is not None:  # eq. 28–29: (R_d R_initᵀ)^ζ R_init = exp(ζ·log(R_d R_initᵀ)) R_init
+            t0, r_init, w = self._realign
+            zeta = min(1.0, (state.t - t0) / v.realign_time)
+            self._rot_d = exp_so3(zeta * w) @ r_init
             if zeta >= 1.0:
                 self._realign = None
 
-        pos_d = reference.position_world + self._offset
-        x_err_tool = to_tool(rot, self.pose_error_world(state, pos_d, self._rot_d))  # x̃^ee
+        # x̃^ee: Rᵀ(x − x_d) and Rᵀlog(R R_dᵀ) = log(R_dᵀR) (the adjoint of a rotation on its own log)
+        x_err_tool = np.concatenate((
+            (state.ee_position - reference.position_world - self._offset) @ rot, log_so3(self._rot_d.T @ rot)))
         usable, theta, ls, z_des = self._surface(state, reference.surface)
 
         c = contact_alignment(state.wrench_tool, x_err_tool, theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
@@ -177,7 +178,8 @@ class VaUficController(UficController):
             if usable and self._realign is None:
                 tilt = math.acos(max(-1.0, min(1.0, float(self._rot_d[:, 2] @ z_des))))
                 if tilt > v.realign_min_angle:  # eq. 22–27
-                    self._realign = (state.t, self._rot_d.copy(), desired_rotation_from_normal(rot, z_des))
+                    r_goal = desired_rotation_from_normal(rot, z_des)
+                    self._realign = (state.t, self._rot_d.copy(), log_so3(r_goal @ self._rot_d.T))
 
         rho_frc = force_shaping(reference.wrench_tool, x_err_tool, v.delta_c)  # eq. 30
         # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
@@ -194,7 +196,7 @@ class VaUficController(UficController):
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
-                     float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool[:3].copy())
+                     float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool)
         return state.jacobian.T @ to_world(rot, f_tool)
 
     def telemetry(self) -> dict[str, float]:
@@ -223,5 +225,5 @@ class VaUficController(UficController):
             "tank_i_harvested_j": ti.harvested,
             "tank_f_harvested_j": tf.harvested,
             "force_error_n": f_err,
-            "pose_error_m": float(np.linalg.norm(x_err)),
+            "pose_error_m": float(np.linalg.norm(x_err[:3])),
         }
