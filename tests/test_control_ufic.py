@@ -177,3 +177,18 @@ def test_cartesian_impedance_baseline():
     tau = ctrl.torque(state, PoseForceReference(np.array([0.5, 0.0, 0.3]), rd, np.zeros(6)))
     assert tau[2] == pytest.approx(-150.0 * 0.01)
     assert tau[5] == pytest.approx(-10.0 * 0.1)
+
+
+def test_ufic_damps_the_approach_more_than_the_contact():
+    params = UficParams(kp=0.0, ki=0.0)
+    ctrl = UficController(params)
+    twist = np.array([0.0, 0.0, -0.1, 0, 0, 0])  # moving along the tool axis (world −z) at 0.1 m/s
+    ref = _ref([0.5, 0.0, 0.3], wrench=np.zeros(6))
+    free = ctrl.torque(make_state(rotation=DOWN, jacobian=JAC, twist=twist), ref)
+    touching = ctrl.torque(make_state(t=1e-3, rotation=DOWN, jacobian=JAC, twist=twist,
+                                      wrench_tool=np.array([0, 0, 5.0, 0, 0, 0])), ref)
+    d_contact = 2 * 0.7 * math.sqrt(3.0 * 1000.0)
+    assert free[2] == pytest.approx(250.0 * 0.1)
+    assert touching[2] == pytest.approx(d_contact * 0.1)
+    with pytest.raises(ConfigError, match="approach_damping_z"):
+        UficParams(approach_damping_z=-1.0)

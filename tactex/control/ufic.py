@@ -35,11 +35,17 @@ class UficParams:
     apparent_mass: tuple[float, float, float, float, float, float] = param(
         (3.0, 3.0, 3.0, 0.1, 0.1, 0.1), "nominal Cartesian inertia used to turn ζ into D_C [kg ×3, kg·m² ×3]")
     damping_reference_stiffness: tuple[float, float, float, float, float, float] = param(
-        (1000.0, 1000.0, 10000.0, 200.0, 200.0, 200.0),
-        "stiffness the damping is designed for, D = 2ζ√(m·k) [N/m, N·m/rad]. Along the tool axis K_max,z = 10 N/m "
-        "would leave the free approach almost undamped; 10 kN/m (the sponge) keeps the approach under the force "
-        "command at ~0.1 m/s, so that the impact stays below 2× the set point",
+        (1000.0, 1000.0, 1000.0, 200.0, 200.0, 200.0),
+        "stiffness the damping is designed for, D = 2ζ√(m·k) [N/m, N·m/rad]; K_max,z = 10 N/m itself would leave "
+        "the pressing direction almost undamped",
     )
+    approach_damping_z: float = param(
+        250.0,
+        "damping along the tool axis while out of contact (|f_z| below contact_threshold_n) [N·s/m]: keeps the "
+        "free approach under the force command near 0.1 m/s so the impact stays under 2× the set point, without "
+        "slowing the force loop in contact",
+    )
+    contact_threshold_n: float = param(1.0, "measured pressing force above which the tool counts as in contact [N]")
     kp: float = param(0.6, "force PI proportional gain K_p [-]")
     ki: float = param(0.3, "force PI integral gain K_i [1/s]")
     force_axes: tuple[float, float, float, float, float, float] = param(
@@ -56,15 +62,19 @@ class UficParams:
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (6,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"UficParams.{name} must be 6 finite values ≥ 0, got {getattr(self, name)!r}")
-        for name in ("kp", "ki", "integral_limit", "dt", "stiffness_scale"):
+        scalars = ("kp", "ki", "integral_limit", "dt", "stiffness_scale", "approach_damping_z", "contact_threshold_n")
+        for name in scalars:
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0 or (name == "dt" and v == 0):
                 raise ConfigError(f"UficParams.{name} must be finite and ≥ 0 (dt > 0), got {v!r}")
 
-    def damping_tool(self) -> np.ndarray:
-        """Diagonal of D_C in the tool frame [N·s/m ×3, N·m·s/rad ×3]."""
-        return 2.0 * np.asarray(self.damping_ratio) * np.sqrt(
+    def damping_tool(self, in_contact: bool = True) -> np.ndarray:
+        """Diagonal of D_C in the tool frame [N·s/m ×3, N·m·s/rad ×3] (in contact or approaching)."""
+        d = 2.0 * np.asarray(self.damping_ratio) * np.sqrt(
             np.asarray(self.apparent_mass) * np.asarray(self.damping_reference_stiffness))
+        if not in_contact:
+            d[2] = max(d[2], self.approach_damping_z)
+        return d
 
 
 def to_tool(rot: np.ndarray, v_world: np.ndarray) -> np.ndarray:
@@ -86,7 +96,9 @@ class UficController(Controller):
         self.params = params or UficParams()
         self.stiffness_scale = self.params.stiffness_scale
         self._axes = np.asarray(self.params.force_axes, dtype=float)
-        self._d_tool = self.params.damping_tool()
+        self._d_contact = self.params.damping_tool(True)
+        self._d_free = self.params.damping_tool(False)
+        self._d_tool = self._d_contact
         self._k_max = np.asarray(self.params.stiffness_max, dtype=float)
         self._integral = np.zeros(6)
         self._ilim = self.params.integral_limit / self.params.ki if self.params.ki > 0 else 0.0
@@ -105,6 +117,12 @@ class UficController(Controller):
         dt = state.t - tp if tp is not None and 0.0 < state.t - tp < 0.1 else self.params.dt
         self._t_prev = state.t
         return dt
+
+    def _select_damping(self, state: RobotState) -> None:
+        """D_C for this tick: more damping along the tool axis while out of contact (damping of any
+        size is passive, so switching it costs no energy)."""
+        in_contact = state.wrench_tool[2] >= self.params.contact_threshold_n
+        self._d_tool = self._d_contact if in_contact else self._d_free
 
     @staticmethod
     def pose_error_world(state: RobotState, position_d: np.ndarray, rotation_d: np.ndarray) -> np.ndarray:
@@ -132,6 +150,7 @@ class UficController(Controller):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
         dt = self._dt(state)
         rot = state.ee_rotation
+        self._select_damping(state)
         x_err_tool = to_tool(rot, self.pose_error_world(state, reference.position_world, reference.rotation_world))
         k_tool = self._k_max.copy()
         k_tool[:3] *= self.stiffness_scale

@@ -185,6 +185,7 @@ class VaUficController(UficController):
         # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
         # taken there; the powers ẋᵀ(·) are frame-independent.
         xdot_tool = to_tool(rot, state.ee_twist)
+        self._select_damping(state)
         d_xdot = self._d_tool * xdot_tool
         kvar_err = rho_align * self._k_max_t * x_err_tool  # K_var(t)·x̃, eq. 56
         f_f = rho_frc * self.force_wrench_tool(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
