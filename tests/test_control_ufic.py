@@ -192,3 +192,15 @@ def test_ufic_damps_the_approach_more_than_the_contact():
     assert touching[2] == pytest.approx(d_contact * 0.1)
     with pytest.raises(ConfigError, match="approach_damping_z"):
         UficParams(approach_damping_z=-1.0)
+
+
+def test_va_ufic_reports_storage_functions():
+    ctrl = VaUficController(VaUficParams(rho_align_initial=1.0))
+    dq = np.linspace(0.1, 0.7, 7)
+    state = make_state(position=np.array([0.51, 0.0, 0.3]), rotation=DOWN, jacobian=JAC, dq=dq)
+    ctrl.torque(state, _ref([0.5, 0.0, 0.3]))
+    tel = ctrl.telemetry()
+    assert tel["kinetic_energy_j"] == pytest.approx(0.5 * float(dq @ dq))  # mass matrix = I in make_state
+    assert tel["spring_energy_var_j"] == pytest.approx(0.5 * tel["rho_align"] * 1000.0 * 0.01**2)
+    assert tel["storage_overall_j"] == pytest.approx(
+        tel["spring_energy_const_j"] + tel["tank_i_energy_j"] + tel["tank_f_energy_j"] + tel["kinetic_energy_j"])

@@ -13,6 +13,14 @@ Per tick:
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
    f = −K_const x̃ − D ẋ − σ_i ρ_align K_max x̃ + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f.
 
+Where the other equations live: eq. 1–2 and 13 are the torque interface (gravity added by the
+robot), eq. 7–12 :mod:`tactex.control.ufic`, eq. 14–16 :mod:`tactex.perception` (θ is re-evaluated
+here against the current tool axis), eq. 17–21 and 30 :mod:`tactex.control.alignment`, eq. 37–45
+and 55–63 :mod:`tactex.control.energy_tank`. The storage functions of the passivity analysis —
+S_r = ½ẋᵀM_Cẋ = ½q̇ᵀMq̇ (eq. 32, with M_C of eq. 3–6), the springs ½x̃ᵀK x̃ (eq. 34, 52, 64) and
+S_overall (eq. 46, 69) — are reported by :meth:`VaUficController.telemetry` for the energy logs;
+their derivatives (eq. 33–36, 47–50, 53–54, 65–71) are what the tank tests check step by step.
+
 A missing, invalid or stale estimate (older than ``surface_max_age``) contributes θ = l_s = 0 and
 never triggers a re-orientation: the controller then runs on touch alone.
 
@@ -197,15 +205,19 @@ class VaUficController(UficController):
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
-                     float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool)
+                     float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool, state)
         return state.jacobian.T @ to_world(rot, f_tool)
 
     def telemetry(self) -> dict[str, float]:
         """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""
         if self._raw is None:
             return {}
-        rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, f_err, x_err = self._raw
+        rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, f_err, x_err, state = self._raw
         ti, tf = self.tank_i, self.tank_f
+        kinetic = 0.5 * float(state.dq @ state.mass_matrix @ state.dq)  # S_r, eq. 32
+        spring_const = 0.5 * float(x_err @ (self._k_const * x_err))  # ½x̃ᵀK_const x̃, eq. 64
+        spring_var = 0.5 * rho_align * float(x_err @ (self._k_max_t * x_err))  # ½x̃ᵀK_var x̃
+        tanks = ti.energy + tf.energy
         return {
             "rho_align": rho_align,
             "rho_frc": rho_frc,
@@ -227,4 +239,9 @@ class VaUficController(UficController):
             "tank_f_harvested_j": tf.harvested,
             "force_error_n": f_err,
             "pose_error_m": float(np.linalg.norm(x_err[:3])),
+            "kinetic_energy_j": kinetic,
+            "spring_energy_const_j": spring_const,
+            "spring_energy_var_j": spring_var,
+            "storage_controller_j": spring_const + tanks,  # S_c of eq. 64 plus the force tank (eq. 46)
+            "storage_overall_j": spring_const + tanks + kinetic,  # S_overall, eq. 46/69
         }
