@@ -82,7 +82,7 @@ def _note_stderr(msg: str) -> None:
 # --------------------------------------------------------------------------------------------- video
 
 
-def write_replay_video(result: Any, path: str | Path, *, fps: float = 10.0, max_frames: int = 150,
+def write_replay_video(result: Any, path: str | Path, *, fps: float = 8.0, max_frames: int = 80,
                        width: int = 320, height: int = 240) -> Path:
     """Replay the recorded joint positions ``series['q']`` in a fresh scene and write an animated GIF.
 
