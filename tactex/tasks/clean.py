@@ -69,12 +69,15 @@ class CleanConfig:
     stop_remaining: float = param(0.02, "stop when vision sees less than this fraction of the first target [-]")
     budget_s: float = param(120.0, "simulated time budget of the whole program [s]")
     capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose [m]")
-    hover_height_m: float = param(0.04, "hover above the surface before contact [m]")
+    hover_height_m: float = param(0.03, "hover above the surface before contact [m]")
     approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
     force_ramp_s: float = param(0.5, "ramp from the approach force to the set point after touch-down [s]")
     contact_threshold_n: float = param(1.0, "measured normal force that counts as contact [N]")
     agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
+    tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m] (a kitchen sponge: ~2–3 kN/m)")
+    tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
+    tool_friction: float = param(0.4, "pad–surface Coulomb friction [-]")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
     record_hz: float = param(100.0, "rate of the recorded time series [Hz]")
@@ -102,6 +105,8 @@ class CleanConfig:
         return SceneConfig(
             object_name=self.object_name, marking=self.marking, object_position=self.object_position,
             camera_width=self.camera_width, camera_height=self.camera_height, seed=self.seed,
+            tool_stiffness_n_per_m=self.tool_stiffness_n_per_m, tool_pad_shape=self.tool_pad_shape,
+            tool_friction=self.tool_friction,
         )
 
 
@@ -236,7 +241,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         log.phase = PHASES["approach"]
         loop.use(ga)
         t_touch = None
-        t_approach_end = loop.t + 3.0
+        t_approach_end = loop.t + 6.0
         while loop.t < min(t_approach_end, t_end):
             s = loop.tick(LineForceReference(cmd.point, cmd.normal, cfg.approach_force_n))
             if s.wrench_tool[2] >= cfg.contact_threshold_n:
@@ -244,7 +249,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
                 break
         if t_touch is None:
             raise ExplorationError(
-                f"no contact within 3 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
+                f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
                 "surface and the real one disagree (object moved?)"
             )
         # 3b. contact exploration

@@ -1,0 +1,293 @@
+"""Visuo-tactile exploration of an unknown curvature by VA-UFIC (VA-UFIC §III–IV) in simulation.
+
+The robot does not know the surface. It starts above it, out of contact and misaligned, and runs
+the paper's wiping policy in the tool frame,
+
+    f_d = [0, 0, 15, 0, 0, 0] N,
+    x_d(t) = [0.04 sin 2t, 0.04 (cos 2t − 1) − 0.005 t, 0, 0, 0, 0] m,
+
+with VA-UFIC and its energy tanks at 1 kHz, the F/T sensor at 1 kHz and the wrist camera's
+surface estimate (normal, curvature, θ) at 30 Hz. The policy's increments are applied in the
+current tool frame, so when VA-UFIC re-orients the tool to the surface the motion follows it
+("regenerates the motion and force policy", §II-B).
+
+The baseline (``baseline='cartesian'``) is what a user would otherwise run: a fixed-orientation
+Cartesian impedance controller with a constant 15 N force command along the tool axis.
+
+Outputs (:class:`WipeResult`): the metrics of §IV (MAE/RMSE of force and motion), the series of
+Fig. 3 a–d, the trajectory against the true surface (Fig. 2) and the explored surface (contact
+points with normals and curvature) as a cloud that the ergodic explorer can load.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param
+from tactex.control.cartesian_impedance import CartesianImpedanceController
+from tactex.control.nullspace import NullspacePosture
+from tactex.control.references import PoseForceReference
+from tactex.control.va_ufic import VaUficController, VaUficParams
+from tactex.errors import ConfigError
+from tactex.perception.estimate import SurfaceEstimate
+from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.voxel import voxel_indices
+from tactex.robots.mujoco_backend import MujocoBackend
+from tactex.sim.objects import get_object
+from tactex.sim.scene import SceneConfig
+from tactex.tasks.progress import Progress
+from tactex.tasks.recorder import Recorder
+from tactex.tasks.runner import TOOL_DOWN, ControlLoop
+
+__all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]
+
+WIPE_BASELINES = ("", "cartesian")
+
+
+def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift_m_s: float = 0.005) -> tuple[
+        np.ndarray, np.ndarray]:
+    """VA-UFIC §III-A position policy in the tool frame: x_d(t) [m] and its rate [m/s] (3,) each."""
+    s, c = np.sin(omega * t), np.cos(omega * t)
+    x = np.array([amplitude_m * s, amplitude_m * (c - 1.0) - drift_m_s * t, 0.0])
+    v = np.array([amplitude_m * omega * c, -amplitude_m * omega * s - drift_m_s, 0.0])
+    return x, v
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    a = np.deg2rad(deg)
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+
+
+@dataclass(frozen=True)
+class WipeConfig:
+    """Parameters of ``tactex wipe`` (VA-UFIC §III and Table I)."""
+
+    object_name: str = param("sine_panel", "the unknown surface (VA-UFIC §III: sine_panel)")
+    duration_s: float = param(20.0, "duration of the wiping policy [s]")
+    force_n: float = param(15.0, "commanded force along the tool axis f_d,z [N]")
+    amplitude_m: float = param(0.04, "circle radius of the policy [m]")
+    omega_rad_s: float = param(2.0, "angular rate of the policy circle [rad/s]")
+    drift_m_s: float = param(0.005, "drift of the policy along −y of the tool [m/s]")
+    start_y_m: float = param(0.08, "start position along the panel's y axis, object frame [m]")
+    start_height_m: float = param(0.015, "start height of the TCP above the surface (no contact) [m]")
+    start_tilt_deg: float = param(12.0, "initial misalignment: tool tilt about the world x axis [deg]")
+    contact_threshold_n: float = param(1.0, "measured normal force that counts as contact [N]")
+    tanks_enabled: bool = param(True, "VA-UFIC energy tanks on")
+    baseline: str = param("", "'' (VA-UFIC) or 'cartesian' (fixed-orientation impedance, constant force)")
+    camera_rate_hz: float = param(30.0, "wrist camera rate [Hz]")
+    camera_width: int = param(160, "wrist camera image width [px]")
+    camera_height: int = param(120, "wrist camera image height [px]")
+    tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m]")
+    tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
+    tool_friction: float = param(0.4, "pad–surface Coulomb friction [-]")
+    record_hz: float = param(100.0, "rate of the recorded series [Hz]")
+    seed: int = param(0, "seed of the simulation")
+    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
+
+    def __post_init__(self) -> None:
+        get_object(self.object_name)
+        if self.baseline not in WIPE_BASELINES:
+            raise ConfigError(f"unknown baseline '{self.baseline}'; valid: cartesian (or none)")
+        for name in ("duration_s", "force_n", "camera_rate_hz", "record_hz", "tool_stiffness_n_per_m"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        for name in ("amplitude_m", "drift_m_s", "start_height_m", "omega_rad_s"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
+
+    def scene(self) -> SceneConfig:
+        return SceneConfig(
+            object_name=self.object_name, object_position=self.object_position, camera_rate_hz=self.camera_rate_hz,
+            camera_width=self.camera_width, camera_height=self.camera_height, seed=self.seed,
+            tool_stiffness_n_per_m=self.tool_stiffness_n_per_m, tool_pad_shape=self.tool_pad_shape,
+            tool_friction=self.tool_friction,
+        )
+
+
+@dataclass
+class WipeResult:
+    """What a wiping run produced (see the module docstring)."""
+
+    config: WipeConfig
+    metrics: dict[str, Any]
+    series: dict[str, np.ndarray]
+    profile: dict[str, np.ndarray]
+    explored: SurfaceCloud | None
+    explored_curvature: np.ndarray
+    events: list[Any] = field(default_factory=list)
+
+
+def _errors(err: np.ndarray) -> tuple[list[float], list[float]]:
+    if err.size == 0:
+        return [float("nan")] * 3, [float("nan")] * 3
+    return np.mean(np.abs(err), axis=0).tolist(), np.sqrt(np.mean(err**2, axis=0)).tolist()
+
+
+def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> WipeResult:
+    """Run the wiping exploration in simulation; returns metrics, series and the explored surface."""
+    cfg = config or WipeConfig()
+    wall0 = time.perf_counter()
+    backend = MujocoBackend(cfg.scene())
+    loop = ControlLoop(backend)
+    surface = backend.scene.sim_object.surface
+    obj_pos, obj_rot = backend.object_pose()
+
+    # start: above the surface at (0, start_y), tilted (not aligned), out of contact
+    z_surf = float(surface.project(np.array([[0.0, cfg.start_y_m, 0.0]]))[0][0, 2])
+    p_start = obj_pos + obj_rot @ np.array([0.0, cfg.start_y_m, z_surf]) + np.array([0.0, 0.0, cfg.start_height_m])
+    r_start = _rot_x(cfg.start_tilt_deg) @ TOOL_DOWN
+    loop.move_to_pose(p_start, r_start, settle_s=0.5)
+    q_posture = loop.state.q.copy()
+
+    if cfg.baseline == "cartesian":
+        inner: Any = CartesianImpedanceController()
+    else:
+        inner = VaUficController(VaUficParams(tanks_enabled=cfg.tanks_enabled))
+    controller = NullspacePosture(inner, q_posture=q_posture)
+    loop.use(controller)
+    # The TCP is the uncompressed pad tip: in contact the surface lies up to the pad's maximum
+    # compression behind it, so the region of interest must start that far back.
+    compression = backend.config.tool.max_compression_m
+    estimator = SurfaceEstimator(SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005)))
+    estimate: SurfaceEstimate | None = None
+    rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
+    bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'va-ufic'}", enabled=progress)
+
+    wrench_d = np.array([0.0, 0.0, cfg.force_n, 0.0, 0.0, 0.0])
+    t0 = loop.t
+    pos_ref = p_start.copy()
+    x_prev, _ = wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+    forces: list[float] = []
+    errors_tool: list[np.ndarray] = []
+    aligned_errors: list[np.ndarray] = []
+    aligned_forces: list[float] = []
+    t_aligned: float | None = None
+    contact_pts: list[np.ndarray] = []
+    contact_normals: list[np.ndarray] = []
+    contact_curv: list[float] = []
+    tank_i: list[float] = []
+    tank_f: list[float] = []
+    n_ticks = 0
+    n_contact = 0
+    first_contact: float | None = None
+    estimates_valid = 0
+    estimates_total = 0
+
+    while loop.t - t0 < cfg.duration_s - 1e-9:
+        state = loop.state
+        tau_t = loop.t - t0
+        frame = backend.camera_frame()
+        if frame is not None:
+            world_T_tool = np.eye(4)
+            world_T_tool[:3, :3], world_T_tool[:3, 3] = state.ee_rotation, state.ee_position
+            estimate = estimator.estimate(frame, world_T_tool)
+            estimates_total += 1
+            estimates_valid += int(estimate.valid)
+        x_d, v_d = wiping_policy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+        rot = state.ee_rotation
+        # the policy lives in the tool frame: apply its increments in the current tool frame
+        pos_ref = pos_ref + rot @ (x_d - x_prev)
+        x_prev = x_d
+        twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
+        rot_ref = r_start if cfg.baseline == "cartesian" else rot
+        reference = PoseForceReference(pos_ref, rot_ref, wrench_d, twist_d, estimate)
+        state = loop.tick(reference)
+        n_ticks += 1
+
+        fz = float(state.wrench_tool[2])
+        in_contact = fz >= cfg.contact_threshold_n
+        offset = getattr(inner, "_offset", np.zeros(3))
+        desired = pos_ref + offset
+        err_tool = state.ee_rotation.T @ (state.ee_position - desired)
+        tel = inner.telemetry() if cfg.baseline == "" else {}
+        if "tank_i_energy_j" in tel:
+            tank_i.append(tel["tank_i_energy_j"])
+            tank_f.append(tel["tank_f_energy_j"])
+        if in_contact:
+            n_contact += 1
+            first_contact = loop.t - t0 if first_contact is None else first_contact
+            forces.append(fz)
+            errors_tool.append(err_tool)
+            if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
+                t_aligned = loop.t - t0 if t_aligned is None else t_aligned
+                aligned_errors.append(err_tool)
+                aligned_forces.append(fz)
+            if n_contact % 10 == 0:
+                contact_pts.append(state.ee_position.copy())
+                if estimate is not None and estimate.valid:
+                    contact_normals.append(np.asarray(estimate.normal_world, dtype=float))
+                    contact_curv.append(float(estimate.curvature))
+                else:
+                    contact_normals.append(-state.ee_rotation[:, 2])
+                    contact_curv.append(float("nan"))
+        if rec.due():
+            rec.add(
+                t=loop.t - t0, tcp=state.ee_position, desired=desired, motion_error_tool=err_tool, force_z_n=fz,
+                force_set_n=cfg.force_n, in_contact=float(in_contact), rho_align=tel.get("rho_align", np.nan),
+                rho_frc=tel.get("rho_frc", np.nan), tank_i_energy_j=tel.get("tank_i_energy_j", np.nan),
+                tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
+                tcp_object=obj_rot.T @ (state.ee_position - obj_pos),
+                theta_rad=estimate.theta_rad if estimate is not None and estimate.valid else np.nan,
+            )
+        else:
+            rec.add()
+        if n_ticks % 250 == 0:
+            bar.update(loop.t - t0, force=fz, contact=n_contact / n_ticks)
+    bar.close(f"contact {100 * n_contact / max(n_ticks, 1):.0f} % of the time")
+
+    f_err = np.asarray(forces) - cfg.force_n
+    mae_all, rmse_all = _errors(np.asarray(errors_tool).reshape(-1, 3))
+    mae_m, rmse_m = _errors(np.asarray(aligned_errors).reshape(-1, 3))
+    f_err_al = np.asarray(aligned_forces) - cfg.force_n
+    after_first = n_ticks - (int(round(first_contact / backend.dt)) if first_contact is not None else n_ticks)
+    va_params = VaUficParams()
+    metrics: dict[str, Any] = {
+        "force_mae_n": float(np.mean(np.abs(f_err))) if f_err.size else float("nan"),
+        "force_rmse_n": float(np.sqrt(np.mean(f_err**2))) if f_err.size else float("nan"),
+        "motion_mae_m": mae_m,
+        "motion_rmse_m": rmse_m,
+        "motion_mae_all_contact_m": mae_all,
+        "motion_rmse_all_contact_m": rmse_all,
+        "force_mae_aligned_n": float(np.mean(np.abs(f_err_al))) if f_err_al.size else float("nan"),
+        "force_rmse_aligned_n": float(np.sqrt(np.mean(f_err_al**2))) if f_err_al.size else float("nan"),
+        "aligned_at_s": t_aligned,
+        "tank_impedance_energy_j": {"min": min(tank_i, default=float("nan")), "max": max(tank_i, default=float("nan"))},
+        "tank_force_energy_j": {"min": min(tank_f, default=float("nan")), "max": max(tank_f, default=float("nan"))},
+        "tank_impedance_limits_j": [va_params.tank_i_lower, va_params.tank_i_upper],
+        "tank_force_limits_j": [va_params.tank_f_lower, va_params.tank_f_upper],
+        "contact_fraction": n_contact / max(n_ticks, 1),
+        "contact_fraction_after_first_contact": n_contact / max(after_first, 1),
+        "first_contact_s": first_contact,
+        "explore_time_s": (cfg.duration_s - first_contact) if first_contact is not None else None,
+        "max_force_n": float(max(forces, default=0.0)),
+        "vision_valid_fraction": estimates_valid / max(estimates_total, 1),
+        "vision_estimates": estimates_total,
+        "sim_time_s": loop.t,
+        "wall_time_s": time.perf_counter() - wall0,
+        "controller": inner.name,
+        "baseline": cfg.baseline or "va_ufic",
+        "safety_events": len(loop.safety.events),
+    }
+    ys = np.linspace(-0.255, 0.255, 256) if cfg.object_name == "sine_panel" else np.linspace(-0.1, 0.1, 256)
+    prof_pts, _ = surface.project(np.column_stack([np.zeros_like(ys), ys, np.zeros_like(ys)]))
+    explored = None
+    curv = np.zeros(0)
+    if len(contact_pts) >= 2:
+        pts = np.asarray(contact_pts)
+        inv, counts = voxel_indices(pts, 0.003)
+        first = np.full(counts.size, -1)
+        first[inv[::-1]] = np.arange(inv.size)[::-1]  # one contact point per 3 mm voxel
+        explored = SurfaceCloud(points=pts[first], normals=np.asarray(contact_normals)[first], spacing=0.003)
+        curv = np.asarray(contact_curv)[first]
+    backend.close()
+    return WipeResult(
+        config=cfg, metrics=metrics, series=rec.arrays(), profile={"y_m": prof_pts[:, 1], "z_m": prof_pts[:, 2]},
+        explored=explored, explored_curvature=curv, events=list(loop.safety.events),
+    )

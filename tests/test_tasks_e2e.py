@@ -1,0 +1,67 @@
+"""End-to-end: shortened cleaning and wiping runs in the simulator give finite, in-range metrics.
+
+The full-length numbers (≥ 95 % dirt, force bands, MAE/RMSE) come from `make bench`
+(bench/bench_tasks.py); these runs are short so that the suite stays fast.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactex.tasks.clean import PHASES, CleanConfig, run_clean
+from tactex.tasks.wipe import WipeConfig, run_wipe
+
+pytestmark = pytest.mark.slow
+
+
+def _finite_series(series: dict) -> None:
+    for key, values in series.items():
+        if key in ("agent",):  # NaN before the first exploration step, by design
+            continue
+        assert np.isfinite(values).all(), f"series '{key}' holds NaN/inf"
+
+
+def test_short_clean_removes_dirt_with_bounded_force() -> None:
+    cfg = CleanConfig(object_name="plate", budget_s=14.0, n_eigen=60, vision_every_steps=80)
+    r = run_clean(cfg, progress=False)
+    m = r.metrics
+    assert 0.05 < m["dirt_removed_fraction"] <= 1.0  # it cleaned something in a few seconds of contact
+    assert 0.0 <= m["force_within_20pct_fraction"] <= 1.0
+    assert 0.0 < m["max_contact_force_n"] <= 2.0 * cfg.force_n
+    assert m["sim_time_s"] <= cfg.budget_s + 2.0  # the final lift-off may run past the budget
+    assert m["vision_updates"] >= 1
+    assert m["contact_time_s"] > 1.0
+    _finite_series(r.series)
+    assert set(np.unique(r.series["phase"])) <= set(PHASES.values())
+    for name in ("target", "coverage", "potential"):
+        assert r.fields[name].shape == (len(r.cloud),) and np.isfinite(r.fields[name]).all()
+    assert r.agent_path.shape[1] == 3 and np.isfinite(r.agent_path).all()
+
+
+def test_short_raster_baseline_runs() -> None:
+    r = run_clean(CleanConfig(object_name="plate", budget_s=10.0, baseline="raster"), progress=False)
+    assert r.metrics["baseline"] == "raster"
+    assert 0.0 <= r.metrics["dirt_removed_fraction"] <= 1.0
+    assert r.metrics["max_contact_force_n"] <= 20.0
+
+
+def test_short_wipe_makes_contact_and_keeps_tanks_in_limits() -> None:
+    r = run_wipe(WipeConfig(duration_s=4.0), progress=False)
+    m = r.metrics
+    assert m["contact_fraction"] > 0.5
+    assert np.isfinite(m["force_mae_n"]) and np.isfinite(m["force_rmse_n"])
+    assert m["force_rmse_n"] >= m["force_mae_n"] >= 0.0
+    lo, hi = m["tank_impedance_limits_j"]
+    assert lo <= m["tank_impedance_energy_j"]["min"] <= m["tank_impedance_energy_j"]["max"] <= hi
+    lo, hi = m["tank_force_limits_j"]
+    assert lo <= m["tank_force_energy_j"]["min"] <= m["tank_force_energy_j"]["max"] <= hi
+    assert m["vision_valid_fraction"] > 0.9
+    _finite_series({k: v for k, v in r.series.items() if k not in ("rho_align", "rho_frc", "theta_rad")})
+    assert r.explored is not None and len(r.explored) == r.explored_curvature.shape[0]
+
+
+def test_short_wipe_baseline_runs() -> None:
+    r = run_wipe(WipeConfig(duration_s=3.0, baseline="cartesian"), progress=False)
+    assert r.metrics["controller"] == "cartesian_impedance"
+    assert np.isfinite(r.metrics["force_mae_n"])

@@ -1,0 +1,148 @@
+"""Unit tests of the task layer: frames, paths, target re-measurement, policy, null space, recorder."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+
+from tactex.control.joint_impedance import JointImpedanceParams, JointTarget, min_jerk
+from tactex.control.nullspace import NullspaceParams, nullspace_projector
+from tactex.errors import ConfigError, InputError
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.markings import marked_cloud
+from tactex.pointcloud.shapes import get_surface
+from tactex.tasks.clean import CleanConfig
+from tactex.tasks.progress import Progress
+from tactex.tasks.raster import RasterPath, boustrophedon
+from tactex.tasks.recorder import Recorder
+from tactex.tasks.runner import tool_rotation_for_normal
+from tactex.tasks.vision import remeasure_target
+from tactex.tasks.wipe import WipeConfig, wiping_policy
+
+TOL = 1e-9
+
+
+@pytest.mark.parametrize("normal", [[0, 0, 1], [0, 1, 0], [1, 0, 0], [0.3, -0.2, 0.9]])
+def test_tool_rotation_presses_along_minus_normal(normal) -> None:
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    rot = tool_rotation_for_normal(n)
+    np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=TOL)
+    assert np.linalg.det(rot) == pytest.approx(1.0)
+    np.testing.assert_allclose(rot[:, 2], -n, atol=TOL)
+
+
+def test_min_jerk_profile_endpoints_and_symmetry() -> None:
+    assert min_jerk(0.0) == (0.0, 0.0)
+    assert min_jerk(1.0) == (1.0, 0.0)
+    assert min_jerk(0.5)[0] == pytest.approx(0.5)
+    target = JointTarget(np.zeros(7), np.ones(7), t_start=1.0, duration_s=2.0)
+    q, dq = target.at(3.5)
+    np.testing.assert_allclose(q, 1.0)
+    np.testing.assert_allclose(dq, 0.0)
+    # velocity is the derivative of position (central differences)
+    h = 1e-6
+    fd = (target.at(1.7 + h)[0] - target.at(1.7 - h)[0]) / (2 * h)
+    np.testing.assert_allclose(target.at(1.7)[1], fd, rtol=1e-6)
+
+
+def test_gain_validation() -> None:
+    with pytest.raises(ConfigError, match="≥ 0"):
+        JointImpedanceParams(stiffness=(-1.0,) * 7)
+    with pytest.raises(ConfigError, match="null-space"):
+        NullspaceParams(stiffness=float("nan"))
+
+
+def test_nullspace_torque_makes_no_task_wrench(rng) -> None:
+    jac = rng.normal(size=(6, 7))
+    n = nullspace_projector(jac, damping=1e-9)
+    tau = rng.normal(size=7)
+    # the wrench a torque produces at the task is f = (J Jᵀ)⁻¹ J τ; the projected torque makes none
+    f = np.linalg.solve(jac @ jac.T, jac @ (n @ tau))
+    np.testing.assert_allclose(f, 0.0, atol=1e-6)
+
+
+def test_wiping_policy_matches_paper_and_its_derivative() -> None:
+    x, _ = wiping_policy(0.0)
+    np.testing.assert_allclose(x, 0.0, atol=TOL)
+    t = 1.3
+    x, v = wiping_policy(t)
+    np.testing.assert_allclose(x, [0.04 * np.sin(2 * t), 0.04 * (np.cos(2 * t) - 1) - 0.005 * t, 0.0])
+    h = 1e-6
+    fd = (wiping_policy(t + h)[0] - wiping_policy(t - h)[0]) / (2 * h)
+    np.testing.assert_allclose(v, fd, rtol=1e-6, atol=1e-9)
+
+
+def test_raster_covers_the_cloud_and_keeps_its_speed() -> None:
+    cloud = marked_cloud(get_surface("plate"), "X", 0.004)
+    path = RasterPath(cloud, lane_spacing_m=0.03, max_step_m=0.004)
+    path.reset()
+    pts = [path.waypoints[0]]
+    while not path.done:
+        cmd = path.step()
+        pts.append(cmd.point)
+    steps = np.linalg.norm(np.diff(np.asarray(pts), axis=0), axis=1)
+    assert steps.max() <= 0.004 + 1e-12
+    # every cloud point lies within one lane spacing of the path
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(np.asarray(pts)).query(cloud.points)
+    assert dist.max() <= 0.03
+    with pytest.raises(ConfigError):
+        boustrophedon(cloud, 0.0, 0.004)
+
+
+def test_remeasure_maps_new_dirt_onto_old_points() -> None:
+    cloud = marked_cloud(get_surface("plane"), "full", 0.01)
+    capture = SurfaceCloud(points=cloud.points + 0.001, target=np.where(cloud.points[:, 0] > 0, 1.0, 0.0))
+    mass = remeasure_target(cloud, capture)
+    np.testing.assert_array_equal(mass, (cloud.points[:, 0] > 0).astype(float))
+    # points the new view does not see keep their old target
+    far = SurfaceCloud(points=cloud.points[:5] + 1.0, target=np.zeros(5))
+    np.testing.assert_array_equal(remeasure_target(cloud, far), cloud.target)
+
+
+def test_recorder_and_progress() -> None:
+    rec = Recorder(every=3)
+    for i in range(10):
+        rec.add(t=float(i), v=np.array([i, 2 * i]))
+    arrays = rec.arrays()
+    np.testing.assert_array_equal(arrays["t"], [0, 3, 6, 9])
+    assert arrays["v"].shape == (4, 2)
+    out = io.StringIO()
+    bar = Progress(10.0, "unit", stream=out)
+    for i in range(11):
+        bar.update(float(i), x=1.0)
+    bar.close("done")
+    text = out.getvalue()
+    assert "100%" in text and "unit: done" in text
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"object_name": "teapot"}, "plate"),
+        ({"force_n": -1.0}, "force_n"),
+        ({"baseline": "zigzag"}, "raster"),
+        ({"stop_remaining": 1.5}, "stop_remaining"),
+        ({"approach_force_n": 50.0}, "approach_force_n"),
+    ],
+)
+def test_clean_config_validation(kwargs, match) -> None:
+    with pytest.raises(ConfigError, match=match):
+        CleanConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"force_n": 0.0}, "force_n"), ({"baseline": "pid"}, "cartesian"), ({"drift_m_s": float("nan")}, "drift")],
+)
+def test_wipe_config_validation(kwargs, match) -> None:
+    with pytest.raises(ConfigError, match=match):
+        WipeConfig(**kwargs)
+
+
+def test_raster_needs_normals() -> None:
+    with pytest.raises(InputError, match="normals"):
+        RasterPath(SurfaceCloud(points=np.random.default_rng(0).uniform(0, 0.1, (50, 3))), 0.02, 0.003)
