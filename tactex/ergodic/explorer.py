@@ -48,6 +48,9 @@ _ZERO3 = np.zeros(3)
 _PI = np.array([e[0] for e in CUBIC_EXPONENTS], dtype=float)
 _PJ = np.array([e[1] for e in CUBIC_EXPONENTS], dtype=float)
 _DIAG10 = np.diag_indices(10)
+#: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
+#: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
+EDGE_OFFSET = 0.25
 
 
 def _tangent_matrix(n: np.ndarray) -> np.ndarray:
@@ -324,7 +327,8 @@ class HedacExplorer:
         inv = 1.0 / scale
 
         # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
-        patch = fit_local(d[part] * inv, dd_n * (inv * inv))
+        qn = d[part] * inv
+        patch = fit_local(qn, dd_n * (inv * inv))
         shift, nrm = _project_local(patch, _ZERO3, self._normals[i])
         shift *= scale
 
@@ -370,8 +374,17 @@ class HedacExplorer:
         a.ravel()[::11] += RIDGE_RTOL * float(a[0, 0]) + 1e-300
         u -= u[0]
         _, c, info = _dposv(a, xw.T @ u)
-        g = tb @ c[1:3]
-        gn = float(g @ g) ** 0.5 if info == 0 else 0.0
+        g = tb @ c[1:3] if info == 0 else np.zeros(3)
+        # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
+        # outward flux: drop the outward part of the gradient so the agent follows the edge.
+        cen = (qn.sum(axis=0) * (1.0 / n_n)) @ tb
+        cn = float(cen @ cen) ** 0.5
+        if cn > EDGE_OFFSET:
+            inward = tb @ (cen * (1.0 / cn))
+            go = float(g @ inward)
+            if go < 0.0:
+                g = g - go * inward
+        gn = float(g @ g) ** 0.5
         if gn > 0.0 and gn < np.inf:
             direction = g * (1.0 / gn)
         else:
