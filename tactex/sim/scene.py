@@ -165,7 +165,10 @@ def _scene_xml(cfg: SceneConfig) -> str:
     return f"""<mujoco model="tactex_scene">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{cfg.timestep_s:g}" integrator="implicitfast" cone="elliptic" gravity="0 0 -9.81"/>
-  <visual><global offwidth="1280" offheight="960"/><quality shadowsize="2048"/></visual>
+  <visual>
+    <global offwidth="1280" offheight="960"/><quality shadowsize="2048"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/>
+  </visual>
   <default>
     <default class="arm_visual">
       <geom contype="0" conaffinity="0" group="2" rgba="0.92 0.92 0.95 1" density="0"/>
@@ -179,6 +182,7 @@ def _scene_xml(cfg: SceneConfig) -> str:
   </asset>
   <worldbody>
     <light pos="0.5 0 1.5" dir="0 0 -1" diffuse="0.8 0.8 0.8"/>
+    <camera name="overview" pos="1.25 -0.85 0.75" mode="targetbody" target="object"/>
     <geom name="table" type="box" pos="0.4 0 -0.02" size="0.8 0.8 0.02" material="table" rgba="0.4 0.35 0.3 1"
           contype="0" conaffinity="2" group="0"/>
     {arm}
