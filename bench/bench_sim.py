@@ -22,12 +22,12 @@ DOWN = np.diag([1.0, -1.0, -1.0])
 
 def _episode(seconds: float) -> dict:
     backend = MujocoBackend(SceneConfig(object_name="sine_panel", camera_width=160, camera_height=120))
-    pos, rot = backend.object_pose()
+    pos, _ = backend.object_pose()
     start = pos + np.array([0.0, 0.0, float(sine_panel_height(np.array(0.0), np.array(0.0))) + 0.005])
     backend.reset(seed=0, q0=backend.solve_ik(start, DOWN))
     ctrl = SimpleImpedance(free_axes=(2,))
     ff = np.array([0.0, 0.0, -15.0, 0.0, 0.0, 0.0])
-    n = int(round(seconds / backend.dt))
+    n = round(seconds / backend.dt)
     step_s = np.empty(n)
     cam_s = []
     forces = np.empty(n)

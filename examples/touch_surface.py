@@ -18,11 +18,11 @@ import numpy as np
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from tactex.errors import MissingDependencyError  # noqa: E402
-from tactex.pointcloud.shapes import sine_panel_height  # noqa: E402
-from tactex.robots import MujocoBackend  # noqa: E402
-from tactex.sim import SceneConfig  # noqa: E402
-from tactex.sim.testing import SimpleImpedance  # noqa: E402
+from tactex.errors import MissingDependencyError
+from tactex.pointcloud.shapes import sine_panel_height
+from tactex.robots import MujocoBackend
+from tactex.sim import SceneConfig
+from tactex.sim.testing import SimpleImpedance
 
 DOWN = np.diag([1.0, -1.0, -1.0])  # tool z down, tool x along world x
 FORCE_N = 15.0
@@ -47,7 +47,7 @@ def main() -> int:
     ctrl = SimpleImpedance(free_axes=(2,))
     log = []
     n = int(args.seconds / backend.dt)
-    for i in range(n):
+    for _ in range(n):
         s = backend.state()
         t = s.t
         # 1 s descent under the force feed-forward, then slide 10 cm along −y over the sine
@@ -81,7 +81,6 @@ def main() -> int:
     ax[0, 2].legend()
     ax[1, 2].imshow(backend.dirt.level_image(), origin="lower", cmap="Reds", vmin=0, vmax=1,
                     extent=(-0.13, 0.13, -0.255, 0.255))
-    ax[1, 2].plot(log[:, 3] * 0 + (log[0, 3] - pos[1]) * 0, log[:, 3] - pos[1], alpha=0)
     ax[1, 2].set_title("dirt on the panel (object frame x, y [m])")
     fig.tight_layout()
     fig.savefig(out / "touch_surface.png", dpi=100)

@@ -228,9 +228,9 @@ class MujocoBackend:
         self._state = None
 
     def pad_contact(self) -> tuple[float, np.ndarray | None]:
-        """Ground truth of the last step: total normal force of the pad on the scene [N] and the
-        centre of its footprint on the object in the world [m] (the force-weighted contact point
-        when it touches something else; None without contact)."""
+        """Ground truth of the last step: magnitude of the net normal contact force on the pad [N]
+        and the centre of its footprint on the object in the world [m] (the force-weighted contact
+        point when it touches something else; None without contact)."""
         return self._last_contact
 
     def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
@@ -330,6 +330,10 @@ class MujocoBackend:
         frame = con.frame
         total = sum(r[1] for r in rows)
         point = sum(r[1] * pos[r[0]] for r in rows) / total
+        # report the magnitude of the net normal force (contacts on neighbouring facets of a height
+        # field push in slightly different directions; their magnitudes do not add up)
+        net = sum((r[1] * r[3]) * frame[r[0], :3] for r in rows)
+        total = float(np.sqrt(net @ net))
         on_obj = [r for r in rows if r[2]]
         if not on_obj:
             return total, point, 0.0, None, None
