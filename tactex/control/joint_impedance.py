@@ -35,7 +35,8 @@ class JointImpedanceParams:
 
     def __post_init__(self) -> None:
         k, d = np.asarray(self.stiffness, float), np.asarray(self.damping, float)
-        if k.shape != d.shape or not (np.all(k >= 0) and np.all(d >= 0) and np.isfinite(k).all() and np.isfinite(d).all()):
+        ok = np.all(k >= 0) and np.all(d >= 0) and np.isfinite(k).all() and np.isfinite(d).all()
+        if k.shape != d.shape or not ok:
             raise ConfigError(f"joint stiffness and damping must be ≥ 0 and of equal length, got {k} and {d}")
 
 

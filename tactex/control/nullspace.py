@@ -38,7 +38,8 @@ class NullspaceParams:
     damping: float = param(2.0 * np.sqrt(20.0), "null-space joint damping [N·m·s/rad]")
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.stiffness) and np.isfinite(self.damping) and self.stiffness >= 0 and self.damping >= 0):
+        k, d = self.stiffness, self.damping
+        if not (np.isfinite(k) and np.isfinite(d) and k >= 0 and d >= 0):
             raise ConfigError(f"null-space gains must be finite and ≥ 0, got {self.stiffness}, {self.damping}")
 
 

@@ -52,6 +52,13 @@ CLEAN_BASELINES = ("", "raster", "no_feedback")
 PHASES = {"move": 0, "capture": 1, "approach": 2, "explore": 3, "retract": 4}
 
 
+def cfg_approach_too_weak(cfg: CleanConfig) -> bool:
+    """True when the wrench PID (Kp = 0.5, integrator off until contact) would stall before the
+    touch-down threshold: out of contact it pushes with Kp·(F − f), balancing at Kp·F/(1 + Kp)."""
+    kp = GaLineForceParams().kp
+    return kp * cfg.approach_force_n / (1.0 + kp) <= cfg.contact_threshold_n
+
+
 @dataclass(frozen=True)
 class CleanConfig:
     """Parameters of ``tactex clean`` (TEC §V-A3 and Table II where the paper gives them)."""
@@ -71,8 +78,10 @@ class CleanConfig:
     capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose [m]")
     hover_height_m: float = param(0.03, "hover above the surface before contact [m]")
     approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
-    force_ramp_s: float = param(0.5, "ramp from the approach force to the set point after touch-down [s]")
-    contact_threshold_n: float = param(1.0, "measured normal force that counts as contact [N]")
+    force_ramp_s: float = param(0.1, "ramp from the approach force to the set point after touch-down [s]")
+    contact_threshold_n: float = param(
+        0.5, "measured normal force that counts as contact [N]; below the force loop's approach equilibrium "
+        "Kp·F_approach/(1 + Kp) = 1 N, so a touch-down is always detected")
     agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
     tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m] (a kitchen sponge: ~2–3 kN/m)")
@@ -212,7 +221,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     basis_s = time.perf_counter() - t_basis
     dt_step = 1.0 / cfg.explorer_rate_hz
     if cfg.baseline == "raster":
-        source: Any = RasterPath(cloud, lane_spacing_m=1.5 * cfg.agent_radius_m, max_step_m=cfg.max_velocity * cloud.spacing)
+        step_m = cfg.max_velocity * cloud.spacing
+        source: Any = RasterPath(cloud, lane_spacing_m=1.5 * cfg.agent_radius_m, max_step_m=step_m)
     else:
         hcfg = HedacConfig(
             alpha=cfg.alpha, n_eigen=basis.evecs.shape[1], agent_radius_m=cfg.agent_radius_m,

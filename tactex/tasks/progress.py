@@ -38,7 +38,9 @@ class Progress:
             if now - self._last_draw < 0.2 and frac < 1.0:
                 return
             bar = "#" * int(frac * 24)
-            line = f"\r{self.label:<14} [{bar:<24}] {done:7.2f}/{self.total:.1f} {self.unit}  {now - self._t0:5.1f} s wall  {extra}"
+            wall = now - self._t0
+            line = (f"\r{self.label:<14} [{bar:<24}] {done:7.2f}/{self.total:.1f} {self.unit}"
+                    f"  {wall:5.1f} s wall  {extra}")
             self.stream.write(line[:160].ljust(100))
             self.stream.flush()
             self._last_draw = now

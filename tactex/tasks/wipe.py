@@ -246,7 +246,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
     mae_all, rmse_all = _errors(np.asarray(errors_tool).reshape(-1, 3))
     mae_m, rmse_m = _errors(np.asarray(aligned_errors).reshape(-1, 3))
     f_err_al = np.asarray(aligned_forces) - cfg.force_n
-    after_first = n_ticks - (int(round(first_contact / backend.dt)) if first_contact is not None else n_ticks)
+    after_first = n_ticks - (round(first_contact / backend.dt) if first_contact is not None else n_ticks)
     va_params = VaUficParams()
     metrics: dict[str, Any] = {
         "force_mae_n": float(np.mean(np.abs(f_err))) if f_err.size else float("nan"),
