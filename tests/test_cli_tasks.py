@@ -164,3 +164,25 @@ def test_wipe_compare_end_to_end(tmp_path, capsys) -> None:
     table = (out / "summary.txt").read_text().splitlines()
     assert [ln.split()[0] for ln in table[2:]] == ["tactex", "cartesian"] and "force MAE [N]" in table[0]
     assert stdout.strip().splitlines()[-1] == f"report: {out / 'index.html'}"
+
+
+@pytest.mark.slow
+def test_demo_quick_end_to_end(tmp_path, capsys) -> None:
+    out = tmp_path / "demo"
+    # --quick takes a quarter of the budgets: 8 s of cleaning (first contact ~5.5 s) and 2 s of wiping.
+    code = main(["demo", "--quick", "--clean-budget-s", "32", "--wipe-duration-s", "8", "--quiet", "--no-video",
+                 "--out", str(out)])
+    stdout = capsys.readouterr().out
+    assert code == 0
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["demo"]["quick"] is True and cfg["tasks"]["clean"]["budget_s"] == 8.0
+    assert cfg["tasks"]["wipe"]["duration_s"] == 2.0
+    assert set(CLEAN_METRIC_KEYS) <= set(json.loads((out / "clean" / "tactex" / "metrics.json").read_text()))
+    assert set(WIPE_METRIC_KEYS) <= set(json.loads((out / "wipe" / "tactex" / "metrics.json").read_text()))
+    index = (out / "index.html").read_text()
+    assert "href='clean/tactex/report.html'" in index and "href='wipe/tactex/report.html'" in index
+    assert (out / "clean" / "tactex" / "report.html").is_file() and (out / "wipe" / "tactex" / "report.html").is_file()
+    lines = stdout.strip().splitlines()
+    assert lines[0] == "clean:" and "wipe:" in lines and "dirt removed" in lines[1]
+    assert lines[-1].endswith(f"report: {out / 'index.html'}") and lines[-1].startswith("2 runs in ")
+    assert (out / "summary.txt").read_text().strip() == "\n".join(lines[:-2]).strip()

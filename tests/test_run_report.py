@@ -162,7 +162,7 @@ def test_vision_update_times_are_the_recaptures() -> None:
 def test_missing_contract_keys_are_noted(tmp_path) -> None:
     res = fake_clean()
     del res.metrics["vision_updates"]
-    rep = write_run_report(res, tmp_path / "c")
+    rep = write_run_report(res, tmp_path / "c", html_page=False)
     assert rep.notes == ["metrics lack contract keys: vision_updates"]
     assert missing_metric_keys("wipe", {}) == list(WIPE_METRIC_KEYS)
     with pytest.raises(InputError, match="unknown run kind 'sweep'"):
@@ -231,6 +231,10 @@ def test_summary_table_side_by_side() -> None:
     wipe = summary_table({"tactex": fake_wipe().metrics, "cartesian": {"force_mae_n": 2.5}})
     assert "1.0/2.0/0.5" in wipe and "5.20–30.10" in wipe and "2.50" in wipe
     assert wipe.splitlines()[3].count("–") >= 3  # the baseline lacks motion and tank metrics
+    # A baseline without tanks (NaN energies, null in JSON) shows "–", not "nan–nan".
+    no_tank = summary_table([("cartesian", {"tank_force_energy_j": {"min": None, "max": float("nan")},
+                                            "motion_mae_m": [float("nan")] * 3, "force_mae_n": 2.5})])
+    assert "nan" not in no_tank and no_tank.splitlines()[2].split()[1:] == ["2.50", "–", "–"]
     with pytest.raises(InputError, match="at least one run"):
         summary_table([])
     with pytest.raises(InputError, match="pairs"):
@@ -244,3 +248,23 @@ def test_index_links_runs(tmp_path) -> None:
     page = write_index_html(tmp_path / "index.html", reps, title="demo").read_text()
     assert "href='clean_raster/report.html'" in page and "href='wipe/report.html'" in page
     assert "<h2>clean</h2>" in page and "<h2>wipe</h2>" in page and "62.0 %" in page and "0.40" in page
+
+
+def test_vision_marks_prefer_recorded_times(tmp_path) -> None:
+    res = fake_clean()
+    res.metrics.update(vision_updates=2, vision_update_times_s=[0.5, 1.0])
+    assert write_run_report(res, tmp_path / "a", html_page=False).notes == []  # recorded times agree with the count
+    res = fake_clean()
+    res.metrics["vision_updates"] = 3  # the series shows one re-capture only
+    notes = write_run_report(res, tmp_path / "b", html_page=False).notes
+    assert len(notes) == 1 and "marks 1 vision updates" in notes[0] and "metrics count 3" in notes[0]
+
+
+def test_tank_limits_sources() -> None:
+    from tactex.report.run_report import DEFAULT_TANK_LIMITS, _tank_limits
+
+    from_metrics = _tank_limits(FakeWipeConfig(), {"tank_impedance_limits_j": [2, 30], "tank_force_limits_j": [1.5, 3]})
+    assert from_metrics == {"impedance": (2.0, 30.0), "force": (1.5, 3.0)}
+    from_cfg = _tank_limits(FakeWipeConfig(controller=VaUficParams(tank_i_upper=20.0)), {})
+    assert from_cfg == {"impedance": (1.0, 20.0), "force": (1.0, 2.0)}
+    assert _tank_limits(FakeCleanConfig(), {}) == DEFAULT_TANK_LIMITS == {"impedance": (1.0, 32.0), "force": (1.0, 2.0)}

@@ -290,9 +290,15 @@ def write_clean_report(
     rep.files["cloud_data"] = out / "cloud.npz"
 
     force_n = float(metrics.get("force_set_point_n", getattr(cfg, "force_n", np.nan)))
-    vision_t = vision_update_times(s["t"], s["phase"])
+    if metrics.get("vision_update_times_s") is not None:
+        vision_t = np.asarray(metrics["vision_update_times_s"], dtype=np.float64).reshape(-1)
+    else:
+        vision_t = vision_update_times(s["t"], s["phase"])
     if int(metrics.get("vision_updates", len(vision_t))) != len(vision_t):
-        rep.notes.append(f"phase series shows {len(vision_t)} re-captures, metrics say {metrics.get('vision_updates')}")
+        rep.notes.append(
+            f"dirt plot marks {len(vision_t)} vision updates (from the capture phases of the series), "
+            f"metrics count {metrics.get('vision_updates')} (record 'vision_update_times_s' in the metrics)"
+        )
     rep.files["dirt_png"] = _plot_dirt(s, vision_t, out / "dirt.png")
     rep.files["force_png"] = _plot_clean_force(s, force_n, out / "force.png")
     rep.files["phases_png"] = _plot_phases(s, out / "phases.png")
@@ -519,11 +525,13 @@ def _num(fmt: str):
 
 
 def _xyz_mm(v: Any) -> str:
-    return "/".join(f"{1e3 * float(x):.1f}" for x in v)
+    arr = np.asarray(v, dtype=np.float64)
+    return "–" if not np.isfinite(arr).any() else "/".join(f"{1e3 * x:.1f}" for x in arr)
 
 
 def _minmax(v: Any) -> str:
-    return f"{float(v['min']):.2f}–{float(v['max']):.2f}"
+    lo, hi = (float("nan") if v.get(k) is None else float(v[k]) for k in ("min", "max"))
+    return "–" if not (math.isfinite(lo) and math.isfinite(hi)) else f"{lo:.2f}–{hi:.2f}"
 
 
 SUMMARY_COLUMNS: tuple[tuple[str, str, Any], ...] = (
