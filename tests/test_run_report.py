@@ -13,7 +13,7 @@ from tactex.control.va_ufic import VaUficParams
 from tactex.errors import InputError
 from tactex.pointcloud import SurfaceCloud
 from tactex.report import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS, summary_table, write_index_html, write_run_report
-from tactex.report.run_report import CLEAN_PHASES, missing_metric_keys, run_kind, vision_update_times
+from tactex.report.run_report import CLEAN_PHASES, missing_metric_keys, run_kind, vision_round_trips
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 DT = 0.01  # 100 Hz recorder
@@ -152,11 +152,13 @@ def test_clean_report_raster_baseline_notes_missing_ergodicity(tmp_path) -> None
     assert '"dirt (first capture)"' in rep.html.read_text()
 
 
-def test_vision_update_times_are_the_recaptures() -> None:
+def test_vision_round_trips_span_retract_to_next_approach() -> None:
     phase = _clean_phases()
     t = np.arange(len(phase)) * DT
-    # The second capture starts after 50+10+20+200+20+40 samples.
-    np.testing.assert_allclose(vision_update_times(t, phase), [340 * DT])
+    # The first retract starts after 50+10+20+200 samples; the next approach after 20+40+10 more. The final
+    # retract is followed by no approach: the end of the run, not a vision update.
+    np.testing.assert_allclose(vision_round_trips(t, phase), [[280 * DT, 350 * DT]])
+    assert vision_round_trips(t, np.full(len(t), CLEAN_PHASES["explore"], float)).shape == (0, 2)
 
 
 def test_missing_contract_keys_are_noted(tmp_path) -> None:
@@ -257,7 +259,7 @@ def test_vision_marks_prefer_recorded_times(tmp_path) -> None:
     res = fake_clean()
     res.metrics["vision_updates"] = 3  # the series shows one re-capture only
     notes = write_run_report(res, tmp_path / "b", html_page=False).notes
-    assert len(notes) == 1 and "marks 1 vision updates" in notes[0] and "metrics count 3" in notes[0]
+    assert notes == ["dirt plot marks 1 vision updates, metrics count 3"]
 
 
 def test_tank_limits_sources() -> None:

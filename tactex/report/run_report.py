@@ -45,7 +45,7 @@ __all__ = [
     "missing_metric_keys",
     "run_kind",
     "summary_table",
-    "vision_update_times",
+    "vision_round_trips",
     "write_clean_report",
     "write_index_html",
     "write_run_report",
@@ -204,16 +204,25 @@ def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(d[::2].tolist(), d[1::2].tolist(), strict=True))
 
 
-def vision_update_times(t: np.ndarray, phase: np.ndarray) -> np.ndarray:
-    """Start times [s] of the captures after the first one: the visual re-measurements (TEC §VI-B)."""
-    starts = [t[a] for a, _ in _segments(np.rint(phase) == CLEAN_PHASES["capture"])]
-    return np.asarray(starts[1:], dtype=np.float64)
+def vision_round_trips(t: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    """(k, 2) [s] spans of the visual re-measurements (TEC §VI-B): from each retract that is followed by another
+    approach to the start of that approach (retract, move to the capture pose, capture, return)."""
+    ph = np.rint(phase)
+    approaches = [a for a, _ in _segments(ph == CLEAN_PHASES["approach"])]
+    spans = []
+    for a, _ in _segments(ph == CLEAN_PHASES["retract"]):
+        nxt = [b for b in approaches if b > a]
+        if nxt:
+            spans.append((t[a], t[nxt[0]]))
+    return np.asarray(spans, dtype=np.float64).reshape(-1, 2)
 
 
-def _plot_dirt(s: Mapping[str, np.ndarray], vision_t: np.ndarray, path: Path) -> Path:
+def _plot_dirt(s: Mapping[str, np.ndarray], trips: np.ndarray, times: np.ndarray | None, path: Path) -> Path:
     fig, (ax,) = _figure()
     ax.plot(s["t"], 100.0 * s["dirt_remaining"], color="C3", lw=1.5, label="dirt remaining (simulated surface)")
-    for i, tv in enumerate(vision_t):
+    for i, (a, b) in enumerate(trips):
+        ax.axvspan(a, b, color="C0", alpha=0.15, lw=0, label="return to vision" if i == 0 else None)
+    for i, tv in enumerate([] if times is None else times):
         ax.axvline(tv, color="C0", ls="--", lw=1.0, label="vision update" if i == 0 else None)
     ax.set_ylim(0, 105)
     ax.set_ylabel("dirt remaining [%]")
@@ -290,16 +299,13 @@ def write_clean_report(
     rep.files["cloud_data"] = out / "cloud.npz"
 
     force_n = float(metrics.get("force_set_point_n", getattr(cfg, "force_n", np.nan)))
-    if metrics.get("vision_update_times_s") is not None:
-        vision_t = np.asarray(metrics["vision_update_times_s"], dtype=np.float64).reshape(-1)
-    else:
-        vision_t = vision_update_times(s["t"], s["phase"])
-    if int(metrics.get("vision_updates", len(vision_t))) != len(vision_t):
-        rep.notes.append(
-            f"dirt plot marks {len(vision_t)} vision updates (from the capture phases of the series), "
-            f"metrics count {metrics.get('vision_updates')} (record 'vision_update_times_s' in the metrics)"
-        )
-    rep.files["dirt_png"] = _plot_dirt(s, vision_t, out / "dirt.png")
+    trips = vision_round_trips(s["t"], s["phase"])
+    times = metrics.get("vision_update_times_s")
+    times = None if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
+    shown = len(trips) if times is None else len(times)
+    if int(metrics.get("vision_updates", shown)) != shown:
+        rep.notes.append(f"dirt plot marks {shown} vision updates, metrics count {metrics.get('vision_updates')}")
+    rep.files["dirt_png"] = _plot_dirt(s, trips, times, out / "dirt.png")
     rep.files["force_png"] = _plot_clean_force(s, force_n, out / "force.png")
     rep.files["phases_png"] = _plot_phases(s, out / "phases.png")
     named = {"dirt (first capture)": fields.get("target_initial", cloud.target)}
