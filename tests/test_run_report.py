@@ -187,7 +187,7 @@ def test_wipe_report_files_and_contract(tmp_path) -> None:
         np.testing.assert_array_equal(z["profile_z_m"], res.profile["z_m"])
         assert z["tcp_path_contact"].shape == (int(res.series["in_contact"].sum()), 3)
     page = rep.html.read_text()
-    assert '"curvature [1\\u002fm]"' in page and '"path"' in page and page.count("src='data:image/png;base64,") == 6
+    assert '"curvature l_s [-]"' in page and '"path"' in page and page.count("src='data:image/png;base64,") == 6
 
 
 def test_wipe_report_without_contact(tmp_path) -> None:

@@ -452,16 +452,17 @@ def write_wipe_report(
     rep.files["fig3c_png"] = _plot_wipe_force(s, out / "fig3c_force.png")
     rep.files["fig3d_png"] = _plot_tanks(s, _tank_limits(cfg, metrics), out / "fig3d_tanks.png")
     if len(pts):
-        _try_plot(rep, "explored_png", plot_cloud, pts, {"curvature [1/m]": curv}, out / "explored.png",
-                  trajectory=tcp_contact if len(tcp_contact) else None, title=f"{label}: explored surface",
-                  cmaps={"curvature [1/m]": "coolwarm"})
+        _try_plot(rep, "explored_png", plot_cloud, pts, {"curvature l_s [-]": curv}, out / "explored.png",
+                  trajectory=tcp_contact if len(tcp_contact) else None,
+                  title=f"{label}: explored contact points, curvature l_s (VA-UFIC eq. 16)",
+                  cmaps={"curvature l_s [-]": "coolwarm"})
     else:
         rep.notes.append("no explored points (the tool never touched the surface): no curvature plot")
     if html_page:
         if len(pts):
-            page = cloud_html(pts, {"curvature [1/m]": curv}, out / "report.html",
+            page = cloud_html(pts, {"curvature l_s [-]": curv}, out / "report.html",
                               trajectory=tcp_contact if len(tcp_contact) else None,
-                              colorscales={"curvature [1/m]": "RdBu"}, title=f"tactex wipe — {label}")
+                              colorscales={"curvature l_s [-]": "RdBu"}, title=f"tactex wipe — {label}")
         else:
             page = out / "report.html"
             page.write_text(f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>tactex wipe — "
