@@ -127,8 +127,8 @@ def _try_video(result: Any, rep: RunReport, enabled: bool) -> None:
         return
     try:
         rep.files["video"] = write_replay_video(result, rep.out_dir / "replay.gif")
-    except MissingDependencyError as exc:
-        rep.notes.append(f"video skipped: GL rendering unavailable (set MUJOCO_GL=egl or osmesa) — {exc}")
+    except MissingDependencyError:
+        rep.notes.append("video skipped: GL rendering unavailable (without a display, set MUJOCO_GL=egl or osmesa)")
     except InputError as exc:
         rep.notes.append(f"video skipped: {exc}")
 
@@ -182,7 +182,9 @@ class DemoConfig:
 
     clean_budget_s: float = param(40.0, "simulated time of the short cleaning run on the plate [s]")
     wipe_duration_s: float = param(10.0, "simulated duration of the short wiping run on the sine panel [s]")
-    baselines: bool = param(False, "also run the baselines (raster, HEDAC without vision; Cartesian impedance)")
+    baselines: bool = param(
+        False, "also run the baselines (raster, HEDAC without vision; Cartesian impedance): about 2.5× longer"
+    )
     quick: bool = param(False, "a smoke run: a quarter of the budgets, no baselines")
     video: bool = param(True, "write replay videos when GL rendering works")
     seed: int = param(0, "seed of the simulations and the explorer")
