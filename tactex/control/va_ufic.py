@@ -73,6 +73,11 @@ class VaUficParams:
     realign_time: float = param(1.0, "T of eq. 28, duration of a re-orientation [s]")
     realign_min_angle: float = param(math.radians(2.0), "smallest tilt that triggers a re-orientation [rad]")
     surface_max_age: float = param(0.5, "older surface estimates are ignored [s]")
+    damping_feedforward: bool = param(
+        True,
+        "damp the velocity error D(ẋ − ẋ_d) instead of eq. 8's D ẋ; the feed-forward D ẋ_d goes through the "
+        "impedance tank's port with the variable spring, so the tank pays for the energy it injects",
+    )
     tanks_enabled: bool = param(True, "energy tanks on (False: plain VA-UFIC, for the passivity comparison)")
     tank_i_x0: float = param(7.0, "x_t,i(0) [√J]")
     tank_i_upper: float = param(32.0, "S̄_t,i [J]")
@@ -198,10 +203,16 @@ class VaUficController(UficController):
         kvar_err = rho_align * self._k_max_t * x_err_tool  # K_var(t)·x̃, eq. 56
         f_f = rho_frc * self.force_wrench_tool(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
 
+        # Tracking a moving x_d, eq. 8's −D ẋ lags by D·v/K (6 mm at the policy's 8 cm/s). With
+        # damping_feedforward the damping acts on the velocity error; its active part +D ẋ_d joins the
+        # variable spring at the impedance tank's port (both are non-passive), so σ_i scales both.
+        port = -kvar_err
+        if v.damping_feedforward:
+            port = port + self._d_tool * to_tool(rot, reference.twist_world)
         p_damp = float(xdot_tool @ d_xdot)
-        sigma_i = self.tank_i.step(p_damp, float(xdot_tool @ kvar_err), dt)  # eq. 57–63
+        sigma_i = self.tank_i.step(p_damp, -float(xdot_tool @ port), dt)  # eq. 57–63
         m_f = self.tank_f.step(p_damp, float(xdot_tool @ f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
-        f_tool = -self._k_const * x_err_tool - d_xdot - sigma_i * kvar_err + m_f * f_f  # eq. 72–73
+        f_tool = -self._k_const * x_err_tool - d_xdot + sigma_i * port + m_f * f_f  # eq. 72–73
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
