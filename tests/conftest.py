@@ -8,6 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+try:  # one BLAS thread: on a shared 2-core machine threaded BLAS makes small products 2–10× slower
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+except ImportError:  # pragma: no cover - threadpoolctl is a dependency, but the suite must not need it
+    pass
+
 os.environ.setdefault("MUJOCO_GL", "disable")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
