@@ -56,8 +56,23 @@ class SecondOrderAgent(Agent):
     """ẍ = a_max ĝ (eq. 6 with the acceleration limit), then ‖ẋ‖ ≤ v_max."""
 
     def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
-        v = transport(self.velocity, normal)
-        return self._clip(v + (self.max_acceleration * self.dt) * direction)
+        # transport() and the clip in Python floats (hot path: three numbers per vector)
+        v0, v1, v2 = self.velocity.tolist()
+        n0, n1, n2 = normal.tolist()
+        vn = v0 * n0 + v1 * n1 + v2 * n2
+        t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
+        nt2 = t0 * t0 + t1 * t1 + t2 * t2
+        if nt2 > 1e-300:
+            k = ((v0 * v0 + v1 * v1 + v2 * v2) / nt2) ** 0.5
+            t0, t1, t2 = t0 * k, t1 * k, t2 * k
+        a = self.max_acceleration * self.dt
+        d0, d1, d2 = direction.tolist()
+        w0, w1, w2 = t0 + a * d0, t1 + a * d1, t2 + a * d2
+        nw = (w0 * w0 + w1 * w1 + w2 * w2) ** 0.5
+        if nw > self.max_velocity:
+            k = self.max_velocity / nw
+            w0, w1, w2 = w0 * k, w1 * k, w2 * k
+        return np.array((w0, w1, w2))
 
 
 def make_agent(order: int, max_velocity: float, max_acceleration: float, dt: float) -> Agent:

@@ -15,6 +15,11 @@ One step for each agent:
 6. the agent's velocity update (first or second order, limits kept, see :mod:`.agents`), the
    new point projected back onto the fitted surface, the step clamped to v_max·dt.
 
+Scan edges (eq. 5's Neumann boundary): where the neighbours' centroid lies well inside the
+tangent plane the outward part of the gradient is dropped, so the agent follows the edge; a step
+that would leave the cloud loses its outward velocity, and the agent never strays farther than
+``max_off_cloud`` voxels from the nearest cloud point (it still lies on the fitted surface).
+
 Cost per step is independent of N where it matters: s vanishes off the target, so Φᵀ M s only
 needs the target rows of Φ (n_target × K, premultiplied by the mass), and u is only needed at
 the n_N neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally.
@@ -45,9 +50,8 @@ __all__ = ["HedacExplorer"]
 
 _Z = np.array([0.0, 0.0, 1.0])
 _ZERO3 = np.zeros(3)
-_PI = np.array([e[0] for e in CUBIC_EXPONENTS], dtype=float)
-_PJ = np.array([e[1] for e in CUBIC_EXPONENTS], dtype=float)
-_DIAG10 = np.diag_indices(10)
+if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
+    raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
@@ -71,18 +75,30 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _project_local(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest point of the patch to x and the unit normal there, oriented along ``ref``."""
+    """Closest point of the patch to x and the unit normal there, oriented along ``ref``.
+
+    Sphere and plane (the per-step cases) in Python floats: three numbers do not pay numpy's
+    per-call overhead; the other kinds go through :meth:`SurfacePatch.project`.
+    """
     if patch.kind == "sphere":
-        u = x - patch.center
-        nu = float(u @ u) ** 0.5
+        cx, cy, cz = patch.center.tolist()
+        x0, x1, x2 = x.tolist()
+        ux, uy, uz = x0 - cx, x1 - cy, x2 - cz
+        nu = (ux * ux + uy * uy + uz * uz) ** 0.5
         if nu > 1e-12 * patch.radius:
-            n = u * (1.0 / nu)
-            p = patch.center + patch.radius * n
-            return p, (n if float(n @ ref) >= 0.0 else -n)
+            r0, r1, r2 = ref.tolist()
+            sgn = 1.0 / nu if ux * r0 + uy * r1 + uz * r2 >= 0.0 else -1.0 / nu
+            nx, ny, nz = ux * sgn, uy * sgn, uz * sgn
+            k = patch.radius / nu
+            return np.array((cx + k * ux, cy + k * uy, cz + k * uz)), np.array((nx, ny, nz))
     elif patch.kind == "plane":
-        n = patch.direction
-        p = x - float((x - patch.center) @ n) * n
-        return p, (n if float(n @ ref) >= 0.0 else -n)
+        nx, ny, nz = patch.direction.tolist()
+        cx, cy, cz = patch.center.tolist()
+        x0, x1, x2 = x.tolist()
+        h = (x0 - cx) * nx + (x1 - cy) * ny + (x2 - cz) * nz
+        r0, r1, r2 = ref.tolist()
+        sgn = 1.0 if nx * r0 + ny * r1 + nz * r2 >= 0.0 else -1.0
+        return np.array((x0 - h * nx, x1 - h * ny, x2 - h * nz)), np.array((sgn * nx, sgn * ny, sgn * nz))
     p, n = patch.project(x, ref)
     return p, (n if float(n @ ref) >= 0.0 else -n)
 
@@ -137,6 +153,7 @@ class HedacExplorer:
         self._off = cfg.max_off_cloud * self.spacing
         self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
+        self._xf = np.ones((cfg.n_neighbors_fit, 10))
         self._saturating = cfg.coverage_mode == "saturating"
         self._build_neighbourhoods()
         self._near = np.zeros(0, dtype=np.intp)
@@ -315,11 +332,11 @@ class HedacExplorer:
         pts = self._points
         x = self._x[i]
         n_n = self._n_n
-        cand = self._candidates(i, x, exact)
+        cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
         d = pts[cand] - x
         dd = np.einsum("ij,ij->i", d, d)
         self._near[i] = cand[dd.argmin()]
-        part = np.argpartition(dd, n_n - 1)[:n_n]
+        part = dd.argpartition(n_n - 1)[:n_n]
         nbr = cand[part]
         dd_n = dd[part]
         scale2 = float(dd_n.max())
@@ -327,8 +344,8 @@ class HedacExplorer:
         inv = 1.0 / scale
 
         # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
-        qn = d[part] * inv
-        patch = fit_local(qn, dd_n * (inv * inv))
+        dk = d[part]
+        patch = fit_local(dk * inv, dd_n * (inv * inv))
         shift, nrm = _project_local(patch, _ZERO3, self._normals[i])
         shift *= scale
 
@@ -366,9 +383,19 @@ class HedacExplorer:
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
-        uv = ((d[part] - shift) @ tb) * inv
+        uv = ((dk - shift) @ tb) * inv
         w = np.exp(-(self._eps2 * scale2) * np.einsum("ij,ij->i", uv, uv))
-        xf = uv[:, :1] ** _PI * uv[:, 1:] ** _PJ
+        xf = self._xf  # monomials of CUBIC_EXPONENTS, built in place (no per-step allocation)
+        uc, vc = uv[:, 0], uv[:, 1]
+        xf[:, 1] = uc
+        xf[:, 2] = vc
+        np.multiply(uc, uc, out=xf[:, 3])
+        np.multiply(uc, vc, out=xf[:, 4])
+        np.multiply(vc, vc, out=xf[:, 5])
+        np.multiply(xf[:, 3], uc, out=xf[:, 6])
+        np.multiply(xf[:, 3], vc, out=xf[:, 7])
+        np.multiply(xf[:, 5], uc, out=xf[:, 8])
+        np.multiply(xf[:, 5], vc, out=xf[:, 9])
         xw = xf * w[:, None]
         a = xw.T @ xf
         a.ravel()[::11] += RIDGE_RTOL * float(a[0, 0]) + 1e-300
@@ -377,7 +404,7 @@ class HedacExplorer:
         g = tb @ c[1:3] if info == 0 else np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
-        cen = (qn.sum(axis=0) * (1.0 / n_n)) @ tb
+        cen = dk.sum(axis=0) @ tb * (inv / n_n)
         cn = float(cen @ cen) ** 0.5
         if cn > EDGE_OFFSET:
             inward = tb @ (cen * (1.0 / cn))

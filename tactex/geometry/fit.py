@@ -171,22 +171,20 @@ def fit_local(q: np.ndarray, q_sq: np.ndarray | None = None) -> SurfacePatch:
     evals, vecs, info = _dsyev(w.T @ w)
     if info != 0 or n < 5 or evals[1] <= DEGENERACY_RTOL * evals[4]:
         return _degenerate_patch(q)
-    v = vecs[:, 0]
-    vv = v[:3]
-    vinf = float(v[3])
-    v0 = float(v[4])
-    nv = float(np.sqrt(vv @ vv))
+    v0x, v1x, v2x, vinf, v0 = vecs[:, 0].tolist()  # scalar algebra in Python floats: 5 numbers
+    nv = (v0x * v0x + v1x * v1x + v2x * v2x) ** 0.5
     if abs(v0) * MAX_RADIUS_RATIO > nv:
-        c = vv * (1.0 / v0)
-        r2 = float(c @ c) - 2.0 * vinf / v0
+        cx, cy, cz = v0x / v0, v1x / v0, v2x / v0
+        r2 = cx * cx + cy * cy + cz * cz - 2.0 * vinf / v0
         if r2 > 0.0:
-            return SurfacePatch("sphere", c, float(np.sqrt(r2)), _ZERO3)
+            return SurfacePatch("sphere", np.array((cx, cy, cz)), r2**0.5, _ZERO3)
         # An imaginary sphere (r² < 0) fits only noise; the plane is the sane limit.
         return _pca_plane(q)
     if nv == 0.0:
         return _pca_plane(q)
-    nrm = vv * (1.0 / nv)
-    return SurfacePatch("plane", (vinf / nv) * nrm, np.inf, nrm)
+    nx, ny, nz = v0x / nv, v1x / nv, v2x / nv
+    off = vinf / nv
+    return SurfacePatch("plane", np.array((off * nx, off * ny, off * nz)), np.inf, np.array((nx, ny, nz)))
 
 
 def _pca(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
