@@ -288,20 +288,22 @@ class MujocoBackend:
 
     def _check_finite(self, where: str, t: float) -> None:
         d = self.data
-        # MuJoCo resets the data itself when it detects a blow-up, so its warnings are the evidence
+        # MuJoCo resets the data itself when it detects a blow-up (time jumps back to 0), so the
+        # clock and its warnings are the evidence; a NaN that slipped through shows in the sums
+        if d.time + 0.5 * self.dt >= t and np.isfinite(d.qpos.sum() + d.qvel.sum()):
+            return
         bad = [what for code, what in _BAD.items() if d.warning[code].number > 0]
-        if bad or not np.isfinite(d.qpos.sum() + d.qvel.sum()):
-            raise SimulationError(
-                f"the simulation diverged at t = {t:.4f} s ({where}): MuJoCo reported "
-                f"{', '.join(bad) or 'NaN/inf joint states'}. Hint: lower the controller gains or the tool "
-                "stiffness, or check the commanded torques."
-            )
+        raise SimulationError(
+            f"the simulation diverged at t = {t:.4f} s ({where}): MuJoCo reported "
+            f"{', '.join(bad) or 'NaN/inf joint states'}. Hint: lower the controller gains or the tool "
+            "stiffness, or check the commanded torques."
+        )
 
     def _after_tick(self) -> None:
         d = self.data
         ids = self._ids
         a, b = ids["ft_force_adr"], ids["ft_torque_adr"]
-        self._wrench = self.ft_sensor.measure(
+        self._wrench = self.ft_sensor.measure(  # a fresh array each tick: shared by the state
             d.sensordata[a:a + 3], d.sensordata[b:b + 3], d.site_xmat[ids["ft_site"]].reshape(3, 3), self._rng
         )
         self._state = None
@@ -326,21 +328,32 @@ class MujocoBackend:
                     rows.append((i, fn, obj in (g1, g2), 1.0 if g2 == pad else -1.0))
         if not rows:
             return 0.0, None, 0.0, None, None
-        pos = con.pos
-        frame = con.frame
+        pos = con.pos.tolist()
+        frame = con.frame.tolist()
+
+        def wsum(sel: list, vec: list, sign: bool) -> list[float]:
+            out = [0.0, 0.0, 0.0]
+            for i, fn, _, sg in sel:
+                w = fn * sg if sign else fn
+                v = vec[i]
+                out[0] += w * v[0]
+                out[1] += w * v[1]
+                out[2] += w * v[2]
+            return out
+
         total = sum(r[1] for r in rows)
-        point = sum(r[1] * pos[r[0]] for r in rows) / total
+        point = np.array(wsum(rows, pos, False)) / total
         # report the magnitude of the net normal force (contacts on neighbouring facets of a height
-        # field push in slightly different directions; their magnitudes do not add up)
-        net = sum((r[1] * r[3]) * frame[r[0], :3] for r in rows)
-        total = float(np.sqrt(net @ net))
+        # field push in slightly different directions; their magnitudes do not add up); the contact
+        # normal (first row of the contact frame) points from geom1 to geom2
+        net = wsum(rows, frame, True)
+        total = float(np.sqrt(net[0] ** 2 + net[1] ** 2 + net[2] ** 2))
         on_obj = [r for r in rows if r[2]]
         if not on_obj:
             return total, point, 0.0, None, None
         f_obj = sum(r[1] for r in on_obj)
-        p_obj = sum(r[1] * pos[r[0]] for r in on_obj) / f_obj
-        # the contact normal (first row of the contact frame) points from geom1 to geom2
-        n = sum((r[1] * r[3]) * frame[r[0], :3] for r in on_obj)
+        p_obj = np.array(wsum(on_obj, pos, False)) / f_obj
+        n = np.array(wsum(on_obj, frame, True))
         return total, point, f_obj, p_obj, n / np.sqrt(n @ n)
 
     def _wipe(self) -> None:
@@ -388,8 +401,11 @@ class MujocoBackend:
         m, d = self.model, self.data
         arm = self._arm
         tcp = self._ids["tcp"]
-        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, tcp)
-        jac = np.vstack([self._jacp[:, arm], self._jacr[:, arm]])
+        jacp, jacr = self._jacp, self._jacr
+        mujoco.mj_jacSite(m, d, jacp, jacr, tcp)
+        jac = np.empty((6, 7))
+        jac[:3] = jacp[:, arm]
+        jac[3:] = jacr[:, arm]
         mujoco.mj_fullM(m, d, self._mfull)
         dq = d.qvel[arm].copy()
         gravity = d.qfrc_gravcomp[arm].copy()
@@ -411,5 +427,5 @@ class MujocoBackend:
             mass_matrix=mass,
             coriolis=coriolis,
             gravity=gravity,
-            wrench_tool=self._wrench.copy(),
+            wrench_tool=self._wrench,
         )

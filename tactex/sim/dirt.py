@@ -151,18 +151,26 @@ class DirtField:
     def level_at(self, points_obj: np.ndarray, level: np.ndarray | None = None) -> np.ndarray:
         """Dirt level (N,) at surface points (N, 3) in the object frame (nearest cell), from the
         current levels or from ``level`` (a snapshot of :attr:`level`)."""
-        uv = self.surface.uv(points_obj)
         nv, nu = self.shape
-        iu = np.clip((uv[:, 0] * nu).astype(int), 0, nu - 1)
-        iv = np.clip((uv[:, 1] * nv).astype(int), 0, nv - 1)
-        return (self.level if level is None else level)[iv * nu + iu]
+        s = self.surface
+        if isinstance(s, HeightFieldSurface):  # uv is affine in x, y: skip the generic uv()
+            u = points_obj[:, 0] * (nu / s.size_x_m) + 0.5 * nu
+            v = points_obj[:, 1] * (nv / s.size_y_m) + 0.5 * nv
+        else:
+            uv = s.uv(points_obj)
+            u, v = uv[:, 0] * nu, uv[:, 1] * nv
+        iu = np.clip(u, 0, nu - 1).astype(np.intp)
+        iv = np.clip(v, 0, nv - 1).astype(np.intp)
+        iv *= nu
+        iv += iu
+        return np.take(self.level if level is None else level, iv)
 
     def colors(self, points_obj: np.ndarray, base_rgb: np.ndarray | None = None,
                level: np.ndarray | None = None) -> np.ndarray:
         """RGB (N, 3) in [0, 1] of surface points: the clean colour blended with the marking colour."""
         base = BASE_RGB if base_rgb is None else np.asarray(base_rgb, dtype=float)
         d = self.level_at(points_obj, level)[:, None]
-        return (1.0 - d) * base + d * MARK_RGB
+        return base + d * (MARK_RGB - base)
 
     def level_image(self) -> np.ndarray:
         """Dirt levels as an image (nv, nu), row 0 at v = 0."""
