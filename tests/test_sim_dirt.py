@@ -97,9 +97,10 @@ def test_dirt_field_inputs_are_validated():
         DirtField(object(), "X", 0.002)  # type: ignore[arg-type]
 
 
-def _wipe_line(force_n, coefficient=2e-4, seconds=1.6):
+def _wipe_line(force_n, coefficient=2e-4, seconds=1.6, sample_ticks=5):
     """Press with force_n on the plane and slide 8 cm along +x; returns backend and contact path."""
-    backend = MujocoBackend(SceneConfig(object_name="plane", marking="full", preston_coefficient=coefficient))
+    backend = MujocoBackend(SceneConfig(object_name="plane", marking="full", preston_coefficient=coefficient,
+                                        contact_sample_ticks=sample_ticks))
     pos, rot = backend.object_pose()
     start = pos + np.array([-0.04, 0.0, 0.003])
     backend.reset(seed=0, q0=backend.solve_ik(start, DOWN))
@@ -136,3 +137,12 @@ def test_dirt_disappears_only_along_the_touched_path_and_faster_with_force():
         assert under.sum() > 100 and np.all(touched[under])
         removed[force] = field.total_initial - field.level.sum()
     assert removed[15.0] == pytest.approx(3.0 * removed[5.0], rel=0.25)
+
+
+@pytest.mark.slow
+def test_sampling_contacts_every_few_ticks_removes_the_same_dirt():
+    removed = []
+    for ticks in (1, 5):
+        backend, _ = _wipe_line(15.0, sample_ticks=ticks)
+        removed.append(backend.dirt.total_initial - backend.dirt.level.sum())
+    assert removed[1] == pytest.approx(removed[0], rel=0.03)

@@ -119,6 +119,10 @@ def test_scene_config_validation():
         SceneConfig(tool_friction=float("nan"))
     with pytest.raises(ConfigError, match="camera size"):
         SceneConfig(camera_width=2)
+    with pytest.raises(ConfigError, match="contact_sample_ticks"):
+        SceneConfig(contact_sample_ticks=0)
+    with pytest.raises(ConfigError, match="camera_raycast"):
+        SceneConfig(camera_raycast="gl")
     with pytest.raises(ConfigError, match="ft_bias"):
         SceneConfig(ft_bias=(0.0, 1.0))  # type: ignore[arg-type]
 

@@ -80,8 +80,8 @@ class MujocoBackend:
         self._state: RobotState | None = None
         self._last_contact: tuple[float, np.ndarray | None] = (0.0, None)
         self._pad_bottom = tool.pad_thickness_m / 2 if tool.pad_shape == "cylinder" else None
-        self._wear_period = 5  # ticks between dirt updates
-        self._wear, self._wear_point, self._wear_ticks = 0.0, np.zeros(3), 0
+        self._sample_ticks = int(self.config.contact_sample_ticks)
+        self._tick = 0
         self.reset(self.config.seed)
 
     # -- protocol -------------------------------------------------------------------------------
@@ -99,7 +99,8 @@ class MujocoBackend:
         self._frame_index = 0
         self._tau = np.zeros(self.n_joints)
         self.scene.dirt.reset()
-        self._wear, self._wear_point, self._wear_ticks = 0.0, np.zeros(3), 0
+        self._tick = 0
+        self._last_contact = (0.0, None)
         self.ft_sensor.reset()
         self._next_camera_t = 0.0
         mujoco.mj_forward(m, d)
@@ -228,9 +229,9 @@ class MujocoBackend:
         self._state = None
 
     def pad_contact(self) -> tuple[float, np.ndarray | None]:
-        """Ground truth of the last step: magnitude of the net normal contact force on the pad [N]
-        and the centre of its footprint on the object in the world [m] (the force-weighted contact
-        point when it touches something else; None without contact)."""
+        """Ground truth, sampled every ``contact_sample_ticks`` steps: magnitude of the net normal
+        contact force on the pad [N] and the centre of its footprint on the object in the world [m]
+        (the force-weighted contact point when it touches something else; None without contact)."""
         return self._last_contact
 
     def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
@@ -357,10 +358,14 @@ class MujocoBackend:
         return total, point, f_obj, p_obj, n / np.sqrt(n @ n)
 
     def _wipe(self) -> None:
+        """Contact ground truth and Preston wear, sampled every ``contact_sample_ticks`` ticks (the
+        pad moves well under a millimetre meanwhile; the wear of the whole period is applied)."""
+        self._tick += 1
+        if self._tick % self._sample_ticks:
+            return
         total, point, force, point_w, normal = self._pad_contacts()
         if point_w is None:
             self._last_contact = (total, point)
-            self._flush_wear()
             return
         m, d = self.model, self.data
         pad = self._ids["pad_body"]
@@ -371,31 +376,15 @@ class MujocoBackend:
             point_w = centre + ((point_w - centre) @ normal) * normal
         self._last_contact = (total, point_w)
         if force <= self.scene.dirt.params.force_threshold_n:
-            self._flush_wear()
             return
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, pad, self._pad_vel, 0)
         v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (the object is at rest)
         vn = v @ normal
         slip = float(np.sqrt(max(v @ v - vn * vn, 0.0)))
-        # Preston wear is applied every few ticks at the mean footprint (the pad moves < 1 mm
-        # meanwhile); it integrates F·v·dt tick by tick, so the removed amount is unchanged
-        wear = force * slip * self.dt
-        self._wear += wear
-        self._wear_point += wear * point_w
-        self._wear_ticks += 1
-        if self._wear_ticks >= self._wear_period:
-            self._flush_wear()
-
-    def _flush_wear(self) -> None:
-        if self._wear > 0:
-            d = self.data
+        if slip > 0.0:
             b = self._ids["object_body"]
-            point_w = self._wear_point / self._wear
             point_obj = (point_w - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
-            self.scene.dirt.apply_wear(point_obj, self._wear)
-        self._wear = 0.0
-        self._wear_point = np.zeros(3)
-        self._wear_ticks = 0
+            self.scene.dirt.apply_wear(point_obj, force * slip * self.dt * self._sample_ticks)
 
     def _make_state(self) -> RobotState:
         m, d = self.model, self.data

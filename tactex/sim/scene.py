@@ -59,6 +59,7 @@ class SceneConfig:
     dirt_resolution_m: float = param(0.002, "dirt grid cell size [m]")
     preston_coefficient: float = param(5e-3, "Preston wear coefficient [1/(Pa·m)]")
     dirt_force_threshold_n: float = param(2.0, "normal force below which no dirt is removed [N]")
+    contact_sample_ticks: int = param(5, "ticks between contact ground-truth samples and dirt updates [-]")
     timestep_s: float = param(0.001, "physics and control period [s]")
     seed: int = param(0, "seed of sensor noise")
 
@@ -94,6 +95,8 @@ class SceneConfig:
                 f"camera_latency_s must be in [0, 1/camera_rate_hz = {1.0 / self.camera_rate_hz:.4g}] s, "
                 f"got {self.camera_latency_s}"
             )
+        if not (isinstance(self.contact_sample_ticks, int) and 1 <= self.contact_sample_ticks <= 100):
+            raise ConfigError(f"contact_sample_ticks must be an integer in [1, 100], got {self.contact_sample_ticks!r}")
         if not (8 <= self.camera_width <= 4096 and 8 <= self.camera_height <= 4096):
             raise ConfigError(f"camera size must be within 8..4096 px, got {self.camera_width}×{self.camera_height}")
         for name, n in (("object_position", 3), ("object_rpy_deg", 3), ("ft_bias", 6)):
