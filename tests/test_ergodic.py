@@ -188,7 +188,7 @@ def test_metrics_reject_bad_input(fn):
         ("alpha", -1.0), ("alpha", float("nan")), ("agent_radius_m", 0.0), ("agent_radius_m", 7.5),
         ("max_velocity", -0.5), ("max_acceleration", float("inf")), ("footprint_sharpness", 0.0),
         ("step_duration_s", float("nan")), ("alpha_final", -2.0), ("source_weight", float("nan")),
-        ("n_eigen", 0), ("n_neighbors_fit", 3), ("order", 3), ("coverage_mode", "greedy"),
+        ("n_eigen", 0), ("n_neighbors_fit", 3), ("order", 3),
         ("max_off_cloud", -1.0), ("max_snap_distance", 0.0), ("alpha_decay_steps", 0),
     ],
 )
@@ -424,3 +424,39 @@ def test_config_is_a_frozen_dataclass():
     cfg = HedacConfig()
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.alpha = 3.0  # type: ignore[misc]
+
+
+def _gap_cloud(gap_m: float) -> SurfaceCloud:
+    """Two 3 mm grids on z = 0 separated by a gap along x (a scan hole); target on the right one."""
+    rng = np.random.default_rng(2)
+    u, v = np.meshgrid(np.arange(15) * H, np.arange(30) * H)
+    left = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    right = left + np.array([14 * H + gap_m, 0.0, 0.0])
+    pts = np.vstack([left, right]) + rng.uniform(-1e-4, 1e-4, (2 * u.size, 3)) * [1, 1, 0]
+    return SurfaceCloud(pts, target=(pts[:, 0] > 14 * H + gap_m + 0.01).astype(float), spacing=H)
+
+
+def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
+    cloud = _gap_cloud(0.009)
+    basis = build_basis(cloud, n_eigen=60, n_neighbors=40, cache=False)
+    start = np.array([0.02, 0.045, 0.0])
+    reached = {}
+    for off in (1.0, 2.5):
+        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud=off))
+        ex.reset(start)
+        best = -np.inf
+        for _ in range(250):
+            cmd = ex.step()
+            assert np.all(np.isfinite(cmd.point))
+            assert ex._tree.query(cmd.point)[0] <= off * H * (1 + 1e-9)
+            best = max(best, cmd.point[0])
+        reached[off] = best > 14 * H + 0.009
+    assert reached == {1.0: False, 2.5: True}
+
+
+def test_source_weight_zero_leaves_the_diffused_potential(plane):
+    cloud, basis = plane
+    ex = HedacExplorer(cloud, basis, _cfg(source_weight=0.0))
+    ex.reset(np.array([0.03, 0.03, 0.0]))
+    ex.step()
+    np.testing.assert_allclose(ex.potential, ex._phi @ ex._coef, atol=1e-15)

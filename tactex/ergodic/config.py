@@ -55,11 +55,6 @@ class HedacConfig:
     max_snap_distance: float = param(
         10.0, "farthest start/measured position from the cloud that is projected onto it [voxels]"
     )
-    coverage_mode: str = param(
-        "ergodic",
-        "'ergodic': c = c̃/∫c̃ (eq. 2, time-averaged statistics match the target); 'saturating': "
-        "c = c̃·p̂_max/φ(r_a), a point stops being a source once a footprint has touched it (coverage)",
-    )
     seed: int = param(0, "seed of the random heading used when the potential is exactly flat [-]")
 
     def __post_init__(self) -> None:
@@ -81,10 +76,6 @@ class HedacConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"HedacConfig.{name} must be an integer ≥ {low}, got {value!r}")
-        if self.coverage_mode not in ("ergodic", "saturating"):
-            raise ConfigError(
-                f"HedacConfig.coverage_mode must be 'ergodic' or 'saturating', got {self.coverage_mode!r}"
-            )
         if self.order not in (1, 2) or isinstance(self.order, bool):
             raise ConfigError(f"HedacConfig.order must be 1 or 2, got {self.order!r}")
         if self.agent_radius_m > 1.0:

@@ -154,7 +154,6 @@ class HedacExplorer:
         self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
-        self._saturating = cfg.coverage_mode == "saturating"
         self._build_neighbourhoods()
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
@@ -182,8 +181,6 @@ class HedacExplorer:
         self._target = p
         self._tidx = np.flatnonzero(p > 0)
         self._p_t = p[self._tidx] / total
-        # "saturating" coverage: one pass of the footprint edge, φ(r_a), fills the densest target point.
-        self._sat_gain = float(self._p_t.max()) / float(np.exp(-self.config.footprint_sharpness**2))
         self._tpos = np.full(len(p), -1, dtype=np.intp)
         self._tpos[self._tidx] = np.arange(self._tidx.size)
         # Rows of Φᵀ M restricted to the target: s vanishes elsewhere.
@@ -361,7 +358,7 @@ class HedacExplorer:
 
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         if self._cov_sum > 0.0:
-            s = self._p_t - self._cov[self._tidx] * (self._sat_gain if self._saturating else 1.0 / self._cov_sum)
+            s = self._p_t - self._cov[self._tidx] * (1.0 / self._cov_sum)
             np.maximum(s, 0.0, out=s)
             s *= s
         else:
