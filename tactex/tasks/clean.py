@@ -162,7 +162,7 @@ class _Log:
                 self.over_2x_ticks += 1
         if self.rec.due():
             self.rec.add(
-                t=state.t, phase=self.phase, tcp=state.ee_position, agent=self.agent, force_z_n=fn,
+                t=state.t, phase=self.phase, q=state.q, tcp=state.ee_position, agent=self.agent, force_z_n=fn,
                 force_norm_n=fmag, set_point_n=self.set_point if self.phase == PHASES["explore"] else 0.0,
                 pad_force_n=self.backend.pad_contact()[0], dirt_remaining=self.backend.dirt_remaining(),
             )

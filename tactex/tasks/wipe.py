@@ -229,7 +229,8 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
                     contact_curv.append(float("nan"))
         if rec.due():
             rec.add(
-                t=loop.t - t0, tcp=state.ee_position, desired=desired, motion_error_tool=err_tool, force_z_n=fz,
+                t=loop.t - t0, q=state.q, tcp=state.ee_position, desired=desired, motion_error_tool=err_tool,
+                force_z_n=fz,
                 force_set_n=cfg.force_n, in_contact=float(in_contact), rho_align=tel.get("rho_align", np.nan),
                 rho_frc=tel.get("rho_frc", np.nan), tank_i_energy_j=tel.get("tank_i_energy_j", np.nan),
                 tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
