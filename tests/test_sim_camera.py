@@ -29,9 +29,10 @@ def _plane_depth(frame, p0, n):
     return t, c + d_world * t[..., None]
 
 
+@pytest.mark.parametrize("method", ["analytic", "mujoco"])
 @pytest.mark.parametrize("name", ["plane", "tilted_plane"])
-def test_depth_of_a_known_plane_is_exact(name):
-    backend = MujocoBackend(SceneConfig(object_name=name))
+def test_depth_of_a_known_plane_is_exact(name, method):
+    backend = MujocoBackend(SceneConfig(object_name=name, camera_raycast=method))
     _look_down(backend)
     frame = backend.render_depth()
     pos, rot = backend.object_pose()
