@@ -460,3 +460,22 @@ def test_source_weight_zero_leaves_the_diffused_potential(plane):
     ex.reset(np.array([0.03, 0.03, 0.0]))
     ex.step()
     np.testing.assert_allclose(ex.potential, ex._phi @ ex._coef, atol=1e-15)
+
+
+def test_on_a_real_scan_the_agent_stays_within_one_voxel_and_keeps_the_speed_limit():
+    """The TEC cup scan: every command within max_off_cloud (1 voxel) of the cloud, |v| ≤ v_max,
+    the chord between commands ≤ v_max·dt, unit normals, no NaN (the released code: up to 11 mm
+    off the surface and 5 mm steps at a 3 mm limit)."""
+    cup = _tec_cup()
+    ex = HedacExplorer(cup, build_basis(cup, n_eigen=60, cache=False), _cfg())
+    (start,) = ex.reset(cup.points[200])
+    prev = start.point
+    v_max = ex.config.max_velocity * ex.spacing / ex.config.step_duration_s
+    for _ in range(400):
+        cmd = ex.step()
+        assert np.all(np.isfinite(cmd.point)) and abs(np.linalg.norm(cmd.normal) - 1) < 1e-12
+        assert ex._tree.query(cmd.point)[0] <= ex.config.max_off_cloud * ex.spacing * (1 + 1e-9)
+        assert np.linalg.norm(cmd.velocity) <= v_max * (1 + LIMIT_RTOL)
+        assert np.linalg.norm(cmd.point - prev) <= v_max * ex.config.step_duration_s * (1 + LIMIT_RTOL)
+        prev = cmd.point
+    assert ex.path_length > 0.5  # it explores, it is not parked

@@ -441,6 +441,16 @@ class HedacExplorer:
         if sl > self._step_max:
             step *= self._step_max / sl
             sl = self._step_max
+            # Shortening may cut a corner past the edge: halve until back within max_off_cloud
+            # (the start of the step satisfies it, so this ends at worst with no motion).
+            for _ in range(5):
+                if float((dd - 2.0 * (d @ step) + float(step @ step)).min()) <= self._off2:
+                    break
+                step *= 0.5
+                sl *= 0.5
+            else:
+                step = np.zeros(3)
+                sl = 0.0
         x_new = x + step
         vel = step * (1.0 / self._dt)
         agent.velocity = vel - float(vel @ n_new) * n_new
