@@ -119,8 +119,6 @@ def test_clean_n_eigen_larger_than_cloud(tmp_path, capsys) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="run_clean clamps n_eigen to len(cloud) - 1 instead of refusing it, so a small "
-                   "cloud runs on silently (reported to the lead: refuse n_eigen ≥ len(cloud) with the value given)")
 def test_clean_n_eigen_refused_with_the_value_given(tmp_path, capsys) -> None:
     # 12 mm voxels leave a few hundred points: small enough for the dense solver, so only a check refuses it.
     code = main(["clean", "--n-eigen", "100000", "--voxel-size-m", "0.012", "--budget-s", "3", "--quiet",

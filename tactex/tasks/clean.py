@@ -217,7 +217,12 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     t_basis = time.perf_counter()
     basis = None
     if cfg.baseline != "raster":
-        basis = build_basis(cloud, n_eigen=min(cfg.n_eigen, len(cloud) - 1), cache=False)
+        if cfg.n_eigen >= len(cloud):
+            raise ConfigError(
+                f"n_eigen = {cfg.n_eigen} but the captured cloud has only {len(cloud)} points; n_eigen must be "
+                f"smaller (TEC uses 100–200; try --n-eigen {min(200, len(cloud) - 1)})"
+            )
+        basis = build_basis(cloud, n_eigen=cfg.n_eigen, cache=False)
     basis_s = time.perf_counter() - t_basis
     dt_step = 1.0 / cfg.explorer_rate_hz
     if cfg.baseline == "raster":
