@@ -2,15 +2,20 @@
 
 One step for each agent:
 
-1. the n_N nearest cloud points of the agent (K-D tree) and those within the footprint radius;
+1. the n_N nearest cloud points of the agent and those within the footprint radius, from the
+   precomputed ball of the cloud point nearest to the agent one step earlier (exact: the agent
+   moves at most one voxel per step; measured positions go through the K-D tree);
 2. the sphere-or-plane fit of eq. 23–26 and the agent's projection onto it (eq. 27), with the
    normal line (eq. 28) and tangent plane (eq. 29);
 3. coverage: the Gaussian footprint φ(r) = exp(−ε² r²) (eq. 30) of the footprint points,
    with r measured on the tangent plane (eq. 31), added to the coverage sum c̃ (eq. 3);
-4. source s = max(p̂ − c, 0)² with p̂ and c normalised (eq. 1–2), injected into the spectral
-   coefficients of the potential, which diffuse by e^{−λ δt}, δt = α h² (eq. 19–21):
-   a ← e^{−λδt} ⊙ a + Φᵀ M s. The potential therefore carries the heat of past sources, as in
-   eq. 19 and the authors' released code; u(x, 0) = p̂ (eq. 5);
+4. source s = max(p̂ − c, 0)² with p̂ and c normalised (eq. 1–2, s scaled to unit sum),
+   injected into the spectral coefficients of the potential, which then diffuse by e^{−λ δt},
+   δt = α h² (eq. 19–21): a ← e^{−λδt} ⊙ (a + Φᵀ M s), u = Φ a + w_s·s. The potential carries
+   the heat of past sources, as in eq. 19 and the authors' released code; u(x, 0) = p̂ (eq. 5).
+   Diffusing *after* injecting matters: the truncated projection of a sharp source rings
+   (Gibbs) and spurious maxima trap the agent, its heat-kernel image does not; the raw source
+   (weight ``source_weight``) restores the full resolution at the target points;
 5. the gradient of u on the tangent plane from the weighted cubic fit (eq. 32–33);
 6. the agent's velocity update (first or second order, limits kept, see :mod:`.agents`), the
    new point projected back onto the fitted surface, the step clamped to v_max·dt.
