@@ -262,6 +262,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
             if s.wrench_tool[2] >= cfg.contact_threshold_n:
                 t_touch = loop.t
                 break
+        if t_touch is None and loop.t >= t_end:
+            break  # the time budget ended during the approach
         if t_touch is None:
             raise ExplorationError(
                 f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
