@@ -64,7 +64,7 @@ EDGE_OFFSET = 0.25
 
 def _tangent_matrix(n: np.ndarray) -> np.ndarray:
     """(3, 2) orthonormal tangent basis [t_u, t_v] with (t_u, t_v, n) right-handed."""
-    n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
+    n0, n1, n2 = n.tolist()
     if abs(n0) < 0.9:  # t_u = normalised e_x − (e_x·n) n
         a0, a1, a2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
     else:  # t_u from e_y
@@ -386,7 +386,6 @@ class HedacExplorer:
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
         uv = ((dk - shift) @ tb) * inv
-        w = np.exp(-(self._eps2 * scale2) * np.einsum("ij,ij->i", uv, uv))
         xf = self._xf  # monomials of CUBIC_EXPONENTS, built in place (no per-step allocation)
         uc, vc = uv[:, 0], uv[:, 1]
         xf[:, 1] = uc
@@ -398,6 +397,7 @@ class HedacExplorer:
         np.multiply(xf[:, 3], vc, out=xf[:, 7])
         np.multiply(xf[:, 5], uc, out=xf[:, 8])
         np.multiply(xf[:, 5], vc, out=xf[:, 9])
+        w = np.exp((-self._eps2 * scale2) * (xf[:, 3] + xf[:, 5]))  # eq. 33: φ(r) on the tangent plane
         xw = xf * w[:, None]
         a = xw.T @ xf
         a.ravel()[::11] += RIDGE_RTOL * float(a[0, 0]) + 1e-300
@@ -406,7 +406,7 @@ class HedacExplorer:
         g = tb @ c[1:3] if info == 0 else np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
-        cen = dk.sum(axis=0) @ tb * (inv / n_n)
+        cen = xf[:, 1:3].sum(axis=0) * (1.0 / n_n)  # neighbours' centroid in (u, v) [radii]
         cn = float(cen @ cen) ** 0.5
         if cn > EDGE_OFFSET:
             inward = tb @ (cen * (1.0 / cn))
