@@ -140,8 +140,6 @@ def test_ga_holds_10n_on_tilted_plane_while_the_agent_moves():
     assert not any(e.kind in ("force_limit", "nan_torque", "controller_fault") for e in ctrl.events)
 
 
-@pytest.mark.xfail(strict=True, reason="simulator: with pad friction the 20 g sliding pad loses contact for one "
-                   "tick every ~13 ms even under a constant-force Cartesian impedance controller")
 def test_ga_holds_10n_while_sliding_with_friction():
     log, _ = _ga_tilted_plane_run()
     a = log.arrays()

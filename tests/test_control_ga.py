@@ -172,3 +172,25 @@ def test_line_wrench_is_a_descent_direction(rng):
         xi = ctrl.line_error(state, ref)
         moved = make_state(position=state.ee_position + eps * rot @ xi[:3], rotation=rot @ exp_so3(eps * xi[3:]))
         assert np.linalg.norm(ctrl.line_error(moved, ref)) < np.linalg.norm(xi)
+
+
+def test_approach_speed_cap_acts_only_out_of_contact_and_above_the_cap():
+    """Out of contact the pressing axis is damped only above approach_speed_max; in contact eq. 47 is unchanged."""
+    params = GaLineForceParams(kp=0.0, ki=0.0, kd=0.0)
+    down = np.diag([1.0, -1.0, -1.0])
+    jac = np.hstack([np.eye(6), np.zeros((6, 1))])
+    ref = LineForceReference(np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), 10.0)
+
+    def fz_world(speed_down: float, f_meas: float) -> float:
+        ctrl = GaLineForceController(params)
+        state = make_state(position=np.array([0.5, 0.0, 0.1]), rotation=down, jacobian=jac,
+                           twist=np.array([0, 0, -speed_down, 0, 0, 0]), wrench_tool=np.array([0, 0, f_meas, 0, 0, 0]))
+        return float(ctrl.torque(state, ref)[2])
+
+    d_z = params.damping_linear[2]
+    # below the cap, or in contact: only the paper's damping (tool z is world −z, so +force_tool is −world)
+    assert fz_world(0.02, 0.0) == pytest.approx(d_z * 0.02)
+    assert fz_world(0.10, 10.0) == pytest.approx(d_z * 0.10)
+    # out of contact and above the cap: the excess speed is damped as well
+    expected = d_z * 0.10 + params.approach_damping_z * (0.10 - params.approach_speed_max)
+    assert fz_world(0.10, 0.0) == pytest.approx(expected)

@@ -67,6 +67,17 @@ class GaLineForceParams:
         "the integrator runs only while the measured pressing force exceeds this [N]: in free flight it would "
         "wind up (K_i·F per second) and the tool would hit the surface at speed",
     )
+    approach_speed_max: float = param(
+        0.03,
+        "approach speed cap along the tool axis while the pressing force is below approach_below × the set point "
+        "[m/s]: the force loop alone would approach at K_p·F/D_z ≈ 0.1 m/s (and faster after a lost contact), and "
+        "the impact on a stiff pad would exceed 2× the set point",
+    )
+    approach_damping_z: float = param(
+        400.0, "damping on the approach speed in excess of approach_speed_max [N·s/m]")
+    approach_below: float = param(
+        0.5, "fraction of the set point under which the approach damping acts [-]; a fixed small threshold would "
+        "miss a lost contact, since the F/T reads the tool's own inertia (~2 N) while the arm falls")
     integral_leak_time: float = param(
         0.2, "out of contact the integrator decays with this time constant, so a lost contact is approached "
         "again with K_p·F only and not the whole held force [s]")
@@ -78,7 +89,7 @@ class GaLineForceParams:
             if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"GaLineForceParams.{name} must be 3 finite values ≥ 0, got {getattr(self, name)!r}")
         for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "contact_threshold_n",
-                     "integral_leak_time"):
+                     "integral_leak_time", "approach_damping_z", "approach_below", "approach_speed_max"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0 or (name in ("dt", "derivative_cutoff_hz", "integral_leak_time") and v == 0):
                 raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
@@ -142,7 +153,8 @@ class GaLineForceController(Controller):
         w_des = self._w_des
         w_des[2] = reference.force_n
         err = self._axes * (w_des - state.wrench_tool)  # eq. 39–41
-        if state.wrench_tool[2] >= p.contact_threshold_n:
+        in_contact = state.wrench_tool[2] >= p.contact_threshold_n
+        if in_contact:
             self._integral += err * dt
             np.minimum(self._integral, self._ilim, out=self._integral)  # np.clip costs ~4 µs more
             np.maximum(self._integral, -self._ilim, out=self._integral)
@@ -155,6 +167,9 @@ class GaLineForceController(Controller):
         w_c = p.kp * err + p.ki * self._integral + p.kd * self._derr  # eq. 40
 
         w_tool = w_line - self._d * v_tool + w_c  # eq. 47 in [linear; angular]
+        excess = v_tool[2] - p.approach_speed_max
+        if excess > 0.0 and state.wrench_tool[2] < p.approach_below * reference.force_n:
+            w_tool[2] -= p.approach_damping_z * excess  # speed cap while approaching (not in eq. 47)
         self._w_line = w_line
         self._w_c2 = float(w_c[2])
         self._err2 = float(err[2])
