@@ -275,17 +275,26 @@ def _ergodicity(metrics: Mapping[str, Any]) -> np.ndarray:
     return arr
 
 
+def _start_report(
+    result: Any, kind: str, out_dir: str | Path, label: str | None, keys: tuple[str, ...]
+) -> tuple[dict[str, np.ndarray], Path, RunReport]:
+    """Series, folder and report of a run, with the files every run folder has already written."""
+    series = _series(result, kind, keys)
+    metrics = dict(result.metrics)
+    label = label or str(metrics.get("baseline") or getattr(result.config, "baseline", "") or "tactex")
+    out = Path(out_dir)
+    rep = RunReport(out_dir=out, kind=kind, label=label, metrics=metrics)
+    _write_common(result, kind, out, series, rep)
+    return series, out, rep
+
+
 def write_clean_report(
     result: Any, out_dir: str | Path, *, label: str | None = None, html_page: bool = True
 ) -> RunReport:
     """Run folder of a cleaning result (TEC §V-A); see the module docstring for the files."""
-    s = _series(result, "clean", ("t", "phase", "tcp", "force_z_n", "set_point_n", "dirt_remaining"))
-    metrics = dict(result.metrics)
-    cfg = result.config
-    label = label or str(metrics.get("baseline") or getattr(cfg, "baseline", "") or "tactex")
-    out = Path(out_dir)
-    rep = RunReport(out_dir=out, kind="clean", label=label, metrics=metrics)
-    _write_common(result, "clean", out, s, rep)
+    s, out, rep = _start_report(result, "clean", out_dir, label,
+                                ("t", "phase", "tcp", "force_z_n", "set_point_n", "dirt_remaining"))
+    metrics, cfg, label = rep.metrics, result.config, rep.label
 
     cloud = result.cloud
     fields = {k: np.asarray(v, dtype=np.float64) for k, v in (result.fields or {}).items()}
@@ -426,13 +435,8 @@ def write_wipe_report(
     """Run folder of a wiping result (VA-UFIC §III); see the module docstring for the files."""
     keys = ("t", "tcp", "desired", "force_z_n", "force_set_n", "in_contact", "rho_align", "rho_frc",
             "tank_i_energy_j", "tank_f_energy_j", "tcp_object")
-    s = _series(result, "wipe", keys)
-    metrics = dict(result.metrics)
-    cfg = result.config
-    label = label or str(metrics.get("baseline") or getattr(cfg, "baseline", "") or "tactex")
-    out = Path(out_dir)
-    rep = RunReport(out_dir=out, kind="wipe", label=label, metrics=metrics)
-    _write_common(result, "wipe", out, s, rep)
+    s, out, rep = _start_report(result, "wipe", out_dir, label, keys)
+    metrics, cfg, label = rep.metrics, result.config, rep.label
 
     explored = result.explored
     pts = np.asarray(explored.points if explored is not None else np.zeros((0, 3)), dtype=np.float64).reshape(-1, 3)
