@@ -59,6 +59,9 @@ def test_short_wipe_makes_contact_and_keeps_tanks_in_limits() -> None:
     assert m["vision_valid_fraction"] > 0.9
     _finite_series({k: v for k, v in r.series.items() if k not in ("rho_align", "rho_frc", "theta_rad")})
     assert r.explored is not None and len(r.explored) == r.explored_curvature.shape[0]
+    # the explored normals come from the wrist camera and agree with the true surface
+    assert m["explored_normal_error_deg_median"] < 5.0
+    assert 0.0 <= m["explored_depth_below_surface_m_median"] < 0.015  # TCP = pad tip, pressed into the sponge
 
 
 def test_short_wipe_baseline_runs() -> None:

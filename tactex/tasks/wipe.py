@@ -130,6 +130,27 @@ def _errors(err: np.ndarray) -> tuple[list[float], list[float]]:
     return np.mean(np.abs(err), axis=0).tolist(), np.sqrt(np.mean(err**2, axis=0)).tolist()
 
 
+def _exploration_accuracy(explored: SurfaceCloud, surface, obj_pos: np.ndarray, obj_rot: np.ndarray) -> dict:
+    """How well the explored surface matches the true one (ground truth the robot never saw):
+    the angle between each explored normal and the true normal under it [deg], the TCP depth below
+    the surface (the sponge compression) [m], and the span of true surface inclinations the contact
+    path traversed [deg] — the curvature actually explored."""
+    pts_obj = (explored.points - obj_pos) @ obj_rot
+    foot, n_true_obj = surface.project(pts_obj)
+    n_true = n_true_obj @ obj_rot.T
+    cos = np.clip(np.sum(explored.normals * n_true, axis=1), -1.0, 1.0)
+    err_deg = np.rad2deg(np.arccos(cos))
+    depth = np.sum((foot - pts_obj) * n_true_obj, axis=1)
+    incline = np.rad2deg(np.arccos(np.clip(n_true[:, 2], -1.0, 1.0)))
+    return {
+        "explored_points": len(explored),
+        "explored_normal_error_deg_median": float(np.median(err_deg)),
+        "explored_normal_error_deg_p95": float(np.percentile(err_deg, 95)),
+        "explored_depth_below_surface_m_median": float(np.median(depth)),
+        "explored_inclination_span_deg": float(incline.max() - incline.min()),
+    }
+
+
 def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> WipeResult:
     """Run the wiping exploration in simulation; returns metrics, series and the explored surface."""
     cfg = config or WipeConfig()
@@ -266,6 +287,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
         "contact_fraction": n_contact / max(n_ticks, 1),
         "contact_fraction_after_first_contact": n_contact / max(after_first, 1),
         "first_contact_s": first_contact,
+        # time spent exploring in contact: from the first touch to the end of the policy
         "explore_time_s": (cfg.duration_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
         "vision_valid_fraction": estimates_valid / max(estimates_total, 1),
@@ -287,6 +309,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
         first[inv[::-1]] = np.arange(inv.size)[::-1]  # one contact point per 3 mm voxel
         explored = SurfaceCloud(points=pts[first], normals=np.asarray(contact_normals)[first], spacing=0.003)
         curv = np.asarray(contact_curv)[first]
+        metrics.update(_exploration_accuracy(explored, surface, obj_pos, obj_rot))
     backend.close()
     return WipeResult(
         config=cfg, metrics=metrics, series=rec.arrays(), profile={"y_m": prof_pts[:, 1], "z_m": prof_pts[:, 2]},
