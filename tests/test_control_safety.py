@@ -146,3 +146,16 @@ def test_wrong_joint_count_is_a_config_error():
 def test_limits_validation(kwargs, match):
     with pytest.raises(ConfigError, match=match):
         SafetyLimits(**kwargs)
+
+
+@pytest.mark.parametrize(
+    "name", ["hold_decay_time", "joint_limit_margin", "joint_limit_stiffness", "joint_limit_damping", "retreat_force",
+             "retreat_damping", "retreat_angular_damping"],
+)
+def test_safety_limits_reject_nan_and_negative(name):
+    from tactex.control import SafetyLimits
+    from tactex.errors import ConfigError
+
+    for bad in (float("nan"), -1.0):
+        with pytest.raises(ConfigError, match=name):
+            SafetyLimits(**{name: bad})

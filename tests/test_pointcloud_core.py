@@ -136,3 +136,10 @@ def test_unknown_suffix_and_missing_file() -> None:
         load_cloud("cloud.xyz")
     with pytest.raises(InputError, match="does not exist"):
         load_cloud("/nonexistent/cloud.ply")
+
+
+def test_negative_or_nan_spacing_refused() -> None:
+    pts = grid_cloud().points
+    for bad in (-0.003, float("nan")):
+        with pytest.raises(CloudError, match="spacing"):
+            SurfaceCloud(points=pts, spacing=bad)

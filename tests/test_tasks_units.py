@@ -146,3 +146,75 @@ def test_wipe_config_validation(kwargs, match) -> None:
 def test_raster_needs_normals() -> None:
     with pytest.raises(InputError, match="normals"):
         RasterPath(SurfaceCloud(points=np.random.default_rng(0).uniform(0, 0.1, (50, 3))), 0.02, 0.003)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"q_goal": np.full(7, np.nan)}, "finite q_start"),
+        ({"q_goal": np.zeros(6)}, "one shape"),
+        ({"duration_s": float("nan")}, "duration_s"),
+        ({"duration_s": -1.0}, "duration_s"),
+    ],
+)
+def test_joint_target_validation(kwargs, match) -> None:
+    args = {"q_start": np.zeros(7), "q_goal": np.ones(7), "t_start": 0.0, "duration_s": 1.0, **kwargs}
+    with pytest.raises(InputError, match=match):
+        JointTarget(**args)
+
+
+def test_nullspace_posture_validation() -> None:
+    from tactex.control.controller import Controller
+    from tactex.control.nullspace import NullspacePosture
+    from tactex.errors import ControllerFault
+    from tests.test_control_common import make_state
+
+    class Zero(Controller):
+        def torque(self, state, reference):
+            return np.zeros(7)
+
+    with pytest.raises(InputError, match="q_posture"):
+        NullspacePosture(Zero(), q_posture=np.full(7, np.nan))
+    with pytest.raises(ControllerFault, match="joints"):
+        NullspacePosture(Zero(), q_posture=np.zeros(3)).torque(make_state(), None)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"force_ramp_s": 0.0}, "force_ramp_s"),
+        ({"contact_threshold_n": float("nan")}, "contact_threshold_n"),
+        ({"seed": -1}, "seed"),
+        ({"n_eigen": 0}, "and 0"),
+    ],
+)
+def test_clean_config_validation_more(kwargs, match) -> None:
+    with pytest.raises(ConfigError, match=match):
+        CleanConfig(**kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"start_y_m": float("nan")}, "start_y_m"),
+        ({"start_tilt_deg": 80.0}, "start_tilt_deg"),
+        ({"contact_threshold_n": -5.0}, "contact_threshold_n"),
+        ({"amplitude_m": -0.01}, "amplitude_m"),
+        ({"omega_rad_s": float("inf")}, "omega_rad_s"),
+        ({"start_height_m": -0.01}, "start_height_m"),
+        ({"seed": -1}, "seed"),
+    ],
+)
+def test_wipe_config_validation_more(kwargs, match) -> None:
+    with pytest.raises(ConfigError, match=match):
+        WipeConfig(**kwargs)
+
+
+def test_seed_must_be_non_negative_everywhere() -> None:
+    from tactex.ergodic import HedacConfig
+    from tactex.experiments.explore import ExploreConfig
+    from tactex.sim.scene import SceneConfig
+
+    for cls in (HedacConfig, ExploreConfig, SceneConfig):
+        with pytest.raises(ConfigError, match="seed"):
+            cls(seed=-1)

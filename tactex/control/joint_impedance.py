@@ -10,7 +10,7 @@ import numpy as np
 from tactex.config import param
 from tactex.control.controller import Controller
 from tactex.control.state import RobotState
-from tactex.errors import ConfigError, ControllerFault
+from tactex.errors import ConfigError, ControllerFault, InputError
 
 __all__ = ["JointImpedanceController", "JointImpedanceParams", "JointTarget", "min_jerk"]
 
@@ -48,6 +48,19 @@ class JointTarget:
     q_goal: np.ndarray
     t_start: float
     duration_s: float
+
+    def __post_init__(self) -> None:
+        q0 = np.asarray(self.q_start, dtype=float)
+        q1 = np.asarray(self.q_goal, dtype=float)
+        if q0.ndim != 1 or q0.shape != q1.shape or not (np.isfinite(q0).all() and np.isfinite(q1).all()):
+            raise InputError(
+                f"JointTarget needs finite q_start and q_goal of one shape [rad], got {q0.tolist()} and {q1.tolist()}"
+            )
+        if not (np.isfinite(self.t_start) and np.isfinite(self.duration_s) and self.duration_s >= 0):
+            raise InputError(f"JointTarget needs a finite t_start and duration_s ≥ 0 [s], got {self.t_start}, "
+                             f"{self.duration_s}")
+        object.__setattr__(self, "q_start", q0)
+        object.__setattr__(self, "q_goal", q1)
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Desired joint position [rad] and velocity [rad/s] at time t [s]."""

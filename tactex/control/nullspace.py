@@ -17,7 +17,7 @@ import numpy as np
 from tactex.config import param
 from tactex.control.controller import Controller
 from tactex.control.state import RobotState
-from tactex.errors import ConfigError
+from tactex.errors import ConfigError, ControllerFault, InputError
 
 __all__ = ["NullspaceParams", "NullspacePosture", "nullspace_projector"]
 
@@ -54,6 +54,10 @@ class NullspacePosture(Controller):
         self.inner = inner
         self.params = params or NullspaceParams()
         self.name = f"{inner.name}+nullspace"
+        if q_posture is not None:
+            q = np.asarray(q_posture, dtype=float)
+            if q.ndim != 1 or not np.isfinite(q).all():
+                raise InputError(f"q_posture must be a finite 1-D array of joint positions [rad], got {q_posture!r}")
         self._fixed = None if q_posture is None else np.asarray(q_posture, dtype=float).copy()
         self.q_posture = self._fixed
 
@@ -65,6 +69,8 @@ class NullspacePosture(Controller):
         tau = self.inner.torque(state, reference)
         if self.q_posture is None:
             self.q_posture = state.q.copy()
+        if self.q_posture.shape != state.q.shape:
+            raise ControllerFault(f"q_posture has {self.q_posture.shape[0]} joints, the robot {state.q.shape[0]}")
         p = self.params
         tau_ns = p.stiffness * (self.q_posture - state.q) - p.damping * state.dq
         return tau + nullspace_projector(state.jacobian) @ tau_ns

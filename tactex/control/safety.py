@@ -76,10 +76,15 @@ class SafetyLimits:
         if not (np.all(np.asarray(self.tau_max) > 0) and np.all(np.asarray(self.q_max) > np.asarray(self.q_min))):
             raise ConfigError(f"SafetyLimits: tau_max must be > 0 and q_max > q_min, got tau_max={self.tau_max}, "
                               f"q_min={self.q_min}, q_max={self.q_max}")
-        for name in ("tau_rate_max", "max_contact_force", "dt", "retreat_time"):
+        for name in ("tau_rate_max", "max_contact_force", "dt", "retreat_time", "hold_decay_time"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"SafetyLimits.{name} must be finite and > 0, got {v!r}")
+        for name in ("joint_limit_margin", "joint_limit_stiffness", "joint_limit_damping", "retreat_force",
+                     "retreat_damping", "retreat_angular_damping"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ConfigError(f"SafetyLimits.{name} must be finite and ≥ 0, got {v!r}")
         if self.force_trip_ticks < 1:
             raise ConfigError(f"SafetyLimits.force_trip_ticks must be ≥ 1, got {self.force_trip_ticks!r}")
 

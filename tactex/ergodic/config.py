@@ -58,6 +58,8 @@ class HedacConfig:
     seed: int = param(0, "seed of the random heading used when the potential is exactly flat [-]")
 
     def __post_init__(self) -> None:
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         positive = (
             "alpha",
             "agent_radius_m",

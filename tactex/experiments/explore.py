@@ -84,6 +84,8 @@ class ExploreConfig:
     html: bool = param(True, "write the interactive explore.html (inline plotly, ~5 MB)")
 
     def __post_init__(self) -> None:
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         if not math.isfinite(self.voxel_size) or self.voxel_size < 0:
             raise ConfigError(f"voxel_size must be ≥ 0 m (0 = keep the cloud), got {self.voxel_size}")
         if self.voxel_size > 0.1:

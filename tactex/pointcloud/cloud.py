@@ -80,7 +80,7 @@ class SurfaceCloud:
         normals: (N, 3) unit normals, or None.
         colors: (N, 3) RGB in [0, 1], or None.
         target: (N,) unnormalised target mass ≥ 0 (zeros when no target is set).
-        spacing: mean nearest-neighbour spacing h [m]; computed when not given.
+        spacing: mean nearest-neighbour spacing h [m]; 0 (the default) computes it.
     """
 
     points: np.ndarray
@@ -113,10 +113,10 @@ class SurfaceCloud:
             if not np.isfinite(target).all() or target.min() < 0.0:
                 raise CloudError("target must be finite and ≥ 0 everywhere")
         spacing = float(self.spacing)
-        if spacing <= 0.0:
+        if not np.isfinite(spacing) or spacing < 0.0:
+            raise CloudError(f"spacing must be a finite number of metres ≥ 0 (0: compute it), got {self.spacing}")
+        if spacing == 0.0:
             spacing = mean_spacing(pts) if n >= 2 else 0.0
-        elif not np.isfinite(spacing):
-            raise CloudError(f"spacing must be a positive finite number of metres, got {self.spacing}")
         for name, value in (("points", pts), ("normals", normals), ("colors", colors), ("target", target)):
             if value is not None:
                 value.setflags(write=False)

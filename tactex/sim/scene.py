@@ -64,6 +64,8 @@ class SceneConfig:
     seed: int = param(0, "seed of sensor noise")
 
     def __post_init__(self) -> None:
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         get_object(self.object_name)
         if self.marking and self.marking not in MARKINGS:
             raise ConfigError(f"unknown marking '{self.marking}'; valid: {', '.join(sorted(MARKINGS))} or ''")

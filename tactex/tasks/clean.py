@@ -52,7 +52,7 @@ CLEAN_BASELINES = ("", "raster", "no_feedback")
 PHASES = {"move": 0, "capture": 1, "approach": 2, "explore": 3, "retract": 4}
 
 
-def cfg_approach_too_weak(cfg: CleanConfig) -> bool:
+def _approach_too_weak(cfg: CleanConfig) -> bool:
     """True when the wrench PID (Kp = 0.5, integrator off until contact) would stall before the
     touch-down threshold: out of contact it pushes with Kp·(F − f), balancing at Kp·F/(1 + Kp)."""
     kp = GaLineForceParams().kp
@@ -105,8 +105,21 @@ class CleanConfig:
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
         if self.approach_force_n > self.force_n:
             raise ConfigError(f"approach_force_n ({self.approach_force_n}) must not exceed force_n ({self.force_n})")
+        if not (np.isfinite(self.contact_threshold_n) and self.contact_threshold_n > 0):
+            raise ConfigError(f"contact_threshold_n must be > 0 N, got {self.contact_threshold_n!r}")
+        if not (np.isfinite(self.force_ramp_s) and self.force_ramp_s > 0):
+            raise ConfigError(f"force_ramp_s must be > 0 s, got {self.force_ramp_s!r}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
+        if _approach_too_weak(self):
+            raise ConfigError(
+                f"approach_force_n = {self.approach_force_n} N settles below contact_threshold_n = "
+                f"{self.contact_threshold_n} N (out of contact the force loop balances at Kp·F/(1 + Kp) with the "
+                "paper's Kp = 0.5); raise approach_force_n or lower contact_threshold_n"
+            )
         if self.vision_every_steps < 1 or self.n_eigen < 1:
-            raise ConfigError("vision_every_steps and n_eigen must be ≥ 1")
+            raise ConfigError(
+                f"vision_every_steps and n_eigen must be ≥ 1, got {self.vision_every_steps} and {self.n_eigen}")
         if not 0.0 <= self.stop_remaining < 1.0:
             raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
 

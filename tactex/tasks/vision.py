@@ -38,8 +38,11 @@ def capture_target_cloud(frame: CameraFrame, config: AcquisitionConfig, normal_k
             "is the object in the camera's view and inside the crop box?"
         )
     field = knn_normals(cloud.points, normal_k, viewpoint=frame.world_T_camera[:3, 3])
-    normals = np.where(field.ok[:, None], field.normals, np.array([0.0, 0.0, 1.0]))
-    return replace(cloud, normals=normals)
+    if not field.ok.any():
+        raise PerceptionError("no point of the capture has a usable normal (degenerate neighbourhoods everywhere)")
+    # points whose neighbourhood gives no normal are dropped: guessing one would be wrong on walls
+    kept = cloud.subset(field.ok)
+    return replace(kept, normals=field.normals[field.ok], spacing=cloud.spacing)
 
 
 def remeasure_target(cloud: SurfaceCloud, capture: SurfaceCloud, max_distance_m: float | None = None) -> np.ndarray:

@@ -97,10 +97,20 @@ class WipeConfig:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
-        for name in ("amplitude_m", "drift_m_s", "start_height_m", "omega_rad_s"):
+        for name in ("amplitude_m", "drift_m_s", "start_height_m", "omega_rad_s", "contact_threshold_n",
+                     "tool_friction"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
+        for name in ("start_y_m", "start_tilt_deg"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v):
+                raise ConfigError(f"{name} must be a finite number, got {getattr(self, name)!r}")
+        if abs(self.start_tilt_deg) >= 60.0:
+            raise ConfigError(f"start_tilt_deg must lie within ±60° (the camera must still see the surface), "
+                              f"got {self.start_tilt_deg}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
 
     def scene(self) -> SceneConfig:
         return SceneConfig(
