@@ -15,6 +15,7 @@ CLEAN_METHODS = {"tactex": "", "raster": "raster", "no_feedback": "no_feedback"}
 CLEAN_KEYS = ("dirt_removed_fraction", "force_within_20pct_fraction", "max_contact_force_n", "sim_time_s",
               "vision_updates", "contact_time_s", "wall_time_s")
 WIPE_KEYS = ("force_mae_n", "force_rmse_n", "force_mae_aligned_n", "force_rmse_aligned_n", "contact_fraction",
+             "contact_fraction_after_first_contact",
              "aligned_at_s", "explore_time_s", "max_force_n", "wall_time_s", "sim_time_s", "explored_points",
              "explored_normal_error_deg_median", "explored_normal_error_deg_p95",
              "explored_depth_below_surface_m_median", "explored_inclination_span_deg")
@@ -30,6 +31,8 @@ TARGETS.update({
     "tasks.wipe.va_ufic.motion_mae_x_m": ("<=", 0.003),
     "tasks.wipe.va_ufic.motion_mae_y_m": ("<=", 0.003),
     "tasks.wipe.va_ufic.motion_mae_z_m": ("<=", 0.003),
+    # force and motion errors count contact (and aligned) ticks only, so losing contact must not pay
+    "tasks.wipe.va_ufic.contact_fraction_after_first_contact": (">=", 0.95),
     "tasks.wipe.va_ufic.tank_impedance_in_limits": (">=", 1.0),
     "tasks.wipe.va_ufic.tank_force_in_limits": (">=", 1.0),
 })

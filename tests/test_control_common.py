@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from tactex.control import RobotState
 from tactex.control.frames import tool_to_world, world_to_tool
@@ -55,10 +54,3 @@ def test_pressing_wrench_points_along_tool_z_in_world():
     np.testing.assert_allclose(state.wrench_world[:3], [0, 0, -10.0], atol=TOL)  # tool z points down
 
 
-def test_jacobian_transpose_is_virtual_work(rng):
-    """τ = Jᵀf ⇔ τ·δq = f·(J δq) for any virtual displacement: the mapping every controller uses."""
-    state = make_state(seed=3)
-    f = rng.normal(size=6)
-    dq = rng.normal(size=N_JOINTS)
-    tau = state.jacobian.T @ f
-    assert float(tau @ dq) == pytest.approx(float(f @ (state.jacobian @ dq)), abs=1e-10)

@@ -459,7 +459,12 @@ def test_source_weight_zero_leaves_the_diffused_potential(plane):
     ex = HedacExplorer(cloud, basis, _cfg(source_weight=0.0))
     ex.reset(np.array([0.03, 0.03, 0.0]))
     ex.step()
-    np.testing.assert_allclose(ex.potential, ex._phi @ ex._coef, atol=1e-15)
+    # with no undiffused source added, the potential is a combination of the first n_K eigenvectors:
+    # projecting it on the basis (Φᵀ M u) and back must return it unchanged
+    phi = basis.evecs[:, : ex.config.n_eigen]
+    u = ex.potential
+    np.testing.assert_allclose(phi @ (phi.T @ (basis.mass * u)), u, atol=1e-9 * max(np.abs(u).max(), 1e-30))
+    assert np.abs(u).max() > 0.0
 
 
 def test_on_a_real_scan_the_agent_stays_within_one_voxel_and_keeps_the_speed_limit():

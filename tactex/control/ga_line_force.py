@@ -8,7 +8,9 @@ Per tick, in the tool (end-effector) frame, the frame the paper's Jacobian J_G^e
 3. V → wrench W_L (eq. 38; see :func:`tactex.geometry.twist_to_wrench` for the pairing);
 4. wrench PID on the measured F/T wrench in the tool frame (eq. 39–41);
 5. twist damping W_V (eq. 46) and τ = −J^T·(K W_L − D W_V + W_C) (eq. 47), which in numpy's
-   [linear; angular] convention is τ = J_worldᵀ · blockdiag(R, R) · (K⊙V − D⊙v_tool + w_C).
+   [linear; angular] convention is τ = J_worldᵀ · blockdiag(R, R) · (K⊙V − D⊙v_tool + w_C). The
+   paper's minus belongs to its GA inner product (B·W = −τ, §III-B); with plain Jᵀ it cancels, and the
+   closed-loop tests confirm the sign (the tool descends the line error and presses into the surface).
 
 Steps 2–3 are evaluated with the closed forms of :mod:`tactex.geometry.motor`, which
 ``tests/test_geometry_motor.py`` checks against ``pygafro.Line.getMotor`` / ``Motor.log``; a

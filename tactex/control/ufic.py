@@ -21,7 +21,7 @@ from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
 from tactex.geometry.so3 import rotation_error_world
 
-__all__ = ["UficController", "UficParams"]
+__all__ = ["UficController", "UficParams", "to_tool", "to_world"]
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,9 @@ Per tick:
    interpolated over T (eq. 28–29);
 5. force shaping ρ_frc (eq. 30) with margin δ_c;
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
-   f = −K_const x̃ − D ẋ − σ_i ρ_align K_max x̃ + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f.
+   f = −K_const x̃ − D ẋ + σ_i (−ρ_align K_max x̃ + D ẋ_d) + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f,
+   where the damping feed-forward D ẋ_d (``damping_feedforward``, on by default; eq. 8 has none)
+   shares the impedance tank's port with the variable spring.
 
 Where the other equations live: eq. 1–2 and 13 are the torque interface (gravity added by the
 robot), eq. 7–12 :mod:`tactex.control.ufic`, eq. 14–16 :mod:`tactex.perception` (θ is re-evaluated
@@ -218,6 +220,13 @@ class VaUficController(UficController):
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
                      float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool, state)
         return state.jacobian.T @ to_world(rot, f_tool)
+
+    @property
+    def position_offset(self) -> np.ndarray:
+        """Offset [m] (world) added to the reference position: the actual translation fed back while
+        fully compliant (eq. 20–21 with ρ_align ≈ 0). The effective desired position is
+        ``reference.position_world + position_offset``."""
+        return self._offset.copy()
 
     def telemetry(self) -> dict[str, float]:
         """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""

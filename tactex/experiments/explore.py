@@ -37,6 +37,7 @@ __all__ = [
     "ExploreResult",
     "load_explore_cloud",
     "run_explore",
+    "write_explore_report",
 ]
 
 #: TEC §V-C marks its plate with shapes, its bowl with 'RLI' and its cup with an 'X'.

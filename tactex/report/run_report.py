@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import to_jsonable, write_json
+from tactex.control.va_ufic import VaUficParams
 from tactex.errors import InputError
 from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
@@ -71,10 +72,14 @@ WIPE_METRIC_KEYS = (
     "explore_time_s",
     "contact_fraction",
 )
-#: Phase codes of the cleaning state machine (mirrors tactex.tasks.clean.PHASES; report must not import tasks).
+#: Phase codes of the cleaning state machine, recorded in its series (tactex.tasks.clean uses these;
+#: they live here because the report must not import the tasks, which import the report).
 CLEAN_PHASES = {"move": 0, "capture": 1, "approach": 2, "explore": 3, "retract": 4}
 #: VA-UFIC Table I tank limits [J], used when the run's config does not carry VaUficParams.
-DEFAULT_TANK_LIMITS = {"impedance": (1.0, 32.0), "force": (1.0, 2.0)}
+DEFAULT_TANK_LIMITS = {
+    "impedance": (VaUficParams().tank_i_lower, VaUficParams().tank_i_upper),
+    "force": (VaUficParams().tank_f_lower, VaUficParams().tank_f_upper),
+}
 #: Target in red on grey (a zero-mass point must stay visible), as the explore reports.
 DIRT_CMAP = "Reds"
 DIRT_COLORSCALE = [[0.0, "lightgrey"], [1.0, "red"]]

@@ -16,7 +16,7 @@ from tactex.spectral.cache import basis_key, default_cache_dir, load_arrays, sav
 from tactex.spectral.eigen import laplace_eigenpairs
 from tactex.spectral.laplacian import point_cloud_laplacian
 
-__all__ = ["LaplaceBasis", "build_basis", "load_basis"]
+__all__ = ["LaplaceBasis", "build_basis", "compute_basis", "load_basis", "save_basis"]
 
 
 @dataclass(frozen=True, eq=False)

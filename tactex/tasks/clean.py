@@ -35,6 +35,7 @@ from tactex.errors import ConfigError, ExplorationError
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import CylinderWallSurface
+from tactex.report.run_report import CLEAN_PHASES
 from tactex.robots.mujoco_backend import MujocoBackend
 from tactex.sim.objects import get_object
 from tactex.sim.scene import SceneConfig
@@ -48,8 +49,8 @@ from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspac
 __all__ = ["CLEAN_BASELINES", "PHASES", "CleanConfig", "CleanResult", "run_clean"]
 
 CLEAN_BASELINES = ("", "raster", "no_feedback")
-#: Phase codes recorded in the time series.
-PHASES = {"move": 0, "capture": 1, "approach": 2, "explore": 3, "retract": 4}
+#: Phase codes recorded in the time series (shared with the report).
+PHASES = CLEAN_PHASES
 
 
 def _approach_too_weak(cfg: CleanConfig) -> bool:

@@ -234,7 +234,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
 
         fz = float(state.wrench_tool[2])
         in_contact = fz >= cfg.contact_threshold_n
-        offset = getattr(inner, "_offset", np.zeros(3))
+        offset = inner.position_offset if isinstance(inner, VaUficController) else np.zeros(3)
         desired = pos_ref + offset
         err_tool = state.ee_rotation.T @ (state.ee_position - desired)
         tel = inner.telemetry() if cfg.baseline == "" else {}
