@@ -218,3 +218,10 @@ def test_seed_must_be_non_negative_everywhere() -> None:
     for cls in (HedacConfig, ExploreConfig, SceneConfig):
         with pytest.raises(ConfigError, match="seed"):
             cls(seed=-1)
+
+
+def test_remeasure_rejects_bad_distance() -> None:
+    cloud = marked_cloud(get_surface("plane"), "full", 0.01)
+    for bad in (float("nan"), -0.01, 0.0):
+        with pytest.raises(InputError, match="max_distance_m"):
+            remeasure_target(cloud, cloud, max_distance_m=bad)

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from tactex.errors import PerceptionError
+from tactex.errors import InputError, PerceptionError
 from tactex.perception.acquisition import AcquisitionConfig, acquire_surface
 from tactex.perception.frame import CameraFrame
 from tactex.perception.normals import knn_normals
@@ -50,6 +50,8 @@ def remeasure_target(cloud: SurfaceCloud, capture: SurfaceCloud, max_distance_m:
     of its nearest captured point within ``max_distance_m`` (default 1.5 × spacing); points the
     new view does not see keep their previous target."""
     radius = 1.5 * cloud.spacing if max_distance_m is None else float(max_distance_m)
+    if not (np.isfinite(radius) and radius > 0):
+        raise InputError(f"max_distance_m must be a positive distance [m], got {max_distance_m!r}")
     dist, idx = cKDTree(capture.points).query(cloud.points, k=1)
     seen = dist <= radius
     mass = cloud.target.copy()
