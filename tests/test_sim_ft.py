@@ -66,3 +66,15 @@ def test_gl_and_viewer_are_guarded(monkeypatch):
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     with pytest.raises(MissingDependencyError, match="display"):
         backend.launch_viewer()
+
+
+def test_render_without_gl_backend_or_display_refuses_cleanly_every_time(monkeypatch):
+    """No MUJOCO_GL and no display: MuJoCo would fall back to GLFW, whose failed start aborts the
+    process on the next attempt; the backend must refuse before touching it, every time."""
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    backend = MujocoBackend(SceneConfig(object_name="plane"))
+    for _ in range(2):
+        with pytest.raises(MissingDependencyError, match="MUJOCO_GL=egl"):
+            backend.render_rgb(32, 24)

@@ -247,8 +247,13 @@ class MujocoBackend:
 
     def render_rgb(self, width: int = 640, height: int = 480, camera: str | int = -1) -> np.ndarray:
         """An OpenGL image (H, W, 3) uint8 of the scene (needs MUJOCO_GL=egl/osmesa/glfw)."""
-        if os.environ.get("MUJOCO_GL", "") == "disable":
-            raise MissingDependencyError("an OpenGL context (MUJOCO_GL=egl or osmesa)", "dev", "GL rendering")
+        backend_gl = os.environ.get("MUJOCO_GL", "").lower()
+        has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        # Without an offscreen back-end, MuJoCo falls back to GLFW, which needs a display; a failed GLFW
+        # start leaves it half-initialised and the next attempt aborts the process in C++.
+        if backend_gl == "disable" or (backend_gl not in ("egl", "osmesa") and not has_display):
+            raise MissingDependencyError("an OpenGL context (MUJOCO_GL=egl or osmesa, or a display)", "dev",
+                                         "GL rendering")
         try:
             if self._renderer is None or (self._renderer.width, self._renderer.height) != (width, height):
                 if self._renderer is not None:
