@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from tactex.ergodic import (
@@ -117,6 +117,8 @@ _unit = st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda t: 1e-3 < np.linalg.nor
 
 
 @settings(max_examples=200, deadline=None)
+@example(normal=(0.75, 0.0, 5.960464477539063e-08), direction=(1.0, 0.0, 0.0), v_old=(0.0, 0.0, 1.0), speed=1.0,
+         v_max=7.8e-3, a_ratio=1.0, order=2)  # found by hypothesis: round-off on a near-degenerate normal
 @given(normal=_unit, direction=_unit, v_old=_unit, speed=st.floats(0, 1), v_max=st.floats(1e-4, 1e-2),
        a_ratio=st.floats(0.1, 5), order=st.sampled_from([1, 2]))
 def test_agent_limits_are_never_exceeded(normal, direction, v_old, speed, v_max, a_ratio, order):
@@ -130,7 +132,8 @@ def test_agent_limits_are_never_exceeded(normal, direction, v_old, speed, v_max,
     assert np.linalg.norm(v) <= v_max * (1 + LIMIT_RTOL)
     if order == 2:
         assert np.linalg.norm(v - transport(agent.velocity, n)) <= a_max * (1 + LIMIT_RTOL)
-        assert abs(v @ n) <= 1e-12 + abs(transport(agent.velocity, n) @ n)
+        # round-off of the projection scales with the speed: a normal with a 6e-8 component gave 1.6e-9·v_max
+        assert abs(v @ n) <= 1e-8 * v_max + abs(transport(agent.velocity, n) @ n)
 
 
 def test_transport_keeps_length_and_lands_in_the_plane(rng):
