@@ -13,10 +13,11 @@ def rotate6(rot: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def tool_to_world(rot_world_tool: np.ndarray, v_tool: np.ndarray) -> np.ndarray:
-    """A tool-frame wrench/twist expressed in the world frame (same reference point, the TCP)."""
-    return rotate6(rot_world_tool, v_tool)
+    """A tool-frame wrench/twist expressed in the world frame (same reference point, the TCP):
+    [Ra; Rb], as one (2, 3) @ (3, 3) product (cheaper at 1 kHz than two mat-vecs and a concatenate)."""
+    return (v_tool.reshape(2, 3) @ rot_world_tool.T).ravel()
 
 
 def world_to_tool(rot_world_tool: np.ndarray, v_world: np.ndarray) -> np.ndarray:
-    """A world-frame wrench/twist expressed in the tool frame (same reference point, the TCP)."""
-    return rotate6(rot_world_tool.T, v_world)
+    """A world-frame wrench/twist expressed in the tool frame (same reference point, the TCP): [Rᵀa; Rᵀb]."""
+    return (v_world.reshape(2, 3) @ rot_world_tool).ravel()

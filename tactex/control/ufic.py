@@ -16,12 +16,13 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
+from tactex.control.frames import tool_to_world, world_to_tool
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
 from tactex.geometry.so3 import rotation_error_world
 
-__all__ = ["UficController", "UficParams", "to_tool", "to_world"]
+__all__ = ["UficController", "UficParams"]
 
 
 @dataclass(frozen=True)
@@ -75,16 +76,6 @@ class UficParams:
         if not in_contact:
             d[2] = max(d[2], self.approach_damping_z)
         return d
-
-
-def to_tool(rot: np.ndarray, v_world: np.ndarray) -> np.ndarray:
-    """[Rᵀa; Rᵀb] of a world 6-vector [a; b] (one matrix product)."""
-    return (v_world.reshape(2, 3) @ rot).ravel()
-
-
-def to_world(rot: np.ndarray, v_tool: np.ndarray) -> np.ndarray:
-    """[Ra; Rb] of a tool 6-vector [a; b]."""
-    return (v_tool.reshape(2, 3) @ rot.T).ravel()
 
 
 class UficController(Controller):
@@ -151,14 +142,16 @@ class UficController(Controller):
         dt = self._dt(state)
         rot = state.ee_rotation
         self._select_damping(state)
-        x_err_tool = to_tool(rot, self.pose_error_world(state, reference.position_world, reference.rotation_world))
+        x_err_world = self.pose_error_world(state, reference.position_world, reference.rotation_world)
+        x_err_tool = world_to_tool(rot, x_err_world)
         k_tool = self._k_max.copy()
         k_tool[:3] *= self.stiffness_scale
-        f_tool = -k_tool * x_err_tool - self._d_tool * to_tool(rot, state.ee_twist)  # eq. 8 (gains in tool axes)
+        # eq. 8, gains in tool axes
+        f_tool = -k_tool * x_err_tool - self._d_tool * world_to_tool(rot, state.ee_twist)
         f_tool += self.force_wrench_tool(state, reference.wrench_tool, dt)  # eq. 10–12
         self._last = {"pose_error_m": float(np.linalg.norm(x_err_tool[:3])),
                       "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2])}
-        return state.jacobian.T @ to_world(rot, f_tool)  # eq. 9, 13
+        return state.jacobian.T @ tool_to_world(rot, f_tool)  # eq. 9, 13
 
     def telemetry(self) -> dict[str, float]:
         return dict(self._last)

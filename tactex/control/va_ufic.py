@@ -40,9 +40,10 @@ import numpy as np
 from tactex.config import param
 from tactex.control.alignment import AlignmentShaper, alignment_coefficient, contact_alignment, force_shaping
 from tactex.control.energy_tank import ForceTank, ImpedanceTank
+from tactex.control.frames import tool_to_world, world_to_tool
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
-from tactex.control.ufic import UficController, UficParams, to_tool, to_world
+from tactex.control.ufic import UficController, UficParams
 from tactex.errors import ConfigError, ControllerFault
 from tactex.geometry.so3 import exp_so3, log_so3
 from tactex.perception.estimate import SurfaceEstimate
@@ -199,7 +200,7 @@ class VaUficController(UficController):
         rho_frc = force_shaping(reference.wrench_tool, x_err_tool, v.delta_c)  # eq. 30
         # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
         # taken there; the powers ẋᵀ(·) are frame-independent.
-        xdot_tool = to_tool(rot, state.ee_twist)
+        xdot_tool = world_to_tool(rot, state.ee_twist)
         self._select_damping(state)
         d_xdot = self._d_tool * xdot_tool
         kvar_err = rho_align * self._k_max_t * x_err_tool  # K_var(t)·x̃, eq. 56
@@ -210,7 +211,7 @@ class VaUficController(UficController):
         # variable spring at the impedance tank's port (both are non-passive), so σ_i scales both.
         port = -kvar_err
         if v.damping_feedforward:
-            port = port + self._d_tool * to_tool(rot, reference.twist_world)
+            port = port + self._d_tool * world_to_tool(rot, reference.twist_world)
         p_damp = float(xdot_tool @ d_xdot)
         sigma_i = self.tank_i.step(p_damp, -float(xdot_tool @ port), dt)  # eq. 57–63
         m_f = self.tank_f.step(p_damp, float(xdot_tool @ f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
@@ -219,7 +220,7 @@ class VaUficController(UficController):
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
                      float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool, state)
-        return state.jacobian.T @ to_world(rot, f_tool)
+        return state.jacobian.T @ tool_to_world(rot, f_tool)
 
     @property
     def position_offset(self) -> np.ndarray:
