@@ -67,6 +67,7 @@ class Log:
     f_true: list = field(default_factory=list)
     angle_deg: list = field(default_factory=list)
     tau: list = field(default_factory=list)
+    dq: list = field(default_factory=list)  # joint velocity [rad/s] at the tick the torque was computed for
     tel: list = field(default_factory=list)
 
     def arrays(self):
@@ -84,6 +85,7 @@ def _run(backend, state, ctrl, reference_at, seconds, normal, *, perturb=None, o
             on_tick(k, t)
         seen = perturb(t, state) if perturb is not None else state
         tau = ctrl.torque(seen, reference_at(t, state))
+        log.dq.append(state.dq)
         backend.apply_torque(tau)
         state = backend.step()
         log.t.append(t)
@@ -197,11 +199,13 @@ SMALL_TANKS = {"tank_i_x0": 1.6, "tank_i_upper": 2.0, "tank_i_lower": 1.0,
 def _passivity_run(tanks_enabled: bool):
     """Wiping on a plane with stiffness driven up and down by the curvature channel and a 1 s contact
     loss (the surface drops 5 cm). Tanks are small (1.28 J, 0.28 J usable each) so the budget matters
-    within a few seconds; the Table I tanks (23.5 J usable) would need a much longer run."""
+    within a few seconds; the Table I tanks (23.5 J usable) would need a much longer run.
+
+    The VA-UFIC law runs without the SafetyLayer here: the audit is of eq. 72–73 itself, and the
+    layer's clipping, rate limit and retreat (a different controller) would change the port."""
     backend, state, pos, normal, r0 = _start("plane", 0.005)
     params = VaUficParams(tanks_enabled=tanks_enabled, rho_align_initial=1.0, **SMALL_TANKS)
-    inner = VaUficController(params)
-    ctrl = SafetyLayer(inner)
+    ctrl = VaUficController(params)
     curv = lambda t: 0.3 if int(t / 0.75) % 2 == 1 else 0.0  # noqa: E731 - alternating "vision" curvature
     estimate = _truth_estimates(normal, curvature_at=curv)
     x0 = state.ee_position.copy()
@@ -216,34 +220,39 @@ def _passivity_run(tanks_enabled: bool):
         if k == 3500:
             backend.move_object("object", pos)
 
-    log = _run(backend, state, ctrl, ref, 4.5, normal, on_tick=world)
-    # Per tank (each is its own port): what it delivered to the robot vs what it held above its lower
-    # limit plus what it stored from dissipation. A tank can never deliver more; a disabled one may.
-    ledger = {}
-    for key, tank in (("i", inner.tank_i), ("f", inner.tank_f)):
-        delivered = np.array([tl[f"tank_{key}_delivered_j"] for tl in log.tel])
-        harvested = np.array([tl[f"tank_{key}_harvested_j"] for tl in log.tel])
-        ledger[key] = (delivered, tank.x0**2 / 2 - tank.lower + harvested)
-    rho = np.array([tl["rho_align"] for tl in log.tel])
-    return log, ledger, rho
+    return _run(backend, state, ctrl, ref, 4.5, normal, on_tick=world), ctrl
+
+
+def _energy_audit(log: Log, ctrl: VaUficController) -> dict:
+    """The controller's port, from what the robot received: injected(t) = ∫ τᵀq̇ dt [J] (torques sent,
+    measured joint velocities; none of the tanks' own bookkeeping). Compared with what the controller
+    held at the start above the tanks' lower limits plus its constant spring, and with its storage
+    S_c = S_t,i + S_t,f + ½x̃ᵀK_const x̃ (eq. 46/64) over time."""
+    injected = np.cumsum(np.einsum("ij,ij->i", np.asarray(log.tau), np.asarray(log.dq))) * DT
+    ti, tf = ctrl.tank_i, ctrl.tank_f
+    spring = np.array([tl["spring_energy_const_j"] for tl in log.tel])
+    storage = np.array([tl["tank_i_energy_j"] + tl["tank_f_energy_j"] for tl in log.tel]) + spring
+    storage_0 = ti.x0**2 / 2 + tf.x0**2 / 2 + spring[0]
+    held = (ti.x0**2 / 2 - ti.lower) + (tf.x0**2 / 2 - tf.lower) + spring[0]
+    return {"injected": injected, "held": held, "passivity_excess": injected + storage - storage_0,
+            "rho": np.array([tl["rho_align"] for tl in log.tel]), "f_true": log.arrays()["f_true"]}
 
 
 def test_tanks_bound_the_injected_energy_and_disabling_them_violates_it():
-    log_on, ledger_on, rho_on = _passivity_run(True)
-    log_off, ledger_off, _ = _passivity_run(False)
-    for key in ("i", "f"):
-        for label, ledger in (("on ", ledger_on), ("off", ledger_off)):
-            delivered, budget = ledger[key]
-            print(f"tank {key} {label}: delivered {delivered[-1]:.3f} J, budget {budget[-1]:.3f} J, "
-                  f"max excess {np.max(delivered - budget):+.3f} J")
-    assert rho_on.max() - rho_on.min() > 0.5  # the stiffness really varied
-    for key in ("i", "f"):
-        delivered, budget = ledger_on[key]
-        assert (delivered <= budget + 1e-9).all()  # passive: never more than the tank held
-    excess_off = max(np.max(ledger_off[k][0] - ledger_off[k][1]) for k in ("i", "f"))
-    assert excess_off > 0.1  # the same run without tanks injects energy no tank held
-    _assert_torques_safe(log_on)
-    _assert_torques_safe(log_off)
+    on, off = (_energy_audit(*_passivity_run(enabled)) for enabled in (True, False))
+    for label, a in (("on ", on), ("off", off)):
+        print(f"tanks {label}: injected max {a['injected'].max():.3f} J (final {a['injected'][-1]:+.3f} J), "
+              f"held {a['held']:.3f} J, passivity excess max {a['passivity_excess'].max():+.2e} J")
+    assert on["rho"].max() - on["rho"].min() > 0.5  # the stiffness really varied
+    print(f"contact lost for {np.sum(on['f_true'][2500:3500] == 0.0) * DT:.3f} s of the 1 s drop")
+    assert np.sum(on["f_true"][2500:3500] == 0.0) * DT > 0.1  # and contact was really lost
+    # passive: the robot never got more than the tanks and the spring held, at any instant ...
+    assert (on["injected"] <= on["held"] + 1e-9).all()
+    # ... and the storage balance holds: what the port delivered plus what the storage gained never
+    # exceeds zero. The paper's literal eq. 39/57 (both tanks harvest ẋᵀDẋ) broke this by 0.30 J here.
+    assert on["passivity_excess"].max() <= 1e-6
+    # the same run without tanks injects energy the controller never held
+    assert off["injected"].max() > off["held"] + 0.1
 
 
 # -- faults --------------------------------------------------------------------------------------------

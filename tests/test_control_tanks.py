@@ -133,3 +133,30 @@ def test_smooth_valve_and_gate_shapes():
 def test_tank_config_validation(kwargs):
     with pytest.raises(ConfigError, match="energy tank"):
         ImpedanceTank(**kwargs)
+
+
+def test_the_pair_never_stores_more_than_was_dissipated(rng):
+    """Eq. 39 and 57 both harvest ẋᵀDẋ; routed as VA-UFIC does (force tank first, the impedance
+    tank the rest), the pair together stores at most the damping's plus the force loop's dissipation."""
+    dt = 1e-3
+    tf, ti = ForceTank(x0=1.2, upper_j=2.0, lower_j=0.5), ImpedanceTank(x0=1.2, upper_j=2.0, lower_j=0.5)
+    dissipated = 0.0
+    for _ in range(4000):
+        p_damp = float(rng.uniform(0.0, 2.0))
+        p_force = float(rng.normal(0.0, 1.0))  # ẋᵀf_f: dissipating when negative (λ = 1)
+        tf.step(p_damp, p_force, dt)
+        assert 0.0 <= tf.damping_harvested_w <= p_damp + 1e-12
+        ti.step(p_damp - tf.damping_harvested_w, float(rng.normal(0.0, 1.0)), dt)
+        dissipated += dt * (p_damp + max(-p_force, 0.0))
+        assert tf.harvested + ti.harvested <= dissipated + 1e-9
+    # both tanks actually harvested (the split did not starve one of them) and both filled to the top
+    assert tf.harvested > 0.1 and ti.harvested > 0.1
+    assert tf.energy > 1.9 and ti.energy > 1.9
+
+
+def test_force_tank_reports_no_damping_harvest_while_its_port_delivers():
+    tank = ForceTank(x0=1.6, upper_j=2.0, lower_j=1.0)
+    tank.step(damping_power=3.0, force_power=0.5, dt=1e-3)  # λ = 0: the force loop injects
+    assert tank.damping_harvested_w == 0.0
+    tank.step(damping_power=3.0, force_power=-1.0, dt=1e-3)  # λ = 1: stores β(ẋᵀDẋ − ẋᵀf_f)
+    assert tank.damping_harvested_w == pytest.approx(3.0 * tank.last.harvest_power / 4.0)

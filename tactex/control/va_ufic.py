@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -48,7 +49,7 @@ from tactex.errors import ConfigError, ControllerFault
 from tactex.geometry.so3 import exp_so3, log_so3
 from tactex.perception.estimate import SurfaceEstimate
 
-__all__ = ["VaUficController", "VaUficParams", "desired_rotation_from_normal"]
+__all__ = ["PortFeedforward", "VaUficController", "VaUficParams", "desired_rotation_from_normal"]
 
 
 @dataclass(frozen=True)
@@ -118,13 +119,22 @@ def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarr
     return np.column_stack([rx, np.cross(rz, rx), rz])
 
 
+class PortFeedforward(Protocol):
+    """An extra active tool-frame wrench [N, N·m] that VA-UFIC applies through the impedance tank's
+    port (so the tank pays for it), e.g. :class:`tactex.control.friction.FrictionCompensator`."""
+
+    def reset(self) -> None: ...
+
+    def wrench_tool(self, state: RobotState, rho_align: float, dt: float) -> np.ndarray: ...
+
+
 class VaUficController(UficController):
     """VA-UFIC (eq. 1–73). Reference: :class:`PoseForceReference` whose ``surface`` carries the
     latest :class:`SurfaceEstimate` (or None)."""
 
     name = "va_ufic"
 
-    def __init__(self, params: VaUficParams | None = None) -> None:
+    def __init__(self, params: VaUficParams | None = None, port_feedforward: PortFeedforward | None = None) -> None:
         self.va = params or VaUficParams()
         super().__init__(self.va.ufic)
         v = self.va
@@ -137,9 +147,12 @@ class VaUficController(UficController):
         self._rot_d: np.ndarray | None = None
         self._realign: tuple[float, np.ndarray, np.ndarray] | None = None  # (t0, R_init, log(R_d R_initᵀ))
         self._raw: tuple | None = None
+        self.port_feedforward = port_feedforward
 
     def reset(self, state: RobotState) -> None:
         super().reset(state)
+        if self.port_feedforward is not None:
+            self.port_feedforward.reset()
         self.shaper.reset()
         self.tank_i.reset()
         self.tank_f.reset()
@@ -212,9 +225,12 @@ class VaUficController(UficController):
         port = -kvar_err
         if v.damping_feedforward:
             port = port + self._d_tool * world_to_tool(rot, reference.twist_world)
+        if self.port_feedforward is not None:
+            port = port + self.port_feedforward.wrench_tool(state, rho_align, dt)
         p_damp = float(xdot_tool @ d_xdot)
-        sigma_i = self.tank_i.step(p_damp, -float(xdot_tool @ port), dt)  # eq. 57–63
         m_f = self.tank_f.step(p_damp, float(xdot_tool @ f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
+        # the impedance tank harvests only the dissipation the force tank did not store (no double count)
+        sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -float(xdot_tool @ port), dt)  # eq. 57–63
         f_tool = -self._k_const * x_err_tool - d_xdot + sigma_i * port + m_f * f_f  # eq. 72–73
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
