@@ -1,0 +1,44 @@
+"""``tactex sweep CLOUD [CLOUD ...] --out DIR``: the n_K × α study of TEC §V-B (Fig. 6–11)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tactex.config import add_dataclass_arguments, dataclass_from_args
+
+NAME = "sweep"
+HELP = "explore clouds over a grid of n_K and α from several starts (TEC Fig. 6-11) and plot the ergodicity"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    from tactex.experiments.sweep import SweepConfig
+    from tactex.pointcloud.shapes import surface_names
+
+    parser.add_argument("clouds", metavar="CLOUD", nargs="+",
+                        help=f".ply/.pcd/.npz files or built-in objects: {', '.join(surface_names())}")
+    parser.add_argument("--out", required=True, metavar="DIR", help="run directory for sweep.json, curves.npz, plots")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_dataclass_arguments(parser, SweepConfig)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tactex.experiments.sweep import SweepConfig, run_sweep
+
+    cfg = dataclass_from_args(SweepConfig, args)
+
+    def progress(msg: str) -> None:
+        print(f"tactex sweep: {msg}", file=sys.stderr, flush=True)
+
+    result = run_sweep(args.clouds, args.out, cfg, progress=None if args.quiet else progress)
+    alphas = cfg.alpha
+    for key, cloud in result.summary["clouds"].items():
+        print(f"{key}: {cloud['n_points']} points, final ergodicity (eq. 48), mean of {cfg.starts} starts")
+        print("  n_K \\ α " + "".join(f"{a:>9g}" for a in alphas))
+        for k in cfg.n_eigen:
+            row = {r["alpha"]: r["final_ergodicity_mean"] for r in cloud["results"] if r["n_eigen"] == k}
+            print(f"  {k:8d} " + "".join(f"{row[a]:9.4f}" for a in alphas))
+        best = cloud["best"]
+        print(f"  best: n_K = {best['n_eigen']}, α = {best['alpha']:g} ({best['final_ergodicity_mean']:.4f})")
+    print(f"report: {result.out_dir} ({result.summary['sweep_time_s']:.1f} s)")
+    return 0

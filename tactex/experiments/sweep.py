@@ -1,0 +1,364 @@
+"""`tactex sweep`: the parameter study of TEC §V-B (Fig. 6–11).
+
+The paper explores each cloud from ten start positions for every pair of the number of
+eigencomponents n_K ∈ {25, 50, 100, 200} and the diffusion scale α ∈ {1, 5, 10, 50, 100}, 1000
+steps each, and reports the normalised ergodicity (eq. 48) against n_K (Fig. 6, 9), against α
+(Fig. 7, 10) and over time at n_K = 200, α = 10 (Fig. 11), with example paths (Fig. 8).
+
+The basis is built once per cloud with the largest n_K; a smaller n_K uses its first columns,
+which are exactly the smaller eigenbasis (the eigenpairs are sorted). Runs are independent and
+spread over worker processes; the result does not depend on the number of workers.
+
+Outputs in the run directory: ``sweep.json`` (configuration and per-setting statistics),
+``curves.npz`` (per cloud: ergodicity, coverage residual and path length of every run and step,
+and the path of the first start for every setting), and per cloud ``<name>_vs_n_eigen.png``,
+``<name>_vs_alpha.png``, ``<name>_time.png`` and ``<name>_paths.png``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param, to_jsonable, write_json
+from tactex.errors import ConfigError, ExplorationError, InputError
+from tactex.experiments.explore import ExploreConfig, _default_agent_radius, load_explore_cloud
+
+__all__ = ["SweepConfig", "SweepResult", "run_sweep", "sweep_starts"]
+
+Progress = Callable[[str], None]
+
+#: The setting of TEC Fig. 11 (time evolution), taken when it is part of the grid.
+FIG11_SETTING = (200, 10.0)
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """The grid and the fixed parameters; defaults are the paper's (§V-B, Table II)."""
+
+    n_eigen: tuple[int, ...] = param((25, 50, 100, 200), "numbers of eigencomponents n_K to compare (Fig. 6, 9) [-]")
+    alpha: tuple[float, ...] = param((1.0, 5.0, 10.0, 50.0, 100.0), "diffusion scales α to compare (Fig. 7, 10) [-]")
+    starts: int = param(10, "start positions per setting (the authors' *_x0_arr_10.npz when beside the file) [-]")
+    steps: int = param(1000, "exploration steps per run [-]")
+    voxel_size: float = param(0.003, "voxel edge of the down-sampling (sampling spacing of built-ins) [m]")
+    n_neighbors: int = param(30, "neighbours of the Laplacian; decides which parts connect (TEC §VI-D) [-]")
+    agent_radius: float | None = param(
+        None, "agent footprint radius r_a; default 15 mm on plates, 7.5 mm otherwise (TEC §V-B) [m]")
+    seed: int = param(0, "seed of the random start positions (clouds without the authors' starts) [-]")
+    workers: int = param(0, "worker processes; 0 = one per core [-]")
+    cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
+
+    def __post_init__(self) -> None:
+        for name, kind in (("n_eigen", int), ("alpha", float)):
+            values = getattr(self, name)
+            if isinstance(values, (int, float)):
+                values = (values,)
+            try:
+                values = tuple(kind(v) for v in values)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"SweepConfig.{name} must be a list of numbers, got {getattr(self, name)!r}") from exc
+            if not values:
+                raise ConfigError(f"SweepConfig.{name} needs at least one value")
+            if any(not math.isfinite(v) or v <= 0 for v in values):
+                raise ConfigError(f"SweepConfig.{name} values must be positive, got {values}")
+            if name == "n_eigen" and any(v != float(x) for v, x in zip(values, getattr(self, name), strict=True)):
+                raise ConfigError(f"SweepConfig.n_eigen values must be integers, got {getattr(self, name)!r}")
+            if len(set(values)) != len(values):
+                raise ConfigError(f"SweepConfig.{name} lists a value twice: {values}")
+            object.__setattr__(self, name, tuple(sorted(values)))
+        for name, low in (("starts", 1), ("steps", 1), ("n_neighbors", 1), ("workers", 0), ("seed", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise ConfigError(f"SweepConfig.{name} must be an integer ≥ {low}, got {v!r}")
+        # the remaining fields are checked by ExploreConfig with the same rules as `tactex explore`
+        self.explore_config()
+
+    def explore_config(self) -> ExploreConfig:
+        return ExploreConfig(voxel_size=self.voxel_size, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
+                             steps=self.steps, agent_radius=self.agent_radius, seed=self.seed, cache=self.cache,
+                             html=False)
+
+
+@dataclass
+class SweepResult:
+    """What a sweep produced: ``summary`` is what ``sweep.json`` holds; ``curves`` per cloud name."""
+
+    out_dir: Path
+    summary: dict[str, Any]
+    curves: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def sweep_starts(cloud, source_info: dict[str, Any], count: int, seed: int) -> tuple[np.ndarray, str]:
+    """(count, 3) start positions [m]: the authors' starts beside a cloud file (TEC data), topped
+    up with cloud points drawn with ``seed``; for built-in objects all drawn."""
+    starts = np.zeros((0, 3))
+    origin = f"cloud points drawn with seed {seed}"
+    if source_info.get("kind") == "file":
+        p = Path(source_info["path"])
+        authors = p.with_name(f"{p.stem}_x0_arr_10.npz")
+        if authors.is_file():
+            with np.load(authors, allow_pickle=False) as z:
+                arr = np.asarray(z["x0_arr"], dtype=float).reshape(-1, 3)
+            starts = arr[np.isfinite(arr).all(axis=1)][:count]
+            origin = authors.name if len(starts) == count else f"{authors.name} + {origin}"
+    missing = count - len(starts)
+    if missing > 0:
+        rng = np.random.default_rng(seed)
+        idx = rng.choice(len(cloud), size=missing, replace=missing > len(cloud))
+        starts = np.vstack([starts, cloud.points[idx]])
+    return starts, origin
+
+
+def _cloud_key(source: str, info: dict[str, Any], taken: set[str]) -> str:
+    base = info.get("name") or Path(info.get("path", source)).stem
+    key = re.sub(r"[^A-Za-z0-9_-]+", "_", str(base)) or "cloud"
+    out, i = key, 2
+    while out in taken:
+        out, i = f"{key}_{i}", i + 1
+    return out
+
+
+# -- worker side: one (cloud, n_K, α) setting, all starts -----------------------------------------------
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(clouds: dict[str, tuple]) -> None:
+    # one single-threaded BLAS per process: the processes are the parallelism
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    _WORKER.clear()
+    _WORKER.update(clouds)
+
+
+def _run_setting(key: str, n_eigen: int, alpha: float, steps: int) -> dict[str, np.ndarray]:
+    from tactex.ergodic import HedacConfig, HedacExplorer
+
+    cloud, basis, starts, radius = _WORKER[key]
+    explorer = HedacExplorer(cloud, basis, HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius))
+    n = len(starts)
+    erg, res, path = np.empty((n, steps)), np.empty((n, steps)), np.empty((n, steps))
+    first_path = np.empty((steps, 3))
+    for s, x0 in enumerate(starts):
+        explorer.reset(x0)
+        for k in range(steps):
+            cmd = explorer.step()
+            erg[s, k] = explorer.ergodicity()
+            res[s, k] = explorer.coverage_residual()
+            path[s, k] = explorer.path_length
+            if s == 0:
+                first_path[k] = cmd.point
+    if not (np.isfinite(erg).all() and np.isfinite(res).all() and np.isfinite(first_path).all()):
+        raise ExplorationError(f"{key}: n_K={n_eigen}, α={alpha:g} produced NaN/inf; please report it with the cloud")
+    return {"ergodicity": erg, "coverage_residual": res, "path_length_m": path, "first_path": first_path}
+
+
+# -- driver ----------------------------------------------------------------------------------------------
+def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepConfig | None = None, *,
+              progress: Progress | None = None) -> SweepResult:
+    """Run the grid of ``config`` on every source (cloud file or built-in object) and write the report."""
+    from tactex.spectral import build_basis
+
+    cfg = config if config is not None else SweepConfig()
+    say = progress or (lambda msg: None)
+    if isinstance(sources, (str, Path)) or not sources:
+        raise ConfigError("run_sweep needs a list of one or more clouds (files or built-in objects)")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output directory '{out}' exists and is not a directory")
+    ecfg = cfg.explore_config()
+
+    clouds: dict[str, tuple] = {}
+    info_out: dict[str, Any] = {}
+    for source in sources:
+        cloud, info = load_explore_cloud(source, ecfg)
+        key = _cloud_key(str(source), info, set(clouds))
+        if max(cfg.n_eigen) >= len(cloud):
+            raise ConfigError(f"{key} has {len(cloud)} points; n_K = {max(cfg.n_eigen)} must be smaller")
+        say(f"{key}: {len(cloud)} points, {cloud.n_target} target; Laplacian and {max(cfg.n_eigen)} eigenpairs ...")
+        t0 = time.perf_counter()
+        basis = build_basis(cloud, n_eigen=max(cfg.n_eigen), n_neighbors=cfg.n_neighbors, cache=cfg.cache)
+        basis_s = time.perf_counter() - t0
+        radius = cfg.agent_radius if cfg.agent_radius is not None else _default_agent_radius(info)
+        starts, origin = sweep_starts(cloud, info, cfg.starts, cfg.seed)
+        clouds[key] = (cloud, basis, starts, radius)
+        info_out[key] = {"source": info, "n_points": len(cloud), "n_target": cloud.n_target,
+                         "spacing_m": cloud.spacing, "n_components": basis.n_components, "basis_time_s": basis_s,
+                         "agent_radius_m": radius, "starts": starts, "starts_from": origin}
+        if basis.n_components > 1:
+            say(f"{key}: warning: the Laplacian sees {basis.n_components} separate parts; heat does not cross "
+                f"between them (TEC §VI-D); raise --n-neighbors (now {cfg.n_neighbors}) to join them")
+
+    jobs = [(key, k, a) for key in clouds for k in cfg.n_eigen for a in cfg.alpha]
+    workers = min(cfg.workers or os.cpu_count() or 1, len(jobs))
+    runs = len(jobs) * cfg.starts
+    say(f"{len(jobs)} settings × {cfg.starts} starts × {cfg.steps} steps = {runs} runs on {workers} worker(s)")
+    t0 = time.perf_counter()
+    results: dict[tuple, dict[str, np.ndarray]] = {}
+    if workers == 1:
+        _init_worker(clouds)
+        try:
+            for i, job in enumerate(jobs):
+                results[job] = _run_setting(*job, cfg.steps)
+                _report(say, i + 1, len(jobs), job, results[job], t0)
+        finally:
+            _WORKER.clear()
+    else:
+        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(clouds,)) as pool:
+            futures = {job: pool.submit(_run_setting, *job, cfg.steps) for job in jobs}
+            for i, job in enumerate(jobs):  # in submission order: deterministic output
+                results[job] = futures[job].result()
+                _report(say, i + 1, len(jobs), job, results[job], t0)
+    sweep_s = time.perf_counter() - t0
+
+    curves: dict[str, dict[str, np.ndarray]] = {}
+    summary: dict[str, Any] = {"config": asdict(cfg), "sweep_time_s": sweep_s, "clouds": {}}
+    nk, na = len(cfg.n_eigen), len(cfg.alpha)
+    for key in clouds:
+        c = {name: np.empty((nk, na, cfg.starts, cfg.steps)) for name in ("ergodicity", "coverage_residual",
+                                                                           "path_length_m")}
+        c["first_path"] = np.empty((nk, na, cfg.steps, 3))
+        rows = []
+        for i, k in enumerate(cfg.n_eigen):
+            for j, a in enumerate(cfg.alpha):
+                r = results[(key, k, a)]
+                for name in r:
+                    c[name][i, j] = r[name]
+                final = r["ergodicity"][:, -1]
+                rows.append({"n_eigen": k, "alpha": a,
+                             "final_ergodicity_mean": float(final.mean()), "final_ergodicity_std": float(final.std()),
+                             "final_ergodicity": final,
+                             "final_coverage_residual_mean": float(r["coverage_residual"][:, -1].mean()),
+                             "path_length_mean_m": float(r["path_length_m"][:, -1].mean())})
+        c["n_eigen"] = np.asarray(cfg.n_eigen)
+        c["alpha"] = np.asarray(cfg.alpha)
+        c["agent_radius_m"] = np.asarray(clouds[key][3])
+        c["starts"] = clouds[key][2]
+        curves[key] = c
+        best = min(rows, key=lambda row: row["final_ergodicity_mean"])
+        summary["clouds"][key] = {**info_out[key], "results": rows,
+                                  "best": {"n_eigen": best["n_eigen"], "alpha": best["alpha"],
+                                           "final_ergodicity_mean": best["final_ergodicity_mean"]}}
+    say(f"writing the report to {out}")
+    files = _write(out, summary, curves, clouds)
+    return SweepResult(out_dir=out, summary=to_jsonable(summary), curves=curves, files=files)
+
+
+def _report(say: Progress, done: int, total: int, job: tuple, r: dict[str, np.ndarray], t0: float) -> None:
+    key, k, a = job
+    final = r["ergodicity"][:, -1]
+    say(f"[{done}/{total}] {key} n_K={k} α={a:g}: final ergodicity {final.mean():.4f} ± {final.std():.4f} "
+        f"({time.perf_counter() - t0:.0f} s)")
+
+
+# -- report ----------------------------------------------------------------------------------------------
+def _write(out: Path, summary: dict[str, Any], curves: dict[str, dict[str, np.ndarray]],
+           clouds: dict[str, tuple]) -> dict[str, Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"summary": write_json(to_jsonable(summary), out / "sweep.json")}
+    flat = {f"{key}.{name}": arr for key, c in curves.items() for name, arr in c.items()}
+    np.savez_compressed(out / "curves.npz", **flat)
+    files["curves"] = out / "curves.npz"
+    for key, c in curves.items():
+        cloud = clouds[key][0]
+        files[f"{key}_vs_n_eigen"] = _plot_final(c, "n_eigen", out / f"{key}_vs_n_eigen.png", key)
+        files[f"{key}_vs_alpha"] = _plot_final(c, "alpha", out / f"{key}_vs_alpha.png", key)
+        files[f"{key}_time"] = _plot_time(c, out / f"{key}_time.png", key)
+        files[f"{key}_paths"] = _plot_paths(c, cloud, out / f"{key}_paths.png", key)
+    return files
+
+
+def _figure(width: float, height: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), dpi=110)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _plot_final(c: dict[str, np.ndarray], axis: str, path: Path, key: str) -> Path:
+    """Fig. 6/9 (x = n_K, one line per α) or Fig. 7/10 (x = α, one line per n_K): final ergodicity,
+    mean ± std over the starts."""
+    final = c["ergodicity"][..., -1]  # (n_K, α, starts)
+    x, other, other_name = (c["n_eigen"], c["alpha"], "α") if axis == "n_eigen" else (c["alpha"], c["n_eigen"], "n_K")
+    data = final if axis == "n_eigen" else final.transpose(1, 0, 2)  # (x, other, starts)
+    fig = _figure(5.5, 3.6)
+    ax = fig.add_subplot(1, 1, 1)
+    for j, v in enumerate(other):
+        mean, std = data[:, j].mean(axis=1), data[:, j].std(axis=1)
+        ax.errorbar(x, mean, yerr=std, marker="o", capsize=3, label=f"{other_name} = {v:g}")
+    ax.set_xscale("log")
+    ax.minorticks_off()
+    ax.set_xticks(x, [f"{v:g}" for v in x])
+    ax.set_xlabel("number of eigencomponents n_K" if axis == "n_eigen" else "diffusion scale α")
+    ax.set_ylabel("ergodicity after the run (eq. 48)")
+    ax.set_title(f"{key}: final ergodicity, mean ± std of {final.shape[2]} starts")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def _nearest(values: np.ndarray, target: float) -> int:
+    return int(np.argmin(np.abs(np.log(np.asarray(values, dtype=float) / target))))
+
+
+def _plot_time(c: dict[str, np.ndarray], path: Path, key: str) -> Path:
+    """Fig. 11: ergodicity over time at the grid point nearest n_K = 200, α = 10 — each start thin,
+    the mean, and ± one standard deviation shaded."""
+    i, j = _nearest(c["n_eigen"], FIG11_SETTING[0]), _nearest(c["alpha"], FIG11_SETTING[1])
+    runs = c["ergodicity"][i, j]  # (starts, steps)
+    steps = np.arange(1, runs.shape[1] + 1)
+    fig = _figure(5.5, 3.6)
+    ax = fig.add_subplot(1, 1, 1)
+    for r in runs:
+        ax.plot(steps, r, color="tab:blue", alpha=0.25, lw=0.8)
+    mean, std = runs.mean(axis=0), runs.std(axis=0)
+    ax.fill_between(steps, mean - std, mean + std, color="tab:blue", alpha=0.2)
+    ax.plot(steps, mean, color="tab:blue", lw=2, label="mean")
+    ax.set_xlabel("step")
+    ax.set_ylabel("ergodicity (eq. 48)")
+    ax.set_title(f"{key}: n_K = {c['n_eigen'][i]}, α = {c['alpha'][j]:g}, {runs.shape[0]} starts")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def _plot_paths(c: dict[str, np.ndarray], cloud, path: Path, key: str) -> Path:
+    """Fig. 8: paths of the first start for the best, the worst and representative settings, on the
+    cloud with the target in red; start green, end purple."""
+    final = c["ergodicity"][..., -1].mean(axis=2)  # (n_K, α)
+    order = np.argsort(final, axis=None)
+    picks = list(dict.fromkeys([order[0], order[-1], *order[np.linspace(0, order.size - 1, 6).astype(int)]]))[:6]
+    pts, tgt = cloud.points, cloud.target > 0
+    fig = _figure(4.0 * min(3, len(picks)), 4.0 * math.ceil(len(picks) / 3))
+    for n, flat in enumerate(picks):
+        i, j = np.unravel_index(flat, final.shape)
+        ax = fig.add_subplot(math.ceil(len(picks) / 3), min(3, len(picks)), n + 1, projection="3d")
+        ax.computed_zorder = False
+        ax.scatter(*pts[~tgt].T, s=1, color="lightgrey")
+        ax.scatter(*pts[tgt].T, s=1.5, color="red")
+        p = c["first_path"][i, j]
+        ax.plot(*p.T, color="black", lw=0.8)
+        ax.scatter(*p[0], color="green", s=25)
+        ax.scatter(*p[-1], color="purple", s=25)
+        radius_mm = 1e3 * float(c["agent_radius_m"])
+        ax.set_title(f"({c['n_eigen'][i]}, {c['alpha'][j]:g}, {radius_mm:g})  ε={final[i, j]:.3f}", fontsize=8)
+        ax.set_axis_off()
+    fig.suptitle(f"{key}: (n_K, α, r_a [mm]) and final ergodicity")
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
