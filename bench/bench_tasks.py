@@ -1,5 +1,7 @@
 """Full-length closed-loop programs (issue 6): cleaning on the plate and the bowl with the raster and
-no-feedback baselines, and VA-UFIC wiping with the Cartesian-impedance baseline.
+no-feedback baselines, and VA-UFIC wiping (with the measured-friction compensation, and without it:
+the paper's law) against the Cartesian-impedance baseline. Wiping motion errors are per axis of the
+base frame, as the paper's §IV (``motion_mae_tool_*`` give the tool frame).
 
 Quality numbers (dirt removed, force within band, force/motion errors, tank energies) and the
 wall-clock real-time factor of each run are recorded under ``tasks.*``.
@@ -18,7 +20,8 @@ WIPE_KEYS = ("force_mae_n", "force_rmse_n", "force_mae_aligned_n", "force_rmse_a
              "contact_fraction_after_first_contact",
              "aligned_at_s", "explore_time_s", "max_force_n", "wall_time_s", "sim_time_s", "explored_points",
              "explored_normal_error_deg_median", "explored_normal_error_deg_p95",
-             "explored_depth_below_surface_m_median", "explored_inclination_span_deg")
+             "explored_depth_below_surface_m_median", "explored_inclination_span_deg",
+             "friction_compensation_energy_j")
 
 TARGETS: dict[str, tuple[str, float]] = {}
 for _obj in CLEAN_OBJECTS:
@@ -45,14 +48,15 @@ def _clean(obj: str, baseline: str) -> dict:
     return out
 
 
-def _wipe(baseline: str) -> dict:
-    r = run_wipe(WipeConfig(baseline=baseline), progress=False)
+def _wipe(baseline: str, friction_compensation: bool = True) -> dict:
+    r = run_wipe(WipeConfig(baseline=baseline, friction_compensation=friction_compensation), progress=False)
     m = r.metrics
     out = {k: m.get(k) for k in WIPE_KEYS}
     for i, axis in enumerate("xyz"):
         out[f"motion_mae_{axis}_m"] = m["motion_mae_m"][i]
         out[f"motion_rmse_{axis}_m"] = m["motion_rmse_m"][i]
         out[f"motion_mae_all_contact_{axis}_m"] = m["motion_mae_all_contact_m"][i]
+        out[f"motion_mae_tool_{axis}_m"] = m["motion_mae_tool_m"][i]
     lo_i, hi_i = m["tank_impedance_limits_j"]
     lo_f, hi_f = m["tank_force_limits_j"]
     ti, tf = m["tank_impedance_energy_j"], m["tank_force_energy_j"]
@@ -76,9 +80,10 @@ def run(args) -> dict:
             print(f"   clean {obj} {name} ...", flush=True)
             clean[obj][name] = _clean(obj, baseline)
     wipe: dict = {}
-    for name, baseline in {"va_ufic": "", "cartesian": "cartesian"}.items():
-        if quick and baseline:
+    variants = {"va_ufic": ("", True), "va_ufic_no_friction_comp": ("", False), "cartesian": ("cartesian", True)}
+    for name, (baseline, friction_comp) in variants.items():
+        if quick and name != "va_ufic":
             continue
         print(f"   wipe {name} ...", flush=True)
-        wipe[name] = _wipe(baseline)
+        wipe[name] = _wipe(baseline, friction_comp)
     return {"tasks": {"clean": clean, "wipe": wipe}}

@@ -236,6 +236,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
     comp_energy = 0.0
     n_contact = 0
     first_contact: float | None = None
+    first_contact_tick = 0
     estimates_valid = 0
     estimates_total = 0
 
@@ -279,7 +280,8 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
             tank_f.append(tel["tank_f_energy_j"])
         if in_contact:
             n_contact += 1
-            first_contact = loop.t - t0 if first_contact is None else first_contact
+            if first_contact is None:
+                first_contact, first_contact_tick = loop.t - t0, n_ticks
             forces.append(fz)
             errors_world.append(err_world)
             if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
@@ -317,7 +319,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
     mae_m, rmse_m = _errors(np.asarray(aligned_errors).reshape(-1, 3))
     mae_tool, rmse_tool = _errors(np.asarray(aligned_errors_tool).reshape(-1, 3))
     f_err_al = np.asarray(aligned_forces) - cfg.force_n
-    after_first = n_ticks - (round(first_contact / backend.dt) if first_contact is not None else n_ticks)
+    after_first = n_ticks - first_contact_tick + 1 if first_contact is not None else 0  # ticks from the touch on
     va_params = VaUficParams()
     metrics: dict[str, Any] = {
         "force_mae_n": float(np.mean(np.abs(f_err))) if f_err.size else float("nan"),
