@@ -13,7 +13,9 @@ Per tick:
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
    f = −K_const x̃ − D ẋ + σ_i (−ρ_align K_max x̃ + D ẋ_d) + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f,
    where the damping feed-forward D ẋ_d (``damping_feedforward``, on by default; eq. 8 has none)
-   shares the impedance tank's port with the variable spring.
+   shares the impedance tank's port with the variable spring, as does any extra active wrench of
+   a ``port_feedforward`` (e.g. :class:`tactex.control.friction.FrictionCompensator`; none by
+   default, the wiping task turns it on): the tank pays for whatever is added there.
 
 Where the other equations live: eq. 1–2 and 13 are the torque interface (gravity added by the
 robot), eq. 7–12 :mod:`tactex.control.ufic`, eq. 14–16 :mod:`tactex.perception` (θ is re-evaluated
@@ -22,6 +24,9 @@ and 55–63 :mod:`tactex.control.energy_tank`. The storage functions of the pass
 S_r = ½ẋᵀM_Cẋ = ½q̇ᵀMq̇ (eq. 32, with M_C of eq. 3–6), the springs ½x̃ᵀK x̃ (eq. 34, 52, 64) and
 S_overall (eq. 46, 69) — are reported by :meth:`VaUficController.telemetry` for the energy logs;
 their derivatives (eq. 33–36, 47–50, 53–54, 65–71) are what the tank tests check step by step.
+
+The two tanks harvest the damping dissipation once between them (force tank first), not twice
+as eq. 39 and 57 literally do; see :mod:`tactex.control.energy_tank`.
 
 A missing, invalid or stale estimate (older than ``surface_max_age``) contributes θ = l_s = 0 and
 never triggers a re-orientation: the controller then runs on touch alone.
