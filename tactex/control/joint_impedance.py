@@ -23,21 +23,26 @@ def min_jerk(s: float) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class JointImpedanceParams:
-    """Gains of the Franka example joint impedance controller.
+    """Gains of the Franka example joint impedance controller (stiffness and damping as there).
 
-    The stiffness is the example's; the wrist damping is lower (15, 10, 5 instead of 30, 25, 15):
-    with the small wrist inertias of the model (no reflected rotor inertia) the example's values make
-    the explicit 1 kHz damping chatter at the torque-rate limit, and the arm can go unstable.
+    The damping is applied implicitly (see :class:`JointImpedanceController`): the explicit −D·q̇
+    of the example is unstable at 1 kHz on any motion mode whose inertia is below D·dt/2, e.g.
+    joints 1 and 3 turning against each other when joint 2 is near 0 (their axes then align and
+    only the small link 2 moves). The real arm's reflected rotor inertia hides this; a model
+    without it, or a lighter arm, does not.
     """
 
     stiffness: tuple[float, ...] = param((600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0), "joint stiffness [N·m/rad]")
-    damping: tuple[float, ...] = param((50.0, 50.0, 50.0, 50.0, 15.0, 10.0, 5.0), "joint damping [N·m·s/rad]")
+    damping: tuple[float, ...] = param((50.0, 50.0, 50.0, 50.0, 30.0, 25.0, 15.0), "joint damping [N·m·s/rad]")
+    dt: float = param(1e-3, "control period the damping is made stable for [s]")
 
     def __post_init__(self) -> None:
         k, d = np.asarray(self.stiffness, float), np.asarray(self.damping, float)
         ok = np.all(k >= 0) and np.all(d >= 0) and np.isfinite(k).all() and np.isfinite(d).all()
         if k.shape != d.shape or not ok:
             raise ConfigError(f"joint stiffness and damping must be ≥ 0 and of equal length, got {k} and {d}")
+        if not (np.isfinite(self.dt) and 0 < self.dt <= 0.1):
+            raise ConfigError(f"JointImpedanceParams.dt must be a control period in (0, 0.1] s, got {self.dt!r}")
 
 
 @dataclass(frozen=True)
@@ -72,7 +77,13 @@ class JointTarget:
 
 
 class JointImpedanceController(Controller):
-    """τ = K (q_d − q) + D (dq_d − dq) + C(q, dq)·dq on a :class:`JointTarget` (gravity by the robot)."""
+    """τ = K (q_d − q) + D_dt (dq_d − dq) + C(q, dq)·dq on a :class:`JointTarget` (gravity by the robot).
+
+    D_dt = M (M + dt·D)⁻¹ D = (D⁻¹ + dt·M⁻¹)⁻¹ is the damping D applied implicitly over one control
+    period (backward Euler, as MuJoCo integrates joint damping): the series combination of D with
+    M/dt. It equals D on modes whose inertia is large against D·dt and never exceeds M/dt, which
+    a 1 kHz loop can apply without ringing; it is symmetric positive definite, so still passive.
+    """
 
     name = "joint_impedance"
 
@@ -80,11 +91,20 @@ class JointImpedanceController(Controller):
         self.params = params or JointImpedanceParams()
         self._k = np.asarray(self.params.stiffness, dtype=float)
         self._d = np.asarray(self.params.damping, dtype=float)
+        self._dt = float(self.params.dt)
+
+    def damping_matrix(self, mass_matrix: np.ndarray) -> np.ndarray:
+        """D_dt [N·m·s/rad] for the joint-space inertia ``mass_matrix`` [kg·m²]."""
+        m = np.asarray(mass_matrix, dtype=float)
+        return m @ np.linalg.solve(m + self._dt * np.diag(self._d), np.diag(self._d))
 
     def torque(self, state: RobotState, reference: JointTarget) -> np.ndarray:
         if not isinstance(reference, JointTarget):
             raise ControllerFault(f"{self.name} needs a JointTarget, got {type(reference).__name__}")
-        if reference.q_goal.shape != state.q.shape:
-            raise ControllerFault(f"joint target has shape {reference.q_goal.shape}, the robot {state.q.shape}")
+        if reference.q_goal.shape != state.q.shape or self._k.shape != state.q.shape:
+            raise ControllerFault(f"joint target has shape {reference.q_goal.shape}, gains {self._k.shape}, "
+                                  f"the robot {state.q.shape}")
         q_d, dq_d = reference.at(state.t)
-        return self._k * (q_d - state.q) + self._d * (dq_d - state.dq) + state.coriolis
+        m = state.mass_matrix
+        accel = np.linalg.solve(m + self._dt * np.diag(self._d), self._d * (dq_d - state.dq))
+        return self._k * (q_d - state.q) + m @ accel + state.coriolis

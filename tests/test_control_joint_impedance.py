@@ -1,0 +1,62 @@
+"""Joint impedance with implicit damping: stable at 1 kHz on light modes, the example's D elsewhere."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tactex.control.joint_impedance import JointImpedanceController, JointImpedanceParams, JointTarget
+from tactex.errors import ConfigError, ControllerFault
+from tests.test_control_common import make_state
+
+DT = 1e-3
+
+
+def _light_mode_inertia(rng, light: float = 0.01) -> np.ndarray:
+    """A 7×7 inertia [kg·m²] with one light mode (two joints turning against each other)."""
+    q, _ = np.linalg.qr(rng.normal(size=(7, 7)))
+    return q @ np.diag([2.0, 1.5, 1.0, 0.8, 0.5, 0.3, light]) @ q.T
+
+
+def _spectral_radius_of_damped_step(m: np.ndarray, d: np.ndarray) -> float:
+    """v_{k+1} = v_k − dt M⁻¹ D v_k: the velocity map of one 1 kHz tick under damping torque −D v."""
+    step = np.eye(len(m)) - DT * np.linalg.solve(m, d)
+    return float(np.max(np.abs(np.linalg.eigvals(step))))
+
+
+def test_explicit_damping_rings_on_a_light_mode_and_the_implicit_one_does_not(rng):
+    m = _light_mode_inertia(rng)
+    ctrl = JointImpedanceController()
+    d = np.diag(ctrl.params.damping)
+    assert _spectral_radius_of_damped_step(m, d) > 1.0  # the Franka example's gains, applied explicitly
+    assert _spectral_radius_of_damped_step(m, ctrl.damping_matrix(m)) < 1.0
+
+
+def test_implicit_damping_is_the_example_damping_on_heavy_modes_and_passive(rng):
+    ctrl = JointImpedanceController()
+    heavy = 100.0 * np.eye(7)
+    np.testing.assert_allclose(ctrl.damping_matrix(heavy), np.diag(ctrl.params.damping), rtol=1e-3)
+    d = ctrl.damping_matrix(_light_mode_inertia(rng))
+    np.testing.assert_allclose(d, d.T, atol=1e-9)
+    assert np.linalg.eigvalsh(0.5 * (d + d.T)).min() > 0.0
+
+
+def test_torque_uses_the_implicit_damping(rng):
+    m = _light_mode_inertia(rng)
+    dq = rng.normal(size=7)
+    state = replace(make_state(dq=dq), mass_matrix=m, coriolis=np.full(7, 0.1))
+    ctrl = JointImpedanceController()
+    q_goal = np.full(7, 0.2)
+    tau = ctrl.torque(state, JointTarget(np.zeros(7), q_goal, t_start=-10.0, duration_s=1.0))
+    expected = np.asarray(ctrl.params.stiffness) * q_goal - ctrl.damping_matrix(m) @ dq + 0.1
+    np.testing.assert_allclose(tau, expected, atol=1e-9)
+
+
+def test_bad_period_and_shapes():
+    with pytest.raises(ConfigError, match="dt"):
+        JointImpedanceParams(dt=0.0)
+    ctrl = JointImpedanceController(JointImpedanceParams(stiffness=(1.0,) * 6, damping=(1.0,) * 6))
+    with pytest.raises(ControllerFault, match="shape"):
+        ctrl.torque(make_state(), JointTarget(np.zeros(7), np.zeros(7), 0.0, 1.0))
