@@ -3,7 +3,7 @@
 One ray per pixel through the pinhole model of :class:`~tactex.perception.frame.CameraIntrinsics`.
 The ray directions are (x', y', 1) in the optical frame (not normalised), so the distance along
 them *is* the depth along the optical axis. Two ray casters: ``"analytic"`` (default; vectorised
-against the table and the object, :mod:`tactex.sim.raycast`, ~1–2 ms per 160×120 frame) and
+against the table and the object, :mod:`tactex.sim.raycast`, ~1 ms per 160×120 frame) and
 ``"mujoco"`` (``mujoco.mj_multiRay`` over every scene geom, 20–100 ms per frame on height fields).
 Colour comes from what each ray hits: the object's clean colour blended with its dirt level, the
 table, or black for misses. The robot's own geoms are not seen (like a camera whose view of the
@@ -17,9 +17,10 @@ import numpy as np
 
 from tactex.errors import ConfigError
 from tactex.perception.frame import CameraFrame, CameraIntrinsics
+from tactex.pointcloud.markings import BASE_RGB, MARK_RGB
 from tactex.pointcloud.shapes import HeightFieldSurface
 from tactex.sim.dirt import DirtField
-from tactex.sim.raycast import SceneRayCaster
+from tactex.sim.raycast import CHUNK_RAYS, SceneRayCaster, chunk_bounds
 
 __all__ = ["RayCastCamera", "optical_R_mujoco_camera"]
 
@@ -58,6 +59,9 @@ class RayCastCamera:
         k = intrinsics
         u, v = np.meshgrid(np.arange(k.width, dtype=float), np.arange(k.height, dtype=float))
         self._dirs_optical = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], axis=-1).reshape(-1, 3)
+        self._u = (np.arange(k.width) - k.cx) / k.fx
+        self._v = (np.arange(k.height) - k.cy) / k.fy
+        self._row_chunks = chunk_bounds(k.height, max(1, CHUNK_RAYS // k.width))
         self._n = self._dirs_optical.shape[0]
         self._geomid = np.zeros(self._n, dtype=np.int32)
         self._dist = np.zeros(self._n, dtype=float)
@@ -80,61 +84,90 @@ class RayCastCamera:
                 rng: np.random.Generator | None = None) -> CameraFrame:
         """One frame (depth [m], colour) from the current state of ``data`` (kinematics up to date)."""
         world_T_cam, obj_pos, obj_rot = self.snapshot(data, object_body)
+        level = None if dirt is None else dirt.level
         if self.method == "analytic":
-            return self.render(world_T_cam, obj_pos, obj_rot, timestamp, dirt=dirt,
-                               dirt_level=None if dirt is None else dirt.level, object_rgb=object_rgb, rng=rng)
+            return self.render(world_T_cam, obj_pos, obj_rot, timestamp, dirt=dirt, dirt_level=level,
+                               object_rgb=object_rgb, rng=rng)
         dirs_world = self._dirs_optical @ world_T_cam[:3, :3].T
         mujoco.mj_multiRay(
             self.model, data, world_T_cam[:3, 3].copy(), dirs_world.reshape(-1), self._groups, 1, -1,
             self._geomid, self._dist, None, self._n, self.intrinsics.max_depth_m * 2.0,
         )
-        depth = self._dist.copy()
-        hit = (self._geomid >= 0) & (depth > 0)
-        depth[~hit] = 0.0
-        return self._finish(world_T_cam, dirs_world, depth, hit, self._geomid == object_geom,
-                            self._geomid == table_geom, obj_pos, obj_rot, timestamp, dirt,
-                            None if dirt is None else dirt.level, object_rgb, rng)
+        hit = (self._geomid >= 0) & (self._dist > 0)
+        depth = np.where(hit, self._dist, 0.0).astype(np.float32)
+        d_obj = dirs_world @ obj_rot
+        o_obj = (world_T_cam[:3, 3] - obj_pos) @ obj_rot
+        rgb = np.zeros((self._n, 3), dtype=np.uint8)
+        self._shade(depth, hit, self._geomid == object_geom, self._geomid == table_geom, o_obj,
+                    tuple(d_obj[:, k] for k in range(3)), rgb, dirt, level, object_rgb, rng)
+        return self._frame(depth, rgb, world_T_cam, timestamp)
 
     def render(self, world_T_cam: np.ndarray, obj_pos: np.ndarray, obj_rot: np.ndarray, timestamp: float, *,
                dirt: DirtField | None = None, dirt_level: np.ndarray | None = None, object_rgb=None,
                rng: np.random.Generator | None = None) -> CameraFrame:
         """A frame by the analytic ray caster from a snapshot (touches no MuJoCo data: thread-safe
-        as long as ``dirt_level`` is a copy)."""
+        as long as ``dirt_level`` is a copy). Cast and shaded in chunks of image rows (see
+        :mod:`tactex.sim.raycast` for why)."""
         assert self.caster is not None
-        dirs_world = self._dirs_optical @ world_T_cam[:3, :3].T
-        depth, on_obj, on_table = self.caster.cast(world_T_cam[:3, 3], dirs_world, obj_pos, obj_rot)
-        hit = np.isfinite(depth)
-        depth[~hit] = 0.0
-        return self._finish(world_T_cam, dirs_world, depth, hit, on_obj, on_table, obj_pos, obj_rot, timestamp,
-                            dirt, dirt_level, object_rgb, rng)
+        w = self.intrinsics.width
+        cam_rot, cam_pos = world_T_cam[:3, :3], world_T_cam[:3, 3]
+        obj_R_cam = obj_rot.T @ cam_rot
+        o_obj = (cam_pos - obj_pos) @ obj_rot
+        depth = np.empty(self._n, dtype=np.float32)
+        rgb = np.zeros((self._n, 3), dtype=np.uint8)
+        for r0, r1 in self._row_chunks:
+            dirs_world = self._directions(cam_rot, r0, r1)
+            dirs_obj = self._directions(obj_R_cam, r0, r1)
+            t, on_obj, on_table = self.caster.cast_components(cam_pos, dirs_world, o_obj, dirs_obj)
+            hit = t < np.inf
+            t[~hit] = 0.0
+            s = slice(r0 * w, r1 * w)
+            depth[s] = t
+            self._shade(depth[s], hit, on_obj, on_table, o_obj, dirs_obj, rgb[s], dirt, dirt_level, object_rgb,
+                        rng)
+        return self._frame(depth, rgb, world_T_cam, timestamp)
 
-    def _finish(self, world_T_cam, dirs_world, depth, hit, on_obj, on_table, obj_pos, obj_rot, timestamp,
-                dirt, dirt_level, object_rgb, rng) -> CameraFrame:
+    def _directions(self, rot: np.ndarray, r0: int, r1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Components (float32, (r1 − r0)·W each) of the ray directions rot·(x', y', 1) of image rows
+        r0..r1: x' varies along a row and y' down a column, so each is an outer sum."""
+        u, v = self._u, self._v[r0:r1]
+        return tuple(np.add.outer(v * rot[k, 1] + rot[k, 2], u * rot[k, 0]).astype(np.float32).reshape(-1)
+                     for k in range(3))
+
+    def _shade(self, depth, hit, on_obj, on_table, o_obj, dirs_obj, rgb, dirt, dirt_level, object_rgb,
+               rng) -> None:
+        """Noise, depth range and colour of a block of pixels, in place in ``depth`` (float32) and
+        ``rgb`` (uint8, zeros); ``dirs_obj`` are the object-frame ray components (for the dirt)."""
         k = self.intrinsics
         if self.depth_noise_m > 0 and rng is not None:
-            depth[hit] += rng.normal(0.0, self.depth_noise_m, int(hit.sum())) * depth[hit] ** 2
+            dh = depth[hit].astype(float)
+            depth[hit] = dh + rng.normal(0.0, self.depth_noise_m, dh.shape[0]) * dh**2
         valid = hit & (depth >= k.min_depth_m) & (depth <= k.max_depth_m)
         depth[~valid] = 0.0
-        rgb = np.zeros((self._n, 3), dtype=np.uint8)
         on_table = valid & on_table
         rgb[on_table] = _TABLE_RGB_U8
         on_obj = valid & on_obj
         rgb[valid & ~on_table & ~on_obj] = 128
-        if on_obj.any():
-            if dirt is not None:
-                pts_obj = (world_T_cam[:3, 3] - obj_pos + dirs_world[on_obj] * depth[on_obj, None]) @ obj_rot
-                colours = np.round(dirt.colors(pts_obj, object_rgb, level=dirt_level) * 255.0)
-                surf = dirt.surface
-                if isinstance(surf, HeightFieldSurface) and surf.radius_m is not None:
-                    # the height field's corners outside a plate's disc lie on the table: show the table
-                    colours[~surf.inside(pts_obj[:, 0], pts_obj[:, 1])] = _TABLE_RGB_U8
-                rgb[on_obj] = colours
-            else:
-                rgb[on_obj] = 204
-        return CameraFrame(
-            depth_m=depth.reshape(k.height, k.width).astype(np.float32),
-            intrinsics=k,
-            world_T_camera=world_T_cam,
-            timestamp=float(timestamp),
-            rgb=rgb.reshape(k.height, k.width, 3),
-        )
+        if not on_obj.any():
+            return
+        if dirt is None:
+            rgb[on_obj] = 204
+            return
+        sel = slice(None) if on_obj.all() else np.flatnonzero(on_obj)
+        t = depth[sel]
+        x, y, z = (o_obj[i] + t * dirs_obj[i][sel] for i in range(3))  # the seen points, object frame
+        level = dirt.level_at_xyz(x, y, z, dirt_level)
+        base = BASE_RGB if object_rgb is None else np.asarray(object_rgb, dtype=float)
+        colours = np.empty((len(level), 3), dtype=np.uint8)
+        for c in range(3):
+            colours[:, c] = np.rint(level * (255.0 * (MARK_RGB[c] - base[c])) + 255.0 * base[c])
+        surf = dirt.surface
+        if isinstance(surf, HeightFieldSurface) and surf.radius_m is not None:
+            # the height field's corners outside a plate's disc lie on the table: show the table
+            colours[~surf.inside(x, y)] = _TABLE_RGB_U8
+        rgb[sel] = colours
+
+    def _frame(self, depth, rgb, world_T_cam, timestamp) -> CameraFrame:
+        k = self.intrinsics
+        return CameraFrame(depth_m=depth.reshape(k.height, k.width), intrinsics=k, world_T_camera=world_T_cam,
+                           timestamp=float(timestamp), rgb=rgb.reshape(k.height, k.width, 3))

@@ -151,13 +151,18 @@ class DirtField:
     def level_at(self, points_obj: np.ndarray, level: np.ndarray | None = None) -> np.ndarray:
         """Dirt level (N,) at surface points (N, 3) in the object frame (nearest cell), from the
         current levels or from ``level`` (a snapshot of :attr:`level`)."""
+        p = np.asarray(points_obj)
+        return self.level_at_xyz(p[:, 0], p[:, 1], p[:, 2], level)
+
+    def level_at_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, level: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`level_at` for points given by their coordinate arrays (N,) each (object frame) [m]."""
         nv, nu = self.shape
         s = self.surface
         if isinstance(s, HeightFieldSurface):  # uv is affine in x, y: skip the generic uv()
-            u = points_obj[:, 0] * (nu / s.size_x_m) + 0.5 * nu
-            v = points_obj[:, 1] * (nv / s.size_y_m) + 0.5 * nv
+            u = x * (nu / s.size_x_m) + 0.5 * nu
+            v = y * (nv / s.size_y_m) + 0.5 * nv
         else:
-            uv = s.uv(points_obj)
+            uv = s.uv(np.stack([x, y, z], axis=1))
             u, v = uv[:, 0] * nu, uv[:, 1] * nv
         iu = np.clip(u, 0, nu - 1).astype(np.intp)
         iv = np.clip(v, 0, nv - 1).astype(np.intp)

@@ -6,46 +6,63 @@ time; against a height field that costs ~1 µs per ray, i.e. 20–100 ms for a 1
 alone would make a 30 Hz camera slower than real time. Here the table is a plane, boxes and
 cylinders are closed-form, and a height field is intersected by safeguarded Newton iterations on
 the same grid MuJoCo collides with (bilinear between grid nodes; MuJoCo's two triangles per cell
-differ from it by less than the grid's own interpolation error). A 160×120 frame takes ~1–2 ms.
-``RayCastCamera(method="mujoco")`` keeps MuJoCo's ray caster, and the tests check both agree.
+differ from it by less than the grid's own interpolation error). ``RayCastCamera(method="mujoco")``
+keeps MuJoCo's ray caster, and the tests check both agree.
+
+Speed (this runs at 30 Hz beside a 1 kHz control loop; a 160×120 frame takes ~1 ms): rays are
+three component arrays (x, y, z of the directions), cast in chunks of at most :data:`CHUNK_RAYS`,
+in float32 where the precision allows (depths keep ~10 nm). The chunks matter more than the
+arithmetic: a numpy temporary above glibc's mmap threshold (128 KiB by default) is mmapped, page-
+faulted and unmapped on every allocation, which made whole-frame arrays (and the (N, samples)
+march of the height field) 5× slower than their arithmetic. A chunk's arrays stay well under it,
+and in cache.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 
 from tactex.pointcloud.shapes import CylinderWallSurface, HeightFieldSurface
 from tactex.sim.objects import SimObject
 
-__all__ = ["SceneRayCaster"]
+__all__ = ["CHUNK_RAYS", "SceneRayCaster", "chunk_bounds"]
+
+#: Most rays cast at once (12288 float64 values are 96 KiB: under the mmap threshold).
+CHUNK_RAYS = 12288
 
 _INF = np.inf
+_F32 = np.float32
+
+Components = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
-def _slab_point(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Like :func:`_slab` for one origin o (3,) and directions d (N, 3)."""
-    t_in = np.full(len(d), -_INF)
-    t_out = np.full(len(d), _INF)
+def chunk_bounds(n: int, chunk: int = CHUNK_RAYS) -> list[tuple[int, int]]:
+    """[start, stop) ranges splitting n items into near-equal chunks of at most ``chunk``."""
+    parts = max(1, -(-n // chunk))
+    edges = [round(i * n / parts) for i in range(parts + 1)]
+    return list(itertools.pairwise(edges))
+
+
+def _slab(o: np.ndarray, d: Components, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Entry and exit parameters (N,) of rays o + t·d (one origin o (3,), direction components d)
+    through the box [lo, hi] (t_in > t_out: miss)."""
+    t_in = t_out = None
     with np.errstate(divide="ignore", invalid="ignore"):
         for k in range(3):
-            inv = 1.0 / d[:, k]
-            t0 = (lo[k] - o[k]) * inv
-            t1 = (hi[k] - o[k]) * inv
-            # a ray parallel to a slab (inv = ±inf) is inside it for all t or never
-            np.maximum(t_in, np.where(np.isnan(t0), -_INF, np.minimum(t0, t1)), out=t_in)
-            np.minimum(t_out, np.where(np.isnan(t1), _INF, np.maximum(t0, t1)), out=t_out)
+            typ = d[k].dtype.type
+            inv = np.reciprocal(d[k])  # ±inf for a ray parallel to the slab: inside it for all t or never
+            t0 = inv * typ(lo[k] - o[k])
+            t1 = inv * typ(hi[k] - o[k])
+            # 0·inf (origin on the plane of a parallel slab) is NaN, which fmin/fmax ignore
+            near, far = np.fmin(t0, t1), np.fmax(t0, t1)
+            if t_in is None:
+                t_in, t_out = near, far
+            else:
+                np.fmax(t_in, near, out=t_in)
+                np.fmin(t_out, far, out=t_out)
     return t_in, t_out
-
-
-def _slab(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Entry and exit parameters (N,) of rays o + t·d through the box [lo, hi] (t_in > t_out: miss)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t0 = (lo - o) * inv
-        t1 = (hi - o) * inv
-    tmin = np.where(np.isnan(t0), -_INF, np.minimum(t0, t1))
-    tmax = np.where(np.isnan(t1), _INF, np.maximum(t0, t1))
-    return tmin.max(axis=1), tmax.min(axis=1)
 
 
 class SceneRayCaster:
@@ -82,14 +99,17 @@ class SceneRayCaster:
             self.inv_dx = (len(xs) - 1) / float(xs[-1] - xs[0])
             self.inv_dy = (len(ys) - 1) / float(ys[-1] - ys[0])
             self.nx, self.ny = len(xs), len(ys)
-            f32 = np.float32
-            self._sx, self._sy = f32(self.inv_dx), f32(self.inv_dy)
-            self._ox, self._oy = f32(self.x0 * self.inv_dx), f32(self.y0 * self.inv_dy)
-            self._cmax_x, self._cmax_y = f32(self.nx - 1.0001), f32(self.ny - 1.0001)
+            if self.nx * self.ny >= 2**24:  # cell indices are computed in float32
+                raise ValueError(f"height field of {self.nx}×{self.ny} nodes is too fine for the ray caster")
+            self._sx, self._sy = _F32(self.inv_dx), _F32(self.inv_dy)
+            # one more column and row of cells past the last node, continuing the edge heights: a grid
+            # coordinate that round-off puts just past the end needs no clamping (numpy's min/max
+            # against a scalar cost three multiplications)
+            zp = np.pad(z, ((0, 1), (0, 1)), mode="edge")
+            self._row = _F32(self.nx)
             # bilinear coefficients per cell: z = a + b·fx + c·fy + e·fx·fy
-            z00, z10, z01, z11 = z[:-1, :-1], z[:-1, 1:], z[1:, :-1], z[1:, 1:]
+            z00, z10, z01, z11 = zp[:-1, :-1], zp[:-1, 1:], zp[1:, :-1], zp[1:, 1:]
             coefs = (z00, z10 - z00, z01 - z00, z11 - z10 - z01 + z00)
-            # float32: half the memory traffic of the per-ray arithmetic; depths keep ~10 nm precision
             self.coefs = tuple(np.ascontiguousarray(c, dtype=np.float32).reshape(-1) for c in coefs)
             zmin = float(z.min())
             self.z_floor = zmin
@@ -97,121 +117,200 @@ class SceneRayCaster:
             self.hi = np.array([xs[-1], ys[-1], float(z.max())])
 
     # -- object intersections in the object frame ---------------------------------------------
-    def _height(self, x: np.ndarray, y: np.ndarray, gradient: bool = False):
-        """Bilinear height on the grid, and with ``gradient`` also (∂z/∂x, ∂z/∂y)."""
-        cx = np.clip(x * self._sx - self._ox, 0.0, self._cmax_x)
-        cy = np.clip(y * self._sy - self._oy, 0.0, self._cmax_y)
-        fx = np.floor(cx)
-        fy = np.floor(cy)
-        k = fy.astype(np.intp)
-        k *= self.nx - 1
-        k += fx.astype(np.intp)
-        fx = cx - fx  # stays float32 (subtracting the integer index array would promote to float64)
-        fy = cy - fy
+    def _surface(self, cx: np.ndarray, cy: np.ndarray, gradient: bool = False):
+        """Bilinear height [m] at grid coordinates (cx, cy) (float32 arrays, in cells from the first
+        node, inside the grid up to round-off; overwritten), and with ``gradient`` also its slopes
+        per cell (∂z/∂cx, ∂z/∂cy)."""
+        # trunc, not floor: a round-off below 0 stays in cell 0 (extrapolated by that round-off)
+        fx = np.trunc(cx)
+        fy = np.trunc(cy)
+        k = fy * self._row
+        k += fx
+        k = k.astype(np.int32)  # float32 → int64 is not vectorised
+        cx -= fx  # the fractions stay float32
+        cy -= fy
         # np.take of 1-D coefficient arrays is ~10× faster than fancy indexing a 2-D array
-        c0, c1, c2, c3 = (np.take(c, k) for c in self.coefs)
-        gx = c1 + fy * c3
-        z = c0 + fx * gx + fy * c2
-        if not gradient:
-            return z
-        return z, gx * self._sx, (c2 + fx * c3) * self._sy
+        c0, c1, c2, c3 = (np.take(c, k, mode="clip") for c in self.coefs)
+        gx = c3 * cy  # ∂z/∂cx = c1 + c3·fy
+        gx += c1
+        z = cx * gx
+        z += c0
+        gy = None
+        if gradient:
+            gy = c3 * cx  # ∂z/∂cy = c2 + c3·fx
+            gy += c2
+        c2 *= cy
+        z += c2
+        return (z, gx, gy) if gradient else z
 
-    def _hit_hfield(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """First intersection of rays o + t·d (one origin o (3,), directions d (N, 3))."""
-        n = len(d)
-        t = np.full(n, _INF)
-        t_in, t_out = _slab_point(o, d, self.lo, self.hi)
+    def _gap(self, t: np.ndarray, o: tuple, d: Components) -> np.ndarray:
+        """Height [m] of the ray points o + t·d above the height field (≤ 0: below the surface), with
+        o and d in grid units across (x, y) and in metres along z."""
+        cx = t * d[0]
+        cx += o[0]
+        cy = t * d[1]
+        cy += o[1]
+        z = t * d[2]
+        z += o[2]
+        z -= self._surface(cx, cy)
+        return z
+
+    def _hit_hfield(self, o: np.ndarray, d: Components) -> np.ndarray:
+        """First intersection t (N,) float32 of rays o + t·d (one origin, float32 direction components)."""
+        n = d[0].shape[0]
+        out = np.full(n, _INF, dtype=_F32)
+        t_in, t_out = _slab(o, d, self.lo, self.hi)
         ok = (t_in <= t_out) & (t_out > 0)
-        if not ok.any():
-            return t
-        idx = np.flatnonzero(ok)
-        dx, dy, dz = (np.ascontiguousarray(d[idx, k], dtype=np.float32) for k in range(3))
-        ox, oy, oz = (np.float32(v) for v in o)
-        lo_t = np.maximum(t_in[idx], 0.0).astype(np.float32)
+        idx = None
+        if not ok.all():
+            idx = np.flatnonzero(ok)
+            if idx.size == 0:
+                return out
+            d = tuple(c[idx] for c in d)
+            t_in, t_out = t_in[idx], t_out[idx]
+        # the rays in grid units across (cells from the first node) and in metres along z
+        og = (_F32((o[0] - self.x0) * self.inv_dx), _F32((o[1] - self.y0) * self.inv_dy), _F32(o[2]))
+        dg = (d[0] * self._sx, d[1] * self._sy, d[2])
+        dz = d[2]
+        lo_t = np.maximum(t_in, _F32(0.0))
         # below the lowest grid height a ray inside the box has necessarily crossed the surface: march
         # only down to that height (the solid base below adds nothing but samples)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t_floor = np.where(dz < 0, (self.z_floor - oz) / dz, _INF)
-        span = (np.minimum(t_out[idx], t_floor) - lo_t).astype(np.float32)
+            t_floor = np.where(dz < 0, (_F32(self.z_floor) - og[2]) / dz, _F32(_INF))
+        reach = t_floor <= t_out
+        span = np.minimum(t_out, t_floor)
+        span -= lo_t
         # sample each ray from its entry into the box to its exit, about two grid cells apart, to
         # bracket the *first* crossing (a ray can pass over a rim, dip below the surface and come out
         # above it again); sample 0 below the surface means the ray came in through a side wall
-        travel = float((span * np.hypot(dx, dy)).max(initial=0.0))
-        n_march = int(min(max(np.ceil(travel * min(self.inv_dx, self.inv_dy) / 2.0), 1), 24))
-        ts = lo_t[:, None] + span[:, None] * (np.arange(n_march + 1, dtype=np.float32) / np.float32(n_march))
-        f = (oz + ts * dz[:, None]) - self._height(
-            (ox + ts * dx[:, None]).ravel(), (oy + ts * dy[:, None]).ravel()
-        ).reshape(ts.shape)
-        below = f <= 0
-        below[:, -1] |= t_floor <= t_out[idx]  # reached the lowest height inside the box
-        first = below.argmax(axis=1)
-        rows = np.arange(len(idx))
-        has = below[rows, first]
-        out = np.full(len(idx), _INF)
-        wall = has & (first == 0)
-        out[wall] = lo_t[wall]
-        sel = np.flatnonzero(has & (first > 0))
-        k = first[sel]
-        a, b = ts[sel, k - 1], ts[sel, k]
-        fa, fb = f[sel, k - 1], f[sel, k]
-        dx, dy, dz = dx[sel], dy[sel], dz[sel]
-        # regula falsi inside the bracket, then Newton steps kept inside it
-        tc = a - fa * (b - a) / (fb - fa)
-        for _ in range(self.iterations):
-            h, gx, gy = self._height(ox + tc * dx, oy + tc * dy, gradient=True)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                step = (oz + tc * dz - h) / (dz - gx * dx - gy * dy)
-            tc = np.clip(tc - np.nan_to_num(step), a, b)
-        out[sel] = tc
-        t[idx] = out  # back to float64
-        return t
+        travel = float((span * np.sqrt(dg[0] * dg[0] + dg[1] * dg[1])).max(initial=0.0))
+        n_march = int(min(max(np.ceil(travel / 2.0), 1), 24))
+        f_prev = self._gap(lo_t, og, dg)
+        t_prev = lo_t
+        wall = f_prev <= 0
+        found = wall.copy()
+        a, b, fa, fb = (np.zeros_like(lo_t) for _ in range(4))
+        for j in range(1, n_march + 1):
+            if found.all():
+                break
+            t_j = span * _F32(j / n_march)
+            t_j += lo_t
+            f_j = self._gap(t_j, og, dg)
+            new = f_j <= 0
+            if j == n_march:
+                new |= reach  # reached the lowest height inside the box
+            new &= ~found
+            np.copyto(a, t_prev, where=new)
+            np.copyto(fa, f_prev, where=new)
+            np.copyto(b, t_j, where=new)
+            np.copyto(fb, f_j, where=new)
+            found |= new
+            t_prev, f_prev = t_j, f_j
+        # regula falsi inside the bracket, then Newton steps kept inside it (a NaN step, from a ray
+        # tangent to the surface, falls back to the bracket end below the surface)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tc = np.fmax(a, np.fmin(b, a - fa * (b - a) / (fb - fa)))
+            for _ in range(self.iterations):
+                cx = tc * dg[0]
+                cx += og[0]
+                cy = tc * dg[1]
+                cy += og[1]
+                h, gx, gy = self._surface(cx, cy, gradient=True)
+                gap = tc * dz
+                gap += og[2]
+                gap -= h
+                gx *= dg[0]
+                gy *= dg[1]
+                slope = dz - gx
+                slope -= gy
+                gap /= slope
+                tc -= gap
+                np.fmax(a, np.fmin(b, tc, out=tc), out=tc)
+        np.copyto(tc, lo_t, where=wall)
+        np.copyto(tc, _F32(_INF), where=~found)
+        if idx is None:
+            return tc
+        out[idx] = tc
+        return out
 
-    def _hit_box(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    def _hit_box(self, o: np.ndarray, d: Components) -> np.ndarray:
         t_in, t_out = _slab(o, d, self.lo, self.hi)
         return np.where((t_in <= t_out) & (t_in > 0), t_in, _INF)
 
-    def _hit_cylinder(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    def _hit_cylinder(self, o: np.ndarray, d: Components) -> np.ndarray:
         r, h = self.radius, self.height
-        a = d[:, 0] ** 2 + d[:, 1] ** 2
-        b = 2 * (o[:, 0] * d[:, 0] + o[:, 1] * d[:, 1])
-        c = o[:, 0] ** 2 + o[:, 1] ** 2 - r * r
+        dx, dy, dz = (np.asarray(c, dtype=float) for c in d)  # float64: the quadratic cancels digits
+        a = dx * dx + dy * dy
+        b = 2 * (o[0] * dx + o[1] * dy)
+        c = o[0] ** 2 + o[1] ** 2 - r * r
         disc = b * b - 4 * a * c
         with np.errstate(divide="ignore", invalid="ignore"):
             t_side = (-b - np.sqrt(np.maximum(disc, 0.0))) / (2 * a)
-            z_side = o[:, 2] + t_side * d[:, 2]
+            z_side = o[2] + t_side * dz
             side = (disc >= 0) & (a > 0) & (t_side > 0) & (z_side >= 0) & (z_side <= h)
-            t_cap = (h - o[:, 2]) / d[:, 2]
-            pc = o[:, :2] + d[:, :2] * t_cap[:, None]
-            cap = (d[:, 2] < 0) & (t_cap > 0) & ((pc**2).sum(axis=1) <= r * r)
+            t_cap = (h - o[2]) / dz
+            px, py = o[0] + dx * t_cap, o[1] + dy * t_cap
+            cap = (dz < 0) & (t_cap > 0) & (px * px + py * py <= r * r)
         return np.minimum(np.where(side, t_side, _INF), np.where(cap, t_cap, _INF))
 
     # -- public ------------------------------------------------------------------------------
+    def cast_components(self, origin_world: np.ndarray, dirs_world: Components, origin_obj: np.ndarray,
+                        dirs_obj: Components) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One chunk of rays, origin + t·dir, given in the world and in the object frame (origins (3,),
+        direction components (N,) each, float32): t (N,) float32 of the first hit (inf on a miss),
+        with boolean masks (N,) of the rays that hit the object and the table."""
+        if self.kind == "hfield":
+            t_obj = self._hit_hfield(origin_obj, dirs_obj)
+        elif self.kind == "box":
+            t_obj = self._hit_box(origin_obj, dirs_obj)
+        else:
+            t_obj = self._hit_cylinder(origin_obj, dirs_obj)
+        return self._with_table(np.asarray(t_obj, dtype=_F32), origin_world, dirs_world)
+
     def cast(self, origin_world: np.ndarray, dirs_world: np.ndarray, object_position: np.ndarray,
              object_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ray parameters t (N,) of the first hit of rays origin + t·dir (inf on a miss), with
+        """Ray parameters t (N,) of the first hit of rays origin + t·dir (N, 3) (inf on a miss), with
         boolean masks (N,) of the rays that hit the object and the table."""
-        o_obj = (origin_world - object_position) @ object_rotation
-        d_obj = dirs_world @ object_rotation
-        if self.kind == "hfield":
-            t_obj = self._hit_hfield(o_obj, d_obj)
-            return self._with_table(t_obj, origin_world, dirs_world)
-        o = np.broadcast_to(o_obj, d_obj.shape)
-        if self.kind == "hfield":
-            t_obj = self._hit_hfield(o, d_obj)
-        elif self.kind == "box":
-            t_obj = self._hit_box(o, d_obj)
-        else:
-            t_obj = self._hit_cylinder(o, d_obj)
-        return self._with_table(t_obj, origin_world, dirs_world)
+        o_w = np.asarray(origin_world, dtype=float).reshape(3)
+        dirs = np.asarray(dirs_world, dtype=float).reshape(-1, 3)
+        o_obj = (o_w - object_position) @ object_rotation
+        n = len(dirs)
+        t = np.empty(n, dtype=_F32)
+        hit_obj = np.empty(n, dtype=bool)
+        hit_tab = np.empty(n, dtype=bool)
+        for i0, i1 in chunk_bounds(n):
+            d = dirs[i0:i1]
+            d_obj = d @ object_rotation
+            comps = tuple(np.ascontiguousarray(c[:, k], dtype=_F32) for c in (d, d_obj) for k in range(3))
+            t[i0:i1], hit_obj[i0:i1], hit_tab[i0:i1] = self.cast_components(o_w, comps[:3], o_obj, comps[3:])
+        return t.astype(float), hit_obj, hit_tab
 
-    def _with_table(self, t_obj: np.ndarray, origin_world: np.ndarray, dirs_world: np.ndarray):
+    def _with_table(self, t_obj: np.ndarray, o_w: np.ndarray, d_w: Components):
+        hit_obj = t_obj < _INF
+        t = t_obj
+        hit_tab = np.zeros_like(hit_obj)
+        tz = self.table_z
+        if o_w[2] > tz:
+            # seen from above the table, a hit on the object above the table top comes before the ray
+            # could cross the table plane: only the others need the table
+            with np.errstate(invalid="ignore"):
+                z_hit = t_obj * d_w[2]
+                z_hit += _F32(o_w[2])
+                need = np.flatnonzero(~(z_hit >= _F32(tz)))
+        else:
+            need = np.arange(len(t_obj))
+        if need.size == 0:
+            return t, hit_obj, hit_tab
+        dx, dy, dz = (c[need].astype(float) for c in d_w)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t_tab = (self.table_z - origin_world[2]) / dirs_world[:, 2]
-        xt = origin_world[0] + t_tab * dirs_world[:, 0]
-        yt = origin_world[1] + t_tab * dirs_world[:, 1]
+            t_tab = (tz - o_w[2]) / dz
+        xt = o_w[0] + t_tab * dx
+        yt = o_w[1] + t_tab * dy
         x0, x1, y0, y1 = self.table_xy
-        t_tab = np.where((t_tab > 0) & (xt >= x0) & (xt <= x1) & (yt >= y0) & (yt <= y1), t_tab, _INF)
-        hit_obj = t_obj <= t_tab
-        t = np.where(hit_obj, t_obj, t_tab)
-        hit_obj &= np.isfinite(t_obj)
-        return t, hit_obj, np.isfinite(t_tab) & ~hit_obj
+        on = (t_tab > 0) & (xt >= x0) & (xt <= x1) & (yt >= y0) & (yt <= y1) & (t_tab < t_obj[need])
+        sel = need[on]
+        t = t_obj.copy()
+        t[sel] = t_tab[on]
+        hit_tab[sel] = True
+        hit_obj[sel] = False
+        return t, hit_obj, hit_tab
