@@ -16,7 +16,9 @@ One step for each agent:
    Diffusing *after* injecting matters: the truncated projection of a sharp source rings
    (Gibbs) and spurious maxima trap the agent, its heat-kernel image does not; the raw source
    (weight ``source_weight``) restores the full resolution at the target points;
-5. the gradient of u on the tangent plane from the weighted cubic fit (eq. 32–33);
+5. the gradient of u on the tangent plane: the weighted cubic fit (eq. 32–33) of the diffused
+   part Φ a, plus the weighted plane fit of the raw source term w_s·s (a cubic through the
+   isolated source spikes at the rim of the neighbourhood overshoots and points away from them);
 6. the agent's velocity update (first or second order, limits kept, see :mod:`.agents`), the
    new point projected back onto the fitted surface, the step clamped to v_max·dt.
 
@@ -60,6 +62,8 @@ if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
+#: Relative Cholesky pivot below which the source's plane fit is rank-deficient (collinear neighbours).
+_PIVOT_RTOL = 1e-10
 
 
 def _tangent_matrix(n: np.ndarray) -> np.ndarray:
@@ -77,6 +81,35 @@ def _tangent_matrix(n: np.ndarray) -> np.ndarray:
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t = _tangent_matrix(n)
     return t[:, 0].copy(), t[:, 1].copy()
+
+
+def _plane_slope(a: np.ndarray, b: list[float]) -> tuple[float, float] | None:
+    """Slope (c_u, c_v) of the weighted plane c_0 + c_u u + c_v v with normal matrix a[:3, :3] and
+    right-hand side b (3 floats); None when b is zero or the block is not positive definite.
+
+    A 3×3 Cholesky in Python floats: a LAPACK call costs more than the arithmetic at this size.
+    """
+    if b[0] == 0.0 and b[1] == 0.0 and b[2] == 0.0:
+        return None
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = a[:3, :3].tolist()
+    if a00 <= 0.0:
+        return None
+    l00 = a00**0.5
+    l10, l20 = a01 / l00, a02 / l00
+    p11 = a11 - l10 * l10
+    if p11 <= _PIVOT_RTOL * a11:
+        return None
+    l11 = p11**0.5
+    l21 = (a12 - l20 * l10) / l11
+    p22 = a22 - l20 * l20 - l21 * l21
+    if p22 <= _PIVOT_RTOL * a22:
+        return None
+    l22 = p22**0.5
+    y0 = b[0] / l00
+    y1 = (b[1] - l10 * y0) / l11
+    c_v = (b[2] - l20 * y0 - l21 * y1) / l22 / l22
+    c_u = (y1 - l21 * c_v) / l11
+    return c_u, c_v
 
 
 def _project_local(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -378,10 +411,13 @@ class HedacExplorer:
         coef += s @ self._phitm_t
         coef *= self._decay
         u = self._phi[nbr] @ coef
+        u_src = None
         if self._source_w > 0.0:
             tp = self._tpos[nbr]
             on = tp >= 0
-            u[on] += self._source_w * s[tp[on]]
+            if on.any():
+                u_src = np.zeros(n_n)
+                u_src[on] = s[tp[on]]
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
@@ -404,6 +440,16 @@ class HedacExplorer:
         u -= u[0]
         _, c, info = _dposv(a, xw.T @ u)
         g = tb @ c[1:3] if info == 0 else np.zeros(3)
+        if u_src is not None and info == 0:
+            # The raw source is a set of isolated spikes at uncovered target points, typically at the
+            # rim of the neighbourhood (the footprint has cleared its inside). A cubic through a rim
+            # spike overshoots and its slope at the agent points *away* from it, so the agent would
+            # turn back into its own covered disc; the weighted plane (the cubic's first three
+            # monomials, same weights) has the spike's slope sign. Both fits are linear in the
+            # values, so the gradient of (smooth part + spikes) is the sum of the two.
+            slope = _plane_slope(a, (u_src @ xw[:, :3]).tolist())
+            if slope is not None:
+                g = g + tb @ (self._source_w * np.array(slope))
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
         cen = xf[:, 1:3].sum(axis=0) * (1.0 / n_n)  # neighbours' centroid in (u, v) [radii]

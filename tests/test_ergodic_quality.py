@@ -1,0 +1,58 @@
+"""Exploration quality mechanisms of the HEDAC explorer, each found by diagnosing a stalled agent.
+
+These are behavioural checks on small synthetic clouds (fast, no data files): the agent must head
+for uncovered target mass it can see, and must not be parked by its own footprint.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactex.ergodic import HedacConfig, HedacExplorer
+from tactex.pointcloud import SurfaceCloud
+from tactex.spectral import build_basis
+
+H = 0.003  # [m] voxel of the TEC experiments
+HEADING_COS = 0.9  # "heads for it": the first step within ~25° of the direction to the target
+
+
+def _grid(n_side: int = 40, seed: int = 0) -> np.ndarray:
+    """A jittered 3 mm grid on z = 0, centred on the origin."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.arange(n_side) * H, np.arange(n_side) * H)
+    pts = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)] + rng.uniform(-2e-4, 2e-4, (u.size, 3)) * [1, 1, 0]
+    return pts - pts.mean(axis=0)
+
+
+@pytest.mark.parametrize("angle", np.linspace(0.0, 2.0 * np.pi, 4, endpoint=False))
+def test_agent_heads_for_uncovered_target_at_the_rim_of_its_neighbourhood(angle):
+    """A few target points 6 mm away, inside the n_N = 20 fit neighbourhood (≈ 7.5 mm) but outside a
+    2 mm footprint: the raw source term is a spike at the rim of the fit. A cubic through it slopes
+    *away* from it at the agent (the released code only escapes this because its ill-conditioned
+    monomials truncate the cubic); the explorer must step towards the target."""
+    pts = _grid()
+    spot = 0.006 * np.array([np.cos(angle), np.sin(angle), 0.0])
+    target = (np.linalg.norm(pts - spot, axis=1) < 0.0025).astype(float)
+    cloud = SurfaceCloud(pts, target=target, spacing=H)
+    basis = build_basis(cloud, n_eigen=60, cache=False)
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, agent_radius_m=0.002))
+    (start,) = ex.reset(np.zeros(3))
+    step = ex.step().point - start.point
+    heading = spot - start.point
+    assert step @ heading / (np.linalg.norm(step) * np.linalg.norm(heading)) > HEADING_COS
+
+
+def test_plane_slope_is_the_weighted_least_squares_plane(rng):
+    from tactex.ergodic.explorer import _plane_slope
+
+    uv = rng.uniform(-1.0, 1.0, (20, 2))
+    x = np.c_[np.ones(20), uv]
+    w = rng.uniform(0.4, 1.0, 20)
+    y = rng.uniform(0.0, 1.0, 20) * (rng.uniform(size=20) > 0.7)
+    a = (x * w[:, None]).T @ x
+    expected = np.linalg.lstsq(x * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0][1:]
+    np.testing.assert_allclose(_plane_slope(a, ((x * w[:, None]).T @ y).tolist()), expected, rtol=1e-10, atol=1e-12)
+    assert _plane_slope(a, [0.0, 0.0, 0.0]) is None  # no spike: nothing to add
+    collinear = np.c_[np.ones(20), uv[:, 0], 2.0 * uv[:, 0]]
+    assert _plane_slope(collinear.T @ collinear, [1.0, 0.5, 1.0]) is None  # rank-deficient block
