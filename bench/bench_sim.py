@@ -4,6 +4,7 @@ F/T sensing every tick, dirt removal, and the 160×120 wrist camera at 30 Hz (ra
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -36,7 +37,7 @@ def _episode(seconds: float) -> dict:
         s = backend.state()
         t = s.t
         # VA-UFIC §III wiping policy, in the tool's x/y (= world x/−y here)
-        offset = np.array([0.04 * np.sin(2 * t), -(0.04 * (np.cos(2 * t) - 1) - 0.005 * t), 0.0])
+        offset = np.array([0.04 * math.sin(2 * t), -(0.04 * (math.cos(2 * t) - 1) - 0.005 * t), 0.0])
         backend.apply_torque(ctrl.torque(s, start + offset, DOWN, ff))
         t0 = time.perf_counter()
         backend.step()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -93,6 +94,30 @@ def test_divergence_raises_simulation_error():
     backend.data.qvel[3] = np.nan
     with pytest.raises(SimulationError, match=r"t = 0\.0060 s.*Hint"):
         backend.step()
+
+
+def test_divergence_without_mujoco_auto_reset_raises_simulation_error():
+    # without auto-reset MuJoCo only warns and the clock runs on: the joint states are checked instead
+    backend = MujocoBackend(SceneConfig(object_name="plane"))
+    backend.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
+    backend.reset()
+    for _ in range(5):
+        backend.step()
+    backend.data.qvel[3] = np.nan
+    with pytest.raises(SimulationError, match=r"t = 0\.0060 s.*Hint"):
+        backend.step()
+
+
+def test_state_with_a_non_finite_torque_or_wrench_is_refused(plane_backend):
+    plane_backend.reset(seed=0)
+    plane_backend.data.qfrc_actuator[2] = np.inf  # what the state reports as the measured torque
+    with pytest.raises(SimulationError, match="non-finite robot state"):
+        plane_backend._make_state()
+    plane_backend.reset(seed=0)
+    plane_backend._wrench = np.full(6, np.nan)
+    with pytest.raises(SimulationError, match="non-finite robot state"):
+        plane_backend._make_state()
+    plane_backend.reset(seed=0)
 
 
 def test_reset_is_deterministic_for_a_seed():

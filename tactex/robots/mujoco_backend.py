@@ -8,6 +8,7 @@ F/T reading is the one of the step just integrated — one tick old, like a real
 
 from __future__ import annotations
 
+import math
 import os
 
 import mujoco
@@ -58,10 +59,13 @@ class MujocoBackend:
             raise SimulationError("the arm joints must be the first 7 of the scene model")
         self._arm = slice(0, 7)
         self._limits = self.scene.torque_limits
-        self._jacp = np.zeros((3, self.model.nv))
-        self._jacr = np.zeros((3, self.model.nv))
+        self._neg_limits = -self._limits
+        # the Jacobian rows [linear; angular] in one buffer: mj_jacSite writes both halves in place
+        self._jac = np.zeros((6, self.model.nv))
+        self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._mfull = np.zeros((self.model.nv, self.model.nv))
         self._pad_vel = np.zeros(6)
+        self._cache_views()
         tool = self.config.tool
         mass, com = tool.calibrated_mass_properties()
         self.ft_sensor = FTSensorModel(
@@ -103,6 +107,7 @@ class MujocoBackend:
         self._last_contact = (0.0, None)
         self.ft_sensor.reset()
         self._next_camera_t = 0.0
+        self._sum_check = bool(m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_AUTORESET)
         mujoco.mj_forward(m, d)
         self._check_finite("reset", 0.0)
         self._after_tick()
@@ -119,17 +124,19 @@ class MujocoBackend:
         t = np.asarray(tau, dtype=float)
         if t.shape != (self.n_joints,):
             raise ControllerFault(f"torque command must have shape ({self.n_joints},), got {t.shape}")
-        if not np.isfinite(t).all():
+        # one sum is finite iff every term is (a finite overflow is clipped below anyway); a sum over a
+        # list is several times cheaper than a numpy reduction of seven numbers
+        if not math.isfinite(sum(t.tolist())) and not np.isfinite(t).all():
             raise ControllerFault(f"torque command holds NaN/inf: {t.tolist()}; refusing to send it to the robot")
-        self._tau = np.clip(t, -self._limits, self._limits)
+        self._tau = np.minimum(np.maximum(t, self._neg_limits), self._limits)  # np.clip's wrapper costs more
 
     def step(self) -> RobotState:
         """Advance one control period with the last commanded torque; returns the new state."""
         m, d = self.model, self.data
-        d.ctrl[:] = self._tau
-        if not self.config.gravity_compensation:
-            d.qfrc_applied[:] = -d.qfrc_gravcomp
-        t_before = float(d.time)
+        self._v_ctrl[:] = self._tau
+        if not self._gravity_comp:
+            np.negative(self._v_gravcomp, out=self._v_applied)
+        t_before = d.time
         mujoco.mj_step2(m, d)
         self._wipe()
         mujoco.mj_step1(m, d)
@@ -294,9 +301,11 @@ class MujocoBackend:
 
     def _check_finite(self, where: str, t: float) -> None:
         d = self.data
-        # MuJoCo resets the data itself when it detects a blow-up (time jumps back to 0), so the
-        # clock and its warnings are the evidence; a NaN that slipped through shows in the sums
-        if d.time + 0.5 * self.dt >= t and np.isfinite(d.qpos.sum() + d.qvel.sum()):
+        # MuJoCo checks qpos, qvel (mj_step1) and qacc (mj_step2) for NaN, inf and |x| > 1e10 and, with
+        # auto-reset on, resets the data itself: the clock jumps back to 0, so the clock and its warnings
+        # are the evidence; without auto-reset (read at reset) the joint states are summed
+        if d.time + 0.5 * self.dt >= t and (not self._sum_check or math.isfinite(
+                sum(self._v_qpos.tolist()) + sum(self._v_qvel.tolist()))):
             return
         bad = [what for code, what in _BAD.items() if d.warning[code].number > 0]
         raise SimulationError(
@@ -305,13 +314,30 @@ class MujocoBackend:
             "stiffness, or check the commanded torques."
         )
 
-    def _after_tick(self) -> None:
-        d = self.data
-        ids = self._ids
+    def _cache_views(self) -> None:
+        """Numpy views of the MjData fields read every tick: MuJoCo never reallocates them, and building
+        a view costs about a microsecond each time (this runs at 1 kHz)."""
+        d, ids = self.data, self._ids
+        self._v_ctrl, self._v_applied, self._v_gravcomp = d.ctrl, d.qfrc_applied, d.qfrc_gravcomp
+        self._v_qpos, self._v_qvel = d.qpos, d.qvel
+        self._v_q, self._v_dq = d.qpos[:7], d.qvel[:7]
+        self._v_grav7, self._v_bias7, self._v_act7 = d.qfrc_gravcomp[:7], d.qfrc_bias[:7], d.qfrc_actuator[:7]
         a, b = ids["ft_force_adr"], ids["ft_torque_adr"]
-        self._wrench = self.ft_sensor.measure(  # a fresh array each tick: shared by the state
-            d.sensordata[a:a + 3], d.sensordata[b:b + 3], d.site_xmat[ids["ft_site"]].reshape(3, 3), self._rng
-        )
+        self._v_ft_force, self._v_ft_torque = d.sensordata[a:a + 3], d.sensordata[b:b + 3]
+        self._v_ft_rot = d.site_xmat[ids["ft_site"]].reshape(3, 3)
+        self._v_tcp_pos, self._v_tcp_rot = d.site_xpos[ids["tcp"]], d.site_xmat[ids["tcp"]].reshape(3, 3)
+        self._mass7 = self._mfull[:7, :7]
+        self._jac7 = self._jac[:, :7]
+        self._tcp = ids["tcp"]
+        self._pad_geom, self._object_geom, self._pad_body = ids["pad_geom"], ids["object_geom"], ids["pad_body"]
+        self._v_pad_pos, self._v_pad_rot = d.xpos[self._pad_body], d.xmat[self._pad_body].reshape(3, 3)
+        b = ids["object_body"]
+        self._v_obj_pos, self._v_obj_rot = d.xpos[b], d.xmat[b].reshape(3, 3)
+        self._gravity_comp = bool(self.config.gravity_compensation)
+
+    def _after_tick(self) -> None:
+        # a fresh array each tick: shared by the state
+        self._wrench = self.ft_sensor.measure(self._v_ft_force, self._v_ft_torque, self._v_ft_rot, self._rng)
         self._state = None
 
     def _pad_contacts(self) -> tuple[float, np.ndarray | None, float, np.ndarray | None, np.ndarray | None]:
@@ -322,45 +348,45 @@ class MujocoBackend:
             return 0.0, None, 0.0, None, None
         # a handful of contacts: plain Python on lists beats numpy's per-call overhead here
         con = d.contact
-        geoms = con.geom.tolist()
         adr = con.efc_address.tolist()
-        efc = d.efc_force
-        pad, obj = self._ids["pad_geom"], self._ids["object_geom"]
-        rows = []
-        for i, (g1, g2) in enumerate(geoms):
-            if (g1 == pad or g2 == pad) and adr[i] >= 0:
-                fn = float(efc[adr[i]])  # elliptic cones: the first row of a contact is its normal force
-                if fn > 0:
-                    rows.append((i, fn, obj in (g1, g2), 1.0 if g2 == pad else -1.0))
-        if not rows:
+        efc = d.efc_force.tolist()
+        pad, obj = self._pad_geom, self._object_geom
+        pos = frame = None
+        f_all = f_obj = 0.0
+        p_all = [0.0, 0.0, 0.0]
+        p_obj = [0.0, 0.0, 0.0]
+        n_all = [0.0, 0.0, 0.0]  # the contact normal (first row of the contact frame) points from geom1 to geom2
+        n_obj = [0.0, 0.0, 0.0]
+        for i, (g1, g2) in enumerate(con.geom.tolist()):
+            if (g1 != pad and g2 != pad) or adr[i] < 0:
+                continue
+            fn = efc[adr[i]]  # elliptic cones: the first row of a contact is its normal force
+            if fn <= 0:
+                continue
+            if pos is None:
+                pos, frame = con.pos.tolist(), con.frame.tolist()
+            p, n = pos[i], frame[i]
+            fs = fn if g2 == pad else -fn
+            on_obj = g1 == obj or g2 == obj
+            f_all += fn
+            if on_obj:
+                f_obj += fn
+            for k in range(3):
+                p_all[k] += fn * p[k]
+                n_all[k] += fs * n[k]
+                if on_obj:
+                    p_obj[k] += fn * p[k]
+                    n_obj[k] += fs * n[k]
+        if f_all == 0.0:
             return 0.0, None, 0.0, None, None
-        pos = con.pos.tolist()
-        frame = con.frame.tolist()
-
-        def wsum(sel: list, vec: list, sign: bool) -> list[float]:
-            out = [0.0, 0.0, 0.0]
-            for i, fn, _, sg in sel:
-                w = fn * sg if sign else fn
-                v = vec[i]
-                out[0] += w * v[0]
-                out[1] += w * v[1]
-                out[2] += w * v[2]
-            return out
-
-        total = sum(r[1] for r in rows)
-        point = np.array(wsum(rows, pos, False)) / total
         # report the magnitude of the net normal force (contacts on neighbouring facets of a height
-        # field push in slightly different directions; their magnitudes do not add up); the contact
-        # normal (first row of the contact frame) points from geom1 to geom2
-        net = wsum(rows, frame, True)
-        total = float(np.sqrt(net[0] ** 2 + net[1] ** 2 + net[2] ** 2))
-        on_obj = [r for r in rows if r[2]]
-        if not on_obj:
+        # field push in slightly different directions; their magnitudes do not add up)
+        total = math.sqrt(n_all[0] ** 2 + n_all[1] ** 2 + n_all[2] ** 2)
+        point = np.array(p_all) / f_all
+        if f_obj == 0.0:
             return total, point, 0.0, None, None
-        f_obj = sum(r[1] for r in on_obj)
-        p_obj = np.array(wsum(on_obj, pos, False)) / f_obj
-        n = np.array(wsum(on_obj, frame, True))
-        return total, point, f_obj, p_obj, n / np.sqrt(n @ n)
+        n = np.array(n_obj)
+        return total, point, f_obj, np.array(p_obj) / f_obj, n / math.sqrt(n @ n)
 
     def _wipe(self) -> None:
         """Contact ground truth and Preston wear, sampled every ``contact_sample_ticks`` ticks (the
@@ -372,55 +398,46 @@ class MujocoBackend:
         if point_w is None:
             self._last_contact = (total, point)
             return
-        m, d = self.model, self.data
-        pad = self._ids["pad_body"]
         if self._pad_bottom is not None:
             # flat sponge: the footprint is the pad disc, centred under the pad whatever contact
             # points the collider reports (a tilted disc touches at its rim)
-            centre = d.xpos[pad] + d.xmat[pad].reshape(3, 3)[:, 2] * self._pad_bottom
+            centre = self._v_pad_pos + self._v_pad_rot[:, 2] * self._pad_bottom
             point_w = centre + ((point_w - centre) @ normal) * normal
         self._last_contact = (total, point_w)
         if force <= self.scene.dirt.params.force_threshold_n:
             return
-        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, pad, self._pad_vel, 0)
+        mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, self._pad_body, self._pad_vel, 0)
         v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (the object is at rest)
         vn = v @ normal
-        slip = float(np.sqrt(max(v @ v - vn * vn, 0.0)))
+        slip = math.sqrt(max(v @ v - vn * vn, 0.0))
         if slip > 0.0:
-            b = self._ids["object_body"]
-            point_obj = (point_w - d.xpos[b]) @ d.xmat[b].reshape(3, 3)
+            point_obj = (point_w - self._v_obj_pos) @ self._v_obj_rot
             self.scene.dirt.apply_wear(point_obj, force * slip * self.dt * self._sample_ticks)
 
     def _make_state(self) -> RobotState:
         m, d = self.model, self.data
-        arm = self._arm
-        tcp = self._ids["tcp"]
-        jacp, jacr = self._jacp, self._jacr
-        mujoco.mj_jacSite(m, d, jacp, jacr, tcp)
-        jac = np.empty((6, 7))
-        jac[:3] = jacp[:, arm]
-        jac[3:] = jacr[:, arm]
+        mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._tcp)
+        jac = self._jac7.copy()
         mujoco.mj_fullM(m, d, self._mfull)
-        dq = d.qvel[arm].copy()
-        gravity = d.qfrc_gravcomp[arm].copy()
-        mass = self._mfull[arm, arm].copy()
-        coriolis = d.qfrc_bias[arm] - gravity
-        tau = d.qfrc_actuator[arm] + gravity if self.config.gravity_compensation else d.qfrc_actuator[arm].copy()
+        dq = self._v_dq.copy()
+        gravity = self._v_grav7.copy()
+        tau = self._v_act7 + gravity if self._gravity_comp else self._v_act7.copy()
+        wrench = self._wrench
         # q and dq were checked after the step (everything kinematic follows from them); the torques
         # and the sensor reading are checked here: one sum is finite iff every term is
-        if not np.isfinite(tau.sum() + self._wrench.sum()):
+        if not math.isfinite(sum(tau.tolist()) + sum(wrench.tolist())):
             raise SimulationError(f"non-finite robot state at t = {d.time:.4f} s; hint: the simulation diverged")
         return RobotState(
-            t=float(d.time),
-            q=d.qpos[arm].copy(),
+            t=d.time,
+            q=self._v_q.copy(),
             dq=dq,
             tau_measured=tau,
-            ee_position=d.site_xpos[tcp].copy(),
-            ee_rotation=d.site_xmat[tcp].reshape(3, 3).copy(),
+            ee_position=self._v_tcp_pos.copy(),
+            ee_rotation=self._v_tcp_rot.copy(),
             ee_twist=jac @ dq,
             jacobian=jac,
-            mass_matrix=mass,
-            coriolis=coriolis,
+            mass_matrix=self._mass7.copy(),
+            coriolis=self._v_bias7 - gravity,
             gravity=gravity,
-            wrench_tool=self._wrench,
+            wrench_tool=wrench,
         )

@@ -76,7 +76,8 @@ class DirtField:
         self.initial = (marking_mask(marking, self.uv) & valid).astype(float)
         self.level = self.initial.copy()
         self._extent = extent
-        self._points_grid = self.points.reshape(nv, nu, 3)
+        # the cell centres as three (nv, nu) planes: the footprint test below reads them at 200 Hz
+        self._xyz_grid = tuple(np.ascontiguousarray(self.points[:, k].reshape(nv, nu)) for k in range(3))
         # half-size of the cell window that contains the pad footprint (+1 cell of margin)
         self._win = (int(np.ceil(self.params.pad_radius_m / (extent[1] / nv))) + 1,
                      int(np.ceil(self.params.pad_radius_m / (extent[0] / nu))) + 1)
@@ -121,20 +122,23 @@ class DirtField:
         if not force_slip_integral > 0.0:
             return 0
         c = np.asarray(contact_obj, dtype=float).reshape(3)
-        # only a window of cells around the footprint is examined (this runs at 1 kHz)
+        # only a window of cells around the footprint is examined (this runs every few ticks)
         iu, iv = self._cell_index(c)
         nv, nu = self.shape
         v0, v1 = max(iv - self._win[0], 0), min(iv + self._win[0] + 1, nv)
         u0, u1 = max(iu - self._win[1], 0), min(iu + self._win[1] + 1, nu)
-        block = self._points_grid[v0:v1, u0:u1]
-        d2 = ((block - c) ** 2).sum(axis=-1)
+        d2 = None
+        for grid, ck in zip(self._xyz_grid, c.tolist(), strict=True):
+            e = grid[v0:v1, u0:u1] - ck
+            e *= e
+            d2 = e if d2 is None else np.add(d2, e, out=d2)
         inside = d2 <= p.pad_radius_m**2
-        count = int(inside.sum())
+        count = int(np.count_nonzero(inside))
         if count == 0:
             return 0
         removal = p.coefficient * force_slip_integral / (np.pi * p.pad_radius_m**2)
         levels = self.level.reshape(nv, nu)[v0:v1, u0:u1]
-        levels[inside] = np.maximum(levels[inside] - removal, 0.0)
+        np.copyto(levels, np.maximum(levels - removal, 0.0), where=inside)
         return count
 
     def _cell_index(self, point_obj: np.ndarray) -> tuple[int, int]:
@@ -142,8 +146,8 @@ class DirtField:
         s = self.surface
         nv, nu = self.shape
         if isinstance(s, HeightFieldSurface):
-            u = point_obj[0] / s.size_x_m + 0.5
-            v = point_obj[1] / s.size_y_m + 0.5
+            u = float(point_obj[0]) / s.size_x_m + 0.5
+            v = float(point_obj[1]) / s.size_y_m + 0.5
         else:
             u, v = s.uv(point_obj[None])[0]
         return min(max(int(u * nu), 0), nu - 1), min(max(int(v * nv), 0), nv - 1)

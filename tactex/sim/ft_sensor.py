@@ -41,6 +41,20 @@ class FTSensorModel:
         self.alpha = 1.0 if cutoff_hz <= 0 else float(1.0 - np.exp(-2.0 * np.pi * cutoff_hz * dt_s))
         self.gravity = _GRAVITY_WORLD if gravity is None else np.asarray(gravity, dtype=float).reshape(3)
         self._filtered: np.ndarray | None = None
+        # The model is affine in the raw reading and in the tool's weight in the sensor frame, w = m·Rᵀg:
+        # wrench = T·(raw + bias + [w; c × w]) with T moving the moment to the TCP at (0, 0, L):
+        # m_tcp = m + (−L·ẑ) × f. One 6×9 product per tick instead of a dozen scalar operations.
+        length = float(self.tcp[2])
+        moment_to_tcp = np.eye(6)
+        moment_to_tcp[3, 1], moment_to_tcp[4, 0] = length, -length
+        cx, cy, cz = self.com
+        com_cross = np.array([[0.0, -cz, cy], [cz, 0.0, -cx], [-cy, cx, 0.0]])
+        self._raw_to_tcp = moment_to_tcp
+        self._weight_to_tcp = moment_to_tcp @ np.vstack([np.eye(3), com_cross])
+        self._map = np.hstack([moment_to_tcp, self._weight_to_tcp])  # (6, 9) on [f_raw, m_raw, w]
+        self._offset = moment_to_tcp @ self.bias if self.bias.any() else None
+        self._mg = self.mass * self.gravity
+        self._noisy = bool(self.noise.any())
 
     def reset(self) -> None:
         self._filtered = None
@@ -48,24 +62,15 @@ class FTSensorModel:
     def measure(self, raw_force: np.ndarray, raw_torque: np.ndarray, world_R_sensor: np.ndarray,
                 rng: np.random.Generator | None = None) -> np.ndarray:
         """Contact wrench (6,) at the TCP, tool frame, [f (N), m (N·m)]; f_z > 0 when pressing."""
-        raw = np.concatenate([raw_force, raw_torque])
-        raw += self.bias
-        if rng is not None and self.noise.any():
-            raw += rng.normal(0.0, 1.0, 6) * self.noise
-        # gravity of the tool in the sensor frame: m·Rᵀg (plain floats: this runs at 1 kHz)
-        rot = np.asarray(world_R_sensor)
-        gw = self.gravity
-        mg = [self.mass * float(rot[0, i] * gw[0] + rot[1, i] * gw[1] + rot[2, i] * gw[2]) for i in range(3)]
-        fx, fy, fz, mx, my, mz = raw.tolist()
-        fx, fy, fz = fx + mg[0], fy + mg[1], fz + mg[2]
-        cx, cy, cz = self.com.tolist()
-        mx += cy * mg[2] - cz * mg[1]
-        my += cz * mg[0] - cx * mg[2]
-        mz += cx * mg[1] - cy * mg[0]
-        # move the moment from the sensor origin to the TCP at (0, 0, L): m_tcp = m + (−L·ẑ) × f
-        length = float(self.tcp[2])
-        wrench = np.array([fx, fy, fz, mx + length * fy, my - length * fx, mz])
-        if self._filtered is None or self.alpha >= 1.0:
+        weight = self._mg @ world_R_sensor  # m·Rᵀg: the tool's weight in the sensor frame
+        wrench = self._map @ np.concatenate((raw_force, raw_torque, weight))
+        if self._offset is not None:
+            wrench += self._offset
+        if rng is not None and self._noisy:
+            wrench += self._raw_to_tcp @ (rng.normal(0.0, 1.0, 6) * self.noise)
+        if self.alpha >= 1.0:
+            return wrench  # a fresh array
+        if self._filtered is None:
             self._filtered = wrench
         else:
             self._filtered = self._filtered + self.alpha * (wrench - self._filtered)

@@ -16,9 +16,9 @@ __all__ = ["rotation_error", "solve_site_ik"]
 
 def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     """Rotation vector (3,) [rad] of target·currentᵀ (world frame): the angular step to target."""
-    quat = np.zeros(4)
+    quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, (target @ current.T).reshape(9))
-    vel = np.zeros(3)
+    vel = np.empty(3)
     mujoco.mju_quat2Vel(vel, quat, 1.0)
     return vel
 

@@ -36,10 +36,11 @@ class SimpleImpedance:
     def torque(self, state: RobotState, position: np.ndarray, rotation: np.ndarray,
                wrench_ff_world: np.ndarray | None = None) -> np.ndarray:
         """Joint torques (7,) [N·m] without gravity, tracking ``position`` [m] and ``rotation``."""
-        err = np.concatenate([position - state.ee_position, rotation_error(rotation, state.ee_rotation)])
-        k = np.asarray(self.stiffness, dtype=float).copy()
-        k[list(self.free_axes)] = 0.0
-        wrench = k * err - self.damping * state.ee_twist
+        err = np.concatenate((position - state.ee_position, rotation_error(rotation, state.ee_rotation)))
+        err *= self.stiffness
+        for axis in self.free_axes:
+            err[axis] = 0.0
+        wrench = err - self.damping * state.ee_twist
         if wrench_ff_world is not None:
-            wrench = wrench + wrench_ff_world
+            wrench += wrench_ff_world
         return state.jacobian.T @ wrench - self.joint_damping * state.dq
