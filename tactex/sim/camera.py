@@ -145,27 +145,30 @@ class RayCastCamera:
         valid = hit & (depth >= k.min_depth_m) & (depth <= k.max_depth_m)
         depth[~valid] = 0.0
         on_table = valid & on_table
-        rgb[on_table] = _TABLE_RGB_U8
         on_obj = valid & on_obj
-        rgb[valid & ~on_table & ~on_obj] = 128
+        if on_table.any():
+            rgb[on_table] = _TABLE_RGB_U8
+        other = valid & ~on_table & ~on_obj
+        if other.any():
+            rgb[other] = 128
         if not on_obj.any():
             return
         if dirt is None:
             rgb[on_obj] = 204
             return
-        sel = slice(None) if on_obj.all() else np.flatnonzero(on_obj)
-        t = depth[sel]
-        x, y, z = (o_obj[i] + t * dirs_obj[i][sel] for i in range(3))  # the seen points, object frame
+        # the seen points in the object frame, for every pixel of the block (a pixel off the object
+        # reads some cell, unused): masks beat gathering the object's pixels
+        x, y, z = (depth * dirs_obj[i] + o_obj[i] for i in range(3))
         level = dirt.level_at_xyz(x, y, z, dirt_level)
         base = BASE_RGB if object_rgb is None else np.asarray(object_rgb, dtype=float)
-        colours = np.empty((len(level), 3), dtype=np.uint8)
         for c in range(3):
-            colours[:, c] = np.rint(level * (255.0 * (MARK_RGB[c] - base[c])) + 255.0 * base[c])
+            value = level * (255.0 * (MARK_RGB[c] - base[c]))
+            value += 255.0 * base[c]
+            np.copyto(rgb[:, c], np.rint(value, out=value), where=on_obj, casting="unsafe")
         surf = dirt.surface
         if isinstance(surf, HeightFieldSurface) and surf.radius_m is not None:
             # the height field's corners outside a plate's disc lie on the table: show the table
-            colours[~surf.inside(x, y)] = _TABLE_RGB_U8
-        rgb[sel] = colours
+            rgb[on_obj & ~surf.inside(x, y)] = _TABLE_RGB_U8
 
     def _frame(self, depth, rgb, world_T_cam, timestamp) -> CameraFrame:
         k = self.intrinsics

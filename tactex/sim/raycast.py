@@ -71,17 +71,19 @@ class SceneRayCaster:
     Args:
         sim_object: the scene's object (its geometry as compiled into MuJoCo).
         table_top_z: world height of the table top [m]; table_xy: (xmin, xmax, ymin, ymax) [m].
-        newton_iterations: iterations of the height-field intersection.
+        newton_iterations: most Newton iterations of the height-field intersection.
+        tolerance_m: a ray's iterations stop once they move its depth by less than this [m].
     """
 
     def __init__(self, sim_object: SimObject, table_top_z: float = 0.0,
                  table_xy: tuple[float, float, float, float] = (-0.4, 1.2, -0.8, 0.8),
-                 newton_iterations: int = 2) -> None:
+                 newton_iterations: int = 8, tolerance_m: float = 1e-6) -> None:
         self.obj = sim_object
         self.kind = sim_object.kind
         self.table_z = float(table_top_z)
         self.table_xy = table_xy
         self.iterations = int(newton_iterations)
+        self.tolerance = _F32(tolerance_m)
         t = sim_object.base_thickness_m
         surf = sim_object.surface
         if self.kind == "box":
@@ -206,26 +208,42 @@ class SceneRayCaster:
             np.copyto(fb, f_j, where=new)
             found |= new
             t_prev, f_prev = t_j, f_j
-        # regula falsi inside the bracket, then Newton steps kept inside it (a NaN step, from a ray
-        # tangent to the surface, falls back to the bracket end below the surface)
+        # regula falsi inside the bracket, then Newton steps kept inside it until they are shorter than
+        # the tolerance (a NaN step, from a ray tangent to the surface, falls back to the bracket end
+        # below the surface); the rays still moving are gathered once they are the minority
         with np.errstate(divide="ignore", invalid="ignore"):
             tc = np.fmax(a, np.fmin(b, a - fa * (b - a) / (fb - fa)))
+            act = None  # indices of the rays still iterating; None: all
+            ta, tb, t_act, ox, oy, oz, gdx, gdy, gdz = a, b, tc, og[0], og[1], og[2], dg[0], dg[1], dz
             for _ in range(self.iterations):
-                cx = tc * dg[0]
-                cx += og[0]
-                cy = tc * dg[1]
-                cy += og[1]
+                cx = t_act * gdx
+                cx += ox
+                cy = t_act * gdy
+                cy += oy
                 h, gx, gy = self._surface(cx, cy, gradient=True)
-                gap = tc * dz
-                gap += og[2]
-                gap -= h
-                gx *= dg[0]
-                gy *= dg[1]
-                slope = dz - gx
+                step = t_act * gdz
+                step += oz
+                step -= h
+                gx *= gdx
+                gy *= gdy
+                slope = gdz - gx
                 slope -= gy
-                gap /= slope
-                tc -= gap
-                np.fmax(a, np.fmin(b, tc, out=tc), out=tc)
+                step /= slope
+                t_new = t_act - step
+                np.fmax(ta, np.fmin(tb, t_new, out=t_new), out=t_new)
+                moving = np.abs(t_new - t_act) > self.tolerance
+                if act is None:
+                    tc = t_act = t_new
+                else:
+                    tc[act] = t_new
+                    t_act = t_new
+                n_moving = int(np.count_nonzero(moving))
+                if n_moving == 0:
+                    break
+                if 2 * n_moving < len(moving):
+                    sel = np.flatnonzero(moving)
+                    act = sel if act is None else act[sel]
+                    ta, tb, t_act, gdx, gdy, gdz = (v[sel] for v in (ta, tb, t_act, gdx, gdy, gdz))
         np.copyto(tc, lo_t, where=wall)
         np.copyto(tc, _F32(_INF), where=~found)
         if idx is None:
