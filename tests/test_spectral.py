@@ -107,6 +107,35 @@ def test_sparse_and_dense_solvers_agree(monkeypatch: pytest.MonkeyPatch) -> None
         assert np.abs(np.abs(dense_vecs[:, k] @ (M @ sparse_vecs[:, k])) - 1.0) < 1e-6
 
 
+def test_restarted_lanczos_matches_dense_reference(monkeypatch: pytest.MonkeyPatch) -> None:
+    # k = 100 on ~1000 points: ARPACK's basis (1.5 k) is smaller than the ≈ 2.5 k Krylov vectors the
+    # 100th pair needs, so the implicit restarts are exercised, as on the TEC clouds.
+    L, M = point_cloud_laplacian(curved_patch(32, seed=3))
+    k = 100
+    assert eigen_mod.lanczos_basis_size(k, L.shape[0]) < 2.5 * k
+    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10_000)
+    ref_vals, ref_vecs = laplace_eigenpairs(L, M, k)
+    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+    vals, vecs = laplace_eigenpairs(L, M, k)
+    mass = M.diagonal()
+    np.testing.assert_allclose(vals, ref_vals, rtol=1e-9, atol=1e-9 * ref_vals[-1])
+    # Same spanned space: the M-orthogonal projection of the reference basis onto ours loses nothing.
+    overlap = ref_vecs.T @ (mass[:, None] * vecs)
+    np.testing.assert_allclose(np.linalg.svd(overlap, compute_uv=False), 1.0, atol=1e-8)
+    # Hence the same diffusion operator (TEC eq. 19) at the paper's α = 10.
+    dt = diffusion_timestep(10.0, 0.1 / 31)
+    u = np.random.default_rng(4).random(L.shape[0])
+    step = lambda V, w: V @ (np.exp(-w * dt) * (V.T @ (mass * u)))  # noqa: E731
+    np.testing.assert_allclose(step(vecs, vals), step(ref_vecs, ref_vals), rtol=0, atol=1e-10 * np.abs(u).max())
+
+
+@pytest.mark.parametrize(("k", "n"), [(1, 5000), (10, 5000), (100, 5000), (200, 300), (3000, 4001), (4000, 4001)])
+def test_lanczos_basis_size_within_arpack_bounds(k: int, n: int) -> None:
+    ncv = eigen_mod.lanczos_basis_size(k, n)
+    assert k < ncv <= n
+    assert ncv >= min(n, 20)
+
+
 def test_components_follow_the_cloud() -> None:
     a = curved_patch(15)
     b = a + np.array([1.0, 0.0, 0.0])  # a second patch far away
