@@ -41,19 +41,11 @@ class FTSensorModel:
         self.alpha = 1.0 if cutoff_hz <= 0 else float(1.0 - np.exp(-2.0 * np.pi * cutoff_hz * dt_s))
         self.gravity = _GRAVITY_WORLD if gravity is None else np.asarray(gravity, dtype=float).reshape(3)
         self._filtered: np.ndarray | None = None
-        # The model is affine in the raw reading and in the tool's weight in the sensor frame, w = m·Rᵀg:
-        # wrench = T·(raw + bias + [w; c × w]) with T moving the moment to the TCP at (0, 0, L):
-        # m_tcp = m + (−L·ẑ) × f. One 6×9 product per tick instead of a dozen scalar operations.
-        length = float(self.tcp[2])
-        moment_to_tcp = np.eye(6)
-        moment_to_tcp[3, 1], moment_to_tcp[4, 0] = length, -length
-        cx, cy, cz = self.com
-        com_cross = np.array([[0.0, -cz, cy], [cz, 0.0, -cx], [-cy, cx, 0.0]])
-        self._raw_to_tcp = moment_to_tcp
-        self._weight_to_tcp = moment_to_tcp @ np.vstack([np.eye(3), com_cross])
-        self._map = np.hstack([moment_to_tcp, self._weight_to_tcp])  # (6, 9) on [f_raw, m_raw, w]
-        self._offset = moment_to_tcp @ self.bias if self.bias.any() else None
-        self._mg = self.mass * self.gravity
+        # plain floats for the 1 kHz path: a handful of scalar operations beat numpy's per-call overhead
+        self._mg = (self.mass * self.gravity).tolist()
+        self._com = self.com.tolist()
+        self._length = float(self.tcp[2])
+        self._bias = self.bias.tolist() if self.bias.any() else None
         self._noisy = bool(self.noise.any())
 
     def reset(self) -> None:
@@ -62,12 +54,28 @@ class FTSensorModel:
     def measure(self, raw_force: np.ndarray, raw_torque: np.ndarray, world_R_sensor: np.ndarray,
                 rng: np.random.Generator | None = None) -> np.ndarray:
         """Contact wrench (6,) at the TCP, tool frame, [f (N), m (N·m)]; f_z > 0 when pressing."""
-        weight = self._mg @ world_R_sensor  # m·Rᵀg: the tool's weight in the sensor frame
-        wrench = self._map @ np.concatenate((raw_force, raw_torque, weight))
-        if self._offset is not None:
-            wrench += self._offset
+        fx, fy, fz = raw_force.tolist()
+        mx, my, mz = raw_torque.tolist()
+        if self._bias is not None:
+            bfx, bfy, bfz, bmx, bmy, bmz = self._bias
+            fx, fy, fz, mx, my, mz = fx + bfx, fy + bfy, fz + bfz, mx + bmx, my + bmy, mz + bmz
         if rng is not None and self._noisy:
-            wrench += self._raw_to_tcp @ (rng.normal(0.0, 1.0, 6) * self.noise)
+            nfx, nfy, nfz, nmx, nmy, nmz = (rng.normal(0.0, 1.0, 6) * self.noise).tolist()
+            fx, fy, fz, mx, my, mz = fx + nfx, fy + nfy, fz + nfz, mx + nmx, my + nmy, mz + nmz
+        # the tool's weight in the sensor frame, w = m·Rᵀg
+        r = np.asarray(world_R_sensor).tolist()
+        g0, g1, g2 = self._mg
+        w0 = r[0][0] * g0 + r[1][0] * g1 + r[2][0] * g2
+        w1 = r[0][1] * g0 + r[1][1] * g1 + r[2][1] * g2
+        w2 = r[0][2] * g0 + r[1][2] * g1 + r[2][2] * g2
+        fx, fy, fz = fx + w0, fy + w1, fz + w2
+        cx, cy, cz = self._com
+        mx += cy * w2 - cz * w1
+        my += cz * w0 - cx * w2
+        mz += cx * w1 - cy * w0
+        # move the moment from the sensor origin to the TCP at (0, 0, L): m_tcp = m + (−L·ẑ) × f
+        length = self._length
+        wrench = np.array((fx, fy, fz, mx + length * fy, my - length * fx, mz))
         if self.alpha >= 1.0:
             return wrench  # a fresh array
         if self._filtered is None:
