@@ -407,7 +407,28 @@ def test_solver_runs_without_threadpoolctl(monkeypatch: pytest.MonkeyPatch) -> N
     import sys
 
     monkeypatch.setitem(sys.modules, "threadpoolctl", None)  # import now raises ImportError
-    L, M = point_cloud_laplacian(curved_patch(30))
+    eigen_mod._blas_controller.cache_clear()  # the controller is looked up once per process
+    try:
+        L, M = point_cloud_laplacian(curved_patch(30))
+        monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+        vals, vecs = laplace_eigenpairs(L, M, 8)
+        assert eigen_mod._blas_controller() is None
+        assert vals.shape == (8,) and np.all(np.isfinite(vecs))
+    finally:
+        eigen_mod._blas_controller.cache_clear()  # later tests find threadpoolctl again
+
+
+def test_solver_pins_blas_to_one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    seen = []
+    real_eigsh = eigen_mod.sla.eigsh
+
+    def spy(*args, **kwargs):
+        seen.extend(info["num_threads"] for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas")
+        return real_eigsh(*args, **kwargs)
+
+    monkeypatch.setattr(eigen_mod.sla, "eigsh", spy)
     monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
-    vals, vecs = laplace_eigenpairs(L, M, 8)
-    assert vals.shape == (8,) and np.all(np.isfinite(vecs))
+    L, M = point_cloud_laplacian(curved_patch(30))
+    laplace_eigenpairs(L, M, 8)
+    assert seen and all(n == 1 for n in seen)

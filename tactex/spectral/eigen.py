@@ -10,6 +10,7 @@ factorisation is done once with a symmetric fill-reducing ordering.
 from __future__ import annotations
 
 import contextlib
+import functools
 
 import numpy as np
 import scipy.linalg as la
@@ -26,14 +27,23 @@ DENSE_MAX_POINTS = 800
 DENSE_LIMIT_POINTS = 4000
 
 
+@functools.cache
+def _blas_controller() -> object | None:
+    # Inspecting the loaded libraries costs ~1 ms, more than a small dense solve: done once.
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:  # optional: without it the solver runs with the default thread count
+        return None
+    return ThreadpoolController()
+
+
 def _single_threaded_blas() -> contextlib.AbstractContextManager:
     """The solvers' BLAS calls are small (N × ncv mat-vecs, ≤ 800² dense): two OpenBLAS threads gain
     ~10 % on an idle 2-core machine but spin against any other busy process (2–7× slower under load)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional: without it the solver runs with the default thread count
+    controller = _blas_controller()
+    if controller is None:
         return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
+    return controller.limit(limits=1, user_api="blas")
 
 
 def _symmetric_form(L: sp.spmatrix, mass: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
