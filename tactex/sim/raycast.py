@@ -9,13 +9,13 @@ the same grid MuJoCo collides with (bilinear between grid nodes; MuJoCo's two tr
 differ from it by less than the grid's own interpolation error). ``RayCastCamera(method="mujoco")``
 keeps MuJoCo's ray caster, and the tests check both agree.
 
-Speed (this runs at 30 Hz beside a 1 kHz control loop; a 160×120 frame takes ~1 ms): rays are
+Speed (this runs at 30 Hz beside a 1 kHz control loop; a 160×120 frame takes ~2 ms): rays are
 three component arrays (x, y, z of the directions), cast in chunks of at most :data:`CHUNK_RAYS`,
-in float32 where the precision allows (depths keep ~10 nm). The chunks matter more than the
-arithmetic: a numpy temporary above glibc's mmap threshold (128 KiB by default) is mmapped, page-
-faulted and unmapped on every allocation, which made whole-frame arrays (and the (N, samples)
-march of the height field) 5× slower than their arithmetic. A chunk's arrays stay well under it,
-and in cache.
+in float32 where the precision allows (depths keep ~10 nm). A frame costs a few hundred numpy
+operations per chunk, so fewer, larger chunks are faster, up to the point where the temporaries
+stop fitting in the cache and the heap: whole 640×480 frames and the old (rays × samples) march
+arrays were page-faulted anew on every allocation (glibc mmaps blocks above its threshold), which
+made them several times slower than their arithmetic.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ from tactex.sim.objects import SimObject
 
 __all__ = ["CHUNK_RAYS", "SceneRayCaster", "chunk_bounds"]
 
-#: Most rays cast at once (12288 float64 values are 96 KiB: under the mmap threshold).
-CHUNK_RAYS = 12288
+#: Most rays cast at once: a 160×120 frame in one chunk, 640×480 in ten.
+CHUNK_RAYS = 32768
 
 _INF = np.inf
 _F32 = np.float32
