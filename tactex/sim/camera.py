@@ -59,8 +59,8 @@ class RayCastCamera:
         k = intrinsics
         u, v = np.meshgrid(np.arange(k.width, dtype=float), np.arange(k.height, dtype=float))
         self._dirs_optical = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], axis=-1).reshape(-1, 3)
-        self._u = (np.arange(k.width) - k.cx) / k.fx
-        self._v = (np.arange(k.height) - k.cy) / k.fy
+        self._u = ((np.arange(k.width) - k.cx) / k.fx).astype(np.float32)
+        self._v = ((np.arange(k.height) - k.cy) / k.fy).astype(np.float32)
         self._row_chunks = chunk_bounds(k.height, max(1, CHUNK_RAYS // k.width))
         self._n = self._dirs_optical.shape[0]
         self._geomid = np.zeros(self._n, dtype=np.int32)
@@ -131,8 +131,8 @@ class RayCastCamera:
         """Components (float32, (r1 − r0)·W each) of the ray directions rot·(x', y', 1) of image rows
         r0..r1: x' varies along a row and y' down a column, so each is an outer sum."""
         u, v = self._u, self._v[r0:r1]
-        return tuple(np.add.outer(v * rot[k, 1] + rot[k, 2], u * rot[k, 0]).astype(np.float32).reshape(-1)
-                     for k in range(3))
+        r = rot.astype(np.float32)
+        return tuple(np.add.outer(v * r[k, 1] + r[k, 2], u * r[k, 0]).reshape(-1) for k in range(3))
 
     def _shade(self, depth, hit, on_obj, on_table, o_obj, dirs_obj, rgb, dirt, dirt_level, object_rgb,
                rng) -> None:
@@ -146,9 +146,12 @@ class RayCastCamera:
         depth[~valid] = 0.0
         on_table = valid & on_table
         on_obj = valid & on_obj
-        if on_table.any():
-            rgb[on_table] = _TABLE_RGB_U8
         other = valid & ~on_table & ~on_obj
+        # per channel with masks: assigning rows through a boolean index is several times slower
+        channels = [rgb[:, c] for c in range(3)]
+        if on_table.any():
+            for ch, value in zip(channels, _TABLE_RGB_U8, strict=True):
+                np.copyto(ch, value, where=on_table)
         if other.any():
             rgb[other] = 128
         if not on_obj.any():
@@ -158,14 +161,15 @@ class RayCastCamera:
             return
         # the seen points in the object frame, for every pixel of the block (a pixel off the object
         # reads some cell, unused): masks beat gathering the object's pixels
-        x, y, z = (depth * dirs_obj[i] + o_obj[i] for i in range(3))
+        x, y = (depth * dirs_obj[i] + np.float32(o_obj[i]) for i in range(2))
+        surf = dirt.surface
+        z = None if isinstance(surf, HeightFieldSurface) else depth * dirs_obj[2] + np.float32(o_obj[2])
         level = dirt.level_at_xyz(x, y, z, dirt_level)
         base = BASE_RGB if object_rgb is None else np.asarray(object_rgb, dtype=float)
-        for c in range(3):
+        for c, ch in enumerate(channels):
             value = level * (255.0 * (MARK_RGB[c] - base[c]))
             value += 255.0 * base[c]
-            np.copyto(rgb[:, c], np.rint(value, out=value), where=on_obj, casting="unsafe")
-        surf = dirt.surface
+            np.copyto(ch, np.rint(value, out=value), where=on_obj, casting="unsafe")
         if isinstance(surf, HeightFieldSurface) and surf.radius_m is not None:
             # the height field's corners outside a plate's disc lie on the table: show the table
             rgb[on_obj & ~surf.inside(x, y)] = _TABLE_RGB_U8

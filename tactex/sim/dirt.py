@@ -158,18 +158,23 @@ class DirtField:
         p = np.asarray(points_obj)
         return self.level_at_xyz(p[:, 0], p[:, 1], p[:, 2], level)
 
-    def level_at_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray, level: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`level_at` for points given by their coordinate arrays (N,) each (object frame) [m]."""
+    def level_at_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray | None,
+                     level: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`level_at` for points given by their coordinate arrays (N,) each (object frame) [m]
+        (z is not read on a height field and may be None there)."""
         nv, nu = self.shape
         s = self.surface
         if isinstance(s, HeightFieldSurface):  # uv is affine in x, y: skip the generic uv()
-            u = x * (nu / s.size_x_m) + 0.5 * nu
-            v = y * (nv / s.size_y_m) + 0.5 * nv
+            u = x * (nu / s.size_x_m)
+            u += 0.5 * nu
+            v = y * (nv / s.size_y_m)
+            v += 0.5 * nv
         else:
             uv = s.uv(np.stack([x, y, z], axis=1))
             u, v = uv[:, 0] * nu, uv[:, 1] * nv
-        iu = np.clip(u, 0, nu - 1).astype(np.intp)
-        iv = np.clip(v, 0, nv - 1).astype(np.intp)
+        # truncation is the floor on the grid; the clamps keep points off it on its border cells
+        iu = np.clip(u.astype(np.int32), 0, nu - 1)
+        iv = np.clip(v.astype(np.int32), 0, nv - 1)
         iv *= nu
         iv += iu
         return np.take(self.level if level is None else level, iv)

@@ -21,6 +21,7 @@ made them several times slower than their arithmetic.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -187,7 +188,8 @@ class SceneRayCaster:
         # below the lowest grid height a ray inside the box has necessarily crossed the surface: march
         # only down to that height (the solid base below adds nothing but samples)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t_floor = np.where(dz < 0, (_F32(self.z_floor) - og[2]) / dz, _F32(_INF))
+            t_floor = (_F32(self.z_floor) - og[2]) / dz
+        np.copyto(t_floor, _F32(_INF), where=dz >= 0)
         reach = t_floor <= t_out
         span = np.minimum(t_out, t_floor)
         span -= lo_t
@@ -195,7 +197,7 @@ class SceneRayCaster:
         # bracket the *first* crossing (a ray can pass over a rim, dip below the surface and come out
         # above it again); sample 0 below the surface means the ray came in through a side wall
         travel = float((span * np.sqrt(dg[0] * dg[0] + dg[1] * dg[1])).max(initial=0.0))
-        n_march = int(min(max(np.ceil(travel / 2.0), 1), 24))
+        n_march = min(max(math.ceil(travel / 2.0), 1), 24)
         f_prev = self._gap(lo_t, og, dg)
         t_prev = lo_t
         wall = f_prev <= 0
