@@ -198,9 +198,22 @@ class SceneRayCaster:
         # above it again); sample 0 below the surface means the ray came in through a side wall
         travel = float((span * np.sqrt(dg[0] * dg[0] + dg[1] * dg[1])).max(initial=0.0))
         n_march = min(max(math.ceil(travel / 2.0), 1), 24)
-        f_prev = self._gap(lo_t, og, dg)
+        # a ray that enters through the top face starts at the highest node, so above the surface:
+        # its height there is needed only if it crosses before the next sample (computed below)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            top = np.reciprocal(dz) * _F32(self.hi[2] - o[2]) >= t_in  # the top face is the entry
+        top &= t_in >= 0
+        top &= dz < 0
+        if top.all():
+            f_prev = np.full_like(lo_t, np.nan)
+        elif not top.any():
+            f_prev = self._gap(lo_t, og, dg)
+        else:
+            f_prev = np.full_like(lo_t, np.nan)
+            side = np.flatnonzero(~top)
+            f_prev[side] = self._gap(lo_t[side], og, tuple(c[side] for c in dg))
         t_prev = lo_t
-        wall = f_prev <= 0
+        wall = f_prev <= 0  # below the surface at the entry: came in through a side wall
         found = wall.copy()
         a, b, fa, fb = (np.zeros_like(lo_t) for _ in range(4))
         for j in range(1, n_march + 1):
@@ -219,6 +232,9 @@ class SceneRayCaster:
             np.copyto(fb, f_j, where=new)
             found |= new
             t_prev, f_prev = t_j, f_j
+        lazy = np.flatnonzero(np.isnan(fa) & found)  # crossed in the first interval, entered at the top
+        if lazy.size:
+            fa[lazy] = self._gap(a[lazy], og, tuple(c[lazy] for c in dg))
         # regula falsi inside the bracket, then Newton steps kept inside it
         with np.errstate(divide="ignore", invalid="ignore"):
             tc = np.fmax(a, np.fmin(b, a - fa * (b - a) / (fb - fa)))
