@@ -329,6 +329,7 @@ class MujocoBackend:
         self._mass7 = self._mfull[:7, :7]
         self._jac7 = self._jac[:, :7]
         self._tcp = ids["tcp"]
+        self._force_threshold = self.scene.dirt.params.force_threshold_n
         self._pad_geom, self._object_geom, self._pad_body = ids["pad_geom"], ids["object_geom"], ids["pad_body"]
         self._v_pad_pos, self._v_pad_rot = d.xpos[self._pad_body], d.xmat[self._pad_body].reshape(3, 3)
         b = ids["object_body"]
@@ -340,9 +341,10 @@ class MujocoBackend:
         self._wrench = self.ft_sensor.measure(self._v_ft_force, self._v_ft_torque, self._v_ft_rot, self._rng)
         self._state = None
 
-    def _pad_contacts(self) -> tuple[float, np.ndarray | None, float, np.ndarray | None, np.ndarray | None]:
+    def _pad_contacts(self) -> tuple[float, list | None, float, list | None, list | None]:
         """Pad contacts of the last step: total normal force [N] and force-weighted point (world),
-        and the same for the object only, with its mean normal (pointing from the surface to the pad)."""
+        and the same for the object only, with its mean normal (pointing from the surface to the pad);
+        points and normal as lists of 3 floats."""
         d = self.data
         if d.ncon == 0:
             return 0.0, None, 0.0, None, None
@@ -382,11 +384,11 @@ class MujocoBackend:
         # report the magnitude of the net normal force (contacts on neighbouring facets of a height
         # field push in slightly different directions; their magnitudes do not add up)
         total = math.sqrt(n_all[0] ** 2 + n_all[1] ** 2 + n_all[2] ** 2)
-        point = np.array(p_all) / f_all
+        point = [v / f_all for v in p_all]
         if f_obj == 0.0:
             return total, point, 0.0, None, None
-        n = np.array(n_obj)
-        return total, point, f_obj, np.array(p_obj) / f_obj, n / math.sqrt(n @ n)
+        norm = math.sqrt(n_obj[0] ** 2 + n_obj[1] ** 2 + n_obj[2] ** 2)
+        return total, point, f_obj, [v / f_obj for v in p_obj], [v / norm for v in n_obj]
 
     def _wipe(self) -> None:
         """Contact ground truth and Preston wear, sampled every ``contact_sample_ticks`` ticks (the
@@ -396,22 +398,31 @@ class MujocoBackend:
             return
         total, point, force, point_w, normal = self._pad_contacts()
         if point_w is None:
-            self._last_contact = (total, point)
+            self._last_contact = (total, None if point is None else np.array(point))
             return
+        # plain floats: this runs every few ticks, and a dozen numpy calls on 3-vectors cost more
+        nx, ny, nz = normal
         if self._pad_bottom is not None:
             # flat sponge: the footprint is the pad disc, centred under the pad whatever contact
             # points the collider reports (a tilted disc touches at its rim)
-            centre = self._v_pad_pos + self._v_pad_rot[:, 2] * self._pad_bottom
-            point_w = centre + ((point_w - centre) @ normal) * normal
-        self._last_contact = (total, point_w)
-        if force <= self.scene.dirt.params.force_threshold_n:
+            px, py, pz = self._v_pad_pos.tolist()
+            ax, ay, az = self._v_pad_rot[:, 2].tolist()
+            b = self._pad_bottom
+            cx, cy, cz = px + ax * b, py + ay * b, pz + az * b
+            h = (point_w[0] - cx) * nx + (point_w[1] - cy) * ny + (point_w[2] - cz) * nz
+            point_w = [cx + h * nx, cy + h * ny, cz + h * nz]
+        self._last_contact = (total, np.array(point_w))
+        if force <= self._force_threshold:
             return
         mujoco.mj_objectVelocity(self.model, self.data, mujoco.mjtObj.mjOBJ_BODY, self._pad_body, self._pad_vel, 0)
-        v = self._pad_vel[3:]  # world-frame linear velocity of the pad centre (the object is at rest)
-        vn = v @ normal
-        slip = math.sqrt(max(v @ v - vn * vn, 0.0))
+        _, _, _, vx, vy, vz = self._pad_vel.tolist()  # world-frame linear velocity of the pad centre
+        vn = vx * nx + vy * ny + vz * nz  # (the object is at rest)
+        slip = math.sqrt(max(vx * vx + vy * vy + vz * vz - vn * vn, 0.0))
         if slip > 0.0:
-            point_obj = (point_w - self._v_obj_pos) @ self._v_obj_rot
+            ox, oy, oz = self._v_obj_pos.tolist()
+            dx, dy, dz = point_w[0] - ox, point_w[1] - oy, point_w[2] - oz
+            r = self._v_obj_rot.tolist()
+            point_obj = [dx * r[0][j] + dy * r[1][j] + dz * r[2][j] for j in range(3)]  # (p − o)·R
             self.scene.dirt.apply_wear(point_obj, force * slip * self.dt * self._sample_ticks)
 
     def _make_state(self) -> RobotState:

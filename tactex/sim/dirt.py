@@ -78,6 +78,9 @@ class DirtField:
         self._extent = extent
         # the cell centres as three (nv, nu) planes: the footprint test below reads them at 200 Hz
         self._xyz_grid = tuple(np.ascontiguousarray(self.points[:, k].reshape(nv, nu)) for k in range(3))
+        gx, gy, _ = self._xyz_grid
+        self._separable = bool(np.all(gx == gx[:1]) and np.all(gy == gy[:, :1]))
+        self._xs, self._ys = gx[0].copy(), gy[:, 0].copy()
         # half-size of the cell window that contains the pad footprint (+1 cell of margin)
         self._win = (int(np.ceil(self.params.pad_radius_m / (extent[1] / nv))) + 1,
                      int(np.ceil(self.params.pad_radius_m / (extent[0] / nu))) + 1)
@@ -121,17 +124,25 @@ class DirtField:
         p = self.params
         if not force_slip_integral > 0.0:
             return 0
-        c = np.asarray(contact_obj, dtype=float).reshape(3)
+        cx, cy, cz = np.asarray(contact_obj, dtype=float).reshape(3).tolist()
         # only a window of cells around the footprint is examined (this runs every few ticks)
-        iu, iv = self._cell_index(c)
+        iu, iv = self._cell_index((cx, cy, cz))
         nv, nu = self.shape
         v0, v1 = max(iv - self._win[0], 0), min(iv + self._win[0] + 1, nv)
         u0, u1 = max(iu - self._win[1], 0), min(iu + self._win[1] + 1, nu)
-        d2 = None
-        for grid, ck in zip(self._xyz_grid, c.tolist(), strict=True):
-            e = grid[v0:v1, u0:u1] - ck
-            e *= e
-            d2 = e if d2 is None else np.add(d2, e, out=d2)
+        gx, gy, gz = self._xyz_grid
+        d2 = gz[v0:v1, u0:u1] - cz
+        d2 *= d2
+        if self._separable:  # x varies along the rows only and y down the columns only
+            ex = self._xs[u0:u1] - cx
+            ey = self._ys[v0:v1, None] - cy
+            d2 += ex * ex
+            d2 += ey * ey
+        else:
+            for grid, ck in ((gx, cx), (gy, cy)):
+                e = grid[v0:v1, u0:u1] - ck
+                e *= e
+                d2 += e
         inside = d2 <= p.pad_radius_m**2
         count = int(np.count_nonzero(inside))
         if count == 0:
@@ -149,7 +160,7 @@ class DirtField:
             u = float(point_obj[0]) / s.size_x_m + 0.5
             v = float(point_obj[1]) / s.size_y_m + 0.5
         else:
-            u, v = s.uv(point_obj[None])[0]
+            u, v = s.uv(np.asarray(point_obj, dtype=float).reshape(1, 3))[0]
         return min(max(int(u * nu), 0), nu - 1), min(max(int(v * nv), 0), nv - 1)
 
     def level_at(self, points_obj: np.ndarray, level: np.ndarray | None = None) -> np.ndarray:
