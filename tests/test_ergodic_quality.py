@@ -52,7 +52,6 @@ def test_plane_slope_is_the_weighted_least_squares_plane(rng):
     y = rng.uniform(0.0, 1.0, 20) * (rng.uniform(size=20) > 0.7)
     a = (x * w[:, None]).T @ x
     expected = np.linalg.lstsq(x * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0][1:]
-    np.testing.assert_allclose(_plane_slope(a, ((x * w[:, None]).T @ y).tolist()), expected, rtol=1e-10, atol=1e-12)
-    assert _plane_slope(a, [0.0, 0.0, 0.0]) is None  # no spike: nothing to add
+    np.testing.assert_allclose(_plane_slope(a, *((x * w[:, None]).T @ y).tolist()), expected, rtol=1e-10, atol=1e-12)
     collinear = np.c_[np.ones(20), uv[:, 0], 2.0 * uv[:, 0]]
-    assert _plane_slope(collinear.T @ collinear, [1.0, 0.5, 1.0]) is None  # rank-deficient block
+    assert _plane_slope(collinear.T @ collinear, 1.0, 0.5, 1.0) is None  # rank-deficient block

@@ -83,14 +83,12 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t[:, 0].copy(), t[:, 1].copy()
 
 
-def _plane_slope(a: np.ndarray, b: list[float]) -> tuple[float, float] | None:
+def _plane_slope(a: np.ndarray, b0: float, b1: float, b2: float) -> tuple[float, float] | None:
     """Slope (c_u, c_v) of the weighted plane c_0 + c_u u + c_v v with normal matrix a[:3, :3] and
-    right-hand side b (3 floats); None when b is zero or the block is not positive definite.
+    right-hand side (b0, b1, b2); None when the block is not positive definite (collinear points).
 
     A 3×3 Cholesky in Python floats: a LAPACK call costs more than the arithmetic at this size.
     """
-    if b[0] == 0.0 and b[1] == 0.0 and b[2] == 0.0:
-        return None
     (a00, a01, a02), (_, a11, a12), (_, _, a22) = a[:3, :3].tolist()
     if a00 <= 0.0:
         return None
@@ -105,9 +103,9 @@ def _plane_slope(a: np.ndarray, b: list[float]) -> tuple[float, float] | None:
     if p22 <= _PIVOT_RTOL * a22:
         return None
     l22 = p22**0.5
-    y0 = b[0] / l00
-    y1 = (b[1] - l10 * y0) / l11
-    c_v = (b[2] - l20 * y0 - l21 * y1) / l22 / l22
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    c_v = (b2 - l20 * y0 - l21 * y1) / l22 / l22
     c_u = (y1 - l21 * c_v) / l11
     return c_u, c_v
 
@@ -223,13 +221,17 @@ class HedacExplorer:
         self._tpos[self._tidx] = np.arange(self._tidx.size)
         # Rows of Φᵀ M restricted to the target: s vanishes elsewhere.
         self._phitm_t = np.ascontiguousarray(self._phi[self._tidx] * self._mass[self._tidx, None])
+        # The source on the target rows, with a trailing 0 so that s_ext[tpos] is the source at any
+        # cloud point (tpos = −1 off the target) without a mask.
+        self._s_ext = np.zeros(self._tidx.size + 1)
+        self._s_t = self._s_ext[:-1]
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
         self._cov = np.zeros(n)
         self._cov_sum = 0.0
         self._coef = self._p_t @ self._phitm_t  # u(x, 0) = p̂ (eq. 5)
-        self._s_t = np.zeros(self._tidx.size)
+        self._s_ext[:] = 0.0
 
     def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
         """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
@@ -294,7 +296,7 @@ class HedacExplorer:
             if self._agents:
                 self._reset_fields()
         else:
-            self._s_t = np.zeros(self._tidx.size)
+            self._s_ext[:] = 0.0
 
     # ------------------------------------------------------------------ stepping
     @property
@@ -395,29 +397,24 @@ class HedacExplorer:
         self._cov_sum += float(phi.sum())
 
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
+        s = self._s_t
         if self._cov_sum > 0.0:
-            s = self._p_t - self._cov[self._tidx] * (1.0 / self._cov_sum)
+            np.multiply(self._cov[self._tidx], -1.0 / self._cov_sum, out=s)
+            s += self._p_t
             np.maximum(s, 0.0, out=s)
             s *= s
         else:
-            s = self._p_t * self._p_t
+            np.multiply(self._p_t, self._p_t, out=s)
         tot = float(s.sum())
         if tot > 0.0:
             s *= 1.0 / tot
-        self._s_t = s
         # Diffuse after adding the source: the truncated projection of a sharp source rings
         # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
         coef = self._coef
         coef += s @ self._phitm_t
         coef *= self._decay
         u = self._phi[nbr] @ coef
-        u_src = None
-        if self._source_w > 0.0:
-            tp = self._tpos[nbr]
-            on = tp >= 0
-            if on.any():
-                u_src = np.zeros(n_n)
-                u_src[on] = s[tp[on]]
+        u_src = self._s_ext[self._tpos[nbr]] if self._source_w > 0.0 else None
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
@@ -439,23 +436,30 @@ class HedacExplorer:
         a.ravel()[::11] += RIDGE_RTOL * float(a[0, 0]) + 1e-300
         u -= u[0]
         _, c, info = _dposv(a, xw.T @ u)
-        g = tb @ c[1:3] if info == 0 else np.zeros(3)
-        if u_src is not None and info == 0:
-            # The raw source is a set of isolated spikes at uncovered target points, typically at the
-            # rim of the neighbourhood (the footprint has cleared its inside). A cubic through a rim
-            # spike overshoots and its slope at the agent points *away* from it, so the agent would
-            # turn back into its own covered disc; the weighted plane (the cubic's first three
-            # monomials, same weights) has the spike's slope sign. Both fits are linear in the
-            # values, so the gradient of (smooth part + spikes) is the sum of the two.
-            slope = _plane_slope(a, (u_src @ xw[:, :3]).tolist())
-            if slope is not None:
-                g = g + tb @ (self._source_w * np.array(slope))
+        if info == 0:
+            if u_src is not None:
+                # The raw source is a set of isolated spikes at uncovered target points, typically at
+                # the rim of the neighbourhood (the footprint has cleared its inside). A cubic through
+                # a rim spike overshoots and its slope at the agent points *away* from it, so the
+                # agent would turn back into its own covered disc; the weighted plane (the cubic's
+                # first three monomials, same weights) has the spike's slope sign. Both fits are
+                # linear in the values: the slope of (smooth part + spikes) is the sum of the two.
+                ws = u_src * w
+                b0 = float(ws.sum())
+                if b0 > 0.0:
+                    slope = _plane_slope(a, b0, *(ws @ uv).tolist())
+                    if slope is not None:
+                        c[1] += self._source_w * slope[0]
+                        c[2] += self._source_w * slope[1]
+            g = tb @ c[1:3]
+        else:
+            g = np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
-        cen = xf[:, 1:3].sum(axis=0) * (1.0 / n_n)  # neighbours' centroid in (u, v) [radii]
-        cn = float(cen @ cen) ** 0.5
-        if cn > EDGE_OFFSET:
-            inward = tb @ (cen * (1.0 / cn))
+        cu, cv = uv.sum(axis=0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
+        cn = (cu * cu + cv * cv) ** 0.5
+        if cn > EDGE_OFFSET * n_n:
+            inward = tb @ np.array((cu / cn, cv / cn))
             go = float(g @ inward)
             if go < 0.0:
                 g = g - go * inward
