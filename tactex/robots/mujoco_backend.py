@@ -149,8 +149,8 @@ class MujocoBackend:
 
         Frames are exposed at ``camera_rate_hz`` and delivered ``camera_latency_s`` later (like a real
         camera; ``CameraFrame.timestamp`` is the exposure time). The frame is rendered at exposure
-        from a snapshot (a worker thread was tried: the GIL hand-overs with the 1 kHz loop made it
-        slower on two cores). Noise is seeded per frame, so runs are reproducible.
+        (a worker thread was tried: the GIL hand-overs with the 1 kHz loop made it slower on two
+        cores). Noise is seeded per frame, so runs are reproducible.
         """
         now = self.time
         frame = None
@@ -171,15 +171,13 @@ class MujocoBackend:
             self._pending_ready_t = exposure_t + latency
         return frame
 
-    def _snapshot(self) -> tuple:
-        world_T_cam, pos, rot = self.camera.snapshot(self.data, self._ids["object_body"])
+    def _frame_rng(self) -> np.random.Generator | None:
+        """The next frame's noise generator, seeded by (seed, frame index): runs are reproducible. None
+        without depth noise (seeding one costs about as much as shading a frame)."""
         self._frame_index += 1
-        rng = np.random.default_rng([self._seed, self._frame_index])
-        return world_T_cam, pos, rot, self.time, self.scene.dirt.level.copy(), rng
-
-    def _render_snapshot(self, world_T_cam, pos, rot, timestamp, level, rng) -> CameraFrame:
-        return self.camera.render(world_T_cam, pos, rot, timestamp, dirt=self.scene.dirt, dirt_level=level,
-                                  object_rgb=np.asarray(self.scene.sim_object.rgb), rng=rng)
+        if self.camera.depth_noise_m <= 0:
+            return None
+        return np.random.default_rng([self._seed, self._frame_index])
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -205,14 +203,10 @@ class MujocoBackend:
 
     def render_depth(self) -> CameraFrame:
         """Capture an RGB-D frame now (ray cast), synchronously."""
-        if self.camera.method == "analytic":
-            return self._render_snapshot(*self._snapshot())
-        obj = self.scene.sim_object
-        self._frame_index += 1
         return self.camera.capture(
             self.data, self.time, dirt=self.scene.dirt, object_geom=self._ids["object_geom"],
-            object_body=self._ids["object_body"], object_rgb=np.asarray(obj.rgb), table_geom=self._ids["table_geom"],
-            rng=np.random.default_rng([self._seed, self._frame_index]),
+            object_body=self._ids["object_body"], object_rgb=self._object_rgb, table_geom=self._ids["table_geom"],
+            rng=self._frame_rng(),
         )
 
     def object_pose(self, name: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -330,6 +324,7 @@ class MujocoBackend:
         self._jac7 = self._jac[:, :7]
         self._tcp = ids["tcp"]
         self._force_threshold = self.scene.dirt.params.force_threshold_n
+        self._object_rgb = np.asarray(self.scene.sim_object.rgb, dtype=float)
         self._pad_geom, self._object_geom, self._pad_body = ids["pad_geom"], ids["object_geom"], ids["pad_body"]
         self._v_pad_pos, self._v_pad_rot = d.xpos[self._pad_body], d.xmat[self._pad_body].reshape(3, 3)
         b = ids["object_body"]
