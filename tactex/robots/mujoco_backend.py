@@ -152,17 +152,19 @@ class MujocoBackend:
         (a worker thread was tried: the GIL hand-overs with the 1 kHz loop made it slower on two
         cores). Noise is seeded per frame, so runs are reproducible.
         """
-        now = self.time
+        now = self.data.time + 1e-9
+        due = now >= self._next_camera_t
+        if not due and self._pending is None:
+            return None  # most ticks
         frame = None
-        due = now + 1e-9 >= self._next_camera_t
         # a frame is delivered once its latency has passed, or at the latest when the next is exposed
-        if self._pending is not None and (now + 1e-9 >= self._pending_ready_t or due):
+        if self._pending is not None and (now >= self._pending_ready_t or due):
             frame = self._pending
             self._pending = None
         if due:
             period = 1.0 / self.config.camera_rate_hz
             exposure_t = self._next_camera_t
-            while self._next_camera_t <= now + 1e-9:
+            while self._next_camera_t <= now:
                 self._next_camera_t += period
             latency = self.config.camera_latency_s
             if latency <= 0.0:

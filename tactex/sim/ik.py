@@ -14,11 +14,12 @@ from tactex.errors import InputError, SimulationError
 __all__ = ["rotation_error", "solve_site_ik"]
 
 
-def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] of target·currentᵀ (world frame): the angular step to target."""
+def rotation_error(target: np.ndarray, current: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Rotation vector (3,) [rad] of target·currentᵀ (world frame): the angular step to target
+    (written into ``out``, a contiguous float64 (3,) array, when given)."""
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, (target @ current.T).reshape(9))
-    vel = np.empty(3)
+    vel = np.empty(3) if out is None else out
     mujoco.mju_quat2Vel(vel, quat, 1.0)
     return vel
 

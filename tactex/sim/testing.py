@@ -36,11 +36,15 @@ class SimpleImpedance:
     def torque(self, state: RobotState, position: np.ndarray, rotation: np.ndarray,
                wrench_ff_world: np.ndarray | None = None) -> np.ndarray:
         """Joint torques (7,) [N·m] without gravity, tracking ``position`` [m] and ``rotation``."""
-        err = np.concatenate((position - state.ee_position, rotation_error(rotation, state.ee_rotation)))
-        err *= self.stiffness
+        wrench = np.empty(6)  # first the pose error [position; rotation vector], then the wrench
+        np.subtract(position, state.ee_position, out=wrench[:3])
+        rotation_error(rotation, state.ee_rotation, out=wrench[3:])
+        wrench *= self.stiffness
         for axis in self.free_axes:
-            err[axis] = 0.0
-        wrench = err - self.damping * state.ee_twist
+            wrench[axis] = 0.0
+        wrench -= self.damping * state.ee_twist
         if wrench_ff_world is not None:
             wrench += wrench_ff_world
-        return state.jacobian.T @ wrench - self.joint_damping * state.dq
+        tau = state.jacobian.T @ wrench
+        tau -= self.joint_damping * state.dq
+        return tau
