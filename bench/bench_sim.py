@@ -56,6 +56,13 @@ def _episode(seconds: float) -> dict:
         "step_us_median": float(np.median(step_s) * 1e6),
         "camera_ms_median": float(np.median(cam_s) * 1e3),
         "camera_frames": len(cam_s),
+        # where the wall time goes, per control tick: physics step (with F/T, contacts, dirt and the
+        # state), camera (its frames spread over the ticks), the rest (controller, torque command, loop)
+        "tick_us": {
+            "step": float(step_s.mean() * 1e6),
+            "camera": float(sum(cam_s) / n * 1e6),
+            "other": float((wall - step_s.sum() - sum(cam_s)) / n * 1e6),
+        },
         "dirt_remaining": backend.dirt_remaining(),
     }
 
