@@ -475,7 +475,8 @@ class HedacExplorer:
         v = agent.command_velocity(direction, nrm)
         xl, n_new = _project_local(patch, (shift + v * self._dt) * inv, nrm)
         step = xl * scale
-        dq2 = dd - 2.0 * (d @ step) + float(step @ step)
+        ss = float(step @ step)
+        dq2 = dd - 2.0 * (d @ step) + ss
         k = dq2.argmin()
         if dq2[k] > self._off2:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
@@ -488,11 +489,13 @@ class HedacExplorer:
                 v = v - max(float(v @ out), 0.0) * out
                 xl, n_new = _project_local(patch, (shift + v * self._dt) * inv, nrm)
                 step = xl * scale
-                dq2 = dd - 2.0 * (d @ step) + float(step @ step)
+                ss = float(step @ step)
+                dq2 = dd - 2.0 * (d @ step) + ss
                 k = dq2.argmin()
             if dq2[k] > self._off2:
                 step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
-        sl = float(step @ step) ** 0.5
+                ss = float(step @ step)
+        sl = ss**0.5
         if sl > self._step_max:
             step *= self._step_max / sl
             sl = self._step_max
