@@ -136,13 +136,17 @@ class MujocoBackend:
         self._v_ctrl[:] = self._tau
         if not self._gravity_comp:
             np.negative(self._v_gravcomp, out=self._v_applied)
-        t_before = d.time
+        t_next = d.time + self.dt
         mujoco.mj_step2(m, d)
-        self._wipe()
+        self._tick += 1
+        if self._tick % self._sample_ticks == 0:
+            self._wipe()
         mujoco.mj_step1(m, d)
-        self._check_finite("step", t_before + self.dt)
+        if d.time + 0.5 * self.dt < t_next or self._sum_check:  # else MuJoCo's own checks passed
+            self._check_finite("step", t_next)
         self._after_tick()
-        return self.state()
+        self._state = self._make_state()
+        return self._state
 
     def camera_frame(self) -> CameraFrame | None:
         """A new RGB-D frame when one is due, else None.
@@ -390,9 +394,6 @@ class MujocoBackend:
     def _wipe(self) -> None:
         """Contact ground truth and Preston wear, sampled every ``contact_sample_ticks`` ticks (the
         pad moves well under a millimetre meanwhile; the wear of the whole period is applied)."""
-        self._tick += 1
-        if self._tick % self._sample_ticks:
-            return
         total, point, force, point_w, normal = self._pad_contacts()
         if point_w is None:
             self._last_contact = (total, None if point is None else np.array(point))
