@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tactex.errors import ConfigError, InputError
-from tactex.pointcloud.shapes import SURFACES
+from tactex.pointcloud.shapes import SURFACES, HeightFieldSurface
 from tactex.robots import MujocoBackend
 from tactex.sim import DirtField, PrestonParams, SceneConfig
 from tactex.sim.testing import SimpleImpedance
@@ -28,6 +28,28 @@ def test_wipe_follows_prestons_law_inside_the_footprint_only():
     expected = 1e-3 * 10.0 / (np.pi * 0.02**2) * 0.05 * 0.01
     np.testing.assert_allclose(removed[inside], expected, rtol=1e-12)
     assert np.all(removed[~inside] == 0.0)
+
+
+@pytest.mark.parametrize("name", ["sine_panel", "bowl", "cup"])
+def test_footprint_is_the_pad_ball_on_curved_surfaces(name):
+    # the window search (separable on height fields, per coordinate on the cup) removes dirt from
+    # exactly the cells within the pad radius of the contact point, in 3-D
+    surface = SURFACES[name]
+    field = DirtField(surface, "full", 0.002, PrestonParams(1e-3, 2.0, 0.02))
+    # on a height field, where it is steepest: there the 3-D ball differs most from a vertical cylinder
+    pts = field.points[field.initial > 0]
+    if isinstance(surface, HeightFieldSurface):
+        pts = pts[np.abs(pts[:, :2]).max(axis=1) < 0.06]  # the whole footprint on the surface
+        gx, gy = surface.gradient(pts[:, 0], pts[:, 1])
+        centre = pts[np.argmax(np.hypot(gx, gy))]
+    else:
+        centre = pts[len(pts) // 2]
+    centre = centre + 0.0007  # off the cell centres
+    n = field.wipe(centre, normal_force_n=10.0, slip_speed_m_s=0.05, dt_s=0.01)
+    inside = (np.linalg.norm(field.points - centre, axis=1) <= 0.02) & (field.initial > 0)
+    removed = field.initial - field.level
+    assert n > 100
+    assert np.all(removed[inside] > 0) and np.all(removed[~inside] == 0.0)
 
 
 def test_removal_is_linear_in_force_and_speed_and_has_a_threshold():

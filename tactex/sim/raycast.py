@@ -103,8 +103,8 @@ class SceneRayCaster:
             self.inv_dx = (len(xs) - 1) / float(xs[-1] - xs[0])
             self.inv_dy = (len(ys) - 1) / float(ys[-1] - ys[0])
             self.nx, self.ny = len(xs), len(ys)
-            if self.nx * self.ny >= 2**24:  # cell indices are computed in float32
-                raise ValueError(f"height field of {self.nx}×{self.ny} nodes is too fine for the ray caster")
+            # cell indices are computed in float32, exact below 2²⁴ cells; beyond, in float64
+            self._wide = self.nx * self.ny >= 2**24
             self._sx, self._sy = _F32(self.inv_dx), _F32(self.inv_dy)
             # one more column and row of cells past the last node, continuing the edge heights: a grid
             # coordinate that round-off puts just past the end needs no clamping (numpy's min/max
@@ -129,7 +129,7 @@ class SceneRayCaster:
         # trunc, not floor: a round-off below 0 stays in cell 0 (extrapolated by that round-off)
         fx = np.trunc(cx)
         fy = np.trunc(cy)
-        k = fy * self._row
+        k = (fy.astype(np.float64) if self._wide else fy) * self._row
         k += fx
         k = k.astype(np.int32)  # float32 → int64 is not vectorised
         cx -= fx  # the fractions stay float32
