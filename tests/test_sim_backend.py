@@ -69,9 +69,10 @@ def test_state_is_consistent(plane_backend):
     np.testing.assert_allclose(s.ee_rotation @ s.ee_rotation.T, np.eye(3), atol=1e-9)
 
 
-def test_torque_is_clipped_to_franka_limits(plane_backend):
+@pytest.mark.parametrize("value", [1000.0, 1e308])  # 1e308: the finiteness sum overflows, the torque does not
+def test_torque_is_clipped_to_franka_limits(plane_backend, value):
     plane_backend.reset(seed=0)
-    plane_backend.apply_torque(np.full(7, 1000.0))
+    plane_backend.apply_torque(np.full(7, value))
     s = plane_backend.step()
     np.testing.assert_allclose(s.tau_measured - s.gravity, FRANKA_TORQUE_LIMITS)
 
