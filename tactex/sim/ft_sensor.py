@@ -28,6 +28,8 @@ class FTSensorModel:
         noise_n, noise_nm: white noise standard deviations [N], [N·m].
         cutoff_hz: first-order low-pass cut-off [Hz] (0 disables); dt_s: sample period [s].
         gravity: (3,) gravity in the world [m/s²].
+
+    The parameters are read once, at construction.
     """
 
     def __init__(self, tool_mass_kg: float, tool_com_m, tcp_offset_m: float, *, bias=None,
@@ -54,8 +56,8 @@ class FTSensorModel:
     def measure(self, raw_force: np.ndarray, raw_torque: np.ndarray, world_R_sensor: np.ndarray,
                 rng: np.random.Generator | None = None) -> np.ndarray:
         """Contact wrench (6,) at the TCP, tool frame, [f (N), m (N·m)]; f_z > 0 when pressing."""
-        fx, fy, fz = raw_force.tolist()
-        mx, my, mz = raw_torque.tolist()
+        fx, fy, fz = np.asarray(raw_force, dtype=float).tolist()
+        mx, my, mz = np.asarray(raw_torque, dtype=float).tolist()
         if self._bias is not None:
             bfx, bfy, bfz, bmx, bmy, bmz = self._bias
             fx, fy, fz, mx, my, mz = fx + bfx, fy + bfy, fz + bfz, mx + bmx, my + bmy, mz + bmz
