@@ -38,6 +38,26 @@ def _merge(dst: dict, src: dict) -> None:
             dst[k] = v
 
 
+def _probe_ms(repeats: int = 5) -> float:
+    """Median wall time [ms] of a fixed single-threaded workload (Python loop and small numpy
+    products, the mix of a control tick). This machine is shared: its speed swings by up to ~1.7×
+    within seconds, so each stage's timings are recorded beside the probe taken just before it."""
+    import numpy as np
+
+    a = np.eye(3) * 1.0001
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        acc = 0
+        for i in range(20000):
+            acc += i * i
+        m = a
+        for _ in range(2000):
+            m = m @ a
+        times.append(time.perf_counter() - t0)
+    return 1e3 * sorted(times)[len(times) // 2]
+
+
 def _fmt(v: object) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
@@ -58,6 +78,7 @@ def main() -> int:
     if out_path.exists() and args.only:
         results = json.loads(out_path.read_text())  # keep the other stages' numbers
     targets: dict = {}
+    probes: dict = {}
     for path in sorted(HERE.glob("bench_*.py")):
         name = path.stem.removeprefix("bench_")
         if args.only and name not in args.only:
@@ -65,7 +86,8 @@ def main() -> int:
         spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
         mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
         spec.loader.exec_module(mod)  # type: ignore[union-attr]
-        print(f"== bench {name}", flush=True)
+        probes[name] = _probe_ms()
+        print(f"== bench {name}  (machine probe {probes[name]:.2f} ms; lower is faster)", flush=True)
         t0 = time.perf_counter()
         _merge(results, mod.run(args))
         targets.update(getattr(mod, "TARGETS", {}))
@@ -75,6 +97,8 @@ def main() -> int:
         "platform": platform.platform(),
         "cpu_count": __import__("os").cpu_count(),
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+        # the probe's time before each stage [ms]: compare runs only at similar probe times
+        "probe_ms": {**results.get("machine", {}).get("probe_ms", {}), **probes},
     }
     out_path.parent.mkdir(parents=True, exist_ok=True)
     out_path.write_text(json.dumps(results, indent=2) + "\n")
