@@ -18,6 +18,7 @@ from tactex.control.state import RobotState
 from tactex.errors import ControllerFault, InputError, MissingDependencyError, SimulationError
 from tactex.perception.frame import CameraFrame
 from tactex.sim.camera import RayCastCamera
+from tactex.sim.camera_worker import CameraWorker
 from tactex.sim.franka import FRANKA_HOME_Q
 from tactex.sim.ft_sensor import FTSensorModel
 from tactex.sim.ik import solve_site_ik
@@ -79,6 +80,10 @@ class MujocoBackend:
         )
         self._renderer = None
         self._viewer = None
+        self._worker: CameraWorker | None = None
+        if self.config.camera_worker:
+            self._worker = CameraWorker(self.camera, self.scene.dirt, self._object_rgb,
+                                        timeout_s=self.config.camera_worker_timeout_s)
         self._pending: CameraFrame | None = None
         self._pending_ready_t = 0.0
         self._state: RobotState | None = None
@@ -100,6 +105,8 @@ class MujocoBackend:
         self._seed = int(self.config.seed if seed is None else seed)
         self._rng = np.random.default_rng(self._seed)
         self._pending = None
+        if self._worker is not None:
+            self._worker.discard()  # a frame of the previous episode
         self._frame_index = 0
         self._tau = np.zeros(self.n_joints)
         self.scene.dirt.reset()
@@ -154,12 +161,17 @@ class MujocoBackend:
         Frames are exposed at ``camera_rate_hz`` and delivered ``camera_latency_s`` later (like a real
         camera; ``CameraFrame.timestamp`` is the exposure time). The frame is rendered at exposure
         (a worker thread was tried: the GIL hand-overs with the 1 kHz loop made it slower on two
-        cores). Noise is seeded per frame, so runs are reproducible.
+        cores). With ``SceneConfig.camera_worker`` a worker process renders it instead and the frame
+        is delivered at the next exposure (one frame period after its timestamp; the frames equal
+        those of ``camera_latency_s`` = one period in process). Noise is seeded per frame, so runs
+        are reproducible.
         """
         now = self.data.time + 1e-9
         due = now >= self._next_camera_t
         if not due and self._pending is None:
             return None  # most ticks
+        if self._worker is not None:
+            return self._worker_frame(now)
         frame = None
         # a frame is delivered once its latency has passed, or at the latest when the next is exposed
         if self._pending is not None and (now >= self._pending_ready_t or due):
@@ -185,7 +197,36 @@ class MujocoBackend:
             return None
         return np.random.default_rng([self._seed, self._frame_index])
 
+    def _worker_frame(self, now: float) -> CameraFrame | None:
+        """With ``camera_worker``, at an exposure tick: collect the frame exposed one period ago (waiting
+        for the worker if it is late: the episode does not depend on the machine's speed) and hand
+        the worker this one's snapshot, the same a synchronous capture would render now."""
+        assert self._worker is not None
+        frame = self._worker.collect() if self._worker.busy else None
+        period = 1.0 / self.config.camera_rate_hz
+        while self._next_camera_t <= now:
+            self._next_camera_t += period
+        world_T_cam, obj_pos, obj_rot = self.camera.snapshot(self.data, self._ids["object_body"])
+        self._frame_index += 1
+        self._worker.submit(world_T_cam, obj_pos, obj_rot, self.time, self.scene.dirt.level, self._seed,
+                            self._frame_index, self.camera.depth_noise_m > 0)
+        return frame
+
+    @property
+    def camera_worker(self) -> CameraWorker | None:
+        """The camera worker process (``SceneConfig.camera_worker``), else None."""
+        return self._worker
+
+    def __enter__(self) -> MujocoBackend:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def close(self) -> None:
+        """Release the GL renderer, the viewer and the camera worker process."""
+        if self._worker is not None:
+            self._worker.close()
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

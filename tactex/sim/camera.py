@@ -19,7 +19,7 @@ from tactex.errors import ConfigError
 from tactex.perception.frame import CameraFrame, CameraIntrinsics
 from tactex.pointcloud.markings import BASE_RGB, MARK_RGB
 from tactex.pointcloud.shapes import HeightFieldSurface
-from tactex.sim.dirt import DirtField
+from tactex.sim.dirt import DirtField, DirtLookup
 from tactex.sim.raycast import CHUNK_RAYS, SceneRayCaster, chunk_bounds
 
 __all__ = ["RayCastCamera", "optical_R_mujoco_camera"]
@@ -35,7 +35,8 @@ class RayCastCamera:
     """Depth and colour of a MuJoCo camera by ray casting.
 
     Args:
-        model: the compiled model; camera_id: the MuJoCo camera.
+        model: the compiled model; camera_id: the MuJoCo camera (None and -1 for a camera that only
+            renders snapshots, as in the camera worker process).
         intrinsics: pinhole model (image size, focal lengths, principal point, valid depth range).
         depth_noise_m: standard deviation of depth noise at 1 m [m], scaled by depth² (stereo-like).
         geom_groups: the geom groups MuJoCo's rays can hit (default 0: table and objects).
@@ -43,7 +44,7 @@ class RayCastCamera:
         caster: the analytic ray caster of the scene.
     """
 
-    def __init__(self, model: mujoco.MjModel, camera_id: int, intrinsics: CameraIntrinsics,
+    def __init__(self, model: mujoco.MjModel | None, camera_id: int, intrinsics: CameraIntrinsics,
                  depth_noise_m: float = 0.0, geom_groups: tuple[int, ...] = (0,), method: str = "mujoco",
                  caster: SceneRayCaster | None = None) -> None:
         if method not in ("analytic", "mujoco"):
@@ -103,11 +104,11 @@ class RayCastCamera:
         return self._frame(depth, rgb, world_T_cam, timestamp)
 
     def render(self, world_T_cam: np.ndarray, obj_pos: np.ndarray, obj_rot: np.ndarray, timestamp: float, *,
-               dirt: DirtField | None = None, dirt_level: np.ndarray | None = None, object_rgb=None,
+               dirt: DirtField | DirtLookup | None = None, dirt_level: np.ndarray | None = None, object_rgb=None,
                rng: np.random.Generator | None = None) -> CameraFrame:
         """A frame by the analytic ray caster from a snapshot (touches no MuJoCo data: thread-safe
-        as long as ``dirt_level`` is a copy). Cast and shaded in chunks of image rows (see
-        :mod:`tactex.sim.raycast` for why)."""
+        as long as ``dirt_level`` is a copy; ``dirt`` may be a :class:`~tactex.sim.dirt.DirtLookup`).
+        Cast and shaded in chunks of image rows (see :mod:`tactex.sim.raycast` for why)."""
         assert self.caster is not None
         w = self.intrinsics.width
         cam_rot, cam_pos = world_T_cam[:3, :3], world_T_cam[:3, 3]

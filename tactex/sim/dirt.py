@@ -16,7 +16,7 @@ from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.markings import BASE_RGB, MARK_RGB, marking_mask
 from tactex.pointcloud.shapes import CylinderWallSurface, HeightFieldSurface, Surface
 
-__all__ = ["DirtField", "PrestonParams"]
+__all__ = ["DirtField", "DirtLookup", "PrestonParams"]
 
 
 @dataclass(frozen=True)
@@ -173,22 +173,7 @@ class DirtField:
                      level: np.ndarray | None = None) -> np.ndarray:
         """:meth:`level_at` for points given by their coordinate arrays (N,) each (object frame) [m]
         (z is not read on a height field and may be None there)."""
-        nv, nu = self.shape
-        s = self.surface
-        if isinstance(s, HeightFieldSurface):  # uv is affine in x, y: skip the generic uv()
-            u = x * (nu / s.size_x_m)
-            u += 0.5 * nu
-            v = y * (nv / s.size_y_m)
-            v += 0.5 * nv
-        else:
-            uv = s.uv(np.stack([x, y, z], axis=1))
-            u, v = uv[:, 0] * nu, uv[:, 1] * nv
-        # truncation is the floor on the grid; the clamps keep points off it on its border cells
-        iu = np.clip(u.astype(np.int32), 0, nu - 1)
-        iv = np.clip(v.astype(np.int32), 0, nv - 1)
-        iv *= nu
-        iv += iu
-        return np.take(self.level if level is None else level, iv)
+        return _levels_at_xyz(self.surface, self.shape, self.level if level is None else level, x, y, z)
 
     def colors(self, points_obj: np.ndarray, base_rgb: np.ndarray | None = None,
                level: np.ndarray | None = None) -> np.ndarray:
@@ -200,3 +185,36 @@ class DirtField:
     def level_image(self) -> np.ndarray:
         """Dirt levels as an image (nv, nu), row 0 at v = 0."""
         return self.level.reshape(self.shape)
+
+
+@dataclass(frozen=True)
+class DirtLookup:
+    """Read-only dirt lookup on a surface's cell grid, for levels held elsewhere (the camera worker
+    process gets the levels of each frame through shared memory)."""
+
+    surface: Surface
+    shape: tuple[int, int]
+
+    def level_at_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray | None, level: np.ndarray) -> np.ndarray:
+        """Levels (N,) of the cells at the object-frame points (x, y, z) (see DirtField.level_at_xyz)."""
+        return _levels_at_xyz(self.surface, self.shape, level, x, y, z)
+
+
+def _levels_at_xyz(surface: Surface, shape: tuple[int, int], level: np.ndarray, x: np.ndarray, y: np.ndarray,
+                   z: np.ndarray | None) -> np.ndarray:
+    nv, nu = shape
+    s = surface
+    if isinstance(s, HeightFieldSurface):  # uv is affine in x, y: skip the generic uv()
+        u = x * (nu / s.size_x_m)
+        u += 0.5 * nu
+        v = y * (nv / s.size_y_m)
+        v += 0.5 * nv
+    else:
+        uv = s.uv(np.stack([x, y, z], axis=1))
+        u, v = uv[:, 0] * nu, uv[:, 1] * nv
+    # truncation is the floor on the grid; the clamps keep points off it on its border cells
+    iu = np.clip(u.astype(np.int32), 0, nu - 1)
+    iv = np.clip(v.astype(np.int32), 0, nv - 1)
+    iv *= nu
+    iv += iu
+    return np.take(level, iv)

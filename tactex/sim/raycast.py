@@ -75,13 +75,16 @@ class SceneRayCaster:
         newton_iterations: most Newton iterations of the height-field intersection.
         tolerance_m: a ray's iterations stop once a step moves it by less than this [m] (Newton's
             quadratic convergence leaves an error far below it on smooth parts).
+        kind, heightfield: the object's ``kind`` and ``heightfield()`` grid when already known (the
+            camera worker process gets them as arrays: it has no height function).
     """
 
     def __init__(self, sim_object: SimObject, table_top_z: float = 0.0,
                  table_xy: tuple[float, float, float, float] = (-0.4, 1.2, -0.8, 0.8),
-                 newton_iterations: int = 8, tolerance_m: float = 1e-5) -> None:
+                 newton_iterations: int = 8, tolerance_m: float = 1e-5, *, kind: str | None = None,
+                 heightfield: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         self.obj = sim_object
-        self.kind = sim_object.kind
+        self.kind = sim_object.kind if kind is None else kind
         self.table_z = float(table_top_z)
         self.table_xy = table_xy
         self.iterations = int(newton_iterations)
@@ -98,7 +101,7 @@ class SceneRayCaster:
             self.lo = np.array([-surf.radius_m, -surf.radius_m, 0.0])
             self.hi = np.array([surf.radius_m, surf.radius_m, surf.height_m])
         else:
-            xs, ys, z = sim_object.heightfield()
+            xs, ys, z = sim_object.heightfield() if heightfield is None else heightfield
             self.x0, self.y0 = float(xs[0]), float(ys[0])
             self.inv_dx = (len(xs) - 1) / float(xs[-1] - xs[0])
             self.inv_dy = (len(ys) - 1) / float(ys[-1] - ys[0])

@@ -45,6 +45,9 @@ class SceneConfig:
     camera_height: int = param(120, "camera image height [px]")
     camera_rate_hz: float = param(30.0, "camera frame rate [Hz]")
     camera_latency_s: float = param(0.0, "camera exposure-to-delivery delay [s], ≤ one frame period")
+    camera_worker: bool = param(False, "ray cast the camera frames in a worker process on another core; a frame "
+                                "is then delivered at the next exposure: one frame period of latency")
+    camera_worker_timeout_s: float = param(60.0, "longest wait for the camera worker (its start included) [s]")
     camera_raycast: str = param("analytic", "depth ray casting: analytic (table + object) or mujoco (mj_multiRay)")
     depth_noise_m: float = param(0.0, "depth noise standard deviation at 1 m, grows with depth² [m]")
     ft_noise_n: float = param(0.0, "F/T force noise standard deviation [N]")
@@ -73,6 +76,14 @@ class SceneConfig:
             raise ConfigError(f"unknown camera preset '{self.camera_preset}'; valid: {', '.join(CAMERA_PRESETS)}")
         if self.camera_raycast not in ("analytic", "mujoco"):
             raise ConfigError(f"camera_raycast must be 'analytic' or 'mujoco', got '{self.camera_raycast}'")
+        if self.camera_worker and self.camera_raycast != "analytic":
+            raise ConfigError("camera_worker needs camera_raycast='analytic' (the worker has no MuJoCo data)")
+        period = 1.0 / self.camera_rate_hz if self.camera_rate_hz > 0 else 0.0
+        if self.camera_worker and 1e-9 < self.camera_latency_s < period - 1e-9:
+            raise ConfigError(f"with camera_worker a frame arrives one frame period ({period:.4g} s) after its "
+                              f"exposure; camera_latency_s must be 0 or that period, got {self.camera_latency_s}")
+        if not (np.isfinite(self.camera_worker_timeout_s) and self.camera_worker_timeout_s > 0):
+            raise ConfigError(f"camera_worker_timeout_s must be > 0 s, got {self.camera_worker_timeout_s}")
         if self.tool_pad_shape not in ("cylinder", "sphere"):
             raise ConfigError(f"tool_pad_shape must be 'cylinder' or 'sphere', got '{self.tool_pad_shape}'")
         positive = {
