@@ -211,7 +211,18 @@ def test_hung_worker_times_out_and_is_killed():
         worker.submit(np.eye(4), np.zeros(3), np.eye(3), 0.0, None, 0, 1, False)
         with pytest.raises(SimulationError, match=r"did not finish the frame within 0.5 s and was killed"):
             worker.collect()
-        assert _gone(worker.pid)
+        assert _gone(worker.pid) and worker.exit_code == -signal.SIGKILL
+
+
+def test_close_with_a_frame_in_flight_ends_the_worker_cleanly():
+    camera = _plane_camera(HeightFieldSurface("probe", 0.2, 0.2, _flat))
+    worker = CameraWorker(camera)
+    worker.wait_ready()
+    worker.submit(np.eye(4), np.zeros(3), np.eye(3), 0.0, None, 0, 1, False)
+    worker.close()
+    assert worker.exit_code == 0 and not worker.alive
+    with pytest.raises(SimulationError, match="already closed"):
+        worker.submit(np.eye(4), np.zeros(3), np.eye(3), 0.0, None, 0, 1, False)
 
 
 def test_worker_protocol_misuse_is_refused():

@@ -160,6 +160,11 @@ class CameraWorker:
                 [sys.executable, "-c", "from tactex.sim.camera_worker import _main; _main()", json.dumps(spec)],
                 pass_fds=(fd, child.fileno()), env=env, stdin=subprocess.DEVNULL,
             )
+        except BaseException:
+            parent.close()
+            self._views.clear()
+            self._mm.close()
+            raise
         finally:
             os.close(fd)  # the worker holds its own copies; the mapping keeps the memory alive here
             child.close()
@@ -175,6 +180,11 @@ class CameraWorker:
     def busy(self) -> bool:
         """A frame is in flight (submitted, not yet collected)."""
         return self._in_flight is not None
+
+    @property
+    def exit_code(self) -> int | None:
+        """The worker's exit status once it has exited (negative: killed by that signal), else None."""
+        return self._proc.poll()
 
     @property
     def alive(self) -> bool:
@@ -377,4 +387,7 @@ def _serve(spec: dict, fd: int, sock: socket.socket) -> None:
                               dirt_level=level, object_rgb=rgb, rng=rng)
         depth_out[:] = frame.depth_m.reshape(-1)
         rgb_out[:] = frame.rgb.reshape(-1)
-        sock.send(_MSG_DONE)
+        try:
+            sock.send(_MSG_DONE)
+        except OSError:  # closed while this frame was in flight: nobody wants it
+            return
