@@ -1,6 +1,7 @@
 """tactex.sim: the MuJoCo world — Franka with F/T sensor, wiping pad and wrist camera, objects, dirt."""
 
 from tactex.sim.camera import RayCastCamera
+from tactex.sim.camera_worker import CameraWorker
 from tactex.sim.dirt import DirtField, PrestonParams
 from tactex.sim.franka import FRANKA_HOME_Q, FRANKA_TORQUE_LIMITS
 from tactex.sim.ft_sensor import FTSensorModel
@@ -21,6 +22,7 @@ __all__ = [
     "FRANKA_HOME_Q",
     "FRANKA_TORQUE_LIMITS",
     "OBJECTS",
+    "CameraWorker",
     "DirtField",
     "FTSensorModel",
     "PrestonParams",
