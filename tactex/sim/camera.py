@@ -7,7 +7,8 @@ against the table and the object, :mod:`tactex.sim.raycast`, ~2 ms per 160×120 
 ``"mujoco"`` (``mujoco.mj_multiRay`` over every scene geom, 20–100 ms per frame on height fields).
 Colour comes from what each ray hits: the object's clean colour blended with its dirt level, the
 table, or black for misses. The robot's own geoms are not seen (like a camera whose view of the
-tool is masked).
+tool is masked). ``SceneConfig(camera_worker=True)`` renders the frames with this same code in a
+worker process (:mod:`tactex.sim.camera_worker`).
 """
 
 from __future__ import annotations
