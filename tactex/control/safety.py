@@ -104,9 +104,13 @@ class SafetyLayer(Controller):
         self._q_lo_margin = self._q_min + lim.joint_limit_margin
         self._q_hi_margin = self._q_max - lim.joint_limit_margin
         self._rate_step = lim.tau_rate_max * lim.dt
+        self._tau_max_l = self._tau_max.tolist()
+        self._q_lo_margin_l = self._q_lo_margin.tolist()
+        self._q_hi_margin_l = self._q_hi_margin.tolist()
         self.events: list[SafetyEvent] = []
         self.counts: dict[str, int] = {}
         self._tau_prev = np.zeros_like(self._tau_max)
+        self._tau_prev_l = self._tau_prev.tolist()
         self._wrench_last = np.zeros(6)
         self._over = 0
         self._retreat_until: float | None = None
@@ -122,6 +126,7 @@ class SafetyLayer(Controller):
         self.events.clear()
         self.counts.clear()
         self._tau_prev = np.zeros_like(self._tau_max)
+        self._tau_prev_l = self._tau_prev.tolist()
         self._wrench_last = np.zeros(6)
         self._over = 0
         self._retreat_until = None
@@ -186,40 +191,58 @@ class SafetyLayer(Controller):
         return state.jacobian.T @ f
 
     def _finish(self, state: RobotState, tau: np.ndarray, finite_state: bool = True) -> np.ndarray:
+        # Per joint on Python floats (one tolist per vector): for 7 joints this is cheaper at 1 kHz
+        # than the dozen numpy calls of the vectorised form, and gives the same numbers.
         lim = self.limits
-        tau = np.array(tau, dtype=float)
+        tau_l = np.asarray(tau, dtype=float).tolist()
         if finite_state:
-            q = state.q
-            near_lo = q < self._q_lo_margin
-            near_hi = q > self._q_hi_margin
-            if _count(near_lo) or _count(near_hi):
+            q = state.q.tolist()
+            lo_m, hi_m = self._q_lo_margin_l, self._q_hi_margin_l
+            near = [j for j, qj in enumerate(q) if qj < lo_m[j] or qj > hi_m[j]]
+            if near:
                 m, k, d = lim.joint_limit_margin, lim.joint_limit_stiffness, lim.joint_limit_damping
-                rep = np.zeros_like(tau)
-                rep[near_lo] += k * (self._q_lo_margin[near_lo] - q[near_lo]) - d * state.dq[near_lo]
-                rep[near_hi] -= k * (q[near_hi] - self._q_hi_margin[near_hi]) + d * state.dq[near_hi]
+                dq = state.dq.tolist()
+                for j in near:
+                    if q[j] < lo_m[j]:
+                        tau_l[j] += k * (lo_m[j] - q[j]) - d * dq[j]
+                    if q[j] > hi_m[j]:
+                        tau_l[j] += -(k * (q[j] - hi_m[j]) + d * dq[j])
                 if not self._held:
-                    joints = np.flatnonzero(near_lo | near_hi).tolist()
-                    self._event(state.t, "joint_limit", f"joints {joints} within {m} rad of a limit; repelling")
+                    self._event(state.t, "joint_limit", f"joints {near} within {m} rad of a limit; repelling")
                 self._held = True
-                tau += rep
             else:
                 self._held = False
-        if not math.isfinite(float(_add(tau))):
-            tau = np.where(np.isfinite(tau), tau, 0.0)
-        prev = self._tau_prev
-        lo = np.maximum(self._neg_tau_max, prev - self._rate_step)
-        hi = np.minimum(self._tau_max, prev + self._rate_step)
-        out = np.minimum(np.maximum(tau, lo), hi)
-        if _count(out != tau):
-            over = bool(_count(np.abs(tau) > self._tau_max))
-            clipped = np.minimum(np.maximum(tau, self._neg_tau_max), self._tau_max) if over else tau
-            self._flag(state.t, "torque_limit", over, "torque saturated at the joint limits")
-            self._flag(state.t, "torque_rate_limit", bool(_count(out != clipped)), "torque rate saturated")
+        if not math.isfinite(sum(tau_l)):
+            tau_l = [x if math.isfinite(x) else 0.0 for x in tau_l]
+        step = self._rate_step
+        out = []
+        rate_hit = torque_hit = False
+        for x, p, m in zip(tau_l, self._tau_prev_l, self._tau_max_l, strict=True):
+            lo = p - step
+            hi = p + step
+            if lo < -m:
+                lo = -m
+            if hi > m:
+                hi = m
+            # min(max(x, lo), hi), as np.minimum(np.maximum(·)) computes it
+            y = hi if (lo if x < lo else x) > hi else (lo if x < lo else x)
+            if y != x:
+                if x > m or x < -m:
+                    torque_hit = True
+                    if y != (m if x > m else -m):
+                        rate_hit = True
+                else:
+                    rate_hit = True
+            out.append(y)
+        if torque_hit or rate_hit:
+            self._flag(state.t, "torque_limit", torque_hit, "torque saturated at the joint limits")
+            self._flag(state.t, "torque_rate_limit", rate_hit, "torque rate saturated")
         elif self._saturating["torque_limit"] or self._saturating["torque_rate_limit"]:
             self._flag(state.t, "torque_limit", False, "")
             self._flag(state.t, "torque_rate_limit", False, "")
-        self._tau_prev = out
-        return out.copy()
+        self._tau_prev_l = out
+        self._tau_prev = np.array(out)
+        return np.array(out)
 
     def _flag(self, t: float, kind: str, active: bool, detail: str) -> None:
         if not active and not self._saturating[kind]:
