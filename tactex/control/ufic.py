@@ -10,6 +10,7 @@ f̃ = f_d − f_meas, the negative-feedback reading, so the PI drives f_meas to 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,6 +92,8 @@ class UficController(Controller):
         self._d_free = self.params.damping_tool(False)
         self._d_tool = self._d_contact
         self._k_max = np.asarray(self.params.stiffness_max, dtype=float)
+        self._neg_k_tool = -self._k_max
+        self._neg_k_scale = float("nan")  # forces the first build of −K_C(t)
         self._integral = np.zeros(6)
         self._ilim = self.params.integral_limit / self.params.ki if self.params.ki > 0 else 0.0
         self._t_prev: float | None = None
@@ -144,12 +147,15 @@ class UficController(Controller):
         self._select_damping(state)
         x_err_world = self.pose_error_world(state, reference.position_world, reference.rotation_world)
         x_err_tool = world_to_tool(rot, x_err_world)
-        k_tool = self._k_max.copy()
-        k_tool[:3] *= self.stiffness_scale
+        if self.stiffness_scale != self._neg_k_scale:  # −K_C(t) rebuilt only when ρ changes
+            k_tool = self._k_max.copy()
+            k_tool[:3] *= self.stiffness_scale
+            self._neg_k_tool, self._neg_k_scale = -k_tool, self.stiffness_scale
         # eq. 8, gains in tool axes
-        f_tool = -k_tool * x_err_tool - self._d_tool * world_to_tool(rot, state.ee_twist)
+        f_tool = self._neg_k_tool * x_err_tool - self._d_tool * world_to_tool(rot, state.ee_twist)
         f_tool += self.force_wrench_tool(state, reference.wrench_tool, dt)  # eq. 10–12
-        self._last = {"pose_error_m": float(np.linalg.norm(x_err_tool[:3])),
+        e = x_err_tool[:3]
+        self._last = {"pose_error_m": math.sqrt(float(e @ e)),
                       "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2])}
         return state.jacobian.T @ tool_to_world(rot, f_tool)  # eq. 9, 13
 

@@ -147,6 +147,7 @@ class VaUficController(UficController):
         self.tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
         self.tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
         self._k_const = np.asarray(v.stiffness_const, dtype=float)
+        self._neg_k_const = -self._k_const
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
         self._offset = np.zeros(3)
         self._rot_d: np.ndarray | None = None
@@ -221,13 +222,12 @@ class VaUficController(UficController):
         xdot_tool = world_to_tool(rot, state.ee_twist)
         self._select_damping(state)
         d_xdot = self._d_tool * xdot_tool
-        kvar_err = rho_align * self._k_max_t * x_err_tool  # K_var(t)·x̃, eq. 56
         f_f = rho_frc * self.force_wrench_tool(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
 
         # Tracking a moving x_d, eq. 8's −D ẋ lags by D·v/K (6 mm at the policy's 8 cm/s). With
         # damping_feedforward the damping acts on the velocity error; its active part +D ẋ_d joins the
         # variable spring at the impedance tank's port (both are non-passive), so σ_i scales both.
-        port = -kvar_err
+        port = (-rho_align * self._k_max_t) * x_err_tool  # −K_var(t)·x̃, eq. 56
         if v.damping_feedforward:
             port = port + self._d_tool * world_to_tool(rot, reference.twist_world)
         if self.port_feedforward is not None:
@@ -236,7 +236,7 @@ class VaUficController(UficController):
         m_f = self.tank_f.step(p_damp, float(xdot_tool @ f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
         # the impedance tank harvests only the dissipation the force tank did not store (no double count)
         sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -float(xdot_tool @ port), dt)  # eq. 57–63
-        f_tool = -self._k_const * x_err_tool - d_xdot + sigma_i * port + m_f * f_f  # eq. 72–73
+        f_tool = self._neg_k_const * x_err_tool - d_xdot + sigma_i * port + m_f * f_f  # eq. 72–73
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
