@@ -62,7 +62,8 @@ def force_shaping(wrench_des_tool: np.ndarray, pose_error_tool: np.ndarray, delt
     x̃ = x − x_d in the tool frame: x̃_z > 0 means the tool went past the desired pose along its
     axis without meeting the expected resistance (contact lost or surface further away).
     """
-    if float(wrench_des_tool @ pose_error_tool) <= 0.0:
+    w, e = wrench_des_tool, pose_error_tool  # 6 numbers each; Python floats on the 1 kHz path
+    if w[0] * e[0] + w[1] * e[1] + w[2] * e[2] + w[3] * e[3] + w[4] * e[4] + w[5] * e[5] <= 0.0:
         return 1.0
     ez = float(pose_error_tool[2])
     if 0.0 < ez <= delta_c:

@@ -88,19 +88,23 @@ class UficController(Controller):
         self.params = params or UficParams()
         self.stiffness_scale = self.params.stiffness_scale
         self._axes = np.asarray(self.params.force_axes, dtype=float)
+        self._axes_f = tuple(float(a) for a in self.params.force_axes)
         self._d_contact = self.params.damping_tool(True)
         self._d_free = self.params.damping_tool(False)
         self._d_tool = self._d_contact
+        self._d_contact_f = tuple(self._d_contact.tolist())  # the same diagonals as Python floats (hot path)
+        self._d_free_f = tuple(self._d_free.tolist())
+        self._d_tool_f = self._d_contact_f
         self._k_max = np.asarray(self.params.stiffness_max, dtype=float)
         self._neg_k_tool = -self._k_max
         self._neg_k_scale = float("nan")  # forces the first build of −K_C(t)
-        self._integral = np.zeros(6)
+        self._integral = [0.0] * 6  # K_i ∫f̃ / K_i per tool axis, Python floats (1 kHz: no array per tick)
         self._ilim = self.params.integral_limit / self.params.ki if self.params.ki > 0 else 0.0
         self._t_prev: float | None = None
         self._last: dict[str, float] = {}
 
     def reset(self, state: RobotState) -> None:
-        self._integral[:] = 0.0
+        self._integral = [0.0] * 6
         self._t_prev = None
         self.stiffness_scale = self.params.stiffness_scale
         self._last = {}
@@ -115,8 +119,10 @@ class UficController(Controller):
     def _select_damping(self, state: RobotState) -> None:
         """D_C for this tick: more damping along the tool axis while out of contact (damping of any
         size is passive, so switching it costs no energy)."""
-        in_contact = state.wrench_tool[2] >= self.params.contact_threshold_n
-        self._d_tool = self._d_contact if in_contact else self._d_free
+        if state.wrench_tool[2] >= self.params.contact_threshold_n:  # in contact
+            self._d_tool, self._d_tool_f = self._d_contact, self._d_contact_f
+        else:
+            self._d_tool, self._d_tool_f = self._d_free, self._d_free_f
 
     @staticmethod
     def pose_error_world(state: RobotState, position_d: np.ndarray, rotation_d: np.ndarray) -> np.ndarray:
@@ -126,17 +132,20 @@ class UficController(Controller):
         out[3:] = rotation_error_world(state.ee_rotation, rotation_d)
         return out
 
-    def force_wrench_tool(self, state: RobotState, wrench_des_tool: np.ndarray, dt: float, integrate: bool = True
-                          ) -> np.ndarray:
+    def force_wrench_tool(self, state: RobotState, wrench_des_tool, dt: float, integrate: bool = True) -> list[float]:
         """f_f of eq. 11 before the rotation R into the base frame: f_d + K_p f̃ + K_i ∫f̃, with
-        f̃ = f_d − f_meas on the selected axes (tool frame)."""
+        f̃ = f_d − f_meas on the selected axes (tool frame). ``wrench_des_tool``: 6 numbers [N, N·m];
+        returns 6 Python floats (six-element arithmetic is cheaper on floats than per-call numpy at 1 kHz)."""
         p = self.params
-        err = self._axes * (wrench_des_tool - state.wrench_tool)
-        if integrate:
-            self._integral += err * dt
-            np.minimum(self._integral, self._ilim, out=self._integral)  # np.clip costs ~4 µs more
-            np.maximum(self._integral, -self._ilim, out=self._integral)
-        return self._axes * wrench_des_tool + p.kp * err + p.ki * self._integral
+        kp, ki, lim = p.kp, p.ki, self._ilim
+        integ = self._integral
+        out = []
+        for i, (a, fd, fm) in enumerate(zip(self._axes_f, wrench_des_tool, state.wrench_tool.tolist(), strict=True)):
+            err = a * (fd - fm)
+            if integrate:  # min then max: the same order (and NaN propagation) as the former np.minimum/np.maximum
+                integ[i] = max(min(integ[i] + err * dt, lim), -lim)
+            out.append(a * fd + kp * err + ki * integ[i])
+        return out
 
     # -- controller ------------------------------------------------------------------------
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
@@ -153,7 +162,7 @@ class UficController(Controller):
             self._neg_k_tool, self._neg_k_scale = -k_tool, self.stiffness_scale
         # eq. 8, gains in tool axes
         f_tool = self._neg_k_tool * x_err_tool - self._d_tool * world_to_tool(rot, state.ee_twist)
-        f_tool += self.force_wrench_tool(state, reference.wrench_tool, dt)  # eq. 10–12
+        f_tool += self.force_wrench_tool(state, reference.wrench_tool.tolist(), dt)  # eq. 10–12
         e = x_err_tool[:3]
         self._last = {"pose_error_m": math.sqrt(float(e @ e)),
                       "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2])}

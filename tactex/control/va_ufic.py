@@ -46,7 +46,6 @@ import numpy as np
 from tactex.config import param
 from tactex.control.alignment import AlignmentShaper, alignment_coefficient, contact_alignment, force_shaping
 from tactex.control.energy_tank import ForceTank, ImpedanceTank
-from tactex.control.frames import tool_to_world, world_to_tool
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.control.ufic import UficController, UficParams
@@ -111,6 +110,11 @@ class VaUficParams:
             raise ConfigError(f"VaUficParams.stiffness_const must be 6 finite values ≥ 0, got {self.stiffness_const!r}")
 
 
+def _dot6(a: list[float], b: list[float]) -> float:
+    """aᵀb of two 6-vectors given as Python floats."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5]
+
+
 def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarray) -> np.ndarray:
     """Eq. 23–27: keep the current x-axis projected on the plane ⟂ r'_z, r'_y = r'_z × r'_x."""
     rz = tool_z_world / np.linalg.norm(tool_z_world)
@@ -149,6 +153,8 @@ class VaUficController(UficController):
         self._k_const = np.asarray(v.stiffness_const, dtype=float)
         self._neg_k_const = -self._k_const
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
+        self._neg_k_const_f = tuple(self._neg_k_const.tolist())  # the same gains as Python floats (hot path)
+        self._k_max_t_f = tuple(self._k_max_t.tolist())
         self._offset = np.zeros(3)
         self._rot_d: np.ndarray | None = None
         self._realign: tuple[float, np.ndarray, np.ndarray] | None = None  # (t0, R_init, log(R_d R_initᵀ))
@@ -216,32 +222,46 @@ class VaUficController(UficController):
                     r_goal = desired_rotation_from_normal(rot, z_des)
                     self._realign = (state.t, self._rot_d.copy(), log_so3(r_goal @ self._rot_d.T))
 
-        rho_frc = force_shaping(reference.wrench_tool, x_err_tool, v.delta_c)  # eq. 30
+        # From here on the six-element arithmetic runs on Python floats: at 1 kHz one numpy call on a
+        # 6-vector costs more than the six float operations it replaces.
+        e = x_err_tool.tolist()
+        wd = reference.wrench_tool.tolist()
+        rho_frc = force_shaping(wd, e, v.delta_c)  # eq. 30
         # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
-        # taken there; the powers ẋᵀ(·) are frame-independent.
-        xdot_tool = world_to_tool(rot, state.ee_twist)
+        # taken there; the powers ẋᵀ(·) are frame-independent. Both twists go to the tool frame in one
+        # product: rows of [v; ω; v_d; ω_d] @ R are Rᵀv, Rᵀω, Rᵀv_d, Rᵀω_d.
+        if v.damping_feedforward:
+            xa, xb, ra, rb = (np.concatenate((state.ee_twist, reference.twist_world)).reshape(4, 3) @ rot).tolist()
+        else:
+            xa, xb = (state.ee_twist.reshape(2, 3) @ rot).tolist()
+        xdot = xa + xb
         self._select_damping(state)
-        d_xdot = self._d_tool * xdot_tool
-        f_f = rho_frc * self.force_wrench_tool(state, reference.wrench_tool, dt, integrate=rho_frc > 1e-3)
+        d = self._d_tool_f
+        d_xdot = [di * xi for di, xi in zip(d, xdot, strict=True)]
+        f_f = [rho_frc * fi for fi in self.force_wrench_tool(state, wd, dt, integrate=rho_frc > 1e-3)]
 
         # Tracking a moving x_d, eq. 8's −D ẋ lags by D·v/K (6 mm at the policy's 8 cm/s). With
         # damping_feedforward the damping acts on the velocity error; its active part +D ẋ_d joins the
         # variable spring at the impedance tank's port (both are non-passive), so σ_i scales both.
-        port = (-rho_align * self._k_max_t) * x_err_tool  # −K_var(t)·x̃, eq. 56
+        neg_rho = -rho_align
+        port = [neg_rho * ki * ei for ki, ei in zip(self._k_max_t_f, e, strict=True)]  # −K_var(t)·x̃, eq. 56
         if v.damping_feedforward:
-            port = port + self._d_tool * world_to_tool(rot, reference.twist_world)
+            port = [pi + di * xi for pi, di, xi in zip(port, d, ra + rb, strict=True)]
         if self.port_feedforward is not None:
-            port = port + self.port_feedforward.wrench_tool(state, rho_align, dt)
-        p_damp = float(xdot_tool @ d_xdot)
-        m_f = self.tank_f.step(p_damp, float(xdot_tool @ f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
+            w_ff = self.port_feedforward.wrench_tool(state, rho_align, dt).tolist()
+            port = [pi + wi for pi, wi in zip(port, w_ff, strict=True)]
+        p_damp = _dot6(xdot, d_xdot)
+        m_f = self.tank_f.step(p_damp, _dot6(xdot, f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
         # the impedance tank harvests only the dissipation the force tank did not store (no double count)
-        sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -float(xdot_tool @ port), dt)  # eq. 57–63
-        f_tool = self._neg_k_const * x_err_tool - d_xdot + sigma_i * port + m_f * f_f  # eq. 72–73
+        sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -_dot6(xdot, port), dt)  # eq. 57–63
+        f_tool = [nk * ei - dxi + sigma_i * pi + m_f * fi  # eq. 72–73
+                  for nk, ei, dxi, pi, fi in zip(self._neg_k_const_f, e, d_xdot, port, f_f, strict=True)]
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
-        self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f,
-                     float(reference.wrench_tool[2] - state.wrench_tool[2]), x_err_tool, state)
-        return state.jacobian.T @ tool_to_world(rot, f_tool)
+        self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, wd[2] - float(state.wrench_tool[2]),
+                     x_err_tool, state)
+        # τ = Jᵀ [R f_lin; R f_ang] = [f_lin Rᵀ, f_ang Rᵀ] J, as one (2, 3) @ (3, 3) and one (6,) @ (6, 7) product
+        return (np.array(f_tool).reshape(2, 3) @ rot.T).reshape(6) @ state.jacobian
 
     @property
     def position_offset(self) -> np.ndarray:
