@@ -22,7 +22,9 @@ def contact_alignment(
     as the sum of the three absolute contributions (tactile error [N·m], orientation error [rad],
     curvature [-]).
     """
-    return alpha * abs(float(wrench_tool @ pose_error_tool)) + xi * abs(theta_rad) + gamma * abs(curvature)
+    w, e = wrench_tool, pose_error_tool  # 6 numbers each; Python floats on the 1 kHz path
+    tactile = w[0] * e[0] + w[1] * e[1] + w[2] * e[2] + w[3] * e[3] + w[4] * e[4] + w[5] * e[5]
+    return alpha * abs(float(tactile)) + xi * abs(theta_rad) + gamma * abs(curvature)
 
 
 def alignment_coefficient(c: float, c_margin: float) -> float:

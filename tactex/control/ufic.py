@@ -142,8 +142,9 @@ class UficController(Controller):
         out = []
         for i, (a, fd, fm) in enumerate(zip(self._axes_f, wrench_des_tool, state.wrench_tool.tolist(), strict=True)):
             err = a * (fd - fm)
-            if integrate:  # min then max: the same order (and NaN propagation) as the former np.minimum/np.maximum
-                integ[i] = max(min(integ[i] + err * dt, lim), -lim)
+            if integrate:  # clamp to ±lim; a NaN stays NaN, as it did with np.minimum/np.maximum
+                s = integ[i] + err * dt
+                integ[i] = lim if s > lim else (-lim if s < -lim else s)
             out.append(a * fd + kp * err + ki * integ[i])
         return out
 

@@ -155,9 +155,9 @@ class VaUficController(UficController):
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
         self._neg_k_const_f = tuple(self._neg_k_const.tolist())  # the same gains as Python floats (hot path)
         self._k_max_t_f = tuple(self._k_max_t.tolist())
-        self._offset = np.zeros(3)
+        self._offset = (0.0, 0.0, 0.0)
         self._rot_d: np.ndarray | None = None
-        self._realign: tuple[float, np.ndarray, np.ndarray] | None = None  # (t0, R_init, log(R_d R_initᵀ))
+        self._realign: tuple[float, np.ndarray, list[float]] | None = None  # (t0, R_init, log(R_d R_initᵀ))
         self._raw: tuple | None = None
         self.port_feedforward = port_feedforward
 
@@ -168,24 +168,24 @@ class VaUficController(UficController):
         self.shaper.reset()
         self.tank_i.reset()
         self.tank_f.reset()
-        self._offset = np.zeros(3)
+        self._offset = (0.0, 0.0, 0.0)
         self._rot_d = None
         self._realign = None
         self._raw = None
 
-    def _surface(self, state: RobotState, est: SurfaceEstimate | None) -> tuple[bool, float, float, np.ndarray | None]:
-        """(usable, θ [rad], l_s, desired tool z in the world) from the latest estimate."""
+    def _surface(self, state: RobotState, est: SurfaceEstimate | None, rl: list[list[float]]
+                 ) -> tuple[bool, float, float, tuple[float, float, float] | None]:
+        """(usable, θ [rad], l_s, desired tool z in the world) from the latest estimate; ``rl`` is the
+        tool rotation R as nested Python floats."""
         if est is None or not est.valid or not (0.0 <= state.t - est.timestamp <= self.va.surface_max_age):
             return False, 0.0, 0.0, None
-        n = est.normal_world
+        nx, ny, nz = est.normal_world.tolist()
         ls = float(est.curvature)
-        nx, ny, nz = float(n[0]), float(n[1]), float(n[2])
         norm = math.sqrt(nx * nx + ny * ny + nz * nz)
         if not (math.isfinite(norm) and math.isfinite(ls)) or norm < 1e-9:
             return False, 0.0, 0.0, None
-        z_des = np.array([-nx / norm, -ny / norm, -nz / norm])
-        tz = state.ee_rotation[:, 2]
-        cos_t = float(tz[0] * z_des[0] + tz[1] * z_des[1] + tz[2] * z_des[2])
+        z_des = (-nx / norm, -ny / norm, -nz / norm)
+        cos_t = rl[0][2] * z_des[0] + rl[1][2] * z_des[1] + rl[2][2] * z_des[2]
         theta = math.acos(max(-1.0, min(1.0, cos_t)))  # eq. 15, now
         return True, theta, ls, z_des
 
@@ -198,33 +198,41 @@ class VaUficController(UficController):
         if self._rot_d is None:
             self._rot_d = reference.rotation_world.copy()
         if self._realign is not None:  # eq. 28–29: (R_d R_initᵀ)^ζ R_init = exp(ζ·log(R_d R_initᵀ)) R_init
-            t0, r_init, w = self._realign
+            t0, r_init, (wx, wy, wz) = self._realign
             zeta = min(1.0, (state.t - t0) / v.realign_time)
-            self._rot_d = exp_so3(zeta * w) @ r_init
+            self._rot_d = exp_so3((zeta * wx, zeta * wy, zeta * wz)) @ r_init
             if zeta >= 1.0:
                 self._realign = None
 
-        # x̃^ee: Rᵀ(x − x_d) and Rᵀlog(R R_dᵀ) = log(R_dᵀR) (the adjoint of a rotation on its own log)
-        x_err_tool = np.concatenate((
-            (state.ee_position - reference.position_world - self._offset) @ rot, log_so3(self._rot_d.T @ rot)))
-        usable, theta, ls, z_des = self._surface(state, reference.surface)
+        # x̃^ee: Rᵀ(x − x_d) and Rᵀlog(R R_dᵀ) = log(R_dᵀR) (the adjoint of a rotation on its own log), on
+        # Python floats like the rest of the tick (at 1 kHz a numpy call on a 3- or 6-vector costs more
+        # than the float operations it replaces)
+        rl = rot.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rl
+        px, py, pz = state.ee_position.tolist()
+        dx, dy, dz = reference.position_world.tolist()
+        ox, oy, oz = self._offset
+        ex, ey, ez = px - dx - ox, py - dy - oy, pz - dz - oz
+        e = [r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez]
+        e += log_so3(self._rot_d.T @ rot).tolist()
+        usable, theta, ls, z_des = self._surface(state, reference.surface, rl)
 
-        c = contact_alignment(state.wrench_tool, x_err_tool, theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
+        wm = state.wrench_tool.tolist()
+        c = contact_alignment(wm, e, theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
         h = alignment_coefficient(c, v.c_margin)  # eq. 18
         rho_align = self.shaper.step(h, dt)  # eq. 20–21
 
         if rho_align <= v.compliant_below:  # fully compliant: feed the actual translation back as desired
-            self._offset = state.ee_position - reference.position_world
-            x_err_tool[:3] = 0.0
+            self._offset = (px - dx, py - dy, pz - dz)
+            e[0] = e[1] = e[2] = 0.0
             if usable and self._realign is None:
-                tilt = math.acos(max(-1.0, min(1.0, float(self._rot_d[:, 2] @ z_des))))
+                rd = self._rot_d
+                cos_tilt = float(rd[0, 2]) * z_des[0] + float(rd[1, 2]) * z_des[1] + float(rd[2, 2]) * z_des[2]
+                tilt = math.acos(max(-1.0, min(1.0, cos_tilt)))
                 if tilt > v.realign_min_angle:  # eq. 22–27
-                    r_goal = desired_rotation_from_normal(rot, z_des)
-                    self._realign = (state.t, self._rot_d.copy(), log_so3(r_goal @ self._rot_d.T))
+                    r_goal = desired_rotation_from_normal(rot, np.array(z_des))
+                    self._realign = (state.t, self._rot_d.copy(), log_so3(r_goal @ self._rot_d.T).tolist())
 
-        # From here on the six-element arithmetic runs on Python floats: at 1 kHz one numpy call on a
-        # 6-vector costs more than the six float operations it replaces.
-        e = x_err_tool.tolist()
         wd = reference.wrench_tool.tolist()
         rho_frc = force_shaping(wd, e, v.delta_c)  # eq. 30
         # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
@@ -258,23 +266,26 @@ class VaUficController(UficController):
                   for nk, ei, dxi, pi, fi in zip(self._neg_k_const_f, e, d_xdot, port, f_f, strict=True)]
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
-        self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, wd[2] - float(state.wrench_tool[2]),
-                     x_err_tool, state)
-        # τ = Jᵀ [R f_lin; R f_ang] = [f_lin Rᵀ, f_ang Rᵀ] J, as one (2, 3) @ (3, 3) and one (6,) @ (6, 7) product
-        return (np.array(f_tool).reshape(2, 3) @ rot.T).reshape(6) @ state.jacobian
+        self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, wd[2] - wm[2], e, state)
+        # τ = Jᵀ [R f_lin; R f_ang]: the rotation on floats, one (6,) · (6, 7) product
+        f0, f1, f2, f3, f4, f5 = f_tool
+        f_world = (r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2, r20 * f0 + r21 * f1 + r22 * f2,
+                   r00 * f3 + r01 * f4 + r02 * f5, r10 * f3 + r11 * f4 + r12 * f5, r20 * f3 + r21 * f4 + r22 * f5)
+        return np.dot(f_world, state.jacobian)
 
     @property
     def position_offset(self) -> np.ndarray:
         """Offset [m] (world) added to the reference position: the actual translation fed back while
         fully compliant (eq. 20–21 with ρ_align ≈ 0). The effective desired position is
         ``reference.position_world + position_offset``."""
-        return self._offset.copy()
+        return np.array(self._offset)
 
     def telemetry(self) -> dict[str, float]:
         """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""
         if self._raw is None:
             return {}
         rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, f_err, x_err, state = self._raw
+        x_err = np.array(x_err)
         ti, tf = self.tank_i, self.tank_f
         kinetic = 0.5 * float(state.dq @ state.mass_matrix @ state.dq)  # S_r, eq. 32
         spring_const = 0.5 * float(x_err @ (self._k_const * x_err))  # ½x̃ᵀK_const x̃, eq. 64
