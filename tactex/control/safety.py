@@ -155,8 +155,8 @@ class SafetyLayer(Controller):
             return self._finish(state, self._hold(), finite_state=False)
         self._wrench_last = state.wrench_tool.copy()
 
-        w = state.wrench_tool
-        force = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        fx, fy, fz = state.wrench_tool[:3].tolist()  # Python floats: numpy scalars cost more per operation
+        force = math.sqrt(fx * fx + fy * fy + fz * fz)
         self._over = self._over + 1 if force > lim.max_contact_force else 0
         if self._retreat_until is None and self._over >= lim.force_trip_ticks:
             self._retreat_until = state.t + lim.retreat_time

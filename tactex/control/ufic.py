@@ -132,15 +132,19 @@ class UficController(Controller):
         out[3:] = rotation_error_world(state.ee_rotation, rotation_d)
         return out
 
-    def force_wrench_tool(self, state: RobotState, wrench_des_tool, dt: float, integrate: bool = True) -> list[float]:
+    def force_wrench_tool(self, state: RobotState, wrench_des_tool, dt: float, integrate: bool = True,
+                          wrench_meas_tool: list[float] | None = None) -> list[float]:
         """f_f of eq. 11 before the rotation R into the base frame: f_d + K_p f̃ + K_i ∫f̃, with
         f̃ = f_d − f_meas on the selected axes (tool frame). ``wrench_des_tool``: 6 numbers [N, N·m];
-        returns 6 Python floats (six-element arithmetic is cheaper on floats than per-call numpy at 1 kHz)."""
+        returns 6 Python floats (six-element arithmetic is cheaper on floats than per-call numpy at 1 kHz).
+        ``wrench_meas_tool``: ``state.wrench_tool`` as Python floats when the caller has them already."""
         p = self.params
         kp, ki, lim = p.kp, p.ki, self._ilim
         integ = self._integral
+        if wrench_meas_tool is None:
+            wrench_meas_tool = state.wrench_tool.tolist()
         out = []
-        for i, (a, fd, fm) in enumerate(zip(self._axes_f, wrench_des_tool, state.wrench_tool.tolist(), strict=True)):
+        for i, (a, fd, fm) in enumerate(zip(self._axes_f, wrench_des_tool, wrench_meas_tool, strict=True)):
             err = a * (fd - fm)
             if integrate:  # clamp to ±lim; a NaN stays NaN, as it did with np.minimum/np.maximum
                 s = integ[i] + err * dt

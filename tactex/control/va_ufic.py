@@ -246,7 +246,7 @@ class VaUficController(UficController):
         self._select_damping(state)
         d = self._d_tool_f
         d_xdot = [di * xi for di, xi in zip(d, xdot, strict=True)]
-        f_f = [rho_frc * fi for fi in self.force_wrench_tool(state, wd, dt, integrate=rho_frc > 1e-3)]
+        f_f = [rho_frc * fi for fi in self.force_wrench_tool(state, wd, dt, rho_frc > 1e-3, wm)]
 
         # Tracking a moving x_d, eq. 8's −D ẋ lags by D·v/K (6 mm at the policy's 8 cm/s). With
         # damping_feedforward the damping acts on the velocity error; its active part +D ẋ_d joins the
