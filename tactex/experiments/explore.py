@@ -35,6 +35,7 @@ __all__ = [
     "TARGET_CHANNELS",
     "ExploreConfig",
     "ExploreResult",
+    "authors_starts",
     "load_explore_cloud",
     "run_explore",
     "write_explore_report",
@@ -190,18 +191,28 @@ def _default_agent_radius(source_info: dict[str, Any]) -> float:
     return PLATE_AGENT_RADIUS_M if str(name).startswith("plate") else AGENT_RADIUS_M
 
 
+def authors_starts(source_info: dict[str, Any]) -> tuple[np.ndarray, str] | None:
+    """The authors' start positions (k, 3) [m] stored beside a cloud file as
+    ``<stem>_x0_arr_10.npz`` (the TEC data), with the file's name; None when there is none."""
+    if source_info.get("kind") != "file":
+        return None
+    p = Path(source_info["path"])
+    authors = p.with_name(f"{p.stem}_x0_arr_10.npz")
+    if not authors.is_file():
+        return None
+    with np.load(authors, allow_pickle=False) as z:
+        return np.asarray(z["x0_arr"], dtype=float).reshape(-1, 3), authors.name
+
+
 def _start_position(cloud: SurfaceCloud, cfg: ExploreConfig, source_info: dict[str, Any]) -> tuple[np.ndarray, str]:
     if cfg.x0 is not None:
         return np.asarray(cfg.x0, dtype=float), "given"
-    if source_info["kind"] == "file":
-        p = Path(source_info["path"])
-        authors = p.with_name(f"{p.stem}_x0_arr_10.npz")
-        if authors.is_file():
-            with np.load(authors, allow_pickle=False) as z:
-                arr = np.asarray(z["x0_arr"], dtype=float).reshape(-1, 3)
-            if arr.shape[0] and np.isfinite(arr).all():
-                i = cfg.seed % arr.shape[0]
-                return arr[i], f"{authors.name}[{i}]"
+    found = authors_starts(source_info)
+    if found is not None:
+        arr, name = found
+        if arr.shape[0] and np.isfinite(arr).all():
+            i = cfg.seed % arr.shape[0]
+            return arr[i], f"{name}[{i}]"
     i = int(np.random.default_rng(cfg.seed).integers(len(cloud)))
     return cloud.points[i].copy(), f"cloud point {i} (seed {cfg.seed})"
 

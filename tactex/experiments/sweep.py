@@ -31,7 +31,7 @@ import numpy as np
 
 from tactex.config import param, to_jsonable, write_json
 from tactex.errors import ConfigError, ExplorationError, InputError
-from tactex.experiments.explore import ExploreConfig, _default_agent_radius, load_explore_cloud
+from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
 
 __all__ = ["SweepConfig", "SweepResult", "run_sweep", "sweep_starts"]
 
@@ -103,14 +103,11 @@ def sweep_starts(cloud, source_info: dict[str, Any], count: int, seed: int) -> t
     up with cloud points drawn with ``seed``; for built-in objects all drawn."""
     starts = np.zeros((0, 3))
     origin = f"cloud points drawn with seed {seed}"
-    if source_info.get("kind") == "file":
-        p = Path(source_info["path"])
-        authors = p.with_name(f"{p.stem}_x0_arr_10.npz")
-        if authors.is_file():
-            with np.load(authors, allow_pickle=False) as z:
-                arr = np.asarray(z["x0_arr"], dtype=float).reshape(-1, 3)
-            starts = arr[np.isfinite(arr).all(axis=1)][:count]
-            origin = authors.name if len(starts) == count else f"{authors.name} + {origin}"
+    found = authors_starts(source_info)
+    if found is not None:
+        arr, name = found
+        starts = arr[np.isfinite(arr).all(axis=1)][:count]
+        origin = name if len(starts) == count else f"{name} + {origin}"
     missing = count - len(starts)
     if missing > 0:
         rng = np.random.default_rng(seed)
