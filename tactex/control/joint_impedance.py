@@ -91,12 +91,13 @@ class JointImpedanceController(Controller):
         self.params = params or JointImpedanceParams()
         self._k = np.asarray(self.params.stiffness, dtype=float)
         self._d = np.asarray(self.params.damping, dtype=float)
-        self._dt = float(self.params.dt)
+        self._d_mat = np.diag(self._d)
+        self._dt_d_mat = float(self.params.dt) * self._d_mat  # dt·D, added to M every tick
 
     def damping_matrix(self, mass_matrix: np.ndarray) -> np.ndarray:
         """D_dt [N·m·s/rad] for the joint-space inertia ``mass_matrix`` [kg·m²]."""
         m = np.asarray(mass_matrix, dtype=float)
-        return m @ np.linalg.solve(m + self._dt * np.diag(self._d), np.diag(self._d))
+        return m @ np.linalg.solve(m + self._dt_d_mat, self._d_mat)
 
     def torque(self, state: RobotState, reference: JointTarget) -> np.ndarray:
         if not isinstance(reference, JointTarget):
@@ -106,5 +107,5 @@ class JointImpedanceController(Controller):
                                   f"the robot {state.q.shape}")
         q_d, dq_d = reference.at(state.t)
         m = state.mass_matrix
-        accel = np.linalg.solve(m + self._dt * np.diag(self._d), self._d * (dq_d - state.dq))
+        accel = np.linalg.solve(m + self._dt_d_mat, self._d * (dq_d - state.dq))
         return self._k * (q_d - state.q) + m @ accel + state.coriolis
