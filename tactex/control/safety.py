@@ -100,7 +100,6 @@ class SafetyLayer(Controller):
         self._tau_max = np.asarray(lim.tau_max, dtype=float)
         self._q_min = np.asarray(lim.q_min, dtype=float)
         self._q_max = np.asarray(lim.q_max, dtype=float)
-        self._neg_tau_max = -self._tau_max
         self._q_lo_margin = self._q_min + lim.joint_limit_margin
         self._q_hi_margin = self._q_max - lim.joint_limit_margin
         self._rate_step = lim.tau_rate_max * lim.dt

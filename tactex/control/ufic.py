@@ -87,7 +87,6 @@ class UficController(Controller):
     def __init__(self, params: UficParams | None = None) -> None:
         self.params = params or UficParams()
         self.stiffness_scale = self.params.stiffness_scale
-        self._axes = np.asarray(self.params.force_axes, dtype=float)
         self._axes_f = tuple(float(a) for a in self.params.force_axes)
         self._d_contact = self.params.damping_tool(True)
         self._d_free = self.params.damping_tool(False)

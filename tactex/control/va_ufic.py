@@ -151,9 +151,8 @@ class VaUficController(UficController):
         self.tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
         self.tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
         self._k_const = np.asarray(v.stiffness_const, dtype=float)
-        self._neg_k_const = -self._k_const
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
-        self._neg_k_const_f = tuple(self._neg_k_const.tolist())  # the same gains as Python floats (hot path)
+        self._neg_k_const_f = tuple((-self._k_const).tolist())  # the same gains as Python floats (hot path)
         self._k_max_t_f = tuple(self._k_max_t.tolist())
         self._offset = (0.0, 0.0, 0.0)
         self._rot_d: np.ndarray | None = None
