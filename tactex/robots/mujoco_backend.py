@@ -58,7 +58,6 @@ class MujocoBackend:
         # the arm comes first in the model: slices are much cheaper than fancy indexing at 1 kHz
         if not (np.array_equal(self._qadr, np.arange(7)) and np.array_equal(self._dadr, np.arange(7))):
             raise SimulationError("the arm joints must be the first 7 of the scene model")
-        self._arm = slice(0, 7)
         self._limits = self.scene.torque_limits
         self._neg_limits = -self._limits
         # the Jacobian rows [linear; angular] in one buffer: mj_jacSite writes both halves in place

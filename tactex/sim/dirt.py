@@ -75,7 +75,6 @@ class DirtField:
         self.valid = valid
         self.initial = (marking_mask(marking, self.uv) & valid).astype(float)
         self.level = self.initial.copy()
-        self._extent = extent
         # the cell centres as three (nv, nu) planes: the footprint test below reads them at 200 Hz
         self._xyz_grid = tuple(np.ascontiguousarray(self.points[:, k].reshape(nv, nu)) for k in range(3))
         gx, gy, _ = self._xyz_grid
