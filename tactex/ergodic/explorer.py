@@ -473,11 +473,7 @@ class HedacExplorer:
         # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
         v = agent.command_velocity(direction, nrm)
-        xl, n_new = _project_local(patch, (shift + v * self._dt) * inv, nrm)
-        step = xl * scale
-        ss = float(step @ step)
-        dq2 = dd - 2.0 * (d @ step) + ss
-        k = dq2.argmin()
+        step, n_new, ss, dq2, k = self._land(patch, shift, v, nrm, scale, d, dd)
         if dq2[k] > self._off2:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
             # the agent slides along the edge, and stay within one voxel of the nearest point.
@@ -487,11 +483,7 @@ class HedacExplorer:
             if no > 0.0:
                 out *= 1.0 / no
                 v = v - max(float(v @ out), 0.0) * out
-                xl, n_new = _project_local(patch, (shift + v * self._dt) * inv, nrm)
-                step = xl * scale
-                ss = float(step @ step)
-                dq2 = dd - 2.0 * (d @ step) + ss
-                k = dq2.argmin()
+                step, n_new, ss, dq2, k = self._land(patch, shift, v, nrm, scale, d, dd)
             if dq2[k] > self._off2:
                 step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
                 ss = float(step @ step)
@@ -516,6 +508,18 @@ class HedacExplorer:
         self._x[i] = x_new
         self._normals[i] = n_new
         return ExplorationCommand(x_new, vel, n_new, tb[:, 0], tb[:, 1], self.step_count, i)
+
+    def _land(self, patch: SurfacePatch, shift: np.ndarray, v: np.ndarray, nrm: np.ndarray, scale: float,
+              d: np.ndarray, dd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, int]:
+        """Where velocity v [m/s] takes the agent in one step, projected onto the fitted patch
+        (agent-centred coordinates, scaled by ``scale`` in the fit): the step (3,) [m], the normal
+        there, |step|², the squared distances from the landing point to the candidates d (offsets
+        from the agent, squared norms dd) and the index of the nearest one."""
+        xl, n_new = _project_local(patch, (shift + v * self._dt) * (1.0 / scale), nrm)
+        step = xl * scale
+        ss = float(step @ step)
+        dq2 = dd - 2.0 * (d @ step) + ss
+        return step, n_new, ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
     @property
