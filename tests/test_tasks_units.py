@@ -225,3 +225,35 @@ def test_remeasure_rejects_bad_distance() -> None:
     for bad in (float("nan"), -0.01, 0.0):
         with pytest.raises(InputError, match="max_distance_m"):
             remeasure_target(cloud, cloud, max_distance_m=bad)
+
+
+@pytest.mark.parametrize("config_cls", [CleanConfig, WipeConfig])
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"tool_stiffness_n_per_m": 0.0}, "tool_stiffness_n_per_m"),
+        ({"tool_friction": -0.1}, "tool_friction"),
+        ({"tool_friction": float("nan")}, "tool_friction"),
+        ({"record_hz": 0.0}, "record_hz"),
+        ({"seed": 1.5}, "seed"),
+        ({"object_name": "teapot"}, "sine_panel"),
+    ],
+)
+def test_task_world_fields_are_checked_at_the_config(config_cls, kwargs, match) -> None:
+    """The world fields both tasks share (tactex.tasks.world) are checked when the task config is
+    made, not when the scene is built minutes later."""
+    with pytest.raises(ConfigError, match=match):
+        config_cls(**kwargs)
+
+
+def test_task_scene_carries_the_shared_and_the_task_fields() -> None:
+    clean = CleanConfig(object_name="bowl", marking="RLI", tool_friction=0.3, seed=4, camera_width=64,
+                        camera_height=48)
+    scene = clean.scene()
+    assert (scene.object_name, scene.marking, scene.tool_friction, scene.seed) == ("bowl", "RLI", 0.3, 4)
+    assert (scene.camera_width, scene.camera_height, scene.tool_stiffness_n_per_m) == (64, 48, 2500.0)
+    wipe = WipeConfig(camera_rate_hz=15.0, tool_pad_shape="cylinder", object_position=(0.4, 0.1, 0.0))
+    scene = wipe.scene()
+    assert (scene.object_name, scene.camera_rate_hz, scene.tool_pad_shape) == ("sine_panel", 15.0, "cylinder")
+    assert scene.object_position == (0.4, 0.1, 0.0) and (scene.camera_width, scene.camera_height) == (160, 120)
+    assert CleanConfig().object_name == "plate" and CleanConfig().camera_width == 320

@@ -37,7 +37,6 @@ from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
 from tactex.robots.mujoco_backend import MujocoBackend
-from tactex.sim.objects import get_object
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.tasks.progress import Progress
@@ -45,6 +44,7 @@ from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
+from tactex.tasks.world import SimWorldParams
 
 __all__ = ["CLEAN_BASELINES", "PHASES", "CleanConfig", "CleanResult", "run_clean"]
 
@@ -61,7 +61,7 @@ def _approach_too_weak(cfg: CleanConfig) -> bool:
 
 
 @dataclass(frozen=True)
-class CleanConfig:
+class CleanConfig(SimWorldParams):
     """Parameters of ``tactex clean`` (TEC §V-A3 and Table II where the paper gives them)."""
 
     object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)")
@@ -85,21 +85,16 @@ class CleanConfig:
         "Kp·F_approach/(1 + Kp) = 1 N, so a touch-down is always detected")
     agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
-    tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m] (a kitchen sponge: ~2–3 kN/m)")
-    tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
-    tool_friction: float = param(0.4, "pad–surface Coulomb friction [-]")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
-    record_hz: float = param(100.0, "rate of the recorded time series [Hz]")
     seed: int = param(0, "seed of the simulation and the explorer")
-    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
 
     def __post_init__(self) -> None:
-        get_object(self.object_name)  # unknown names raise with the valid list
+        super().__post_init__()
         if self.baseline not in CLEAN_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
         positive = ("force_n", "alpha", "agent_radius_m", "voxel_size_m", "max_velocity", "explorer_rate_hz",
-                    "budget_s", "capture_distance_m", "hover_height_m", "approach_force_n", "record_hz")
+                    "budget_s", "capture_distance_m", "hover_height_m", "approach_force_n")
         for name in positive:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -110,8 +105,6 @@ class CleanConfig:
             raise ConfigError(f"contact_threshold_n must be > 0 N, got {self.contact_threshold_n!r}")
         if not (np.isfinite(self.force_ramp_s) and self.force_ramp_s > 0):
             raise ConfigError(f"force_ramp_s must be > 0 s, got {self.force_ramp_s!r}")
-        if int(self.seed) != self.seed or self.seed < 0:
-            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         if _approach_too_weak(self):
             raise ConfigError(
                 f"approach_force_n = {self.approach_force_n} N settles below contact_threshold_n = "
@@ -125,12 +118,7 @@ class CleanConfig:
             raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
 
     def scene(self) -> SceneConfig:
-        return SceneConfig(
-            object_name=self.object_name, marking=self.marking, object_position=self.object_position,
-            camera_width=self.camera_width, camera_height=self.camera_height, seed=self.seed,
-            tool_stiffness_n_per_m=self.tool_stiffness_n_per_m, tool_pad_shape=self.tool_pad_shape,
-            tool_friction=self.tool_friction,
-        )
+        return super().scene(marking=self.marking)
 
 
 @dataclass

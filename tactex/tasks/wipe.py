@@ -53,11 +53,11 @@ from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.voxel import voxel_indices
 from tactex.robots.mujoco_backend import MujocoBackend
-from tactex.sim.objects import get_object
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.runner import TOOL_DOWN, ControlLoop
+from tactex.tasks.world import SimWorldParams
 
 __all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]
 
@@ -79,7 +79,7 @@ def _rot_x(deg: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class WipeConfig:
+class WipeConfig(SimWorldParams):
     """Parameters of ``tactex wipe`` (VA-UFIC §III and Table I)."""
 
     object_name: str = param("sine_panel", "the unknown surface (VA-UFIC §III: sine_panel)")
@@ -100,25 +100,16 @@ class WipeConfig:
     friction_cutoff_hz: float = param(10.0, "low-pass cut-off on the measured tangential force [Hz]")
     baseline: str = param("", "'' (VA-UFIC) or 'cartesian' (fixed-orientation impedance, constant force)")
     camera_rate_hz: float = param(30.0, "wrist camera rate [Hz]")
-    camera_width: int = param(160, "wrist camera image width [px]")
-    camera_height: int = param(120, "wrist camera image height [px]")
-    tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m]")
-    tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
-    tool_friction: float = param(0.4, "pad–surface Coulomb friction [-]")
-    record_hz: float = param(100.0, "rate of the recorded series [Hz]")
-    seed: int = param(0, "seed of the simulation")
-    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
 
     def __post_init__(self) -> None:
-        get_object(self.object_name)
+        super().__post_init__()
         if self.baseline not in WIPE_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: cartesian (or none)")
-        for name in ("duration_s", "force_n", "camera_rate_hz", "record_hz", "tool_stiffness_n_per_m"):
+        for name in ("duration_s", "force_n", "camera_rate_hz"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
-        for name in ("amplitude_m", "drift_m_s", "start_height_m", "omega_rad_s", "contact_threshold_n",
-                     "tool_friction"):
+        for name in ("amplitude_m", "drift_m_s", "start_height_m", "omega_rad_s", "contact_threshold_n"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
@@ -129,20 +120,13 @@ class WipeConfig:
         if abs(self.start_tilt_deg) >= 60.0:
             raise ConfigError(f"start_tilt_deg must lie within ±60° (the camera must still see the surface), "
                               f"got {self.start_tilt_deg}")
-        if int(self.seed) != self.seed or self.seed < 0:
-            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         self.friction_params()  # validates friction_gain and friction_cutoff_hz
 
     def friction_params(self) -> FrictionCompensatorParams:
         return FrictionCompensatorParams(gain=self.friction_gain, cutoff_hz=self.friction_cutoff_hz)
 
     def scene(self) -> SceneConfig:
-        return SceneConfig(
-            object_name=self.object_name, object_position=self.object_position, camera_rate_hz=self.camera_rate_hz,
-            camera_width=self.camera_width, camera_height=self.camera_height, seed=self.seed,
-            tool_stiffness_n_per_m=self.tool_stiffness_n_per_m, tool_pad_shape=self.tool_pad_shape,
-            tool_friction=self.tool_friction,
-        )
+        return super().scene(camera_rate_hz=self.camera_rate_hz)
 
 
 @dataclass

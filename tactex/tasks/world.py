@@ -1,0 +1,54 @@
+"""The simulated world a task runs in: the fields every task configuration shares (object, tool,
+camera size, recording rate, seed) and the :class:`SceneConfig` they make.
+
+A task's configuration derives from :class:`SimWorldParams` and redefines a field where its default
+differs (the object to work on, the capture resolution); dataclass inheritance keeps one place
+for the tool's parameters, their checks and the scene they build.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from tactex.config import param
+from tactex.errors import ConfigError
+from tactex.sim.objects import get_object
+from tactex.sim.scene import SceneConfig
+
+__all__ = ["SimWorldParams"]
+
+
+@dataclass(frozen=True)
+class SimWorldParams:
+    """Object, tool and camera of a simulated task (units in brackets)."""
+
+    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
+    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
+    tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m] (a kitchen sponge: ~2–3 kN/m)")
+    tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
+    tool_friction: float = param(0.4, "pad–surface Coulomb friction [-]")
+    camera_width: int = param(160, "wrist camera image width [px]")
+    camera_height: int = param(120, "wrist camera image height [px]")
+    record_hz: float = param(100.0, "rate of the recorded time series [Hz]")
+    seed: int = param(0, "seed of the simulation")
+
+    def __post_init__(self) -> None:
+        get_object(self.object_name)  # unknown names raise with the valid list
+        for name in ("tool_stiffness_n_per_m", "record_hz"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if not (math.isfinite(float(self.tool_friction)) and self.tool_friction >= 0):
+            raise ConfigError(f"tool_friction must be a finite number ≥ 0, got {self.tool_friction!r}")
+        if int(self.seed) != self.seed or self.seed < 0:
+            raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
+
+    def scene(self, **scene_fields: Any) -> SceneConfig:
+        """The task's :class:`SceneConfig`: these fields plus the task's own ``scene_fields``."""
+        return SceneConfig(
+            object_name=self.object_name, object_position=self.object_position, camera_width=self.camera_width,
+            camera_height=self.camera_height, seed=self.seed, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
+            tool_pad_shape=self.tool_pad_shape, tool_friction=self.tool_friction, **scene_fields,
+        )
