@@ -159,3 +159,80 @@ def test_safety_limits_reject_nan_and_negative(name):
     for bad in (float("nan"), -1.0):
         with pytest.raises(ConfigError, match=name):
             SafetyLimits(**{name: bad})
+
+
+class Recorder(Controller):
+    """Returns a given torque and records the wrench it was given."""
+
+    name = "recorder"
+
+    def __init__(self, tau) -> None:
+        self.tau = np.asarray(tau, dtype=float)
+        self.wrenches: list[np.ndarray] = []
+
+    def torque(self, state, reference):
+        self.wrenches.append(state.wrench_tool.copy())
+        return self.tau.copy()
+
+
+def test_nan_wrench_is_replaced_by_the_last_finite_one_exactly():
+    inner = Recorder(np.zeros(N_JOINTS))
+    layer = SafetyLayer(inner)
+    layer.reset(make_state(q=Q_MID))
+    good = np.array([0.1, -0.2, 3.0, 0.01, 0.02, -0.03])
+    layer.torque(_state(0, wrench_tool=good), None)
+    layer.torque(_state(1, wrench_tool=np.array([0, 0, np.nan, 0, 0, 0])), None)
+    layer.torque(_state(2, wrench_tool=np.array([np.inf, 0, 0, 0, 0, 0])), None)
+    np.testing.assert_array_equal(inner.wrenches[1], good)
+    np.testing.assert_array_equal(inner.wrenches[2], good)
+    assert [e.kind for e in layer.events] == ["nan_wrench", "nan_wrench"]
+    layer.reset(make_state(q=Q_MID))  # after a reset the fallback is a zero wrench
+    layer.torque(_state(0, wrench_tool=np.array([np.nan] * 6)), None)
+    np.testing.assert_array_equal(inner.wrenches[-1], np.zeros(6))
+
+
+def _extreme_vectors(rng, n: int, count: int):
+    """Vectors mixing ordinary values, ±1e308 (a sum can overflow), inf and NaN."""
+    pool = np.array([0.0, 1.5, -2.0, 1e308, -1e308, 1.7e308, np.inf, -np.inf, np.nan])
+    return [np.where(rng.random(n) < 0.3, rng.choice(pool, n), rng.normal(size=n)) for _ in range(count)]
+
+
+def test_non_finite_wrench_verdict_is_numpys_sum(rng):
+    """The wrench counts as non-finite exactly when numpy's sum of it is not finite (NaN/inf, or an
+    overflowing sum: the safe side)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        for w in _extreme_vectors(rng, 6, 300):
+            layer, _ = _layer(np.zeros(N_JOINTS))
+            layer.torque(_state(0, wrench_tool=w), None)
+            tripped = any(e.kind == "nan_wrench" for e in layer.events)
+            assert tripped == (not np.isfinite(np.add.reduce(w))), w
+
+
+def test_non_finite_torque_verdict_is_numpys_sum(rng):
+    with np.errstate(over="ignore", invalid="ignore"):
+        for tau in _extreme_vectors(rng, N_JOINTS, 300):
+            layer, _ = _layer(tau)
+            out = layer.torque(_state(0), None)
+            assert np.isfinite(out).all()
+            held = any(e.kind == "nan_torque" for e in layer.events)
+            assert held == (not np.isfinite(np.add.reduce(tau))), tau
+
+
+def test_wrong_torque_shape_holds():
+    layer, _ = _layer(np.ones(N_JOINTS + 1))
+    tau = layer.torque(_state(0), None)
+    np.testing.assert_array_equal(tau, np.zeros(N_JOINTS))
+    assert layer.events[-1].kind == "nan_torque"
+
+
+def test_hold_decays_by_exp_dt_over_t_each_tick():
+    limits = SafetyLimits()
+    layer, _ = _layer(np.full(N_JOINTS, 0.5))
+    for k in range(5):
+        tau = layer.torque(_state(k), None)
+    bad = replace(_state(5), dq=np.full(N_JOINTS, np.inf))
+    held1 = layer.torque(bad, None)
+    held2 = layer.torque(replace(bad, t=6e-3), None)
+    decay = np.exp(-limits.dt / limits.hold_decay_time)
+    np.testing.assert_allclose(held1, tau * decay, rtol=1e-15)
+    np.testing.assert_allclose(held2, tau * decay**2, rtol=1e-15)

@@ -114,8 +114,8 @@ def test_va_ufic_realigns_to_the_surface_normal_over_T():
         if k == 1:
             assert ctrl.telemetry()["realigning"] == 1.0
         if k == 250:  # halfway through T: half the angle (eq. 28–29)
-            assert math.acos(ctrl._rot_d[:, 2] @ -normal) == pytest.approx(0.15, abs=2e-3)
-    np.testing.assert_allclose(ctrl._rot_d[:, 2], -normal, atol=1e-9)
+            assert math.acos(ctrl.rotation_desired[:, 2] @ -normal) == pytest.approx(0.15, abs=2e-3)
+    np.testing.assert_allclose(ctrl.rotation_desired[:, 2], -normal, atol=1e-9)
     assert ctrl.telemetry()["realigning"] == 0.0
 
 

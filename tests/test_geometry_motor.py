@@ -18,6 +18,7 @@ from tactex.geometry import (
     twist_from_gafro_generator,
     twist_to_wrench,
     z_line_motor_log,
+    z_line_motor_log_floats,
 )
 from tactex.geometry.so3 import exp_so3
 
@@ -134,3 +135,21 @@ def test_z_line_fast_path_matches_general_motor(rng):
             lg = m.log()
             b = np.array([lg.get_e12(), lg.get_e13(), lg.get_e23(), lg.get_e1i(), lg.get_e2i(), lg.get_e3i()])
             np.testing.assert_allclose(fast, twist_from_gafro_generator(b), atol=1e-7)
+
+
+def test_z_line_float_form_is_the_array_form_and_handles_antiparallel_lines(rng):
+    """The per-tick float variant returns six Python floats equal to z_line_motor_log, including the
+    anti-parallel fallback (d = −e_z), which must still map the z-axis onto the line (pygafro's
+    normalisation divides by zero there, so line_motor is the reference)."""
+    cases = [(rng.normal(size=3), rng.normal(size=3)) for _ in range(20)]
+    cases += [(rng.normal(size=3), np.array([0.0, 0.0, -1.0])), (np.zeros(3), np.array([0.0, 0.0, -1.0])),
+              (rng.normal(size=3), np.array([0.0, 0.0, 1.0]))]
+    for p, d in cases:
+        d = d / np.linalg.norm(d)
+        g = z_line_motor_log_floats(*p.tolist(), *d.tolist())
+        assert len(g) == 6 and all(type(x) is float for x in g)
+        np.testing.assert_array_equal(np.array(g), z_line_motor_log(p, d))
+        np.testing.assert_allclose(np.array(g), motor_log(*line_motor(np.zeros(3), np.array([0.0, 0.0, 1.0]), p, d)),
+                                   atol=1e-9)
+        rot, trans = motor_exp(np.array(g))
+        _same_line(Line3(trans, rot @ np.array([0.0, 0.0, 1.0])), Line3(p, d), 1e-9)

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tactex.geometry import exp_so3, interpolate_rotation, log_so3, orthonormalize, rotation_error_world
+from tactex.geometry.so3 import exp_so3_rows, log_so3_rows, matmul3_rows, matmul3t_rows
 
 TOL = 1e-10
 
@@ -49,3 +50,60 @@ def test_orthonormalize(rng):
     q = orthonormalize(r)
     np.testing.assert_allclose(q @ q.T, np.eye(3), atol=TOL)
     assert np.linalg.det(q) == pytest.approx(1.0)
+
+
+# -- the float-row variants the controllers use per tick ------------------------------------------------
+
+def _rows(m: np.ndarray):
+    return tuple(tuple(r) for r in m.tolist())
+
+
+def _axis_angle_cases(rng):
+    """Random rotations plus the edge angles of the log: 0, tiny, near π (both branches), π."""
+    cases = []
+    for _ in range(40):
+        v = rng.normal(size=3)
+        cases.append(v * rng.uniform(0.0, np.pi - 1e-3) / np.linalg.norm(v))
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    for angle in (0.0, 1e-14, 1e-10, 1e-9, 1e-6, np.pi - 1e-5, np.pi - 1e-6, np.pi - 1e-7, np.pi - 1e-9, np.pi):
+        cases.append(angle * axis)
+    for k in range(3):  # π about the coordinate axes (the symmetric-part branch picks a column)
+        cases.append(np.pi * np.eye(3)[k])
+    return cases
+
+
+def test_exp_rows_equal_the_array_and_scipy(rng):
+    for v in _axis_angle_cases(rng):
+        rows = exp_so3_rows(*v.tolist())
+        np.testing.assert_array_equal(np.array(rows), exp_so3(v))
+        np.testing.assert_allclose(np.array(rows), Rotation.from_rotvec(v).as_matrix(), atol=TOL)
+
+
+def test_log_rows_equal_the_array_version_and_invert_exp(rng):
+    for v in _axis_angle_cases(rng):
+        r = exp_so3(v)
+        w = log_so3_rows(_rows(r))
+        assert isinstance(w, tuple) and all(type(x) is float for x in w)
+        np.testing.assert_array_equal(np.array(w), log_so3(r))
+        np.testing.assert_allclose(exp_so3(np.array(w)), r, atol=1e-7)
+        angle = np.linalg.norm(v)
+        if angle < np.pi - 1e-3:  # away from π the rotation vector itself is unique
+            np.testing.assert_allclose(np.array(w), v, atol=1e-9)
+        else:
+            assert np.linalg.norm(w) == pytest.approx(angle, abs=1e-6)
+
+
+def test_log_rows_of_an_unnormalised_matrix_clamps_like_the_array_version():
+    # trace slightly above 3 and below −1 (round-off in a product of rotations): cos is clamped to [−1, 1]
+    for m in (np.eye(3) * (1.0 + 1e-12), np.diag([1.0, -1.0, -1.0]) * (1.0 + 1e-12)):
+        np.testing.assert_array_equal(np.array(log_so3_rows(_rows(m))), log_so3(m))
+        assert np.isfinite(log_so3(m)).all()
+
+
+def test_matmul_rows_match_numpy(rng):
+    for _ in range(20):
+        a, b = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+        np.testing.assert_allclose(np.array(matmul3_rows(_rows(a), _rows(b))), a @ b, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.array(matmul3t_rows(_rows(a), _rows(b))), a.T @ b, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.array(matmul3t_rows(a.tolist(), b.tolist())), a.T @ b, rtol=0, atol=1e-14)

@@ -35,10 +35,11 @@ def alignment_coefficient(c: float, c_margin: float) -> float:
 def rho_align_rate(rho_align: float, h: float, rho_min: float) -> float:
     """ρ̇_align of eq. 20 with ρ = h·ρ_align + ρ_min (eq. 21) [1/s]."""
     rho = h * rho_align + rho_min
+    # conditional expressions instead of min/max (1 kHz path); they pick the same value, NaN included
     if rho_align >= 1.0:
-        return min(rho, 0.0)
+        return 0.0 if 0.0 < rho else rho  # min(rho, 0)
     if rho_align <= 0.0:
-        return max(rho, 0.0)
+        return 0.0 if 0.0 > rho else rho  # max(rho, 0)
     return rho
 
 
@@ -54,7 +55,9 @@ class AlignmentShaper:
         self.rho = self.rho0
 
     def step(self, h: float, dt: float) -> float:
-        self.rho = min(1.0, max(0.0, self.rho + dt * rho_align_rate(self.rho, h, self.rho_min)))
+        rho = self.rho + dt * rho_align_rate(self.rho, h, self.rho_min)
+        rho = rho if rho > 0.0 else 0.0  # min(1, max(0, ·)) as conditionals (1 kHz path), a NaN gives 0 there too
+        self.rho = rho if rho < 1.0 else 1.0
         return self.rho
 
 

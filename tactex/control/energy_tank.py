@@ -110,15 +110,19 @@ class EnergyTank:
 
     def _commit(self, demand_w: float, valve: float, harvest_w: float, gate: float, lam: float, dt: float) -> float:
         """Apply one step. ``demand_w`` is the power the port would deliver with the valve fully
-        open; returns the valve actually used (reduced so S stays ≥ S_low when enabled)."""
+        open; returns the valve actually used (reduced so S stays ≥ S_low when enabled).
+        The clamps are conditional expressions, not min/max (1 kHz path); they pick the same values."""
         if self.enabled and demand_w > 0.0 and valve > 0.0:
             room = self.energy - self.lower
             if valve * demand_w * dt > room:
-                valve = max(0.0, room / (demand_w * dt))
+                valve = room / (demand_w * dt)
+                valve = valve if valve > 0.0 else 0.0
         port = valve * demand_w
-        harvest = max(0.0, harvest_w)
+        harvest = harvest_w if harvest_w > 0.0 else 0.0
         if harvest > 0.0:
-            harvest = min(harvest, max(0.0, (self.upper - self.energy) / dt))
+            room = (self.upper - self.energy) / dt
+            room = room if room > 0.0 else 0.0
+            harvest = room if room < harvest else harvest
         self.energy += dt * (harvest - port)
         self.delivered += dt * port
         self.harvested += dt * harvest
@@ -149,10 +153,11 @@ class ForceTank(EnergyTank):
         gate = self.gate()
         self.damping_harvested_w = 0.0
         if lam == 1.0:
-            dissipated = max(damping_power, 0.0) - force_power
+            damping = 0.0 if 0.0 > damping_power else damping_power  # max(damping_power, 0), NaN kept
+            dissipated = damping - force_power
             self._commit(0.0, 0.0, gate * dissipated, gate, lam, dt)
             # what was stored, split between the two dissipations in proportion
-            self.damping_harvested_w = self._last[2] * max(damping_power, 0.0) / dissipated
+            self.damping_harvested_w = self._last[2] * damping / dissipated
             return 1.0
         return self._commit(force_power, self.valve(), 0.0, gate, lam, dt)
 

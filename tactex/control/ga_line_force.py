@@ -34,7 +34,7 @@ from tactex.control.controller import Controller
 from tactex.control.references import LineForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
-from tactex.geometry.motor import twist_to_wrench, z_line_motor_log
+from tactex.geometry.motor import twist_to_wrench, z_line_motor_log_floats
 
 __all__ = ["GaLineForceController", "GaLineForceParams"]
 
@@ -111,30 +111,44 @@ class GaLineForceController(Controller):
         self._k = np.concatenate([p.stiffness_linear, p.stiffness_angular]).astype(float)
         self._d = np.concatenate([p.damping_linear, p.damping_angular]).astype(float)
         self._axes = np.asarray(p.force_axes, dtype=float)
-        self._integral = np.zeros(6)
-        self._err_prev = np.zeros(6)
-        self._derr = np.zeros(6)
+        # The tick runs on Python floats (gains as tuples, PID states as lists): at 1 kHz a numpy call on
+        # a 6-vector costs more than the float operations it replaces, and the tick had ~30 of them.
+        self._k_f = tuple(self._k.tolist())
+        self._d_f = tuple(self._d.tolist())
+        self._axes_f = tuple(self._axes.tolist())
+        self._integral = [0.0] * 6  # ∫W_e per tool axis [N·s, N·m·s]
+        self._err_prev = [0.0] * 6
+        self._derr = [0.0] * 6  # low-passed dW_e/dt
         self._t_prev: float | None = None
-        self._w_des = np.zeros(6)
         self._ilim = p.integral_limit / p.ki if p.ki > 0 else 0.0
         self._tau_d = 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz)
-        self._w_line: np.ndarray | None = None
+        self._w_line: tuple[float, ...] | None = None
         self._w_c2 = 0.0
         self._err2 = 0.0
 
     def reset(self, state: RobotState) -> None:
-        self._integral[:] = 0.0
-        self._err_prev = np.zeros(6)
-        self._derr[:] = 0.0
+        self._integral = [0.0] * 6
+        self._err_prev = [0.0] * 6
+        self._derr = [0.0] * 6
         self._t_prev = None
         self._w_line = None
 
+    @staticmethod
+    def _line_error_floats(rl: list[list[float]], state: RobotState, reference: LineForceReference
+                           ) -> tuple[float, float, float, float, float, float]:
+        """:meth:`line_error` as six Python floats; ``rl`` is the tool rotation R as nested floats."""
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rl
+        ax, ay, az = reference.point_world.tolist()
+        px, py, pz = state.ee_position.tolist()
+        wx, wy, wz = ax - px, ay - py, az - pz
+        nx, ny, nz = reference.normal_world.tolist()
+        return z_line_motor_log_floats(  # target point Rᵀ(p_a − x) and direction −Rᵀn in the tool frame
+            r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz,
+            -(r00 * nx + r10 * ny + r20 * nz), -(r01 * nx + r11 * ny + r21 * nz), -(r02 * nx + r12 * ny + r22 * nz))
+
     def line_error(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
         """log of the motor from the tool z-line to the target line, in the tool frame, [t; ω]."""
-        rot = state.ee_rotation
-        point_tool = (reference.point_world - state.ee_position) @ rot
-        dir_tool = -(reference.normal_world @ rot)
-        return z_line_motor_log(point_tool, dir_tool)
+        return np.array(self._line_error_floats(state.ee_rotation.tolist(), state, reference))
 
     def line_wrench(self, state: RobotState, reference: LineForceReference) -> np.ndarray:
         """K·W_L (eq. 38 scaled by the stiffness), tool frame [f; m]."""
@@ -147,35 +161,56 @@ class GaLineForceController(Controller):
         tp = self._t_prev
         dt = state.t - tp if tp is not None and 0.0 < state.t - tp < 0.1 else p.dt
         self._t_prev = state.t
-        rot = state.ee_rotation
+        rl = state.ee_rotation.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rl
 
-        w_line = self._k * self.line_error(state, reference)  # eq. 36–38
-        v_tool = (state.ee_twist.reshape(2, 3) @ rot).ravel()  # J^ee q̇ (eq. 46)
+        k0, k1, k2, k3, k4, k5 = self._k_f
+        l0, l1, l2, l3, l4, l5 = self._line_error_floats(rl, state, reference)
+        w_line = (k0 * l0, k1 * l1, k2 * l2, k3 * l3, k4 * l4, k5 * l5)  # eq. 36–38
+        vx, vy, vz, wx, wy, wz = state.ee_twist.tolist()
+        v_tool = (  # J^ee q̇ = [Rᵀv; Rᵀω] (eq. 46)
+            r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz,
+            r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz)
 
-        w_des = self._w_des
-        w_des[2] = reference.force_n
-        err = self._axes * (w_des - state.wrench_tool)  # eq. 39–41
-        in_contact = state.wrench_tool[2] >= p.contact_threshold_n
-        if in_contact:
-            self._integral += err * dt
-            np.minimum(self._integral, self._ilim, out=self._integral)  # np.clip costs ~4 µs more
-            np.maximum(self._integral, -self._ilim, out=self._integral)
-        else:
-            self._integral *= 1.0 - dt / (dt + p.integral_leak_time)
-        if tp is None:
-            self._err_prev = err
-        self._derr += self._alpha(dt) * ((err - self._err_prev) / dt - self._derr)
+        # eq. 39–41, per tool axis on floats; the clamp to ±lim keeps a NaN, as np.minimum/np.maximum did
+        force_n = reference.force_n
+        w_meas = state.wrench_tool.tolist()
+        w_des = (0.0, 0.0, force_n, 0.0, 0.0, 0.0)
+        axes, integral, derr, err_prev = self._axes_f, self._integral, self._derr, self._err_prev
+        in_contact = w_meas[2] >= p.contact_threshold_n
+        lim = self._ilim
+        leak = 1.0 - dt / (dt + p.integral_leak_time)
+        alpha = self._alpha(dt)
+        kp, ki, kd = p.kp, p.ki, p.kd
+        err = [0.0] * 6
+        w_tool = [0.0] * 6
+        d_f = self._d_f
+        for i in range(6):
+            e = axes[i] * (w_des[i] - w_meas[i])
+            err[i] = e
+            if in_contact:
+                s = integral[i] + e * dt
+                integral[i] = lim if s > lim else (-lim if s < -lim else s)
+            else:
+                integral[i] *= leak
+            e_prev = e if tp is None else err_prev[i]
+            derr[i] += alpha * ((e - e_prev) / dt - derr[i])
+            w_c = kp * e + ki * integral[i] + kd * derr[i]  # eq. 40
+            w_tool[i] = w_line[i] - d_f[i] * v_tool[i] + w_c  # eq. 47 in [linear; angular]
+            if i == 2:
+                self._w_c2 = w_c
         self._err_prev = err
-        w_c = p.kp * err + p.ki * self._integral + p.kd * self._derr  # eq. 40
+        self._err2 = err[2]
 
-        w_tool = w_line - self._d * v_tool + w_c  # eq. 47 in [linear; angular]
         excess = v_tool[2] - p.approach_speed_max
-        if excess > 0.0 and state.wrench_tool[2] < p.approach_below * reference.force_n:
+        if excess > 0.0 and w_meas[2] < p.approach_below * force_n:
             w_tool[2] -= p.approach_damping_z * excess  # speed cap while approaching (not in eq. 47)
         self._w_line = w_line
-        self._w_c2 = float(w_c[2])
-        self._err2 = float(err[2])
-        return state.jacobian.T @ (w_tool.reshape(2, 3) @ rot.T).ravel()
+        # τ = Jᵀ [R f; R m]: the rotation on floats, one (6,) · (6, 7) product
+        f0, f1, f2, m0, m1, m2 = w_tool
+        f_world = (r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2, r20 * f0 + r21 * f1 + r22 * f2,
+                   r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2, r20 * m0 + r21 * m1 + r22 * m2)
+        return np.dot(f_world, state.jacobian)
 
     def _alpha(self, dt: float) -> float:
         return dt / (dt + self._tau_d)
@@ -184,7 +219,7 @@ class GaLineForceController(Controller):
         """Line offset [m] and angle [rad] (from the line twist), force error and command [N]."""
         if self._w_line is None:
             return {}
-        xi = self._w_line / np.maximum(self._k, 1e-12)
+        xi = np.array(self._w_line) / np.maximum(self._k, 1e-12)
         return {
             "line_offset_m": float(np.hypot(xi[0], xi[1])),
             "line_angle_rad": float(np.hypot(xi[3], xi[4])),

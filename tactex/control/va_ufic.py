@@ -50,7 +50,7 @@ from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.control.ufic import UficController, UficParams
 from tactex.errors import ConfigError, ControllerFault
-from tactex.geometry.so3 import exp_so3, log_so3
+from tactex.geometry.so3 import exp_so3_rows, log_so3, log_so3_rows, matmul3_rows, matmul3t_rows
 from tactex.perception.estimate import SurfaceEstimate
 
 __all__ = ["PortFeedforward", "VaUficController", "VaUficParams", "desired_rotation_from_normal"]
@@ -155,8 +155,10 @@ class VaUficController(UficController):
         self._neg_k_const_f = tuple((-self._k_const).tolist())  # the same gains as Python floats (hot path)
         self._k_max_t_f = tuple(self._k_max_t.tolist())
         self._offset = (0.0, 0.0, 0.0)
-        self._rot_d: np.ndarray | None = None
-        self._realign: tuple[float, np.ndarray, list[float]] | None = None  # (t0, R_init, log(R_d R_initᵀ))
+        # R_d and R_init as rows of Python floats (see tactex.geometry.so3: the re-orienting tick is
+        # cheaper on floats than with numpy 3×3 products)
+        self._rot_d: list[list[float]] | None = None
+        self._realign: tuple[float, list, tuple[float, float, float]] | None = None  # (t0, R_init, log(R_d R_initᵀ))
         self._raw: tuple | None = None
         self.port_feedforward = port_feedforward
 
@@ -191,86 +193,109 @@ class VaUficController(UficController):
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
         if not isinstance(reference, PoseForceReference):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
+        # The whole tick runs on Python floats, 6-vectors unpacked into locals: at 1 kHz a numpy call on
+        # a 3- or 6-vector, a list comprehension or a zip costs more than the float operations it replaces.
         v = self.va
         dt = self._dt(state)
         rot = state.ee_rotation
+        rl = rot.tolist()
         if self._rot_d is None:
-            self._rot_d = reference.rotation_world.copy()
+            self._rot_d = reference.rotation_world.tolist()
         if self._realign is not None:  # eq. 28–29: (R_d R_initᵀ)^ζ R_init = exp(ζ·log(R_d R_initᵀ)) R_init
-            t0, r_init, (wx, wy, wz) = self._realign
-            zeta = min(1.0, (state.t - t0) / v.realign_time)
-            self._rot_d = exp_so3((zeta * wx, zeta * wy, zeta * wz)) @ r_init
+            t0, r_init, (lx, ly, lz) = self._realign
+            zeta = (state.t - t0) / v.realign_time
+            zeta = zeta if zeta < 1.0 else 1.0  # min(1, ·)
+            self._rot_d = matmul3_rows(exp_so3_rows(zeta * lx, zeta * ly, zeta * lz), r_init)
             if zeta >= 1.0:
                 self._realign = None
 
-        # x̃^ee: Rᵀ(x − x_d) and Rᵀlog(R R_dᵀ) = log(R_dᵀR) (the adjoint of a rotation on its own log), on
-        # Python floats like the rest of the tick (at 1 kHz a numpy call on a 3- or 6-vector costs more
-        # than the float operations it replaces)
-        rl = rot.tolist()
+        # x̃^ee: Rᵀ(x − x_d) and Rᵀlog(R R_dᵀ) = log(R_dᵀR) (the adjoint of a rotation on its own log)
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rl
         px, py, pz = state.ee_position.tolist()
         dx, dy, dz = reference.position_world.tolist()
         ox, oy, oz = self._offset
         ex, ey, ez = px - dx - ox, py - dy - oy, pz - dz - oz
-        e = [r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez]
-        e += log_so3(self._rot_d.T @ rot).tolist()
+        e0, e1, e2 = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
+        e3, e4, e5 = log_so3_rows(matmul3t_rows(self._rot_d, rl))
         usable, theta, ls, z_des = self._surface(state, reference.surface, rl)
 
         wm = state.wrench_tool.tolist()
-        c = contact_alignment(wm, e, theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
+        c = contact_alignment(wm, (e0, e1, e2, e3, e4, e5), theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
         h = alignment_coefficient(c, v.c_margin)  # eq. 18
         rho_align = self.shaper.step(h, dt)  # eq. 20–21
 
         if rho_align <= v.compliant_below:  # fully compliant: feed the actual translation back as desired
             self._offset = (px - dx, py - dy, pz - dz)
-            e[0] = e[1] = e[2] = 0.0
+            e0 = e1 = e2 = 0.0
             if usable and self._realign is None:
                 rd = self._rot_d
-                cos_tilt = float(rd[0, 2]) * z_des[0] + float(rd[1, 2]) * z_des[1] + float(rd[2, 2]) * z_des[2]
+                cos_tilt = rd[0][2] * z_des[0] + rd[1][2] * z_des[1] + rd[2][2] * z_des[2]
                 tilt = math.acos(max(-1.0, min(1.0, cos_tilt)))
-                if tilt > v.realign_min_angle:  # eq. 22–27
+                if tilt > v.realign_min_angle:  # eq. 22–27 (once per re-orientation: numpy is fine here)
                     r_goal = desired_rotation_from_normal(rot, np.array(z_des))
-                    self._realign = (state.t, self._rot_d.copy(), log_so3(r_goal @ self._rot_d.T).tolist())
+                    w_goal = log_so3(r_goal @ np.array(rd).T).tolist()
+                    self._realign = (state.t, rd, (w_goal[0], w_goal[1], w_goal[2]))
+        e = (e0, e1, e2, e3, e4, e5)
 
         wd = reference.wrench_tool.tolist()
         rho_frc = force_shaping(wd, e, v.delta_c)  # eq. 30
         # Gains are diagonal in the tool frame (eq. 19: K_C,t = ρ R K_max,t Rᵀ), so every product is
-        # taken there; the powers ẋᵀ(·) are frame-independent. Both twists go to the tool frame in one
-        # product: rows of [v; ω; v_d; ω_d] @ R are Rᵀv, Rᵀω, Rᵀv_d, Rᵀω_d.
-        if v.damping_feedforward:
-            xa, xb, ra, rb = (np.concatenate((state.ee_twist, reference.twist_world)).reshape(4, 3) @ rot).tolist()
-        else:
-            xa, xb = (state.ee_twist.reshape(2, 3) @ rot).tolist()
-        xdot = xa + xb
+        # taken there; the powers ẋᵀ(·) are frame-independent. Twists to the tool frame: Rᵀv, Rᵀω.
+        vx, vy, vz, wx, wy, wz = state.ee_twist.tolist()
+        x0, x1, x2 = r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz
+        x3, x4, x5 = r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz
         self._select_damping(state)
-        d = self._d_tool_f
-        d_xdot = [di * xi for di, xi in zip(d, xdot, strict=True)]
-        f_f = [rho_frc * fi for fi in self.force_wrench_tool(state, wd, dt, rho_frc > 1e-3, wm)]
+        d0, d1, d2, d3, d4, d5 = self._d_tool_f
+        dx0, dx1, dx2, dx3, dx4, dx5 = d0 * x0, d1 * x1, d2 * x2, d3 * x3, d4 * x4, d5 * x5  # D ẋ
+        f0, f1, f2, f3, f4, f5 = self.force_wrench_tool(state, wd, dt, rho_frc > 1e-3, wm)
+        f0, f1, f2, f3, f4, f5 = rho_frc * f0, rho_frc * f1, rho_frc * f2, rho_frc * f3, rho_frc * f4, rho_frc * f5
 
         # Tracking a moving x_d, eq. 8's −D ẋ lags by D·v/K (6 mm at the policy's 8 cm/s). With
         # damping_feedforward the damping acts on the velocity error; its active part +D ẋ_d joins the
         # variable spring at the impedance tank's port (both are non-passive), so σ_i scales both.
         neg_rho = -rho_align
-        port = [neg_rho * ki * ei for ki, ei in zip(self._k_max_t_f, e, strict=True)]  # −K_var(t)·x̃, eq. 56
+        k0, k1, k2, k3, k4, k5 = self._k_max_t_f
+        port = [neg_rho * k0 * e0, neg_rho * k1 * e1, neg_rho * k2 * e2,  # −K_var(t)·x̃, eq. 56
+                neg_rho * k3 * e3, neg_rho * k4 * e4, neg_rho * k5 * e5]
         if v.damping_feedforward:
-            port = [pi + di * xi for pi, di, xi in zip(port, d, ra + rb, strict=True)]
+            ux, uy, uz, qx, qy, qz = reference.twist_world.tolist()
+            port[0] += d0 * (r00 * ux + r10 * uy + r20 * uz)
+            port[1] += d1 * (r01 * ux + r11 * uy + r21 * uz)
+            port[2] += d2 * (r02 * ux + r12 * uy + r22 * uz)
+            port[3] += d3 * (r00 * qx + r10 * qy + r20 * qz)
+            port[4] += d4 * (r01 * qx + r11 * qy + r21 * qz)
+            port[5] += d5 * (r02 * qx + r12 * qy + r22 * qz)
         if self.port_feedforward is not None:
             w_ff = self.port_feedforward.wrench_tool(state, rho_align, dt).tolist()
             port = [pi + wi for pi, wi in zip(port, w_ff, strict=True)]
-        p_damp = _dot6(xdot, d_xdot)
-        m_f = self.tank_f.step(p_damp, _dot6(xdot, f_f), dt)  # eq. 38–45: λ + σ_f(1 − λ)
+        p0, p1, p2, p3, p4, p5 = port
+        p_damp = x0 * dx0 + x1 * dx1 + x2 * dx2 + x3 * dx3 + x4 * dx4 + x5 * dx5
+        p_force = x0 * f0 + x1 * f1 + x2 * f2 + x3 * f3 + x4 * f4 + x5 * f5
+        m_f = self.tank_f.step(p_damp, p_force, dt)  # eq. 38–45: λ + σ_f(1 − λ)
         # the impedance tank harvests only the dissipation the force tank did not store (no double count)
-        sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -_dot6(xdot, port), dt)  # eq. 57–63
-        f_tool = [nk * ei - dxi + sigma_i * pi + m_f * fi  # eq. 72–73
-                  for nk, ei, dxi, pi, fi in zip(self._neg_k_const_f, e, d_xdot, port, f_f, strict=True)]
+        p_port = x0 * p0 + x1 * p1 + x2 * p2 + x3 * p3 + x4 * p4 + x5 * p5
+        sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -p_port, dt)  # eq. 57–63
+        nk0, nk1, nk2, nk3, nk4, nk5 = self._neg_k_const_f
+        # eq. 72–73, tool frame
+        g0 = nk0 * e0 - dx0 + sigma_i * p0 + m_f * f0
+        g1 = nk1 * e1 - dx1 + sigma_i * p1 + m_f * f1
+        g2 = nk2 * e2 - dx2 + sigma_i * p2 + m_f * f2
+        g3 = nk3 * e3 - dx3 + sigma_i * p3 + m_f * f3
+        g4 = nk4 * e4 - dx4 + sigma_i * p4 + m_f * f4
+        g5 = nk5 * e5 - dx5 + sigma_i * p5 + m_f * f5
 
         # raw values only: the dict is built on demand in telemetry() (1 kHz budget)
         self._raw = (rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, wd[2] - wm[2], e, state)
         # τ = Jᵀ [R f_lin; R f_ang]: the rotation on floats, one (6,) · (6, 7) product
-        f0, f1, f2, f3, f4, f5 = f_tool
-        f_world = (r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2, r20 * f0 + r21 * f1 + r22 * f2,
-                   r00 * f3 + r01 * f4 + r02 * f5, r10 * f3 + r11 * f4 + r12 * f5, r20 * f3 + r21 * f4 + r22 * f5)
+        f_world = (r00 * g0 + r01 * g1 + r02 * g2, r10 * g0 + r11 * g1 + r12 * g2, r20 * g0 + r21 * g1 + r22 * g2,
+                   r00 * g3 + r01 * g4 + r02 * g5, r10 * g3 + r11 * g4 + r12 * g5, r20 * g3 + r21 * g4 + r22 * g5)
         return np.dot(f_world, state.jacobian)
+
+    @property
+    def rotation_desired(self) -> np.ndarray | None:
+        """The desired orientation R_d (world_R_tool) the controller tracks now: the reference's at the
+        first tick, then moved by the re-orientations (eq. 22–29); None before the first tick."""
+        return None if self._rot_d is None else np.array(self._rot_d)
 
     @property
     def position_offset(self) -> np.ndarray:

@@ -12,6 +12,7 @@ from tactex.geometry.motor import (
     twist_from_gafro_generator,
     twist_to_wrench,
     z_line_motor_log,
+    z_line_motor_log_floats,
 )
 from tactex.geometry.so3 import exp_so3, hat, interpolate_rotation, log_so3, orthonormalize, rotation_error_world
 
@@ -32,4 +33,5 @@ __all__ = [
     "twist_from_gafro_generator",
     "twist_to_wrench",
     "z_line_motor_log",
+    "z_line_motor_log_floats",
 ]

@@ -29,6 +29,7 @@ __all__ = [
     "twist_from_gafro_generator",
     "twist_to_wrench",
     "z_line_motor_log",
+    "z_line_motor_log_floats",
 ]
 
 
@@ -69,22 +70,30 @@ def line_motor(p1: np.ndarray, d1: np.ndarray, p2: np.ndarray, d2: np.ndarray) -
 
 
 def z_line_motor_log(point: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """``motor_log(*line_motor(0, e_z, point, direction))`` in scalar closed form (the per-tick path).
+    """``motor_log(*line_motor(0, e_z, point, direction))`` in scalar closed form (the per-tick path):
+    :func:`z_line_motor_log_floats` as an array."""
+    return np.array(z_line_motor_log_floats(float(point[0]), float(point[1]), float(point[2]),
+                                            float(direction[0]), float(direction[1]), float(direction[2])))
+
+
+def z_line_motor_log_floats(px: float, py: float, pz: float, dx: float, dy: float, dz: float
+                            ) -> tuple[float, float, float, float, float, float]:
+    """:func:`z_line_motor_log` of the line through (px, py, pz) along the unit (dx, dy, dz), on Python
+    floats and returning six of them (a controller tick calls it: no array in, none out).
 
     For the z-axis through the origin and a line (p, d) with d_z > −1 the screw axis is
     a = e_z × d / |e_z × d| and the angle φ = atan2(|e_z × d|, d_z), so ω = φ·a (no z-component);
     the closest points give t = p − ((p_z + d·p) / (1 + d_z))·d, which reduces to the lateral offset
     (p_x, p_y, 0) for parallel lines. Anti-parallel lines (d_z = −1) fall back to :func:`line_motor`.
     """
-    px, py, pz = float(point[0]), float(point[1]), float(point[2])
-    dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
     s = math.sqrt(dx * dx + dy * dy)
     if dz <= -1.0 + 1e-12:
-        return motor_log(*line_motor(np.zeros(3), np.array([0.0, 0.0, 1.0]), np.asarray(point, float),
-                                     np.asarray(direction, float)))
+        g = motor_log(*line_motor(np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([px, py, pz]),
+                                  np.array([dx, dy, dz]))).tolist()
+        return g[0], g[1], g[2], g[3], g[4], g[5]
     scale = math.atan2(s, dz) / s if s > 1e-12 else 1.0
     k = (pz + dx * px + dy * py + dz * pz) / (1.0 + dz)
-    return np.array([px - k * dx, py - k * dy, pz - k * dz, -dy * scale, dx * scale, 0.0])
+    return px - k * dx, py - k * dy, pz - k * dz, -dy * scale, dx * scale, 0.0
 
 
 def motor_log(rot: np.ndarray, trans: np.ndarray) -> np.ndarray:

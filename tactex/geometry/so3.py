@@ -3,6 +3,11 @@
 Written out by hand rather than through ``scipy.spatial.transform.Rotation`` because the
 controllers call them at 1 kHz and scipy's object construction costs ~20 µs per call; the
 formulas are tested against scipy in ``tests/test_geometry_so3.py``.
+
+The ``*_rows`` variants take and return rotations as three row tuples of Python floats (the shape
+``rot.tolist()`` gives): a controller tick that re-orients needs exp, log and two 3×3 products,
+and each numpy call on a 3×3 array costs more than the few dozen float operations it replaces.
+The array functions are thin wrappers around them, so both give the same numbers.
 """
 
 from __future__ import annotations
@@ -11,7 +16,20 @@ import math
 
 import numpy as np
 
-__all__ = ["exp_so3", "hat", "interpolate_rotation", "log_so3", "orthonormalize", "rotation_error_world"]
+__all__ = [
+    "exp_so3",
+    "exp_so3_rows",
+    "hat",
+    "interpolate_rotation",
+    "log_so3",
+    "log_so3_rows",
+    "matmul3_rows",
+    "matmul3t_rows",
+    "orthonormalize",
+    "rotation_error_world",
+]
+
+Rows = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
 
 _EPS = 1e-12
 
@@ -21,47 +39,86 @@ def hat(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def exp_so3(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation matrix of the rotation vector ``rotvec`` = angle·axis [rad].
-
-    Written out element by element on Python floats: with K = [k]× for the unit axis k,
-    K² = kkᵀ − I, and one array construction costs less than the numpy expression at 1 kHz."""
-    x, y, z = float(rotvec[0]), float(rotvec[1]), float(rotvec[2])
+def exp_so3_rows(x: float, y: float, z: float) -> Rows:
+    """Rodrigues on Python floats: the rows of the rotation matrix of the rotation vector
+    (x, y, z) = angle·axis [rad]. With K = [k]× for the unit axis k, K² = kkᵀ − I."""
     angle = math.sqrt(x * x + y * y + z * z)
     if angle < _EPS:
-        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+        return (1.0, -z, y), (z, 1.0, -x), (-y, x, 1.0)
     x, y, z = x / angle, y / angle, z / angle
     s = math.sin(angle)
     c = 1.0 - math.cos(angle)
     cxy, cxz, cyz = c * x * y, c * x * z, c * y * z
-    return np.array([
-        [1.0 - c * (y * y + z * z), cxy - s * z, cxz + s * y],
-        [cxy + s * z, 1.0 - c * (x * x + z * z), cyz - s * x],
-        [cxz - s * y, cyz + s * x, 1.0 - c * (x * x + y * y)],
-    ])
+    return (
+        (1.0 - c * (y * y + z * z), cxy - s * z, cxz + s * y),
+        (cxy + s * z, 1.0 - c * (x * x + z * z), cyz - s * x),
+        (cxz - s * y, cyz + s * x, 1.0 - c * (x * x + y * y)),
+    )
 
 
-def log_so3(rot: np.ndarray) -> np.ndarray:
-    """Rotation vector angle·axis [rad] of a rotation matrix, angle in [0, π]."""
-    # scalar arithmetic on the nine entries (one tolist) is cheaper per tick than numpy indexing
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = np.ravel(rot).tolist()
-    cos_a = max(-1.0, min(1.0, 0.5 * (r00 + r11 + r22 - 1.0)))
+def exp_so3(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotation matrix of the rotation vector ``rotvec`` = angle·axis [rad]
+    (:func:`exp_so3_rows` as an array)."""
+    return np.array(exp_so3_rows(float(rotvec[0]), float(rotvec[1]), float(rotvec[2])))
+
+
+def log_so3_rows(rows) -> tuple[float, float, float]:
+    """Rotation vector angle·axis [rad] (angle in [0, π]) of the rotation given by its rows as
+    Python floats. Near π, where the antisymmetric part vanishes, :func:`log_so3`'s array branch
+    takes the axis from the symmetric part."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
+    cos_a = 0.5 * (r00 + r11 + r22 - 1.0)
+    cos_a = cos_a if cos_a < 1.0 else 1.0  # max(-1, min(1, ·)) without two builtin calls (a NaN gives 1 too)
+    cos_a = cos_a if cos_a > -1.0 else -1.0
     wx, wy, wz = r21 - r12, r02 - r20, r10 - r01
     sin_a = 0.5 * math.sqrt(wx * wx + wy * wy + wz * wz)
     angle = math.atan2(sin_a, cos_a)
     if angle < 1e-9:
-        return np.array([0.5 * wx, 0.5 * wy, 0.5 * wz])
+        return 0.5 * wx, 0.5 * wy, 0.5 * wz
     if math.pi - angle > 1e-6:
         f = angle / (2.0 * sin_a)
-        return np.array([wx * f, wy * f, wz * f])
-    w = np.array([wx, wy, wz])
+        return wx * f, wy * f, wz * f
+    return _log_near_pi(np.array(rows, dtype=float), cos_a, angle, wx, wy, wz)
+
+
+def _log_near_pi(rot: np.ndarray, cos_a: float, angle: float, wx: float, wy: float, wz: float
+                 ) -> tuple[float, float, float]:
     # Near π the antisymmetric part vanishes: take the axis from the symmetric part.
     sym = 0.5 * (rot + rot.T) - cos_a * np.eye(3)
     col = int(np.argmax(np.diag(sym)))
     axis = sym[:, col] / math.sqrt(max(sym[col, col], _EPS))
-    if w @ axis < 0.0:
+    if wx * axis[0] + wy * axis[1] + wz * axis[2] < 0.0:
         axis = -axis
-    return axis / np.linalg.norm(axis) * angle
+    x, y, z = (axis / np.linalg.norm(axis) * angle).tolist()
+    return x, y, z
+
+
+def log_so3(rot: np.ndarray) -> np.ndarray:
+    """Rotation vector angle·axis [rad] of a rotation matrix, angle in [0, π]
+    (:func:`log_so3_rows` on the array's entries)."""
+    return np.array(log_so3_rows(np.asarray(rot, dtype=float).tolist()))
+
+
+def matmul3_rows(a, b) -> Rows:
+    """A·B for two 3×3 matrices given as rows of Python floats."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return (
+        (a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22),
+        (a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22),
+        (a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22),
+    )
+
+
+def matmul3t_rows(a, b) -> Rows:
+    """Aᵀ·B for two 3×3 matrices given as rows of Python floats (no transpose is built)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return (
+        (a00 * b00 + a10 * b10 + a20 * b20, a00 * b01 + a10 * b11 + a20 * b21, a00 * b02 + a10 * b12 + a20 * b22),
+        (a01 * b00 + a11 * b10 + a21 * b20, a01 * b01 + a11 * b11 + a21 * b21, a01 * b02 + a11 * b12 + a21 * b22),
+        (a02 * b00 + a12 * b10 + a22 * b20, a02 * b01 + a12 * b11 + a22 * b21, a02 * b02 + a12 * b12 + a22 * b22),
+    )
 
 
 def orthonormalize(rot: np.ndarray) -> np.ndarray:
