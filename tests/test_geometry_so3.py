@@ -7,7 +7,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tactex.geometry import exp_so3, interpolate_rotation, log_so3, orthonormalize, rotation_error_world
-from tactex.geometry.so3 import exp_so3_rows, log_so3_rows, matmul3_rows, matmul3t_rows
+from tactex.geometry.so3 import (
+    exp_so3_rows,
+    log_so3_rows,
+    matmul3_nt_rows,
+    matmul3_rows,
+    matmul3_tn_rows,
+    rotation_error_world_rows,
+)
 
 TOL = 1e-10
 
@@ -105,5 +112,14 @@ def test_matmul_rows_match_numpy(rng):
     for _ in range(20):
         a, b = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
         np.testing.assert_allclose(np.array(matmul3_rows(_rows(a), _rows(b))), a @ b, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(np.array(matmul3t_rows(_rows(a), _rows(b))), a.T @ b, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(np.array(matmul3t_rows(a.tolist(), b.tolist())), a.T @ b, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.array(matmul3_tn_rows(_rows(a), _rows(b))), a.T @ b, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.array(matmul3_tn_rows(a.tolist(), b.tolist())), a.T @ b, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.array(matmul3_nt_rows(_rows(a), _rows(b))), a @ b.T, rtol=0, atol=1e-14)
+
+
+def test_rotation_error_rows_match_the_array_version(rng):
+    for v in _axis_angle_cases(rng):
+        rd = exp_so3(rng.normal(size=3))
+        r = exp_so3(v) @ rd
+        np.testing.assert_allclose(np.array(rotation_error_world_rows(r.tolist(), rd.tolist())),
+                                   rotation_error_world(r, rd), atol=1e-12 if np.linalg.norm(v) < 3.1 else 1e-6)

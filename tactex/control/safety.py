@@ -223,7 +223,9 @@ class SafetyLayer(Controller):
         step = self._rate_step
         out = []
         rate_hit = torque_hit = False
-        for x, p, m in zip(tau_l, self._tau_prev_l, self._tau_max_l, strict=True):
+        prev, tau_max = self._tau_prev_l, self._tau_max_l
+        for j in range(len(tau_max)):  # an index loop: zip(strict=True)'s keyword parsing costs more than the body
+            x, p, m = tau_l[j], prev[j], tau_max[j]
             lo = p - step
             hi = p + step
             if lo < -m:
@@ -269,13 +271,13 @@ _add = np.add.reduce
 
 
 def _state_finite(state: RobotState) -> bool:
-    """Every number of the state is finite. One concatenation (``axis=None`` flattens the matrices
-    in C order, as ``ravel`` did) and one reduction (NaN and inf propagate through a sum): ~4× cheaper
-    at 1 kHz than a check per array."""
+    """Every number of the state is finite. One concatenation and one reduction (NaN and inf
+    propagate through a sum): ~4× cheaper at 1 kHz than a check per array. (``ravel`` views, not
+    ``axis=None``, which copies through a slower flattening path.)"""
     flat = np.concatenate((
-        state.q, state.dq, state.tau_measured, state.ee_position, state.ee_rotation, state.ee_twist,
-        state.jacobian, state.mass_matrix, state.coriolis, state.gravity, state.wrench_tool,
-    ), axis=None)
+        state.q, state.dq, state.tau_measured, state.ee_position, state.ee_rotation.ravel(), state.ee_twist,
+        state.jacobian.ravel(), state.mass_matrix.ravel(), state.coriolis, state.gravity, state.wrench_tool,
+    ))
     return math.isfinite(float(_add(flat)) + state.t)
 
 

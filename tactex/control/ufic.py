@@ -17,11 +17,10 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
-from tactex.control.frames import tool_to_world, world_to_tool
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
-from tactex.geometry.so3 import rotation_error_world
+from tactex.geometry.so3 import rotation_error_world, rotation_error_world_rows
 
 __all__ = ["UficController", "UficParams"]
 
@@ -96,6 +95,7 @@ class UficController(Controller):
         self._d_tool_f = self._d_contact_f
         self._k_max = np.asarray(self.params.stiffness_max, dtype=float)
         self._neg_k_tool = -self._k_max
+        self._neg_k_tool_f = tuple(self._neg_k_tool.tolist())
         self._neg_k_scale = float("nan")  # forces the first build of −K_C(t)
         self._integral = [0.0] * 6  # K_i ∫f̃ / K_i per tool axis, Python floats (1 kHz: no array per tick)
         self._ilim = self.params.integral_limit / self.params.ki if self.params.ki > 0 else 0.0
@@ -115,10 +115,11 @@ class UficController(Controller):
         self._t_prev = state.t
         return dt
 
-    def _select_damping(self, state: RobotState) -> None:
-        """D_C for this tick: more damping along the tool axis while out of contact (damping of any
-        size is passive, so switching it costs no energy)."""
-        if state.wrench_tool[2] >= self.params.contact_threshold_n:  # in contact
+    def _select_damping(self, force_z: float) -> None:
+        """D_C for this tick from the measured pressing force ``force_z`` [N] (``wrench_tool[2]``): more
+        damping along the tool axis while out of contact (damping of any size is passive, so switching
+        it costs no energy)."""
+        if force_z >= self.params.contact_threshold_n:  # in contact
             self._d_tool, self._d_tool_f = self._d_contact, self._d_contact_f
         else:
             self._d_tool, self._d_tool_f = self._d_free, self._d_free_f
@@ -142,35 +143,55 @@ class UficController(Controller):
         integ = self._integral
         if wrench_meas_tool is None:
             wrench_meas_tool = state.wrench_tool.tolist()
-        out = []
-        for i, (a, fd, fm) in enumerate(zip(self._axes_f, wrench_des_tool, wrench_meas_tool, strict=True)):
-            err = a * (fd - fm)
+        axes = self._axes_f
+        out = [0.0] * 6
+        for i in range(6):  # an index loop: zip(strict=True) alone costs more than the arithmetic
+            a, fd = axes[i], wrench_des_tool[i]
+            err = a * (fd - wrench_meas_tool[i])
             if integrate:  # clamp to ±lim; a NaN stays NaN, as it did with np.minimum/np.maximum
                 s = integ[i] + err * dt
                 integ[i] = lim if s > lim else (-lim if s < -lim else s)
-            out.append(a * fd + kp * err + ki * integ[i])
+            out[i] = a * fd + kp * err + ki * integ[i]
         return out
 
     # -- controller ------------------------------------------------------------------------
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
         if not isinstance(reference, PoseForceReference):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
+        # On Python floats, 6-vectors unpacked into locals: at 1 kHz a numpy call on a 3- or 6-vector
+        # costs more than the float operations it replaces.
         dt = self._dt(state)
-        rot = state.ee_rotation
-        self._select_damping(state)
-        x_err_world = self.pose_error_world(state, reference.position_world, reference.rotation_world)
-        x_err_tool = world_to_tool(rot, x_err_world)
+        rl = state.ee_rotation.tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rl
+        # x̃ = [x − x_d; log(R R_dᵀ)] (world, eq. 7), then both halves to the tool frame: Rᵀx̃
+        px, py, pz = state.ee_position.tolist()
+        dx, dy, dz = reference.position_world.tolist()
+        ex, ey, ez = px - dx, py - dy, pz - dz
+        ox, oy, oz = rotation_error_world_rows(rl, reference.rotation_world.tolist())
+        e0, e1, e2 = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
+        e3, e4, e5 = r00 * ox + r10 * oy + r20 * oz, r01 * ox + r11 * oy + r21 * oz, r02 * ox + r12 * oy + r22 * oz
+        vx, vy, vz, wx, wy, wz = state.ee_twist.tolist()
+        x0, x1, x2 = r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz
+        x3, x4, x5 = r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz
         if self.stiffness_scale != self._neg_k_scale:  # −K_C(t) rebuilt only when ρ changes
             k_tool = self._k_max.copy()
             k_tool[:3] *= self.stiffness_scale
             self._neg_k_tool, self._neg_k_scale = -k_tool, self.stiffness_scale
-        # eq. 8, gains in tool axes
-        f_tool = self._neg_k_tool * x_err_tool - self._d_tool * world_to_tool(rot, state.ee_twist)
-        f_tool += self.force_wrench_tool(state, reference.wrench_tool.tolist(), dt)  # eq. 10–12
-        e = x_err_tool[:3]
-        self._last = {"pose_error_m": math.sqrt(float(e @ e)),
-                      "force_error_n": float(reference.wrench_tool[2] - state.wrench_tool[2])}
-        return state.jacobian.T @ tool_to_world(rot, f_tool)  # eq. 9, 13
+            self._neg_k_tool_f = tuple(self._neg_k_tool.tolist())
+        k0, k1, k2, k3, k4, k5 = self._neg_k_tool_f
+        wd = reference.wrench_tool.tolist()
+        wm = state.wrench_tool.tolist()
+        self._select_damping(wm[2])
+        d0, d1, d2, d3, d4, d5 = self._d_tool_f
+        f0, f1, f2, f3, f4, f5 = self.force_wrench_tool(state, wd, dt, True, wm)  # eq. 10–12
+        # eq. 8, gains in tool axes, plus the force controller
+        g0, g1, g2 = k0 * e0 - d0 * x0 + f0, k1 * e1 - d1 * x1 + f1, k2 * e2 - d2 * x2 + f2
+        g3, g4, g5 = k3 * e3 - d3 * x3 + f3, k4 * e4 - d4 * x4 + f4, k5 * e5 - d5 * x5 + f5
+        self._last = {"pose_error_m": math.sqrt(e0 * e0 + e1 * e1 + e2 * e2), "force_error_n": wd[2] - wm[2]}
+        # eq. 9, 13: τ = Jᵀ [R f; R m], the rotation on floats, one (6,) · (6, 7) product
+        f_world = (r00 * g0 + r01 * g1 + r02 * g2, r10 * g0 + r11 * g1 + r12 * g2, r20 * g0 + r21 * g1 + r22 * g2,
+                   r00 * g3 + r01 * g4 + r02 * g5, r10 * g3 + r11 * g4 + r12 * g5, r20 * g3 + r21 * g4 + r22 * g5)
+        return np.dot(f_world, state.jacobian)
 
     def telemetry(self) -> dict[str, float]:
         return dict(self._last)

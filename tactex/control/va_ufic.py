@@ -50,7 +50,7 @@ from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.control.ufic import UficController, UficParams
 from tactex.errors import ConfigError, ControllerFault
-from tactex.geometry.so3 import exp_so3_rows, log_so3, log_so3_rows, matmul3_rows, matmul3t_rows
+from tactex.geometry.so3 import exp_so3_rows, log_so3, log_so3_rows, matmul3_rows, matmul3_tn_rows
 from tactex.perception.estimate import SurfaceEstimate
 
 __all__ = ["PortFeedforward", "VaUficController", "VaUficParams", "desired_rotation_from_normal"]
@@ -216,7 +216,7 @@ class VaUficController(UficController):
         ox, oy, oz = self._offset
         ex, ey, ez = px - dx - ox, py - dy - oy, pz - dz - oz
         e0, e1, e2 = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
-        e3, e4, e5 = log_so3_rows(matmul3t_rows(self._rot_d, rl))
+        e3, e4, e5 = log_so3_rows(matmul3_tn_rows(self._rot_d, rl))
         usable, theta, ls, z_des = self._surface(state, reference.surface, rl)
 
         wm = state.wrench_tool.tolist()
@@ -244,7 +244,7 @@ class VaUficController(UficController):
         vx, vy, vz, wx, wy, wz = state.ee_twist.tolist()
         x0, x1, x2 = r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz
         x3, x4, x5 = r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz
-        self._select_damping(state)
+        self._select_damping(wm[2])
         d0, d1, d2, d3, d4, d5 = self._d_tool_f
         dx0, dx1, dx2, dx3, dx4, dx5 = d0 * x0, d1 * x1, d2 * x2, d3 * x3, d4 * x4, d5 * x5  # D ẋ
         f0, f1, f2, f3, f4, f5 = self.force_wrench_tool(state, wd, dt, rho_frc > 1e-3, wm)

@@ -23,10 +23,12 @@ __all__ = [
     "interpolate_rotation",
     "log_so3",
     "log_so3_rows",
+    "matmul3_nt_rows",
     "matmul3_rows",
-    "matmul3t_rows",
+    "matmul3_tn_rows",
     "orthonormalize",
     "rotation_error_world",
+    "rotation_error_world_rows",
 ]
 
 Rows = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
@@ -110,14 +112,25 @@ def matmul3_rows(a, b) -> Rows:
     )
 
 
-def matmul3t_rows(a, b) -> Rows:
-    """Aᵀ·B for two 3×3 matrices given as rows of Python floats (no transpose is built)."""
+def matmul3_tn_rows(a, b) -> Rows:
+    """Aᵀ·B (BLAS "TN") for two 3×3 matrices given as rows of Python floats (no transpose is built)."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
     (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
     return (
         (a00 * b00 + a10 * b10 + a20 * b20, a00 * b01 + a10 * b11 + a20 * b21, a00 * b02 + a10 * b12 + a20 * b22),
         (a01 * b00 + a11 * b10 + a21 * b20, a01 * b01 + a11 * b11 + a21 * b21, a01 * b02 + a11 * b12 + a21 * b22),
         (a02 * b00 + a12 * b10 + a22 * b20, a02 * b01 + a12 * b11 + a22 * b21, a02 * b02 + a12 * b12 + a22 * b22),
+    )
+
+
+def matmul3_nt_rows(a, b) -> Rows:
+    """A·Bᵀ (BLAS "NT") for two 3×3 matrices given as rows of Python floats (no transpose is built)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return (
+        (a00 * b00 + a01 * b01 + a02 * b02, a00 * b10 + a01 * b11 + a02 * b12, a00 * b20 + a01 * b21 + a02 * b22),
+        (a10 * b00 + a11 * b01 + a12 * b02, a10 * b10 + a11 * b11 + a12 * b12, a10 * b20 + a11 * b21 + a12 * b22),
+        (a20 * b00 + a21 * b01 + a22 * b02, a20 * b10 + a21 * b11 + a22 * b12, a20 * b20 + a21 * b21 + a22 * b22),
     )
 
 
@@ -141,3 +154,8 @@ def rotation_error_world(rot: np.ndarray, rot_desired: np.ndarray) -> np.ndarray
     """Orientation error x̃_rot of the pose ``rot`` w.r.t. ``rot_desired`` as a world-frame
     rotation vector [rad]: log(R R_dᵀ), so that a stiffness −K·x̃ rotates R back to R_d."""
     return log_so3(rot @ rot_desired.T)
+
+
+def rotation_error_world_rows(rot, rot_desired) -> tuple[float, float, float]:
+    """:func:`rotation_error_world` on rotations given as rows of Python floats (per-tick path)."""
+    return log_so3_rows(matmul3_nt_rows(rot, rot_desired))
