@@ -110,11 +110,6 @@ class VaUficParams:
             raise ConfigError(f"VaUficParams.stiffness_const must be 6 finite values ≥ 0, got {self.stiffness_const!r}")
 
 
-def _dot6(a: list[float], b: list[float]) -> float:
-    """aᵀb of two 6-vectors given as Python floats."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5]
-
-
 def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarray) -> np.ndarray:
     """Eq. 23–27: keep the current x-axis projected on the plane ⟂ r'_z, r'_y = r'_z × r'_x."""
     rz = tool_z_world / np.linalg.norm(tool_z_world)

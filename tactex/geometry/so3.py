@@ -4,10 +4,11 @@ Written out by hand rather than through ``scipy.spatial.transform.Rotation`` bec
 controllers call them at 1 kHz and scipy's object construction costs ~20 µs per call; the
 formulas are tested against scipy in ``tests/test_geometry_so3.py``.
 
-The ``*_rows`` variants take and return rotations as three row tuples of Python floats (the shape
-``rot.tolist()`` gives): a controller tick that re-orients needs exp, log and two 3×3 products,
-and each numpy call on a 3×3 array costs more than the few dozen float operations it replaces.
-The array functions are thin wrappers around them, so both give the same numbers.
+The ``*_rows`` variants take rotations as three rows of Python floats (tuples, or the lists
+``rot.tolist()`` gives) and return tuples: a controller tick needs a log and up to three 3×3
+products (plus an exp while re-orienting), and each numpy call on a 3×3 array costs more at 1 kHz
+than the few dozen float operations it replaces. ``exp_so3`` and ``log_so3`` are thin wrappers
+around their row variants, so both give the same numbers.
 """
 
 from __future__ import annotations
