@@ -69,6 +69,43 @@ def test_state_is_consistent(plane_backend):
     np.testing.assert_allclose(s.ee_rotation @ s.ee_rotation.T, np.eye(3), atol=1e-9)
 
 
+def test_states_own_their_arrays_and_match_mujoco(plane_backend):
+    """Controllers keep states: a state's arrays must not change when the simulation steps on, nor
+    share memory with the next state or with MuJoCo's buffers."""
+    b = plane_backend
+    b.reset(seed=0)
+    b.apply_torque(np.array([2.0, -3.0, 1.0, 2.0, 0.5, -0.5, 0.3]))
+    s0 = b.step()
+    fields = ("q", "dq", "tau_measured", "ee_position", "ee_rotation", "ee_twist", "jacobian", "mass_matrix",
+              "coriolis", "gravity", "wrench_tool")
+    snapshot = {f: getattr(s0, f).copy() for f in fields}
+    # MuJoCo's own quantities at this instant
+    m, d = b.model, b.data
+    jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    mujoco.mj_jacSite(m, d, jacp, jacr, b._ids["tcp"])
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    jac = np.vstack([jacp, jacr])[:, :7]
+    np.testing.assert_array_equal(s0.jacobian, jac)
+    np.testing.assert_array_equal(s0.mass_matrix, full[:7, :7])
+    np.testing.assert_array_equal(s0.q, d.qpos[:7])
+    np.testing.assert_array_equal(s0.dq, d.qvel[:7])
+    np.testing.assert_array_equal(s0.gravity, d.qfrc_gravcomp[:7])
+    np.testing.assert_array_equal(s0.coriolis, d.qfrc_bias[:7] - d.qfrc_gravcomp[:7])
+    np.testing.assert_array_equal(s0.ee_twist, jac @ d.qvel[:7])
+    s1 = None
+    for _ in range(5):
+        s1 = b.step()
+    for f in fields:
+        a = getattr(s0, f)
+        np.testing.assert_array_equal(a, snapshot[f], err_msg=f)
+        assert not np.shares_memory(a, getattr(s1, f)), f
+        for buf in (d.qpos, d.qvel, d.qfrc_gravcomp, d.qfrc_bias, d.qfrc_actuator, d.site_xpos, d.site_xmat,
+                    d.sensordata, b._jac, b._mfull):
+            assert not np.shares_memory(a, buf), f
+    assert not np.array_equal(s0.q, s1.q)  # the arm moved meanwhile
+
+
 @pytest.mark.parametrize("value", [1000.0, 1e308])  # 1e308: the finiteness sum overflows, the torque does not
 def test_torque_is_clipped_to_franka_limits(plane_backend, value):
     plane_backend.reset(seed=0)

@@ -466,27 +466,20 @@ class MujocoBackend:
     def _make_state(self) -> RobotState:
         m, d = self.model, self.data
         mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self._tcp)
-        jac = self._jac7.copy()
         mujoco.mj_fullM(m, d, self._mfull)
+        # fresh arrays (controllers may keep a state); every numpy call here costs about a microsecond,
+        # so there is exactly one per array, and the state is built positionally (no keyword dict)
+        jac = self._jac7.copy()
         dq = self._v_dq.copy()
         gravity = self._v_grav7.copy()
-        tau = self._v_act7 + gravity if self._gravity_comp else self._v_act7.copy()
+        tau = np.add(self._v_act7, gravity) if self._gravity_comp else self._v_act7.copy()
         wrench = self._wrench
         # q and dq were checked after the step (everything kinematic follows from them); the torques
         # and the sensor reading are checked here: one sum is finite iff every term is
         if not math.isfinite(sum(tau.tolist()) + sum(wrench.tolist())):
             raise SimulationError(f"non-finite robot state at t = {d.time:.4f} s; hint: the simulation diverged")
-        return RobotState(
-            t=d.time,
-            q=self._v_q.copy(),
-            dq=dq,
-            tau_measured=tau,
-            ee_position=self._v_tcp_pos.copy(),
-            ee_rotation=self._v_tcp_rot.copy(),
-            ee_twist=jac @ dq,
-            jacobian=jac,
-            mass_matrix=self._mass7.copy(),
-            coriolis=self._v_bias7 - gravity,
-            gravity=gravity,
-            wrench_tool=wrench,
-        )
+        # (t, q, dq, tau_measured, ee_position, ee_rotation, ee_twist, jacobian, mass_matrix, coriolis,
+        # gravity, wrench_tool)
+        return RobotState(d.time, self._v_q.copy(), dq, tau, self._v_tcp_pos.copy(), self._v_tcp_rot.copy(),
+                          np.dot(jac, dq), jac, self._mass7.copy(), np.subtract(self._v_bias7, gravity), gravity,
+                          wrench)
