@@ -18,7 +18,7 @@ def rotation_error(target: np.ndarray, current: np.ndarray, out: np.ndarray | No
     """Rotation vector (3,) [rad] of target·currentᵀ (world frame): the angular step to target
     (written into ``out``, a contiguous float64 (3,) array, when given)."""
     quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, (target @ current.T).reshape(9))
+    mujoco.mju_mat2Quat(quat, np.dot(target, current.T).reshape(9))  # np.dot: not a ufunc, cheaper than @
     vel = np.empty(3) if out is None else out
     mujoco.mju_quat2Vel(vel, quat, 1.0)
     return vel

@@ -45,6 +45,6 @@ class SimpleImpedance:
         wrench -= self.damping * state.ee_twist
         if wrench_ff_world is not None:
             wrench += wrench_ff_world
-        tau = state.jacobian.T @ wrench
+        tau = np.dot(state.jacobian.T, wrench)
         tau -= self.joint_damping * state.dq
         return tau
