@@ -395,11 +395,11 @@ class MujocoBackend:
         efc = d.efc_force.tolist()
         pad, obj = self._pad_geom, self._object_geom
         pos = frame = None
+        # force-weighted sums of the contact points and normals as scalars (the normal, the first row of
+        # the contact frame, points from geom1 to geom2): all contacts, and on the object alone
         f_all = f_obj = 0.0
-        p_all = [0.0, 0.0, 0.0]
-        p_obj = [0.0, 0.0, 0.0]
-        n_all = [0.0, 0.0, 0.0]  # the contact normal (first row of the contact frame) points from geom1 to geom2
-        n_obj = [0.0, 0.0, 0.0]
+        pax = pay = paz = nax = nay = naz = 0.0
+        pox = poy = poz = nox = noy = noz = 0.0
         for i, (g1, g2) in enumerate(con.geom.tolist()):
             if (g1 != pad and g2 != pad) or adr[i] < 0:
                 continue
@@ -408,28 +408,35 @@ class MujocoBackend:
                 continue
             if pos is None:
                 pos, frame = con.pos.tolist(), con.frame.tolist()
-            p, n = pos[i], frame[i]
+            px, py, pz = pos[i]
             fs = fn if g2 == pad else -fn
-            on_obj = g1 == obj or g2 == obj
+            wx, wy, wz = fn * px, fn * py, fn * pz
+            nx, ny, nz = frame[i][0] * fs, frame[i][1] * fs, frame[i][2] * fs
             f_all += fn
-            if on_obj:
+            pax += wx
+            pay += wy
+            paz += wz
+            nax += nx
+            nay += ny
+            naz += nz
+            if g1 == obj or g2 == obj:
                 f_obj += fn
-            for k in range(3):
-                p_all[k] += fn * p[k]
-                n_all[k] += fs * n[k]
-                if on_obj:
-                    p_obj[k] += fn * p[k]
-                    n_obj[k] += fs * n[k]
+                pox += wx
+                poy += wy
+                poz += wz
+                nox += nx
+                noy += ny
+                noz += nz
         if f_all == 0.0:
             return 0.0, None, 0.0, None, None
         # report the magnitude of the net normal force (contacts on neighbouring facets of a height
         # field push in slightly different directions; their magnitudes do not add up)
-        total = math.sqrt(n_all[0] ** 2 + n_all[1] ** 2 + n_all[2] ** 2)
-        point = [v / f_all for v in p_all]
+        total = math.sqrt(nax ** 2 + nay ** 2 + naz ** 2)
+        point = [pax / f_all, pay / f_all, paz / f_all]
         if f_obj == 0.0:
             return total, point, 0.0, None, None
-        norm = math.sqrt(n_obj[0] ** 2 + n_obj[1] ** 2 + n_obj[2] ** 2)
-        return total, point, f_obj, [v / f_obj for v in p_obj], [v / norm for v in n_obj]
+        norm = math.sqrt(nox ** 2 + noy ** 2 + noz ** 2)
+        return total, point, f_obj, [pox / f_obj, poy / f_obj, poz / f_obj], [nox / norm, noy / norm, noz / norm]
 
     def _wipe(self) -> None:
         """Contact ground truth and Preston wear, sampled every ``contact_sample_ticks`` ticks (the
