@@ -11,6 +11,8 @@ from tactex.geometry.fit import (
     SurfacePatch,
     cga_design_matrix,
     cga_fit_vector,
+    fit_local,
+    fit_local_design,
     fit_sphere_or_plane,
     gafro_normal_line,
     gafro_primitive,
@@ -187,6 +189,38 @@ def test_concyclic_or_few_points_fall_back_to_the_plane():
     p, n = point.project(np.array([0.1, 0.2, 0.4]))
     np.testing.assert_allclose(p, [0.1, 0.2, 0.3])
     np.testing.assert_allclose(n, [0, 0, 1.0])
+
+
+def _same_patch(a: SurfacePatch, b: SurfacePatch) -> bool:
+    return (
+        a.kind == b.kind
+        and np.array_equal(a.center, b.center)
+        and a.radius == b.radius
+        and np.array_equal(a.direction, b.direction)
+    )
+
+
+def test_fit_local_design_equals_fit_local_bit_for_bit(rng):
+    """The explorer's entry (design rows in a strided buffer) gives exactly fit_local's patch,
+    on spheres, planes and the degenerate neighbourhoods (line, concyclic, point)."""
+    cap, _ = _sphere_cap(rng, np.array([0.1, -0.2, 0.3]), 0.05)
+    plane, _, _ = _plane_patch(rng)
+    line = np.c_[np.linspace(0, 0.01, 12), np.zeros(12), np.zeros(12)]
+    th = np.linspace(0, 2 * np.pi, 9)[:-1]
+    circle = np.c_[np.cos(th), np.sin(th), np.zeros(8)]
+    kinds = []
+    for pts in (cap, plane, line, circle, np.tile([0.1, 0.2, 0.3], (6, 1))):
+        q = (pts - pts.mean(axis=0)) * 37.0
+        q_sq = np.einsum("ij,ij->i", q, q)
+        buf = np.full((q.shape[0], 7), np.nan)[:, 1:6]  # not contiguous, like a column slice
+        buf[:, :3] = q
+        buf[:, 3] = -1.0
+        buf[:, 4] = -0.5 * q_sq
+        ref = fit_local(q, q_sq)
+        assert _same_patch(fit_local_design(buf), ref)
+        assert _same_patch(fit_local(q), ref)
+        kinds.append(ref.kind)
+    assert kinds == ["sphere", "plane", "line", "plane", "point"]
 
 
 @pytest.mark.parametrize(

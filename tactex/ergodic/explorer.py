@@ -50,12 +50,17 @@ from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, RIDGE_RTOL
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.errors import ConfigError, ExplorationError, InputError
-from tactex.geometry.fit import SurfacePatch, fit_local, fit_sphere_or_plane
+from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
 
 __all__ = ["HedacExplorer"]
 
 _Z = np.array([0.0, 0.0, 1.0])
+# np.dot and the ufunc reductions dispatch in a fraction of @ / ndarray.sum's time on these tiny
+# arrays (the step is ~150 numpy calls, their overhead is most of its cost) with the same results.
+_dot = np.dot
+_sum = np.add.reduce
+_max = np.maximum.reduce
 _ZERO3 = np.zeros(3)
 if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
     raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
@@ -190,6 +195,7 @@ class HedacExplorer:
         self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
+        self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
         self._build_neighbourhoods()
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
@@ -370,31 +376,35 @@ class HedacExplorer:
         x = self._x[i]
         n_n = self._n_n
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
-        d = pts[cand] - x
-        dd = np.einsum("ij,ij->i", d, d)
+        d = pts.take(cand, axis=0)  # take, not fancy indexing: same values, a fraction of the dispatch
+        d -= x
+        sq = d * d
+        dd = sq[:, 0] + sq[:, 2]  # the order of np.einsum("ij,ij->i", d, d), bit for bit
+        dd += sq[:, 1]
         self._near[i] = cand[dd.argmin()]
         part = dd.argpartition(n_n - 1)[:n_n]
-        nbr = cand[part]
-        dd_n = dd[part]
-        scale2 = float(dd_n.max())
+        nbr = cand.take(part)
+        dd_n = dd.take(part)
+        scale2 = float(_max(dd_n))
         scale = scale2**0.5 if scale2 > 0.0 else self.spacing
         inv = 1.0 / scale
 
         # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
-        dk = d[part]
-        patch = fit_local(dk * inv, dd_n * (inv * inv))
+        dk = d.take(part, axis=0)
+        patch = fit_local_design(self._design(dk, dd_n, inv))
         shift, nrm = _project_local(patch, _ZERO3, self._normals[i])
         shift *= scale
 
         # Footprint on the tangent plane (eq. 30–31).
-        ds = d @ shift
-        d2 = dd - 2.0 * ds + float(shift @ shift)
-        inside = d2 <= self._r_a2
-        fp = cand[inside]
-        dn = d[inside] @ nrm - float(shift @ nrm)
-        phi = np.exp(-self._eps2 * (d2[inside] - dn * dn))
-        self._cov[fp] += phi
-        self._cov_sum += float(phi.sum())
+        ds = _dot(d, shift)
+        d2 = dd - 2.0 * ds + float(_dot(shift, shift))
+        inside = np.flatnonzero(d2 <= self._r_a2)
+        fp = cand.take(inside)
+        dn = _dot(d.take(inside, axis=0), nrm) - float(_dot(shift, nrm))
+        phi = np.exp(-self._eps2 * (d2.take(inside) - dn * dn))
+        cov = self._cov
+        cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
+        self._cov_sum += float(_sum(phi))
 
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         s = self._s_t
@@ -508,6 +518,14 @@ class HedacExplorer:
         self._x[i] = x_new
         self._normals[i] = n_new
         return ExplorationCommand(x_new, vel, n_new, tb[:, 0], tb[:, 1], self.step_count, i)
+
+    def _design(self, dk: np.ndarray, dd_n: np.ndarray, inv: float) -> np.ndarray:
+        """The fit's design rows (q, −1, −½|q|²) with q = dk·inv, in the preallocated buffer
+        (−½·(dd·inv²) = dd·(−½·inv²) exactly: a factor ½ only shifts the exponent)."""
+        w = self._w
+        np.multiply(dk, inv, out=w[:, :3])
+        np.multiply(dd_n, -0.5 * (inv * inv), out=w[:, 4])
+        return w
 
     def _land(self, patch: SurfacePatch, shift: np.ndarray, v: np.ndarray, nrm: np.ndarray, scale: float,
               d: np.ndarray, dd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, int]:

@@ -39,6 +39,7 @@ __all__ = [
     "cga_design_matrix",
     "cga_fit_vector",
     "fit_local",
+    "fit_local_design",
     "fit_sphere_or_plane",
     "gafro_normal_line",
     "gafro_primitive",
@@ -159,18 +160,33 @@ def to_world(local: SurfacePatch, origin: np.ndarray, scale: float) -> SurfacePa
 def fit_local(q: np.ndarray, q_sq: np.ndarray | None = None) -> SurfacePatch:
     """Eq. 24–26 on points q (n, 3) already centred near the data and scaled to about unit size.
 
-    This is the per-step fast path (the explorer centres on the agent and scales by the
-    neighbourhood radius, and passes the squared norms ``q_sq`` it already has);
-    :func:`fit_sphere_or_plane` wraps it for arbitrary world points.
+    ``q_sq`` are the squared norms of the rows when the caller has them;
+    :func:`fit_sphere_or_plane` wraps this for arbitrary world points.
     """
-    n = q.shape[0]
-    w = np.empty((n, 5))
+    return fit_local_design(cga_design_matrix(q) if q_sq is None else _design_with_norms(q, q_sq))
+
+
+def _design_with_norms(q: np.ndarray, q_sq: np.ndarray) -> np.ndarray:
+    w = np.empty((q.shape[0], 5))
     w[:, :3] = q
     w[:, 3] = -1.0
-    w[:, 4] = -0.5 * (np.einsum("ij,ij->i", q, q) if q_sq is None else q_sq)
-    evals, vecs, info = _dsyev(w.T @ w)
-    if info != 0 or n < 5 or evals[1] <= DEGENERACY_RTOL * evals[4]:
-        return _degenerate_patch(q)
+    w[:, 4] = -0.5 * q_sq
+    return w
+
+
+def fit_local_design(w: np.ndarray) -> SurfacePatch:
+    """:func:`fit_local` from its design matrix w (n, 5), rows (q_i, −1, −½|q_i|²) of eq. 25.
+
+    The per-step fast path: the explorer fills w in a preallocated buffer straight from its
+    agent-centred offsets (scaled by the neighbourhood radius).
+    """
+    n = w.shape[0]
+    evals, vecs, info = _dsyev(np.dot(w.T, w))
+    if info != 0 or n < 5:
+        return _degenerate_patch(np.ascontiguousarray(w[:, :3]))
+    _, e1, _, _, e4 = evals.tolist()
+    if e1 <= DEGENERACY_RTOL * e4:
+        return _degenerate_patch(np.ascontiguousarray(w[:, :3]))
     v0x, v1x, v2x, vinf, v0 = vecs[:, 0].tolist()  # scalar algebra in Python floats: 5 numbers
     nv = (v0x * v0x + v1x * v1x + v2x * v2x) ** 0.5
     if abs(v0) * MAX_RADIUS_RATIO > nv:
@@ -179,9 +195,9 @@ def fit_local(q: np.ndarray, q_sq: np.ndarray | None = None) -> SurfacePatch:
         if r2 > 0.0:
             return SurfacePatch("sphere", np.array((cx, cy, cz)), r2**0.5, _ZERO3)
         # An imaginary sphere (r² < 0) fits only noise; the plane is the sane limit.
-        return _pca_plane(q)
+        return _pca_plane(np.ascontiguousarray(w[:, :3]))
     if nv == 0.0:
-        return _pca_plane(q)
+        return _pca_plane(np.ascontiguousarray(w[:, :3]))
     nx, ny, nz = v0x / nv, v1x / nv, v2x / nv
     off = vinf / nv
     return SurfacePatch("plane", np.array((off * nx, off * ny, off * nz)), np.inf, np.array((nx, ny, nz)))
