@@ -61,6 +61,7 @@ _Z = np.array([0.0, 0.0, 1.0])
 _dot = np.dot
 _sum = np.add.reduce
 _max = np.maximum.reduce
+_min = np.minimum.reduce
 _ZERO3 = np.zeros(3)
 if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
     raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
@@ -195,6 +196,8 @@ class HedacExplorer:
         self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
+        self._a = np.empty((10, 10))  # the cubic's normal matrix, with a view of its diagonal
+        self._a_diag = self._a.ravel()[::11]
         self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
         self._build_neighbourhoods()
         self._near = np.zeros(0, dtype=np.intp)
@@ -409,26 +412,26 @@ class HedacExplorer:
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         s = self._s_t
         if self._cov_sum > 0.0:
-            np.multiply(self._cov[self._tidx], -1.0 / self._cov_sum, out=s)
+            np.multiply(cov.take(self._tidx), -1.0 / self._cov_sum, out=s)
             s += self._p_t
             np.maximum(s, 0.0, out=s)
             s *= s
         else:
             np.multiply(self._p_t, self._p_t, out=s)
-        tot = float(s.sum())
+        tot = float(_sum(s))
         if tot > 0.0:
             s *= 1.0 / tot
         # Diffuse after adding the source: the truncated projection of a sharp source rings
         # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
         coef = self._coef
-        coef += s @ self._phitm_t
+        coef += _dot(s, self._phitm_t)
         coef *= self._decay
-        u = self._phi[nbr] @ coef
-        u_src = self._s_ext[self._tpos[nbr]] if self._source_w > 0.0 else None
+        u = _dot(self._phi.take(nbr, axis=0), coef)
+        u_src = self._s_ext.take(self._tpos.take(nbr)) if self._source_w > 0.0 else None
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
-        uv = ((dk - shift) @ tb) * inv
+        uv = _dot(dk - shift, tb) * inv
         xf = self._xf  # monomials of CUBIC_EXPONENTS, built in place (no per-step allocation)
         uc, vc = uv[:, 0], uv[:, 1]
         xf[:, 1] = uc
@@ -442,10 +445,10 @@ class HedacExplorer:
         np.multiply(xf[:, 5], vc, out=xf[:, 9])
         w = np.exp((-self._eps2 * scale2) * (xf[:, 3] + xf[:, 5]))  # eq. 33: φ(r) on the tangent plane
         xw = xf * w[:, None]
-        a = xw.T @ xf
-        a.ravel()[::11] += RIDGE_RTOL * float(a[0, 0]) + 1e-300
+        a = _dot(xw.T, xf, out=self._a)
+        self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
         u -= u[0]
-        _, c, info = _dposv(a, xw.T @ u)
+        _, c, info = _dposv(a, _dot(xw.T, u), overwrite_b=1)
         if info == 0:
             if u_src is not None:
                 # The raw source is a set of isolated spikes at uncovered target points, typically at
@@ -455,30 +458,30 @@ class HedacExplorer:
                 # first three monomials, same weights) has the spike's slope sign. Both fits are
                 # linear in the values: the slope of (smooth part + spikes) is the sum of the two.
                 ws = u_src * w
-                b0 = float(ws.sum())
+                b0 = float(_sum(ws))
                 if b0 > 0.0:
-                    slope = _plane_slope(a, b0, *(ws @ uv).tolist())
+                    slope = _plane_slope(a, b0, *_dot(ws, uv).tolist())
                     if slope is not None:
                         c[1] += self._source_w * slope[0]
                         c[2] += self._source_w * slope[1]
-            g = tb @ c[1:3]
+            g = _dot(tb, c[1:3])
         else:
             g = np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
-        cu, cv = uv.sum(axis=0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
+        cu, cv = _sum(uv, axis=0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
         cn = (cu * cu + cv * cv) ** 0.5
         if cn > EDGE_OFFSET * n_n:
-            inward = tb @ np.array((cu / cn, cv / cn))
-            go = float(g @ inward)
+            inward = _dot(tb, np.array((cu / cn, cv / cn)))
+            go = float(_dot(g, inward))
             if go < 0.0:
                 g = g - go * inward
-        gn = float(g @ g) ** 0.5
+        gn = float(_dot(g, g)) ** 0.5
         if gn > 0.0 and gn < np.inf:
             direction = g * (1.0 / gn)
         else:
             r = self._rng.normal(size=2)
-            direction = tb @ (r / float(np.hypot(r[0], r[1])))
+            direction = _dot(tb, r / float(np.hypot(r[0], r[1])))
 
         # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
@@ -488,15 +491,15 @@ class HedacExplorer:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
             # the agent slides along the edge, and stay within one voxel of the nearest point.
             out = step - d[k]
-            out -= float(out @ nrm) * nrm
-            no = float(out @ out) ** 0.5
+            out -= float(_dot(out, nrm)) * nrm
+            no = float(_dot(out, out)) ** 0.5
             if no > 0.0:
                 out *= 1.0 / no
-                v = v - max(float(v @ out), 0.0) * out
+                v = v - max(float(_dot(v, out)), 0.0) * out
                 step, n_new, ss, dq2, k = self._land(patch, shift, v, nrm, scale, d, dd)
             if dq2[k] > self._off2:
                 step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
-                ss = float(step @ step)
+                ss = float(_dot(step, step))
         sl = ss**0.5
         if sl > self._step_max:
             step *= self._step_max / sl
@@ -504,7 +507,7 @@ class HedacExplorer:
             # Shortening may cut a corner past the edge: halve until back within max_off_cloud
             # (the start of the step satisfies it, so this ends at worst with no motion).
             for _ in range(5):
-                if float((dd - 2.0 * (d @ step) + float(step @ step)).min()) <= self._off2:
+                if float(_min(dd - 2.0 * _dot(d, step) + float(_dot(step, step)))) <= self._off2:
                     break
                 step *= 0.5
                 sl *= 0.5
@@ -513,7 +516,7 @@ class HedacExplorer:
                 sl = 0.0
         x_new = x + step
         vel = step * (1.0 / self._dt)
-        agent.velocity = vel - float(vel @ n_new) * n_new
+        agent.velocity = vel - float(_dot(vel, n_new)) * n_new
         self.path_lengths[i] += sl
         self._x[i] = x_new
         self._normals[i] = n_new
@@ -535,8 +538,8 @@ class HedacExplorer:
         from the agent, squared norms dd) and the index of the nearest one."""
         xl, n_new = _project_local(patch, (shift + v * self._dt) * (1.0 / scale), nrm)
         step = xl * scale
-        ss = float(step @ step)
-        dq2 = dd - 2.0 * (d @ step) + ss
+        ss = float(_dot(step, step))
+        dq2 = dd - 2.0 * _dot(d, step) + ss
         return step, n_new, ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
