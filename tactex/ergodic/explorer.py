@@ -65,6 +65,9 @@ _min = np.minimum.reduce
 _ZERO3 = np.zeros(3)
 if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
     raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
+# Column picks of the in-place monomials: (u, v) → (u·u, u·v, v·v) → (u²·u, u²·v, v²·u, v²·v).
+_QUAD_A, _QUAD_B = np.array([0, 0, 1]), np.array([0, 1, 1])
+_CUBE_A, _CUBE_B = np.array([0, 0, 2, 2]), np.array([0, 1, 0, 1])
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
@@ -196,6 +199,11 @@ class HedacExplorer:
         self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
+        xf = self._xf
+        self._xf_lin, self._xf_quad, self._xf_cube = xf[:, 1:3], xf[:, 3:6], xf[:, 6:10]
+        self._xf_uu, self._xf_vv = xf[:, 3], xf[:, 5]
+        self._wt_col = np.empty((cfg.n_neighbors_fit, 1))  # the cubic's weights, as a column and flat
+        self._wt = self._wt_col[:, 0]
         self._a = np.empty((10, 10))  # the cubic's normal matrix, with a view of its diagonal
         self._a_diag = self._a.ravel()[::11]
         self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
@@ -432,23 +440,20 @@ class HedacExplorer:
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
         uv = _dot(dk - shift, tb) * inv
-        xf = self._xf  # monomials of CUBIC_EXPONENTS, built in place (no per-step allocation)
-        uc, vc = uv[:, 0], uv[:, 1]
-        xf[:, 1] = uc
-        xf[:, 2] = vc
-        np.multiply(uc, uc, out=xf[:, 3])
-        np.multiply(uc, vc, out=xf[:, 4])
-        np.multiply(vc, vc, out=xf[:, 5])
-        np.multiply(xf[:, 3], uc, out=xf[:, 6])
-        np.multiply(xf[:, 3], vc, out=xf[:, 7])
-        np.multiply(xf[:, 5], uc, out=xf[:, 8])
-        np.multiply(xf[:, 5], vc, out=xf[:, 9])
-        w = np.exp((-self._eps2 * scale2) * (xf[:, 3] + xf[:, 5]))  # eq. 33: φ(r) on the tangent plane
-        xw = xf * w[:, None]
-        a = _dot(xw.T, xf, out=self._a)
+        # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
+        # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
+        xf = self._xf
+        xq = self._xf_quad
+        np.copyto(self._xf_lin, uv)
+        np.multiply(uv.take(_QUAD_A, axis=1), uv.take(_QUAD_B, axis=1), out=xq)
+        np.multiply(xq.take(_CUBE_A, axis=1), uv.take(_CUBE_B, axis=1), out=self._xf_cube)
+        w = self._wt
+        np.exp((-self._eps2 * scale2) * (self._xf_uu + self._xf_vv), out=w)  # eq. 33: φ(r) on the tangent plane
+        xwt = (xf * self._wt_col).T
+        a = _dot(xwt, xf, out=self._a)
         self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
         u -= u[0]
-        _, c, info = _dposv(a, _dot(xw.T, u), overwrite_b=1)
+        _, c, info = _dposv(a, _dot(xwt, u), overwrite_b=1)
         if info == 0:
             if u_src is not None:
                 # The raw source is a set of isolated spikes at uncovered target points, typically at
