@@ -487,3 +487,25 @@ def test_on_a_real_scan_the_agent_stays_within_one_voxel_and_keeps_the_speed_lim
         assert np.linalg.norm(cmd.point - prev) <= v_max * ex.config.step_duration_s * (1 + LIMIT_RTOL)
         prev = cmd.point
     assert ex.path_length > 0.5  # it explores, it is not parked
+
+
+def test_float_projection_matches_the_patch_projection_on_every_kind():
+    """The explorer's Python-float projection (sphere, plane) and its fallback (line, point) give
+    SurfacePatch.project's point and normal, the normal turned towards the reference side."""
+    from tactex.ergodic.explorer import _project_local
+    from tactex.geometry.fit import SurfacePatch
+
+    x = np.array([0.3, -0.2, 0.7])
+    ref = np.array([0.0, 0.0, -1.0])
+    patches = [
+        SurfacePatch("sphere", np.array([0.1, 0.0, 0.2]), 0.4, np.zeros(3)),
+        SurfacePatch("plane", np.array([0.0, 0.0, 0.1]), np.inf, np.array([0.0, 0.6, 0.8])),
+        SurfacePatch("line", np.array([0.0, 0.0, 0.0]), np.inf, np.array([1.0, 0.0, 0.0])),
+        SurfacePatch("point", np.array([0.1, 0.1, 0.1]), np.inf, np.zeros(3)),
+    ]
+    for patch in patches:
+        p, n = _project_local(patch, x, ref)
+        p_ref, n_ref = patch.project(x, ref)
+        np.testing.assert_allclose(p, p_ref, rtol=0, atol=1e-15)
+        assert float(n @ ref) >= 0.0  # oriented along the reference
+        np.testing.assert_allclose(np.abs(n @ n_ref), 1.0, rtol=0, atol=1e-15)

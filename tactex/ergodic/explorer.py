@@ -62,7 +62,6 @@ _dot = np.dot
 _sum = np.add.reduce
 _max = np.maximum.reduce
 _min = np.minimum.reduce
-_ZERO3 = np.zeros(3)
 if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
     raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
 # Column picks of the in-place monomials: (u, v) → (u·u, u·v, v·v) → (u²·u, u²·v, v²·u, v²·v).
@@ -119,33 +118,37 @@ def _plane_slope(a: np.ndarray, b0: float, b1: float, b2: float) -> tuple[float,
     return c_u, c_v
 
 
-def _project_local(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest point of the patch to x and the unit normal there, oriented along ``ref``.
+def _project_floats(patch: SurfacePatch, x: tuple, ref: tuple) -> tuple[tuple, tuple]:
+    """:func:`_project_local` on Python floats: x and ref are 3-tuples, so are the point and normal.
 
     Sphere and plane (the per-step cases) in Python floats: three numbers do not pay numpy's
     per-call overhead; the other kinds go through :meth:`SurfacePatch.project`.
     """
+    x0, x1, x2 = x
+    r0, r1, r2 = ref
     if patch.kind == "sphere":
         cx, cy, cz = patch.center.tolist()
-        x0, x1, x2 = x.tolist()
         ux, uy, uz = x0 - cx, x1 - cy, x2 - cz
         nu = (ux * ux + uy * uy + uz * uz) ** 0.5
         if nu > 1e-12 * patch.radius:
-            r0, r1, r2 = ref.tolist()
             sgn = 1.0 / nu if ux * r0 + uy * r1 + uz * r2 >= 0.0 else -1.0 / nu
-            nx, ny, nz = ux * sgn, uy * sgn, uz * sgn
             k = patch.radius / nu
-            return np.array((cx + k * ux, cy + k * uy, cz + k * uz)), np.array((nx, ny, nz))
+            return (cx + k * ux, cy + k * uy, cz + k * uz), (ux * sgn, uy * sgn, uz * sgn)
     elif patch.kind == "plane":
         nx, ny, nz = patch.direction.tolist()
         cx, cy, cz = patch.center.tolist()
-        x0, x1, x2 = x.tolist()
         h = (x0 - cx) * nx + (x1 - cy) * ny + (x2 - cz) * nz
-        r0, r1, r2 = ref.tolist()
         sgn = 1.0 if nx * r0 + ny * r1 + nz * r2 >= 0.0 else -1.0
-        return np.array((x0 - h * nx, x1 - h * ny, x2 - h * nz)), np.array((sgn * nx, sgn * ny, sgn * nz))
-    p, n = patch.project(x, ref)
-    return p, (n if float(n @ ref) >= 0.0 else -n)
+        return (x0 - h * nx, x1 - h * ny, x2 - h * nz), (sgn * nx, sgn * ny, sgn * nz)
+    refa = np.array(ref)
+    p, n = patch.project(np.array(x), refa)
+    return tuple(p.tolist()), tuple((n if float(n @ refa) >= 0.0 else -n).tolist())
+
+
+def _project_local(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point of the patch to x and the unit normal there, oriented along ``ref``."""
+    p, n = _project_floats(patch, tuple(x.tolist()), tuple(ref.tolist()))
+    return np.array(p), np.array(n)
 
 
 class HedacExplorer:
@@ -403,15 +406,16 @@ class HedacExplorer:
         # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
         dk = d.take(part, axis=0)
         patch = fit_local_design(self._design(dk, dd_n, inv))
-        shift, nrm = _project_local(patch, _ZERO3, self._normals[i])
-        shift *= scale
+        (p0, p1, p2), nt = _project_floats(patch, (0.0, 0.0, 0.0), tuple(self._normals[i].tolist()))
+        sf = (p0 * scale, p1 * scale, p2 * scale)  # the projected agent, agent-centred [m]
+        shift, nrm = np.array(sf), np.array(nt)
 
         # Footprint on the tangent plane (eq. 30–31).
         ds = _dot(d, shift)
-        d2 = dd - 2.0 * ds + float(_dot(shift, shift))
+        d2 = dd - 2.0 * ds + (sf[0] * sf[0] + sf[1] * sf[1] + sf[2] * sf[2])
         inside = np.flatnonzero(d2 <= self._r_a2)
         fp = cand.take(inside)
-        dn = _dot(d.take(inside, axis=0), nrm) - float(_dot(shift, nrm))
+        dn = _dot(d.take(inside, axis=0), nrm) - (sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2])
         phi = np.exp(-self._eps2 * (d2.take(inside) - dn * dn))
         cov = self._cov
         cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
@@ -491,7 +495,7 @@ class HedacExplorer:
         # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
         v = agent.command_velocity(direction, nrm)
-        step, n_new, ss, dq2, k = self._land(patch, shift, v, nrm, scale, d, dd)
+        step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
         if dq2[k] > self._off2:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
             # the agent slides along the edge, and stay within one voxel of the nearest point.
@@ -501,7 +505,7 @@ class HedacExplorer:
             if no > 0.0:
                 out *= 1.0 / no
                 v = v - max(float(_dot(v, out)), 0.0) * out
-                step, n_new, ss, dq2, k = self._land(patch, shift, v, nrm, scale, d, dd)
+                step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
             if dq2[k] > self._off2:
                 step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
                 ss = float(_dot(step, step))
@@ -535,17 +539,22 @@ class HedacExplorer:
         np.multiply(dd_n, -0.5 * (inv * inv), out=w[:, 4])
         return w
 
-    def _land(self, patch: SurfacePatch, shift: np.ndarray, v: np.ndarray, nrm: np.ndarray, scale: float,
+    def _land(self, patch: SurfacePatch, shift: tuple, v: np.ndarray, nrm: tuple, scale: float,
               d: np.ndarray, dd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, int]:
         """Where velocity v [m/s] takes the agent in one step, projected onto the fitted patch
-        (agent-centred coordinates, scaled by ``scale`` in the fit): the step (3,) [m], the normal
-        there, |step|², the squared distances from the landing point to the candidates d (offsets
-        from the agent, squared norms dd) and the index of the nearest one."""
-        xl, n_new = _project_local(patch, (shift + v * self._dt) * (1.0 / scale), nrm)
-        step = xl * scale
-        ss = float(_dot(step, step))
+        (agent-centred coordinates, scaled by ``scale`` in the fit; ``shift`` and ``nrm`` are the
+        projected agent [m] and its normal as float triples): the step (3,) [m], the normal there,
+        |step|², the squared distances from the landing point to the candidates d (offsets from
+        the agent, squared norms dd) and the index of the nearest one."""
+        v0, v1, v2 = v.tolist()
+        dt, k = self._dt, 1.0 / scale
+        s0, s1, s2 = shift
+        (x0, x1, x2), n_new = _project_floats(patch, ((s0 + v0 * dt) * k, (s1 + v1 * dt) * k, (s2 + v2 * dt) * k), nrm)
+        x0, x1, x2 = x0 * scale, x1 * scale, x2 * scale
+        ss = x0 * x0 + x1 * x1 + x2 * x2  # np.dot's order for three numbers
+        step = np.array((x0, x1, x2))
         dq2 = dd - 2.0 * _dot(d, step) + ss
-        return step, n_new, ss, dq2, int(dq2.argmin())
+        return step, np.array(n_new), ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
     @property
