@@ -56,11 +56,9 @@ from tactex.pointcloud import SurfaceCloud
 __all__ = ["HedacExplorer"]
 
 _Z = np.array([0.0, 0.0, 1.0])
-# np.dot and the ufunc reductions dispatch in a fraction of @ / ndarray.sum's time on these tiny
-# arrays (the step is ~150 numpy calls, their overhead is most of its cost) with the same results.
-_dot = np.dot
+# ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
+# these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
 _sum = np.add.reduce
-_max = np.maximum.reduce
 _min = np.minimum.reduce
 if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
     raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
@@ -399,7 +397,7 @@ class HedacExplorer:
         part = dd.argpartition(n_n - 1)[:n_n]
         nbr = cand.take(part)
         dd_n = dd.take(part)
-        scale2 = float(_max(dd_n))
+        scale2 = max(dd_n.tolist())  # exact: no rounding in a max
         scale = scale2**0.5 if scale2 > 0.0 else self.spacing
         inv = 1.0 / scale
 
@@ -411,11 +409,11 @@ class HedacExplorer:
         shift, nrm = np.array(sf), np.array(nt)
 
         # Footprint on the tangent plane (eq. 30–31).
-        ds = _dot(d, shift)
+        ds = d.dot(shift)
         d2 = dd - 2.0 * ds + (sf[0] * sf[0] + sf[1] * sf[1] + sf[2] * sf[2])
         inside = np.flatnonzero(d2 <= self._r_a2)
         fp = cand.take(inside)
-        dn = _dot(d.take(inside, axis=0), nrm) - (sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2])
+        dn = d.take(inside, axis=0).dot(nrm) - (sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2])
         phi = np.exp(-self._eps2 * (d2.take(inside) - dn * dn))
         cov = self._cov
         cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
@@ -436,14 +434,14 @@ class HedacExplorer:
         # Diffuse after adding the source: the truncated projection of a sharp source rings
         # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
         coef = self._coef
-        coef += _dot(s, self._phitm_t)
+        coef += s.dot(self._phitm_t)
         coef *= self._decay
-        u = _dot(self._phi.take(nbr, axis=0), coef)
+        u = self._phi.take(nbr, axis=0).dot(coef)
         u_src = self._s_ext.take(self._tpos.take(nbr)) if self._source_w > 0.0 else None
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nrm)
-        uv = _dot(dk - shift, tb) * inv
+        uv = (dk - shift).dot(tb) * inv
         # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
         # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
         xf = self._xf
@@ -454,10 +452,10 @@ class HedacExplorer:
         w = self._wt
         np.exp((-self._eps2 * scale2) * (self._xf_uu + self._xf_vv), out=w)  # eq. 33: φ(r) on the tangent plane
         xwt = (xf * self._wt_col).T
-        a = _dot(xwt, xf, out=self._a)
+        a = xwt.dot(xf, out=self._a)
         self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
         u -= u[0]
-        _, c, info = _dposv(a, _dot(xwt, u), overwrite_b=1)
+        _, c, info = _dposv(a, xwt.dot(u), overwrite_b=1)
         if info == 0:
             if u_src is not None:
                 # The raw source is a set of isolated spikes at uncovered target points, typically at
@@ -469,11 +467,11 @@ class HedacExplorer:
                 ws = u_src * w
                 b0 = float(_sum(ws))
                 if b0 > 0.0:
-                    slope = _plane_slope(a, b0, *_dot(ws, uv).tolist())
+                    slope = _plane_slope(a, b0, *ws.dot(uv).tolist())
                     if slope is not None:
                         c[1] += self._source_w * slope[0]
                         c[2] += self._source_w * slope[1]
-            g = _dot(tb, c[1:3])
+            g = tb.dot(c[1:3])
         else:
             g = np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
@@ -481,16 +479,16 @@ class HedacExplorer:
         cu, cv = _sum(uv, axis=0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
         cn = (cu * cu + cv * cv) ** 0.5
         if cn > EDGE_OFFSET * n_n:
-            inward = _dot(tb, np.array((cu / cn, cv / cn)))
-            go = float(_dot(g, inward))
+            inward = tb.dot(np.array((cu / cn, cv / cn)))
+            go = float(g.dot(inward))
             if go < 0.0:
                 g = g - go * inward
-        gn = float(_dot(g, g)) ** 0.5
+        gn = float(g.dot(g)) ** 0.5
         if gn > 0.0 and gn < np.inf:
             direction = g * (1.0 / gn)
         else:
             r = self._rng.normal(size=2)
-            direction = _dot(tb, r / float(np.hypot(r[0], r[1])))
+            direction = tb.dot(r / float(np.hypot(r[0], r[1])))
 
         # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
@@ -500,15 +498,15 @@ class HedacExplorer:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
             # the agent slides along the edge, and stay within one voxel of the nearest point.
             out = step - d[k]
-            out -= float(_dot(out, nrm)) * nrm
-            no = float(_dot(out, out)) ** 0.5
+            out -= float(out.dot(nrm)) * nrm
+            no = float(out.dot(out)) ** 0.5
             if no > 0.0:
                 out *= 1.0 / no
-                v = v - max(float(_dot(v, out)), 0.0) * out
+                v = v - max(float(v.dot(out)), 0.0) * out
                 step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
             if dq2[k] > self._off2:
                 step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
-                ss = float(_dot(step, step))
+                ss = float(step.dot(step))
         sl = ss**0.5
         if sl > self._step_max:
             step *= self._step_max / sl
@@ -516,7 +514,7 @@ class HedacExplorer:
             # Shortening may cut a corner past the edge: halve until back within max_off_cloud
             # (the start of the step satisfies it, so this ends at worst with no motion).
             for _ in range(5):
-                if float(_min(dd - 2.0 * _dot(d, step) + float(_dot(step, step)))) <= self._off2:
+                if float(_min(dd - 2.0 * d.dot(step) + float(step.dot(step)))) <= self._off2:
                     break
                 step *= 0.5
                 sl *= 0.5
@@ -525,7 +523,7 @@ class HedacExplorer:
                 sl = 0.0
         x_new = x + step
         vel = step * (1.0 / self._dt)
-        agent.velocity = vel - float(_dot(vel, n_new)) * n_new
+        agent.velocity = vel - float(vel.dot(n_new)) * n_new
         self.path_lengths[i] += sl
         self._x[i] = x_new
         self._normals[i] = n_new
@@ -553,7 +551,7 @@ class HedacExplorer:
         x0, x1, x2 = x0 * scale, x1 * scale, x2 * scale
         ss = x0 * x0 + x1 * x1 + x2 * x2  # np.dot's order for three numbers
         step = np.array((x0, x1, x2))
-        dq2 = dd - 2.0 * _dot(d, step) + ss
+        dq2 = dd - 2.0 * d.dot(step) + ss
         return step, np.array(n_new), ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
