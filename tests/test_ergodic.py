@@ -509,3 +509,22 @@ def test_float_projection_matches_the_patch_projection_on_every_kind():
         np.testing.assert_allclose(p, p_ref, rtol=0, atol=1e-15)
         assert float(n @ ref) >= 0.0  # oriented along the reference
         np.testing.assert_allclose(np.abs(n @ n_ref), 1.0, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_agent_float_velocity_equals_the_array_velocity(order):
+    """command_velocity_floats (the explorer's path) returns exactly command_velocity's numbers."""
+    rng = np.random.default_rng(5)
+    cls = FirstOrderAgent if order == 1 else SecondOrderAgent
+    a, b = cls(0.03, 0.05, 0.1), cls(0.03, 0.05, 0.1)
+    for _ in range(20):
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        g = rng.normal(size=3)
+        g -= (g @ n) * n
+        g /= np.linalg.norm(g)
+        va = a.command_velocity(g, n)
+        vb = b.command_velocity_floats(tuple(g.tolist()), tuple(n.tolist()))
+        assert isinstance(vb, tuple) and va.tolist() == list(vb)
+        a.velocity, b.velocity = va, np.array(vb)
+    assert float(np.linalg.norm(va)) > 0.0

@@ -40,6 +40,10 @@ class Agent(ABC):
     def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
         """New velocity [m/s] from the unit gradient direction (tangent, or zero) and the unit normal."""
 
+    def command_velocity_floats(self, direction: tuple, normal: tuple) -> tuple:
+        """:meth:`command_velocity` on float triples (the explorer's per-step path)."""
+        return tuple(self.command_velocity(np.array(direction), np.array(normal)).tolist())
+
     def _clip(self, v: np.ndarray) -> np.ndarray:
         nv = float(np.sqrt(v @ v))
         return v * (self.max_velocity / nv) if nv > self.max_velocity else v
@@ -56,9 +60,12 @@ class SecondOrderAgent(Agent):
     """ẍ = a_max ĝ (eq. 6 with the acceleration limit), then ‖ẋ‖ ≤ v_max."""
 
     def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        return np.array(self.command_velocity_floats(tuple(direction.tolist()), tuple(normal.tolist())))
+
+    def command_velocity_floats(self, direction: tuple, normal: tuple) -> tuple:
         # transport() and the clip in Python floats (hot path: three numbers per vector)
         v0, v1, v2 = self.velocity.tolist()
-        n0, n1, n2 = normal.tolist()
+        n0, n1, n2 = normal
         vn = v0 * n0 + v1 * n1 + v2 * n2
         t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
         nt2 = t0 * t0 + t1 * t1 + t2 * t2
@@ -66,13 +73,13 @@ class SecondOrderAgent(Agent):
             k = ((v0 * v0 + v1 * v1 + v2 * v2) / nt2) ** 0.5
             t0, t1, t2 = t0 * k, t1 * k, t2 * k
         a = self.max_acceleration * self.dt
-        d0, d1, d2 = direction.tolist()
+        d0, d1, d2 = direction
         w0, w1, w2 = t0 + a * d0, t1 + a * d1, t2 + a * d2
         nw = (w0 * w0 + w1 * w1 + w2 * w2) ** 0.5
         if nw > self.max_velocity:
             k = self.max_velocity / nw
             w0, w1, w2 = w0 * k, w1 * k, w2 * k
-        return np.array((w0, w1, w2))
+        return w0, w1, w2
 
 
 def make_agent(order: int, max_velocity: float, max_acceleration: float, dt: float) -> Agent:

@@ -72,9 +72,9 @@ EDGE_OFFSET = 0.25
 _PIVOT_RTOL = 1e-10
 
 
-def _tangent_matrix(n: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal tangent basis [t_u, t_v] with (t_u, t_v, n) right-handed."""
-    n0, n1, n2 = n.tolist()
+def _tangent_matrix(n: np.ndarray | tuple) -> np.ndarray:
+    """(3, 2) orthonormal tangent basis [t_u, t_v] with (t_u, t_v, n) right-handed (n an array or 3 floats)."""
+    n0, n1, n2 = n if isinstance(n, tuple) else n.tolist()
     if abs(n0) < 0.9:  # t_u = normalised e_x − (e_x·n) n
         a0, a1, a2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
     else:  # t_u from e_y
@@ -390,9 +390,9 @@ class HedacExplorer:
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
         d = pts.take(cand, axis=0)  # take, not fancy indexing: same values, a fraction of the dispatch
         d -= x
-        sq = d * d
-        dd = sq[:, 0] + sq[:, 2]  # the order of np.einsum("ij,ij->i", d, d), bit for bit
-        dd += sq[:, 1]
+        sx, sy, sz = (d * d).T
+        dd = sx + sz  # the order of np.einsum("ij,ij->i", d, d), bit for bit
+        dd += sy
         self._near[i] = cand[dd.argmin()]
         part = dd.argpartition(n_n - 1)[:n_n]
         nbr = cand.take(part)
@@ -440,7 +440,7 @@ class HedacExplorer:
         u_src = self._s_ext.take(self._tpos.take(nbr)) if self._source_w > 0.0 else None
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
-        tb = _tangent_matrix(nrm)
+        tb = _tangent_matrix(nt)
         uv = (dk - shift).dot(tb) * inv
         # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
         # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
@@ -469,9 +469,15 @@ class HedacExplorer:
                 if b0 > 0.0:
                     slope = _plane_slope(a, b0, *ws.dot(uv).tolist())
                     if slope is not None:
-                        c[1] += self._source_w * slope[0]
-                        c[2] += self._source_w * slope[1]
-            g = tb.dot(c[1:3])
+                        c1, c2 = c[1:3].tolist()
+                        c = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
+                        g = tb.dot(c)
+                    else:
+                        g = tb.dot(c[1:3])
+                else:
+                    g = tb.dot(c[1:3])
+            else:
+                g = tb.dot(c[1:3])
         else:
             g = np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
@@ -483,16 +489,18 @@ class HedacExplorer:
             go = float(g.dot(inward))
             if go < 0.0:
                 g = g - go * inward
-        gn = float(g.dot(g)) ** 0.5
+        g0, g1, g2 = g.tolist()
+        gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5  # np.dot's order for three numbers
         if gn > 0.0 and gn < np.inf:
-            direction = g * (1.0 / gn)
+            k = 1.0 / gn
+            direction = (g0 * k, g1 * k, g2 * k)
         else:
             r = self._rng.normal(size=2)
-            direction = tb.dot(r / float(np.hypot(r[0], r[1])))
+            direction = tuple(tb.dot(r / float(np.hypot(r[0], r[1]))).tolist())
 
         # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
-        v = agent.command_velocity(direction, nrm)
+        v = agent.command_velocity_floats(direction, nt)
         step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
         if dq2[k] > self._off2:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
@@ -502,7 +510,8 @@ class HedacExplorer:
             no = float(out.dot(out)) ** 0.5
             if no > 0.0:
                 out *= 1.0 / no
-                v = v - max(float(v.dot(out)), 0.0) * out
+                va = np.array(v)
+                v = tuple((va - max(float(va.dot(out)), 0.0) * out).tolist())
                 step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
             if dq2[k] > self._off2:
                 step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
@@ -521,13 +530,19 @@ class HedacExplorer:
             else:
                 step = np.zeros(3)
                 sl = 0.0
-        x_new = x + step
-        vel = step * (1.0 / self._dt)
-        agent.velocity = vel - float(vel.dot(n_new)) * n_new
+        # x + step, step / dt and the velocity's tangential part, in Python floats (the same operations).
+        s0, s1, s2 = step.tolist()
+        x0, x1, x2 = x.tolist()
+        m0, m1, m2 = n_new
+        idt = 1.0 / self._dt
+        v0, v1, v2 = s0 * idt, s1 * idt, s2 * idt
+        vn = v0 * m0 + v1 * m1 + v2 * m2
+        agent.velocity = np.array((v0 - vn * m0, v1 - vn * m1, v2 - vn * m2))
         self.path_lengths[i] += sl
+        x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         self._normals[i] = n_new
-        return ExplorationCommand(x_new, vel, n_new, tb[:, 0], tb[:, 1], self.step_count, i)
+        return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, tb[:, 0], tb[:, 1], self.step_count, i)
 
     def _design(self, dk: np.ndarray, dd_n: np.ndarray, inv: float) -> np.ndarray:
         """The fit's design rows (q, −1, −½|q|²) with q = dk·inv, in the preallocated buffer
@@ -537,14 +552,14 @@ class HedacExplorer:
         np.multiply(dd_n, -0.5 * (inv * inv), out=w[:, 4])
         return w
 
-    def _land(self, patch: SurfacePatch, shift: tuple, v: np.ndarray, nrm: tuple, scale: float,
-              d: np.ndarray, dd: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, int]:
+    def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
+              d: np.ndarray, dd: np.ndarray) -> tuple[np.ndarray, tuple, float, np.ndarray, int]:
         """Where velocity v [m/s] takes the agent in one step, projected onto the fitted patch
         (agent-centred coordinates, scaled by ``scale`` in the fit; ``shift`` and ``nrm`` are the
-        projected agent [m] and its normal as float triples): the step (3,) [m], the normal there,
+        projected agent [m], its normal and v as float triples): the step (3,) [m], the normal there,
         |step|², the squared distances from the landing point to the candidates d (offsets from
         the agent, squared norms dd) and the index of the nearest one."""
-        v0, v1, v2 = v.tolist()
+        v0, v1, v2 = v
         dt, k = self._dt, 1.0 / scale
         s0, s1, s2 = shift
         (x0, x1, x2), n_new = _project_floats(patch, ((s0 + v0 * dt) * k, (s1 + v1 * dt) * k, (s2 + v2 * dt) * k), nrm)
@@ -552,7 +567,7 @@ class HedacExplorer:
         ss = x0 * x0 + x1 * x1 + x2 * x2  # np.dot's order for three numbers
         step = np.array((x0, x1, x2))
         dq2 = dd - 2.0 * d.dot(step) + ss
-        return step, np.array(n_new), ss, dq2, int(dq2.argmin())
+        return step, n_new, ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
     @property

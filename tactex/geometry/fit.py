@@ -181,7 +181,7 @@ def fit_local_design(w: np.ndarray) -> SurfacePatch:
     agent-centred offsets (scaled by the neighbourhood radius).
     """
     n = w.shape[0]
-    evals, vecs, info = _dsyev(np.dot(w.T, w))
+    evals, vecs, info = _dsyev(w.T.dot(w))  # the method skips np.dot's dispatch; same product
     if info != 0 or n < 5:
         return _degenerate_patch(np.ascontiguousarray(w[:, :3]))
     _, e1, _, _, e4 = evals.tolist()
