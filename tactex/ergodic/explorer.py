@@ -388,7 +388,7 @@ class HedacExplorer:
         x = self._x[i]
         n_n = self._n_n
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
-        d = pts.take(cand, axis=0)  # take, not fancy indexing: same values, a fraction of the dispatch
+        d = pts.take(cand, 0)  # take, not fancy indexing: same values, a fraction of the dispatch
         d -= x
         sx, sy, sz = (d * d).T
         dd = sx + sz  # the order of np.einsum("ij,ij->i", d, d), bit for bit
@@ -402,7 +402,7 @@ class HedacExplorer:
         inv = 1.0 / scale
 
         # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
-        dk = d.take(part, axis=0)
+        dk = d.take(part, 0)
         patch = fit_local_design(self._design(dk, dd_n, inv))
         (p0, p1, p2), nt = _project_floats(patch, (0.0, 0.0, 0.0), tuple(self._normals[i].tolist()))
         sf = (p0 * scale, p1 * scale, p2 * scale)  # the projected agent, agent-centred [m]
@@ -411,9 +411,9 @@ class HedacExplorer:
         # Footprint on the tangent plane (eq. 30–31).
         ds = d.dot(shift)
         d2 = dd - 2.0 * ds + (sf[0] * sf[0] + sf[1] * sf[1] + sf[2] * sf[2])
-        inside = np.flatnonzero(d2 <= self._r_a2)
+        inside = (d2 <= self._r_a2).nonzero()[0]
         fp = cand.take(inside)
-        dn = d.take(inside, axis=0).dot(nrm) - (sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2])
+        dn = d.take(inside, 0).dot(nrm) - (sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2])
         phi = np.exp(-self._eps2 * (d2.take(inside) - dn * dn))
         cov = self._cov
         cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
@@ -422,12 +422,12 @@ class HedacExplorer:
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         s = self._s_t
         if self._cov_sum > 0.0:
-            np.multiply(cov.take(self._tidx), -1.0 / self._cov_sum, out=s)
+            np.multiply(cov.take(self._tidx), -1.0 / self._cov_sum, s)
             s += self._p_t
             np.maximum(s, 0.0, out=s)
             s *= s
         else:
-            np.multiply(self._p_t, self._p_t, out=s)
+            np.multiply(self._p_t, self._p_t, s)
         tot = float(_sum(s))
         if tot > 0.0:
             s *= 1.0 / tot
@@ -436,7 +436,7 @@ class HedacExplorer:
         coef = self._coef
         coef += s.dot(self._phitm_t)
         coef *= self._decay
-        u = self._phi.take(nbr, axis=0).dot(coef)
+        u = self._phi.take(nbr, 0).dot(coef)
         u_src = self._s_ext.take(self._tpos.take(nbr)) if self._source_w > 0.0 else None
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
@@ -447,15 +447,15 @@ class HedacExplorer:
         xf = self._xf
         xq = self._xf_quad
         np.copyto(self._xf_lin, uv)
-        np.multiply(uv.take(_QUAD_A, axis=1), uv.take(_QUAD_B, axis=1), out=xq)
-        np.multiply(xq.take(_CUBE_A, axis=1), uv.take(_CUBE_B, axis=1), out=self._xf_cube)
+        np.multiply(uv.take(_QUAD_A, 1), uv.take(_QUAD_B, 1), xq)
+        np.multiply(xq.take(_CUBE_A, 1), uv.take(_CUBE_B, 1), self._xf_cube)
         w = self._wt
-        np.exp((-self._eps2 * scale2) * (self._xf_uu + self._xf_vv), out=w)  # eq. 33: φ(r) on the tangent plane
+        np.exp((-self._eps2 * scale2) * (self._xf_uu + self._xf_vv), w)  # eq. 33: φ(r) on the tangent plane
         xwt = (xf * self._wt_col).T
-        a = xwt.dot(xf, out=self._a)
+        a = xwt.dot(xf, self._a)
         self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
         u -= u[0]
-        _, c, info = _dposv(a, xwt.dot(u), overwrite_b=1)
+        _, c, info = _dposv(a, xwt.dot(u), 0, 0, 1)  # overwrite_b
         if info == 0:
             if u_src is not None:
                 # The raw source is a set of isolated spikes at uncovered target points, typically at
@@ -482,7 +482,7 @@ class HedacExplorer:
             g = np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
-        cu, cv = _sum(uv, axis=0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
+        cu, cv = _sum(uv, 0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
         cn = (cu * cu + cv * cv) ** 0.5
         if cn > EDGE_OFFSET * n_n:
             inward = tb.dot(np.array((cu / cn, cv / cn)))
@@ -542,14 +542,14 @@ class HedacExplorer:
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         self._normals[i] = n_new
-        return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, tb[:, 0], tb[:, 1], self.step_count, i)
+        return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
 
     def _design(self, dk: np.ndarray, dd_n: np.ndarray, inv: float) -> np.ndarray:
         """The fit's design rows (q, −1, −½|q|²) with q = dk·inv, in the preallocated buffer
         (−½·(dd·inv²) = dd·(−½·inv²) exactly: a factor ½ only shifts the exponent)."""
         w = self._w
-        np.multiply(dk, inv, out=w[:, :3])
-        np.multiply(dd_n, -0.5 * (inv * inv), out=w[:, 4])
+        np.multiply(dk, inv, w[:, :3])
+        np.multiply(dd_n, -0.5 * (inv * inv), w[:, 4])
         return w
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
