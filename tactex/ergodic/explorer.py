@@ -505,7 +505,7 @@ class HedacExplorer:
         if dq2[k] > self._off2:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
             # the agent slides along the edge, and stay within one voxel of the nearest point.
-            out = step - d[k]
+            out = np.array(step) - d[k]
             out -= float(out.dot(nrm)) * nrm
             no = float(out.dot(out)) ** 0.5
             if no > 0.0:
@@ -514,10 +514,11 @@ class HedacExplorer:
                 v = tuple((va - max(float(va.dot(out)), 0.0) * out).tolist())
                 step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
             if dq2[k] > self._off2:
-                step = d[k] + (step - d[k]) * (self._off / float(dq2[k]) ** 0.5)
+                step = d[k] + (np.array(step) - d[k]) * (self._off / float(dq2[k]) ** 0.5)
                 ss = float(step.dot(step))
         sl = ss**0.5
         if sl > self._step_max:
+            step = np.array(step)
             step *= self._step_max / sl
             sl = self._step_max
             # Shortening may cut a corner past the edge: halve until back within max_off_cloud
@@ -531,7 +532,7 @@ class HedacExplorer:
                 step = np.zeros(3)
                 sl = 0.0
         # x + step, step / dt and the velocity's tangential part, in Python floats (the same operations).
-        s0, s1, s2 = step.tolist()
+        s0, s1, s2 = step if isinstance(step, tuple) else step.tolist()
         x0, x1, x2 = x.tolist()
         m0, m1, m2 = n_new
         idt = 1.0 / self._dt
@@ -553,10 +554,10 @@ class HedacExplorer:
         return w
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
-              d: np.ndarray, dd: np.ndarray) -> tuple[np.ndarray, tuple, float, np.ndarray, int]:
+              d: np.ndarray, dd: np.ndarray) -> tuple[tuple, tuple, float, np.ndarray, int]:
         """Where velocity v [m/s] takes the agent in one step, projected onto the fitted patch
         (agent-centred coordinates, scaled by ``scale`` in the fit; ``shift`` and ``nrm`` are the
-        projected agent [m], its normal and v as float triples): the step (3,) [m], the normal there,
+        projected agent [m], its normal and v as float triples): the step [m], the normal there (triples),
         |step|², the squared distances from the landing point to the candidates d (offsets from
         the agent, squared norms dd) and the index of the nearest one."""
         v0, v1, v2 = v
@@ -565,9 +566,8 @@ class HedacExplorer:
         (x0, x1, x2), n_new = _project_floats(patch, ((s0 + v0 * dt) * k, (s1 + v1 * dt) * k, (s2 + v2 * dt) * k), nrm)
         x0, x1, x2 = x0 * scale, x1 * scale, x2 * scale
         ss = x0 * x0 + x1 * x1 + x2 * x2  # np.dot's order for three numbers
-        step = np.array((x0, x1, x2))
-        dq2 = dd - 2.0 * d.dot(step) + ss
-        return step, n_new, ss, dq2, int(dq2.argmin())
+        dq2 = dd - d.dot(np.array((2.0 * x0, 2.0 * x1, 2.0 * x2))) + ss  # = dd − 2 d·step exactly (×2 is exact)
+        return (x0, x1, x2), n_new, ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
     @property
