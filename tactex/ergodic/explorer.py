@@ -208,6 +208,7 @@ class HedacExplorer:
         self._a = np.empty((10, 10))  # the cubic's normal matrix, with a view of its diagonal
         self._a_diag = self._a.ravel()[::11]
         self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
+        self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
@@ -403,7 +404,11 @@ class HedacExplorer:
 
         # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
         dk = d.take(part, 0)
-        patch = fit_local_design(self._design(dk, dd_n, inv))
+        # The fit's design rows (q, −1, −½|q|²), q = dk·inv, in the preallocated buffer
+        # (−½·(dd·inv²) = dd·(−½·inv²) exactly: a factor ½ only shifts the exponent).
+        np.multiply(dk, inv, self._w_q)
+        np.multiply(dd_n, -0.5 * (inv * inv), self._w_sq)
+        patch = fit_local_design(self._w)
         (p0, p1, p2), nt = _project_floats(patch, (0.0, 0.0, 0.0), tuple(self._normals[i].tolist()))
         sf = (p0 * scale, p1 * scale, p2 * scale)  # the projected agent, agent-centred [m]
         shift, nrm = np.array(sf), np.array(nt)
@@ -441,12 +446,11 @@ class HedacExplorer:
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nt)
-        uv = (dk - shift).dot(tb) * inv
+        uv = np.multiply((dk - shift).dot(tb), inv, self._xf_lin)  # (u, v) straight into the monomials
         # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
         # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
         xf = self._xf
         xq = self._xf_quad
-        np.copyto(self._xf_lin, uv)
         np.multiply(uv.take(_QUAD_A, 1), uv.take(_QUAD_B, 1), xq)
         np.multiply(xq.take(_CUBE_A, 1), uv.take(_CUBE_B, 1), self._xf_cube)
         w = self._wt
@@ -454,7 +458,7 @@ class HedacExplorer:
         xwt = (xf * self._wt_col).T
         a = xwt.dot(xf, self._a)
         self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
-        u -= u[0]
+        u -= u.item(0)
         _, c, info = _dposv(a, xwt.dot(u), 0, 0, 1)  # overwrite_b
         if info == 0:
             if u_src is not None:
@@ -502,7 +506,7 @@ class HedacExplorer:
         agent = self._agents[i]
         v = agent.command_velocity_floats(direction, nt)
         step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
-        if dq2[k] > self._off2:
+        if dq2.item(k) > self._off2:
             # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
             # the agent slides along the edge, and stay within one voxel of the nearest point.
             out = np.array(step) - d[k]
@@ -539,19 +543,11 @@ class HedacExplorer:
         v0, v1, v2 = s0 * idt, s1 * idt, s2 * idt
         vn = v0 * m0 + v1 * m1 + v2 * m2
         agent.velocity = np.array((v0 - vn * m0, v1 - vn * m1, v2 - vn * m2))
-        self.path_lengths[i] += sl
+        self.path_lengths[i] = self.path_lengths.item(i) + sl
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         self._normals[i] = n_new
         return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
-
-    def _design(self, dk: np.ndarray, dd_n: np.ndarray, inv: float) -> np.ndarray:
-        """The fit's design rows (q, −1, −½|q|²) with q = dk·inv, in the preallocated buffer
-        (−½·(dd·inv²) = dd·(−½·inv²) exactly: a factor ½ only shifts the exponent)."""
-        w = self._w
-        np.multiply(dk, inv, w[:, :3])
-        np.multiply(dd_n, -0.5 * (inv * inv), w[:, 4])
-        return w
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
               d: np.ndarray, dd: np.ndarray) -> tuple[tuple, tuple, float, np.ndarray, int]:
