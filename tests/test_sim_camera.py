@@ -227,3 +227,22 @@ def test_height_field_depths_converge_also_on_rims(name):
     assert (depth > 0).mean() > 0.9
     assert np.abs(depth - converged).max() < 1e-6
     np.testing.assert_array_equal(wide, depth)
+
+
+@pytest.mark.parametrize("name", ["bowl", "bumps"])
+def test_height_field_march_on_the_unbracketed_rays_only_changes_nothing(name):
+    # the bracketing march samples only the rays it has not bracketed yet once they are few: never
+    # gathering them (0), the default, and gathering them after every sample that brackets any (1)
+    # give the same bits
+    backend = MujocoBackend(SceneConfig(object_name=name, camera_width=80, camera_height=60))
+    pos, _ = backend.object_pose()
+    backend.reset(seed=0, q0=backend.solve_ik(pos + np.array([0.03, -0.06, 0.15]), DOWN))
+    caster = backend.camera.caster
+    frames = []
+    for below in (0.0, caster.march_gather_below, 1.0):
+        caster.march_gather_below = below
+        frames.append(backend.render_depth())
+    assert (frames[0].depth_m > 0).mean() > 0.9
+    for f in frames[1:]:
+        np.testing.assert_array_equal(f.depth_m, frames[0].depth_m)
+        np.testing.assert_array_equal(f.rgb, frames[0].rgb)

@@ -79,6 +79,10 @@ class SceneRayCaster:
             camera worker process gets them as arrays: it has no height function).
     """
 
+    #: the height-field march samples only the rays not yet bracketed once they are fewer than this
+    #: fraction of those it samples (gathering them costs about one sample of the others)
+    march_gather_below = 0.5
+
     def __init__(self, sim_object: SimObject, table_top_z: float = 0.0,
                  table_xy: tuple[float, float, float, float] = (-0.4, 1.2, -0.8, 0.8),
                  newton_iterations: int = 8, tolerance_m: float = 1e-5, *, kind: str | None = None,
@@ -219,21 +223,40 @@ class SceneRayCaster:
         wall = f_prev <= 0  # below the surface at the entry: came in through a side wall
         found = wall.copy()
         a, b, fa, fb = (np.zeros_like(lo_t) for _ in range(4))
+        # the samples of the rays still unbracketed only, gathered once they are fewer than
+        # march_gather_below of those sampled (each ray's samples, hence its bracket, are the same
+        # either way)
+        act = None  # indices of those rays; None: all
+        a_span, a_lo, a_dg, a_reach, a_found = span, lo_t, dg, reach, found
+        n_left = len(found)
+        n_left -= int(np.count_nonzero(found))
         for j in range(1, n_march + 1):
-            if found.all():
+            if n_left == 0:
                 break
-            t_j = span * _F32(j / n_march)
-            t_j += lo_t
-            f_j = self._gap(t_j, og, dg)
+            if n_left < self.march_gather_below * len(a_found):
+                sel = np.flatnonzero(~a_found)
+                act = sel if act is None else act[sel]
+                a_span, a_lo, a_reach, t_prev, f_prev = (v[sel] for v in (a_span, a_lo, a_reach, t_prev, f_prev))
+                a_dg = tuple(c[sel] for c in a_dg)
+                a_found = np.zeros(len(sel), dtype=bool)
+            t_j = a_span * _F32(j / n_march)
+            t_j += a_lo
+            f_j = self._gap(t_j, og, a_dg)
             new = f_j <= 0
             if j == n_march:
-                new |= reach  # reached the lowest height inside the box
-            new &= ~found
-            np.copyto(a, t_prev, where=new)
-            np.copyto(fa, f_prev, where=new)
-            np.copyto(b, t_j, where=new)
-            np.copyto(fb, f_j, where=new)
-            found |= new
+                new |= a_reach  # reached the lowest height inside the box
+            new &= ~a_found
+            if act is None:
+                np.copyto(a, t_prev, where=new)
+                np.copyto(fa, f_prev, where=new)
+                np.copyto(b, t_j, where=new)
+                np.copyto(fb, f_j, where=new)
+            else:
+                k = act[new]
+                a[k], fa[k], b[k], fb[k] = t_prev[new], f_prev[new], t_j[new], f_j[new]
+                found[k] = True
+            a_found |= new
+            n_left -= int(np.count_nonzero(new))
             t_prev, f_prev = t_j, f_j
         lazy = np.flatnonzero(np.isnan(fa) & found)  # crossed in the first interval, entered at the top
         if lazy.size:
@@ -246,8 +269,8 @@ class SceneRayCaster:
         np.copyto(tc, _F32(_INF), where=~found)
         if idx is None:
             return tc, wall
-        out[idx] = tc
-        out_wall[idx] = wall
+        out[ok] = tc  # a boolean scatter is cheaper than through the indices
+        out_wall[ok] = wall
         return out, out_wall
 
     def _newton(self, og: tuple, dg: Components, tc: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
