@@ -95,7 +95,7 @@ def _plane_slope(a: np.ndarray, b0: float, b1: float, b2: float) -> tuple[float,
 
     A 3×3 Cholesky in Python floats: a LAPACK call costs more than the arithmetic at this size.
     """
-    (a00, a01, a02), (_, a11, a12), (_, _, a22) = a[:3, :3].tolist()
+    (a00, a01, a02), (_, a11, a12), (_, _, a22) = (a if a.shape == (3, 3) else a[:3, :3]).tolist()
     if a00 <= 0.0:
         return None
     l00 = a00**0.5
@@ -207,6 +207,7 @@ class HedacExplorer:
         self._wt = self._wt_col[:, 0]
         self._a = np.empty((10, 10))  # the cubic's normal matrix, with a view of its diagonal
         self._a_diag = self._a.ravel()[::11]
+        self._a3 = self._a[:3, :3]
         self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
         self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
@@ -218,6 +219,7 @@ class HedacExplorer:
         self._agents: list[Agent] = []
         self._x = np.zeros((0, 3))
         self._normals = np.zeros((0, 3))
+        self._nrm_t: list[tuple] = []
         self.step_count = 0
 
     # ------------------------------------------------------------------ target and state
@@ -272,6 +274,7 @@ class HedacExplorer:
         self._reset_fields()
         self._x = np.zeros_like(x)
         self._normals = np.zeros_like(x)
+        self._nrm_t = [(0.0, 0.0, 0.0)] * x.shape[0]  # the normals as float triples (the step reads these)
         self.path_lengths = np.zeros(x.shape[0])
         self._near = np.zeros(x.shape[0], dtype=np.intp)
         self.step_count = 0
@@ -283,6 +286,7 @@ class HedacExplorer:
             patch = fit_sphere_or_plane(self._points[nb], validate=False)
             p, nrm = _project_local(patch, xi, self._initial_normal(xi))
             self._x[i], self._normals[i] = p, nrm
+            self._nrm_t[i] = tuple(nrm.tolist())
             t1, t2 = _tangent_basis(nrm)
             out.append(ExplorationCommand(p.copy(), np.zeros(3), nrm.copy(), t1, t2, 0, i))
         return out
@@ -394,7 +398,7 @@ class HedacExplorer:
         sx, sy, sz = (d * d).T
         dd = sx + sz  # the order of np.einsum("ij,ij->i", d, d), bit for bit
         dd += sy
-        self._near[i] = cand[dd.argmin()]
+        self._near[i] = cand.item(dd.argmin())
         part = dd.argpartition(n_n - 1)[:n_n]
         nbr = cand.take(part)
         dd_n = dd.take(part)
@@ -409,7 +413,7 @@ class HedacExplorer:
         np.multiply(dk, inv, self._w_q)
         np.multiply(dd_n, -0.5 * (inv * inv), self._w_sq)
         patch = fit_local_design(self._w)
-        (p0, p1, p2), nt = _project_floats(patch, (0.0, 0.0, 0.0), tuple(self._normals[i].tolist()))
+        (p0, p1, p2), nt = _project_floats(patch, (0.0, 0.0, 0.0), self._nrm_t[i])
         sf = (p0 * scale, p1 * scale, p2 * scale)  # the projected agent, agent-centred [m]
         shift, nrm = np.array(sf), np.array(nt)
 
@@ -446,7 +450,8 @@ class HedacExplorer:
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nt)
-        uv = np.multiply((dk - shift).dot(tb), inv, self._xf_lin)  # (u, v) straight into the monomials
+        uv = (dk - shift).dot(tb) * inv
+        self._xf_lin[...] = uv  # uv stays contiguous: the reductions and products below are cheaper on it
         # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
         # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
         xf = self._xf
@@ -471,7 +476,7 @@ class HedacExplorer:
                 ws = u_src * w
                 b0 = float(_sum(ws))
                 if b0 > 0.0:
-                    slope = _plane_slope(a, b0, *ws.dot(uv).tolist())
+                    slope = _plane_slope(self._a3, b0, *ws.dot(uv).tolist())
                     if slope is not None:
                         c1, c2 = c[1:3].tolist()
                         c = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
@@ -544,6 +549,7 @@ class HedacExplorer:
         vn = v0 * m0 + v1 * m1 + v2 * m2
         agent.velocity = np.array((v0 - vn * m0, v1 - vn * m1, v2 - vn * m2))
         self.path_lengths[i] = self.path_lengths.item(i) + sl
+        self._nrm_t[i] = n_new
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         self._normals[i] = n_new
