@@ -141,9 +141,10 @@ class SceneRayCaster:
         k = k.astype(np.int32)  # float32 → int64 is not vectorised
         cx -= fx  # the fractions stay float32
         cy -= fy
-        # one gather of the cell's four coefficients (16 bytes, a complex128) beats four of 4 bytes
-        c = self._coefs16.take(k, mode="clip").view(np.float32).reshape(-1, 4)
-        c0, c1, c2, c3 = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
+        # one gather of the cell's four coefficients (16 bytes, a complex128) beats four of 4 bytes;
+        # transposed into four contiguous rows by one copy, as arithmetic on the strided columns runs
+        # numpy's scalar loops (~3× the instructions of the copy per use)
+        c0, c1, c2, c3 = self._coefs16.take(k, mode="clip").view(np.float32).reshape(-1, 4).T.copy()
         gx = c3 * cy  # ∂z/∂cx = c1 + c3·fy
         gx += c1
         z = cx * gx
