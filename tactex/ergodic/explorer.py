@@ -205,6 +205,8 @@ class HedacExplorer:
         self._xf_uu, self._xf_vv = xf[:, 3], xf[:, 5]
         self._wt_col = np.empty((cfg.n_neighbors_fit, 1))  # the cubic's weights, as a column and flat
         self._wt = self._wt_col[:, 0]
+        self._xw = np.empty((cfg.n_neighbors_fit, 10))  # the weighted monomials and their transpose
+        self._xwt = self._xw.T
         self._a = np.empty((10, 10))  # the cubic's normal matrix, with a view of its diagonal
         self._a_diag = self._a.ravel()[::11]
         self._a3 = self._a[:3, :3]
@@ -418,12 +420,20 @@ class HedacExplorer:
         shift, nrm = np.array(sf), np.array(nt)
 
         # Footprint on the tangent plane (eq. 30–31).
-        ds = d.dot(shift)
-        d2 = dd - 2.0 * ds + (sf[0] * sf[0] + sf[1] * sf[1] + sf[2] * sf[2])
+        # In place, the same operations: d2 = dd − 2 d·shift + |shift|², φ = exp(−ε² (d2 − dn²)).
+        d2 = d.dot(shift)
+        d2 *= -2.0
+        d2 += dd
+        d2 += sf[0] * sf[0] + sf[1] * sf[1] + sf[2] * sf[2]
         inside = (d2 <= self._r_a2).nonzero()[0]
         fp = cand.take(inside)
-        dn = d.take(inside, 0).dot(nrm) - (sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2])
-        phi = np.exp(-self._eps2 * (d2.take(inside) - dn * dn))
+        dn = d.take(inside, 0).dot(nrm)
+        dn -= sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2]
+        dn *= dn
+        phi = d2.take(inside)
+        phi -= dn
+        phi *= -self._eps2
+        np.exp(phi, phi)
         cov = self._cov
         cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
         self._cov_sum += float(_sum(phi))
@@ -459,8 +469,11 @@ class HedacExplorer:
         np.multiply(uv.take(_QUAD_A, 1), uv.take(_QUAD_B, 1), xq)
         np.multiply(xq.take(_CUBE_A, 1), uv.take(_CUBE_B, 1), self._xf_cube)
         w = self._wt
-        np.exp((-self._eps2 * scale2) * (self._xf_uu + self._xf_vv), w)  # eq. 33: φ(r) on the tangent plane
-        xwt = (xf * self._wt_col).T
+        np.add(self._xf_uu, self._xf_vv, w)
+        w *= -self._eps2 * scale2
+        np.exp(w, w)  # eq. 33: φ(r) on the tangent plane
+        np.multiply(xf, self._wt_col, self._xw)
+        xwt = self._xwt
         a = xwt.dot(xf, self._a)
         self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
         u -= u.item(0)
@@ -568,7 +581,9 @@ class HedacExplorer:
         (x0, x1, x2), n_new = _project_floats(patch, ((s0 + v0 * dt) * k, (s1 + v1 * dt) * k, (s2 + v2 * dt) * k), nrm)
         x0, x1, x2 = x0 * scale, x1 * scale, x2 * scale
         ss = x0 * x0 + x1 * x1 + x2 * x2  # np.dot's order for three numbers
-        dq2 = dd - d.dot(np.array((2.0 * x0, 2.0 * x1, 2.0 * x2))) + ss  # = dd − 2 d·step exactly (×2 is exact)
+        dq2 = d.dot(np.array((2.0 * x0, 2.0 * x1, 2.0 * x2)))  # = 2 d·step exactly (×2 is exact)
+        np.subtract(dd, dq2, dq2)
+        dq2 += ss
         return (x0, x1, x2), n_new, ss, dq2, int(dq2.argmin())
 
     # ------------------------------------------------------------------ read-outs
