@@ -199,6 +199,7 @@ class HedacExplorer:
         self._off = cfg.max_off_cloud * self.spacing
         self._source_w = float(cfg.source_weight)
         self._n_n = cfg.n_neighbors_fit
+        self._n_n1 = cfg.n_neighbors_fit - 1
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
         xf = self._xf
         self._xf_lin, self._xf_quad, self._xf_cube = xf[:, 1:3], xf[:, 3:6], xf[:, 6:10]
@@ -401,7 +402,7 @@ class HedacExplorer:
         dd = sx + sz  # the order of np.einsum("ij,ij->i", d, d), bit for bit
         dd += sy
         self._near[i] = cand.item(dd.argmin())
-        part = dd.argpartition(n_n - 1)[:n_n]
+        part = dd.argpartition(self._n_n1)[:n_n]
         nbr = cand.take(part)
         dd_n = dd.take(part)
         scale2 = max(dd_n.tolist())  # exact: no rounding in a max
@@ -441,7 +442,8 @@ class HedacExplorer:
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         s = self._s_t
         if self._cov_sum > 0.0:
-            np.multiply(cov.take(self._tidx), -1.0 / self._cov_sum, s)
+            cov.take(self._tidx, None, s)  # straight into s, then scaled: the same product
+            s *= -1.0 / self._cov_sum
             s += self._p_t
             np.maximum(s, 0.0, out=s)
             s *= s
