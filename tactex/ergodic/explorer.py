@@ -442,8 +442,7 @@ class HedacExplorer:
         # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
         s = self._s_t
         if self._cov_sum > 0.0:
-            cov.take(self._tidx, None, s)  # straight into s, then scaled: the same product
-            s *= -1.0 / self._cov_sum
+            np.multiply(cov.take(self._tidx), -1.0 / self._cov_sum, s)  # (take with out= is slower: it buffers)
             s += self._p_t
             np.maximum(s, 0.0, out=s)
             s *= s
