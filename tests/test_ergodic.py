@@ -384,7 +384,8 @@ def test_vertical_wall_works_as_well_as_a_horizontal_one():
     x0 = cup.points[100]
     a.reset(x0)
     b.reset(rot @ (x0 - centre) + centre)
-    b._normals[0] = rot @ a._normals[0]  # same outward side (+z is not a normal of the rotated wall)
+    # the same outward side (+z is not a normal of the rotated wall)
+    b._nrm_t[0] = tuple((rot @ np.array(a._nrm_t[0])).tolist())
     for k in range(40):
         ca, cb = a.step(), b.step()
         np.testing.assert_allclose(cb.point, rot @ (ca.point - centre) + centre, atol=1e-6, err_msg=f"step {k}")

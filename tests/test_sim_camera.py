@@ -14,9 +14,10 @@ NEWTON_TOL_M = 1e-5  # the ray caster's default step tolerance [m]
 DOWN = np.diag([1.0, -1.0, -1.0])
 
 
-def _look_down(backend, height=0.15):
+def _look_down(backend, height=0.15, dx=0.0, dy=0.0):
+    """Reset with the TCP pointing down at (dx, dy, height) [m] from the object's origin."""
     pos, _ = backend.object_pose()
-    q = backend.solve_ik(pos + np.array([0.0, 0.0, height]), DOWN)
+    q = backend.solve_ik(pos + np.array([dx, dy, height]), DOWN)
     backend.reset(seed=0, q0=q)
 
 
@@ -215,8 +216,7 @@ def test_height_field_depths_converge_also_on_rims(name):
     # Newton runs per ray until its step is below the tolerance: steep rims too are converged (two
     # fixed iterations left some rim pixels millimetres off); the same with wide cell indices
     backend = MujocoBackend(SceneConfig(object_name=name, camera_width=80, camera_height=60))
-    pos, _ = backend.object_pose()
-    backend.reset(seed=0, q0=backend.solve_ik(pos + np.array([0.03, -0.06, 0.15]), DOWN))
+    _look_down(backend, 0.15, dx=0.03, dy=-0.06)
     caster = backend.camera.caster
     depth = backend.render_depth().depth_m
     caster.iterations, caster.tolerance = 40, np.float32(0.0)  # iterate to round-off
@@ -235,8 +235,7 @@ def test_height_field_march_on_the_unbracketed_rays_only_changes_nothing(name):
     # gathering them (0), the default, and gathering them after every sample that brackets any (1)
     # give the same bits
     backend = MujocoBackend(SceneConfig(object_name=name, camera_width=80, camera_height=60))
-    pos, _ = backend.object_pose()
-    backend.reset(seed=0, q0=backend.solve_ik(pos + np.array([0.03, -0.06, 0.15]), DOWN))
+    _look_down(backend, 0.15, dx=0.03, dy=-0.06)
     caster = backend.camera.caster
     frames = []
     for below in (0.0, caster.march_gather_below, 1.0):

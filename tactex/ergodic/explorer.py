@@ -221,8 +221,7 @@ class HedacExplorer:
         self._set_target(cloud.target)
         self._agents: list[Agent] = []
         self._x = np.zeros((0, 3))
-        self._normals = np.zeros((0, 3))
-        self._nrm_t: list[tuple] = []
+        self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
         self.step_count = 0
 
     # ------------------------------------------------------------------ target and state
@@ -276,8 +275,7 @@ class HedacExplorer:
         ]
         self._reset_fields()
         self._x = np.zeros_like(x)
-        self._normals = np.zeros_like(x)
-        self._nrm_t = [(0.0, 0.0, 0.0)] * x.shape[0]  # the normals as float triples (the step reads these)
+        self._nrm_t = [(0.0, 0.0, 0.0)] * x.shape[0]
         self.path_lengths = np.zeros(x.shape[0])
         self._near = np.zeros(x.shape[0], dtype=np.intp)
         self.step_count = 0
@@ -288,7 +286,7 @@ class HedacExplorer:
             self._near[i] = int(nb[0])
             patch = fit_sphere_or_plane(self._points[nb], validate=False)
             p, nrm = _project_local(patch, xi, self._initial_normal(xi))
-            self._x[i], self._normals[i] = p, nrm
+            self._x[i] = p
             self._nrm_t[i] = tuple(nrm.tolist())
             t1, t2 = _tangent_basis(nrm)
             out.append(ExplorationCommand(p.copy(), np.zeros(3), nrm.copy(), t1, t2, 0, i))
@@ -480,6 +478,7 @@ class HedacExplorer:
         u -= u.item(0)
         _, c, info = _dposv(a, xwt.dot(u), 0, 0, 1)  # overwrite_b
         if info == 0:
+            slope_uv = c[1:3]  # the cubic's linear coefficients: its slope at the agent
             if u_src is not None:
                 # The raw source is a set of isolated spikes at uncovered target points, typically at
                 # the rim of the neighbourhood (the footprint has cleared its inside). A cubic through
@@ -492,15 +491,9 @@ class HedacExplorer:
                 if b0 > 0.0:
                     slope = _plane_slope(self._a3, b0, *ws.dot(uv).tolist())
                     if slope is not None:
-                        c1, c2 = c[1:3].tolist()
-                        c = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
-                        g = tb.dot(c)
-                    else:
-                        g = tb.dot(c[1:3])
-                else:
-                    g = tb.dot(c[1:3])
-            else:
-                g = tb.dot(c[1:3])
+                        c1, c2 = slope_uv.tolist()
+                        slope_uv = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
+            g = tb.dot(slope_uv)
         else:
             g = np.zeros(3)
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
@@ -566,7 +559,6 @@ class HedacExplorer:
         self._nrm_t[i] = n_new
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
-        self._normals[i] = n_new
         return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,

@@ -108,13 +108,14 @@ def _perpendicular(v: np.ndarray, d: np.ndarray | None, ref: np.ndarray) -> np.n
     return _Z.copy()  # unreachable: one of x/y axes is always ⊥-able to a unit d
 
 
-def cga_design_matrix(points: np.ndarray) -> np.ndarray:
-    """Rows w_i = (p_i1, p_i2, p_i3, −1, −½|p_i|²) of eq. 25, shape (n, 5)."""
+def cga_design_matrix(points: np.ndarray, squared_norms: np.ndarray | None = None) -> np.ndarray:
+    """Rows w_i = (p_i1, p_i2, p_i3, −1, −½|p_i|²) of eq. 25, shape (n, 5); ``squared_norms`` are
+    the |p_i|² when the caller already has them."""
     p = np.asarray(points, dtype=np.float64)
     w = np.empty((p.shape[0], 5))
     w[:, :3] = p
     w[:, 3] = -1.0
-    w[:, 4] = -0.5 * np.einsum("ij,ij->i", p, p)
+    w[:, 4] = -0.5 * (np.einsum("ij,ij->i", p, p) if squared_norms is None else squared_norms)
     return w
 
 
@@ -163,15 +164,7 @@ def fit_local(q: np.ndarray, q_sq: np.ndarray | None = None) -> SurfacePatch:
     ``q_sq`` are the squared norms of the rows when the caller has them;
     :func:`fit_sphere_or_plane` wraps this for arbitrary world points.
     """
-    return fit_local_design(cga_design_matrix(q) if q_sq is None else _design_with_norms(q, q_sq))
-
-
-def _design_with_norms(q: np.ndarray, q_sq: np.ndarray) -> np.ndarray:
-    w = np.empty((q.shape[0], 5))
-    w[:, :3] = q
-    w[:, 3] = -1.0
-    w[:, 4] = -0.5 * q_sq
-    return w
+    return fit_local_design(cga_design_matrix(q, q_sq))
 
 
 def fit_local_design(w: np.ndarray) -> SurfacePatch:
