@@ -193,6 +193,7 @@ def test_metrics_reject_bad_input(fn):
         ("step_duration_s", float("nan")), ("alpha_final", -2.0), ("source_weight", float("nan")),
         ("n_eigen", 0), ("n_neighbors_fit", 3), ("order", 3),
         ("max_off_cloud", -1.0), ("max_snap_distance", 0.0), ("alpha_decay_steps", 0),
+        ("max_bridge", -1.0), ("max_bridge", float("nan")), ("coverage_normalization", "cloud"),
     ],
 )
 def test_config_rejects_bad_values(field, value):
@@ -204,6 +205,23 @@ def test_config_defaults_are_the_papers():
     cfg = HedacConfig()
     assert (cfg.alpha, cfg.n_eigen, cfg.agent_radius_m, cfg.n_neighbors_fit) == (10.0, 200, 0.0075, 20)
     assert (cfg.max_velocity, cfg.max_acceleration, cfg.order) == (1.0, 1.0, 2)
+
+
+@pytest.mark.parametrize("normalization", ["target", "domain"])
+def test_source_is_eq1_with_the_coverage_normalised_over_the_chosen_domain(plane, normalization):
+    """s = max(p̂ − c̃/∫c̃, 0)², scaled to unit sum, with ∫ over the target's support or the whole cloud."""
+    cloud, basis = plane
+    ex = HedacExplorer(cloud, basis, _cfg(coverage_normalization=normalization))
+    ex.reset(_blob_centre(None) + np.array([0.012, 0.0, 0.0]))  # the footprint straddles the blob's rim
+    for _ in range(5):
+        ex.step()
+    p = cloud.target / cloud.target.sum()
+    c = ex.coverage
+    on = cloud.target > 0
+    assert c[on].sum() > 0.0 and c[~on].sum() > 0.0
+    c = c / (c[on].sum() if normalization == "target" else c.sum())
+    s = np.maximum(p - c, 0.0) ** 2
+    np.testing.assert_allclose(ex.source, s / s.sum(), rtol=1e-12, atol=1e-15)
 
 
 def test_alpha_schedule_decays_geometrically():
@@ -441,12 +459,13 @@ def _gap_cloud(gap_m: float) -> SurfaceCloud:
 
 
 def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
+    """Walking only (no hops): max_off_cloud = 2.5 voxels crosses a 9 mm hole, 1 voxel does not."""
     cloud = _gap_cloud(0.009)
     basis = build_basis(cloud, n_eigen=60, n_neighbors=40, cache=False)
     start = np.array([0.02, 0.045, 0.0])
     reached = {}
     for off in (1.0, 2.5):
-        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud=off))
+        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud=off, max_bridge=0.0))
         ex.reset(start)
         best = -np.inf
         for _ in range(250):

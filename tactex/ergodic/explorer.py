@@ -9,7 +9,8 @@ One step for each agent:
    normal line (eq. 28) and tangent plane (eq. 29);
 3. coverage: the Gaussian footprint φ(r) = exp(−ε² r²) (eq. 30) of the footprint points,
    with r measured on the tangent plane (eq. 31), added to the coverage sum c̃ (eq. 3);
-4. source s = max(p̂ − c, 0)² with p̂ and c normalised (eq. 1–2, s scaled to unit sum),
+4. source s = max(p̂ − c, 0)² with p̂ and c normalised (eq. 1–2, s scaled to unit sum; c over
+   the target's support by default, see ``HedacConfig.coverage_normalization``),
    injected into the spectral coefficients of the potential, which then diffuse by e^{−λ δt},
    δt = α h² (eq. 19–21): a ← e^{−λδt} ⊙ (a + Φᵀ M s), u = Φ a + w_s·s. The potential carries
    the heat of past sources, as in eq. 19 and the authors' released code; u(x, 0) = p̂ (eq. 5).
@@ -45,6 +46,7 @@ from scipy.linalg.lapack import dposv as _dposv
 from scipy.spatial import cKDTree
 
 from tactex.ergodic.agents import Agent, make_agent
+from tactex.ergodic.bridges import Bridge, gap_links
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, RIDGE_RTOL
@@ -198,6 +200,7 @@ class HedacExplorer:
         self._off2 = (cfg.max_off_cloud * self.spacing) ** 2
         self._off = cfg.max_off_cloud * self.spacing
         self._source_w = float(cfg.source_weight)
+        self._norm_target = cfg.coverage_normalization == "target"
         self._n_n = cfg.n_neighbors_fit
         self._n_n1 = cfg.n_neighbors_fit - 1
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
@@ -214,6 +217,9 @@ class HedacExplorer:
         self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
         self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
+        laplacian = getattr(basis, "L", None)  # a duck-typed basis without it: no hops
+        self._gaps = gap_links(self._points, laplacian, self._tree, self._off, cfg.max_bridge * self.spacing)
+        self._bridges: list[Bridge | None] = []
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
         self._decay_alpha = np.nan
@@ -223,6 +229,7 @@ class HedacExplorer:
         self._x = np.zeros((0, 3))
         self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
         self.step_count = 0
+        self.bridges_taken = 0
 
     # ------------------------------------------------------------------ target and state
     def _set_target(self, mass: np.ndarray) -> None:
@@ -276,7 +283,9 @@ class HedacExplorer:
         self._reset_fields()
         self._x = np.zeros_like(x)
         self._nrm_t = [(0.0, 0.0, 0.0)] * x.shape[0]
+        self._bridges = [None] * x.shape[0]
         self.path_lengths = np.zeros(x.shape[0])
+        self.bridges_taken = 0
         self._near = np.zeros(x.shape[0], dtype=np.intp)
         self.step_count = 0
         out = []
@@ -316,6 +325,7 @@ class HedacExplorer:
         keeps the accumulated coverage and the diffused potential.
         """
         self._set_target(mass)
+        self._bridges = [None] * len(self._bridges)  # planned for the old potential
         if not keep_coverage or not hasattr(self, "_cov"):
             if self._agents:
                 self._reset_fields()
@@ -390,6 +400,8 @@ class HedacExplorer:
     def _step_agent(self, i: int, exact: bool) -> ExplorationCommand:
         # The per-step hot path: every line is a few µs, so vector algebra reuses the squared
         # distances dd instead of recomputing them (|d − s|² = dd − 2 d·s + |s|²).
+        if self._bridges[i] is not None:
+            return self._bridge_step(i)
         pts = self._points
         x = self._x[i]
         n_n = self._n_n
@@ -437,25 +449,8 @@ class HedacExplorer:
         cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
         self._cov_sum += float(_sum(phi))
 
-        # Source on the target rows (eq. 1–2) and spectral diffusion of the potential (eq. 19).
-        s = self._s_t
-        if self._cov_sum > 0.0:
-            np.multiply(cov.take(self._tidx), -1.0 / self._cov_sum, s)  # (take with out= is slower: it buffers)
-            s += self._p_t
-            np.maximum(s, 0.0, out=s)
-            s *= s
-        else:
-            np.multiply(self._p_t, self._p_t, s)
-        tot = float(_sum(s))
-        if tot > 0.0:
-            s *= 1.0 / tot
-        # Diffuse after adding the source: the truncated projection of a sharp source rings
-        # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
-        coef = self._coef
-        coef += s.dot(self._phitm_t)
-        coef *= self._decay
-        u = self._phi.take(nbr, 0).dot(coef)
-        u_src = self._s_ext.take(self._tpos.take(nbr)) if self._source_w > 0.0 else None
+        self._update_potential()
+        u = self._phi.take(nbr, 0).dot(self._coef)
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
         tb = _tangent_matrix(nt)
@@ -475,24 +470,16 @@ class HedacExplorer:
         xwt = self._xwt
         a = xwt.dot(xf, self._a)
         self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
-        u -= u.item(0)
+        u0 = u.item(0)
+        u -= u0
         _, c, info = _dposv(a, xwt.dot(u), 0, 0, 1)  # overwrite_b
         if info == 0:
             slope_uv = c[1:3]  # the cubic's linear coefficients: its slope at the agent
-            if u_src is not None:
-                # The raw source is a set of isolated spikes at uncovered target points, typically at
-                # the rim of the neighbourhood (the footprint has cleared its inside). A cubic through
-                # a rim spike overshoots and its slope at the agent points *away* from it, so the
-                # agent would turn back into its own covered disc; the weighted plane (the cubic's
-                # first three monomials, same weights) has the spike's slope sign. Both fits are
-                # linear in the values: the slope of (smooth part + spikes) is the sum of the two.
-                ws = u_src * w
-                b0 = float(_sum(ws))
-                if b0 > 0.0:
-                    slope = _plane_slope(self._a3, b0, *ws.dot(uv).tolist())
-                    if slope is not None:
-                        c1, c2 = slope_uv.tolist()
-                        slope_uv = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
+            if self._source_w > 0.0:
+                slope = self._source_slope(cand, d, shift, tb, inv, scale2)
+                if slope is not None:
+                    c1, c2 = slope_uv.tolist()
+                    slope_uv = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
             g = tb.dot(slope_uv)
         else:
             g = np.zeros(3)
@@ -501,6 +488,12 @@ class HedacExplorer:
         cu, cv = _sum(uv, 0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
         cn = (cu * cu + cv * cv) ** 0.5
         if cn > EDGE_OFFSET * n_n:
+            if self._gaps.n_links and self._gaps.has.take(nbr).any():
+                here = np.array((x.item(0) + sf[0], x.item(1) + sf[1], x.item(2) + sf[2]))
+                bridge = self._plan_bridge(nbr, u, u0, here, nrm)
+                if bridge is not None:
+                    self._bridges[i] = bridge
+                    return self._bridge_move(i, here, bridge)
             inward = tb.dot(np.array((cu / cn, cv / cn)))
             go = float(g.dot(inward))
             if go < 0.0:
@@ -537,16 +530,19 @@ class HedacExplorer:
             step = np.array(step)
             step *= self._step_max / sl
             sl = self._step_max
-            # Shortening may cut a corner past the edge: halve until back within max_off_cloud
-            # (the start of the step satisfies it, so this ends at worst with no motion).
+            # Shortening may cut a corner past the edge: halve until back within max_off_cloud.
+            # An agent right at the limit and pushed outward never gets back by halving (it would
+            # stand still for good): it steps halfway to its nearest cloud point instead.
             for _ in range(5):
                 if float(_min(dd - 2.0 * d.dot(step) + float(step.dot(step)))) <= self._off2:
                     break
                 step *= 0.5
                 sl *= 0.5
             else:
-                step = np.zeros(3)
-                sl = 0.0
+                j = int(dd.argmin())
+                dj = float(dd[j]) ** 0.5
+                step = d[j] * (0.5 * min(1.0, self._step_max / dj)) if dj > 0.0 else np.zeros(3)
+                sl = float(step.dot(step)) ** 0.5
         # x + step, step / dt and the velocity's tangential part, in Python floats (the same operations).
         s0, s1, s2 = step if isinstance(step, tuple) else step.tolist()
         x0, x1, x2 = x.tolist()
@@ -560,6 +556,122 @@ class HedacExplorer:
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
+
+    def _source_slope(self, cand: np.ndarray, d: np.ndarray, shift: np.ndarray, tb: np.ndarray,
+                      inv: float, scale2: float) -> tuple[float, float] | None:
+        """Slope (c_u, c_v) in the cubic's scaled (u, v) of the weighted plane through the raw
+        source over the candidate ball (offsets d from the agent, ``shift`` the projected agent),
+        or None when there is no source there or the plane is degenerate.
+
+        The raw source is a set of isolated spikes at uncovered target points, typically just
+        outside the footprint (which has cleared its inside) and so beyond the n_N neighbours of
+        the cubic: the ball (every cloud point within max(r_a, kNN radius) + h of the agent) sees
+        them. A cubic through a rim spike would overshoot and its slope at the agent point *away*
+        from it; the weighted plane (eq. 33's weights) has the spike's slope sign. Both fits are
+        linear in the values, so the slope of (smooth part + spikes) is the sum of the two.
+        """
+        src = self._s_ext.take(self._tpos.take(cand))
+        if not src.any():
+            return None
+        duv = (d - shift).dot(tb)
+        duv *= inv
+        w = _sum(duv * duv, 1)
+        w *= -self._eps2 * scale2
+        np.exp(w, w)  # φ(r) of eq. 30 with r on the tangent plane
+        ws = src * w
+        b0 = float(_sum(ws))
+        if not b0 > 0.0:
+            return None
+        wu = duv * w[:, None]
+        su, sv = _sum(wu, 0).tolist()
+        (suu, suv), (_, svv) = wu.T.dot(duv).tolist()
+        a3 = np.array(((float(_sum(w)), su, sv), (su, suu, suv), (sv, suv, svv)))
+        return _plane_slope(a3, b0, *ws.dot(duv).tolist())
+
+    # ------------------------------------------------------------------ scan-hole bridges
+    def _plan_bridge(self, nbr: np.ndarray, u: np.ndarray, u0: float, here: np.ndarray,
+                     nrm: np.ndarray) -> Bridge | None:
+        """A hop along a gap link of the neighbours (see :mod:`.bridges`) when the potential at its
+        far end beats every value around the agent (u − u0 at the neighbours, plus the raw source)."""
+        far = np.unique(self._gaps.of(nbr))
+        u_far = self._phi.take(far, 0).dot(self._coef)
+        local = u
+        if self._source_w > 0.0:
+            local = u + self._source_w * self._s_ext.take(self._tpos.take(nbr))
+            u_far += self._source_w * self._s_ext.take(self._tpos.take(far))
+        k = int(u_far.argmax())
+        if float(u_far[k]) <= float(local.max()) + u0:
+            return None
+        j = int(far[k])
+        end = self._points[j]
+        nb = self._tree.query(end, k=self._n_n)[1]
+        _, end_normal = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, nrm)
+        self.bridges_taken += 1
+        return Bridge(j, here.copy(), end.copy(), nrm.copy(), end_normal)
+
+    def _bridge_step(self, i: int) -> ExplorationCommand:
+        """One step of a hop in progress: the footprint where the agent is, the potential, then
+        on along the chord."""
+        bridge = self._bridges[i]
+        x = self._x[i]
+        nrm = bridge.normal_at(x)
+        cand = self._ball[int(self._tree.query(x)[1])]
+        d = self._points.take(cand, 0)
+        d -= x
+        dd = np.einsum("ij,ij->i", d, d)
+        inside = (dd <= self._r_a2).nonzero()[0]
+        dn = d.take(inside, 0).dot(nrm)
+        phi = np.exp(-self._eps2 * (dd.take(inside) - dn * dn))  # r on the plane ⊥ the chord's normal
+        fp = cand.take(inside)
+        self._cov.put(fp, self._cov.take(fp) + phi)
+        self._cov_sum += float(_sum(phi))
+        self._update_potential()
+        return self._bridge_move(i, x, bridge)
+
+    def _bridge_move(self, i: int, x: np.ndarray, bridge: Bridge) -> ExplorationCommand:
+        """Move from x [m] along the chord to the bridge's end by at most v_max·dt; on arrival the
+        agent is back on the cloud and the walk resumes from the end point."""
+        to_end = bridge.end - x
+        dist = float(np.sqrt(to_end @ to_end))
+        if dist <= self._step_max:
+            x_new = bridge.end.copy()
+            nrm = bridge.end_normal.copy()
+            self._bridges[i] = None
+            self._near[i] = bridge.target
+        else:
+            x_new = x + to_end * (self._step_max / dist)
+            nrm = bridge.normal_at(x_new)
+        step = x_new - x
+        v = step * (1.0 / self._dt)
+        self._agents[i].velocity = v - float(v @ nrm) * nrm
+        self.path_lengths[i] += float(np.sqrt(step @ step))
+        self._nrm_t[i] = tuple(nrm.tolist())
+        self._x[i] = x_new
+        t1, t2 = _tangent_basis(nrm)
+        return ExplorationCommand(x_new.copy(), v, nrm, t1, t2, self.step_count, i)
+
+    # ------------------------------------------------------------------ potential
+    def _update_potential(self) -> None:
+        """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
+        cov = self._cov
+        s = self._s_t
+        ct = cov.take(self._tidx)  # (take with out= is slower: it buffers)
+        norm = float(_sum(ct)) if self._norm_target else self._cov_sum
+        if norm > 0.0:
+            np.multiply(ct, -1.0 / norm, s)
+            s += self._p_t
+            np.maximum(s, 0.0, out=s)
+            s *= s
+        else:
+            np.multiply(self._p_t, self._p_t, s)
+        tot = float(_sum(s))
+        if tot > 0.0:
+            s *= 1.0 / tot
+        # Diffuse after adding the source: the truncated projection of a sharp source rings
+        # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
+        coef = self._coef
+        coef += s.dot(self._phitm_t)
+        coef *= self._decay
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
               d: np.ndarray, dd: np.ndarray) -> tuple[tuple, tuple, float, np.ndarray, int]:
@@ -608,6 +720,14 @@ class HedacExplorer:
         u = self._phi @ self._coef
         u[self._tidx] += self.config.source_weight * self._s_t
         return u
+
+    @property
+    def source(self) -> np.ndarray:
+        """The source s (N,) of the last step (eq. 1, scaled to unit sum; zero off the target)."""
+        self._require_state()
+        s = np.zeros(len(self.cloud))
+        s[self._tidx] = self._s_t
+        return s
 
     def ergodicity(self, normalize: str = "l2") -> float:
         """Normalised ergodicity ε of eq. 48 (see :func:`tactex.ergodic.metrics.normalized_ergodicity`)."""
