@@ -58,6 +58,7 @@ from tactex.pointcloud import SurfaceCloud
 __all__ = ["HedacExplorer"]
 
 _Z = np.array([0.0, 0.0, 1.0])
+_ZERO_COL = np.zeros((3, 1))
 # ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
 # these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
 _sum = np.add.reduce
@@ -98,6 +99,12 @@ def _plane_slope(a: np.ndarray, b0: float, b1: float, b2: float) -> tuple[float,
     A 3×3 Cholesky in Python floats: a LAPACK call costs more than the arithmetic at this size.
     """
     (a00, a01, a02), (_, a11, a12), (_, _, a22) = (a if a.shape == (3, 3) else a[:3, :3]).tolist()
+    return _plane_slope_floats(a00, a01, a02, a11, a12, a22, b0, b1, b2)
+
+
+def _plane_slope_floats(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float,
+                        b0: float, b1: float, b2: float) -> tuple[float, float] | None:
+    """:func:`_plane_slope` from the upper triangle of the normal matrix as floats."""
     if a00 <= 0.0:
         return None
     l00 = a00**0.5
@@ -430,21 +437,23 @@ class HedacExplorer:
         sf = (p0 * scale, p1 * scale, p2 * scale)  # the projected agent, agent-centred [m]
         shift, nrm = np.array(sf), np.array(nt)
 
-        # Footprint on the tangent plane (eq. 30–31).
-        # In place, the same operations: d2 = dd − 2 d·shift + |shift|², φ = exp(−ε² (d2 − dn²)).
-        d2 = d.dot(shift)
-        d2 *= -2.0
-        d2 += dd
-        d2 += sf[0] * sf[0] + sf[1] * sf[1] + sf[2] * sf[2]
+        # Every candidate on the tangent plane at the projected agent (eq. 31), and the kernel
+        # φ(r) = exp(−ε² r²) of eq. 30 there: the footprint is φ inside r_a (3D distance, so the
+        # far side of a thin wall stays out), the raw source's plane fit weighs the whole ball by it.
+        tb = _tangent_matrix(nt)
+        rel = d - shift
+        g1uv = rel.dot(np.concatenate((_ZERO_COL, tb), 1))  # rows (0, u, v) [m]; column 0 becomes 1 below
+        rel *= rel
+        d2 = _sum(rel, 1)
+        kern = g1uv * g1uv
+        kern = _sum(kern, 1)
+        kern *= -self._eps2
+        np.exp(kern, kern)
+        g1uv[:, 0] = 1.0
+        tuv = g1uv[:, 1:]
         inside = (d2 <= self._r_a2).nonzero()[0]
         fp = cand.take(inside)
-        dn = d.take(inside, 0).dot(nrm)
-        dn -= sf[0] * nt[0] + sf[1] * nt[1] + sf[2] * nt[2]
-        dn *= dn
-        phi = d2.take(inside)
-        phi -= dn
-        phi *= -self._eps2
-        np.exp(phi, phi)
+        phi = kern.take(inside)
         cov = self._cov
         cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
         self._cov_sum += float(_sum(phi))
@@ -453,8 +462,8 @@ class HedacExplorer:
         u = self._phi.take(nbr, 0).dot(self._coef)
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
-        tb = _tangent_matrix(nt)
-        uv = (dk - shift).dot(tb) * inv
+        uv = tuv.take(part, 0)
+        uv *= inv
         self._xf_lin[...] = uv  # uv stays contiguous: the reductions and products below are cheaper on it
         # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
         # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
@@ -476,10 +485,11 @@ class HedacExplorer:
         if info == 0:
             slope_uv = c[1:3]  # the cubic's linear coefficients: its slope at the agent
             if self._source_w > 0.0:
-                slope = self._source_slope(cand, d, shift, tb, inv, scale2)
-                if slope is not None:
+                slope = self._source_slope(cand, g1uv, kern)
+                if slope is not None:  # [1/m] → per scaled unit: × scale
                     c1, c2 = slope_uv.tolist()
-                    slope_uv = np.array((c1 + self._source_w * slope[0], c2 + self._source_w * slope[1]))
+                    k = self._source_w * scale
+                    slope_uv = np.array((c1 + k * slope[0], c2 + k * slope[1]))
             g = tb.dot(slope_uv)
         else:
             g = np.zeros(3)
@@ -557,11 +567,11 @@ class HedacExplorer:
         self._x[i] = x_new
         return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
 
-    def _source_slope(self, cand: np.ndarray, d: np.ndarray, shift: np.ndarray, tb: np.ndarray,
-                      inv: float, scale2: float) -> tuple[float, float] | None:
-        """Slope (c_u, c_v) in the cubic's scaled (u, v) of the weighted plane through the raw
-        source over the candidate ball (offsets d from the agent, ``shift`` the projected agent),
-        or None when there is no source there or the plane is degenerate.
+    def _source_slope(self, cand: np.ndarray, g1uv: np.ndarray, kern: np.ndarray) -> tuple[float, float] | None:
+        """Slope (c_u, c_v) [1/m] of the plane through the raw source over the candidate ball,
+        weighted by the kernel (rows (1, u, v) of the candidates ``cand`` with tangent-plane
+        coordinates u, v [m], weights ``kern``), or None when there is no source there or the
+        plane is degenerate.
 
         The raw source is a set of isolated spikes at uncovered target points, typically just
         outside the footprint (which has cleared its inside) and so beyond the n_N neighbours of
@@ -573,20 +583,12 @@ class HedacExplorer:
         src = self._s_ext.take(self._tpos.take(cand))
         if not src.any():
             return None
-        duv = (d - shift).dot(tb)
-        duv *= inv
-        w = _sum(duv * duv, 1)
-        w *= -self._eps2 * scale2
-        np.exp(w, w)  # φ(r) of eq. 30 with r on the tangent plane
-        ws = src * w
-        b0 = float(_sum(ws))
+        wg = g1uv * kern[:, None]
+        b0, b1, b2 = src.dot(wg).tolist()
         if not b0 > 0.0:
             return None
-        wu = duv * w[:, None]
-        su, sv = _sum(wu, 0).tolist()
-        (suu, suv), (_, svv) = wu.T.dot(duv).tolist()
-        a3 = np.array(((float(_sum(w)), su, sv), (su, suu, suv), (sv, suv, svv)))
-        return _plane_slope(a3, b0, *ws.dot(duv).tolist())
+        (a00, a01, a02), (_, a11, a12), (_, _, a22) = wg.T.dot(g1uv).tolist()
+        return _plane_slope_floats(a00, a01, a02, a11, a12, a22, b0, b1, b2)
 
     # ------------------------------------------------------------------ scan-hole bridges
     def _plan_bridge(self, nbr: np.ndarray, u: np.ndarray, u0: float, here: np.ndarray,
@@ -720,6 +722,10 @@ class HedacExplorer:
         u = self._phi @ self._coef
         u[self._tidx] += self.config.source_weight * self._s_t
         return u
+
+    def hopping(self, agent: int = 0) -> bool:
+        """True while the agent is hopping a scan hole (on the chord between its two sides)."""
+        return self._bridges[agent] is not None if agent < len(self._bridges) else False
 
     @property
     def source(self) -> np.ndarray:
