@@ -56,7 +56,8 @@ def test_smaller_n_eigen_is_the_truncated_basis(cup_sweep):
     cloud, info = load_explore_cloud("cup", cfg.explore_config())
     basis = build_basis(cloud, n_eigen=30, n_neighbors=cfg.n_neighbors)
     starts, _ = sweep_starts(cloud, info, 2, 0)
-    ex = HedacExplorer(cloud, basis, HedacConfig(alpha=5.0, n_eigen=10, agent_radius_m=0.0075))
+    ex = HedacExplorer(cloud, basis, HedacConfig(
+            alpha=5.0, n_eigen=10, agent_radius_m=0.0075, coverage_normalization=cfg.coverage_normalization))
     ex.reset(starts[1])
     erg = []
     for _ in range(30):
@@ -95,6 +96,7 @@ def test_starts_come_from_the_authors_file_then_the_seed(tmp_path):
     ({"steps": 0}, "steps"),
     ({"workers": -1}, "workers"),
     ({"voxel_size": 3.0}, "metres"),
+    ({"coverage_normalization": "all"}, "coverage_normalization"),
 ])
 def test_config_validation(changes, match):
     with pytest.raises(ConfigError, match=match):

@@ -54,6 +54,11 @@ class SweepConfig:
     agent_radius: float | None = param(
         None, "agent footprint radius r_a; default 15 mm on plates, 7.5 mm otherwise (TEC §V-B) [m]")
     seed: int = param(0, "seed of the random start positions (clouds without the authors' starts) [-]")
+    coverage_normalization: str = param(
+        "domain",
+        "coverage normalisation of the source: 'domain' = eq. 2 as in the paper's study (the explorer's default "
+        "'target' favours touching every target point over the time share that eq. 48 measures)",
+    )
     workers: int = param(0, "worker processes; 0 = one per core [-]")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
 
@@ -75,6 +80,13 @@ class SweepConfig:
             if len(set(values)) != len(values):
                 raise ConfigError(f"SweepConfig.{name} lists a value twice: {values}")
             object.__setattr__(self, name, tuple(sorted(values)))
+        from tactex.ergodic.config import COVERAGE_NORMALIZATIONS
+
+        if self.coverage_normalization not in COVERAGE_NORMALIZATIONS:
+            raise ConfigError(
+                f"SweepConfig.coverage_normalization must be one of {COVERAGE_NORMALIZATIONS}, "
+                f"got {self.coverage_normalization!r}"
+            )
         for name, low in (("starts", 1), ("steps", 1), ("n_neighbors", 1), ("workers", 0), ("seed", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
@@ -137,11 +149,12 @@ def _init_worker(clouds: dict[str, tuple]) -> None:
     _WORKER.update(clouds)
 
 
-def _run_setting(key: str, n_eigen: int, alpha: float, steps: int) -> dict[str, np.ndarray]:
+def _run_setting(key: str, n_eigen: int, alpha: float, steps: int, normalization: str) -> dict[str, np.ndarray]:
     from tactex.ergodic import HedacConfig, HedacExplorer
 
     cloud, basis, starts, radius = _WORKER[key]
-    explorer = HedacExplorer(cloud, basis, HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius))
+    hedac = HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius, coverage_normalization=normalization)
+    explorer = HedacExplorer(cloud, basis, hedac)
     n = len(starts)
     erg, res, path = np.empty((n, steps)), np.empty((n, steps)), np.empty((n, steps))
     first_path = np.empty((steps, 3))
@@ -205,13 +218,13 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
         _init_worker(clouds)
         try:
             for i, job in enumerate(jobs):
-                results[job] = _run_setting(*job, cfg.steps)
+                results[job] = _run_setting(*job, cfg.steps, cfg.coverage_normalization)
                 _report(say, i + 1, len(jobs), job, results[job], t0)
         finally:
             _WORKER.clear()
     else:
         with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(clouds,)) as pool:
-            futures = {job: pool.submit(_run_setting, *job, cfg.steps) for job in jobs}
+            futures = {job: pool.submit(_run_setting, *job, cfg.steps, cfg.coverage_normalization) for job in jobs}
             for i, job in enumerate(jobs):  # in submission order: deterministic output
                 results[job] = futures[job].result()
                 _report(say, i + 1, len(jobs), job, results[job], t0)

@@ -51,6 +51,8 @@ __all__ = ["CLEAN_BASELINES", "PHASES", "CleanConfig", "CleanResult", "run_clean
 CLEAN_BASELINES = ("", "raster", "no_feedback")
 #: Phase codes recorded in the time series (shared with the report).
 PHASES = CLEAN_PHASES
+#: Settling after the joint move to the hover pose, before the approach [s].
+HOVER_SETTLE_S = 0.1
 
 
 def _approach_too_weak(cfg: CleanConfig) -> bool:
@@ -254,7 +256,10 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         # 3a. hover over the agent and approach along its normal line
         log.phase = PHASES["move"]
         hover = cmd.point + cfg.hover_height_m * cmd.normal
-        loop.move_to_pose(hover, tool_rotation_for_normal(cmd.normal), settle_s=0.1, q_seed=q_capture)
+        q_hover = loop.solve_pose(hover, tool_rotation_for_normal(cmd.normal), q_seed=q_capture)
+        if loop.t + loop.joint_move_duration(q_hover) + HOVER_SETTLE_S >= t_end:
+            break  # the move alone would use up the budget: no contact would follow
+        loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
         log.phase = PHASES["approach"]
         loop.use(ga)
         t_touch = None

@@ -81,21 +81,31 @@ class ControlLoop:
         self.use(self.joint)
         q_goal = np.asarray(q_goal, dtype=float)
         if duration_s is None:
-            duration_s = max(0.5, 1.875 * float(np.max(np.abs(q_goal - self.state.q))) / max_joint_speed)
+            duration_s = self.joint_move_duration(q_goal, max_joint_speed)
         target = JointTarget(self.state.q.copy(), q_goal, self.t, float(duration_s))
         t_end = self.t + duration_s + settle_s
         while self.t < t_end - 1e-9:
             self.tick(target)
         return self.state
 
+    def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float = 0.8) -> float:
+        """Duration [s] of :meth:`move_joints` from the current q to ``q_goal`` (no settling):
+        every joint under ``max_joint_speed`` [rad/s] (the min-jerk peak speed is 1.875 × the mean
+        speed), at least 0.5 s."""
+        return max(0.5, 1.875 * float(np.max(np.abs(np.asarray(q_goal, dtype=float) - self.state.q))) / max_joint_speed)
+
+    def solve_pose(self, position_world: np.ndarray, rotation_world: np.ndarray,
+                   q_seed: np.ndarray | None = None) -> np.ndarray:
+        """Joint angles (7,) [rad] of a TCP pose, searched from ``q_seed`` (default: the current q)."""
+        seed = self.state.q if q_seed is None else q_seed
+        return self.backend.solve_ik(position_world, rotation_world, seed)  # type: ignore[attr-defined]
+
     def move_to_pose(self, position_world: np.ndarray, rotation_world: np.ndarray, duration_s: float | None = None,
                      settle_s: float = 0.2, q_seed: np.ndarray | None = None) -> RobotState:
         """Joint move to the IK solution of a TCP pose, searched from ``q_seed`` (default: the
         current q). Seeding from a known posture keeps the arm on one IK branch: a far jump of
         branch would sweep the arm through the scene."""
-        seed = self.state.q if q_seed is None else q_seed
-        q_goal = self.backend.solve_ik(position_world, rotation_world, seed)  # type: ignore[attr-defined]
-        return self.move_joints(q_goal, duration_s, settle_s)
+        return self.move_joints(self.solve_pose(position_world, rotation_world, q_seed), duration_s, settle_s)
 
     def hold(self, duration_s: float) -> RobotState:
         """Hold the current joint position."""
