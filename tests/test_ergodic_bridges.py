@@ -82,23 +82,79 @@ def test_the_agent_hops_the_hole_only_when_allowed(strips):
     assert result[6.0][0] >= 1 and result[6.0][1] < 0.5
 
 
+def _until_hopping(ex: HedacExplorer, limit: int = 400):
+    for _ in range(limit):
+        cmd = ex.step()
+        if ex.hopping():
+            return cmd
+    pytest.fail("no hop started")
+
+
+def test_a_hop_is_never_longer_than_max_bridge(strips):
+    """The flight starts at the agent, not at the neighbour the gap link leaves from."""
+    cloud, basis = strips
+    for max_bridge in (4.5, 6.0):
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge))
+        for y in (0.03, 0.045, 0.06):
+            ex.reset(np.array([0.02, y, 0.0]))
+            _until_hopping(ex)
+            bridge = ex._bridges[0]
+            assert np.linalg.norm(bridge.end - bridge.start) <= max_bridge * H * (1 + 1e-12)
+
+
 def test_a_hop_in_progress_accepts_measured_positions(strips):
-    """Closed loop during a hop: the robot's measured point replaces the agent, the hop goes on."""
+    """Closed loop during a hop: the robot's measured point (here 1.5 mm above the chord every step,
+    a biased sensor) replaces the agent; each step is at most v_max·dt from it, the path length
+    counts what was commanded, and the commands converge to the chord instead of drifting."""
     cloud, basis = strips
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
     ex.reset(np.array([0.02, 0.045, 0.0]))
-    for _ in range(400):
-        cmd = ex.step()
-        if ex._bridges[0] is not None:
-            break
-    else:
-        pytest.fail("no hop started")
-    measured = cmd.point + np.array([0.0, 0.0, 0.001])  # 1 mm above the chord
+    cmd = _until_hopping(ex)
+    bias = np.array([0.0, 0.0, 0.0015])
     for _ in range(10):
+        measured = cmd.point + bias
+        before = ex.path_length
         cmd = ex.step(measured_position=measured)
         assert np.all(np.isfinite(cmd.point))
-        measured = cmd.point
+        move = np.linalg.norm(cmd.point - measured)
+        assert move <= H * (1 + 1e-9)
+        assert ex.path_length - before == pytest.approx(move, rel=1e-12)
+        assert abs(cmd.point[2]) < 0.0015  # pulled back towards the chord (z = 0), not 1.5 mm per step up
+        if not ex.hopping():
+            break
     assert cmd.point[0] > 14 * H + GAP  # it arrived on the far strip
+
+
+def _slab(thickness_m: float) -> SurfaceCloud:
+    """A square plate scanned on both sides (top z = 0, bottom z = −thickness), outward normals
+    given; the target on the bottom only."""
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(25) * H, np.arange(25) * H)
+    top = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    bottom = top + np.array([0.5 * H, 0.5 * H, -thickness_m])
+    pts = np.vstack([top, bottom]) + rng.uniform(-1e-4, 1e-4, (2 * u.size, 3)) * [1, 1, 0]
+    normals = np.vstack([np.tile([0.0, 0.0, 1.0], (u.size, 1)), np.tile([0.0, 0.0, -1.0], (u.size, 1))])
+    return SurfaceCloud(pts, normals=normals, target=(pts[:, 2] < -thickness_m / 2).astype(float), spacing=H)
+
+
+@pytest.mark.parametrize("thickness_voxels", [2.5, 4.0])
+def test_no_hop_through_a_thin_wall(thickness_voxels):
+    """The Laplacian links the front and back of a thin plate; those links run through the material
+    (every deep sample straight above or below a sheet) and are no gap links, or, at the rim,
+    their far side faces the other way: the agent on top never hops and its normal stays up."""
+    cloud = _slab(thickness_voxels * H)
+    basis = build_basis(cloud, n_eigen=40, n_neighbors=40, cache=False)
+    links = gap_links(cloud.points, basis.L, cKDTree(cloud.points), H, 6 * H)
+    pts = cloud.points
+    for j in np.flatnonzero(links.has):  # whatever remains sits at the rim, none in the middle
+        rim = min(pts[j, 0], pts[j, 1], 24.5 * H - pts[j, 0], 24.5 * H - pts[j, 1])
+        assert rim < 3 * H
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+    ex.reset(np.array([0.036, 0.036, 0.0]))
+    for _ in range(300):
+        cmd = ex.step()
+        assert cmd.normal[2] > 0.0 and cmd.point[2] > -thickness_voxels * H / 2
+    assert ex.bridges_taken == 0
 
 
 def test_bridge_normal_blends_along_the_chord_and_survives_opposite_ends():
@@ -111,6 +167,23 @@ def test_bridge_normal_blends_along_the_chord_and_survives_opposite_ends():
     flip = Bridge(7, np.zeros(3), np.array([0.01, 0.0, 0.0]), up, -up)
     n = flip.normal_at(np.array([0.005, 0.0, 0.0]))  # opposite normals: no 0/0
     assert np.all(np.isfinite(n)) and abs(np.linalg.norm(n) - 1.0) < 1e-12
+
+
+def test_on_the_tec_bunny_no_agent_stands_still_at_the_off_cloud_limit():
+    """Bunny start 2 (n_K = 60) used to reach the max_off_cloud limit with the potential pulling it
+    outward at step 42; halving the step never got back inside and it stood still for good. Every
+    20 steps of every run must now add path."""
+    bunny = target_from_channel(voxel_down_sample(load_ply(tec_cloud_path("bun270_X")), H), "red", 1.0)
+    starts = tec_initial_positions("bun270_X")
+    ex = HedacExplorer(bunny, build_basis(bunny, n_eigen=60, n_neighbors=40, cache=False), HedacConfig(n_eigen=60))
+    for x0 in starts[[2, 9]]:
+        ex.reset(x0)
+        path = []
+        for _ in range(300):
+            ex.step()
+            path.append(ex.path_length)
+        gains = np.array(path[20:]) - np.array(path[:-20])
+        assert gains.min() > 0.0
 
 
 def test_on_the_tec_bunny_an_agent_started_on_its_base_reaches_the_x():

@@ -13,7 +13,9 @@ farther than the walking limit from every cloud point, and no longer than the lo
 allowed. The explorer hops along one (:class:`Bridge`) when the agent is at a scan edge and
 the potential at the far end is higher than anywhere around the agent: there is no way up on
 this side, and the Laplacian says the surface goes on over there. The chord is the surface's
-linear interpolation across the hole.
+linear interpolation across the hole. Links through the material (the front and back of a thin
+part, which the Laplacian links too) are told apart by the direction of the chord's offset from
+the surface: beside it for a hole, along the normal for a wall.
 """
 
 from __future__ import annotations
@@ -24,7 +26,14 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-__all__ = ["Bridge", "GapLinks", "gap_links"]
+__all__ = ["NORMAL_NEIGHBOURS", "WALL_ANGLE", "Bridge", "GapLinks", "gap_links"]
+
+#: Angle [rad] between a deep chord sample's offset from the cloud and the surface normal there
+#: above which the sample is beside the surface (a hole), below which above or below it (a wall).
+#: A hole in a plane: ~90°; across a 60° fold: ~60°; through a slab: ~0° at every sample.
+WALL_ANGLE = np.radians(45.0)
+#: Neighbours of the local PCA that gives the normal at a cloud point [-].
+NORMAL_NEIGHBOURS = 10
 
 
 @dataclass(frozen=True)
@@ -74,12 +83,25 @@ class Bridge:
         return n / nn
 
 
+def _unit_normals(points: np.ndarray, tree: cKDTree, which: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
+    """Unoriented unit normals (m, 3) of the cloud at the points ``which`` (local PCA of k neighbours)."""
+    nb = points[tree.query(points[which], k=min(k, points.shape[0]))[1]]
+    q = nb - nb.mean(axis=1, keepdims=True)
+    return np.linalg.eigh(np.einsum("mki,mkj->mij", q, q))[1][:, :, 0]
+
+
 def gap_links(points: np.ndarray, laplacian, tree: cKDTree, max_off_m: float, max_length_m: float) -> GapLinks:
     """The links of ``laplacian`` (N × N, sparse) that cross a hole in ``points`` (N, 3) [m].
 
-    A link (i, j) crosses a hole when some point of its chord, sampled every ``max_off_m / 2``, is
-    farther than ``max_off_m`` from every cloud point (``tree`` is the cloud's K-D tree); links
-    longer than ``max_length_m`` are left out (0 leaves out every link).
+    A link (i, j) crosses a hole when some point of its chord, sampled every ``max_off_m / 4``
+    along the link, is farther than ``max_off_m`` from every cloud point (``tree`` is the cloud's
+    K-D tree), and some such deep sample lies *beside* the surface rather than above or below
+    it: its offset from the nearest cloud point makes more than ``WALL_ANGLE`` with that point's
+    normal. The Laplacian also links the front and back of a thin part; every deep sample of such
+    a chord sits straight above or below a sheet (offset along the normal), so it is left out and
+    the agent never hops through a wall. A step in depth (an occlusion shadow of a single-view
+    scan) keeps its link: near the upper edge the chord runs beside the surface. Links longer
+    than ``max_length_m`` are left out (0 leaves out every link).
     """
     n = points.shape[0]
     empty = GapLinks(np.zeros(n + 1, dtype=np.intp), np.zeros(0, dtype=np.intp), np.zeros(n, dtype=bool))
@@ -93,11 +115,21 @@ def gap_links(points: np.ndarray, laplacian, tree: cKDTree, max_off_m: float, ma
     i, j, length = i[keep], j[keep], length[keep]
     if i.size == 0:
         return empty
-    n_samples = int(np.ceil(max_length_m / (0.5 * max_off_m)))
-    t = (np.arange(1, n_samples) / n_samples)[None, :, None]
-    samples = points[i][:, None, :] + t * (points[j] - points[i])[:, None, :]
-    dist = tree.query(samples.reshape(-1, 3))[0].reshape(i.size, -1)
-    crosses = dist.max(axis=1) > max_off_m
+    # Samples every max_off/4 along each link (a hole deeper than 1.125·max_off cannot hide between two).
+    per_link = np.ceil(length / (0.25 * max_off_m)).astype(np.intp)
+    link = np.repeat(np.arange(i.size), per_link - 1)
+    first = np.cumsum(per_link - 1) - (per_link - 1)
+    t = (np.arange(link.size) - first[link] + 1) / per_link[link]
+    samples = points[i[link]] + t[:, None] * (points[j[link]] - points[i[link]])
+    dist, nearest = tree.query(samples)
+    deep = dist > max_off_m
+    # |cos| of the angle between a deep sample's offset and the normal, the smallest along each link.
+    along_normal = np.full(i.size, np.inf)
+    if deep.any():
+        offset = (samples[deep] - points[nearest[deep]]) / dist[deep, None]
+        normals = _unit_normals(points, tree, nearest[deep])
+        np.minimum.at(along_normal, link[deep], np.abs(np.einsum("mi,mi->m", offset, normals)))
+    crosses = along_normal <= np.cos(WALL_ANGLE)  # links without deep samples stay at inf: no hole
     i, j = i[crosses], j[crosses]
     src = np.concatenate([i, j])
     dst = np.concatenate([j, i])

@@ -225,6 +225,7 @@ class HedacExplorer:
         self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
         laplacian = getattr(basis, "L", None)  # a duck-typed basis without it: no hops
+        self._bridge_max2 = (cfg.max_bridge * self.spacing) ** 2
         self._gaps = gap_links(self._points, laplacian, self._tree, self._off, cfg.max_bridge * self.spacing)
         self._bridges: list[Bridge | None] = []
         self._near = np.zeros(0, dtype=np.intp)
@@ -485,7 +486,7 @@ class HedacExplorer:
         if info == 0:
             slope_uv = c[1:3]  # the cubic's linear coefficients: its slope at the agent
             if self._source_w > 0.0:
-                slope = self._source_slope(cand, g1uv, kern)
+                slope = self._source_slope(cand, g1uv, d2)
                 if slope is not None:  # [1/m] → per scaled unit: × scale
                     c1, c2 = slope_uv.tolist()
                     k = self._source_w * scale
@@ -503,7 +504,7 @@ class HedacExplorer:
                 bridge = self._plan_bridge(nbr, u, u0, here, nrm)
                 if bridge is not None:
                     self._bridges[i] = bridge
-                    return self._bridge_move(i, here, bridge)
+                    return self._bridge_move(i, x, bridge)
             inward = tb.dot(np.array((cu / cn, cv / cn)))
             go = float(g.dot(inward))
             if go < 0.0:
@@ -567,11 +568,15 @@ class HedacExplorer:
         self._x[i] = x_new
         return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
 
-    def _source_slope(self, cand: np.ndarray, g1uv: np.ndarray, kern: np.ndarray) -> tuple[float, float] | None:
-        """Slope (c_u, c_v) [1/m] of the plane through the raw source over the candidate ball,
-        weighted by the kernel (rows (1, u, v) of the candidates ``cand`` with tangent-plane
-        coordinates u, v [m], weights ``kern``), or None when there is no source there or the
-        plane is degenerate.
+    def _source_slope(self, cand: np.ndarray, g1uv: np.ndarray, d2: np.ndarray) -> tuple[float, float] | None:
+        """Slope (c_u, c_v) [1/m] of the plane through the raw source over the candidate ball
+        (rows (1, u, v) of the candidates ``cand`` with tangent-plane coordinates u, v [m], squared
+        3D distances ``d2`` [m²] from the projected agent), or None when there is no source there
+        or the plane is degenerate.
+
+        The weights are the kernel φ of the 3D distance, not of the tangent-plane distance: the
+        back of a thin wall lies close on the tangent plane, and its spikes (which the footprint
+        can never clear from this side) would pull the agent.
 
         The raw source is a set of isolated spikes at uncovered target points, typically just
         outside the footprint (which has cleared its inside) and so beyond the n_N neighbours of
@@ -583,6 +588,8 @@ class HedacExplorer:
         src = self._s_ext.take(self._tpos.take(cand))
         if not src.any():
             return None
+        kern = d2 * -self._eps2
+        np.exp(kern, kern)
         wg = g1uv * kern[:, None]
         b0, b1, b2 = src.dot(wg).tolist()
         if not b0 > 0.0:
@@ -596,6 +603,11 @@ class HedacExplorer:
         """A hop along a gap link of the neighbours (see :mod:`.bridges`) when the potential at its
         far end beats every value around the agent (u − u0 at the neighbours, plus the raw source)."""
         far = np.unique(self._gaps.of(nbr))
+        # The flight starts here, not at the neighbour the link leaves from: keep it within max_bridge.
+        reach = self._points.take(far, 0) - here
+        far = far[np.einsum("ij,ij->i", reach, reach) <= self._bridge_max2]
+        if far.size == 0:
+            return None
         u_far = self._phi.take(far, 0).dot(self._coef)
         local = u
         if self._source_w > 0.0:
@@ -607,7 +619,11 @@ class HedacExplorer:
         j = int(far[k])
         end = self._points[j]
         nb = self._tree.query(end, k=self._n_n)[1]
-        _, end_normal = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, nrm)
+        normals = self.cloud.normals
+        ref = nrm if normals is None else normals[j]  # the cloud's own outward side when it has one
+        _, end_normal = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, ref)
+        if float(end_normal @ nrm) < 0.0:
+            return None  # the far side faces the other way: the back of a part, not across a hole
         self.bridges_taken += 1
         return Bridge(j, here.copy(), end.copy(), nrm.copy(), end_normal)
 
@@ -631,22 +647,34 @@ class HedacExplorer:
         return self._bridge_move(i, x, bridge)
 
     def _bridge_move(self, i: int, x: np.ndarray, bridge: Bridge) -> ExplorationCommand:
-        """Move from x [m] along the chord to the bridge's end by at most v_max·dt; on arrival the
-        agent is back on the cloud and the walk resumes from the end point."""
-        to_end = bridge.end - x
-        dist = float(np.sqrt(to_end @ to_end))
-        if dist <= self._step_max:
+        """Move from x [m] (the agent, or the robot's measured point) along the chord towards the
+        bridge's end, at most v_max·dt from x: the goal is x's projection on the chord advanced by
+        v_max·dt, so an agent off the chord (a measured point above it, the unprojected agent at
+        the start) converges to it instead of drifting. On arrival the walk resumes from the end."""
+        chord = bridge.end - bridge.start
+        length = float(np.sqrt(chord @ chord))
+        t = min(max(float((x - bridge.start) @ chord) / (length * length), 0.0), 1.0) if length > 0.0 else 1.0
+        if (1.0 - t) * length <= self._step_max:
+            goal = bridge.end
+        else:
+            goal = bridge.start + chord * (t + self._step_max / length)
+        move = goal - x
+        ml = float(np.sqrt(move @ move))
+        arrived = goal is bridge.end and ml <= self._step_max
+        if ml > self._step_max:
+            move *= self._step_max / ml
+            ml = self._step_max
+        x_new = x + move
+        if arrived:
             x_new = bridge.end.copy()
             nrm = bridge.end_normal.copy()
             self._bridges[i] = None
             self._near[i] = bridge.target
         else:
-            x_new = x + to_end * (self._step_max / dist)
             nrm = bridge.normal_at(x_new)
-        step = x_new - x
-        v = step * (1.0 / self._dt)
+        v = move * (1.0 / self._dt)
         self._agents[i].velocity = v - float(v @ nrm) * nrm
-        self.path_lengths[i] += float(np.sqrt(step @ step))
+        self.path_lengths[i] += ml
         self._nrm_t[i] = tuple(nrm.tolist())
         self._x[i] = x_new
         t1, t2 = _tangent_basis(nrm)
