@@ -186,6 +186,7 @@ def test_nullspace_posture_validation() -> None:
         ({"contact_threshold_n": float("nan")}, "contact_threshold_n"),
         ({"seed": -1}, "seed"),
         ({"n_eigen": 0}, "and 0"),
+        ({"max_normal_rate_deg_s": 0.0}, "max_normal_rate_deg_s"),
     ],
 )
 def test_clean_config_validation_more(kwargs, match) -> None:
@@ -257,3 +258,46 @@ def test_task_scene_carries_the_shared_and_the_task_fields() -> None:
     assert (scene.object_name, scene.camera_rate_hz, scene.tool_pad_shape) == ("sine_panel", 15.0, "cylinder")
     assert scene.object_position == (0.4, 0.1, 0.0) and (scene.camera_width, scene.camera_height) == (160, 120)
     assert CleanConfig().object_name == "plate" and CleanConfig().camera_width == 320
+
+
+def test_rotate_towards_turns_by_at_most_the_step_on_the_great_circle(rng) -> None:
+    from tactex.geometry.so3 import rotate_towards
+
+    for _ in range(50):
+        a, b = rng.normal(size=3), rng.normal(size=3)
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        full = np.arccos(np.clip(a @ b, -1.0, 1.0))
+        step = rng.uniform(0.0, 1.5)
+        out = rotate_towards(a, b, step)
+        assert abs(np.linalg.norm(out) - 1.0) < 1e-12
+        if step >= full:
+            np.testing.assert_array_equal(out, b)
+        else:
+            assert np.arccos(np.clip(out @ a, -1.0, 1.0)) == pytest.approx(step, abs=1e-9)
+            assert np.arccos(np.clip(out @ b, -1.0, 1.0)) == pytest.approx(full - step, abs=1e-9)
+            assert abs(np.cross(a, b) @ out) < 1e-9  # in the plane of a and b
+    up = np.array([0.0, 0.0, 1.0])
+    out = rotate_towards(up, -up, 0.1)  # antiparallel: some great circle, still exactly 0.1 rad
+    assert np.arccos(out @ up) == pytest.approx(0.1, abs=1e-12)
+
+
+def test_retract_lifts_straight_back_along_the_tool_axis() -> None:
+    """A 5 cm lift-off moves the TCP 5 cm along −tool z (within 2 mm), keeps the tool orientation
+    (within 1°), and moves no joint more than the lift needs (a full IK solve preferring home
+    postures swung the elbow and dragged the tool across a bowl)."""
+    from tactex.robots import MujocoBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+
+    loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
+    loop.hold(0.05)
+    start = loop.state
+    p0, r0, q0 = start.ee_position.copy(), start.ee_rotation.copy(), start.q.copy()
+    loop.retract(0.05, duration_s=0.4)
+    loop.hold(0.3)
+    end = loop.state
+    np.testing.assert_allclose(end.ee_position - p0, -0.05 * r0[:, 2], atol=2e-3)
+    angle = np.arccos(np.clip((np.trace(r0.T @ end.ee_rotation) - 1.0) / 2.0, -1.0, 1.0))
+    assert np.degrees(angle) < 1.0
+    assert np.max(np.abs(end.q - q0)) < 0.3
+

@@ -28,6 +28,7 @@ __all__ = [
     "matmul3_rows",
     "matmul3_tn_rows",
     "orthonormalize",
+    "rotate_towards",
     "rotation_error_world",
     "rotation_error_world_rows",
 ]
@@ -160,3 +161,21 @@ def rotation_error_world(rot: np.ndarray, rot_desired: np.ndarray) -> np.ndarray
 def rotation_error_world_rows(rot, rot_desired) -> tuple[float, float, float]:
     """:func:`rotation_error_world` on rotations given as rows of Python floats (per-tick path)."""
     return log_so3_rows(matmul3_nt_rows(rot, rot_desired))
+
+
+def rotate_towards(current: np.ndarray, target: np.ndarray, max_angle_rad: float) -> np.ndarray:
+    """The unit vector ``current`` (3,) turned towards the unit vector ``target`` (3,) by at most
+    ``max_angle_rad`` [rad] on the great circle through both (``target`` itself when nearer).
+    Antiparallel vectors have no unique great circle: any perpendicular axis is used."""
+    c = float(np.clip(current @ target, -1.0, 1.0))
+    angle = float(np.arccos(c))
+    if angle <= max_angle_rad:
+        return target.copy()
+    axis = np.cross(current, target)
+    norm = float(np.sqrt(axis @ axis))
+    if norm < 1e-12:
+        trial = np.array([1.0, 0.0, 0.0]) if abs(current[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        axis = np.cross(current, trial)
+        norm = float(np.sqrt(axis @ axis))
+    return exp_so3(axis * (max_angle_rad / norm)) @ current
+

@@ -32,6 +32,7 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
 from tactex.errors import ConfigError, ExplorationError
+from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import CylinderWallSurface
@@ -51,6 +52,10 @@ __all__ = ["CLEAN_BASELINES", "PHASES", "CleanConfig", "CleanResult", "run_clean
 CLEAN_BASELINES = ("", "raster", "no_feedback")
 #: Phase codes recorded in the time series (shared with the report).
 PHASES = CLEAN_PHASES
+#: Lift-off distance along the tool axis before vision and at the end [m].
+RETRACT_M = 0.05
+#: Height of the waypoint above the hover pose on the way from the capture pose [m].
+CLEARANCE_M = 0.08
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
 
@@ -86,6 +91,11 @@ class CleanConfig(SimWorldParams):
         0.5, "measured normal force that counts as contact [N]; below the force loop's approach equilibrium "
         "Kp·F_approach/(1 + Kp) = 1 N, so a touch-down is always detected")
     agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
+    max_normal_rate_deg_s: float = param(
+        90.0,
+        "fastest turn of the commanded normal line while in contact; on a sharp edge (a bowl's rim) the "
+        "fitted normal jumps between the two faces from one exploration step to the next [deg/s]",
+    )
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
@@ -96,7 +106,7 @@ class CleanConfig(SimWorldParams):
         if self.baseline not in CLEAN_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
         positive = ("force_n", "alpha", "agent_radius_m", "voxel_size_m", "max_velocity", "explorer_rate_hz",
-                    "budget_s", "capture_distance_m", "hover_height_m", "approach_force_n")
+                    "budget_s", "capture_distance_m", "hover_height_m", "approach_force_n", "max_normal_rate_deg_s")
         for name in positive:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -236,6 +246,11 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         hcfg = HedacConfig(
             alpha=cfg.alpha, n_eigen=basis.evecs.shape[1], agent_radius_m=cfg.agent_radius_m,
             max_velocity=cfg.max_velocity, max_acceleration=cfg.max_velocity, step_duration_s=dt_step, seed=cfg.seed,
+            # No hops in contact: over a hole in the capture (the shadow behind a bowl's rim) the real
+            # surface is unknown and the tool would drag over edges (bowl: 88 % of contact within
+            # ±20 % and 20.4 N peaks with hops, 93.5 % and 18 N without). Dirt beyond a hole is
+            # reached the safe way: lift, re-measure, restart at the nearest remaining dirt.
+            max_bridge=0.0,
         )
         source = HedacExplorer(cloud, basis, hcfg)
     targets = np.flatnonzero(cloud.target > 0)
@@ -255,10 +270,16 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     while loop.t < t_end:
         # 3a. hover over the agent and approach along its normal line
         log.phase = PHASES["move"]
+        # Through a waypoint straight above the hover pose: a joint move from the high capture pose
+        # down to a hover inside a bowl can swing the tool through the rim on the way.
+        rot = tool_rotation_for_normal(cmd.normal)
         hover = cmd.point + cfg.hover_height_m * cmd.normal
-        q_hover = loop.solve_pose(hover, tool_rotation_for_normal(cmd.normal), q_seed=q_capture)
-        if loop.t + loop.joint_move_duration(q_hover) + HOVER_SETTLE_S >= t_end:
+        q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_capture)
+        q_hover = loop.solve_pose(hover, rot, q_seed=q_above)
+        move_s = loop.joint_move_duration(q_above) + loop.joint_move_duration(q_hover, q_from=q_above)
+        if loop.t + move_s + HOVER_SETTLE_S >= t_end:
             break  # the move alone would use up the budget: no contact would follow
+        loop.move_joints(q_above, settle_s=0.0)
         loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
         log.phase = PHASES["approach"]
         loop.use(ga)
@@ -279,6 +300,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         # 3b. contact exploration
         log.phase = PHASES["explore"]
         prev = cmd
+        n_prev = n_next = cmd.normal.copy()  # the commanded normal line, turned at a bounded rate
+        max_turn = np.radians(cfg.max_normal_rate_deg_s) * dt_step
         next_step = loop.t
         steps_since_vision = 0
         t_phase = loop.t
@@ -287,6 +310,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
                 prev = cmd
                 measured = loop.state.ee_position if cfg.agent_feedback else None
                 cmd = source.step(measured)
+                n_prev, n_next = n_next, rotate_towards(n_next, cmd.normal, max_turn)
                 next_step += dt_step
                 steps_since_vision += 1
                 agent_path.append(cmd.point)
@@ -295,7 +319,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
                     ergodicity.append((loop.t, source.ergodicity()))
             frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
             point = prev.point + frac * (cmd.point - prev.point)
-            normal = prev.normal + frac * (cmd.normal - prev.normal)
+            normal = n_prev + frac * (n_next - n_prev)
             ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
             force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
             log.set_point = force
@@ -313,8 +337,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
             break
         # 4. back to vision: re-measure the dirt on the same points, update the target
         log.phase = PHASES["retract"]
-        lift = loop.state.ee_position - 0.05 * loop.state.ee_rotation[:, 2]
-        loop.move_to_pose(lift, loop.state.ee_rotation, duration_s=0.4, settle_s=0.0)
+        loop.retract(RETRACT_M, duration_s=0.4)
         new_capture = capture()
         vision_updates += 1
         mass = remeasure_target(cloud, new_capture)
@@ -332,8 +355,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     # lift off at the end so the final state is out of contact
     log.phase = PHASES["retract"]
     if loop.state.wrench_tool[2] > cfg.contact_threshold_n:
-        lift = loop.state.ee_position - 0.05 * loop.state.ee_rotation[:, 2]
-        loop.move_to_pose(lift, loop.state.ee_rotation, duration_s=0.4, settle_s=0.0)
+        loop.retract(RETRACT_M, duration_s=0.4)
     bar.close(f"dirt removed {100 * (1 - backend.dirt_remaining()):.1f} %")
 
     series = log.rec.arrays()

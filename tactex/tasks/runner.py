@@ -19,6 +19,10 @@ __all__ = ["TOOL_DOWN", "ControlLoop", "tool_rotation_for_normal"]
 TOOL_DOWN = np.diag([1.0, -1.0, -1.0])
 
 
+#: Damping [m] of the retract's least-squares step (keeps it bounded near singular postures).
+RETRACT_DAMPING = 0.01
+
+
 def tool_rotation_for_normal(normal_out: np.ndarray, x_hint: np.ndarray | None = None) -> np.ndarray:
     """world_R_tool with the tool z axis along −``normal_out`` (pressing into the surface) and the
     tool x axis as close as possible to ``x_hint`` (default world x)."""
@@ -88,11 +92,13 @@ class ControlLoop:
             self.tick(target)
         return self.state
 
-    def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float = 0.8) -> float:
-        """Duration [s] of :meth:`move_joints` from the current q to ``q_goal`` (no settling):
-        every joint under ``max_joint_speed`` [rad/s] (the min-jerk peak speed is 1.875 × the mean
-        speed), at least 0.5 s."""
-        return max(0.5, 1.875 * float(np.max(np.abs(np.asarray(q_goal, dtype=float) - self.state.q))) / max_joint_speed)
+    def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float = 0.8,
+                            q_from: np.ndarray | None = None) -> float:
+        """Duration [s] of :meth:`move_joints` from ``q_from`` (default: the current q) to
+        ``q_goal`` (no settling): every joint under ``max_joint_speed`` [rad/s] (the min-jerk peak
+        speed is 1.875 × the mean speed), at least 0.5 s."""
+        start = self.state.q if q_from is None else np.asarray(q_from, dtype=float)
+        return max(0.5, 1.875 * float(np.max(np.abs(np.asarray(q_goal, dtype=float) - start))) / max_joint_speed)
 
     def solve_pose(self, position_world: np.ndarray, rotation_world: np.ndarray,
                    q_seed: np.ndarray | None = None) -> np.ndarray:
@@ -106,6 +112,22 @@ class ControlLoop:
         current q). Seeding from a known posture keeps the arm on one IK branch: a far jump of
         branch would sweep the arm through the scene."""
         return self.move_joints(self.solve_pose(position_world, rotation_world, q_seed), duration_s, settle_s)
+
+    def retract(self, distance_m: float, duration_s: float = 0.4) -> RobotState:
+        """Lift the TCP about ``distance_m`` [m] straight back along the tool axis (−tool z),
+        keeping its orientation, as a joint move of ``duration_s`` [s].
+
+        The joint goal is one damped least-squares step through the current Jacobian, not a full
+        IK solve: IK prefers postures near home, and its answer for a pose a few cm away can
+        swing the elbow, so that the joint interpolation drags the tool across the object (up to
+        50 N while lifting off a bowl's wall). The linear step moves no joint more than the lift
+        needs; over a few cm its error is second order (millimetres), harmless for a lift-off.
+        """
+        state = self.state
+        jac = state.jacobian
+        twist = np.concatenate([-distance_m * state.ee_rotation[:, 2], np.zeros(3)])
+        dq = jac.T @ np.linalg.solve(jac @ jac.T + RETRACT_DAMPING**2 * np.eye(6), twist)
+        return self.move_joints(state.q + dq, duration_s, settle_s=0.0)
 
     def hold(self, duration_s: float) -> RobotState:
         """Hold the current joint position."""
