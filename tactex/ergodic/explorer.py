@@ -58,7 +58,6 @@ from tactex.pointcloud import SurfaceCloud
 __all__ = ["HedacExplorer"]
 
 _Z = np.array([0.0, 0.0, 1.0])
-_ZERO_COL = np.zeros((3, 1))
 # ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
 # these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
 _sum = np.add.reduce
@@ -77,6 +76,11 @@ _PIVOT_RTOL = 1e-10
 
 def _tangent_matrix(n: np.ndarray | tuple) -> np.ndarray:
     """(3, 2) orthonormal tangent basis [t_u, t_v] with (t_u, t_v, n) right-handed (n an array or 3 floats)."""
+    return _tangent_matrix_0uv(n)[:, 1:]
+
+
+def _tangent_matrix_0uv(n: np.ndarray | tuple) -> np.ndarray:
+    """(3, 3) [0, t_u, t_v]: :func:`_tangent_matrix` after a zero column (offsets · it = rows (0, u, v))."""
     n0, n1, n2 = n if isinstance(n, tuple) else n.tolist()
     if abs(n0) < 0.9:  # t_u = normalised e_x − (e_x·n) n
         a0, a1, a2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
@@ -84,7 +88,7 @@ def _tangent_matrix(n: np.ndarray | tuple) -> np.ndarray:
         a0, a1, a2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
     inv = 1.0 / (a0 * a0 + a1 * a1 + a2 * a2) ** 0.5
     a0, a1, a2 = a0 * inv, a1 * inv, a2 * inv
-    return np.array([[a0, n1 * a2 - n2 * a1], [a1, n2 * a0 - n0 * a2], [a2, n0 * a1 - n1 * a0]])
+    return np.array([[0.0, a0, n1 * a2 - n2 * a1], [0.0, a1, n2 * a0 - n0 * a2], [0.0, a2, n0 * a1 - n1 * a0]])
 
 
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -441,9 +445,10 @@ class HedacExplorer:
         # Every candidate on the tangent plane at the projected agent (eq. 31), and the kernel
         # φ(r) = exp(−ε² r²) of eq. 30 there: the footprint is φ inside r_a (3D distance, so the
         # far side of a thin wall stays out), the raw source's plane fit weighs the whole ball by it.
-        tb = _tangent_matrix(nt)
+        tb0 = _tangent_matrix_0uv(nt)
+        tb = tb0[:, 1:]
         rel = d - shift
-        g1uv = rel.dot(np.concatenate((_ZERO_COL, tb), 1))  # rows (0, u, v) [m]; column 0 becomes 1 below
+        g1uv = rel.dot(tb0)  # rows (0, u, v) [m]; column 0 becomes 1 below
         rel *= rel
         d2 = _sum(rel, 1)
         kern = g1uv * g1uv
