@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from tactex.errors import InputError
+
 __all__ = [
     "exp_so3",
     "exp_so3_rows",
@@ -166,7 +168,18 @@ def rotation_error_world_rows(rot, rot_desired) -> tuple[float, float, float]:
 def rotate_towards(current: np.ndarray, target: np.ndarray, max_angle_rad: float) -> np.ndarray:
     """The unit vector ``current`` (3,) turned towards the unit vector ``target`` (3,) by at most
     ``max_angle_rad`` [rad] on the great circle through both (``target`` itself when nearer).
-    Antiparallel vectors have no unique great circle: any perpendicular axis is used."""
+    Antiparallel vectors have no unique great circle: any perpendicular axis is used.
+    Both vectors are normalised first; zero-length or non-finite vectors and a negative or
+    non-finite angle raise :class:`~tactex.errors.InputError`."""
+    current, target = np.asarray(current, dtype=float), np.asarray(target, dtype=float)
+    nc, nt = float(np.sqrt(current @ current)), float(np.sqrt(target @ target))
+    if not (np.isfinite(nc) and np.isfinite(nt) and nc > 0.0 and nt > 0.0):
+        raise InputError(
+            f"rotate_towards needs two finite non-zero 3-vectors, got {current.tolist()} and {target.tolist()}"
+        )
+    if not (np.isfinite(max_angle_rad) and max_angle_rad >= 0.0):
+        raise InputError(f"rotate_towards: max_angle_rad must be finite and ≥ 0, got {max_angle_rad!r}")
+    current, target = current / nc, target / nt
     c = float(np.clip(current @ target, -1.0, 1.0))
     angle = float(np.arccos(c))
     if angle <= max_angle_rad:

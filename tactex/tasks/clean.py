@@ -31,7 +31,7 @@ from tactex.control.references import LineForceReference
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
-from tactex.errors import ConfigError, ExplorationError
+from tactex.errors import ConfigError, ExplorationError, SimulationError
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -56,6 +56,8 @@ PHASES = CLEAN_PHASES
 RETRACT_M = 0.05
 #: Height of the waypoint above the hover pose on the way from the capture pose [m].
 CLEARANCE_M = 0.08
+#: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
+WAYPOINT_MAX_JOINT_RAD = 0.5
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
 
@@ -111,6 +113,12 @@ class CleanConfig(SimWorldParams):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if self.max_normal_rate_deg_s / self.explorer_rate_hz >= 90.0:
+            raise ConfigError(
+                f"max_normal_rate_deg_s = {self.max_normal_rate_deg_s} turns the normal by 90° or more per "
+                f"exploration step at explorer_rate_hz = {self.explorer_rate_hz}; keep it below "
+                f"{90.0 * self.explorer_rate_hz:g} deg/s (an about-turn would blend through a zero normal)"
+            )
         if self.approach_force_n > self.force_n:
             raise ConfigError(f"approach_force_n ({self.approach_force_n}) must not exceed force_n ({self.force_n})")
         if not (np.isfinite(self.contact_threshold_n) and self.contact_threshold_n > 0):
@@ -271,15 +279,25 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         # 3a. hover over the agent and approach along its normal line
         log.phase = PHASES["move"]
         # Through a waypoint straight above the hover pose: a joint move from the high capture pose
-        # down to a hover inside a bowl can swing the tool through the rim on the way.
+        # down to a hover inside a bowl can swing the tool through the rim on the way. The waypoint is
+        # solved from the hover (same IK branch) and dropped when it is not a short step from it.
         rot = tool_rotation_for_normal(cmd.normal)
         hover = cmd.point + cfg.hover_height_m * cmd.normal
-        q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_capture)
-        q_hover = loop.solve_pose(hover, rot, q_seed=q_above)
-        move_s = loop.joint_move_duration(q_above) + loop.joint_move_duration(q_hover, q_from=q_above)
+        q_hover = loop.solve_pose(hover, rot, q_seed=q_capture)
+        try:
+            q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
+        except SimulationError:
+            q_above = None
+        if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
+            q_above = None
+        if q_above is None:
+            move_s = loop.joint_move_duration(q_hover)
+        else:
+            move_s = loop.joint_move_duration(q_above) + loop.joint_move_duration(q_hover, q_from=q_above)
         if loop.t + move_s + HOVER_SETTLE_S >= t_end:
-            break  # the move alone would use up the budget: no contact would follow
-        loop.move_joints(q_above, settle_s=0.0)
+            break  # the move alone would use up the budget
+        if q_above is not None:
+            loop.move_joints(q_above, settle_s=0.0)
         loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
         log.phase = PHASES["approach"]
         loop.use(ga)
