@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
+from tactex.pointcloud import SurfaceCloud
+
 # Property tests draw the same examples on every run: reproducible, and CI cannot flake on a new draw.
 settings.register_profile("tactex", derandomize=True)
 settings.load_profile("tactex")
@@ -43,6 +45,18 @@ def tec_initial_positions(name: str) -> np.ndarray:
         pytest.skip(f"{path} not found: these tests need ../shared/data beside the repository")
     with np.load(path, allow_pickle=False) as z:
         return np.array(z["x0_arr"], dtype=float)
+
+
+def gap_strips(gap_m: float, target_beyond_m: float, seed: int) -> SurfaceCloud:
+    """Two 3 mm grids (15 × 30 points) on z = 0 side by side along x with a scan hole of gap_m [m]
+    between them; the target is the right grid's points farther than target_beyond_m [m] from the hole."""
+    h = 0.003
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.arange(15) * h, np.arange(30) * h)
+    left = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    right = left + np.array([14 * h + gap_m, 0.0, 0.0])
+    pts = np.vstack([left, right]) + rng.uniform(-1e-4, 1e-4, (2 * u.size, 3)) * [1, 1, 0]
+    return SurfaceCloud(pts, target=(pts[:, 0] > 14 * h + gap_m + target_beyond_m).astype(float), spacing=h)
 
 
 @pytest.fixture

@@ -27,7 +27,7 @@ from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.pointcloud import SurfaceCloud, load_ply, target_from_channel, voxel_down_sample
 from tactex.spectral import build_basis
 
-from .conftest import tec_cloud_path
+from .conftest import gap_strips, tec_cloud_path
 
 GRAD_TOL = 1e-8  # exact recovery of polynomial fields (task acceptance)
 FD_TOL = 1e-6  # analytic vs central finite differences (relative)
@@ -448,19 +448,9 @@ def test_config_is_a_frozen_dataclass():
         cfg.alpha = 3.0  # type: ignore[misc]
 
 
-def _gap_cloud(gap_m: float) -> SurfaceCloud:
-    """Two 3 mm grids on z = 0 separated by a gap along x (a scan hole); target on the right one."""
-    rng = np.random.default_rng(2)
-    u, v = np.meshgrid(np.arange(15) * H, np.arange(30) * H)
-    left = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
-    right = left + np.array([14 * H + gap_m, 0.0, 0.0])
-    pts = np.vstack([left, right]) + rng.uniform(-1e-4, 1e-4, (2 * u.size, 3)) * [1, 1, 0]
-    return SurfaceCloud(pts, target=(pts[:, 0] > 14 * H + gap_m + 0.01).astype(float), spacing=H)
-
-
 def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
     """Walking only (no hops): max_off_cloud = 2.5 voxels crosses a 9 mm hole, 1 voxel does not."""
-    cloud = _gap_cloud(0.009)
+    cloud = gap_strips(0.009, 0.01, seed=2)
     basis = build_basis(cloud, n_eigen=60, n_neighbors=40, cache=False)
     start = np.array([0.02, 0.045, 0.0])
     reached = {}

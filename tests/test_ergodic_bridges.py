@@ -11,26 +11,16 @@ from tactex.ergodic.bridges import Bridge, gap_links
 from tactex.pointcloud import SurfaceCloud, load_ply, target_from_channel, voxel_down_sample
 from tactex.spectral import build_basis
 
-from .conftest import tec_cloud_path, tec_initial_positions
+from .conftest import gap_strips, tec_cloud_path, tec_initial_positions
 
 MAX_STEPS = 2000  # a parked agent must fail the test, not hang it
 H = 0.003  # [m]
 GAP = 0.012  # [m] a 4-voxel scan hole: too wide to walk at max_off_cloud = 1 voxel
 
 
-def _two_strips(gap_m: float = GAP) -> SurfaceCloud:
-    """Two 3 mm grids on z = 0, the right one 14 voxels + gap_m along x; the target on its far half."""
-    rng = np.random.default_rng(3)
-    u, v = np.meshgrid(np.arange(15) * H, np.arange(30) * H)
-    left = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
-    right = left + np.array([14 * H + gap_m, 0.0, 0.0])
-    pts = np.vstack([left, right]) + rng.uniform(-1e-4, 1e-4, (2 * u.size, 3)) * [1, 1, 0]
-    return SurfaceCloud(pts, target=(pts[:, 0] > 14 * H + gap_m + 0.02).astype(float), spacing=H)
-
-
 @pytest.fixture(scope="module")
 def strips():
-    cloud = _two_strips()
+    cloud = gap_strips(GAP, 0.02, seed=3)
     return cloud, build_basis(cloud, n_eigen=60, n_neighbors=40, cache=False)
 
 
@@ -57,7 +47,7 @@ def test_gap_links_none_when_disabled_too_short_or_without_a_hole(strips):
     assert gap_links(pts, basis.L, tree, H, 0.0).n_links == 0  # max_bridge = 0
     assert gap_links(pts, basis.L, tree, H, 3 * H).n_links == 0  # shorter than the hole
     assert gap_links(pts, None, tree, H, 6 * H).n_links == 0  # a basis without its Laplacian
-    solid = _two_strips(gap_m=0.0)  # one continuous grid: the walk reaches everything
+    solid = gap_strips(0.0, 0.02, seed=3)  # one continuous grid: the walk reaches everything
     solid_basis = build_basis(solid, n_eigen=10, n_neighbors=40, cache=False)
     assert gap_links(solid.points, solid_basis.L, cKDTree(solid.points), H, 6 * H).n_links == 0
 

@@ -93,12 +93,13 @@ class ControlLoop:
         return self.state
 
     def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float = 0.8,
-                            q_from: np.ndarray | None = None) -> float:
+                            q_from: np.ndarray | None = None, min_duration_s: float = 0.5) -> float:
         """Duration [s] of :meth:`move_joints` from ``q_from`` (default: the current q) to
         ``q_goal`` (no settling): every joint under ``max_joint_speed`` [rad/s] (the min-jerk peak
-        speed is 1.875 × the mean speed), at least 0.5 s."""
+        speed is 1.875 × the mean speed), at least ``min_duration_s``."""
         start = self.state.q if q_from is None else np.asarray(q_from, dtype=float)
-        return max(0.5, 1.875 * float(np.max(np.abs(np.asarray(q_goal, dtype=float) - start))) / max_joint_speed)
+        peak = 1.875 * float(np.max(np.abs(np.asarray(q_goal, dtype=float) - start))) / max_joint_speed
+        return max(min_duration_s, peak)
 
     def solve_pose(self, position_world: np.ndarray, rotation_world: np.ndarray,
                    q_seed: np.ndarray | None = None) -> np.ndarray:
@@ -135,7 +136,7 @@ class ControlLoop:
         low = np.minimum(np.asarray(lim.q_min) + lim.joint_limit_margin, state.q)
         high = np.maximum(np.asarray(lim.q_max) - lim.joint_limit_margin, state.q)
         q_goal = np.clip(state.q + dq, low, high)
-        return self.move_joints(q_goal, max(duration_s, self.joint_move_duration(q_goal)), settle_s=0.0)
+        return self.move_joints(q_goal, self.joint_move_duration(q_goal, min_duration_s=duration_s), settle_s=0.0)
 
     def hold(self, duration_s: float) -> RobotState:
         """Hold the current joint position."""
