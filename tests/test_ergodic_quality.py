@@ -55,9 +55,12 @@ def test_plane_slope_is_the_weighted_least_squares_plane(rng):
     y = rng.uniform(0.0, 1.0, 20) * (rng.uniform(size=20) > 0.7)
     a = (x * w[:, None]).T @ x
     expected = np.linalg.lstsq(x * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0][1:]
-    np.testing.assert_allclose(_plane_slope(a, *((x * w[:, None]).T @ y).tolist()), expected, rtol=1e-10, atol=1e-12)
+    upper = a[np.triu_indices(3)].tolist()  # a00, a01, a02, a11, a12, a22
+    rhs = ((x * w[:, None]).T @ y).tolist()
+    np.testing.assert_allclose(_plane_slope(*upper, *rhs), expected, rtol=1e-10, atol=1e-12)
     collinear = np.c_[np.ones(20), uv[:, 0], 2.0 * uv[:, 0]]
-    assert _plane_slope(collinear.T @ collinear, 1.0, 0.5, 1.0) is None  # rank-deficient block
+    rank_deficient = (collinear.T @ collinear)[np.triu_indices(3)].tolist()
+    assert _plane_slope(*rank_deficient, 1.0, 0.5, 1.0) is None  # rank-deficient block
 
 
 CUP_FLOOR = 0.176  # √(5/162): five isolated target points 3–6 cm from the X

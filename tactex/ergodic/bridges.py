@@ -70,11 +70,15 @@ class Bridge:
     start_normal: np.ndarray
     end_normal: np.ndarray
 
-    def normal_at(self, x: np.ndarray) -> np.ndarray:
-        """Unit normal at x on the chord: the end normals blended by the share of the chord done."""
+    def share(self, x: np.ndarray) -> float:
+        """Share of the chord done at x [m]: its projection on the chord, clamped to [0, 1] (1 for a point chord)."""
         chord = self.end - self.start
         c2 = float(chord @ chord)
-        t = min(max(float((x - self.start) @ chord) / c2, 0.0), 1.0) if c2 > 0.0 else 1.0
+        return min(max(float((x - self.start) @ chord) / c2, 0.0), 1.0) if c2 > 0.0 else 1.0
+
+    def normal_at(self, x: np.ndarray) -> np.ndarray:
+        """Unit normal at x on the chord: the end normals blended by the share of the chord done."""
+        t = self.share(x)
         n = (1.0 - t) * self.start_normal + t * self.end_normal
         nn = float(np.sqrt(n @ n))
         # Opposite end normals (a hole across a knife edge) blend to zero: keep the nearer end's.

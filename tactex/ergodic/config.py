@@ -8,10 +8,16 @@ from dataclasses import dataclass
 from tactex.config import param
 from tactex.errors import ConfigError
 
-__all__ = ["COVERAGE_NORMALIZATIONS", "HedacConfig"]
+__all__ = ["COVERAGE_NORMALIZATIONS", "HedacConfig", "check_coverage_normalization"]
 
 #: Domains the coverage is normalised over in the source term (see HedacConfig.coverage_normalization).
 COVERAGE_NORMALIZATIONS = ("target", "domain")
+
+
+def check_coverage_normalization(value: object, owner: str) -> None:
+    """ConfigError unless ``value`` is one of :data:`COVERAGE_NORMALIZATIONS` (``owner`` names the config)."""
+    if value not in COVERAGE_NORMALIZATIONS:
+        raise ConfigError(f"{owner}.coverage_normalization must be one of {COVERAGE_NORMALIZATIONS}, got {value!r}")
 
 
 def _check_number(name: str, value: object, strict: bool) -> None:
@@ -108,11 +114,7 @@ class HedacConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"HedacConfig.{name} must be an integer ≥ {low}, got {value!r}")
-        if self.coverage_normalization not in COVERAGE_NORMALIZATIONS:
-            raise ConfigError(
-                f"HedacConfig.coverage_normalization must be one of {COVERAGE_NORMALIZATIONS}, "
-                f"got {self.coverage_normalization!r}"
-            )
+        check_coverage_normalization(self.coverage_normalization, "HedacConfig")
         if self.order not in (1, 2) or isinstance(self.order, bool):
             raise ConfigError(f"HedacConfig.order must be 1 or 2, got {self.order!r}")
         if self.agent_radius_m > 1.0:

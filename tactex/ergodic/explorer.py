@@ -96,19 +96,13 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t[:, 0].copy(), t[:, 1].copy()
 
 
-def _plane_slope(a: np.ndarray, b0: float, b1: float, b2: float) -> tuple[float, float] | None:
+def _plane_slope(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float,
+                 b0: float, b1: float, b2: float) -> tuple[float, float] | None:
     """Slope (c_u, c_v) of the weighted plane c_0 + c_u u + c_v v with normal matrix a[:3, :3] and
     right-hand side (b0, b1, b2); None when the block is not positive definite (collinear points).
 
     A 3×3 Cholesky in Python floats: a LAPACK call costs more than the arithmetic at this size.
     """
-    (a00, a01, a02), (_, a11, a12), (_, _, a22) = (a if a.shape == (3, 3) else a[:3, :3]).tolist()
-    return _plane_slope_floats(a00, a01, a02, a11, a12, a22, b0, b1, b2)
-
-
-def _plane_slope_floats(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float,
-                        b0: float, b1: float, b2: float) -> tuple[float, float] | None:
-    """:func:`_plane_slope` from the upper triangle of the normal matrix as floats."""
     if a00 <= 0.0:
         return None
     l00 = a00**0.5
@@ -224,7 +218,6 @@ class HedacExplorer:
         self._xwt = self._xw.T
         self._a = np.empty((10, 10))  # the cubic's normal matrix, with a view of its diagonal
         self._a_diag = self._a.ravel()[::11]
-        self._a3 = self._a[:3, :3]
         self._w = np.full((cfg.n_neighbors_fit, 5), -1.0)  # the fit's design matrix, column 3 stays −1
         self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
@@ -460,10 +453,7 @@ class HedacExplorer:
         inside = (d2 <= self._r_a2).nonzero()[0]
         fp = cand.take(inside)
         phi = kern.take(inside)
-        cov = self._cov
-        cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
-        self._cov_sum += float(_sum(phi))
-
+        self._add_coverage(fp, phi)
         self._update_potential()
         u = self._phi.take(nbr, 0).dot(self._coef)
 
@@ -600,7 +590,7 @@ class HedacExplorer:
         if not b0 > 0.0:
             return None
         (a00, a01, a02), (_, a11, a12), (_, _, a22) = wg.T.dot(g1uv).tolist()
-        return _plane_slope_floats(a00, a01, a02, a11, a12, a22, b0, b1, b2)
+        return _plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2)
 
     # ------------------------------------------------------------------ scan-hole bridges
     def _plan_bridge(self, nbr: np.ndarray, u: np.ndarray, u0: float, here: np.ndarray,
@@ -645,9 +635,7 @@ class HedacExplorer:
         inside = (dd <= self._r_a2).nonzero()[0]
         dn = d.take(inside, 0).dot(nrm)
         phi = np.exp(-self._eps2 * (dd.take(inside) - dn * dn))  # r on the plane ⊥ the chord's normal
-        fp = cand.take(inside)
-        self._cov.put(fp, self._cov.take(fp) + phi)
-        self._cov_sum += float(_sum(phi))
+        self._add_coverage(cand.take(inside), phi)
         self._update_potential()
         return self._bridge_move(i, x, bridge)
 
@@ -658,7 +646,7 @@ class HedacExplorer:
         the start) converges to it instead of drifting. On arrival the walk resumes from the end."""
         chord = bridge.end - bridge.start
         length = float(np.sqrt(chord @ chord))
-        t = min(max(float((x - bridge.start) @ chord) / (length * length), 0.0), 1.0) if length > 0.0 else 1.0
+        t = bridge.share(x)
         if (1.0 - t) * length <= self._step_max:
             goal = bridge.end
         else:
@@ -685,7 +673,13 @@ class HedacExplorer:
         t1, t2 = _tangent_basis(nrm)
         return ExplorationCommand(x_new.copy(), v, nrm, t1, t2, self.step_count, i)
 
-    # ------------------------------------------------------------------ potential
+    # ------------------------------------------------------------------ coverage and potential
+    def _add_coverage(self, fp: np.ndarray, phi: np.ndarray) -> None:
+        """Footprint values phi at cloud points fp (no repeats) added to c̃ and its running sum (eq. 3)."""
+        cov = self._cov
+        cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
+        self._cov_sum += float(_sum(phi))
+
     def _update_potential(self) -> None:
         """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
         cov = self._cov

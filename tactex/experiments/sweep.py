@@ -80,13 +80,9 @@ class SweepConfig:
             if len(set(values)) != len(values):
                 raise ConfigError(f"SweepConfig.{name} lists a value twice: {values}")
             object.__setattr__(self, name, tuple(sorted(values)))
-        from tactex.ergodic.config import COVERAGE_NORMALIZATIONS
+        from tactex.ergodic.config import check_coverage_normalization
 
-        if self.coverage_normalization not in COVERAGE_NORMALIZATIONS:
-            raise ConfigError(
-                f"SweepConfig.coverage_normalization must be one of {COVERAGE_NORMALIZATIONS}, "
-                f"got {self.coverage_normalization!r}"
-            )
+        check_coverage_normalization(self.coverage_normalization, "SweepConfig")
         for name, low in (("starts", 1), ("steps", 1), ("n_neighbors", 1), ("workers", 0), ("seed", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:

@@ -116,7 +116,8 @@ class ControlLoop:
 
     def retract(self, distance_m: float, duration_s: float = 0.4) -> RobotState:
         """Lift the TCP about ``distance_m`` [m] straight back along the tool axis (−tool z),
-        keeping its orientation, as a joint move of ``duration_s`` [s].
+        keeping its orientation, as a joint move of at least ``duration_s`` [s] (longer when a
+        joint would otherwise exceed the planner's speed).
 
         The joint goal is one damped least-squares step through the current Jacobian, not a full
         IK solve: IK prefers postures near home, and its answer for a pose a few cm away can
