@@ -192,3 +192,26 @@ def test_on_the_tec_bunny_an_agent_started_on_its_base_reaches_the_x():
         residual[max_bridge] = (ex.bridges_taken, ex.coverage_residual())
     assert residual[0.0] == (0, 1.0)
     assert residual[6.0][0] >= 1 and residual[6.0][1] < 0.3, residual
+
+
+def test_a_hop_keeps_the_agents_acceleration_limit(strips):
+    """A hop that starts across the agent's heading bends towards the chord: every step that
+    starts, continues or ends a hop changes the velocity by at most a_max·dt (the strips are
+    flat, so no transport between tangent planes). The agent starts on the rim running along it
+    at full speed; the old hop turned onto the chord at v_max in one step (on the TEC cup: up
+    to 1.9·a_max)."""
+    cloud, basis = strips
+    a_ratio = 0.25
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_acceleration=a_ratio))
+    a_dt = a_ratio * H  # a_max·dt [m/s] at dt = 1 s
+    ex.reset(np.array([14 * H, 0.03, 0.0]))
+    ex._agents[0].velocity = np.array([0.0, H, 0.0])  # along the rim at v_max
+    prev_v, hopping, checked = ex._agents[0].velocity.copy(), False, 0
+    for _ in range(300):
+        cmd = ex.step()
+        if hopping or ex.hopping():
+            assert np.linalg.norm(cmd.velocity - prev_v) <= a_dt * (1 + 1e-9)
+            checked += 1
+        hopping = ex.hopping()
+        prev_v = cmd.velocity
+    assert ex.bridges_taken >= 1 and checked >= 5

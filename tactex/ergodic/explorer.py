@@ -643,7 +643,9 @@ class HedacExplorer:
         """Move from x [m] (the agent, or the robot's measured point) along the chord towards the
         bridge's end, at most v_max·dt from x: the goal is x's projection on the chord advanced by
         v_max·dt, so an agent off the chord (a measured point above it, the unprojected agent at
-        the start) converges to it instead of drifting. On arrival the walk resumes from the end."""
+        the start) converges to it instead of drifting. The agent's limits hold on the hop too:
+        the velocity changes by at most a_max·dt per step, so a hop that starts across the
+        agent's heading first bends towards the chord. On arrival the walk resumes from the end."""
         chord = bridge.end - bridge.start
         length = float(np.sqrt(chord @ chord))
         t = bridge.share(x)
@@ -653,10 +655,13 @@ class HedacExplorer:
             goal = bridge.start + chord * (t + self._step_max / length)
         move = goal - x
         ml = float(np.sqrt(move @ move))
-        arrived = goal is bridge.end and ml <= self._step_max
         if ml > self._step_max:
             move *= self._step_max / ml
             ml = self._step_max
+        move, limited = self._limit_hop_acceleration(i, move)
+        if limited:
+            ml = float(np.sqrt(move @ move))
+        arrived = goal is bridge.end and not limited and float(np.sqrt((goal - x) @ (goal - x))) <= self._step_max
         x_new = x + move
         if arrived:
             x_new = bridge.end.copy()
@@ -672,6 +677,25 @@ class HedacExplorer:
         self._x[i] = x_new
         t1, t2 = _tangent_basis(nrm)
         return ExplorationCommand(x_new.copy(), v, nrm, t1, t2, self.step_count, i)
+
+    def _limit_hop_acceleration(self, i: int, move: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The hop's step ``move`` [m] with its velocity change from the agent's last velocity
+        clipped to a_max·dt (second-order agents; a first-order agent has no acceleration limit),
+        and whether it was clipped."""
+        agent = self._agents[i]
+        if self.config.order != 2:
+            return move, False
+        dt = self._dt
+        dv = move * (1.0 / dt) - agent.velocity
+        dvn = float(np.sqrt(dv @ dv))
+        a_dt = agent.max_acceleration * dt
+        if dvn <= a_dt * (1.0 + 1e-12):
+            return move, False
+        v = agent.velocity + dv * (a_dt / dvn)
+        vn = float(np.sqrt(v @ v))
+        if vn > agent.max_velocity:
+            v *= agent.max_velocity / vn
+        return v * dt, True
 
     # ------------------------------------------------------------------ coverage and potential
     def _add_coverage(self, fp: np.ndarray, phi: np.ndarray) -> None:
