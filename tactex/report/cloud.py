@@ -14,12 +14,16 @@ __all__ = ["plot_cloud"]
 
 
 def _equal_aspect(ax, points: np.ndarray) -> None:
+    """One metre is as long on every axis; each axis spans the data (at least a quarter of the
+    widest), so a flat plate is not drawn in a tall empty cube."""
     lo, hi = points.min(axis=0), points.max(axis=0)
-    centre, half = (lo + hi) / 2, max(float((hi - lo).max()) / 2, 1e-6)
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(centre[2] - half, centre[2] + half)
-    ax.set_box_aspect((1, 1, 1))
+    centre = (lo + hi) / 2
+    widest = max(float((hi - lo).max()) / 2, 1e-6)
+    half = np.maximum((hi - lo) / 2, 0.25 * widest)
+    ax.set_xlim(centre[0] - half[0], centre[0] + half[0])
+    ax.set_ylim(centre[1] - half[1], centre[1] + half[1])
+    ax.set_zlim(centre[2] - half[2], centre[2] + half[2])
+    ax.set_box_aspect(tuple(half.tolist()), zoom=1.15)
 
 
 def plot_cloud(
@@ -72,7 +76,7 @@ def plot_cloud(
             zorder=1,
         )
         if np.ptp(values) > 0:
-            fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.14)
+            fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16, orientation="horizontal")
         if traj is not None and traj.shape[0] > 0:
             ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=1.2, zorder=3)
             ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False, zorder=4)
@@ -88,5 +92,5 @@ def plot_cloud(
         fig.suptitle(title)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, format="png")
+    fig.savefig(out, format="png", bbox_inches="tight")  # 3-D axes leave wide empty margins
     return out
