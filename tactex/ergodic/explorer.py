@@ -349,7 +349,12 @@ class HedacExplorer:
             raise ExplorationError(
                 f"step() drives one agent but {self.n_agents} are running; call reset() first or use step_all()"
             )
-        return self.step_all(None if measured_position is None else np.asarray(measured_position)[None, :])[0]
+        if measured_position is not None:
+            return self.step_all(np.asarray(measured_position)[None, :])[0]
+        self._update_decay()  # step_all's open-loop path for one agent, without its list
+        cmd = self._step_agent(0, False)
+        self.step_count += 1
+        return cmd
 
     def step_all(self, measured_positions: np.ndarray | None = None) -> list[ExplorationCommand]:
         """One exploration step of every agent (they share the coverage, eq. 3)."""
