@@ -23,6 +23,7 @@ one thread), so CPU time ≈ wall time on an idle machine.
 
 from __future__ import annotations
 
+import functools
 import os
 import statistics
 import time
@@ -57,29 +58,22 @@ TARGETS = {
 }
 
 
-def _timed(fn, repeats: int) -> dict[str, float]:
-    """Wall-clock median and minimum and process-CPU median [s] of ``repeats`` calls."""
-    wall, cpu = [], []
+def _timed_each(fns, repeats: int) -> list[dict[str, float]]:
+    """Wall-clock median and minimum and process-CPU median [s] of ``repeats`` calls of each function,
+    their calls alternating (a, b, a, b, ...) so that a load swing of the shared machine hits all alike."""
+    runs = [([], []) for _ in fns]
     for _ in range(repeats):
-        c, t = time.process_time(), time.perf_counter()
-        fn()
-        wall.append(time.perf_counter() - t)
-        cpu.append(time.process_time() - c)
-    return {"s": statistics.median(wall), "min_s": min(wall), "cpu_s": statistics.median(cpu)}
-
-
-def _timed_pair(fn_a, fn_b, repeats: int) -> tuple[dict[str, float], dict[str, float]]:
-    """:func:`_timed` of two functions, their calls alternating (a, b, a, b, ...)."""
-    runs: tuple[dict, dict] = ({"wall": [], "cpu": []}, {"wall": [], "cpu": []})
-    for _ in range(repeats):
-        for fn, acc in zip((fn_a, fn_b), runs, strict=True):
+        for fn, (wall, cpu) in zip(fns, runs, strict=True):
             c, t = time.process_time(), time.perf_counter()
             fn()
-            acc["wall"].append(time.perf_counter() - t)
-            acc["cpu"].append(time.process_time() - c)
-    return tuple(
-        {"s": statistics.median(r["wall"]), "min_s": min(r["wall"]), "cpu_s": statistics.median(r["cpu"])} for r in runs
-    )
+            wall.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
+    return [{"s": statistics.median(wall), "min_s": min(wall), "cpu_s": statistics.median(cpu)} for wall, cpu in runs]
+
+
+def _timed(fn, repeats: int) -> dict[str, float]:
+    """:func:`_timed_each` of one function."""
+    return _timed_each((fn,), repeats)[0]
 
 
 def _put(res: dict, name: str, timing: dict[str, float]) -> None:
@@ -133,10 +127,9 @@ def run(args) -> dict:
         _put(res, "laplacian", _timed(lambda c=cloud: point_cloud_laplacian(c.points, N_NEIGHBORS), repeats))
         L, M = point_cloud_laplacian(cloud.points, N_NEIGHBORS)
         _put(res, "eigen100", _timed(lambda L=L, M=M: laplace_eigenpairs(L, M, 100), repeats))
-        ours100 = lambda c=cloud: build_basis(c, n_eigen=100, n_neighbors=N_NEIGHBORS, cache=False)  # noqa: E731
+        ours100 = functools.partial(build_basis, cloud, n_eigen=100, n_neighbors=N_NEIGHBORS, cache=False)
         if name == "bun270_X":
-            # Interleaved, so that a load swing of the shared machine hits both pipelines alike.
-            ours, authors = _timed_pair(ours100, lambda c=cloud: _authors_pipeline(c.points), repeats)
+            ours, authors = _timed_each((ours100, functools.partial(_authors_pipeline, cloud.points)), repeats)
             _put(res, "laplacian_eig100", ours)
             _put(res, "authors_laplacian_eig100", authors)
             res["speedup_vs_authors"] = res["authors_laplacian_eig100_s"] / res["laplacian_eig100_s"]

@@ -136,6 +136,29 @@ def test_agent_limits_are_never_exceeded(normal, direction, v_old, speed, v_max,
         assert abs(v @ n) <= 1e-8 * v_max + abs(transport(agent.velocity, n) @ n)
 
 
+@settings(max_examples=200, deadline=None)
+@given(wanted=_unit, w_speed=st.floats(0, 1), v_old=_unit, speed=st.floats(0, 1), a_ratio=st.floats(0.05, 3))
+def test_reachable_velocity_keeps_the_limits_and_reaches_what_it_can(wanted, w_speed, v_old, speed, a_ratio):
+    """A hop's velocity: a second-order agent changes its velocity by at most a_max·dt and stays
+    within v_max, and takes the wanted velocity as it is when that is within reach; a first-order
+    agent takes it as it is."""
+    v_max, dt = 3e-3, 0.5
+    a_max = a_ratio * v_max / dt
+    want = np.array(wanted) / np.linalg.norm(wanted) * w_speed * v_max
+    agent = SecondOrderAgent(v_max, a_max, dt)
+    agent.velocity = np.array(v_old) / np.linalg.norm(v_old) * speed * v_max
+    v, limited = agent.reachable_velocity(want)
+    assert np.linalg.norm(v - agent.velocity) <= a_max * dt * (1 + LIMIT_RTOL)
+    assert np.linalg.norm(v) <= v_max * (1 + LIMIT_RTOL)
+    assert limited == (np.linalg.norm(want - agent.velocity) > a_max * dt * (1 + 1e-12))
+    if not limited:
+        assert v is want
+    first = FirstOrderAgent(v_max, a_max, dt)
+    first.velocity = agent.velocity
+    v1, limited1 = first.reachable_velocity(want)
+    assert v1 is want and not limited1
+
+
 def test_transport_keeps_length_and_lands_in_the_plane(rng):
     v = rng.normal(size=3)
     n = rng.normal(size=3)

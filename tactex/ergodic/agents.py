@@ -48,6 +48,12 @@ class Agent(ABC):
         nv = float(np.sqrt(v @ v))
         return v * (self.max_velocity / nv) if nv > self.max_velocity else v
 
+    def reachable_velocity(self, wanted: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The velocity [m/s] (3,) nearest to ``wanted`` (within v_max) that this agent can take in one
+        step from its current one, for a move that is not the gradient's (a hop), and whether it
+        differs from ``wanted``. A first-order agent has no acceleration limit: ``wanted`` as it is."""
+        return wanted, False
+
 
 class FirstOrderAgent(Agent):
     """ẋ = v_max ĝ: full speed along the gradient."""
@@ -58,6 +64,16 @@ class FirstOrderAgent(Agent):
 
 class SecondOrderAgent(Agent):
     """ẍ = a_max ĝ (eq. 6 with the acceleration limit), then ‖ẋ‖ ≤ v_max."""
+
+    def reachable_velocity(self, wanted: np.ndarray) -> tuple[np.ndarray, bool]:
+        # the change clipped to a_max·dt, then ‖v‖ ≤ v_max (a projection onto the ball: it never
+        # lengthens the change)
+        dv = wanted - self.velocity
+        dvn = float(np.sqrt(dv @ dv))
+        a_dt = self.max_acceleration * self.dt
+        if dvn <= a_dt * (1.0 + 1e-12):
+            return wanted, False
+        return self._clip(self.velocity + dv * (a_dt / dvn)), True
 
     def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
         return np.array(self.command_velocity_floats(tuple(direction.tolist()), tuple(normal.tolist())))

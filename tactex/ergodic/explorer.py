@@ -349,12 +349,7 @@ class HedacExplorer:
             raise ExplorationError(
                 f"step() drives one agent but {self.n_agents} are running; call reset() first or use step_all()"
             )
-        if measured_position is not None:
-            return self.step_all(np.asarray(measured_position)[None, :])[0]
-        self._update_decay()  # step_all's open-loop path for one agent, without its list
-        cmd = self._step_agent(0, False)
-        self.step_count += 1
-        return cmd
+        return self.step_all(None if measured_position is None else np.asarray(measured_position)[None, :])[0]
 
     def step_all(self, measured_positions: np.ndarray | None = None) -> list[ExplorationCommand]:
         """One exploration step of every agent (they share the coverage, eq. 3)."""
@@ -585,7 +580,7 @@ class HedacExplorer:
         from it; the weighted plane (eq. 33's weights) has the spike's slope sign. Both fits are
         linear in the values, so the slope of (smooth part + spikes) is the sum of the two.
         """
-        src = self._s_ext.take(self._tpos.take(cand))
+        src = self._source_at(cand)
         if not src.any():
             return None
         kern = d2 * -self._eps2
@@ -611,8 +606,8 @@ class HedacExplorer:
         u_far = self._phi.take(far, 0).dot(self._coef)
         local = u
         if self._source_w > 0.0:
-            local = u + self._source_w * self._s_ext.take(self._tpos.take(nbr))
-            u_far += self._source_w * self._s_ext.take(self._tpos.take(far))
+            local = u + self._source_w * self._source_at(nbr)
+            u_far += self._source_w * self._source_at(far)
         k = int(u_far.argmax())
         if float(u_far[k]) <= float(local.max()) + u0:
             return None
@@ -660,13 +655,15 @@ class HedacExplorer:
             goal = bridge.start + chord * (t + self._step_max / length)
         move = goal - x
         ml = float(np.sqrt(move @ move))
+        arrived = goal is bridge.end and ml <= self._step_max
         if ml > self._step_max:
             move *= self._step_max / ml
             ml = self._step_max
-        move, limited = self._limit_hop_acceleration(i, move)
+        v, limited = self._agents[i].reachable_velocity(move * (1.0 / self._dt))
         if limited:
+            move = v * self._dt
             ml = float(np.sqrt(move @ move))
-        arrived = goal is bridge.end and not limited and float(np.sqrt((goal - x) @ (goal - x))) <= self._step_max
+            arrived = False
         x_new = x + move
         if arrived:
             x_new = bridge.end.copy()
@@ -683,26 +680,11 @@ class HedacExplorer:
         t1, t2 = _tangent_basis(nrm)
         return ExplorationCommand(x_new.copy(), v, nrm, t1, t2, self.step_count, i)
 
-    def _limit_hop_acceleration(self, i: int, move: np.ndarray) -> tuple[np.ndarray, bool]:
-        """The hop's step ``move`` [m] with its velocity change from the agent's last velocity
-        clipped to a_max·dt (second-order agents; a first-order agent has no acceleration limit),
-        and whether it was clipped."""
-        agent = self._agents[i]
-        if self.config.order != 2:
-            return move, False
-        dt = self._dt
-        dv = move * (1.0 / dt) - agent.velocity
-        dvn = float(np.sqrt(dv @ dv))
-        a_dt = agent.max_acceleration * dt
-        if dvn <= a_dt * (1.0 + 1e-12):
-            return move, False
-        v = agent.velocity + dv * (a_dt / dvn)
-        vn = float(np.sqrt(v @ v))
-        if vn > agent.max_velocity:
-            v *= agent.max_velocity / vn
-        return v * dt, True
-
     # ------------------------------------------------------------------ coverage and potential
+    def _source_at(self, idx: np.ndarray) -> np.ndarray:
+        """The source s of the last step at cloud points idx (zero off the target)."""
+        return self._s_ext.take(self._tpos.take(idx))
+
     def _add_coverage(self, fp: np.ndarray, phi: np.ndarray) -> None:
         """Footprint values phi at cloud points fp (no repeats) added to c̃ and its running sum (eq. 3)."""
         cov = self._cov
