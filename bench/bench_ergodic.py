@@ -5,7 +5,10 @@ built with 40 Laplacian neighbours (the authors' ``nb_boundary_neighbors``: the 
 connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II limits.
 
 * ``ergodic.<cloud>.step_time_median_s``: one full step (neighbours, fit, projection, coverage,
-  source, diffusion, gradient, agent), median over ``STEPS_TIMED`` steps from the first start.
+  source, diffusion, gradient, agent), median over ``STEPS_TIMED`` steps from the first start, as
+  the explorer runs by default: compiled by numba when the ``fast`` extra is installed
+  (``step_kernel`` says which ran, ``compiled_share`` the share of steps the kernel took; the rest
+  fell back to numpy). ``step_time_median_numpy_s`` is the same steps with ``compiled=False``.
 * ``ergodic.<cloud>.residual_at_path_m``: coverage residual (the authors' metric) when the agent
   has travelled 0.5 / 1 / 2 m on the surface, mean of the ten starts ``*_x0_arr_10.npz``;
   ``ratio_to_authors`` divides by the authors' released implementation (issue 2's figures);
@@ -142,6 +145,18 @@ def _quality(ex: HedacExplorer, starts: np.ndarray, name: str) -> dict:
     }
 
 
+def _step_times(ex: HedacExplorer, x0: np.ndarray, steps: int) -> np.ndarray:
+    """Wall time [s] of each of ``steps`` steps from x0 (the explorer is built, and its compiled
+    step made or loaded, before the first)."""
+    ex.reset(x0)
+    times = np.empty(steps)
+    for k in range(steps):
+        t0 = time.perf_counter()
+        ex.step()
+        times[k] = time.perf_counter() - t0
+    return times
+
+
 def run(args) -> dict:
     if not DATA.is_dir():
         print(f"   skipped: {DATA} not found (the TEC clouds live in ../shared/data)")
@@ -154,14 +169,17 @@ def run(args) -> dict:
         basis = build_basis(cloud, n_eigen=200, n_neighbors=40, cache=False)
         radius = 0.015 if name.startswith("plate") else 0.0075
         ex = HedacExplorer(cloud, basis, HedacConfig(agent_radius_m=radius))
-        ex.reset(x0[0])
-        times = np.empty(STEPS_TIMED // (4 if quick else 1))
-        for k in range(times.size):
-            t0 = time.perf_counter()
-            ex.step()
-            times[k] = time.perf_counter() - t0
+        n_timed = STEPS_TIMED // (4 if quick else 1)
+        times = _step_times(ex, x0[0], n_timed)
+        numpy_times = _step_times(ex.with_config(compiled=False), x0[0], n_timed)
         starts = x0[:3] if quick else x0
-        res = {"step_time_median_s": float(np.median(times)), "step_time_p90_s": float(np.percentile(times, 90))}
+        res = {
+            "step_time_median_s": float(np.median(times)),
+            "step_time_p90_s": float(np.percentile(times, 90)),
+            "step_kernel": "numba" if ex.compiled_steps else "numpy",
+            "compiled_share": ex.compiled_steps / n_timed,
+            "step_time_median_numpy_s": float(np.median(numpy_times)),
+        }
         res.update(_quality(ex, starts, name))
         res["start_gap_voxels"] = _start_gaps(cloud, starts)
         res["variants"] = {
@@ -177,4 +195,8 @@ def run(args) -> dict:
         vals = "/".join(f"{v:.3f}" for v in r.values())
         ratios = "/".join(f"{v:.2f}" for v in q.values())
         print(f"   {name:13s} {label:10s} {vals:24s} {'/'.join(f'{v:.2f}' for v in a):18s} {ratios:16s} {parked:.2f}")
+    print(f"   {'cloud':13s} step median: default (which kernel, share compiled)   numpy")
+    for name, r in out.items():
+        print(f"   {name:13s} {r['step_time_median_s'] * 1e3:.3f} ms ({r['step_kernel']}, {r['compiled_share']:.0%})"
+              f"{'':22s} {r['step_time_median_numpy_s'] * 1e3:.3f} ms")
     return {"ergodic": out}

@@ -39,17 +39,20 @@ in contact, and a silent snap would hide it); nearer ones are projected onto the
 
 from __future__ import annotations
 
+import logging
+import warnings
 from dataclasses import replace
 
 import numpy as np
 from scipy.linalg.lapack import dposv as _dposv
 from scipy.spatial import cKDTree
 
+from tactex.ergodic import kernel as _kernel
 from tactex.ergodic.agents import Agent, make_agent
 from tactex.ergodic.bridges import Bridge, gap_links
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
-from tactex.ergodic.gradient import CUBIC_EXPONENTS, RIDGE_RTOL
+from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTOL
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
@@ -57,6 +60,7 @@ from tactex.pointcloud import SurfaceCloud
 
 __all__ = ["HedacExplorer"]
 
+_log = logging.getLogger(__name__)
 _Z = np.array([0.0, 0.0, 1.0])
 # ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
 # these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
@@ -70,8 +74,12 @@ _CUBE_A, _CUBE_B = np.array([0, 0, 2, 2]), np.array([0, 1, 0, 1])
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
-#: Relative Cholesky pivot below which the source's plane fit is rank-deficient (collinear neighbours).
-_PIVOT_RTOL = 1e-10
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    view = a.view()
+    view.setflags(write=False)
+    return view
 
 
 def _tangent_matrix(n: np.ndarray | tuple) -> np.ndarray:
@@ -108,12 +116,12 @@ def _plane_slope(a00: float, a01: float, a02: float, a11: float, a12: float, a22
     l00 = a00**0.5
     l10, l20 = a01 / l00, a02 / l00
     p11 = a11 - l10 * l10
-    if p11 <= _PIVOT_RTOL * a11:
+    if p11 <= PLANE_PIVOT_RTOL * a11:
         return None
     l11 = p11**0.5
     l21 = (a12 - l20 * l10) / l11
     p22 = a22 - l20 * l20 - l21 * l21
-    if p22 <= _PIVOT_RTOL * a22:
+    if p22 <= PLANE_PIVOT_RTOL * a22:
         return None
     l22 = p22**0.5
     y0 = b0 / l00
@@ -188,8 +196,10 @@ class HedacExplorer:
         k = self.config.n_eigen
         self.cloud = cloud
         self.basis = basis
-        self._points = cloud.points
-        self._phi = np.ascontiguousarray(evecs[:, :k])
+        # Read-only views whatever the caller's arrays: the compiled step is typed by its arguments'
+        # flags too, and one set of types means one compilation.
+        self._points = _read_only(cloud.points)
+        self._phi = _read_only(np.ascontiguousarray(evecs[:, :k]))
         self._mass = np.asarray(basis.mass, dtype=np.float64)
         self._evals = np.asarray(basis.evals, dtype=np.float64)[:k]
         self.spacing = float(getattr(basis, "spacing", 0.0) or cloud.spacing)
@@ -230,11 +240,20 @@ class HedacExplorer:
         self._decay_alpha = np.nan
         self._decay = np.ones(k)
         self._set_target(cloud.target)
+        self._kernel_out = np.empty(_kernel.OUT_SIZE)
+        self._kernel_prm = _kernel.params(
+            agent_radius_m=self._r_a, eps2=self._eps2, source_weight=self._source_w,
+            max_acceleration=cfg.max_acceleration * self.spacing / self._dt**2, max_velocity=self._v_max,
+            max_step_m=self._step_max, dt=self._dt, max_off_m=self._off, edge_offset=EDGE_OFFSET,
+            normalize_by_target=self._norm_target, order=cfg.order,
+        )
+        self._walk_kernel = self._compile_kernel() if cfg.compiled else None
         self._agents: list[Agent] = []
         self._x = np.zeros((0, 3))
         self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
         self.step_count = 0
         self.bridges_taken = 0
+        self.compiled_steps = 0  # agent steps the compiled kernel took (the rest ran in numpy)
 
     # ------------------------------------------------------------------ target and state
     def _set_target(self, mass: np.ndarray) -> None:
@@ -291,6 +310,7 @@ class HedacExplorer:
         self._bridges = [None] * x.shape[0]
         self.path_lengths = np.zeros(x.shape[0])
         self.bridges_taken = 0
+        self.compiled_steps = 0
         self._near = np.zeros(x.shape[0], dtype=np.intp)
         self.step_count = 0
         out = []
@@ -338,6 +358,11 @@ class HedacExplorer:
             self._s_ext[:] = 0.0
 
     # ------------------------------------------------------------------ stepping
+    @property
+    def compiled(self) -> bool:
+        """Whether the walking steps run compiled (numba, :mod:`.kernel`) rather than in numpy."""
+        return self._walk_kernel is not None
+
     @property
     def n_agents(self) -> int:
         return len(self._agents)
@@ -407,10 +432,14 @@ class HedacExplorer:
         # distances dd instead of recomputing them (|d − s|² = dd − 2 d·s + |s|²).
         if self._bridges[i] is not None:
             return self._bridge_step(i)
-        pts = self._points
         x = self._x[i]
-        n_n = self._n_n
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
+        if self._walk_kernel is not None:
+            cmd = self._compiled_step(i, x, cand)
+            if cmd is not None:
+                return cmd
+        pts = self._points
+        n_n = self._n_n
         d = pts.take(cand, 0)  # take, not fancy indexing: same values, a fraction of the dispatch
         d -= x
         sx, sy, sz = (d * d).T
@@ -562,6 +591,52 @@ class HedacExplorer:
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
+
+    def _compile_kernel(self):
+        """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.
+
+        It is called once here on a dummy state of this explorer's array types: numba makes (or loads
+        from its cache) the machine code now, not in the middle of the first step of a control loop.
+        """
+        if not _kernel.available():
+            return None
+        n, k = len(self._points), self._phi.shape[1]
+        try:
+            fn = _kernel.compiled_walk_step()
+            if not fn.signatures:  # the first explorer of this process: numba compiles or loads its cache
+                _log.info("preparing the compiled exploration step (compiled once per installation, ~10 s)")
+            fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),
+               np.zeros(n), 0.0, self._tidx, self._tpos, self._p_t, self._phitm_t, np.zeros(k),
+               np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._kernel_prm,
+               np.empty(_kernel.OUT_SIZE))
+        except Exception as exc:  # numba's import, typing or compilation: numpy still works
+            warnings.warn(f"the compiled exploration step is unavailable, running numpy ({type(exc).__name__}: "
+                          f"{exc})", RuntimeWarning, stacklevel=3)
+            return None
+        return fn
+
+    def _compiled_step(self, i: int, x: np.ndarray, cand: np.ndarray) -> ExplorationCommand | None:
+        """The walking step of agent i compiled (:mod:`.kernel`), or None (nothing changed) for a
+        case the kernel leaves to the numpy step: a degenerate fit, a scan edge with a hop across a
+        hole in reach, or a vanishing gradient."""
+        agent = self._agents[i]
+        out = self._kernel_out
+        status = self._walk_kernel(
+            self._points, cand, x, np.array(self._nrm_t[i]), agent.velocity, self._cov, self._cov_sum,
+            self._tidx, self._tpos, self._p_t, self._phitm_t, self._coef, self._s_ext, self._decay, self._phi,
+            self._gaps.has, self._n_n, self._kernel_prm, out,
+        )
+        if status != _kernel.OK:
+            return None
+        self.compiled_steps += 1
+        o = out.copy()  # the command, the agent and the explorer keep views of this one copy
+        agent.velocity = o[15:18]
+        self.path_lengths[i] = self.path_lengths.item(i) + o.item(18)
+        self._near[i] = int(o.item(19))
+        self._cov_sum = o.item(20)
+        self._nrm_t[i] = tuple(o[6:9].tolist())
+        self._x[i] = o[:3]
+        return ExplorationCommand(o[:3], o[3:6], o[6:9], o[9:12], o[12:15], self.step_count, i)
 
     def _source_slope(self, cand: np.ndarray, g1uv: np.ndarray, d2: np.ndarray) -> tuple[float, float] | None:
         """Slope (c_u, c_v) [1/m] of the plane through the raw source over the candidate ball

@@ -22,6 +22,8 @@ _DEG = _I + _J
 #: Ridge relative to the trace of the normal matrix: keeps a rank-deficient fit (collinear or
 #: fewer than 10 neighbours) finite without biasing a well-posed one beyond ~1e-12.
 RIDGE_RTOL = 1e-12
+#: Relative Cholesky pivot below which the source's weighted plane fit is rank-deficient (collinear points).
+PLANE_PIVOT_RTOL = 1e-10
 
 
 def cubic_features(u: np.ndarray, v: np.ndarray) -> np.ndarray:

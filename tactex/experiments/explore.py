@@ -245,6 +245,7 @@ def run_explore(
         progress: called with one-line progress messages (e.g. print to stderr).
     """
     from tactex.ergodic import HedacExplorer
+    from tactex.ergodic.kernel import available as kernel_available
     from tactex.spectral import build_basis
 
     cfg = config if config is not None else ExploreConfig()
@@ -264,9 +265,14 @@ def run_explore(
     t0 = time.perf_counter()
     basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache)
     basis_s = time.perf_counter() - t0
+    say(f"basis: {basis_s:.3f} s ({basis.n_components} connected part(s))")
+    if hcfg.compiled and kernel_available():
+        say("explorer: preparing the compiled step (numba compiles it once per installation, ~10 s) ...")
+    t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg)
+    setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
-    say(f"basis: {preprocess_s:.3f} s ({basis.n_components} connected part(s))")
+    say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
     labels = basis.component_labels()
     sizes = np.bincount(labels)
     if basis.n_components > 1:
@@ -313,7 +319,9 @@ def run_explore(
         "start_part_has_target": start_part_target > 0,
         "load_time_s": load_s,
         "basis_time_s": basis_s,
+        "explorer_setup_time_s": setup_s,
         "preprocess_time_s": preprocess_s,
+        "step_kernel": "numba" if explorer.compiled else "numpy",
         "basis_from_cache": basis.from_cache,
         "step_time_median_s": statistics.median(step_s.tolist()),
         "step_time_max_s": float(step_s.max()),

@@ -1,0 +1,510 @@
+"""The explorer's walking step compiled with numba (the optional ``fast`` extra).
+
+:class:`~tactex.ergodic.explorer.HedacExplorer` runs one exploration step as about a hundred
+small numpy calls (20 neighbours, a 5 × 5 and a 10 × 10 system, a ~200-row projection): their
+dispatch, not their arithmetic, is most of its 0.17–0.30 ms. This module does the same
+operations in one compiled function, in the same order: the neighbourhood, the sphere/plane fit
+(eq. 23–26), the projection (eq. 27) and tangent basis, the footprint (eq. 30–31) and coverage
+(eq. 3), the source (eq. 1–2) and one step of spectral diffusion (eq. 19), the weighted cubic
+(eq. 32–33), the slope of the raw source, the scan-edge rule, the agent (eq. 6, Table II limits),
+the landing on the fitted patch and the off-cloud and step-length limits. The numpy step stays
+the reference: the tests check, state by state, that both give the same step to round-off.
+
+Rare cases are not compiled; the kernel returns a status and leaves every piece of state as it
+found it, and the explorer runs the numpy step instead:
+
+* ``DEGENERATE``: the neighbourhood is a line, a point, a circle or an imaginary sphere (the
+  numpy fit's special patches), or the agent sits at the sphere's centre;
+* ``EDGE_GAP``: the agent is at a scan edge whose points have a link across a scan hole (the hop
+  planner of :mod:`.bridges` decides);
+* ``FLAT``: the gradient vanishes or the cubic's system is singular (a random heading is drawn).
+
+Compilation takes ~10 s once; numba caches the machine code next to this file (its own
+``__pycache__`` files, like Python's bytecode cache) so later processes load it in well under a
+second. Without numba (:func:`available` is False) the explorer uses numpy alone.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+
+from tactex.ergodic.gradient import PLANE_PIVOT_RTOL, RIDGE_RTOL
+from tactex.geometry.fit import DEGENERACY_RTOL, MAX_RADIUS_RATIO
+
+__all__ = ["DEGENERATE", "EDGE_GAP", "FLAT", "OK", "OUT_SIZE", "available", "compiled_walk_step", "params"]
+
+#: Statuses of :func:`walk_step`.
+OK, DEGENERATE, EDGE_GAP, FLAT = 0, 1, 2, 3
+#: Length of walk_step's ``out``: x_new (3), velocity (3), normal (3), t_u (3), t_v (3),
+#: agent velocity (3), step length, nearest point, coverage sum.
+OUT_SIZE = 21
+
+
+# Positions in walk_step's parameter array (module constants: numba folds them into the code).
+_R_A2, _EPS2, _SOURCE_W, _A_DT, _V_MAX, _DT, _STEP_MAX, _OFF2, _OFF, _EDGE, _NORM_TARGET, _ORDER = range(12)
+
+
+def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acceleration: float,
+           max_velocity: float, max_step_m: float, dt: float, max_off_m: float, edge_offset: float,
+           normalize_by_target: bool, order: int) -> np.ndarray:
+    """walk_step's parameter array, in SI units: footprint radius [m] and kernel ε² [1/m²], weight
+    of the raw source's slope, the agent's limits [m/s², m/s], the longest step [m] and the step
+    duration [s], farthest distance from the nearest cloud point [m], the scan-edge centroid
+    threshold [neighbourhood radii], the coverage normalisation (True = over the target's support)
+    and the agent's order (1 or 2)."""
+    prm = np.empty(12)
+    prm[_R_A2] = agent_radius_m**2
+    prm[_EPS2] = eps2
+    prm[_SOURCE_W] = source_weight
+    prm[_A_DT] = max_acceleration * dt
+    prm[_V_MAX] = max_velocity
+    prm[_DT] = dt
+    prm[_STEP_MAX] = max_step_m
+    prm[_OFF2] = max_off_m**2
+    prm[_OFF] = max_off_m
+    prm[_EDGE] = edge_offset
+    prm[_NORM_TARGET] = 1.0 if normalize_by_target else 0.0
+    prm[_ORDER] = float(order)
+    return prm
+
+
+def _project(kind, c0, c1, c2, rad, pn0, pn1, pn2, x0, x1, x2, r0, r1, r2):
+    """Closest point of a sphere (kind 0: centre c, radius rad) or plane (kind 1: point c, unit
+    normal pn) to x and the normal there, oriented along r; ok = False at a sphere's centre."""
+    if kind == 0:
+        ux, uy, uz = x0 - c0, x1 - c1, x2 - c2
+        nu = (ux * ux + uy * uy + uz * uz) ** 0.5
+        if nu > 1e-12 * rad:
+            sgn = 1.0 / nu if ux * r0 + uy * r1 + uz * r2 >= 0.0 else -1.0 / nu
+            k = rad / nu
+            return True, c0 + k * ux, c1 + k * uy, c2 + k * uz, ux * sgn, uy * sgn, uz * sgn
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    h = (x0 - c0) * pn0 + (x1 - c1) * pn1 + (x2 - c2) * pn2
+    sgn = 1.0 if pn0 * r0 + pn1 * r1 + pn2 * r2 >= 0.0 else -1.0
+    return True, x0 - h * pn0, x1 - h * pn1, x2 - h * pn2, sgn * pn0, sgn * pn1, sgn * pn2
+
+
+def _nearest(dd, k):
+    """Indices of the k smallest values of dd, ascending (k ≪ len(dd): an insertion list)."""
+    idx = np.empty(k, dtype=np.int64)
+    val = np.empty(k)
+    n = 0
+    for j in range(dd.shape[0]):
+        v = dd[j]
+        if n == k and v >= val[k - 1]:
+            continue
+        pos = n if n < k else k - 1
+        while pos > 0 and val[pos - 1] > v:
+            if pos < k:
+                val[pos] = val[pos - 1]
+                idx[pos] = idx[pos - 1]
+            pos -= 1
+        val[pos] = v
+        idx[pos] = j
+        if n < k:
+            n += 1
+    return idx
+
+
+def _restore(cov, fp, fp_old, coef, coef_old):
+    for r in range(fp.shape[0]):
+        cov[fp[r]] = fp_old[r]
+    coef[:] = coef_old
+
+
+def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, coef, s_ext, decay, phi,
+               gap_has, n_n, prm, out):
+    """One walking step of one agent; see the module doc. Mutates cov, coef, s_ext (and out) on OK only.
+
+    Args:
+        pts: (N, 3) cloud [m]. cand: candidate point indices around the agent (its ball).
+        x, nrm, vel: the agent's position [m], last unit normal and velocity [m/s] (3,) each.
+        cov, cov_sum: accumulated footprint c̃ (N,) and its sum. tidx, tpos, p_t: target rows, the
+            row of each cloud point (−1 off the target), normalised target on them.
+        phitm_t: (T, K) rows of Φᵀ M on the target; coef: (K,) spectral coefficients of the
+            potential; s_ext: (T + 1,) source with a trailing 0; decay: (K,) exp(−λ δt); phi: (N, K) Φ.
+        gap_has: (N,) bool, point has a link across a scan hole. n_n: neighbours of the fits.
+        prm: parameters, see :func:`params`. out: (OUT_SIZE,) results on OK.
+    """
+    m = cand.shape[0]
+    if m < n_n:  # never from the explorer's balls; compiled code has no bounds checks, so refuse
+        return DEGENERATE
+    d = np.empty((m, 3))
+    dd = np.empty(m)
+    x0, x1, x2 = x[0], x[1], x[2]
+    jmin = 0
+    for j in range(m):
+        c = cand[j]
+        a0, a1, a2 = pts[c, 0] - x0, pts[c, 1] - x1, pts[c, 2] - x2
+        d[j, 0], d[j, 1], d[j, 2] = a0, a1, a2
+        dd[j] = a0 * a0 + a1 * a1 + a2 * a2
+        if dd[j] < dd[jmin]:
+            jmin = j
+    part = _nearest(dd, n_n)
+    scale2 = dd[part[n_n - 1]]
+    scale = scale2**0.5 if scale2 > 0.0 else 1.0
+    inv = 1.0 / scale
+
+    # Sphere/plane fit (eq. 23–26): smallest eigenvector of WᵀW, rows (q, −1, −½|q|²), q = d / scale.
+    B = np.zeros((5, 5))
+    w = np.empty(5)
+    h2 = -0.5 * inv * inv
+    for r in range(n_n):
+        j = part[r]
+        w[0], w[1], w[2], w[3], w[4] = d[j, 0] * inv, d[j, 1] * inv, d[j, 2] * inv, -1.0, dd[j] * h2
+        for a in range(5):
+            for b in range(a, 5):
+                B[a, b] += w[a] * w[b]
+    for a in range(5):
+        for b in range(a):
+            B[a, b] = B[b, a]
+    ev, vecs = np.linalg.eigh(B)
+    if ev[1] <= DEGENERACY_RTOL * ev[4]:
+        return DEGENERATE
+    v0x, v1x, v2x, vinf, v0 = vecs[0, 0], vecs[1, 0], vecs[2, 0], vecs[3, 0], vecs[4, 0]
+    nv = (v0x * v0x + v1x * v1x + v2x * v2x) ** 0.5
+    px = py = pz = 0.0
+    if abs(v0) * MAX_RADIUS_RATIO > nv:
+        kind = 0
+        cx, cy, cz = v0x / v0, v1x / v0, v2x / v0
+        rr2 = cx * cx + cy * cy + cz * cz - 2.0 * vinf / v0
+        if rr2 <= 0.0:
+            return DEGENERATE
+        rad = rr2**0.5
+    else:
+        if nv == 0.0:
+            return DEGENERATE
+        kind = 1
+        px, py, pz = v0x / nv, v1x / nv, v2x / nv
+        o = vinf / nv
+        cx, cy, cz = o * px, o * py, o * pz
+        rad = np.inf
+    ok, p0, p1, p2, n0, n1, n2 = _project(kind, cx, cy, cz, rad, px, py, pz, 0.0, 0.0, 0.0, nrm[0], nrm[1], nrm[2])
+    if not ok:
+        return DEGENERATE
+    sf0, sf1, sf2 = p0 * scale, p1 * scale, p2 * scale  # the projected agent, agent-centred [m]
+    # Tangent basis (t_u, t_v, n) right-handed, as the explorer's _tangent_matrix.
+    if abs(n0) < 0.9:
+        t0, t1, t2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
+    else:
+        t0, t1, t2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
+    it = 1.0 / (t0 * t0 + t1 * t1 + t2 * t2) ** 0.5
+    t0, t1, t2 = t0 * it, t1 * it, t2 * it
+    s0, s1, s2 = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
+
+    # Every candidate on the tangent plane at the projected agent: (u, v) [m] and squared 3D distance.
+    gu = np.empty(m)
+    gv = np.empty(m)
+    d2 = np.empty(m)
+    for j in range(m):
+        e0, e1, e2 = d[j, 0] - sf0, d[j, 1] - sf1, d[j, 2] - sf2
+        gu[j] = e0 * t0 + e1 * t1 + e2 * t2
+        gv[j] = e0 * s0 + e1 * s1 + e2 * s2
+        d2[j] = e0 * e0 + e1 * e1 + e2 * e2
+    # Scan edge: the neighbours' centroid (in neighbourhood radii) is well inside.
+    cu = cv = 0.0
+    for r in range(n_n):
+        cu += gu[part[r]] * inv
+        cv += gv[part[r]] * inv
+    cn = (cu * cu + cv * cv) ** 0.5
+    at_edge = cn > prm[_EDGE] * n_n
+    if at_edge:
+        for r in range(n_n):
+            if gap_has[cand[part[r]]]:
+                return EDGE_GAP  # before any state changes: the hop planner runs in numpy
+
+    # Footprint and coverage (eq. 30–31, eq. 3); the old values are kept for a fallback.
+    eps2 = prm[_EPS2]
+    n_fp = 0
+    fp = np.empty(m, dtype=np.int64)
+    fp_old = np.empty(m)
+    for j in range(m):
+        if d2[j] <= prm[_R_A2]:
+            k = np.exp(-eps2 * (gu[j] * gu[j] + gv[j] * gv[j]))
+            c = cand[j]
+            fp[n_fp] = c
+            fp_old[n_fp] = cov[c]
+            n_fp += 1
+            cov[c] += k
+            cov_sum += k
+    fp = fp[:n_fp]
+    fp_old = fp_old[:n_fp]
+    coef_old = coef.copy()
+
+    # Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19).
+    T = tidx.shape[0]
+    K = coef.shape[0]
+    if prm[_NORM_TARGET] > 0.0:
+        norm = 0.0
+        for r in range(T):
+            norm += cov[tidx[r]]
+    else:
+        norm = cov_sum
+    tot = 0.0
+    if norm > 0.0:
+        ni = -1.0 / norm
+        for r in range(T):
+            z = cov[tidx[r]] * ni + p_t[r]
+            z = z * z if z > 0.0 else 0.0
+            s_ext[r] = z
+            tot += z
+    else:
+        for r in range(T):
+            s_ext[r] = p_t[r] * p_t[r]
+            tot += s_ext[r]
+    if tot > 0.0:
+        ti = 1.0 / tot
+        for r in range(T):
+            z = s_ext[r] * ti
+            s_ext[r] = z
+            if z != 0.0:  # covered target points have no source: their rows cost nothing
+                for k in range(K):
+                    coef[k] += z * phitm_t[r, k]
+    for k in range(K):
+        coef[k] *= decay[k]
+
+    # Gradient on the tangent plane (eq. 32–33): weighted cubic through the potential at the
+    # neighbours, in (u, v) scaled by the neighbourhood radius; its linear terms are the slope.
+    A = np.zeros((10, 10))
+    rhs = np.zeros(10)
+    X = np.empty(10)
+    ws = -eps2 * scale2
+    u0 = 0.0
+    for r in range(n_n):
+        j = part[r]
+        c = cand[j]
+        un = 0.0
+        for k in range(K):
+            un += phi[c, k] * coef[k]
+        if r == 0:
+            u0 = un  # any constant: the cubic's own constant term absorbs it
+        u, v = gu[j] * inv, gv[j] * inv
+        uu, vv = u * u, v * v
+        X[0], X[1], X[2], X[3], X[4] = 1.0, u, v, uu, u * v
+        X[5], X[6], X[7], X[8], X[9] = vv, uu * u, uu * v, vv * u, vv * v
+        wt = np.exp(ws * (uu + vv))
+        y = (un - u0) * wt
+        for a in range(10):
+            xa = X[a] * wt
+            rhs[a] += X[a] * y
+            for b in range(a, 10):
+                A[a, b] += xa * X[b]
+    ridge = RIDGE_RTOL * A[0, 0] + 1e-300
+    # Cholesky of the (upper) normal matrix with the ridge on its diagonal.
+    L = np.zeros((10, 10))
+    for a in range(10):
+        acc = A[a, a] + ridge
+        for k in range(a):
+            acc -= L[a, k] * L[a, k]
+        if acc <= 0.0:
+            _restore(cov, fp, fp_old, coef, coef_old)
+            return FLAT
+        la = acc**0.5
+        L[a, a] = la
+        for b in range(a + 1, 10):
+            acc2 = A[a, b]
+            for k in range(a):
+                acc2 -= L[b, k] * L[a, k]
+            L[b, a] = acc2 / la
+    y = np.empty(10)
+    for a in range(10):
+        acc = rhs[a]
+        for k in range(a):
+            acc -= L[a, k] * y[k]
+        y[a] = acc / L[a, a]
+    coefs = np.empty(10)
+    for a in range(9, -1, -1):
+        acc = y[a]
+        for k in range(a + 1, 10):
+            acc -= L[k, a] * coefs[k]
+        coefs[a] = acc / L[a, a]
+    su, sv = coefs[1], coefs[2]
+
+    # The raw source's weighted plane over the whole ball (the explorer's _source_slope).
+    if prm[_SOURCE_W] > 0.0:
+        any_src = False
+        a00 = a01 = a02 = a11 = a12 = a22 = b0 = b1 = b2 = 0.0
+        for j in range(m):
+            t = tpos[cand[j]]
+            sj = s_ext[t] if t >= 0 else 0.0
+            kk = np.exp(-eps2 * d2[j])
+            u, v = gu[j], gv[j]
+            if sj != 0.0:
+                any_src = True
+                b0 += sj * kk
+                b1 += sj * kk * u
+                b2 += sj * kk * v
+            a00 += kk
+            a01 += kk * u
+            a02 += kk * v
+            a11 += kk * u * u
+            a12 += kk * u * v
+            a22 += kk * v * v
+        if any_src and b0 > 0.0 and a00 > 0.0:
+            l00 = a00**0.5
+            l10, l20 = a01 / l00, a02 / l00
+            p11 = a11 - l10 * l10
+            if p11 > PLANE_PIVOT_RTOL * a11:
+                l11 = p11**0.5
+                l21 = (a12 - l20 * l10) / l11
+                p22 = a22 - l20 * l20 - l21 * l21
+                if p22 > PLANE_PIVOT_RTOL * a22:
+                    l22 = p22**0.5
+                    y0 = b0 / l00
+                    y1 = (b1 - l10 * y0) / l11
+                    c_v = (b2 - l20 * y0 - l21 * y1) / l22 / l22
+                    c_u = (y1 - l21 * c_v) / l11
+                    kw = prm[_SOURCE_W] * scale
+                    su += kw * c_u
+                    sv += kw * c_v
+    g0, g1, g2 = t0 * su + s0 * sv, t1 * su + s1 * sv, t2 * su + s2 * sv
+    if at_edge:  # Neumann boundary: no outward flux, drop the gradient's outward part
+        i0, i1, i2 = (t0 * cu + s0 * cv) / cn, (t1 * cu + s1 * cv) / cn, (t2 * cu + s2 * cv) / cn
+        go = g0 * i0 + g1 * i1 + g2 * i2
+        if go < 0.0:
+            g0, g1, g2 = g0 - go * i0, g1 - go * i1, g2 - go * i2
+    gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5
+    if not (gn > 0.0 and gn < np.inf):
+        _restore(cov, fp, fp_old, coef, coef_old)
+        return FLAT
+    k = 1.0 / gn
+    e0, e1, e2 = g0 * k, g1 * k, g2 * k
+
+    # The agent (eq. 6): first order = full speed along ĝ; second order = its velocity carried to
+    # this tangent plane (length kept) plus a_max·dt along ĝ; then ‖v‖ ≤ v_max.
+    v_max = prm[_V_MAX]
+    if prm[_ORDER] == 1.0:
+        q0, q1, q2 = v_max * e0, v_max * e1, v_max * e2
+    else:
+        w0, w1, w2 = vel[0], vel[1], vel[2]
+        vn = w0 * n0 + w1 * n1 + w2 * n2
+        q0, q1, q2 = w0 - vn * n0, w1 - vn * n1, w2 - vn * n2
+        nt2 = q0 * q0 + q1 * q1 + q2 * q2
+        if nt2 > 1e-300:
+            kk = ((w0 * w0 + w1 * w1 + w2 * w2) / nt2) ** 0.5
+            q0, q1, q2 = q0 * kk, q1 * kk, q2 * kk
+        a_dt = prm[_A_DT]
+        q0, q1, q2 = q0 + a_dt * e0, q1 + a_dt * e1, q2 + a_dt * e2
+    nw = (q0 * q0 + q1 * q1 + q2 * q2) ** 0.5
+    if nw > v_max:
+        kk = v_max / nw
+        q0, q1, q2 = q0 * kk, q1 * kk, q2 * kk
+
+    # Landing on the fitted patch; past the cloud's edge the outward part of the velocity goes.
+    dt, off2 = prm[_DT], prm[_OFF2]
+    dq2 = np.empty(m)
+    ok, st0, st1, st2, m0, m1, m2, ss, kmin = _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2,
+                                                    q0, q1, q2, n0, n1, n2, scale, dt, d, dd, dq2)
+    if not ok:
+        _restore(cov, fp, fp_old, coef, coef_old)
+        return DEGENERATE
+    if dq2[kmin] > off2:
+        o0, o1, o2 = st0 - d[kmin, 0], st1 - d[kmin, 1], st2 - d[kmin, 2]
+        on = o0 * n0 + o1 * n1 + o2 * n2
+        o0, o1, o2 = o0 - on * n0, o1 - on * n1, o2 - on * n2
+        no = (o0 * o0 + o1 * o1 + o2 * o2) ** 0.5
+        if no > 0.0:
+            o0, o1, o2 = o0 / no, o1 / no, o2 / no
+            vo = max(q0 * o0 + q1 * o1 + q2 * o2, 0.0)
+            q0, q1, q2 = q0 - vo * o0, q1 - vo * o1, q2 - vo * o2
+            ok, st0, st1, st2, m0, m1, m2, ss, kmin = _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2,
+                                                            q0, q1, q2, n0, n1, n2, scale, dt, d, dd, dq2)
+            if not ok:
+                _restore(cov, fp, fp_old, coef, coef_old)
+                return DEGENERATE
+        if dq2[kmin] > off2:  # still out: within max_off_cloud of the nearest point
+            f = prm[_OFF] / dq2[kmin] ** 0.5
+            st0 = d[kmin, 0] + (st0 - d[kmin, 0]) * f
+            st1 = d[kmin, 1] + (st1 - d[kmin, 1]) * f
+            st2 = d[kmin, 2] + (st2 - d[kmin, 2]) * f
+            ss = st0 * st0 + st1 * st1 + st2 * st2
+    sl = ss**0.5
+    step_max = prm[_STEP_MAX]
+    if sl > step_max:
+        f = step_max / sl
+        st0, st1, st2 = st0 * f, st1 * f, st2 * f
+        sl = step_max
+        # Shortening may cut a corner past the edge: halve until back within max_off_cloud, else
+        # step halfway to the nearest cloud point (see the explorer).
+        back = False
+        for _ in range(5):
+            ss2 = st0 * st0 + st1 * st1 + st2 * st2
+            lo = np.inf
+            for j in range(m):
+                z = dd[j] - 2.0 * (d[j, 0] * st0 + d[j, 1] * st1 + d[j, 2] * st2) + ss2
+                lo = min(lo, z)
+            if lo <= off2:
+                back = True
+                break
+            st0, st1, st2 = st0 * 0.5, st1 * 0.5, st2 * 0.5
+            sl *= 0.5
+        if not back:
+            dj = dd[jmin] ** 0.5
+            st0 = st1 = st2 = 0.0
+            if dj > 0.0:
+                f = 0.5 * min(1.0, step_max / dj)
+                st0, st1, st2 = d[jmin, 0] * f, d[jmin, 1] * f, d[jmin, 2] * f
+            sl = (st0 * st0 + st1 * st1 + st2 * st2) ** 0.5
+    idt = 1.0 / dt
+    e0, e1, e2 = st0 * idt, st1 * idt, st2 * idt
+    vn = e0 * m0 + e1 * m1 + e2 * m2
+    out[0], out[1], out[2] = x0 + st0, x1 + st1, x2 + st2
+    out[3], out[4], out[5] = e0, e1, e2
+    out[6], out[7], out[8] = m0, m1, m2
+    out[9], out[10], out[11] = t0, t1, t2
+    out[12], out[13], out[14] = s0, s1, s2
+    out[15], out[16], out[17] = e0 - vn * m0, e1 - vn * m1, e2 - vn * m2
+    out[18] = sl
+    out[19] = cand[jmin]
+    out[20] = cov_sum
+    return OK
+
+
+def _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2, q0, q1, q2, n0, n1, n2, scale, dt, d, dd, dq2):
+    """Where velocity q [m/s] takes the projected agent sf in one step, on the patch (fitted in
+    coordinates scaled by 1/scale): ok, the step [m], the normal there, |step|², and in dq2 the
+    squared distances from the landing point to the candidates, with the index of the nearest."""
+    k = 1.0 / scale
+    y0, y1, y2 = (sf0 + q0 * dt) * k, (sf1 + q1 * dt) * k, (sf2 + q2 * dt) * k
+    ok, a0, a1, a2, m0, m1, m2 = _project(kind, cx, cy, cz, rad, px, py, pz, y0, y1, y2, n0, n1, n2)
+    a0, a1, a2 = a0 * scale, a1 * scale, a2 * scale
+    ss = a0 * a0 + a1 * a1 + a2 * a2
+    kmin = 0
+    for j in range(dd.shape[0]):
+        z = dd[j] - (d[j, 0] * (2.0 * a0) + d[j, 1] * (2.0 * a1) + d[j, 2] * (2.0 * a2)) + ss
+        dq2[j] = z
+        if z < dq2[kmin]:
+            kmin = j
+    return ok, a0, a1, a2, m0, m1, m2, ss, kmin
+
+
+_compiled = None  # walk_step compiled, made on first use
+
+
+def available() -> bool:
+    """Whether numba is installed (the ``fast`` extra); does not import it."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def compiled_walk_step():
+    """The walking step compiled by numba (see :func:`_walk_step` for its arguments), or None when
+    numba is not installed.
+
+    numba is imported here, not with this module (importing it takes ~0.4 s). The helpers are
+    compiled first and replace their Python forms in this module, so that the step calls the
+    compiled ones; machine code for each argument type is made on the first call (~10 s) and kept
+    in numba's cache. Import errors other than a missing numba (e.g. a numba too old for the
+    installed numpy) propagate: the explorer reports them and runs numpy.
+    """
+    global _compiled, _project, _nearest, _restore, _land
+    if _compiled is None:
+        if not available():
+            return None
+        from numba import njit
+
+        jit = njit(cache=True, nogil=True)
+        _project, _nearest, _restore, _land = jit(_project), jit(_nearest), jit(_restore), jit(_land)
+        _compiled = jit(_walk_step)
+    return _compiled

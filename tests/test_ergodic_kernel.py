@@ -1,0 +1,209 @@
+"""The compiled walking step (tactex.ergodic.kernel) against the numpy step it replaces.
+
+The numpy step is the reference. Each check runs two explorers side by side and, before every
+step, copies the numpy explorer's whole state into the compiled one, so every step starts from the
+same state: the two steps must agree to round-off, whatever the trajectory does later (HEDAC is
+chaotic: 1e-14 differences grow into different paths after a few hundred steps).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from tactex.ergodic import HedacConfig, HedacExplorer
+from tactex.ergodic import kernel as ker
+from tactex.errors import ConfigError
+from tactex.experiments.explore import ExploreConfig, load_explore_cloud
+from tactex.spectral import build_basis
+
+from .conftest import gap_strips
+
+needs_numba = pytest.mark.skipif(
+    not ker.available(), reason="numba (the 'fast' extra) is not installed: the compiled step is not used"
+)
+POS_TOL = 1e-12  # [m] on positions of ~0.1 m: round-off of a different summation order
+REL_TOL = 1e-10  # potential coefficients and velocities, relative to their largest entry
+
+
+@pytest.fixture(scope="module")
+def objects():
+    out = {}
+    for name in ("bowl", "cup", "plate"):
+        cloud, _ = load_explore_cloud(name, ExploreConfig(voxel_size=0.004))
+        out[name] = (cloud, build_basis(cloud, n_eigen=60, cache=False))
+    return out
+
+
+def _sync(dst: HedacExplorer, src: HedacExplorer) -> None:
+    """dst takes src's whole dynamic state (positions, agents, coverage, potential, hops, rng)."""
+    dst._x = src._x.copy()
+    dst._nrm_t = list(src._nrm_t)
+    dst._near = src._near.copy()
+    dst._cov = src._cov.copy()
+    dst._cov_sum = src._cov_sum
+    dst._coef = src._coef.copy()
+    dst._s_ext[:] = src._s_ext  # in place: _s_t is a view of it
+    dst.path_lengths = src.path_lengths.copy()
+    dst._bridges = copy.deepcopy(src._bridges)
+    dst._rng = copy.deepcopy(src._rng)
+    dst.step_count = src.step_count
+    dst.bridges_taken = src.bridges_taken
+    for a, b in zip(dst._agents, src._agents, strict=True):
+        a.velocity = b.velocity.copy()
+
+
+def _assert_same_step(cmds_c, cmds_n, ex_c: HedacExplorer, ex_n: HedacExplorer, k: int) -> None:
+    for c, n in zip(cmds_c, cmds_n, strict=True):
+        vmax = max(float(np.abs(n.velocity).max()), 1e-30)
+        np.testing.assert_allclose(c.point, n.point, rtol=0, atol=POS_TOL, err_msg=f"step {k}")
+        np.testing.assert_allclose(c.velocity, n.velocity, rtol=0, atol=REL_TOL * vmax, err_msg=f"step {k}")
+        for field in ("normal", "tangent_u", "tangent_v"):
+            np.testing.assert_allclose(getattr(c, field), getattr(n, field), rtol=0, atol=1e-9, err_msg=field)
+        assert (c.step, c.agent) == (n.step, n.agent)
+    np.testing.assert_allclose(ex_c.coverage, ex_n.coverage, rtol=1e-12, atol=1e-15)
+    scale = float(np.abs(ex_n._coef).max())
+    np.testing.assert_allclose(ex_c._coef, ex_n._coef, rtol=0, atol=REL_TOL * scale, err_msg=f"step {k}")
+    np.testing.assert_allclose(ex_c.path_lengths, ex_n.path_lengths, rtol=0, atol=POS_TOL)
+    np.testing.assert_array_equal(ex_c._near, ex_n._near)
+    for a, b in zip(ex_c._agents, ex_n._agents, strict=True):
+        vmax = max(float(np.abs(b.velocity).max()), 1e-30)
+        np.testing.assert_allclose(a.velocity, b.velocity, rtol=0, atol=REL_TOL * vmax)
+
+
+def _run_side_by_side(cloud, basis, x0, steps: int, measured_noise_m: float = 0.0, **cfg) -> HedacExplorer:
+    ex_c = HedacExplorer(cloud, basis, HedacConfig(n_eigen=basis.evecs.shape[1], **cfg))
+    ex_n = ex_c.with_config(compiled=False)
+    assert ex_c._walk_kernel is not None and ex_n._walk_kernel is None
+    ex_c.reset(x0)
+    ex_n.reset(x0)
+    rng = np.random.default_rng(7)
+    for k in range(steps):
+        _sync(ex_c, ex_n)
+        measured = None
+        if measured_noise_m > 0.0:
+            measured = ex_n.positions + rng.normal(scale=measured_noise_m, size=ex_n.positions.shape)
+        cmds_c = ex_c.step_all(measured)
+        cmds_n = ex_n.step_all(measured)
+        _assert_same_step(cmds_c, cmds_n, ex_c, ex_n, k)
+    return ex_c
+
+
+def _start(cloud, frac: float = 0.3) -> np.ndarray:
+    """A cloud point a fraction of the way across the cloud's bounding box (reproducible)."""
+    lo, hi = cloud.points.min(axis=0), cloud.points.max(axis=0)
+    return cloud.points[np.argmin(np.linalg.norm(cloud.points - (lo + frac * (hi - lo)), axis=1))]
+
+
+@needs_numba
+@pytest.mark.parametrize(
+    "name, cfg",
+    [
+        ("bowl", {}),  # sphere fits, second-order agent
+        ("cup", {"order": 1, "agent_radius_m": 0.006}),  # a vertical wall and its rim, first order
+        ("plate", {"agent_radius_m": 0.015, "coverage_normalization": "domain"}),  # plane fits, eq. 2 literally
+        ("bowl", {"source_weight": 0.0, "alpha": 3.0}),  # diffused potential only
+    ],
+)
+def test_compiled_step_equals_the_numpy_step(objects, name, cfg):
+    cloud, basis = objects[name]
+    ex = _run_side_by_side(cloud, basis, _start(cloud), steps=150, **cfg)
+    # The comparison means something only if the kernel did take the steps.
+    assert ex.compiled_steps >= 0.9 * 150
+
+
+@needs_numba
+def test_compiled_step_with_measured_positions_and_several_agents(objects):
+    cloud, basis = objects["bowl"]
+    x0 = np.stack([_start(cloud, 0.3), _start(cloud, 0.7)])
+    ex = _run_side_by_side(cloud, basis, x0, steps=80, measured_noise_m=0.0005)
+    assert ex.compiled_steps >= 0.9 * 160
+
+
+@needs_numba
+def test_scan_hole_hops_go_through_numpy_and_agree():
+    cloud = gap_strips(0.012, 0.01, seed=3)
+    basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
+    ex = _run_side_by_side(cloud, basis, cloud.points[20], steps=150, max_bridge=6.0)
+    assert ex.bridges_taken >= 1, "the scenario must make the agent hop"
+    assert 0 < ex.compiled_steps < 150  # the hops ran in numpy, the walk compiled
+
+
+def _kernel_state(pts: np.ndarray, k: int = 8, seed: int = 0) -> dict:
+    """Arguments of the compiled step on a bare cloud, every point a target point."""
+    rng = np.random.default_rng(seed)
+    n = len(pts)
+    return dict(
+        pts=pts, cand=np.arange(n, dtype=np.int64), x=pts[0].copy(), nrm=np.array([0.0, 0.0, 1.0]),
+        vel=np.zeros(3), cov=rng.uniform(0.0, 1.0, n), cov_sum=1.0, tidx=np.arange(n, dtype=np.int64),
+        tpos=np.arange(n, dtype=np.int64), p_t=np.full(n, 1.0 / n), phitm_t=rng.normal(size=(n, k)),
+        coef=rng.normal(size=k), s_ext=np.zeros(n + 1), decay=np.full(k, 0.9), phi=rng.normal(size=(n, k)),
+        has=np.zeros(n, dtype=bool), n_n=8,
+        prm=ker.params(agent_radius_m=0.0075, eps2=(1 / 0.0075) ** 2, source_weight=1.0, max_acceleration=0.003,
+                       max_velocity=0.003, max_step_m=0.003, dt=1.0, max_off_m=0.003, edge_offset=0.25,
+                       normalize_by_target=True, order=2),
+        out=np.zeros(ker.OUT_SIZE),
+    )
+
+
+def _grid(n_side: int = 9) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(n_side) * 0.003, np.arange(n_side) * 0.003)
+    rng = np.random.default_rng(1)
+    return np.c_[u.ravel(), v.ravel(), np.zeros(u.size)] + rng.uniform(-1e-4, 1e-4, (u.size, 3)) * [1, 1, 0]
+
+
+@needs_numba
+@pytest.mark.parametrize("case", ["degenerate", "edge_gap", "flat"])
+def test_a_case_left_to_numpy_changes_no_state(case):
+    pts = _grid()
+    st = _kernel_state(pts)
+    expected = ker.FLAT
+    if case == "degenerate":  # collinear points: the numpy fit's line patch
+        st = _kernel_state(np.c_[np.arange(12) * 0.003, np.zeros(12), np.zeros(12)])
+        expected = ker.DEGENERATE
+    elif case == "edge_gap":  # a corner of the grid, every point linked across a hole
+        st["has"][:] = True
+        expected = ker.EDGE_GAP
+    else:  # no potential anywhere (Φ = 0) and no source left (p = 0): the gradient vanishes
+        st["phi"][:] = 0.0
+        st["p_t"][:] = 0.0
+    before = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in st.items()}
+    status = ker.compiled_walk_step()(*st.values())
+    assert status == expected
+    for key in ("cov", "coef", "x", "vel", "nrm"):
+        np.testing.assert_array_equal(st[key], before[key], err_msg=key)
+
+
+@needs_numba
+def test_a_kernel_that_fails_to_build_falls_back_to_numpy_with_a_warning(objects, monkeypatch):
+    def broken():
+        raise RuntimeError("no compiler here")
+
+    monkeypatch.setattr(ker, "compiled_walk_step", broken)
+    cloud, basis = objects["bowl"]
+    with pytest.warns(RuntimeWarning, match="compiled exploration step is unavailable.*no compiler here"):
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
+    ex.reset(_start(cloud))
+    for _ in range(5):
+        ex.step()
+    assert ex.compiled_steps == 0 and ex.path_length > 0
+
+
+def test_without_numba_or_when_switched_off_the_numpy_step_runs(objects, monkeypatch):
+    cloud, basis = objects["bowl"]
+    off = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, compiled=False))
+    monkeypatch.setattr(ker, "available", lambda: False)
+    missing = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
+    for ex in (off, missing):
+        ex.reset(_start(cloud))
+        for _ in range(5):
+            ex.step()
+        assert ex._walk_kernel is None and ex.compiled_steps == 0 and ex.path_length > 0
+
+
+@pytest.mark.parametrize("value", [1, "yes", None])
+def test_compiled_must_be_a_bool(value):
+    with pytest.raises(ConfigError, match=r"HedacConfig\.compiled"):
+        HedacConfig(compiled=value)
