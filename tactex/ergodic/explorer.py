@@ -305,7 +305,7 @@ class HedacExplorer:
             for _ in range(x.shape[0])
         ]
         self._reset_fields()
-        self._x = np.zeros_like(x)
+        self._x = np.zeros((x.shape[0], 3))  # C order whatever x0's: the compiled step takes its rows
         self._nrm_t = [(0.0, 0.0, 0.0)] * x.shape[0]
         self._bridges = [None] * x.shape[0]
         self.path_lengths = np.zeros(x.shape[0])
@@ -604,14 +604,16 @@ class HedacExplorer:
         try:
             fn = _kernel.compiled_walk_step()
             if not fn.signatures:  # the first explorer of this process: numba compiles or loads its cache
-                _log.info("preparing the compiled exploration step (compiled once per installation, ~10 s)")
+                _log.info("preparing the compiled exploration step (numba compiles it once per machine, ~10 s)")
             fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),
                np.zeros(n), 0.0, self._tidx, self._tpos, self._p_t, self._phitm_t, np.zeros(k),
                np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._kernel_prm,
                np.empty(_kernel.OUT_SIZE))
         except Exception as exc:  # numba's import, typing or compilation: numpy still works
-            warnings.warn(f"the compiled exploration step is unavailable, running numpy ({type(exc).__name__}: "
-                          f"{exc})", RuntimeWarning, stacklevel=3)
+            reason = f"{type(exc).__name__}: {exc}"
+            _kernel.disable(reason)
+            warnings.warn(f"the compiled exploration step is unavailable, running numpy ({reason})",
+                          RuntimeWarning, stacklevel=3)
             return None
         return fn
 

@@ -19,9 +19,11 @@ found it, and the explorer runs the numpy step instead:
   planner of :mod:`.bridges` decides);
 * ``FLAT``: the gradient vanishes or the cubic's system is singular (a random heading is drawn).
 
-Compilation takes ~10 s once; numba caches the machine code next to this file (its own
-``__pycache__`` files, like Python's bytecode cache) so later processes load it in well under a
-second. Without numba (:func:`available` is False) the explorer uses numpy alone.
+Compilation takes ~10 s once; numba caches the machine code (its own ``__pycache__`` files,
+like Python's bytecode cache) so later processes load it in well under a second. The compiled step
+agrees with the numpy one to round-off: ~1e-14 m per step with the default 20 neighbours; with
+far fewer (n_neighbors_fit ≲ 12) the 10-term cubic is ill-conditioned and the two summation
+orders differ by up to ~1e-9 m. Without numba (:func:`available` is False) the explorer uses numpy alone.
 """
 
 from __future__ import annotations
@@ -33,23 +35,23 @@ import numpy as np
 from tactex.ergodic.gradient import PLANE_PIVOT_RTOL, RIDGE_RTOL
 from tactex.geometry.fit import DEGENERACY_RTOL, MAX_RADIUS_RATIO
 
-__all__ = ["DEGENERATE", "EDGE_GAP", "FLAT", "OK", "OUT_SIZE", "available", "compiled_walk_step", "params"]
+__all__ = ["DEGENERATE", "EDGE_GAP", "FLAT", "OK", "OUT_SIZE", "available", "compiled_walk_step", "disable", "params"]
 
-#: Statuses of :func:`walk_step`.
+#: Statuses of the compiled step (:func:`_walk_step`).
 OK, DEGENERATE, EDGE_GAP, FLAT = 0, 1, 2, 3
-#: Length of walk_step's ``out``: x_new (3), velocity (3), normal (3), t_u (3), t_v (3),
+#: Length of the step's ``out``: x_new (3), velocity (3), normal (3), t_u (3), t_v (3),
 #: agent velocity (3), step length, nearest point, coverage sum.
 OUT_SIZE = 21
 
 
-# Positions in walk_step's parameter array (module constants: numba folds them into the code).
+# Positions in the step's parameter array (module constants: numba folds them into the code).
 _R_A2, _EPS2, _SOURCE_W, _A_DT, _V_MAX, _DT, _STEP_MAX, _OFF2, _OFF, _EDGE, _NORM_TARGET, _ORDER = range(12)
 
 
 def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acceleration: float,
            max_velocity: float, max_step_m: float, dt: float, max_off_m: float, edge_offset: float,
            normalize_by_target: bool, order: int) -> np.ndarray:
-    """walk_step's parameter array, in SI units: footprint radius [m] and kernel ε² [1/m²], weight
+    """The compiled step's parameter array, in SI units: footprint radius [m] and kernel ε² [1/m²], weight
     of the raw source's slope, the agent's limits [m/s², m/s], the longest step [m] and the step
     duration [s], farthest distance from the nearest cloud point [m], the scan-edge centroid
     threshold [neighbourhood radii], the coverage normalisation (True = over the target's support)
@@ -108,15 +110,17 @@ def _nearest(dd, k):
     return idx
 
 
-def _restore(cov, fp, fp_old, coef, coef_old):
-    for r in range(fp.shape[0]):
+def _restore(cov, fp, fp_old, coef, coef_old, s, s_old):
+    """Undo the footprint (points fp had coverage fp_old), the diffusion and the source."""
+    for r in range(fp.shape[0] - 1, -1, -1):  # backwards: right even if fp repeated a point
         cov[fp[r]] = fp_old[r]
     coef[:] = coef_old
+    s[:] = s_old
 
 
 def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, coef, s_ext, decay, phi,
                gap_has, n_n, prm, out):
-    """One walking step of one agent; see the module doc. Mutates cov, coef, s_ext (and out) on OK only.
+    """One walking step of one agent; see the module doc. Changes cov, coef, s_ext and out on OK only.
 
     Args:
         pts: (N, 3) cloud [m]. cand: candidate point indices around the agent (its ball).
@@ -144,7 +148,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             jmin = j
     part = _nearest(dd, n_n)
     scale2 = dd[part[n_n - 1]]
-    scale = scale2**0.5 if scale2 > 0.0 else 1.0
+    scale = scale2**0.5 if scale2 > 0.0 else 1.0  # all n_n points coincide: the fit is degenerate below
     inv = 1.0 / scale
 
     # Sphere/plane fit (eq. 23–26): smallest eigenvector of WᵀW, rows (q, −1, −½|q|²), q = d / scale.
@@ -232,6 +236,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
     fp = fp[:n_fp]
     fp_old = fp_old[:n_fp]
     coef_old = coef.copy()
+    s_old = s_ext.copy()
 
     # Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19).
     T = tidx.shape[0]
@@ -299,7 +304,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
         for k in range(a):
             acc -= L[a, k] * L[a, k]
         if acc <= 0.0:
-            _restore(cov, fp, fp_old, coef, coef_old)
+            _restore(cov, fp, fp_old, coef, coef_old, s_ext, s_old)
             return FLAT
         la = acc**0.5
         L[a, a] = la
@@ -367,7 +372,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             g0, g1, g2 = g0 - go * i0, g1 - go * i1, g2 - go * i2
     gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5
     if not (gn > 0.0 and gn < np.inf):
-        _restore(cov, fp, fp_old, coef, coef_old)
+        _restore(cov, fp, fp_old, coef, coef_old, s_ext, s_old)
         return FLAT
     k = 1.0 / gn
     e0, e1, e2 = g0 * k, g1 * k, g2 * k
@@ -398,7 +403,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
     ok, st0, st1, st2, m0, m1, m2, ss, kmin = _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2,
                                                     q0, q1, q2, n0, n1, n2, scale, dt, d, dd, dq2)
     if not ok:
-        _restore(cov, fp, fp_old, coef, coef_old)
+        _restore(cov, fp, fp_old, coef, coef_old, s_ext, s_old)
         return DEGENERATE
     if dq2[kmin] > off2:
         o0, o1, o2 = st0 - d[kmin, 0], st1 - d[kmin, 1], st2 - d[kmin, 2]
@@ -412,7 +417,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             ok, st0, st1, st2, m0, m1, m2, ss, kmin = _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2,
                                                             q0, q1, q2, n0, n1, n2, scale, dt, d, dd, dq2)
             if not ok:
-                _restore(cov, fp, fp_old, coef, coef_old)
+                _restore(cov, fp, fp_old, coef, coef_old, s_ext, s_old)
                 return DEGENERATE
         if dq2[kmin] > off2:  # still out: within max_off_cloud of the nearest point
             f = prm[_OFF] / dq2[kmin] ** 0.5
@@ -480,7 +485,8 @@ def _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2, q0, q1, q2, n0, n1, 
     return ok, a0, a1, a2, m0, m1, m2, ss, kmin
 
 
-_compiled = None  # walk_step compiled, made on first use
+_compiled = None  # _walk_step compiled, made on first use
+_failure: str | None = None  # why it could not be made or run, once it failed in this process
 
 
 def available() -> bool:
@@ -493,18 +499,34 @@ def compiled_walk_step():
     numba is not installed.
 
     numba is imported here, not with this module (importing it takes ~0.4 s). The helpers are
-    compiled first and replace their Python forms in this module, so that the step calls the
-    compiled ones; machine code for each argument type is made on the first call (~10 s) and kept
-    in numba's cache. Import errors other than a missing numba (e.g. a numba too old for the
-    installed numpy) propagate: the explorer reports them and runs numpy.
+    compiled first and replace their Python forms in this module's namespace (numba resolves the
+    step's calls there when it compiles it). Machine code for each set of argument types is made
+    on the first call (~10 s) and kept in numba's cache: beside this file when its folder is
+    writable, else in a per-user folder, else nowhere (then each process compiles). Import errors
+    other than a missing numba (e.g. a numba too old for the installed numpy) propagate: the
+    explorer reports them and runs numpy. After :func:`disable` it raises at once.
     """
     global _compiled, _project, _nearest, _restore, _land
+    if _failure is not None:
+        raise RuntimeError(_failure)
     if _compiled is None:
         if not available():
             return None
         from numba import njit
 
-        jit = njit(cache=True, nogil=True)
+        def jit(fn):
+            try:
+                return njit(cache=True, nogil=True)(fn)
+            except RuntimeError:  # no writable cache location anywhere: compile in every process
+                return njit(nogil=True)(fn)
+
         _project, _nearest, _restore, _land = jit(_project), jit(_nearest), jit(_restore), jit(_land)
         _compiled = jit(_walk_step)
     return _compiled
+
+
+def disable(reason: str) -> None:
+    """Stop offering the compiled step in this process (it failed to build or run: ``reason``), so
+    that later explorers go straight to numpy instead of paying for the failure again."""
+    global _failure
+    _failure = reason
