@@ -9,6 +9,7 @@ chaotic: 1e-14 differences grow into different paths after a few hundred steps).
 from __future__ import annotations
 
 import copy
+import warnings
 
 import numpy as np
 import pytest
@@ -254,6 +255,22 @@ def test_without_numba_or_when_switched_off_the_numpy_step_runs(objects, monkeyp
         for _ in range(5):
             ex.step()
         assert ex._walk_kernel is None and ex.compiled_steps == 0 and ex.path_length > 0
+
+
+@needs_numba
+def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
+    import numba
+
+    monkeypatch.setattr(numba.config, "DISABLE_JIT", True)
+    # restored after the test: the compiled step, its helpers and the failure flag
+    for name in ("_compiled", "_failure", "_project", "_nearest", "_restore", "_land"):
+        monkeypatch.setattr(ker, name, getattr(ker, name))
+    ker._compiled = None
+    cloud, basis = objects["bowl"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # quietly numpy: nothing failed
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
+    assert not ex.compiled and ker._failure is None
 
 
 @pytest.mark.parametrize("value", [1, "yes", None])

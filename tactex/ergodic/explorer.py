@@ -603,6 +603,8 @@ class HedacExplorer:
         n, k = len(self._points), self._phi.shape[1]
         try:
             fn = _kernel.compiled_walk_step()
+            if fn is None:  # numba's JIT switched off (NUMBA_DISABLE_JIT)
+                return None
             if not fn.signatures:  # the first explorer of this process: numba compiles or loads its cache
                 _log.info("preparing the compiled exploration step (numba compiles it once per machine, ~10 s)")
             fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),

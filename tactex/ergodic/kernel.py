@@ -512,7 +512,10 @@ def compiled_walk_step():
     if _compiled is None:
         if not available():
             return None
-        from numba import njit
+        from numba import config, njit
+
+        if config.DISABLE_JIT:  # NUMBA_DISABLE_JIT=1 would run the kernel as plain Python, ~100× slower
+            return None
 
         def jit(fn):
             try:
