@@ -25,7 +25,8 @@ connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II l
 * ``ergodic.<cloud>.realized_accel_over_limit_share`` / ``realized_accel_max_ratio``: the agent's
   realised tangential velocity change per step, |v_k − transport(v_k−1)|, over a_max·dt: the
   commands keep the limit exactly; the landing on a curved patch and slides along scan edges can
-  exceed it (reported, not a target).
+  exceed it (reported, not a target). Every step counts, hops included (they keep the limit too);
+  the first starts from rest.
 * ``ergodic.<cloud>.max_off_cloud_mm`` / ``max_off_cloud_walking_mm`` / ``mean_step_mm``: the
   agent's largest distance to the nearest cloud point (with and without the hops across scan
   holes, where it is on the chord between the two sides) and its mean step (the speed limit is

@@ -224,6 +224,16 @@ def test_a_case_left_to_numpy_changes_no_state(case):
 
 
 @needs_numba
+def test_the_fits_tolerances_come_from_the_parameters_not_the_compiled_code():
+    # numba would keep constants imported from fit.py in its cache after fit.py changed
+    st = _kernel_state(_grid())
+    assert ker.compiled_walk_step()(*st.values()) == ker.OK  # a regular grid: a plane
+    st = _kernel_state(_grid())
+    st["prm"][ker._DEGENERACY] = 1.0  # every neighbourhood counts as degenerate
+    assert ker.compiled_walk_step()(*st.values()) == ker.DEGENERATE
+
+
+@needs_numba
 def test_a_kernel_that_fails_to_build_falls_back_to_numpy_with_a_warning(objects, monkeypatch):
     def broken():
         raise RuntimeError("no compiler here")
@@ -243,6 +253,25 @@ def test_a_kernel_that_fails_to_build_falls_back_to_numpy_with_a_warning(objects
     with pytest.warns(RuntimeWarning, match="no compiler here"):
         again = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
     assert not again.compiled
+
+
+@needs_numba
+def test_a_kernel_that_fails_mid_run_hands_over_to_numpy(objects):
+    cloud, basis = objects["bowl"]
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
+    ex.reset(_start(cloud))
+    ex.step()
+    assert ex.compiled_steps == 1
+
+    def broken(*args):
+        raise TypeError("no matching definition")
+
+    ex._walk_kernel = broken
+    with pytest.warns(RuntimeWarning, match="runs numpy from now on.*no matching definition"):
+        ex.step()
+    for _ in range(3):
+        ex.step()
+    assert not ex.compiled and ex.compiled_steps == 1 and np.isfinite(ex.positions).all()
 
 
 def test_without_numba_or_when_switched_off_the_numpy_step_runs(objects, monkeypatch):

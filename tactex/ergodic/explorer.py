@@ -606,7 +606,7 @@ class HedacExplorer:
             if fn is None:  # numba's JIT switched off (NUMBA_DISABLE_JIT)
                 return None
             if not fn.signatures:  # the first explorer of this process: numba compiles or loads its cache
-                _log.info("preparing the compiled exploration step (numba compiles it once per machine, ~10 s)")
+                _log.info("preparing the compiled exploration step (numba compiles it once per machine, ~10–15 s)")
             fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),
                np.zeros(n), 0.0, self._tidx, self._tpos, self._p_t, self._phitm_t, np.zeros(k),
                np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._kernel_prm,
@@ -625,11 +625,17 @@ class HedacExplorer:
         hole in reach, or a vanishing gradient."""
         agent = self._agents[i]
         out = self._kernel_out
-        status = self._walk_kernel(
-            self._points, cand, x, np.array(self._nrm_t[i]), agent.velocity, self._cov, self._cov_sum,
-            self._tidx, self._tpos, self._p_t, self._phitm_t, self._coef, self._s_ext, self._decay, self._phi,
-            self._gaps.has, self._n_n, self._kernel_prm, out,
-        )
+        try:
+            status = self._walk_kernel(
+                self._points, cand, x, np.array(self._nrm_t[i]), agent.velocity, self._cov, self._cov_sum,
+                self._tidx, self._tpos, self._p_t, self._phitm_t, self._coef, self._s_ext, self._decay, self._phi,
+                self._gaps.has, self._n_n, self._kernel_prm, out,
+            )
+        except Exception as exc:  # e.g. numba failing to type arguments it has not seen: numpy goes on
+            self._walk_kernel = None
+            warnings.warn(f"the compiled exploration step failed, this explorer runs numpy from now on "
+                          f"({type(exc).__name__}: {exc})", RuntimeWarning, stacklevel=4)
+            return None
         if status != _kernel.OK:
             return None
         self.compiled_steps += 1

@@ -19,11 +19,12 @@ found it, and the explorer runs the numpy step instead:
   planner of :mod:`.bridges` decides);
 * ``FLAT``: the gradient vanishes or the cubic's system is singular (a random heading is drawn).
 
-Compilation takes ~10 s once; numba caches the machine code (its own ``__pycache__`` files,
-like Python's bytecode cache) so later processes load it in well under a second. The compiled step
+Compilation takes ~10–15 s once; numba caches the machine code (its own ``__pycache__`` files,
+like Python's bytecode cache: beside this file when its folder is writable, else in a per-user
+folder) so later processes load it in well under a second. The compiled step
 agrees with the numpy one to round-off: ~1e-14 m per step with the default 20 neighbours; with
 far fewer (n_neighbors_fit ≲ 12) the 10-term cubic is ill-conditioned and the two summation
-orders differ by up to ~1e-9 m. Without numba (:func:`available` is False) the explorer uses numpy alone.
+orders differ by up to ~1e-7 m. Without numba (:func:`available` is False) the explorer uses numpy alone.
 """
 
 from __future__ import annotations
@@ -46,6 +47,10 @@ OUT_SIZE = 21
 
 # Positions in the step's parameter array (module constants: numba folds them into the code).
 _R_A2, _EPS2, _SOURCE_W, _A_DT, _V_MAX, _DT, _STEP_MAX, _OFF2, _OFF, _EDGE, _NORM_TARGET, _ORDER = range(12)
+# The fits' tolerances travel in the array too: numba would bake imported constants into its cached
+# machine code, and it renews that cache only when this file changes, not when fit.py or gradient.py do.
+_DEGENERACY, _MAX_RADIUS, _RIDGE, _PIVOT = range(12, 16)
+_N_PRM = 16
 
 
 def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acceleration: float,
@@ -55,8 +60,8 @@ def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acce
     of the raw source's slope, the agent's limits [m/s², m/s], the longest step [m] and the step
     duration [s], farthest distance from the nearest cloud point [m], the scan-edge centroid
     threshold [neighbourhood radii], the coverage normalisation (True = over the target's support)
-    and the agent's order (1 or 2)."""
-    prm = np.empty(12)
+    and the agent's order (1 or 2); the fits' tolerances are added from their modules."""
+    prm = np.empty(_N_PRM)
     prm[_R_A2] = agent_radius_m**2
     prm[_EPS2] = eps2
     prm[_SOURCE_W] = source_weight
@@ -69,6 +74,10 @@ def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acce
     prm[_EDGE] = edge_offset
     prm[_NORM_TARGET] = 1.0 if normalize_by_target else 0.0
     prm[_ORDER] = float(order)
+    prm[_DEGENERACY] = DEGENERACY_RTOL
+    prm[_MAX_RADIUS] = MAX_RADIUS_RATIO
+    prm[_RIDGE] = RIDGE_RTOL
+    prm[_PIVOT] = PLANE_PIVOT_RTOL
     return prm
 
 
@@ -165,12 +174,12 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
         for b in range(a):
             B[a, b] = B[b, a]
     ev, vecs = np.linalg.eigh(B)
-    if ev[1] <= DEGENERACY_RTOL * ev[4]:
+    if ev[1] <= prm[_DEGENERACY] * ev[4]:
         return DEGENERATE
     v0x, v1x, v2x, vinf, v0 = vecs[0, 0], vecs[1, 0], vecs[2, 0], vecs[3, 0], vecs[4, 0]
     nv = (v0x * v0x + v1x * v1x + v2x * v2x) ** 0.5
     px = py = pz = 0.0
-    if abs(v0) * MAX_RADIUS_RATIO > nv:
+    if abs(v0) * prm[_MAX_RADIUS] > nv:
         kind = 0
         cx, cy, cz = v0x / v0, v1x / v0, v2x / v0
         rr2 = cx * cx + cy * cy + cz * cz - 2.0 * vinf / v0
@@ -296,7 +305,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             rhs[a] += X[a] * y
             for b in range(a, 10):
                 A[a, b] += xa * X[b]
-    ridge = RIDGE_RTOL * A[0, 0] + 1e-300
+    ridge = prm[_RIDGE] * A[0, 0] + 1e-300
     # Cholesky of the (upper) normal matrix with the ridge on its diagonal.
     L = np.zeros((10, 10))
     for a in range(10):
@@ -351,11 +360,11 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             l00 = a00**0.5
             l10, l20 = a01 / l00, a02 / l00
             p11 = a11 - l10 * l10
-            if p11 > PLANE_PIVOT_RTOL * a11:
+            if p11 > prm[_PIVOT] * a11:
                 l11 = p11**0.5
                 l21 = (a12 - l20 * l10) / l11
                 p22 = a22 - l20 * l20 - l21 * l21
-                if p22 > PLANE_PIVOT_RTOL * a22:
+                if p22 > prm[_PIVOT] * a22:
                     l22 = p22**0.5
                     y0 = b0 / l00
                     y1 = (b1 - l10 * y0) / l11
@@ -501,7 +510,7 @@ def compiled_walk_step():
     numba is imported here, not with this module (importing it takes ~0.4 s). The helpers are
     compiled first and replace their Python forms in this module's namespace (numba resolves the
     step's calls there when it compiles it). Machine code for each set of argument types is made
-    on the first call (~10 s) and kept in numba's cache: beside this file when its folder is
+    on the first call (~10–15 s) and kept in numba's cache: beside this file when its folder is
     writable, else in a per-user folder, else nowhere (then each process compiles). Import errors
     other than a missing numba (e.g. a numba too old for the installed numpy) propagate: the
     explorer reports them and runs numpy. After :func:`disable` it raises at once.

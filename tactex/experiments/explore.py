@@ -267,7 +267,7 @@ def run_explore(
     basis_s = time.perf_counter() - t0
     say(f"basis: {basis_s:.3f} s ({basis.n_components} connected part(s))")
     if hcfg.compiled and kernel_available():
-        say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10 s) ...")
+        say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg)
     setup_s = time.perf_counter() - t1
