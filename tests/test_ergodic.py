@@ -217,6 +217,7 @@ def test_metrics_reject_bad_input(fn):
         ("n_eigen", 0), ("n_neighbors_fit", 3), ("order", 3),
         ("max_off_cloud", -1.0), ("max_snap_distance", 0.0), ("alpha_decay_steps", 0),
         ("max_bridge", -1.0), ("max_bridge", float("nan")), ("coverage_normalization", "cloud"),
+        ("edge_braking", 1), ("edge_braking", "yes"),
     ],
 )
 def test_config_rejects_bad_values(field, value):
@@ -284,6 +285,57 @@ def test_limits_hold_in_3d_on_a_plane(plane):
         assert np.linalg.norm(cmd.point - prev) <= v_max * 0.5 * (1 + LIMIT_RTOL)
         assert np.linalg.norm(cmd.velocity - prev_v) <= a_max * 0.5 * (1 + 1e-6)
         prev, prev_v = cmd.point, cmd.velocity
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_the_agent_brakes_at_a_scan_edge_and_keeps_its_acceleration_limit(compiled):
+    """A target strip along the far edge of a flat grid: the agent runs at it and must stop at the
+    cloud's edge. Dropping the outward velocity on landing changed it by up to 1.22 a_max·dt in one
+    step; braking first with the acceleration budget keeps every step within the limit (a plane:
+    transport is the identity, so the realised change is the 3-D change)."""
+    rng = np.random.default_rng(0)
+    u, v = np.meshgrid(np.arange(30) * H, np.arange(30) * H)
+    pts = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)] + rng.uniform(-2e-4, 2e-4, (u.size, 3)) * [1, 1, 0]
+    cloud = SurfaceCloud(pts, target=(pts[:, 0] > pts[:, 0].max() - 0.004).astype(float), spacing=H)
+    basis = build_basis(cloud, n_eigen=60, cache=False)
+    ex = HedacExplorer(cloud, basis, _cfg(compiled=compiled))
+    ex.reset(pts[np.argmin(np.linalg.norm(pts - [0.01, 0.045, 0.0], axis=1))])
+    a_dt = H * 1.0  # max_acceleration 1 voxel/step² over a 1 s step [m/s]
+    prev_v = np.zeros(3)
+    for _ in range(300):
+        cmd = ex.step()
+        assert np.linalg.norm(cmd.velocity - prev_v) <= a_dt * (1 + 1e-9)
+        prev_v = cmd.velocity
+    assert ex.coverage_residual() == 0.0  # and it still reached the whole strip
+    # Without braking the outward part is dropped on landing: the limit is exceeded at the edge.
+    ex = HedacExplorer(cloud, basis, _cfg(compiled=compiled, edge_braking=False))
+    ex.reset(pts[np.argmin(np.linalg.norm(pts - [0.01, 0.045, 0.0], axis=1))])
+    prev_v, worst = np.zeros(3), 0.0
+    for _ in range(300):
+        cmd = ex.step()
+        worst = max(worst, float(np.linalg.norm(cmd.velocity - prev_v)) / a_dt)
+        prev_v = cmd.velocity
+    assert worst > 1.1
+
+
+@pytest.mark.parametrize("v_out", [0.0, -0.5, 0.4, 1.0, 2.5])  # outward speed [a_max·dt]
+def test_edge_direction_brakes_the_outward_motion_first(v_out):
+    a_dt = 0.003
+    agent = SecondOrderAgent(max_velocity=3 * a_dt, max_acceleration=a_dt, dt=1.0)
+    normal, inward = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)
+    agent.velocity = np.array([-v_out * a_dt, 0.5 * a_dt, 0.0])  # outward = −x
+    along = (0.0, 1.0, 0.0)  # the gradient runs along the edge (its outward part already removed)
+    e = agent.edge_direction(along, inward, normal)
+    assert np.linalg.norm(e) == pytest.approx(1.0, abs=1e-12)
+    q = np.array(agent.command_velocity_floats(e, normal))
+    assert np.linalg.norm(q - agent.velocity) <= a_dt * (1 + 1e-12)  # still one step's change
+    if v_out <= 0.0:
+        assert e == along  # nothing to brake
+    elif v_out < 1.0:
+        assert q[0] == pytest.approx(0.0, abs=1e-15) and e[1] > 0.0  # stopped; the rest along the edge
+    else:
+        assert e == inward and q[0] == pytest.approx(-(v_out - 1.0) * a_dt)  # all of it brakes
+    assert FirstOrderAgent(3 * a_dt, a_dt, 1.0).edge_direction(along, inward, normal) == along
 
 
 def test_command_geometry_is_consistent(plane):

@@ -44,6 +44,12 @@ class Agent(ABC):
         """:meth:`command_velocity` on float triples (the explorer's per-step path)."""
         return tuple(self.command_velocity(np.array(direction), np.array(normal)).tolist())
 
+    def edge_direction(self, direction: tuple, inward: tuple, normal: tuple) -> tuple:
+        """The unit acceleration direction at a scan edge, from the gradient's ``direction`` (its
+        outward part already removed), the unit tangent ``inward`` pointing into the cloud and the
+        unit ``normal`` (float triples). Without inertia there is nothing to brake: ``direction``."""
+        return direction
+
     def _clip(self, v: np.ndarray) -> np.ndarray:
         nv = float(np.sqrt(v @ v))
         return v * (self.max_velocity / nv) if nv > self.max_velocity else v
@@ -78,8 +84,29 @@ class SecondOrderAgent(Agent):
     def command_velocity(self, direction: np.ndarray, normal: np.ndarray) -> np.ndarray:
         return np.array(self.command_velocity_floats(tuple(direction.tolist()), tuple(normal.tolist())))
 
-    def command_velocity_floats(self, direction: tuple, normal: tuple) -> tuple:
-        # transport() and the clip in Python floats (hot path: three numbers per vector)
+    def edge_direction(self, direction: tuple, inward: tuple, normal: tuple) -> tuple:
+        """At a scan edge the velocity's outward part must go (the agent stays within
+        max_off_cloud of the cloud); dropping it after the fact changes the velocity by up to
+        v_max in one step, well over a_max·dt. So the acceleration brakes it first: its inward
+        share is b = min(1, v_out / (a_max·dt)) (all of it while the outward speed exceeds one
+        step's change), and the rest, √(1 − b²), goes along the edge in the gradient's sense."""
+        t0, t1, t2 = self._transported_floats(normal)
+        i0, i1, i2 = inward
+        v_out = -(t0 * i0 + t1 * i1 + t2 * i2)
+        if v_out <= 0.0:
+            return direction
+        b = min(1.0, v_out / (self.max_acceleration * self.dt))
+        d0, d1, d2 = direction
+        di = d0 * i0 + d1 * i1 + d2 * i2
+        p0, p1, p2 = d0 - di * i0, d1 - di * i1, d2 - di * i2
+        pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
+        if pn <= 1e-12:  # no preference along the edge: brake (and come back in) with all of it
+            return inward
+        s = (1.0 - b * b) ** 0.5 / pn
+        return b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
+
+    def _transported_floats(self, normal: tuple) -> tuple:
+        """:func:`transport` of the velocity to the plane ⊥ normal, in Python floats."""
         v0, v1, v2 = self.velocity.tolist()
         n0, n1, n2 = normal
         vn = v0 * n0 + v1 * n1 + v2 * n2
@@ -88,6 +115,11 @@ class SecondOrderAgent(Agent):
         if nt2 > 1e-300:
             k = ((v0 * v0 + v1 * v1 + v2 * v2) / nt2) ** 0.5
             t0, t1, t2 = t0 * k, t1 * k, t2 * k
+        return t0, t1, t2
+
+    def command_velocity_floats(self, direction: tuple, normal: tuple) -> tuple:
+        # transport() and the clip in Python floats (hot path: three numbers per vector)
+        t0, t1, t2 = self._transported_floats(normal)
         a = self.max_acceleration * self.dt
         d0, d1, d2 = direction
         w0, w1, w2 = t0 + a * d0, t1 + a * d1, t2 + a * d2

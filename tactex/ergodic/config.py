@@ -92,6 +92,12 @@ class HedacConfig:
         "target covers the whole cloud), 'domain' = over the whole cloud, eq. 2 literally",
     )
     seed: int = param(0, "seed of the random heading used when the potential is exactly flat [-]")
+    edge_braking: bool = param(
+        True,
+        "at a scan edge the second-order agent spends its acceleration on stopping its outward motion first, so "
+        "the realised velocity change stays within max_acceleration; False: the outward part is dropped on "
+        "landing (a change of up to ~1.3 a_max·dt in one step, but the agent slides along the edge)",
+    )
     compiled: bool = param(
         True,
         "run the walking step compiled by numba when the optional 'fast' extra is installed (about 5x faster; "
@@ -120,8 +126,9 @@ class HedacConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"HedacConfig.{name} must be an integer ≥ {low}, got {value!r}")
         check_coverage_normalization(self.coverage_normalization, "HedacConfig")
-        if not isinstance(self.compiled, bool):
-            raise ConfigError(f"HedacConfig.compiled must be True or False, got {self.compiled!r}")
+        for name in ("compiled", "edge_braking"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"HedacConfig.{name} must be True or False, got {getattr(self, name)!r}")
         if self.order not in (1, 2) or isinstance(self.order, bool):
             raise ConfigError(f"HedacConfig.order must be 1 or 2, got {self.order!r}")
         if self.agent_radius_m > 1.0:

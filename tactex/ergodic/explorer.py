@@ -216,6 +216,7 @@ class HedacExplorer:
         self._off = cfg.max_off_cloud * self.spacing
         self._source_w = float(cfg.source_weight)
         self._norm_target = cfg.coverage_normalization == "target"
+        self._edge_braking = cfg.edge_braking
         self._n_n = cfg.n_neighbors_fit
         self._n_n1 = cfg.n_neighbors_fit - 1
         self._xf = np.ones((cfg.n_neighbors_fit, 10))
@@ -245,7 +246,7 @@ class HedacExplorer:
             agent_radius_m=self._r_a, eps2=self._eps2, source_weight=self._source_w,
             max_acceleration=cfg.max_acceleration * self.spacing / self._dt**2, max_velocity=self._v_max,
             max_step_m=self._step_max, dt=self._dt, max_off_m=self._off, edge_offset=EDGE_OFFSET,
-            normalize_by_target=self._norm_target, order=cfg.order,
+            normalize_by_target=self._norm_target, order=cfg.order, edge_braking=cfg.edge_braking,
         )
         self._walk_kernel = self._compile_kernel() if cfg.compiled else None
         self._agents: list[Agent] = []
@@ -522,6 +523,7 @@ class HedacExplorer:
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
         cu, cv = _sum(uv, 0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
         cn = (cu * cu + cv * cv) ** 0.5
+        inward = None
         if cn > EDGE_OFFSET * n_n:
             if self._gaps.n_links and self._gaps.has.take(nbr).any():
                 here = np.array((x.item(0) + sf[0], x.item(1) + sf[1], x.item(2) + sf[2]))
@@ -544,6 +546,8 @@ class HedacExplorer:
 
         # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
         agent = self._agents[i]
+        if inward is not None and self._edge_braking:  # at a scan edge: brake the outward motion first
+            direction = agent.edge_direction(direction, tuple(inward.tolist()), nt)
         v = agent.command_velocity_floats(direction, nt)
         step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
         if dq2.item(k) > self._off2:

@@ -6,8 +6,9 @@ dispatch, not their arithmetic, is most of its 0.17–0.30 ms. This module does 
 operations in one compiled function, in the same order: the neighbourhood, the sphere/plane fit
 (eq. 23–26), the projection (eq. 27) and tangent basis, the footprint (eq. 30–31) and coverage
 (eq. 3), the source (eq. 1–2) and one step of spectral diffusion (eq. 19), the weighted cubic
-(eq. 32–33), the slope of the raw source, the scan-edge rule, the agent (eq. 6, Table II limits),
-the landing on the fitted patch and the off-cloud and step-length limits. The numpy step stays
+(eq. 32–33), the slope of the raw source, the scan-edge rule (the agent brakes its outward
+motion there), the agent (eq. 6, Table II limits), the landing on the fitted patch and the
+off-cloud and step-length limits. The numpy step stays
 the reference: the tests check, state by state, that both give the same step to round-off.
 
 Rare cases are not compiled; the kernel returns a status and leaves every piece of state as it
@@ -50,17 +51,19 @@ _R_A2, _EPS2, _SOURCE_W, _A_DT, _V_MAX, _DT, _STEP_MAX, _OFF2, _OFF, _EDGE, _NOR
 # The fits' tolerances travel in the array too: numba would bake imported constants into its cached
 # machine code, and it renews that cache only when this file changes, not when fit.py or gradient.py do.
 _DEGENERACY, _MAX_RADIUS, _RIDGE, _PIVOT = range(12, 16)
-_N_PRM = 16
+_BRAKE = 16
+_N_PRM = 17
 
 
 def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acceleration: float,
            max_velocity: float, max_step_m: float, dt: float, max_off_m: float, edge_offset: float,
-           normalize_by_target: bool, order: int) -> np.ndarray:
+           normalize_by_target: bool, order: int, edge_braking: bool = True) -> np.ndarray:
     """The compiled step's parameter array, in SI units: footprint radius [m] and kernel ε² [1/m²], weight
     of the raw source's slope, the agent's limits [m/s², m/s], the longest step [m] and the step
     duration [s], farthest distance from the nearest cloud point [m], the scan-edge centroid
     threshold [neighbourhood radii], the coverage normalisation (True = over the target's support)
-    and the agent's order (1 or 2); the fits' tolerances are added from their modules."""
+    the agent's order (1 or 2) and whether it brakes at scan edges (HedacConfig.edge_braking); the
+    fits' tolerances are added from their modules."""
     prm = np.empty(_N_PRM)
     prm[_R_A2] = agent_radius_m**2
     prm[_EPS2] = eps2
@@ -78,6 +81,7 @@ def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acce
     prm[_MAX_RADIUS] = MAX_RADIUS_RATIO
     prm[_RIDGE] = RIDGE_RTOL
     prm[_PIVOT] = PLANE_PIVOT_RTOL
+    prm[_BRAKE] = 1.0 if edge_braking else 0.0
     return prm
 
 
@@ -374,6 +378,7 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
                     su += kw * c_u
                     sv += kw * c_v
     g0, g1, g2 = t0 * su + s0 * sv, t1 * su + s1 * sv, t2 * su + s2 * sv
+    i0 = i1 = i2 = 0.0  # the unit inward tangent at a scan edge
     if at_edge:  # Neumann boundary: no outward flux, drop the gradient's outward part
         i0, i1, i2 = (t0 * cu + s0 * cv) / cn, (t1 * cu + s1 * cv) / cn, (t2 * cu + s2 * cv) / cn
         go = g0 * i0 + g1 * i1 + g2 * i2
@@ -400,6 +405,18 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             kk = ((w0 * w0 + w1 * w1 + w2 * w2) / nt2) ** 0.5
             q0, q1, q2 = q0 * kk, q1 * kk, q2 * kk
         a_dt = prm[_A_DT]
+        if at_edge and prm[_BRAKE] > 0.0:  # brake the outward motion first (SecondOrderAgent.edge_direction)
+            v_out = -(q0 * i0 + q1 * i1 + q2 * i2)
+            if v_out > 0.0:
+                b = min(1.0, v_out / a_dt)
+                di = e0 * i0 + e1 * i1 + e2 * i2
+                p0, p1, p2 = e0 - di * i0, e1 - di * i1, e2 - di * i2
+                pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
+                if pn <= 1e-12:
+                    e0, e1, e2 = i0, i1, i2
+                else:
+                    s = (1.0 - b * b) ** 0.5 / pn
+                    e0, e1, e2 = b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
         q0, q1, q2 = q0 + a_dt * e0, q1 + a_dt * e1, q2 + a_dt * e2
     nw = (q0 * q0 + q1 * q1 + q2 * q2) ** 0.5
     if nw > v_max:
