@@ -336,6 +336,9 @@ def test_edge_direction_brakes_the_outward_motion_first(v_out):
     else:
         assert e == inward and q[0] == pytest.approx(-(v_out - 1.0) * a_dt)  # all of it brakes
     assert FirstOrderAgent(3 * a_dt, a_dt, 1.0).edge_direction(along, inward, normal) == along
+    # A gradient that already turns inward more than the braking needs is kept as it is.
+    turning = (0.9, float(np.sqrt(1 - 0.81)), 0.0)
+    assert agent.edge_direction(turning, inward, normal) == (turning if v_out <= 0.9 else inward)
 
 
 def test_command_geometry_is_consistent(plane):

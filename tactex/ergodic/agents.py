@@ -88,8 +88,9 @@ class SecondOrderAgent(Agent):
         """At a scan edge the velocity's outward part must go (the agent stays within
         max_off_cloud of the cloud); dropping it after the fact changes the velocity by up to
         v_max in one step, well over a_max·dt. So the acceleration brakes it first: its inward
-        share is b = min(1, v_out / (a_max·dt)) (all of it while the outward speed exceeds one
-        step's change), and the rest, √(1 − b²), goes along the edge in the gradient's sense."""
+        share is at least b = min(1, v_out / (a_max·dt)) (all of it while the outward speed exceeds
+        one step's change). A gradient that already turns inward that much is kept; otherwise the
+        inward share is b and the rest, √(1 − b²), goes along the edge in the gradient's sense."""
         t0, t1, t2 = self._transported_floats(normal)
         i0, i1, i2 = inward
         v_out = -(t0 * i0 + t1 * i1 + t2 * i2)
@@ -98,6 +99,8 @@ class SecondOrderAgent(Agent):
         b = min(1.0, v_out / (self.max_acceleration * self.dt))
         d0, d1, d2 = direction
         di = d0 * i0 + d1 * i1 + d2 * i2
+        if di >= b:  # the gradient already turns inward at least that much
+            return direction
         p0, p1, p2 = d0 - di * i0, d1 - di * i1, d2 - di * i2
         pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
         if pn <= 1e-12:  # no preference along the edge: brake (and come back in) with all of it

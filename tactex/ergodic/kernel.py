@@ -410,13 +410,14 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             if v_out > 0.0:
                 b = min(1.0, v_out / a_dt)
                 di = e0 * i0 + e1 * i1 + e2 * i2
-                p0, p1, p2 = e0 - di * i0, e1 - di * i1, e2 - di * i2
-                pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
-                if pn <= 1e-12:
-                    e0, e1, e2 = i0, i1, i2
-                else:
-                    s = (1.0 - b * b) ** 0.5 / pn
-                    e0, e1, e2 = b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
+                if di < b:  # else the gradient already turns inward at least that much
+                    p0, p1, p2 = e0 - di * i0, e1 - di * i1, e2 - di * i2
+                    pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
+                    if pn <= 1e-12:
+                        e0, e1, e2 = i0, i1, i2
+                    else:
+                        s = (1.0 - b * b) ** 0.5 / pn
+                        e0, e1, e2 = b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
         q0, q1, q2 = q0 + a_dt * e0, q1 + a_dt * e1, q2 + a_dt * e2
     nw = (q0 * q0 + q1 * q1 + q2 * q2) ** 0.5
     if nw > v_max:
