@@ -13,6 +13,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from tactex.ergodic.kernel import braked_direction, transported_floats
+
 __all__ = ["Agent", "FirstOrderAgent", "SecondOrderAgent", "make_agent", "transport"]
 
 
@@ -93,32 +95,15 @@ class SecondOrderAgent(Agent):
         inward share is b and the rest, √(1 − b²), goes along the edge in the gradient's sense."""
         t0, t1, t2 = self._transported_floats(normal)
         i0, i1, i2 = inward
-        v_out = -(t0 * i0 + t1 * i1 + t2 * i2)
-        if v_out <= 0.0:
-            return direction
-        b = min(1.0, v_out / (self.max_acceleration * self.dt))
         d0, d1, d2 = direction
-        di = d0 * i0 + d1 * i1 + d2 * i2
-        if di >= b:  # the gradient already turns inward at least that much
-            return direction
-        p0, p1, p2 = d0 - di * i0, d1 - di * i1, d2 - di * i2
-        pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
-        if pn <= 1e-12:  # no preference along the edge: brake (and come back in) with all of it
-            return inward
-        s = (1.0 - b * b) ** 0.5 / pn
-        return b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
+        v_out = -(t0 * i0 + t1 * i1 + t2 * i2)
+        return braked_direction(d0, d1, d2, i0, i1, i2, v_out, self.max_acceleration * self.dt)
 
     def _transported_floats(self, normal: tuple) -> tuple:
         """:func:`transport` of the velocity to the plane ⊥ normal, in Python floats."""
         v0, v1, v2 = self.velocity.tolist()
         n0, n1, n2 = normal
-        vn = v0 * n0 + v1 * n1 + v2 * n2
-        t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
-        nt2 = t0 * t0 + t1 * t1 + t2 * t2
-        if nt2 > 1e-300:
-            k = ((v0 * v0 + v1 * v1 + v2 * v2) / nt2) ** 0.5
-            t0, t1, t2 = t0 * k, t1 * k, t2 * k
-        return t0, t1, t2
+        return transported_floats(v0, v1, v2, n0, n1, n2)
 
     def command_velocity_floats(self, direction: tuple, normal: tuple) -> tuple:
         # transport() and the clip in Python floats (hot path: three numbers per vector)

@@ -101,6 +101,38 @@ def _project(kind, c0, c1, c2, rad, pn0, pn1, pn2, x0, x1, x2, r0, r1, r2):
     return True, x0 - h * pn0, x1 - h * pn1, x2 - h * pn2, sgn * pn0, sgn * pn1, sgn * pn2
 
 
+# The agent's own float rules, shared with agents.py (which calls these Python forms): they live in
+# this file because numba's cache is renewed only when the file of the cached step changes.
+def transported_floats(v0, v1, v2, n0, n1, n2):
+    """agents.transport on float triples: v carried to the plane ⊥ the unit normal n, length kept."""
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
+    nt2 = t0 * t0 + t1 * t1 + t2 * t2
+    if nt2 > 1e-300:
+        k = ((v0 * v0 + v1 * v1 + v2 * v2) / nt2) ** 0.5
+        t0, t1, t2 = t0 * k, t1 * k, t2 * k
+    return t0, t1, t2
+
+
+def braked_direction(e0, e1, e2, i0, i1, i2, v_out, a_dt):
+    """The unit acceleration direction e at a scan edge with the unit inward tangent i, for an
+    outward speed v_out [m/s] and one step's change a_dt [m/s]: its inward share is at least
+    b = min(1, v_out / a_dt) (e is kept if it already turns inward that much), the rest √(1 − b²)
+    along the edge in e's sense (see SecondOrderAgent.edge_direction)."""
+    if v_out <= 0.0:
+        return e0, e1, e2
+    b = min(1.0, v_out / a_dt)
+    di = e0 * i0 + e1 * i1 + e2 * i2
+    if di >= b:
+        return e0, e1, e2
+    p0, p1, p2 = e0 - di * i0, e1 - di * i1, e2 - di * i2
+    pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
+    if pn <= 1e-12:  # no preference along the edge: brake (and come back in) with all of it
+        return i0, i1, i2
+    s = (1.0 - b * b) ** 0.5 / pn
+    return b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
+
+
 def _nearest(dd, k):
     """Indices of the k smallest values of dd, ascending (k ≪ len(dd): an insertion list)."""
     idx = np.empty(k, dtype=np.int64)
@@ -397,27 +429,10 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
     if prm[_ORDER] == 1.0:
         q0, q1, q2 = v_max * e0, v_max * e1, v_max * e2
     else:
-        w0, w1, w2 = vel[0], vel[1], vel[2]
-        vn = w0 * n0 + w1 * n1 + w2 * n2
-        q0, q1, q2 = w0 - vn * n0, w1 - vn * n1, w2 - vn * n2
-        nt2 = q0 * q0 + q1 * q1 + q2 * q2
-        if nt2 > 1e-300:
-            kk = ((w0 * w0 + w1 * w1 + w2 * w2) / nt2) ** 0.5
-            q0, q1, q2 = q0 * kk, q1 * kk, q2 * kk
+        q0, q1, q2 = transported_floats(vel[0], vel[1], vel[2], n0, n1, n2)
         a_dt = prm[_A_DT]
-        if at_edge and prm[_BRAKE] > 0.0:  # brake the outward motion first (SecondOrderAgent.edge_direction)
-            v_out = -(q0 * i0 + q1 * i1 + q2 * i2)
-            if v_out > 0.0:
-                b = min(1.0, v_out / a_dt)
-                di = e0 * i0 + e1 * i1 + e2 * i2
-                if di < b:  # else the gradient already turns inward at least that much
-                    p0, p1, p2 = e0 - di * i0, e1 - di * i1, e2 - di * i2
-                    pn = (p0 * p0 + p1 * p1 + p2 * p2) ** 0.5
-                    if pn <= 1e-12:
-                        e0, e1, e2 = i0, i1, i2
-                    else:
-                        s = (1.0 - b * b) ** 0.5 / pn
-                        e0, e1, e2 = b * i0 + s * p0, b * i1 + s * p1, b * i2 + s * p2
+        if at_edge and prm[_BRAKE] > 0.0:  # brake the outward motion first
+            e0, e1, e2 = braked_direction(e0, e1, e2, i0, i1, i2, -(q0 * i0 + q1 * i1 + q2 * i2), a_dt)
         q0, q1, q2 = q0 + a_dt * e0, q1 + a_dt * e1, q2 + a_dt * e2
     nw = (q0 * q0 + q1 * q1 + q2 * q2) ** 0.5
     if nw > v_max:
@@ -533,7 +548,7 @@ def compiled_walk_step():
     other than a missing numba (e.g. a numba too old for the installed numpy) propagate: the
     explorer reports them and runs numpy. After :func:`disable` it raises at once.
     """
-    global _compiled, _project, _nearest, _restore, _land
+    global _compiled, _project, _nearest, _restore, _land, transported_floats, braked_direction
     if _failure is not None:
         raise RuntimeError(_failure)
     if _compiled is None:
@@ -551,6 +566,7 @@ def compiled_walk_step():
                 return njit(nogil=True)(fn)
 
         _project, _nearest, _restore, _land = jit(_project), jit(_nearest), jit(_restore), jit(_land)
+        transported_floats, braked_direction = jit(transported_floats), jit(braked_direction)
         _compiled = jit(_walk_step)
     return _compiled
 
