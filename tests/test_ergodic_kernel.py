@@ -309,7 +309,8 @@ def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
 
     monkeypatch.setattr(numba.config, "DISABLE_JIT", True)
     # restored after the test: the compiled step, its helpers and the failure flag
-    for name in ("_compiled", "_failure", "_project", "_nearest", "_restore", "_land"):
+    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "project_floats", "tangent_floats",
+                 "plane_slope", "transported_floats", "braked_direction"):
         monkeypatch.setattr(ker, name, getattr(ker, name))
     ker._compiled = None
     cloud, basis = objects["bowl"]

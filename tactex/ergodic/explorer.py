@@ -53,6 +53,7 @@ from tactex.ergodic.bridges import Bridge, gap_links
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTOL
+from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
@@ -61,6 +62,8 @@ from tactex.pointcloud import SurfaceCloud
 __all__ = ["HedacExplorer"]
 
 _log = logging.getLogger(__name__)
+#: The patch kinds :func:`~tactex.ergodic.kernel.project_floats` takes, by its code.
+_PATCH_KINDS = {"sphere": 0, "plane": 1}
 _Z = np.array([0.0, 0.0, 1.0])
 # ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
 # these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
@@ -89,14 +92,8 @@ def _tangent_matrix(n: np.ndarray | tuple) -> np.ndarray:
 
 def _tangent_matrix_0uv(n: np.ndarray | tuple) -> np.ndarray:
     """(3, 3) [0, t_u, t_v]: :func:`_tangent_matrix` after a zero column (offsets · it = rows (0, u, v))."""
-    n0, n1, n2 = n if isinstance(n, tuple) else n.tolist()
-    if abs(n0) < 0.9:  # t_u = normalised e_x − (e_x·n) n
-        a0, a1, a2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
-    else:  # t_u from e_y
-        a0, a1, a2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
-    inv = 1.0 / (a0 * a0 + a1 * a1 + a2 * a2) ** 0.5
-    a0, a1, a2 = a0 * inv, a1 * inv, a2 * inv
-    return np.array([[0.0, a0, n1 * a2 - n2 * a1], [0.0, a1, n2 * a0 - n0 * a2], [0.0, a2, n0 * a1 - n1 * a0]])
+    a0, a1, a2, b0, b1, b2 = tangent_floats(*(n if isinstance(n, tuple) else n.tolist()))
+    return np.array([[0.0, a0, b0], [0.0, a1, b1], [0.0, a2, b2]])
 
 
 def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -106,53 +103,26 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _plane_slope(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float,
                  b0: float, b1: float, b2: float) -> tuple[float, float] | None:
-    """Slope (c_u, c_v) of the weighted plane c_0 + c_u u + c_v v with normal matrix a[:3, :3] and
-    right-hand side (b0, b1, b2); None when the block is not positive definite (collinear points).
-
-    A 3×3 Cholesky in Python floats: a LAPACK call costs more than the arithmetic at this size.
-    """
-    if a00 <= 0.0:
-        return None
-    l00 = a00**0.5
-    l10, l20 = a01 / l00, a02 / l00
-    p11 = a11 - l10 * l10
-    if p11 <= PLANE_PIVOT_RTOL * a11:
-        return None
-    l11 = p11**0.5
-    l21 = (a12 - l20 * l10) / l11
-    p22 = a22 - l20 * l20 - l21 * l21
-    if p22 <= PLANE_PIVOT_RTOL * a22:
-        return None
-    l22 = p22**0.5
-    y0 = b0 / l00
-    y1 = (b1 - l10 * y0) / l11
-    c_v = (b2 - l20 * y0 - l21 * y1) / l22 / l22
-    c_u = (y1 - l21 * c_v) / l11
-    return c_u, c_v
+    """:func:`~tactex.ergodic.kernel.plane_slope` (c_u, c_v), or None when the block is not positive
+    definite (collinear points)."""
+    ok, c_u, c_v = plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2, PLANE_PIVOT_RTOL)
+    return (c_u, c_v) if ok else None
 
 
 def _project_floats(patch: SurfacePatch, x: tuple, ref: tuple) -> tuple[tuple, tuple]:
     """:func:`_project_local` on Python floats: x and ref are 3-tuples, so are the point and normal.
 
-    Sphere and plane (the per-step cases) in Python floats: three numbers do not pay numpy's
-    per-call overhead; the other kinds go through :meth:`SurfacePatch.project`.
+    Sphere and plane (the per-step cases) in Python floats (:func:`~tactex.ergodic.kernel.project_floats`,
+    which the compiled step shares): three numbers do not pay numpy's per-call overhead; the other
+    kinds, and a point at a sphere's centre, go through :meth:`SurfacePatch.project`.
     """
-    x0, x1, x2 = x
-    r0, r1, r2 = ref
-    if patch.kind == "sphere":
-        cx, cy, cz = patch.center.tolist()
-        ux, uy, uz = x0 - cx, x1 - cy, x2 - cz
-        nu = (ux * ux + uy * uy + uz * uz) ** 0.5
-        if nu > 1e-12 * patch.radius:
-            sgn = 1.0 / nu if ux * r0 + uy * r1 + uz * r2 >= 0.0 else -1.0 / nu
-            k = patch.radius / nu
-            return (cx + k * ux, cy + k * uy, cz + k * uz), (ux * sgn, uy * sgn, uz * sgn)
-    elif patch.kind == "plane":
-        nx, ny, nz = patch.direction.tolist()
-        cx, cy, cz = patch.center.tolist()
-        h = (x0 - cx) * nx + (x1 - cy) * ny + (x2 - cz) * nz
-        sgn = 1.0 if nx * r0 + ny * r1 + nz * r2 >= 0.0 else -1.0
-        return (x0 - h * nx, x1 - h * ny, x2 - h * nz), (sgn * nx, sgn * ny, sgn * nz)
+    kind = _PATCH_KINDS.get(patch.kind)
+    if kind is not None:
+        ok, p0, p1, p2, n0, n1, n2 = project_floats(
+            kind, *patch.center.tolist(), patch.radius, *patch.direction.tolist(), *x, *ref
+        )
+        if ok:
+            return (p0, p1, p2), (n0, n1, n2)
     refa = np.array(ref)
     p, n = patch.project(np.array(x), refa)
     return tuple(p.tolist()), tuple((n if float(n @ refa) >= 0.0 else -n).tolist())

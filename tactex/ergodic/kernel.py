@@ -85,7 +85,10 @@ def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acce
     return prm
 
 
-def _project(kind, c0, c1, c2, rad, pn0, pn1, pn2, x0, x1, x2, r0, r1, r2):
+# Float rules shared with the numpy step (explorer.py, agents.py call these Python forms; the
+# compiled step calls their compiled forms): they live in this file because numba renews its cache
+# only when the cached step's own file changes.
+def project_floats(kind, c0, c1, c2, rad, pn0, pn1, pn2, x0, x1, x2, r0, r1, r2):
     """Closest point of a sphere (kind 0: centre c, radius rad) or plane (kind 1: point c, unit
     normal pn) to x and the normal there, oriented along r; ok = False at a sphere's centre."""
     if kind == 0:
@@ -101,8 +104,43 @@ def _project(kind, c0, c1, c2, rad, pn0, pn1, pn2, x0, x1, x2, r0, r1, r2):
     return True, x0 - h * pn0, x1 - h * pn1, x2 - h * pn2, sgn * pn0, sgn * pn1, sgn * pn2
 
 
-# The agent's own float rules, shared with agents.py (which calls these Python forms): they live in
-# this file because numba's cache is renewed only when the file of the cached step changes.
+def tangent_floats(n0, n1, n2):
+    """Orthonormal tangent basis (t_u, t_v) of the unit normal n with (t_u, t_v, n) right-handed:
+    t_u is e_x (e_y when n is near e_x) with its n component removed, t_v = n × t_u."""
+    if abs(n0) < 0.9:
+        t0, t1, t2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
+    else:
+        t0, t1, t2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
+    it = 1.0 / (t0 * t0 + t1 * t1 + t2 * t2) ** 0.5
+    t0, t1, t2 = t0 * it, t1 * it, t2 * it
+    return t0, t1, t2, n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
+
+
+def plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2, pivot_rtol):
+    """Slope (c_u, c_v) of the weighted plane c_0 + c_u u + c_v v with normal matrix a[:3, :3] and
+    right-hand side (b0, b1, b2), as (ok, c_u, c_v); ok is False when the block is not positive
+    definite (collinear points: a pivot below pivot_rtol of its diagonal entry). A 3×3 Cholesky in
+    floats: a LAPACK call costs more than the arithmetic at this size."""
+    if a00 <= 0.0:
+        return False, 0.0, 0.0
+    l00 = a00**0.5
+    l10, l20 = a01 / l00, a02 / l00
+    p11 = a11 - l10 * l10
+    if p11 <= pivot_rtol * a11:
+        return False, 0.0, 0.0
+    l11 = p11**0.5
+    l21 = (a12 - l20 * l10) / l11
+    p22 = a22 - l20 * l20 - l21 * l21
+    if p22 <= pivot_rtol * a22:
+        return False, 0.0, 0.0
+    l22 = p22**0.5
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    c_v = (b2 - l20 * y0 - l21 * y1) / l22 / l22
+    c_u = (y1 - l21 * c_v) / l11
+    return True, c_u, c_v
+
+
 def transported_floats(v0, v1, v2, n0, n1, n2):
     """agents.transport on float triples: v carried to the plane ⊥ the unit normal n, length kept."""
     vn = v0 * n0 + v1 * n1 + v2 * n2
@@ -230,18 +268,12 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
         o = vinf / nv
         cx, cy, cz = o * px, o * py, o * pz
         rad = np.inf
-    ok, p0, p1, p2, n0, n1, n2 = _project(kind, cx, cy, cz, rad, px, py, pz, 0.0, 0.0, 0.0, nrm[0], nrm[1], nrm[2])
+    ok, p0, p1, p2, n0, n1, n2 = project_floats(kind, cx, cy, cz, rad, px, py, pz, 0.0, 0.0, 0.0,
+                                                nrm[0], nrm[1], nrm[2])
     if not ok:
         return DEGENERATE
     sf0, sf1, sf2 = p0 * scale, p1 * scale, p2 * scale  # the projected agent, agent-centred [m]
-    # Tangent basis (t_u, t_v, n) right-handed, as the explorer's _tangent_matrix.
-    if abs(n0) < 0.9:
-        t0, t1, t2 = 1.0 - n0 * n0, -n0 * n1, -n0 * n2
-    else:
-        t0, t1, t2 = -n1 * n0, 1.0 - n1 * n1, -n1 * n2
-    it = 1.0 / (t0 * t0 + t1 * t1 + t2 * t2) ** 0.5
-    t0, t1, t2 = t0 * it, t1 * it, t2 * it
-    s0, s1, s2 = n1 * t2 - n2 * t1, n2 * t0 - n0 * t2, n0 * t1 - n1 * t0
+    t0, t1, t2, s0, s1, s2 = tangent_floats(n0, n1, n2)  # (t_u, t_v, n) right-handed
 
     # Every candidate on the tangent plane at the projected agent: (u, v) [m] and squared 3D distance.
     gu = np.empty(m)
@@ -392,23 +424,12 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             a11 += kk * u * u
             a12 += kk * u * v
             a22 += kk * v * v
-        if any_src and b0 > 0.0 and a00 > 0.0:
-            l00 = a00**0.5
-            l10, l20 = a01 / l00, a02 / l00
-            p11 = a11 - l10 * l10
-            if p11 > prm[_PIVOT] * a11:
-                l11 = p11**0.5
-                l21 = (a12 - l20 * l10) / l11
-                p22 = a22 - l20 * l20 - l21 * l21
-                if p22 > prm[_PIVOT] * a22:
-                    l22 = p22**0.5
-                    y0 = b0 / l00
-                    y1 = (b1 - l10 * y0) / l11
-                    c_v = (b2 - l20 * y0 - l21 * y1) / l22 / l22
-                    c_u = (y1 - l21 * c_v) / l11
-                    kw = prm[_SOURCE_W] * scale
-                    su += kw * c_u
-                    sv += kw * c_v
+        if any_src and b0 > 0.0:
+            ok, c_u, c_v = plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2, prm[_PIVOT])
+            if ok:
+                kw = prm[_SOURCE_W] * scale
+                su += kw * c_u
+                sv += kw * c_v
     g0, g1, g2 = t0 * su + s0 * sv, t1 * su + s1 * sv, t2 * su + s2 * sv
     i0 = i1 = i2 = 0.0  # the unit inward tangent at a scan edge
     if at_edge:  # Neumann boundary: no outward flux, drop the gradient's outward part
@@ -515,7 +536,7 @@ def _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2, q0, q1, q2, n0, n1, 
     squared distances from the landing point to the candidates, with the index of the nearest."""
     k = 1.0 / scale
     y0, y1, y2 = (sf0 + q0 * dt) * k, (sf1 + q1 * dt) * k, (sf2 + q2 * dt) * k
-    ok, a0, a1, a2, m0, m1, m2 = _project(kind, cx, cy, cz, rad, px, py, pz, y0, y1, y2, n0, n1, n2)
+    ok, a0, a1, a2, m0, m1, m2 = project_floats(kind, cx, cy, cz, rad, px, py, pz, y0, y1, y2, n0, n1, n2)
     a0, a1, a2 = a0 * scale, a1 * scale, a2 * scale
     ss = a0 * a0 + a1 * a1 + a2 * a2
     kmin = 0
@@ -548,7 +569,8 @@ def compiled_walk_step():
     other than a missing numba (e.g. a numba too old for the installed numpy) propagate: the
     explorer reports them and runs numpy. After :func:`disable` it raises at once.
     """
-    global _compiled, _project, _nearest, _restore, _land, transported_floats, braked_direction
+    global _compiled, _nearest, _restore, _land, project_floats, tangent_floats, plane_slope
+    global transported_floats, braked_direction
     if _failure is not None:
         raise RuntimeError(_failure)
     if _compiled is None:
@@ -565,7 +587,8 @@ def compiled_walk_step():
             except RuntimeError:  # no writable cache location anywhere: compile in every process
                 return njit(nogil=True)(fn)
 
-        _project, _nearest, _restore, _land = jit(_project), jit(_nearest), jit(_restore), jit(_land)
+        _nearest, _restore, _land = jit(_nearest), jit(_restore), jit(_land)
+        project_floats, tangent_floats, plane_slope = jit(project_floats), jit(tangent_floats), jit(plane_slope)
         transported_floats, braked_direction = jit(transported_floats), jit(braked_direction)
         _compiled = jit(_walk_step)
     return _compiled
