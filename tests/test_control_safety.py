@@ -25,9 +25,13 @@ class Constant(Controller):
         self.tau = np.asarray(tau, dtype=float)
         self.fail = fail
         self.resets = 0
+        self.resumes = 0
 
     def reset(self, state) -> None:
         self.resets += 1
+
+    def resume(self, state) -> None:
+        self.resumes += 1
 
     def torque(self, state, reference):
         if self.fail == "raise":
@@ -104,11 +108,45 @@ def test_force_trip_retreat_and_resume():
     jac[:6, :6] = np.eye(6)
     tau = layer.torque(_state(3, jacobian=jac), None)
     assert not np.allclose(tau, 0.3)
-    resets = inner.resets
+    resets, resumes = inner.resets, inner.resumes
     for k in range(4, 60):
         layer.torque(_state(k), None)
-    assert not layer.retreating and inner.resets == resets + 1
+    # resumed, not reset: a controller with tanks keeps their energy (see test_control_ufic)
+    assert not layer.retreating and inner.resumes == resumes + 1 and inner.resets == resets
     assert [e.kind for e in layer.events].count("retreat_end") == 1
+
+
+def test_a_lost_wrench_sensor_retreats_until_it_is_back():
+    """A dead F/T sensor: the last finite reading bridges wrench_loss_ticks ticks, then the layer
+    retreats (a frozen reading could neither trip the force limit nor close a force loop); one event
+    per dropout however long it lasts; the inner controller resumes retreat_time after the sensor is back."""
+    limits = {"wrench_loss_ticks": 5, "retreat_time": 0.02}
+    layer, inner = _layer(np.full(N_JOINTS, 0.3), **limits)
+    layer.torque(_state(0, wrench_tool=np.array([0, 0, 15.0, 0, 0, 0])), None)
+    dead = np.full(6, np.nan)
+    for k in range(1, 6):  # within the bridge: the inner controller keeps running
+        tau = layer.torque(_state(k, wrench_tool=dead), None)
+        assert not layer.retreating
+    np.testing.assert_allclose(tau, 0.3)
+    layer.torque(_state(6, wrench_tool=dead), None)
+    assert layer.retreating
+    for k in range(7, 3000):  # three seconds without a sensor
+        assert np.isfinite(layer.torque(_state(k, wrench_tool=dead), None)).all()
+        assert layer.retreating
+    kinds = [e.kind for e in layer.events if e.kind not in ("torque_rate_limit", "torque_limit")]
+    assert kinds == ["nan_wrench", "wrench_lost"] and layer.counts["nan_wrench"] == 2999
+    assert len(layer.events) < 10
+    resumes = inner.resumes
+    for k in range(3000, 3030):  # the sensor is back: retreat_time (20 ticks) later the controller resumes
+        layer.torque(_state(k), None)
+        assert layer.retreating == (k < 3019)
+    assert inner.resumes == resumes + 1 and "retreat_end" in [e.kind for e in layer.events]
+
+
+def test_wrench_loss_ticks_validation():
+    for bad in (0, -1, 2.5, True):
+        with pytest.raises(ConfigError, match="wrench_loss_ticks"):
+            SafetyLimits(wrench_loss_ticks=bad)
 
 
 def test_retreat_pulls_away_from_the_surface():
@@ -185,7 +223,8 @@ def test_nan_wrench_is_replaced_by_the_last_finite_one_exactly():
     layer.torque(_state(2, wrench_tool=np.array([np.inf, 0, 0, 0, 0, 0])), None)
     np.testing.assert_array_equal(inner.wrenches[1], good)
     np.testing.assert_array_equal(inner.wrenches[2], good)
-    assert [e.kind for e in layer.events] == ["nan_wrench", "nan_wrench"]
+    assert [e.kind for e in layer.events] == ["nan_wrench"]  # one event per dropout, every tick counted
+    assert layer.counts["nan_wrench"] == 2
     layer.reset(make_state(q=Q_MID))  # after a reset the fallback is a zero wrench
     layer.torque(_state(0, wrench_tool=np.array([np.nan] * 6)), None)
     np.testing.assert_array_equal(inner.wrenches[-1], np.zeros(6))

@@ -135,6 +135,21 @@ def test_tank_config_validation(kwargs):
         ImpedanceTank(**kwargs)
 
 
+def test_a_tank_cannot_start_above_its_upper_limit():
+    with pytest.raises(ConfigError, match=r"upper limit 32\.0 J"):
+        ImpedanceTank(x0=20.0, upper_j=32.0, lower_j=1.0)  # 200 J in a 32 J tank
+    assert ImpedanceTank(x0=8.0, upper_j=32.0, lower_j=1.0).energy == 32.0  # exactly full is allowed
+
+
+def test_withdraw_is_all_or_nothing_above_the_lower_limit():
+    tank = ImpedanceTank(x0=2.0, upper_j=32.0, lower_j=1.0)  # 2 J
+    assert tank.withdraw(0.75) and tank.energy == pytest.approx(1.25) and tank.delivered == pytest.approx(0.75)
+    assert not tank.withdraw(0.5) and tank.energy == pytest.approx(1.25)  # would end at 0.75 J < 1 J
+    assert tank.withdraw(0.0) and not tank.withdraw(float("nan")) and tank.energy == pytest.approx(1.25)
+    shadow = ImpedanceTank(x0=2.0, upper_j=32.0, lower_j=1.0, enabled=False)
+    assert shadow.withdraw(1.5) and shadow.energy == pytest.approx(0.5)  # books kept below the limit
+
+
 def test_the_pair_never_stores_more_than_was_dissipated(rng):
     """Eq. 39 and 57 both harvest ẋᵀDẋ; routed as VA-UFIC does (force tank first, the impedance
     tank the rest), the pair together stores at most the damping's plus the force loop's dissipation."""

@@ -341,3 +341,37 @@ def test_retract_near_a_singular_posture_keeps_the_joint_limits_and_speed() -> N
     assert np.all(q1 <= np.maximum(np.asarray(FRANKA_Q_MAX) - margin, q0) + 0.02)
     assert loop.t - t0 >= 1.875 * np.max(np.abs(q1 - q0)) / 0.8 - 0.05
 
+
+
+def test_control_loop_resets_a_controller_once_then_resumes_it() -> None:
+    """Switching back to a controller must not refill its energy tanks: the loop resets a controller
+    the first time it is used and resumes it afterwards."""
+    from tactex.control import VaUficController
+    from tactex.tasks.runner import ControlLoop
+    from tests.test_control_common import make_state
+
+    class Still:  # a backend that never moves
+        def __init__(self) -> None:
+            self._state = make_state(q=np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0]))
+
+        def state(self):
+            return self._state
+
+        def apply_torque(self, tau) -> None:
+            assert np.isfinite(tau).all()
+
+        def step(self):
+            return self._state
+
+    loop = ControlLoop(Still())
+    ctrl = VaUficController()
+    loop.use(ctrl)
+    assert ctrl.tank_i.energy == pytest.approx(24.5)
+    ctrl.tank_i.energy = 3.0  # as if spent in contact
+    loop.use(loop.joint)
+    loop.use(ctrl)
+    assert ctrl.tank_i.energy == 3.0
+    fresh = VaUficController()
+    fresh.tank_i.energy = 3.0
+    loop.use(fresh)  # a controller new to this loop starts from its initial state
+    assert fresh.tank_i.energy == pytest.approx(24.5)

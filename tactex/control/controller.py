@@ -16,7 +16,9 @@ class Controller(ABC):
     """A joint-torque controller. Pure numpy; knows nothing of the simulator.
 
     Subclasses implement :meth:`torque`. ``reset`` is called once before the first tick, with the
-    state the robot is in, so that integrators and filters start from it.
+    state the robot is in, so that integrators and filters start from it. ``resume`` restarts a
+    controller that was interrupted (a safety retreat, another controller in between) without
+    giving back energy it had spent: a controller with energy tanks keeps their levels.
     """
 
     #: Short registry name (``ga_line_force``, ``ufic``, ``va_ufic``, ``cartesian_impedance`` ...).
@@ -24,6 +26,13 @@ class Controller(ABC):
 
     def reset(self, state: RobotState) -> None:  # noqa: B027 - optional hook
         """Clear internal states (integrators, filters, tanks) and start from ``state``."""
+
+    def resume(self, state: RobotState) -> None:
+        """Start again from ``state`` after an interruption: integrators, filters and set-point
+        offsets restart as in :meth:`reset`, but stored energy (tanks) is kept, since refilling a
+        tank that ran dry would create energy and defeat the passivity it guards. By default the
+        same as :meth:`reset` (a controller without tanks has nothing to keep)."""
+        self.reset(state)
 
     @abstractmethod
     def torque(self, state: RobotState, reference: Any) -> np.ndarray:

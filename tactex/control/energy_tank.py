@@ -79,6 +79,11 @@ class EnergyTank:
             )
         if 0.5 * x0 * x0 <= lower_j:
             raise ConfigError(f"energy tank initial state x0={x0} holds {0.5 * x0 * x0} J ≤ lower limit {lower_j} J")
+        if 0.5 * x0 * x0 > upper_j:
+            raise ConfigError(
+                f"energy tank initial state x0={x0} holds {0.5 * x0 * x0} J > upper limit {upper_j} J; "
+                f"use x0 ≤ √(2·upper) = {math.sqrt(2.0 * upper_j):.4g}"
+            )
         self.x0, self.upper, self.lower = float(x0), float(upper_j), float(lower_j)
         self.band, self.enabled = float(band_j), bool(enabled)
         self.energy = 0.5 * self.x0 * self.x0
@@ -107,6 +112,18 @@ class EnergyTank:
 
     def gate(self) -> float:
         return smooth_fill_gate(self.energy, self.upper, self.band)
+
+    def withdraw(self, energy_j: float) -> bool:
+        """Pay ``energy_j`` [J] ≥ 0 at once (energy put into a storage outside the port, e.g. a spring
+        whose set point moves). All or nothing: False, and nothing taken, when it would bring an enabled
+        tank below its lower limit. A disabled (shadow) tank always pays, as it keeps only the books."""
+        if not energy_j > 0.0:  # nothing to pay (and a NaN never drains the tank)
+            return energy_j == 0.0
+        if self.enabled and self.energy - energy_j < self.lower:
+            return False
+        self.energy -= energy_j
+        self.delivered += energy_j
+        return True
 
     def _commit(self, demand_w: float, valve: float, harvest_w: float, gate: float, lam: float, dt: float) -> float:
         """Apply one step. ``demand_w`` is the power the port would deliver with the valve fully

@@ -65,6 +65,10 @@ class NullspacePosture(Controller):
         self.q_posture = state.q.copy() if self._fixed is None else self._fixed
         self.inner.reset(state)
 
+    def resume(self, state: RobotState) -> None:
+        self.q_posture = state.q.copy() if self._fixed is None else self._fixed
+        self.inner.resume(state)
+
     def torque(self, state: RobotState, reference: Any) -> np.ndarray:
         tau = self.inner.torque(state, reference)
         if self.q_posture is None:

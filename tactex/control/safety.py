@@ -3,10 +3,15 @@
 :class:`SafetyLayer` wraps any :class:`Controller` and is itself one. Per tick:
 
 1. non-finite state → hold (last safe command, decaying) and raise a ``nan_state`` event; a
-   non-finite F/T wrench alone is replaced by the last finite one (``nan_wrench``) so control goes on;
+   non-finite F/T wrench alone is replaced by the last finite one (``nan_wrench``, reported when the
+   dropout starts) so control goes on through a glitch. After ``wrench_loss_ticks`` non-finite
+   readings in a row the sensor counts as lost (``wrench_lost``): a stale reading can neither trip
+   the force limit nor close a force loop, so the layer retreats as in 2. until the sensor is back
+   for ``retreat_time``;
 2. contact force above ``max_contact_force`` for ``force_trip_ticks`` ticks → compliant retreat
    (damping plus a small pull back along −tool z) for ``retreat_time``, then the inner controller
-   is reset from the current state and resumes (``force_limit`` / ``retreat_end`` events);
+   resumes from the current state (``force_limit`` / ``retreat_end`` events; :meth:`Controller.resume`
+   restarts its integrators but keeps its tanks' energy: a retreat must not refill a dry tank);
 3. the inner controller's torque; an exception or a non-finite torque → hold (``controller_fault`` /
    ``nan_torque``);
 4. joint-limit repulsion inside ``joint_limit_margin`` of a limit (``joint_limit``);
@@ -60,6 +65,9 @@ class SafetyLimits:
     force_trip_ticks: int = param(
         10, "consecutive ticks above the force limit before tripping: impacts and sensor glitches last less [-]")
     retreat_time: float = param(0.3, "duration of the compliant retreat [s]")
+    wrench_loss_ticks: int = param(
+        20, "consecutive non-finite F/T readings bridged with the last finite one; one more and the sensor "
+        "counts as lost and the layer retreats [-]")
     retreat_force: float = param(5.0, "pull back along −tool z during the retreat [N]")
     retreat_damping: float = param(60.0, "lateral translational damping during the retreat [N·s/m]")
     retreat_axial_damping: float = param(
@@ -85,8 +93,10 @@ class SafetyLimits:
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"SafetyLimits.{name} must be finite and ≥ 0, got {v!r}")
-        if self.force_trip_ticks < 1:
-            raise ConfigError(f"SafetyLimits.force_trip_ticks must be ≥ 1, got {self.force_trip_ticks!r}")
+        for name in ("force_trip_ticks", "wrench_loss_ticks"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ConfigError(f"SafetyLimits.{name} must be an integer ≥ 1, got {v!r}")
 
 
 class SafetyLayer(Controller):
@@ -111,6 +121,7 @@ class SafetyLayer(Controller):
         self.counts: dict[str, int] = {}
         self._tau_prev_l = [0.0] * len(self._tau_max_l)  # last command, Python floats
         self._wrench_last_l = [0.0] * 6  # last finite F/T wrench, Python floats
+        self._wrench_bad = 0  # consecutive non-finite F/T readings
         self._over = 0
         self._retreat_until: float | None = None
         self._saturating = {"torque_limit": False, "torque_rate_limit": False}
@@ -126,6 +137,7 @@ class SafetyLayer(Controller):
         self.counts.clear()
         self._tau_prev_l = [0.0] * len(self._tau_max_l)
         self._wrench_last_l = [0.0] * 6
+        self._wrench_bad = 0
         self._over = 0
         self._retreat_until = None
         self._held = False
@@ -150,15 +162,30 @@ class SafetyLayer(Controller):
         if state.q.shape[0] != self._tau_max.shape[0]:
             raise ConfigError(f"SafetyLayer configured for {self._tau_max.shape[0]} joints, state has {state.n_joints}")
         wrench = state.wrench_tool.tolist()
+        lost = False
         if not math.isfinite(sum(wrench)):
-            msg = f"non-finite F/T wrench {state.wrench_tool!r}; using the last finite one"
-            self._event(state.t, "nan_wrench", msg)
+            self._wrench_bad += 1
+            if self._wrench_bad == 1:  # one event per dropout (a dead sensor would add one per tick)
+                msg = f"non-finite F/T wrench {state.wrench_tool!r}; using the last finite one"
+                self._event(state.t, "nan_wrench", msg)
+            else:
+                self.counts["nan_wrench"] += 1
+            lost = self._wrench_bad > lim.wrench_loss_ticks
+            if self._wrench_bad == lim.wrench_loss_ticks + 1:
+                self._event(state.t, "wrench_lost", f"no finite F/T reading for {self._wrench_bad} ticks; "
+                            "retreating until the sensor is back")
             wrench = self._wrench_last_l
             state = _replace_wrench(state, np.array(wrench))
+        else:
+            self._wrench_bad = 0
         if not _state_finite(state):
             self._event(state.t, "nan_state", "non-finite robot state; holding the last safe command")
             return self._finish(state, self._hold(), finite_state=False)
         self._wrench_last_l = wrench
+        if lost:  # retreat while the sensor is lost, and for retreat_time after it is back
+            until = state.t + lim.retreat_time
+            if self._retreat_until is None or self._retreat_until < until:
+                self._retreat_until = until
 
         fx, fy, fz = wrench[0], wrench[1], wrench[2]
         force = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -170,8 +197,8 @@ class SafetyLayer(Controller):
         if self._retreat_until is not None:
             if state.t >= self._retreat_until and self._over == 0:
                 self._retreat_until = None
-                self.inner.reset(state)
-                self._event(state.t, "retreat_end", "retreat finished; inner controller reset and resumed")
+                self.inner.resume(state)  # integrators restart; tanks keep their (possibly low) energy
+                self._event(state.t, "retreat_end", "retreat finished; inner controller resumed")
             else:
                 return self._finish(state, self._retreat_torque(state).tolist())
 

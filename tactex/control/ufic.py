@@ -51,8 +51,9 @@ class UficParams:
     ki: float = param(0.3, "force PI integral gain K_i [1/s]")
     force_axes: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
-        "tool-frame wrench components under force control (1) or not (0); the paper's K_p, K_i are 6×6 "
-        "identities, which with f_d = 0 tangentially would integrate friction against the stiffness",
+        "tool-frame wrench components whose force error is fed back (1) or not (0); f_d itself is fed forward "
+        "on every axis (eq. 11). The paper's K_p, K_i are 6×6 identities, which with f_d = 0 tangentially "
+        "would integrate friction against the stiffness",
     )
     integral_limit: float = param(30.0, "bound on |K_i ∫f̃| per component [N or N·m]")
     stiffness_scale: float = param(1.0, "translational stiffness scale ρ (time-varying K_C(t) = ρ·K_max,t) [-]")
@@ -135,7 +136,9 @@ class UficController(Controller):
     def force_wrench_tool(self, state: RobotState, wrench_des_tool, dt: float, integrate: bool = True,
                           wrench_meas_tool: list[float] | None = None) -> list[float]:
         """f_f of eq. 11 before the rotation R into the base frame: f_d + K_p f̃ + K_i ∫f̃, with
-        f̃ = f_d − f_meas on the selected axes (tool frame). ``wrench_des_tool``: 6 numbers [N, N·m];
+        f̃ = f_d − f_meas on the selected axes (tool frame); the feed-forward f_d acts on every axis,
+        as eq. 11 writes it (``force_axes`` selects where the force error is fed back, not where
+        f_d applies). ``wrench_des_tool``: 6 numbers [N, N·m];
         returns 6 Python floats (six-element arithmetic is cheaper on floats than per-call numpy at 1 kHz).
         ``wrench_meas_tool``: ``state.wrench_tool`` as Python floats when the caller has them already."""
         p = self.params
@@ -151,7 +154,7 @@ class UficController(Controller):
             if integrate:  # clamp to ±lim; a NaN stays NaN, as it did with np.minimum/np.maximum
                 s = integ[i] + err * dt
                 integ[i] = lim if s > lim else (-lim if s < -lim else s)
-            out[i] = a * fd + kp * err + ki * integ[i]
+            out[i] = fd + kp * err + ki * integ[i]
         return out
 
     # -- controller ------------------------------------------------------------------------

@@ -8,7 +8,9 @@ Per tick:
 4. while ρ_align ≈ 0 (below ``compliant_below``) the actual translation is fed back as the
    desired one (the motion policy is shifted to where the tool is), and if the camera sees the
    surface tilted w.r.t. the tool a re-orientation to the surface normal starts (eq. 22–27),
-   interpolated over T (eq. 28–29);
+   interpolated over T (eq. 28–29); the energy that moving R_d puts into the constant rotational
+   spring is paid from the impedance tank (R_d waits while the tank cannot pay), so eq. 64's storage
+   stays a storage;
 5. force shaping ρ_frc (eq. 30) with margin δ_c;
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
    f = −K_const x̃ − D ẋ + σ_i (−ρ_align K_max x̃ + D ẋ_d) + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f,
@@ -49,7 +51,7 @@ from tactex.control.energy_tank import ForceTank, ImpedanceTank
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.control.ufic import UficController, UficParams
-from tactex.errors import ConfigError, ControllerFault
+from tactex.errors import ConfigError, ControllerFault, InputError
 from tactex.geometry.so3 import exp_so3_rows, log_so3, log_so3_rows, matmul3_rows, matmul3_tn_rows
 from tactex.perception.estimate import SurfaceEstimate
 
@@ -111,8 +113,20 @@ class VaUficParams:
 
 
 def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarray) -> np.ndarray:
-    """Eq. 23–27: keep the current x-axis projected on the plane ⟂ r'_z, r'_y = r'_z × r'_x."""
-    rz = tool_z_world / np.linalg.norm(tool_z_world)
+    """Eq. 23–27: keep the current x-axis projected on the plane ⟂ r'_z, r'_y = r'_z × r'_x.
+
+    Args:
+        rot_current: (3, 3) current orientation world_R_tool.
+        tool_z_world: (3,) direction the tool z-axis should take (any length > 0).
+    """
+    tool_z_world = np.asarray(tool_z_world, dtype=float)
+    rot_current = np.asarray(rot_current, dtype=float)
+    if rot_current.shape != (3, 3) or not np.isfinite(rot_current).all():
+        raise InputError(f"rot_current must be a finite 3×3 rotation matrix, got {rot_current!r}")
+    norm_z = float(np.linalg.norm(tool_z_world)) if tool_z_world.shape == (3,) else float("nan")
+    if not (np.isfinite(norm_z) and norm_z > 1e-12):
+        raise InputError(f"tool_z_world must be a finite, non-zero 3-vector, got {tool_z_world!r}")
+    rz = tool_z_world / norm_z
     rx = rot_current[:, 0] - float(rot_current[:, 0] @ rz) * rz
     n = float(np.linalg.norm(rx))
     if n < 1e-6:  # current x-axis along the normal: fall back to the current y-axis
@@ -158,12 +172,16 @@ class VaUficController(UficController):
         self.port_feedforward = port_feedforward
 
     def reset(self, state: RobotState) -> None:
+        self.resume(state)
+        self.tank_i.reset()
+        self.tank_f.reset()
+
+    def resume(self, state: RobotState) -> None:
+        """:meth:`reset` except the tanks: their energy and ledgers carry over."""
         super().reset(state)
         if self.port_feedforward is not None:
             self.port_feedforward.reset()
         self.shaper.reset()
-        self.tank_i.reset()
-        self.tank_f.reset()
         self._offset = (0.0, 0.0, 0.0)
         self._rot_d = None
         self._realign = None
@@ -185,6 +203,33 @@ class VaUficController(UficController):
         theta = math.acos(max(-1.0, min(1.0, cos_t)))  # eq. 15, now
         return True, theta, ls, z_des
 
+    def _rotational_spring_energy(self, rot_d: list[list[float]], rl: list[list[float]]) -> float:
+        """½ x̃ᵀK_const x̃ of the rotational part [J] for desired rows ``rot_d`` and tool rows ``rl``."""
+        e3, e4, e5 = log_so3_rows(matmul3_tn_rows(rot_d, rl))
+        _, _, _, k3, k4, k5 = self._neg_k_const_f
+        return -0.5 * (k3 * e3 * e3 + k4 * e4 * e4 + k5 * e5 * e5)
+
+    def _advance_realign(self, t: float, dt: float, rl: list[list[float]]) -> None:
+        """Move R_d along the re-orientation (eq. 28–29), paying the energy the move puts into the
+        constant rotational spring from the impedance tank.
+
+        The passivity argument (eq. 64) stores ½x̃ᵀK_const x̃ for a fixed set point; moving R_d changes
+        that storage with nothing paying for it (up to ~0.9 J per re-orientation at the defaults).
+        So each tick the tank pays the increase at the current pose; when it cannot, R_d waits (the
+        interpolation is shifted by dt) until the tank has harvested enough. A move that releases
+        spring energy costs nothing."""
+        t0, r_init, (lx, ly, lz) = self._realign
+        zeta = (t - t0) / self.va.realign_time
+        zeta = zeta if zeta < 1.0 else 1.0  # min(1, ·)
+        rot_new = matmul3_rows(exp_so3_rows(zeta * lx, zeta * ly, zeta * lz), r_init)
+        cost = self._rotational_spring_energy(rot_new, rl) - self._rotational_spring_energy(self._rot_d, rl)
+        if cost > 0.0 and not self.tank_i.withdraw(cost):
+            self._realign = (t0 + dt, r_init, (lx, ly, lz))
+            return
+        self._rot_d = rot_new
+        if zeta >= 1.0:
+            self._realign = None
+
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
         if not isinstance(reference, PoseForceReference):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
@@ -197,12 +242,7 @@ class VaUficController(UficController):
         if self._rot_d is None:
             self._rot_d = reference.rotation_world.tolist()
         if self._realign is not None:  # eq. 28–29: (R_d R_initᵀ)^ζ R_init = exp(ζ·log(R_d R_initᵀ)) R_init
-            t0, r_init, (lx, ly, lz) = self._realign
-            zeta = (state.t - t0) / v.realign_time
-            zeta = zeta if zeta < 1.0 else 1.0  # min(1, ·)
-            self._rot_d = matmul3_rows(exp_so3_rows(zeta * lx, zeta * ly, zeta * lz), r_init)
-            if zeta >= 1.0:
-                self._realign = None
+            self._advance_realign(state.t, dt, rl)
 
         # x̃^ee: Rᵀ(x − x_d) and Rᵀlog(R R_dᵀ) = log(R_dᵀR) (the adjoint of a rotation on its own log)
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rl

@@ -56,16 +56,23 @@ class ControlLoop:
         self.state = backend.state()
         self.safety.reset(self.state)
         self.on_tick = on_tick
+        self._started: list[Controller] = [self.joint]  # controllers already reset once in this loop
 
     @property
     def t(self) -> float:
         return float(self.state.t)
 
     def use(self, controller: Controller) -> None:
-        """Switch the active controller (reset on the current state); the safety layer stays."""
+        """Switch the active controller; the safety layer stays. A controller is reset on the current
+        state the first time this loop uses it and resumed afterwards (:meth:`Controller.resume`:
+        its energy tanks keep what they hold, so switching back and forth creates no energy)."""
         if self.safety.inner is not controller:
             self.safety.inner = controller
-            controller.reset(self.state)
+            if any(c is controller for c in self._started):
+                controller.resume(self.state)
+            else:
+                self._started.append(controller)
+                controller.reset(self.state)
 
     def tick(self, reference: Any) -> RobotState:
         tau = self.safety.torque(self.state, reference)
