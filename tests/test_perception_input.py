@@ -167,6 +167,8 @@ def test_valid_estimates_are_always_finite(rng: np.random.Generator) -> None:
         (np.diag([1.0, 1.0, 2.0, 1.0]), "rotation"),
         (np.diag([1.0, 1.0, -1.0, 1.0]), "rotation"),
         (np.vstack([np.eye(4)[:3], [0.0, 0.0, 1.0, 1.0]]), "last row"),
+        ("identity", "of numbers"),
+        ([[1, 0, 0, 0], [0, 1, 0]], "of numbers"),
     ],
 )
 def test_bad_poses_raise(pose: np.ndarray, match: str) -> None:
@@ -200,12 +202,29 @@ def test_bad_rgb_and_timestamp_raise() -> None:
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(width=0), dict(fx=-1.0), dict(min_depth_m=2.0, max_depth_m=1.0)],
+    [dict(width=0), dict(fx=-1.0), dict(min_depth_m=2.0, max_depth_m=1.0), dict(cx=float("nan")),
+     dict(fy=float("inf")), dict(width=640.5), dict(height=True), dict(depth_scale=0.0),
+     dict(depth_scale=float("nan")), dict(max_depth_m=float("inf"))],
 )
 def test_bad_intrinsics_raise(kwargs: dict) -> None:
     base = dict(width=640, height=480, fx=383.0, fy=383.0, cx=319.5, cy=239.5)
-    with pytest.raises(PerceptionError):
+    name = next(iter(kwargs))
+    with pytest.raises(PerceptionError, match={"min_depth_m": "depth range", "fx": "focal"}.get(name, name)):
         CameraIntrinsics(**{**base, **kwargs})
+
+
+@pytest.mark.parametrize("fov", [0.0, 180.0, float("nan")])
+def test_intrinsics_from_a_degenerate_field_of_view_raise(fov: float) -> None:
+    with pytest.raises(PerceptionError, match="field of view"):
+        CameraIntrinsics.from_fov(640, 480, fov)
+
+
+def test_uint16_depth_with_a_wrong_scale_is_a_units_error() -> None:
+    raw = np.full((K.height, K.width), 300, np.uint16)  # 300 mm from a z16 stream
+    wrong = dataclasses.replace(K, depth_scale=1.0)
+    with pytest.raises(UnitsError, match="depth_scale=1 m/unit"):
+        depth_in_meters(raw, wrong)
+    np.testing.assert_allclose(depth_in_meters(raw, dataclasses.replace(K, depth_scale=0.001)), 0.3, rtol=1e-6)
 
 
 def test_intrinsics_array_round_trip_and_check() -> None:

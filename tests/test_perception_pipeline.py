@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 
-from tactex.errors import ConfigError
+from tactex.errors import ConfigError, PerceptionError
 from tactex.perception import (
     AsyncSurfacePipeline,
     CameraFrame,
@@ -146,3 +146,36 @@ def test_source_driven_pipeline_with_pose_provider_matches_synchronous_estimate(
 def test_pipeline_rejects_bad_max_age() -> None:
     with pytest.raises(ConfigError, match="max_age_ms"):
         AsyncSurfacePipeline(max_age_ms=0.0)
+
+
+def test_a_stop_that_times_out_keeps_the_thread_and_refuses_a_restart() -> None:
+    """A source blocked in read(): stop() cannot join it. It says so (False, a warning), the pipeline
+    still counts as running, and start() refuses, so two threads never read one camera; once the read
+    returns, a second stop() joins it and the pipeline restarts."""
+
+    class Blocking:
+        def __init__(self) -> None:
+            self.go = threading.Event()
+            self.inside = threading.Event()
+
+        def read(self):
+            self.inside.set()
+            self.go.wait(WAIT_S)
+            return None
+
+    src = Blocking()
+    pipe = AsyncSurfacePipeline(source=src).start()
+    assert src.inside.wait(WAIT_S)
+    with pytest.warns(RuntimeWarning, match="still running"):
+        assert pipe.stop(timeout_s=0.05) is False
+    assert pipe.running
+    with pytest.raises(PerceptionError, match="have not finished"):
+        pipe.start()
+    src.go.set()
+    assert pipe.stop(timeout_s=WAIT_S) is True and not pipe.running
+    src.go.clear()
+    src.inside.clear()
+    pipe.start()
+    assert src.inside.wait(WAIT_S) and pipe.running
+    src.go.set()
+    assert pipe.stop(timeout_s=WAIT_S)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import gc
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -166,8 +167,10 @@ def test_killed_worker_raises_with_its_exit_code():
         backend.camera_worker.wait_ready()
         assert backend.camera_frame() is None  # the first frame is in flight
         os.kill(backend.camera_worker.pid, signal.SIGKILL)
+        # the frame in flight may have been finished before the kill: then the error comes with the
+        # next frame's submit or collect, a camera period later
         with pytest.raises(SimulationError, match=r"died with exit code -9 \(killed by a signal\)"):
-            for _ in range(40):
+            for _ in range(2000):
                 backend.step()
                 backend.camera_frame()
         backend.reset()
@@ -223,6 +226,17 @@ def test_close_with_a_frame_in_flight_ends_the_worker_cleanly():
     assert worker.exit_code == 0 and not worker.alive
     with pytest.raises(SimulationError, match="already closed"):
         worker.submit(np.eye(4), np.zeros(3), np.eye(3), 0.0, None, 0, 1, False)
+
+
+def test_close_with_an_unread_ready_message_ends_the_worker_cleanly():
+    """Closing with the worker's READY still unread reset the connection: the worker died with a
+    ConnectionResetError traceback (exit code 1) instead of ending."""
+    camera = _plane_camera(HeightFieldSurface("probe", 0.2, 0.2, _flat))
+    worker = CameraWorker(camera)
+    ready, _, _ = select.select([worker._sock], [], [], 60.0)  # READY sent, deliberately left unread
+    assert ready
+    worker.close()
+    assert worker.exit_code == 0
 
 
 def test_worker_protocol_misuse_is_refused():

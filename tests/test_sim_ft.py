@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactex.errors import MissingDependencyError
+from tactex.errors import ConfigError, MissingDependencyError
 from tactex.robots import MujocoBackend
 from tactex.sim import FTSensorModel, SceneConfig
 from tactex.sim.objects import rotation_from_rpy_deg
@@ -49,6 +49,18 @@ def test_bias_noise_and_low_pass():
     n = round(tau / dt)
     out = [filt.measure(np.array([0.0, 0.0, 10.0]), np.zeros(3), rot)[2] for _ in range(n)]
     assert out[-1] == pytest.approx(10.0 * (1 - np.exp(-1)), rel=0.02)  # one time constant: 63 %
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"cutoff_hz": float("nan")}, "cutoff_hz"), ({"cutoff_hz": -1.0}, "cutoff_hz"), ({"dt_s": 0.0}, "dt_s"),
+    ({"tool_mass_kg": float("inf")}, "tool_mass_kg"), ({"tool_mass_kg": -0.1}, "tool_mass_kg"),
+    ({"noise_n": -0.1}, "noise_n"), ({"tool_com_m": [0.0, 0.0]}, "tool_com_m"), ({"bias": [np.nan] * 6}, "bias"),
+])
+def test_ft_sensor_model_rejects_bad_parameters(kwargs, match):
+    """A NaN cut-off made every reading after the first NaN; dt = 0 froze the filter."""
+    args = {"tool_mass_kg": 0.2, "tool_com_m": np.zeros(3), "tcp_offset_m": 0.1, **kwargs}
+    with pytest.raises(ConfigError, match=match):
+        FTSensorModel(args.pop("tool_mass_kg"), args.pop("tool_com_m"), args.pop("tcp_offset_m"), **args)
 
 
 def test_configured_bias_reaches_the_state():

@@ -31,7 +31,10 @@ MAX_PLAUSIBLE_DEPTH_M = 20.0
 
 def check_pose(T: object, name: str) -> np.ndarray:
     """Return a (4, 4) rigid transform as float64, or raise :class:`InputError` naming ``name``."""
-    arr = np.asarray(T, dtype=np.float64)
+    try:
+        arr = np.asarray(T, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be a (4, 4) homogeneous transform of numbers, got {T!r}") from exc
     if arr.shape != (4, 4):
         raise InputError(f"{name} must be a (4, 4) homogeneous transform, got shape {arr.shape}")
     if not np.isfinite(arr).all():
@@ -52,8 +55,8 @@ def depth_in_meters(depth: object, intrinsics: CameraIntrinsics) -> np.ndarray:
     """Validate a depth image and return it as float32 metres (invalid pixels kept, as 0/NaN).
 
     Accepts float32/float64 metres or uint16 raw units (× ``intrinsics.depth_scale``).
-    Raises :class:`PerceptionError` for a wrong shape or dtype and :class:`UnitsError` for a
-    float image that looks like millimetres.
+    Raises :class:`PerceptionError` for a wrong shape or dtype and :class:`UnitsError` when the
+    depth in metres is implausible (a float image in millimetres, or a wrong ``depth_scale``).
     """
     if not isinstance(depth, np.ndarray):
         raise PerceptionError(f"depth must be a numpy array, got {type(depth).__name__}")
@@ -66,19 +69,23 @@ def depth_in_meters(depth: object, intrinsics: CameraIntrinsics) -> np.ndarray:
             "or the stream's own intrinsics"
         )
     if depth.dtype == np.uint16:
-        return depth.astype(np.float32) * np.float32(intrinsics.depth_scale)
-    if depth.dtype not in (np.float32, np.float64):
+        out = depth.astype(np.float32) * np.float32(intrinsics.depth_scale)
+        hint = (f"the uint16 image times depth_scale={intrinsics.depth_scale:g} m/unit gives it: check "
+                "depth_scale (RealSense z16: 0.001, or the device's own depth scale)")
+    elif depth.dtype in (np.float32, np.float64):
+        out = depth.astype(np.float32, copy=False)
+        hint = ("float depth must be in metres; it looks like millimetres: pass depth_mm * 1e-3, or the raw "
+                "uint16 image with intrinsics.depth_scale")
+    else:
         raise PerceptionError(
             f"depth dtype {depth.dtype} is not supported: pass float32/float64 metres or uint16 raw units"
         )
-    out = depth.astype(np.float32, copy=False)
     sample = out[::7, ::7]
     sample = sample[np.isfinite(sample) & (sample > 0)]
     if sample.size and float(np.median(sample)) > MAX_PLAUSIBLE_DEPTH_M:
         raise UnitsError(
-            f"depth median is {float(np.median(sample)):.4g} but float depth must be in metres "
-            f"(> {MAX_PLAUSIBLE_DEPTH_M:g} m is implausible for a wrist camera); it looks like "
-            "millimetres: pass depth_mm * 1e-3, or the raw uint16 image with intrinsics.depth_scale"
+            f"depth median is {float(np.median(sample)):.4g} m (> {MAX_PLAUSIBLE_DEPTH_M:g} m is implausible "
+            f"for a wrist camera); {hint}"
         )
     return out
 

@@ -34,16 +34,29 @@ class CameraIntrinsics:
     max_depth_m: float = 3.0
 
     def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0:
-            raise PerceptionError(f"image size must be positive, got {self.width}×{self.height}")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise PerceptionError(f"CameraIntrinsics.{name} must be a positive integer [px], got {v!r}")
+        for name in ("fx", "fy", "cx", "cy", "depth_scale", "min_depth_m", "max_depth_m"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+                raise PerceptionError(
+                    f"CameraIntrinsics.{name} must be a finite number, got {v!r}"
+                    + ("; for no far limit give the sensor's real range (e.g. 10 m)" if name == "max_depth_m" else "")
+                )
         if not (self.fx > 0 and self.fy > 0):
             raise PerceptionError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if not self.depth_scale > 0:
+            raise PerceptionError(f"depth_scale must be > 0 [m per depth unit], got {self.depth_scale}")
         if not (0 <= self.min_depth_m < self.max_depth_m):
             raise PerceptionError(f"invalid depth range [{self.min_depth_m}, {self.max_depth_m}] m")
 
     @classmethod
     def from_fov(cls, width: int, height: int, fovy_deg: float, **kw: float) -> CameraIntrinsics:
         """Square-pixel intrinsics from a vertical field of view [deg] (as MuJoCo cameras use)."""
+        if not (isinstance(fovy_deg, (int, float, np.integer, np.floating)) and 0.0 < fovy_deg < 180.0):
+            raise PerceptionError(f"the vertical field of view must be in (0, 180) deg, got {fovy_deg!r}")
         f = 0.5 * height / np.tan(np.deg2rad(fovy_deg) / 2.0)
         return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, **kw)
 

@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-from tactex.errors import ConfigError, TactexError
+from tactex.errors import ConfigError, PerceptionError, TactexError
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import PreparedPatch, SurfaceEstimator
 from tactex.perception.frame import CameraFrame
@@ -124,6 +125,11 @@ class AsyncSurfacePipeline:
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> AsyncSurfacePipeline:
         if self._threads:
+            if self._stop.is_set():  # a stop() whose join timed out: a thread may still be in source.read()
+                raise PerceptionError(
+                    "the pipeline's previous threads have not finished (stop() timed out, probably in a "
+                    "blocking source.read()); call stop() again until it returns True before restarting"
+                )
             return self
         self._stop.clear()
         self._source_done.clear()
@@ -135,14 +141,26 @@ class AsyncSurfacePipeline:
             th.start()
         return self
 
-    def stop(self, timeout_s: float = 5.0) -> None:
-        """Ask both threads to finish and join them (an estimate in progress is completed first)."""
+    def stop(self, timeout_s: float = 5.0) -> bool:
+        """Ask both threads to finish and join them (an estimate in progress is completed first).
+
+        Returns True when both have ended. False when one is still running after ``timeout_s`` [s]
+        (e.g. blocked in the source's ``read()``): it is kept, :attr:`running` stays True, a warning
+        is issued, and :meth:`start` refuses until a later ``stop()`` has joined it, so that two
+        threads never read the same camera."""
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
         for th in self._threads:
             th.join(timeout_s)
-        self._threads = []
+        alive = [th for th in self._threads if th.is_alive()]
+        self._threads = alive
+        if alive:
+            warnings.warn(
+                f"perception thread(s) {[th.name for th in alive]} still running {timeout_s:g} s after stop() "
+                "(a blocking source.read()?); they end when it returns", RuntimeWarning, stacklevel=2)
+            return False
+        return True
 
     def join(self, timeout_s: float | None = None) -> bool:
         """Wait until a finite ``source`` is exhausted and its last frame estimated; True when done."""

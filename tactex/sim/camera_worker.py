@@ -275,7 +275,7 @@ class CameraWorker:
         try:
             self._sock.send(msg)
         except OSError:
-            self._fail("the camera worker is gone")
+            self._fail(None)  # the message names the worker's exit code
 
     def _receive(self, expected: bytes, what: str) -> None:
         self._check_usable()
@@ -382,7 +382,10 @@ def _serve(spec: dict, fd: int, sock: socket.socket) -> None:
     depth_out, rgb_out = v["depth"], v["rgb"]
     sock.send(_MSG_READY)
     while True:
-        msg = sock.recv(16)
+        try:
+            msg = sock.recv(16)
+        except OSError:  # the parent closed with a message of ours unread (ECONNRESET): it is gone
+            return
         if msg != _MSG_FRAME:  # stop, or b"" when the parent is gone
             return
         p = pose.copy()

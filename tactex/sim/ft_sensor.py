@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tactex.errors import ConfigError
+
 __all__ = ["FTSensorModel"]
 
 _GRAVITY_WORLD = np.array([0.0, 0.0, -9.81])
@@ -35,6 +37,16 @@ class FTSensorModel:
     def __init__(self, tool_mass_kg: float, tool_com_m, tcp_offset_m: float, *, bias=None,
                  noise_n: float = 0.0, noise_nm: float = 0.0, cutoff_hz: float = 0.0, dt_s: float = 0.001,
                  gravity=None) -> None:
+        for name, v, lo in (("tool_mass_kg", tool_mass_kg, 0.0), ("tcp_offset_m", tcp_offset_m, None),
+                            ("noise_n", noise_n, 0.0), ("noise_nm", noise_nm, 0.0), ("cutoff_hz", cutoff_hz, 0.0)):
+            if not np.isfinite(v) or (lo is not None and v < lo):
+                raise ConfigError(f"FTSensorModel: {name} must be finite" + (" and ≥ 0" if lo is not None else "")
+                                  + f", got {v!r}")
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ConfigError(f"FTSensorModel: dt_s must be finite and > 0 [s], got {dt_s!r}")
+        for name, v, n in (("tool_com_m", tool_com_m, 3), ("bias", bias, 6), ("gravity", gravity, 3)):
+            if v is not None and (np.shape(v) != (n,) or not np.isfinite(np.asarray(v, dtype=float)).all()):
+                raise ConfigError(f"FTSensorModel: {name} must be {n} finite numbers, got {v!r}")
         self.mass = float(tool_mass_kg)
         self.com = np.asarray(tool_com_m, dtype=float).reshape(3)
         self.tcp = np.array([0.0, 0.0, float(tcp_offset_m)])
