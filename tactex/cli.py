@@ -47,6 +47,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TactexError as exc:
         print(f"tactex {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file system refusal the checks up front did not foresee (disk full, ...)
+        where = f" ('{exc.filename}')" if exc.filename else ""
+        print(f"tactex {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"tactex {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -57,6 +57,17 @@ def test_out_is_a_file(tmp_path, capsys) -> None:
     assert check_out_dir(tmp_path / "new") == tmp_path / "new"
 
 
+@pytest.mark.parametrize("command", [["explore", "cup", "--steps", "5"], ["sweep", "cup", "--steps", "5"],
+                                     ["clean"], ["wipe"], ["demo"]])
+def test_an_unwritable_out_is_one_line_before_any_work(tmp_path, capsys, command) -> None:
+    """--out below a file (or anywhere it cannot be made) was an OSError traceback, for explore and
+    sweep only after all the computing."""
+    blocker = tmp_path / "one.npz"
+    blocker.write_text("x")
+    code = main([*command, "--out", str(blocker / "sub")])
+    _one_line_error(capsys, code, "cannot write the run folder", "choose a writable directory")
+
+
 def test_missing_cloud_file(tmp_path, capsys) -> None:
     code = main(["explore", str(tmp_path / "missing.ply"), "--out", str(tmp_path / "x")])
     _one_line_error(capsys, code, "missing.ply")

@@ -198,7 +198,7 @@ def test_start_far_from_the_surface(tmp_path, capsys) -> None:
 
 def test_output_path_is_a_file(tmp_path, capsys) -> None:
     (tmp_path / "f").write_text("x")
-    _fails(["explore", "cup", "--quiet", "--out", str(tmp_path / "f")], capsys, "not a directory")
+    _fails(["explore", "cup", "--quiet", "--out", str(tmp_path / "f")], capsys, "is an existing file")
 
 
 def test_separate_parts_are_reported(tmp_path) -> None:

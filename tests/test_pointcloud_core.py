@@ -38,10 +38,25 @@ def test_voxel_grid_reproduces_paper_counts(name: str) -> None:
 def test_voxel_averages_points_and_colours() -> None:
     pts = np.array([[0.0, 0.0, 0.0], [0.001, 0.0, 0.0], [0.05, 0.0, 0.0]])
     cols = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
-    out = voxel_down_sample(SurfaceCloud(points=pts, colors=cols), 0.01)
+    with pytest.warns(RuntimeWarning, match="finer than the cloud's own mean spacing"):  # 2 points 5 cm apart
+        out = voxel_down_sample(SurfaceCloud(points=pts, colors=cols), 0.01)
     assert len(out) == 2
     np.testing.assert_allclose(out.points[0], [0.0005, 0, 0])
     np.testing.assert_allclose(out.colors[0], [0.5, 0, 0.5])
+
+
+def test_a_voxel_finer_than_the_cloud_keeps_the_clouds_own_spacing() -> None:
+    """On a 5 mm grid a 3 mm voxel changes nothing: h stays 5 mm (it was set to 3 mm, and the agent,
+    whose steps are in voxels, then could not step from point to point and never moved)."""
+    with pytest.warns(RuntimeWarning, match="finer than the cloud's own mean spacing 5 mm"):
+        fine = voxel_down_sample(grid_cloud(spacing=0.005), 0.003)
+    assert len(fine) == 100 and fine.spacing == pytest.approx(0.005)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        coarse = voxel_down_sample(grid_cloud(spacing=0.005), 0.012)
+    assert coarse.spacing == 0.012
 
 
 def test_voxel_rejects_bad_size() -> None:

@@ -188,6 +188,17 @@ def test_wipe_report_files_and_contract(tmp_path) -> None:
         assert z["tcp_path_contact"].shape == (int(res.series["in_contact"].sum()), 3)
     page = rep.html.read_text()
     assert '"curvature l_s [-]"' in page and '"path"' in page and page.count("src='data:image/png;base64,") == 6
+    # the explored surface as a PLY that `tactex explore` loads: points, normals, curvature, all of it target
+    from tactex.pointcloud.io import load_ply
+
+    ply = load_ply(rep.files["explored_ply"])
+    np.testing.assert_allclose(ply.points, res.explored.points)
+    np.testing.assert_allclose(ply.normals, res.explored.normals)
+    assert ply.n_target == len(res.explored)
+    from plyfile import PlyData
+
+    np.testing.assert_allclose(PlyData.read(str(rep.files["explored_ply"]))["vertex"]["curvature"],
+                               res.explored_curvature)
 
 
 def test_wipe_report_without_contact(tmp_path) -> None:
@@ -197,6 +208,7 @@ def test_wipe_report_without_contact(tmp_path) -> None:
     res.explored_curvature = np.zeros(0)
     rep = write_run_report(res, tmp_path / "w")
     assert "explored_png" not in rep.files and any("no explored points" in n for n in rep.notes)
+    assert "explored_ply" not in rep.files and not (tmp_path / "w" / "explored.ply").exists()
     assert "fig3d_png" in rep.files and rep.html.read_text().rstrip().endswith("</html>")
 
 

@@ -222,8 +222,11 @@ def test_cache_key_depends_on_points_and_parameters(tmp_path, patch_cloud) -> No
     c = build_basis(patch_cloud, n_eigen=10, n_neighbors=20, cache_dir=tmp_path)
     moved = patch_cloud.transformed(np.eye(3), np.array([0.0, 0.0, 1e-3]))
     d = build_basis(moved, n_eigen=10, cache_dir=tmp_path)
-    assert len({a.key, b.key, c.key, d.key}) == 4
-    assert len(list(tmp_path.glob("*.npz"))) == 4
+    coarser = SurfaceCloud(points=patch_cloud.points, spacing=1.5 * patch_cloud.spacing)
+    e = build_basis(coarser, n_eigen=10, cache_dir=tmp_path)  # the same points, another h
+    assert len({a.key, b.key, c.key, d.key, e.key}) == 5
+    assert not e.from_cache and e.spacing == coarser.spacing
+    assert len(list(tmp_path.glob("*.npz"))) == 5
 
 
 def test_default_cache_dir_from_environment(tmp_path, patch_cloud, monkeypatch: pytest.MonkeyPatch) -> None:

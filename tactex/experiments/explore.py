@@ -29,6 +29,7 @@ from tactex.pointcloud import SurfaceCloud, load_cloud, target_from_channel, vox
 from tactex.pointcloud.io import SUPPORTED_SUFFIXES
 from tactex.pointcloud.markings import marked_cloud, marking_names
 from tactex.pointcloud.shapes import get_surface, surface_names
+from tactex.report.outdir import prepare_out_dir
 
 __all__ = [
     "DEFAULT_MARKINGS",
@@ -250,13 +251,10 @@ def run_explore(
 
     cfg = config if config is not None else ExploreConfig()
     say = progress or (lambda msg: None)
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"output directory '{out}' exists and is not a directory")
-
     t0 = time.perf_counter()
     cloud, source_info = load_explore_cloud(source, cfg)
     load_s = time.perf_counter() - t0
+    out = prepare_out_dir(out_dir)  # before the basis and the steps, which take the time
     radius = cfg.agent_radius if cfg.agent_radius is not None else _default_agent_radius(source_info)
     hcfg = _hedac_config(cfg, hedac, radius)
     say(f"cloud: {len(cloud)} points, {cloud.n_target} target points, spacing {cloud.spacing * 1e3:.2f} mm")
@@ -387,6 +385,8 @@ def write_explore_report(
         title=title,
         cmaps={"target": target_cmap, "coverage": "viridis", "potential": "inferno"},
     )
+    if not html:  # a reused run folder must not keep another run's page beside these metrics
+        (out / "explore.html").unlink(missing_ok=True)
     if html:
         files["html"] = cloud_html(
             cloud.points,

@@ -30,8 +30,9 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param, to_jsonable, write_json
-from tactex.errors import ConfigError, ExplorationError, InputError
+from tactex.errors import ConfigError, ExplorationError
 from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
+from tactex.report.outdir import prepare_out_dir
 
 __all__ = ["SweepConfig", "SweepResult", "run_sweep", "sweep_starts"]
 
@@ -178,9 +179,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
     say = progress or (lambda msg: None)
     if isinstance(sources, (str, Path)) or not sources:
         raise ConfigError("run_sweep needs a list of one or more clouds (files or built-in objects)")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"output directory '{out}' exists and is not a directory")
+    out = prepare_out_dir(out_dir)
     ecfg = cfg.explore_config()
 
     clouds: dict[str, tuple] = {}

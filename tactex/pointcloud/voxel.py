@@ -8,10 +8,12 @@ deterministic (Open3D's order depends on a hash map).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from tactex.errors import ConfigError
-from tactex.pointcloud.cloud import SurfaceCloud, validate_points
+from tactex.errors import CloudError, ConfigError
+from tactex.pointcloud.cloud import SurfaceCloud, mean_spacing, validate_points
 
 __all__ = ["voxel_down_sample", "voxel_indices"]
 
@@ -43,7 +45,10 @@ def voxel_down_sample(cloud: SurfaceCloud, voxel_size_m: float) -> SurfaceCloud:
 
     Points, colours and target are averaged per voxel (as Open3D does for points and colours);
     normals are averaged then re-normalised. The spacing of the result is set to the voxel size,
-    as TEC §IV-A does for a voxel-filtered cloud.
+    as TEC §IV-A does for a voxel-filtered cloud, unless the cloud is sparser than the grid: then
+    the filter leaves it as it was, and its own mean spacing is kept (with a warning): a spacing
+    below the real point gap would make the agent's steps (Table II, in voxels) shorter than the
+    gap between points, and it would not move.
     """
     inverse, counts = voxel_indices(cloud.points, voxel_size_m)
     points = _mean_by(inverse, counts, cloud.points)
@@ -61,4 +66,17 @@ def voxel_down_sample(cloud: SurfaceCloud, voxel_size_m: float) -> SurfaceCloud:
             normals[degenerate] = cloud.normals[first[degenerate]]
             norm[degenerate] = 1.0
         normals = normals / norm[:, None]
-    return SurfaceCloud(points=points, normals=normals, colors=colors, target=target, spacing=voxel_size_m)
+    spacing = voxel_size_m
+    if points.shape[0] >= 2:
+        try:
+            own = mean_spacing(points)
+        except CloudError:  # coincident voxel means (the validation downstream reports them)
+            own = 0.0
+        if own > voxel_size_m:
+            warnings.warn(
+                f"voxel size {voxel_size_m * 1e3:.3g} mm is finer than the cloud's own mean spacing "
+                f"{own * 1e3:.3g} mm: the filter changed little, and the spacing h is the cloud's "
+                f"{own * 1e3:.3g} mm. Use a voxel size ≥ {own * 1e3:.2g} mm (the TEC paper: 3 mm)",
+                RuntimeWarning, stacklevel=2)
+            spacing = own
+    return SurfaceCloud(points=points, normals=normals, colors=colors, target=target, spacing=spacing)

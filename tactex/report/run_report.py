@@ -6,6 +6,8 @@
 - ``config.json`` — the exact parameters of the run,
 - ``metrics.json`` — the metrics contract (:data:`CLEAN_METRIC_KEYS` / :data:`WIPE_METRIC_KEYS`) and more,
 - ``series.npz`` — the 100 Hz time series (plain arrays, no pickle) and ``cloud.npz`` — points and fields,
+- ``explored.ply`` (wipe) — the explored contact points with normals and curvature, which
+  ``tactex explore`` loads,
 - ``events.json`` — safety events,
 - PNG plots (clean: dirt, force band, phases, cloud fields, ergodicity; wipe: VA-UFIC Fig. 2 and 3a–d,
   explored curvature),
@@ -454,6 +456,11 @@ def write_wipe_report(
     np.savez_compressed(out / "cloud.npz", explored_points=pts, explored_curvature=curv, tcp_path_contact=tcp_contact,
                         **{f"profile_{k}": v for k, v in profile.items()})
     rep.files["cloud_data"] = out / "cloud.npz"
+    if explored is not None and len(explored) > 0:  # what `tactex explore` loads (normals, curvature)
+        from tactex.pointcloud.io import save_ply
+
+        whole = explored if explored.n_target else explored.with_target(np.ones(len(explored)))  # all of it
+        rep.files["explored_ply"] = save_ply(whole, out / "explored.ply", extra={"curvature": curv})
 
     _try_plot(rep, "fig2_png", _plot_profile, s, profile, out / "fig2_profile.png")
     rep.files["fig3a_png"] = _plot_rho(s, out / "fig3a_alignment.png")

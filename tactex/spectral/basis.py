@@ -210,7 +210,7 @@ def build_basis(
     if not isinstance(cloud, SurfaceCloud):
         raise CloudError(f"build_basis needs a SurfaceCloud, got {type(cloud).__name__}")
     k = _check_n_eigen(n_eigen, len(cloud))
-    key = basis_key(cloud.points, k, n_neighbors, mollify_factor)
+    key = basis_key(cloud.points, k, n_neighbors, mollify_factor, cloud.spacing)
     path = None
     if cache:
         path = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()

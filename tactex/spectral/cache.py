@@ -32,11 +32,13 @@ def default_cache_dir() -> Path:
     return Path(env).expanduser() if env else Path.home() / ".cache" / "tactex" / "basis"
 
 
-def basis_key(points: np.ndarray, n_eigen: int, n_neighbors: int, mollify_factor: float) -> str:
-    """Content hash of the points [m] and of the parameters that define the basis."""
+def basis_key(points: np.ndarray, n_eigen: int, n_neighbors: int, mollify_factor: float, spacing: float) -> str:
+    """Content hash of the points [m] and of the parameters that define the basis, including the
+    spacing h [m] it stores (the same points filtered with another voxel size keep another h)."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(points, dtype=np.float64).tobytes())
-    h.update(f"|N={points.shape[0]}|K={n_eigen}|nn={n_neighbors}|mollify={mollify_factor!r}|v{FORMAT_VERSION}".encode())
+    h.update(f"|N={points.shape[0]}|K={n_eigen}|nn={n_neighbors}|mollify={mollify_factor!r}|h={float(spacing)!r}"
+             f"|v{FORMAT_VERSION}".encode())
     return h.hexdigest()
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from tactex.config import param, write_json
 from tactex.errors import ConfigError, InputError, MissingDependencyError
+from tactex.report.outdir import prepare_out_dir
 from tactex.report.run_report import RunReport, summary_table, write_index_html, write_run_report
 
 __all__ = [
@@ -68,11 +69,8 @@ def baseline_names(kind: str) -> tuple[str, ...]:
 
 
 def check_out_dir(out: str | Path) -> Path:
-    """The run directory; refused when it names an existing file."""
-    p = Path(out)
-    if p.exists() and not p.is_dir():
-        raise InputError(f"--out '{p}' is an existing file; give a directory for the run folder")
-    return p
+    """The run directory, created and checked writable (:func:`tactex.report.outdir.prepare_out_dir`)."""
+    return prepare_out_dir(out)
 
 
 def _note_stderr(msg: str) -> None:
