@@ -282,3 +282,23 @@ def test_tank_limits_sources() -> None:
     from_cfg = _tank_limits(FakeWipeConfig(controller=VaUficParams(tank_i_upper=20.0)), {})
     assert from_cfg == {"impedance": (1.0, 20.0), "force": (1.0, 2.0)}
     assert _tank_limits(FakeCleanConfig(), {}) == DEFAULT_TANK_LIMITS == {"impedance": (1.0, 32.0), "force": (1.0, 2.0)}
+
+
+def test_phases_come_from_the_recorded_changes() -> None:
+    """A capture takes no tick and an approach a few ms: the 100 Hz series misses both, the recorded
+    phase changes do not (the plate run's phases.png showed empty approach and capture rows)."""
+    from tactex.report.run_report import _phase_spans
+
+    P = CLEAN_PHASES
+    series = {"t": np.arange(0.0, 3.0, 0.01), "phase": np.zeros(300)}  # the samples saw "move" only
+    changes = [(0.0, P["move"]), (1.0, P["capture"]), (1.0, P["move"]), (1.5, P["approach"]),
+               (1.503, P["explore"]), (2.5, P["retract"])]
+    spans = _phase_spans(series, changes)
+    assert spans[P["capture"]] == [(1.0, 0.0)]
+    assert spans[P["approach"]][0] == (1.5, pytest.approx(0.003))
+    assert spans[P["retract"]] == [(2.5, pytest.approx(0.49))]  # to the end of the series
+    assert spans[P["move"]] == [(0.0, 1.0), (1.0, 0.5)]
+    ch = np.asarray(changes)
+    assert vision_round_trips(ch[:, 0], ch[:, 1]).shape == (0, 2)  # no approach after the retract
+    ch = np.vstack([ch, [[2.7, P["move"]], [2.8, P["capture"]], [2.8, P["move"]], [2.9, P["approach"]]]])
+    np.testing.assert_allclose(vision_round_trips(ch[:, 0], ch[:, 1]), [[2.5, 2.9]])

@@ -162,7 +162,10 @@ class _Log:
         self.backend = backend
         self.cfg = cfg
         self.rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
-        self.phase = PHASES["move"]
+        self.t = 0.0  # time of the last tick [s]
+        # every phase change as (t [s], phase id): the series samples at record_hz and misses short
+        # phases (an approach of a few ms, a capture that takes no tick at all)
+        self.phase_changes: list[tuple[float, int]] = [(0.0, PHASES["move"])]
         self.agent = np.full(3, np.nan)
         self.contact_ticks = 0
         self.within_ticks = 0
@@ -171,7 +174,17 @@ class _Log:
         self.max_force = 0.0
         self.set_point = cfg.force_n
 
+    @property
+    def phase(self) -> int:
+        return self.phase_changes[-1][1]
+
+    @phase.setter
+    def phase(self, value: int) -> None:
+        if value != self.phase_changes[-1][1]:
+            self.phase_changes.append((self.t, int(value)))
+
     def __call__(self, state, reference, controller) -> None:
+        self.t = float(state.t)
         f = state.wrench_tool
         fn = float(f[2])
         fmag = float(np.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
@@ -274,6 +287,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     ga = NullspacePosture(GaLineForceController(GaLineForceParams()), q_posture=q_capture)
     t_end = cfg.budget_s
     vision_updates = 0
+    vision_times: list[float] = []  # [s] when each re-measurement was taken
     remaining_seen = 1.0
     agent_path: list[np.ndarray] = []
     ergodicity: list[tuple[float, float]] = []
@@ -362,6 +376,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         loop.retract(RETRACT_M, duration_s=0.4)
         new_capture = capture()
         vision_updates += 1
+        vision_times.append(loop.t)
         mass = remeasure_target(cloud, new_capture)
         remaining_seen = float(np.count_nonzero(mass)) / n_target0
         bar.update(loop.t, dirt=backend.dirt_remaining(), vision=vision_updates)
@@ -394,6 +409,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         "sim_time_s": loop.t,
         "explore_time_s": explore_time,
         "vision_updates": vision_updates,
+        "vision_update_times_s": vision_times,
+        "phase_changes": [[t, p] for t, p in log.phase_changes],
         "vision_remaining_fraction": remaining_seen,
         "basis_time_s": basis_s,
         "wall_time_s": time.perf_counter() - wall0,
