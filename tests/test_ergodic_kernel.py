@@ -309,7 +309,8 @@ def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
 
     monkeypatch.setattr(numba.config, "DISABLE_JIT", True)
     # restored after the test: the compiled step, its helpers and the failure flag
-    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "project_floats", "tangent_floats",
+    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "_sphere_agrees", "project_floats",
+                 "tangent_floats",
                  "plane_slope", "transported_floats", "braked_direction"):
         monkeypatch.setattr(ker, name, getattr(ker, name))
     ker._compiled = None
@@ -324,3 +325,32 @@ def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
 def test_compiled_must_be_a_bool(value):
     with pytest.raises(ConfigError, match=r"HedacConfig\.compiled"):
         HedacConfig(compiled=value)
+
+
+@needs_numba
+def test_the_small_sphere_check_decides_as_the_numpy_fit(rng):
+    """The compiled step's check of small spheres against the neighbourhood's plane gives numpy's
+    verdict (fit._sphere_agrees) on noisy caps, flat patches and the ragged bowl edge of test_fit."""
+    from tactex.geometry import fit as fit_mod
+
+    from .test_fit import RAGGED_EDGE_MM
+
+    ker.compiled_walk_step()  # compiles the helpers in place
+    prm = ker.params(agent_radius_m=0.01, eps2=1.0, source_weight=0.0, max_acceleration=1.0, max_velocity=1.0,
+                     max_step_m=0.003, dt=1.0, max_off_m=0.003, edge_offset=0.25, normalize_by_target=True, order=2)
+    cases = [RAGGED_EDGE_MM * 1e-3]
+    for _ in range(300):
+        d = rng.normal(size=(20, 3)) * np.array([1.0, 1.0, rng.uniform(0.0, 0.6)])
+        cases.append(d @ np.linalg.qr(rng.normal(size=(3, 3)))[0] * 0.004)
+    agree = []
+    for d in cases:
+        dd = (d * d).sum(axis=1)
+        inv = 1.0 / np.sqrt(dd.max())
+        q = d * inv
+        w = np.c_[q, -np.ones(len(q)), -0.5 * (q * q).sum(axis=1)]
+        for c in (rng.normal(size=3), -q.mean(axis=0) + rng.normal(size=3) * 0.1):
+            want = fit_mod._sphere_agrees(w, *c)
+            got = ker._sphere_agrees(d, np.arange(len(d)), len(d), inv, *c, prm)
+            assert got == want, (d, c)
+            agree.append(want)
+    assert 0.1 < np.mean(agree) < 0.95  # both verdicts occur

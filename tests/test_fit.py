@@ -241,3 +241,50 @@ def test_fit_rejects_bad_points(bad, match):
 def test_gafro_primitive_refuses_a_line_patch():
     with pytest.raises(InputError, match="line"):
         gafro_primitive(SurfacePatch("line", np.zeros(3), np.inf, np.array([1.0, 0, 0])))
+
+
+#: 20 neighbours [mm] around the agent (at the origin) near the ragged top edge of a simulated bowl
+#: capture: sparse (3.3 mm) points on a steep wall. Three steps of such fits turned the agent's normal
+#: over; it got stuck at the rim and the tool, tilted onto the wall, pressed 45 N.
+RAGGED_EDGE_MM = np.array([
+    [-1.07, -1.11, 0.64], [2.01, -0.94, -0.72], [1.87, 1.73, 1.84], [-0.91, 2.32, -2.59], [-0.94, -3.82, -1.84],
+    [-4.14, -1.3, 2.09], [2.15, -3.65, -3.2], [4.95, 1.9, 0.57], [5.11, -0.78, -2.0], [-4.03, -4.0, -0.39],
+    [5.26, -3.49, -4.5], [-0.82, -6.55, -4.25], [-3.92, -6.73, -2.77], [8.03, 2.05, -0.54], [8.2, -0.63, -3.13],
+    [2.28, -6.39, -5.62], [-6.83, -3.35, -5.65], [-7.01, -6.92, -1.16], [8.36, -3.35, -5.63], [5.4, -6.24, -6.93],
+])
+
+
+def _pca_normal(q: np.ndarray) -> np.ndarray:
+    qc = q - q.mean(axis=0)
+    return np.linalg.eigh(qc.T @ qc)[1][:, 0]
+
+
+def test_a_small_sphere_off_the_neighbourhoods_plane_gives_way_to_the_plane(monkeypatch):
+    """On a ragged scan edge the algebraic fit returns a sphere smaller than the neighbourhood whose
+    normal at the agent is far off the surface; the fit then takes the PCA plane."""
+    import tactex.geometry.fit as fit_mod
+
+    q = RAGGED_EDGE_MM / np.sqrt((RAGGED_EDGE_MM**2).sum(axis=1).max())  # scaled as the explorer does
+    n_pca = _pca_normal(q)
+    with monkeypatch.context() as m:
+        m.setattr(fit_mod, "CHECK_RADIUS_RATIO", 0.0)  # the check off: the raw algebraic fit
+        raw = fit_local(q)
+    assert raw.kind == "sphere" and raw.radius < 1.0
+    n_raw = -raw.center / np.linalg.norm(raw.center)  # the sphere's normal at the agent
+    assert abs(n_raw @ n_pca) < 0.5  # over 60° off the surface
+    patch = fit_local(q)
+    assert patch.kind == "plane" and abs(patch.direction @ n_pca) == pytest.approx(1.0)
+
+
+def test_a_genuinely_small_sphere_is_kept(rng):
+    """A cap of a sphere of 0.8 neighbourhood radii (a bunny's ear at 3 mm voxels) agrees with its
+    own plane: it stays a sphere, recovered exactly."""
+    centre, radius = np.array([0.0, 0.0, -0.8]), 0.8
+    d = rng.normal(size=(40, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 1.5  # the upper cap, around the pole
+    pts = centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
+    pts = pts[np.argsort(np.linalg.norm(pts, axis=1))[:20]]  # the agent at the pole (0, 0, 0)
+    patch = fit_local(pts)
+    assert patch.kind == "sphere"
+    np.testing.assert_allclose(patch.center, centre, atol=EXACT_TOL)
+    assert patch.radius == pytest.approx(radius, abs=EXACT_TOL)

@@ -68,3 +68,16 @@ def test_short_wipe_baseline_runs() -> None:
     r = run_wipe(WipeConfig(duration_s=3.0, baseline="cartesian"), progress=False)
     assert r.metrics["controller"] == "cartesian_impedance"
     assert np.isfinite(r.metrics["force_mae_n"])
+
+
+def test_bowl_with_the_rli_marking_stays_within_the_force_band() -> None:
+    """The README's bowl example. Before: the agent's fit turned its normal over on the ragged rim of
+    the capture (45.7 N peaks, 79.9 % within ±20 %), and once the joint move back to the camera
+    dipped the tool into the bowl (720 N, a force trip, a capture that saw nothing and a crash)."""
+    cfg = CleanConfig(object_name="bowl", marking="RLI")
+    m = run_clean(cfg, progress=False).metrics
+    assert m["vision_updates"] >= 1 and m["dirt_removed_fraction"] > 0.95
+    assert m["max_contact_force_n"] < 2.5 * cfg.force_n
+    assert m["force_within_20pct_fraction"] > 0.85
+    kinds = [p for _, p in m["phase_changes"]]
+    assert kinds.count(PHASES["capture"]) == m["vision_updates"] + 1  # the first capture and each update

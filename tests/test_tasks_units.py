@@ -375,3 +375,43 @@ def test_control_loop_resets_a_controller_once_then_resumes_it() -> None:
     fresh.tank_i.energy = 3.0
     loop.use(fresh)  # a controller new to this loop starts from its initial state
     assert fresh.tank_i.energy == pytest.approx(24.5)
+
+
+def test_move_cartesian_keeps_the_tool_on_the_line() -> None:
+    """A transit through IK waypoints stays within a few mm of the straight line between the poses
+    (a single joint move between far postures dipped a cleaning tool 7 cm back into a bowl)."""
+    from tactex.robots import MujocoBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+
+    loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
+    loop.hold(0.05)
+    p0, r0 = loop.state.ee_position.copy(), loop.state.ee_rotation.copy()
+    goal = p0 + np.array([-0.1, 0.15, 0.1])
+    deviation = []
+
+    def watch(state, reference, controller) -> None:
+        rel = state.ee_position - p0
+        axis = (goal - p0) / np.linalg.norm(goal - p0)
+        deviation.append(float(np.linalg.norm(rel - (rel @ axis) * axis)))
+
+    loop.on_tick = watch
+    loop.move_cartesian(goal, r0, settle_s=0.5)
+    assert np.linalg.norm(loop.state.ee_position - goal) < 3e-3
+    assert max(deviation) < 0.01
+
+
+def test_retract_along_a_world_direction_and_its_check() -> None:
+    from tactex.robots import MujocoBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+
+    loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
+    loop.hold(0.05)
+    p0 = loop.state.ee_position.copy()
+    loop.retract(0.04, direction_world=np.array([0.0, 0.0, 2.0]))  # any length: normalised
+    loop.hold(0.3)
+    np.testing.assert_allclose(loop.state.ee_position - p0, [0.0, 0.0, 0.04], atol=4e-3)
+    for bad in (np.zeros(3), np.array([np.nan, 0.0, 1.0]), np.ones(2)):
+        with pytest.raises(InputError, match="direction_world"):
+            loop.retract(0.04, direction_world=bad)

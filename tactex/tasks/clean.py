@@ -54,7 +54,8 @@ CLEAN_BASELINES = ("", "raster", "no_feedback")
 PHASES = CLEAN_PHASES
 #: Lift-off distance along the tool axis before vision and at the end [m].
 RETRACT_M = 0.05
-#: Height of the waypoint above the hover pose on the way from the capture pose [m].
+#: Height of the waypoints above the hover pose on the way from the capture pose, and above the
+#: retracted tool on the way back to it [m].
 CLEARANCE_M = 0.08
 #: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
 WAYPOINT_MAX_JOINT_RAD = 0.5
@@ -236,8 +237,14 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     cap_pos, cap_rot = _capture_pose(backend, cfg)
     q_capture = backend.solve_ik(cap_pos, cap_rot)  # TEC's pre-recorded capture posture
 
-    def capture() -> SurfaceCloud:
+    def capture(lift: bool = False) -> SurfaceCloud:
         log.phase = PHASES["move"]
+        if lift:
+            # From a retract inside a bowl a single joint move to the capture pose dipped the tool back
+            # into the bowl (hits of up to 720 N, a force trip that aborted the move, and a camera that
+            # then saw no object): straight up first, then along a line of IK waypoints.
+            loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=np.array([0.0, 0.0, 1.0]))
+            loop.move_cartesian(cap_pos, cap_rot, settle_s=0.0, q_goal=q_capture)
         loop.move_joints(q_capture, settle_s=0.3)
         log.phase = PHASES["capture"]
         return capture_target_cloud(backend.render_depth(), acq)
@@ -374,7 +381,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         # 4. back to vision: re-measure the dirt on the same points, update the target
         log.phase = PHASES["retract"]
         loop.retract(RETRACT_M, duration_s=0.4)
-        new_capture = capture()
+        new_capture = capture(lift=True)
         vision_updates += 1
         vision_times.append(loop.t)
         mass = remeasure_target(cloud, new_capture)

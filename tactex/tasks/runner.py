@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -11,6 +12,8 @@ from tactex.control.controller import Controller
 from tactex.control.joint_impedance import JointImpedanceController, JointTarget
 from tactex.control.safety import SafetyLayer, SafetyLimits
 from tactex.control.state import RobotState
+from tactex.errors import InputError, SimulationError
+from tactex.geometry import exp_so3, log_so3
 from tactex.robots.backend import RobotBackend
 
 __all__ = ["TOOL_DOWN", "ControlLoop", "tool_rotation_for_normal"]
@@ -109,10 +112,13 @@ class ControlLoop:
         return max(min_duration_s, peak)
 
     def solve_pose(self, position_world: np.ndarray, rotation_world: np.ndarray,
-                   q_seed: np.ndarray | None = None) -> np.ndarray:
-        """Joint angles (7,) [rad] of a TCP pose, searched from ``q_seed`` (default: the current q)."""
+                   q_seed: np.ndarray | None = None, q_posture: np.ndarray | None = None) -> np.ndarray:
+        """Joint angles (7,) [rad] of a TCP pose, searched from ``q_seed`` (default: the current q),
+        preferring postures near ``q_posture`` (default: the backend's home)."""
         seed = self.state.q if q_seed is None else q_seed
-        return self.backend.solve_ik(position_world, rotation_world, seed)  # type: ignore[attr-defined]
+        if q_posture is None:
+            return self.backend.solve_ik(position_world, rotation_world, seed)  # type: ignore[attr-defined]
+        return self.backend.solve_ik(position_world, rotation_world, seed, q_posture)  # type: ignore[attr-defined]
 
     def move_to_pose(self, position_world: np.ndarray, rotation_world: np.ndarray, duration_s: float | None = None,
                      settle_s: float = 0.2, q_seed: np.ndarray | None = None) -> RobotState:
@@ -121,10 +127,45 @@ class ControlLoop:
         branch would sweep the arm through the scene."""
         return self.move_joints(self.solve_pose(position_world, rotation_world, q_seed), duration_s, settle_s)
 
-    def retract(self, distance_m: float, duration_s: float = 0.4) -> RobotState:
-        """Lift the TCP about ``distance_m`` [m] straight back along the tool axis (−tool z),
-        keeping its orientation, as a joint move of at least ``duration_s`` [s] (longer when a
-        joint would otherwise exceed the planner's speed).
+    def move_cartesian(self, position_world: np.ndarray, rotation_world: np.ndarray, *, step_m: float = 0.02,
+                       step_rad: float = 0.15, settle_s: float = 0.2, max_joint_speed: float = 0.8,
+                       q_goal: np.ndarray | None = None) -> RobotState:
+        """Move the TCP along the straight line to ``position_world`` [m] (the orientation along the
+        geodesic to ``rotation_world``), as joint moves through IK waypoints at most ``step_m`` [m] and
+        ``step_rad`` [rad] apart, each solved from the one before (one IK branch). ``q_goal``: the
+        posture of the end pose when it is known (a pre-recorded capture posture); it then ends the
+        path instead of an IK solution.
+
+        For transits near an object: a single joint move between two far postures (from a cleaning
+        pose inside a bowl to the capture pose above it) can dip the tool back into the object on the
+        way, however high both ends are."""
+        start = self.state
+        p0, r0 = start.ee_position.copy(), start.ee_rotation.copy()
+        goal_p = np.asarray(position_world, dtype=float)
+        w = log_so3(r0.T @ np.asarray(rotation_world, dtype=float))
+        n = max(1, math.ceil(max(float(np.linalg.norm(goal_p - p0)) / step_m, float(np.linalg.norm(w)) / step_rad)))
+        q = start.q
+        for k in range(1, n + 1):
+            f = k / n
+            if k == n and q_goal is not None:
+                q = np.asarray(q_goal, dtype=float)
+                self.move_joints(q, self.joint_move_duration(q, max_joint_speed, min_duration_s=0.1), settle_s)
+                break
+            try:  # the posture pull towards the last waypoint keeps the IK on its branch
+                q = self.solve_pose(p0 + f * (goal_p - p0), r0 @ exp_so3(f * w), q_seed=q, q_posture=q)
+            except SimulationError:
+                if k == n:
+                    raise
+                continue  # a waypoint the IK misses is skipped; the next one is a short step further
+            dur = self.joint_move_duration(q, max_joint_speed, min_duration_s=0.1)
+            self.move_joints(q, dur, settle_s=settle_s if k == n else 0.0)
+        return self.state
+
+    def retract(self, distance_m: float, duration_s: float = 0.4,
+                direction_world: np.ndarray | None = None) -> RobotState:
+        """Lift the TCP about ``distance_m`` [m] straight back along the tool axis (−tool z), or
+        along the unit ``direction_world`` when given, keeping its orientation, as a joint move of at
+        least ``duration_s`` [s] (longer when a joint would otherwise exceed the planner's speed).
 
         The joint goal is one damped least-squares step through the current Jacobian, not a full
         IK solve: IK prefers postures near home, and its answer for a pose a few cm away can
@@ -135,7 +176,15 @@ class ControlLoop:
         """
         state = self.state
         jac = state.jacobian
-        twist = np.concatenate([-distance_m * state.ee_rotation[:, 2], np.zeros(3)])
+        if direction_world is None:
+            direction = -state.ee_rotation[:, 2]
+        else:
+            direction = np.asarray(direction_world, dtype=float)
+            norm = float(np.linalg.norm(direction)) if direction.shape == (3,) else float("nan")
+            if not (np.isfinite(norm) and norm > 0.0):
+                raise InputError(f"direction_world must be a finite, non-zero 3-vector, got {direction_world!r}")
+            direction = direction / norm
+        twist = np.concatenate([distance_m * direction, np.zeros(3)])
         dq = jac.T @ np.linalg.solve(jac @ jac.T + RETRACT_DAMPING**2 * np.eye(6), twist)
         # Near a singular posture the step grows: keep it inside the joint limits (short of the safety
         # layer's repulsion band) and slow enough for every joint.
