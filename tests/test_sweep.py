@@ -110,7 +110,7 @@ def test_bad_sources_and_outputs(tmp_path):
         run_sweep(["cup"], tmp_path / "o", SweepConfig(**{**SMALL, "n_eigen": (5000,)}))
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    with pytest.raises(InputError, match="not a directory"):
+    with pytest.raises(InputError, match="is an existing file"):
         run_sweep(["cup"], blocker, SweepConfig(**SMALL))
 
 
