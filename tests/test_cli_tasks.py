@@ -195,3 +195,19 @@ def test_demo_quick_end_to_end(tmp_path, capsys) -> None:
     assert lines[0] == "clean:" and "wipe:" in lines and "dirt removed" in lines[1]
     assert lines[-1].endswith(f"report: {out / 'index.html'}") and lines[-1].startswith("2 runs in ")
     assert (out / "summary.txt").read_text().strip() == "\n".join(lines[:-2]).strip()
+
+
+def test_a_directory_as_cloud_is_named_as_such(tmp_path, capsys) -> None:
+    (tmp_path / "clouds.ply").mkdir()
+    code = main(["explore", str(tmp_path / "clouds.ply"), "--out", str(tmp_path / "x")])
+    _one_line_error(capsys, code, "is a directory")
+
+
+def test_a_tiny_cloud_gets_no_impossible_n_eigen_hint() -> None:
+    from tactex.errors import SpectralError
+    from tactex.spectral.basis import _check_n_eigen
+
+    with pytest.raises(SpectralError, match=r"only 1 point\(s\): too few"):
+        _check_n_eigen(200, 1)
+    with pytest.raises(SpectralError, match=r"Use e\.g\. n_eigen=5"):
+        _check_n_eigen(20, 10)

@@ -121,3 +121,17 @@ def test_cli_prints_the_grid(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "n_K \\ α" in text and "best: n_K = 10" in text
     assert main(["sweep", "cup", "--out", str(tmp_path / "t"), "--alpha", "-1"]) == 2
+
+
+def test_a_cloud_without_colours_is_swept_with_target_channel_all(tmp_path, capsys):
+    """explore's hint for an uncoloured cloud ('pass --target-channel all') holds for sweep too."""
+    g = np.linspace(0.0, 0.06, 21)
+    x, y = np.meshgrid(g, g)
+    path = tmp_path / "plain.npz"
+    np.savez(path, points=np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)]))
+    argv = ["sweep", str(path), "--n-eigen", "10", "--alpha", "5", "--starts", "1", "--steps", "10",
+            "--workers", "1", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 2
+    assert "--target-channel all" in capsys.readouterr().err
+    assert main([*argv, "--target-channel", "all", "--out", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "b" / "sweep.json").is_file()

@@ -415,3 +415,16 @@ def test_retract_along_a_world_direction_and_its_check() -> None:
     for bad in (np.zeros(3), np.array([np.nan, 0.0, 1.0]), np.ones(2)):
         with pytest.raises(InputError, match="direction_world"):
             loop.retract(0.04, direction_world=bad)
+
+
+def test_task_sensor_noise_reaches_the_scene_and_is_checked() -> None:
+    """`tactex wipe --seed` changed nothing: the noise it seeds was 0 and could not be set."""
+    from tactex.tasks.wipe import WipeConfig
+
+    scene = WipeConfig(ft_noise_n=0.5, ft_noise_nm=0.01, depth_noise_m=0.001, seed=7).scene()
+    assert (scene.ft_noise_n, scene.ft_noise_nm, scene.depth_noise_m, scene.seed) == (0.5, 0.01, 0.001, 7)
+    scene = CleanConfig(ft_noise_n=0.3).scene()
+    assert scene.ft_noise_n == 0.3 and scene.marking == "X"
+    for bad in ({"ft_noise_n": -1.0}, {"depth_noise_m": float("nan")}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            WipeConfig(**bad)

@@ -177,6 +177,8 @@ def load_explore_cloud(source: str | Path, cfg: ExploreConfig) -> tuple[SurfaceC
             f"({', '.join(SUPPORTED_SUFFIXES)})"
         )
     path = Path(src)
+    if path.is_dir():
+        raise InputError(f"'{path}' is a directory; give a point cloud file ({', '.join(SUPPORTED_SUFFIXES)})")
     if not path.is_file():
         raise InputError(f"point cloud file '{path}' does not exist")
     if cfg.marking is not None:

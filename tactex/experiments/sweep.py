@@ -60,6 +60,10 @@ class SweepConfig:
         "coverage normalisation of the source: 'domain' = eq. 2 as in the paper's study (the explorer's default "
         "'target' favours touching every target point over the time share that eq. 48 measures)",
     )
+    target_channel: str = param(
+        "auto", "target of a cloud file, as in `tactex explore`: auto (red channel if coloured, else the stored "
+        "target), red, green, blue, stored, or all (the whole surface)")
+    target_threshold: float = param(1.0, "colour level marking the target, 0–1 (TEC: red = 255 → 1.0) [-]")
     workers: int = param(0, "worker processes; 0 = one per core [-]")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
 
@@ -94,7 +98,7 @@ class SweepConfig:
     def explore_config(self) -> ExploreConfig:
         return ExploreConfig(voxel_size=self.voxel_size, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
                              steps=self.steps, agent_radius=self.agent_radius, seed=self.seed, cache=self.cache,
-                             html=False)
+                             target_channel=self.target_channel, target_threshold=self.target_threshold, html=False)
 
 
 @dataclass

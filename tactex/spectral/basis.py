@@ -83,6 +83,11 @@ def _check_n_eigen(n_eigen: object, n_points: int) -> int:
     if k < 1:
         raise ConfigError(f"n_eigen must be ≥ 1, got {k} (the paper uses 100–200)")
     if k >= n_points:
+        if n_points < 3:
+            raise SpectralError(
+                f"the cloud has only {n_points} point(s): too few for a Laplace basis; use a denser cloud "
+                "(smaller voxel size)"
+            )
         suggestion = max(1, min(200, n_points // 2))
         raise SpectralError(
             f"n_eigen={k} eigenpairs requested but the cloud has only {n_points} points; n_eigen must be "

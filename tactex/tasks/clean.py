@@ -102,7 +102,7 @@ class CleanConfig(SimWorldParams):
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
-    seed: int = param(0, "seed of the simulation and the explorer")
+    seed: int = param(0, "seed of the sensor noise and of the explorer's random headings")
 
     def __post_init__(self) -> None:
         super().__post_init__()

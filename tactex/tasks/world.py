@@ -32,7 +32,11 @@ class SimWorldParams:
     camera_width: int = param(160, "wrist camera image width [px]")
     camera_height: int = param(120, "wrist camera image height [px]")
     record_hz: float = param(100.0, "rate of the recorded time series [Hz]")
-    seed: int = param(0, "seed of the simulation")
+    ft_noise_n: float = param(0.0, "F/T force noise standard deviation [N]")
+    ft_noise_nm: float = param(0.0, "F/T torque noise standard deviation [N·m]")
+    depth_noise_m: float = param(0.0, "depth noise standard deviation at 1 m, grows with depth² [m]")
+    seed: int = param(0, "seed of the sensor noise (the physics is deterministic: with the noise at its "
+                         "default 0 the seed changes nothing but what a task seeds itself)")
 
     def __post_init__(self) -> None:
         get_object(self.object_name)  # unknown names raise with the valid list
@@ -40,8 +44,10 @@ class SimWorldParams:
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
-        if not (math.isfinite(float(self.tool_friction)) and self.tool_friction >= 0):
-            raise ConfigError(f"tool_friction must be a finite number ≥ 0, got {self.tool_friction!r}")
+        for name in ("tool_friction", "ft_noise_n", "ft_noise_nm", "depth_noise_m"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
 
@@ -50,5 +56,6 @@ class SimWorldParams:
         return SceneConfig(
             object_name=self.object_name, object_position=self.object_position, camera_width=self.camera_width,
             camera_height=self.camera_height, seed=self.seed, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
-            tool_pad_shape=self.tool_pad_shape, tool_friction=self.tool_friction, **scene_fields,
+            tool_pad_shape=self.tool_pad_shape, tool_friction=self.tool_friction, ft_noise_n=self.ft_noise_n,
+            ft_noise_nm=self.ft_noise_nm, depth_noise_m=self.depth_noise_m, **scene_fields,
         )
