@@ -211,3 +211,8 @@ def test_a_tiny_cloud_gets_no_impossible_n_eigen_hint() -> None:
         _check_n_eigen(200, 1)
     with pytest.raises(SpectralError, match=r"Use e\.g\. n_eigen=5"):
         _check_n_eigen(20, 10)
+
+
+def test_an_unreachable_capture_pose_names_the_parameter(tmp_path, capsys) -> None:
+    code = main(["clean", "--object-name", "cup", "--side-capture-distance-m", "0.45", "--out", str(tmp_path / "c")])
+    _one_line_error(capsys, code, "out of the arm's reach", "lower side_capture_distance_m (now 0.45 m)")

@@ -81,3 +81,10 @@ def test_bowl_with_the_rli_marking_stays_within_the_force_band() -> None:
     assert m["force_within_20pct_fraction"] > 0.85
     kinds = [p for _, p in m["phase_changes"]]
     assert kinds.count(PHASES["capture"]) == m["vision_updates"] + 1  # the first capture and each update
+
+
+def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
+    """`clean --object-name cup` failed at once: the side capture pose 0.45 m out was out of reach."""
+    m = run_clean(CleanConfig(object_name="cup", budget_s=25.0), progress=False).metrics
+    assert m["vision_updates"] >= 1 and m["dirt_removed_fraction"] > 0.9
+    assert m["max_contact_force_n"] < 3.0 * 10.0

@@ -86,7 +86,10 @@ class CleanConfig(SimWorldParams):
     vision_every_steps: int = param(200, "exploration steps between visual re-measurements (TEC §VI-B) [-]")
     stop_remaining: float = param(0.02, "stop when vision sees less than this fraction of the first target [-]")
     budget_s: float = param(120.0, "simulated time budget of the whole program [s]")
-    capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose [m]")
+    capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose, looking down [m]")
+    side_capture_distance_m: float = param(
+        0.2, "TCP distance from a wall at the capture pose beside it (the cup) [m]: the arm cannot hold the "
+        "horizontal camera 0.45 m out at the wall's mid-height")
     hover_height_m: float = param(0.03, "hover above the surface before contact [m]")
     approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
     force_ramp_s: float = param(0.1, "ramp from the approach force to the set point after touch-down [s]")
@@ -109,7 +112,8 @@ class CleanConfig(SimWorldParams):
         if self.baseline not in CLEAN_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
         positive = ("force_n", "alpha", "agent_radius_m", "voxel_size_m", "max_velocity", "explorer_rate_hz",
-                    "budget_s", "capture_distance_m", "hover_height_m", "approach_force_n", "max_normal_rate_deg_s")
+                    "budget_s", "capture_distance_m", "side_capture_distance_m", "hover_height_m", "approach_force_n",
+                    "max_normal_rate_deg_s")
         for name in positive:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -213,7 +217,7 @@ def _capture_pose(backend: MujocoBackend, cfg: CleanConfig) -> tuple[np.ndarray,
     if isinstance(surface, CylinderWallSurface):
         out = rot @ np.array([0.0, -1.0, 0.0])  # the side the cup's marking faces
         centre = pos + rot @ np.array([0.0, 0.0, surface.height_m / 2])
-        return centre + out * (surface.radius_m + cfg.capture_distance_m), tool_rotation_for_normal(out)
+        return centre + out * (surface.radius_m + cfg.side_capture_distance_m), tool_rotation_for_normal(out)
     top = pos + rot @ np.array([0.0, 0.0, float(surface.bounds_m[1, 2])])
     return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
 
@@ -235,7 +239,13 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
     acq = replace(_acquisition(backend), voxel_size_m=cfg.voxel_size_m)
     cap_pos, cap_rot = _capture_pose(backend, cfg)
-    q_capture = backend.solve_ik(cap_pos, cap_rot)  # TEC's pre-recorded capture posture
+    try:
+        q_capture = backend.solve_ik(cap_pos, cap_rot)  # TEC's pre-recorded capture posture
+    except SimulationError as exc:
+        which = "side_capture_distance_m" if isinstance(backend.scene.sim_object.surface, CylinderWallSurface) \
+            else "capture_distance_m"
+        raise ConfigError(f"the capture pose at {np.round(cap_pos, 3).tolist()} m is out of the arm's reach ({exc}); "
+                          f"lower {which} (now {getattr(cfg, which)} m)") from exc
 
     def capture(lift: bool = False) -> SurfaceCloud:
         log.phase = PHASES["move"]
