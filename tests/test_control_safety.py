@@ -143,6 +143,56 @@ def test_a_lost_wrench_sensor_retreats_until_it_is_back():
     assert inner.resumes == resumes + 1 and "retreat_end" in [e.kind for e in layer.events]
 
 
+def test_a_lost_sensor_backs_off_only_from_contact_and_only_for_retreat_time():
+    """Lost in contact: the pull back acts for retreat_time, then damping alone (at rest: no torque).
+    Lost in free space: no pull at all. (A pull for as long as the sensor stayed dead carried a real
+    arm 0.77 m in 6 s.)"""
+    jac = np.zeros((6, N_JOINTS))
+    jac[:6, :6] = np.eye(6)
+    dead = np.full(6, np.nan)
+    for last, pulls in ((np.array([0, 0, 15.0, 0, 0, 0]), True), (np.zeros(6), False)):
+        layer, _ = _layer(np.zeros(N_JOINTS), wrench_loss_ticks=2, retreat_time=0.05, tau_rate_max=1e6)
+        layer.torque(_state(0, jacobian=jac, wrench_tool=last), None)
+        taus = [layer.torque(_state(k, jacobian=jac, wrench_tool=dead), None) for k in range(1, 200)]
+        assert layer.retreating
+        pulled = [k for k, tau in enumerate(taus, start=1) if abs(tau[2]) > 1.0]
+        if pulls:  # from the loss (tick 3) to retreat_time later
+            assert pulled[0] == 3 and 50 <= pulled[-1] <= 54
+        else:
+            assert pulled == []
+        np.testing.assert_allclose(taus[-1], 0.0, atol=1e-9)  # damping alone, the arm at rest
+
+
+def test_a_lost_sensor_holds_a_real_arm_in_free_space():
+    from dataclasses import replace as dc_replace
+
+    from tactex.control.joint_impedance import JointTarget
+    from tactex.robots import MujocoBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+
+    backend = MujocoBackend(SceneConfig(object_name="plane"))
+    loop = ControlLoop(backend)
+    loop.hold(0.1)
+    p0 = loop.state.ee_position.copy()
+    step = backend.step
+    backend.step = lambda: dc_replace(step(), wrench_tool=np.full(6, np.nan))
+    q = loop.state.q.copy()
+    target = JointTarget(q, q, loop.t, 0.0)
+    while loop.t < 2.0:
+        loop.tick(target)
+    assert loop.safety.retreating and "wrench_lost" in [e.kind for e in loop.safety.events]
+    assert np.linalg.norm(loop.state.ee_position - p0) < 0.005
+
+
+def test_a_flickering_sensor_reports_at_most_one_event_a_second():
+    layer, _ = _layer(np.zeros(N_JOINTS))
+    good, dead = np.array([0, 0, 5.0, 0, 0, 0]), np.full(6, np.nan)
+    for k in range(2000):  # two seconds of NaN every other tick
+        layer.torque(_state(k, wrench_tool=dead if k % 2 else good), None)
+    assert [e.kind for e in layer.events].count("nan_wrench") == 2 and layer.counts["nan_wrench"] == 1000
+
+
 def test_wrench_loss_ticks_validation():
     for bad in (0, -1, 2.5, True):
         with pytest.raises(ConfigError, match="wrench_loss_ticks"):

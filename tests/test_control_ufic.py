@@ -186,11 +186,15 @@ def test_va_ufic_resume_keeps_the_tanks_reset_refills_them():
         ctrl.torque(state, _ref([0.5, 0, 0.3]))
     drained, delivered = ctrl.tank_i.energy, ctrl.tank_i.delivered
     assert drained < 24.0 and delivered > 0.0
+    ctrl._rot_d = exp_so3(np.array([0.2, 0.0, 0.0])).tolist()  # as if vision had re-oriented it
+    rot_d = ctrl.rotation_desired
     ctrl.resume(make_state(t=1.0))
     assert ctrl.tank_i.energy == drained and ctrl.tank_i.delivered == delivered
-    assert ctrl.rotation_desired is None and np.all(ctrl.position_offset == 0.0)  # the rest restarts
+    np.testing.assert_array_equal(ctrl.rotation_desired, rot_d)  # R_d stays: re-reading it would swing the spring
+    assert np.all(ctrl.position_offset == 0.0) and ctrl.telemetry() == {}  # the rest restarts
     ctrl.reset(make_state(t=1.0))
     assert ctrl.tank_i.energy == pytest.approx(24.5) and ctrl.tank_i.delivered == 0.0
+    assert ctrl.rotation_desired is None
 
 
 @pytest.mark.parametrize("case", ["none", "invalid", "stale", "nan"])

@@ -309,7 +309,7 @@ def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
 
     monkeypatch.setattr(numba.config, "DISABLE_JIT", True)
     # restored after the test: the compiled step, its helpers and the failure flag
-    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "_sphere_agrees", "project_floats",
+    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "_sphere_beats_plane", "project_floats",
                  "tangent_floats",
                  "plane_slope", "transported_floats", "braked_direction"):
         monkeypatch.setattr(ker, name, getattr(ker, name))
@@ -329,28 +329,34 @@ def test_compiled_must_be_a_bool(value):
 
 @needs_numba
 def test_the_small_sphere_check_decides_as_the_numpy_fit(rng):
-    """The compiled step's check of small spheres against the neighbourhood's plane gives numpy's
-    verdict (fit._sphere_agrees) on noisy caps, flat patches and the ragged bowl edge of test_fit."""
+    """The compiled step's test of a small sphere against the neighbourhood's PCA plane gives numpy's
+    verdict (fit._sphere_beats_plane) on noisy spheres, one-sided caps, flat patches and the ragged
+    bowl edge of test_fit."""
     from tactex.geometry import fit as fit_mod
 
     from .test_fit import RAGGED_EDGE_MM
 
     ker.compiled_walk_step()  # compiles the helpers in place
-    prm = ker.params(agent_radius_m=0.01, eps2=1.0, source_weight=0.0, max_acceleration=1.0, max_velocity=1.0,
-                     max_step_m=0.003, dt=1.0, max_off_m=0.003, edge_offset=0.25, normalize_by_target=True, order=2)
     cases = [RAGGED_EDGE_MM * 1e-3]
     for _ in range(300):
-        d = rng.normal(size=(20, 3)) * np.array([1.0, 1.0, rng.uniform(0.0, 0.6)])
-        cases.append(d @ np.linalg.qr(rng.normal(size=(3, 3)))[0] * 0.004)
-    agree = []
+        centre = rng.normal(size=3)
+        u = rng.normal(size=(20, 3)) + np.array([0.0, 0.0, rng.uniform(0.0, 3.0)])  # caps of varying extent
+        pts = centre + 0.8 * u / np.linalg.norm(u, axis=1, keepdims=True)
+        cases.append((pts + rng.normal(size=pts.shape) * rng.uniform(0.0, 0.1)) * 0.004)
+    verdicts = []
     for d in cases:
         dd = (d * d).sum(axis=1)
         inv = 1.0 / np.sqrt(dd.max())
         q = d * inv
         w = np.c_[q, -np.ones(len(q)), -0.5 * (q * q).sum(axis=1)]
-        for c in (rng.normal(size=3), -q.mean(axis=0) + rng.normal(size=3) * 0.1):
-            want = fit_mod._sphere_agrees(w, *c)
-            got = ker._sphere_agrees(d, np.arange(len(d)), len(d), inv, *c, prm)
-            assert got == want, (d, c)
-            agree.append(want)
-    assert 0.1 < np.mean(agree) < 0.95  # both verdicts occur
+        for c, r in ((rng.normal(size=3), rng.uniform(0.3, 3.0)),):
+            want = fit_mod._sphere_beats_plane(w, *c, r)
+            got = ker._sphere_beats_plane(d, np.arange(len(d)), len(d), inv, *c, r)
+            assert got == want, (d, c, r)
+            verdicts.append(want)
+        F = fit_mod.fit_local(q)  # the algebraic sphere itself, where the fit gave one
+        if F.kind == "sphere":
+            want = fit_mod._sphere_beats_plane(w, *F.center, F.radius)
+            assert ker._sphere_beats_plane(d, np.arange(len(d)), len(d), inv, *F.center, F.radius) == want
+            verdicts.append(want)
+    assert 0.05 < np.mean(verdicts) < 0.95  # both verdicts occur

@@ -259,9 +259,10 @@ def _pca_normal(q: np.ndarray) -> np.ndarray:
     return np.linalg.eigh(qc.T @ qc)[1][:, 0]
 
 
-def test_a_small_sphere_off_the_neighbourhoods_plane_gives_way_to_the_plane(monkeypatch):
-    """On a ragged scan edge the algebraic fit returns a sphere smaller than the neighbourhood whose
-    normal at the agent is far off the surface; the fit then takes the PCA plane."""
+def test_a_small_sphere_no_better_than_a_plane_gives_way_to_the_plane(monkeypatch):
+    """On a ragged scan edge the algebraic fit returns a sphere smaller than the neighbourhood that
+    fits the points worse than a plane, with a normal at the agent far off the surface; the fit then
+    takes the PCA plane."""
     import tactex.geometry.fit as fit_mod
 
     q = RAGGED_EDGE_MM / np.sqrt((RAGGED_EDGE_MM**2).sum(axis=1).max())  # scaled as the explorer does
@@ -272,19 +273,33 @@ def test_a_small_sphere_off_the_neighbourhoods_plane_gives_way_to_the_plane(monk
     assert raw.kind == "sphere" and raw.radius < 1.0
     n_raw = -raw.center / np.linalg.norm(raw.center)  # the sphere's normal at the agent
     assert abs(n_raw @ n_pca) < 0.5  # over 60° off the surface
+    sphere_ss = float(np.sum((np.linalg.norm(q - raw.center, axis=1) - raw.radius) ** 2))
+    qc = q - q.mean(axis=0)
+    assert sphere_ss > float(np.sum((qc @ n_pca) ** 2))  # and a worse fit than the plane
     patch = fit_local(q)
     assert patch.kind == "plane" and abs(patch.direction @ n_pca) == pytest.approx(1.0)
 
 
-def test_a_genuinely_small_sphere_is_kept(rng):
-    """A cap of a sphere of 0.8 neighbourhood radii (a bunny's ear at 3 mm voxels) agrees with its
-    own plane: it stays a sphere, recovered exactly."""
-    centre, radius = np.array([0.0, 0.0, -0.8]), 0.8
-    d = rng.normal(size=(40, 3))
-    d[:, 2] = np.abs(d[:, 2]) + 1.5  # the upper cap, around the pole
+@pytest.mark.parametrize("side", ["full", "half", "quarter"])
+@pytest.mark.parametrize("radius", [0.6, 0.8, 1.2])
+def test_a_genuinely_small_sphere_is_kept_however_one_sided(rng, side, radius):
+    """Caps of spheres of 0.6–1.2 neighbourhood radii (a bunny's ear at 3 mm voxels), with the agent
+    at the pole and its neighbours all around it, on one side, or in one quadrant (a scan edge): the
+    sphere fits far better than any plane and is kept, recovered exactly."""
+    import tactex.geometry.fit as fit_mod
+
+    centre = np.array([0.0, 0.0, -radius])
+    d = rng.normal(size=(20000, 3))
     pts = centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
-    pts = pts[np.argsort(np.linalg.norm(pts, axis=1))[:20]]  # the agent at the pole (0, 0, 0)
-    patch = fit_local(pts)
+    keep = np.linalg.norm(pts, axis=1) <= 1.0  # within one neighbourhood radius of the agent at the pole
+    if side in ("half", "quarter"):
+        keep &= pts[:, 0] >= 0.0
+    if side == "quarter":
+        keep &= pts[:, 1] >= 0.0
+    pts = pts[keep][rng.choice(int(keep.sum()), 20, replace=False)]
+    scale = np.linalg.norm(pts, axis=1).max()  # the explorer's scaling: the farthest neighbour at 1
+    assert radius / scale < fit_mod.CHECK_RADIUS_RATIO  # the check applies
+    patch = fit_local(pts / scale)
     assert patch.kind == "sphere"
-    np.testing.assert_allclose(patch.center, centre, atol=EXACT_TOL)
-    assert patch.radius == pytest.approx(radius, abs=EXACT_TOL)
+    np.testing.assert_allclose(patch.center * scale, centre, atol=EXACT_TOL)
+    assert patch.radius * scale == pytest.approx(radius, abs=EXACT_TOL)

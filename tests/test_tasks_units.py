@@ -428,3 +428,27 @@ def test_task_sensor_noise_reaches_the_scene_and_is_checked() -> None:
     for bad in ({"ft_noise_n": -1.0}, {"depth_noise_m": float("nan")}):
         with pytest.raises(ConfigError, match=next(iter(bad))):
             WipeConfig(**bad)
+
+
+def test_move_cartesian_refuses_to_skip_many_waypoints_in_a_row() -> None:
+    """Skipping every missed waypoint would end in the single long joint move the waypoints avoid."""
+    from tactex.errors import SimulationError
+    from tactex.robots import MujocoBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+
+    loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
+    loop.hold(0.05)
+    p0, r0, q0 = loop.state.ee_position.copy(), loop.state.ee_rotation.copy(), loop.state.q.copy()
+    solve, calls = loop.solve_pose, []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) in (2, 4, 5, 6):  # one miss, then three in a row
+            raise SimulationError("IK did not reach the target (test)")
+        return solve(*args, **kwargs)
+
+    loop.solve_pose = flaky
+    with pytest.raises(SimulationError, match="missed 3 waypoints in a row"):
+        loop.move_cartesian(p0 + np.array([0.0, 0.0, 0.2]), r0, q_goal=q0)
+    assert len(calls) == 6  # the single miss was skipped; the run of three stopped it before a long jump

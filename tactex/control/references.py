@@ -56,9 +56,9 @@ class PoseForceReference:
     Attributes:
         position_world: (3,) desired TCP position x_d [m].
         rotation_world: (3, 3) desired orientation world_R_tool. VA-UFIC reads it once, at its
-            first tick after a reset, and from then on moves its own R_d by vision-driven
-            re-orientations (``VaUficController.rotation_desired``); UFIC and the Cartesian
-            impedance follow it every tick.
+            first tick after a reset (a resume keeps its R_d), and from then on moves its own R_d
+            by vision-driven re-orientations (``VaUficController.rotation_desired``); UFIC and the
+            Cartesian impedance follow it every tick.
         wrench_tool: (6,) desired contact wrench f_d^ee in the tool frame [N, N·m]
             (``[0, 0, 15, 0, 0, 0]`` presses 15 N along the tool axis).
         twist_world: (6,) desired TCP twist [m/s, rad/s] (feed-forward for the damping term).

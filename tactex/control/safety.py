@@ -6,8 +6,8 @@
    non-finite F/T wrench alone is replaced by the last finite one (``nan_wrench``, reported when the
    dropout starts) so control goes on through a glitch. After ``wrench_loss_ticks`` non-finite
    readings in a row the sensor counts as lost (``wrench_lost``): a stale reading can neither trip
-   the force limit nor close a force loop, so the layer retreats as in 2. until the sensor is back
-   for ``retreat_time``;
+   the force limit nor close a force loop, so the layer backs off as in 2. for ``retreat_time``,
+   then holds the arm with damping alone until the sensor has been back for ``retreat_time``;
 2. contact force above ``max_contact_force`` for ``force_trip_ticks`` ticks → compliant retreat
    (damping plus a small pull back along −tool z) for ``retreat_time``, then the inner controller
    resumes from the current state (``force_limit`` / ``retreat_end`` events; :meth:`Controller.resume`
@@ -68,6 +68,9 @@ class SafetyLimits:
     wrench_loss_ticks: int = param(
         20, "consecutive non-finite F/T readings bridged with the last finite one; one more and the sensor "
         "counts as lost and the layer retreats [-]")
+    lost_contact_force_n: float = param(
+        1.0, "a sensor lost while its last reading exceeded this force backs the tool off for retreat_time; "
+        "lost in free space the layer only damps [N]")
     retreat_force: float = param(5.0, "pull back along −tool z during the retreat [N]")
     retreat_damping: float = param(60.0, "lateral translational damping during the retreat [N·s/m]")
     retreat_axial_damping: float = param(
@@ -89,6 +92,7 @@ class SafetyLimits:
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"SafetyLimits.{name} must be finite and > 0, got {v!r}")
         for name in ("joint_limit_margin", "joint_limit_stiffness", "joint_limit_damping", "retreat_force",
+                     "lost_contact_force_n",
                      "retreat_damping", "retreat_angular_damping"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
@@ -122,6 +126,9 @@ class SafetyLayer(Controller):
         self._tau_prev_l = [0.0] * len(self._tau_max_l)  # last command, Python floats
         self._wrench_last_l = [0.0] * 6  # last finite F/T wrench, Python floats
         self._wrench_bad = 0  # consecutive non-finite F/T readings
+        self._lost_at: float | None = None  # when the sensor was declared lost [s]
+        self._lost_in_contact = False  # its last finite reading showed contact
+        self._nan_event_t = -math.inf  # time of the last nan_wrench event [s]
         self._over = 0
         self._retreat_until: float | None = None
         self._saturating = {"torque_limit": False, "torque_rate_limit": False}
@@ -138,6 +145,8 @@ class SafetyLayer(Controller):
         self._tau_prev_l = [0.0] * len(self._tau_max_l)
         self._wrench_last_l = [0.0] * 6
         self._wrench_bad = 0
+        self._lost_at = None
+        self._nan_event_t = -math.inf
         self._over = 0
         self._retreat_until = None
         self._held = False
@@ -165,19 +174,26 @@ class SafetyLayer(Controller):
         lost = False
         if not math.isfinite(sum(wrench)):
             self._wrench_bad += 1
-            if self._wrench_bad == 1:  # one event per dropout (a dead sensor would add one per tick)
+            # one event per dropout, and at most one a second (a dead or flickering sensor would add
+            # one per tick); every tick is counted
+            if self._wrench_bad == 1 and state.t - self._nan_event_t >= 1.0:
                 msg = f"non-finite F/T wrench {state.wrench_tool!r}; using the last finite one"
                 self._event(state.t, "nan_wrench", msg)
+                self._nan_event_t = float(state.t)
             else:
-                self.counts["nan_wrench"] += 1
+                self.counts["nan_wrench"] = self.counts.get("nan_wrench", 0) + 1
             lost = self._wrench_bad > lim.wrench_loss_ticks
             if self._wrench_bad == lim.wrench_loss_ticks + 1:
+                self._lost_at = float(state.t)
+                fx, fy, fz = self._wrench_last_l[:3]
+                self._lost_in_contact = math.sqrt(fx * fx + fy * fy + fz * fz) > lim.lost_contact_force_n
                 self._event(state.t, "wrench_lost", f"no finite F/T reading for {self._wrench_bad} ticks; "
-                            "retreating until the sensor is back")
+                            "backing off, then holding, until the sensor is back")
             wrench = self._wrench_last_l
             state = _replace_wrench(state, np.array(wrench))
         else:
             self._wrench_bad = 0
+            self._lost_at = None
         if not _state_finite(state):
             self._event(state.t, "nan_state", "non-finite robot state; holding the last safe command")
             return self._finish(state, self._hold(), finite_state=False)
@@ -216,12 +232,18 @@ class SafetyLayer(Controller):
         return self._finish(state, tau_l)
 
     def _retreat_torque(self, state: RobotState) -> np.ndarray:
+        """The compliant retreat: a pull back along −tool z and damping. With the sensor lost the pull
+        acts only if the last reading showed contact, and for ``retreat_time`` only (unopposed it would
+        carry the arm off at ~0.5 m/s); then the damping alone holds the arm until the sensor is back."""
         lim = self.limits
         z = state.ee_rotation[:, 2]
         v = state.ee_twist[:3]
         v_ax = float(v @ z) * z
+        pull = lim.retreat_force
+        if self._lost_at is not None and (state.t - self._lost_at > lim.retreat_time or not self._lost_in_contact):
+            pull = 0.0
         f = np.empty(6)
-        f[:3] = -lim.retreat_force * z - lim.retreat_damping * (v - v_ax) - lim.retreat_axial_damping * v_ax
+        f[:3] = -pull * z - lim.retreat_damping * (v - v_ax) - lim.retreat_axial_damping * v_ax
         f[3:] = -lim.retreat_angular_damping * state.ee_twist[3:]
         return state.jacobian.T @ f
 

@@ -175,15 +175,18 @@ class VaUficController(UficController):
         self.resume(state)
         self.tank_i.reset()
         self.tank_f.reset()
+        self._rot_d = None  # taken from the reference at the next tick
 
     def resume(self, state: RobotState) -> None:
-        """:meth:`reset` except the tanks: their energy and ledgers carry over."""
+        """:meth:`reset` except what holds energy: the tanks (energy and ledgers) and the desired
+        orientation R_d the vision moved the constant rotational spring to (re-reading the reference
+        would swing that spring by the whole re-orientation, unpaid). A re-orientation under way stops
+        where it is."""
         super().reset(state)
         if self.port_feedforward is not None:
             self.port_feedforward.reset()
         self.shaper.reset()
         self._offset = (0.0, 0.0, 0.0)
-        self._rot_d = None
         self._realign = None
         self._raw = None
 

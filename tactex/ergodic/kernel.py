@@ -15,7 +15,7 @@ Rare cases are not compiled; the kernel returns a status and leaves every piece 
 found it, and the explorer runs the numpy step instead:
 
 * ``DEGENERATE``: the neighbourhood is a line, a point, a circle or an imaginary sphere (the
-  numpy fit's special patches), a small sphere disagrees with the neighbourhood's plane
+  numpy fit's special patches), a small sphere fits no better than the neighbourhood's plane
   (:data:`tactex.geometry.fit.CHECK_RADIUS_RATIO`), or the agent sits at the sphere's centre;
 * ``EDGE_GAP``: the agent is at a scan edge whose points have a link across a scan hole (the hop
   planner of :mod:`.bridges` decides);
@@ -36,13 +36,7 @@ import importlib.util
 import numpy as np
 
 from tactex.ergodic.gradient import PLANE_PIVOT_RTOL, RIDGE_RTOL
-from tactex.geometry.fit import (
-    CHECK_FLAT_SHARE,
-    CHECK_MIN_COS,
-    CHECK_RADIUS_RATIO,
-    DEGENERACY_RTOL,
-    MAX_RADIUS_RATIO,
-)
+from tactex.geometry.fit import CHECK_RADIUS_RATIO, DEGENERACY_RTOL, MAX_RADIUS_RATIO
 
 __all__ = ["DEGENERATE", "EDGE_GAP", "FLAT", "OK", "OUT_SIZE", "available", "compiled_walk_step", "disable", "params"]
 
@@ -59,8 +53,8 @@ _R_A2, _EPS2, _SOURCE_W, _A_DT, _V_MAX, _DT, _STEP_MAX, _OFF2, _OFF, _EDGE, _NOR
 # machine code, and it renews that cache only when this file changes, not when fit.py or gradient.py do.
 _DEGENERACY, _MAX_RADIUS, _RIDGE, _PIVOT = range(12, 16)
 _BRAKE = 16
-_CHECK_RADIUS, _CHECK_SHARE, _CHECK_COS = range(17, 20)
-_N_PRM = 20
+_CHECK_RADIUS = 17
+_N_PRM = 18
 
 
 def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acceleration: float,
@@ -91,8 +85,6 @@ def params(*, agent_radius_m: float, eps2: float, source_weight: float, max_acce
     prm[_PIVOT] = PLANE_PIVOT_RTOL
     prm[_BRAKE] = 1.0 if edge_braking else 0.0
     prm[_CHECK_RADIUS] = CHECK_RADIUS_RATIO
-    prm[_CHECK_SHARE] = CHECK_FLAT_SHARE
-    prm[_CHECK_COS] = CHECK_MIN_COS
     return prm
 
 
@@ -204,21 +196,25 @@ def _nearest(dd, k):
     return idx
 
 
-def _sphere_agrees(d, part, n_n, inv, cx, cy, cz, prm):
-    """fit._sphere_agrees on the neighbours d[part[:n_n]] · inv: a small sphere is kept unless the
-    neighbourhood is surface-like and the sphere's normal at the agent is over 30° off its PCA plane."""
+def _sphere_beats_plane(d, part, n_n, inv, cx, cy, cz, r):
+    """fit._sphere_beats_plane on the neighbours d[part[:n_n]] · inv: the sphere's squared geometric
+    residuals sum below the scatter's smallest eigenvalue (the PCA plane's)."""
     m0 = m1 = m2 = 0.0
-    for r in range(n_n):
-        j = part[r]
+    for k in range(n_n):
+        j = part[k]
         m0 += d[j, 0] * inv
         m1 += d[j, 1] * inv
         m2 += d[j, 2] * inv
-    k = 1.0 / n_n
-    m0, m1, m2 = m0 * k, m1 * k, m2 * k
+    f = 1.0 / n_n
+    m0, m1, m2 = m0 * f, m1 * f, m2 * f
     C = np.zeros((3, 3))
-    for r in range(n_n):
-        j = part[r]
-        q0, q1, q2 = d[j, 0] * inv - m0, d[j, 1] * inv - m1, d[j, 2] * inv - m2
+    res = 0.0
+    for k in range(n_n):
+        j = part[k]
+        q0, q1, q2 = d[j, 0] * inv, d[j, 1] * inv, d[j, 2] * inv
+        e = ((q0 - cx) ** 2 + (q1 - cy) ** 2 + (q2 - cz) ** 2) ** 0.5 - r
+        res += e * e
+        q0, q1, q2 = q0 - m0, q1 - m1, q2 - m2
         C[0, 0] += q0 * q0
         C[0, 1] += q0 * q1
         C[0, 2] += q0 * q2
@@ -226,14 +222,7 @@ def _sphere_agrees(d, part, n_n, inv, cx, cy, cz, prm):
         C[1, 2] += q1 * q2
         C[2, 2] += q2 * q2
     C[1, 0], C[2, 0], C[2, 1] = C[0, 1], C[0, 2], C[1, 2]
-    ev, vecs = np.linalg.eigh(C)
-    total = ev[0] + ev[1] + ev[2]
-    if not total > 0.0 or ev[0] >= prm[_CHECK_SHARE] * total:
-        return True
-    nc = (cx * cx + cy * cy + cz * cz) ** 0.5
-    if nc == 0.0:
-        return True
-    return abs(cx * vecs[0, 0] + cy * vecs[1, 0] + cz * vecs[2, 0]) >= prm[_CHECK_COS] * nc
+    return res < np.linalg.eigvalsh(C)[0]
 
 
 def _restore(cov, fp, fp_old, coef, coef_old, s, s_old):
@@ -302,8 +291,9 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
         rr2 = cx * cx + cy * cy + cz * cz - 2.0 * vinf / v0
         if rr2 <= 0.0:
             return DEGENERATE
-        if rr2 < prm[_CHECK_RADIUS] * prm[_CHECK_RADIUS] and not _sphere_agrees(d, part, n_n, inv, cx, cy, cz, prm):
-            return DEGENERATE  # a small sphere off the neighbourhood's plane: numpy's fit takes the plane
+        if rr2 < prm[_CHECK_RADIUS] * prm[_CHECK_RADIUS] and not _sphere_beats_plane(d, part, n_n, inv, cx, cy, cz,
+                                                                                      rr2**0.5):
+            return DEGENERATE  # a small sphere no better than the plane: numpy's fit takes the plane
         rad = rr2**0.5
     else:
         if nv == 0.0:
@@ -614,7 +604,7 @@ def compiled_walk_step():
     other than a missing numba (e.g. a numba too old for the installed numpy) propagate: the
     explorer reports them and runs numpy. After :func:`disable` it raises at once.
     """
-    global _compiled, _nearest, _restore, _land, _sphere_agrees, project_floats, tangent_floats, plane_slope
+    global _compiled, _nearest, _restore, _land, _sphere_beats_plane, project_floats, tangent_floats, plane_slope
     global transported_floats, braked_direction
     if _failure is not None:
         raise RuntimeError(_failure)
@@ -632,7 +622,8 @@ def compiled_walk_step():
             except RuntimeError:  # no writable cache location anywhere: compile in every process
                 return njit(nogil=True)(fn)
 
-        _nearest, _restore, _land, _sphere_agrees = jit(_nearest), jit(_restore), jit(_land), jit(_sphere_agrees)
+        _nearest, _restore, _land = jit(_nearest), jit(_restore), jit(_land)
+        _sphere_beats_plane = jit(_sphere_beats_plane)
         project_floats, tangent_floats, plane_slope = jit(project_floats), jit(tangent_floats), jit(plane_slope)
         transported_floats, braked_direction = jit(transported_floats), jit(braked_direction)
         _compiled = jit(_walk_step)

@@ -52,17 +52,13 @@ __all__ = [
 DEGENERACY_RTOL = 1e-10
 #: A fitted sphere larger than this many neighbourhood radii is treated as its limit, a plane.
 MAX_RADIUS_RATIO = 1e6
-#: Spheres smaller than this many neighbourhood radii are checked against the neighbourhood's own plane:
-#: on a sparse or ragged scan edge the algebraic fit can return a small sphere whose normal at the
-#: agent is 60–120° off the surface (the simulated bowl's rim: the agent stuck, the tool tilted
-#: onto the wall, 45 N). A larger sphere cannot turn that far within the neighbourhood.
+#: Spheres smaller than this many neighbourhood radii must fit the neighbourhood better than its PCA
+#: plane does (geometric residuals), or the plane is taken. On a sparse or ragged scan edge the
+#: algebraic fit can return a small sphere that fits the points worse than a plane, with a normal at
+#: the agent 60–120° off the surface (the simulated bowl's rim: the agent stuck, the tool tilted onto
+#: the wall, 45 N); a genuine small sphere fits far better than any plane, however one-sided the
+#: neighbourhood. Larger spheres are left alone: they are nearly planes over a neighbourhood.
 CHECK_RADIUS_RATIO = 3.0
-#: ...when the neighbourhood is surface-like (its smallest PCA variance below this share of the total;
-#: points all around a sphere have 1/3 and are left to the sphere)...
-CHECK_FLAT_SHARE = 0.1
-#: ...and the sphere is replaced by the PCA plane when its normal at the agent and the plane's differ
-#: by more than 30° (|cos| below this).
-CHECK_MIN_COS = 0.8660254037844387
 
 _Z = np.array([0.0, 0.0, 1.0])
 _ZERO3 = np.zeros(3)
@@ -197,7 +193,7 @@ def fit_local_design(w: np.ndarray) -> SurfacePatch:
         cx, cy, cz = v0x / v0, v1x / v0, v2x / v0
         r2 = cx * cx + cy * cy + cz * cz - 2.0 * vinf / v0
         if r2 > 0.0:
-            if r2 < CHECK_RADIUS_RATIO * CHECK_RADIUS_RATIO and not _sphere_agrees(w, cx, cy, cz):
+            if r2 < CHECK_RADIUS_RATIO * CHECK_RADIUS_RATIO and not _sphere_beats_plane(w, cx, cy, cz, r2**0.5):
                 return _pca_plane(np.ascontiguousarray(w[:, :3]))
             return SurfacePatch("sphere", np.array((cx, cy, cz)), r2**0.5, _ZERO3)
         # An imaginary sphere (r² < 0) fits only noise; the plane is the sane limit.
@@ -209,19 +205,15 @@ def fit_local_design(w: np.ndarray) -> SurfacePatch:
     return SurfacePatch("plane", np.array((off * nx, off * ny, off * nz)), np.inf, np.array((nx, ny, nz)))
 
 
-def _sphere_agrees(w: np.ndarray, cx: float, cy: float, cz: float) -> bool:
-    """Whether a small sphere (centre c, agent at the origin) is consistent with the neighbourhood
-    q = w[:, :3]: not surface-like, or the sphere's normal at the agent, −c/|c|, within 30° of the
-    PCA plane's normal (see CHECK_RADIUS_RATIO)."""
-    _, evals, vecs = _pca(np.ascontiguousarray(w[:, :3]))
-    total = float(evals.sum())
-    if not total > 0.0 or evals[0] >= CHECK_FLAT_SHARE * total:
-        return True
-    nc = (cx * cx + cy * cy + cz * cz) ** 0.5
-    if nc == 0.0:
-        return True  # the agent at the centre: the projection reports it
-    n0, n1, n2 = vecs[:, 0].tolist()
-    return abs(cx * n0 + cy * n1 + cz * n2) >= CHECK_MIN_COS * nc
+def _sphere_beats_plane(w: np.ndarray, cx: float, cy: float, cz: float, r: float) -> bool:
+    """Whether the sphere (centre c, radius r) fits the neighbourhood q = w[:, :3] strictly better
+    than its PCA plane: Σ(|q_i − c| − r)² < Σ((q_i − q̄)·n)², the latter being the scatter's smallest
+    eigenvalue (see CHECK_RADIUS_RATIO)."""
+    q = np.ascontiguousarray(w[:, :3])
+    _, evals, _ = _pca(q)
+    d = q - np.array((cx, cy, cz))
+    res = np.sqrt(np.einsum("ij,ij->i", d, d)) - r
+    return float(res.dot(res)) < float(evals[0])
 
 
 def _pca(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -19,6 +19,7 @@ surface; ``no_feedback`` — HEDAC on the first capture only, never re-measuring
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -254,7 +255,11 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
             # into the bowl (hits of up to 720 N, a force trip that aborted the move, and a camera that
             # then saw no object): straight up first, then along a line of IK waypoints.
             loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=np.array([0.0, 0.0, 1.0]))
-            loop.move_cartesian(cap_pos, cap_rot, settle_s=0.0, q_goal=q_capture)
+            try:
+                loop.move_cartesian(cap_pos, cap_rot, settle_s=0.0, q_goal=q_capture)
+            except SimulationError as exc:  # the joint move below is the fallback (it was the only way before)
+                warnings.warn(f"clean: no straight way back to the camera ({exc}); moving in joint space",
+                              RuntimeWarning, stacklevel=2)
         loop.move_joints(q_capture, settle_s=0.3)
         log.phase = PHASES["capture"]
         return capture_target_cloud(backend.render_depth(), acq)

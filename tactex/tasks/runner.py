@@ -129,12 +129,13 @@ class ControlLoop:
 
     def move_cartesian(self, position_world: np.ndarray, rotation_world: np.ndarray, *, step_m: float = 0.02,
                        step_rad: float = 0.15, settle_s: float = 0.2, max_joint_speed: float = 0.8,
-                       q_goal: np.ndarray | None = None) -> RobotState:
+                       q_goal: np.ndarray | None = None, max_skipped: int = 2) -> RobotState:
         """Move the TCP along the straight line to ``position_world`` [m] (the orientation along the
         geodesic to ``rotation_world``), as joint moves through IK waypoints at most ``step_m`` [m] and
         ``step_rad`` [rad] apart, each solved from the one before (one IK branch). ``q_goal``: the
         posture of the end pose when it is known (a pre-recorded capture posture); it then ends the
-        path instead of an IK solution.
+        path instead of an IK solution. A waypoint the IK misses is skipped, at most ``max_skipped`` in
+        a row (SimulationError beyond, before the long joint move the waypoints exist to avoid).
 
         For transits near an object: a single joint move between two far postures (from a cleaning
         pose inside a bowl to the capture pose above it) can dip the tool back into the object on the
@@ -145,8 +146,13 @@ class ControlLoop:
         w = log_so3(r0.T @ np.asarray(rotation_world, dtype=float))
         n = max(1, math.ceil(max(float(np.linalg.norm(goal_p - p0)) / step_m, float(np.linalg.norm(w)) / step_rad)))
         q = start.q
+        skipped = 0
         for k in range(1, n + 1):
             f = k / n
+            if skipped > max_skipped:
+                raise SimulationError(
+                    f"move_cartesian: the IK missed {skipped} waypoints in a row before waypoint {k} of {n}; "
+                    "the straight line leaves the arm's reach")
             if k == n and q_goal is not None:
                 q = np.asarray(q_goal, dtype=float)
                 self.move_joints(q, self.joint_move_duration(q, max_joint_speed, min_duration_s=0.1), settle_s)
@@ -156,7 +162,9 @@ class ControlLoop:
             except SimulationError:
                 if k == n:
                     raise
+                skipped += 1
                 continue  # a waypoint the IK misses is skipped; the next one is a short step further
+            skipped = 0
             dur = self.joint_move_duration(q, max_joint_speed, min_duration_s=0.1)
             self.move_joints(q, dur, settle_s=settle_s if k == n else 0.0)
         return self.state
