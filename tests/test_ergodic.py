@@ -384,6 +384,37 @@ def test_several_agents_share_the_coverage(plane):
         ex.step_all(np.zeros((2, 3)))
 
 
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_one_step_of_several_agents_diffuses_once(plane, n):
+    """Eq. 19 advances the potential once per time step, whatever the number of agents (eq. 3 adds
+    their footprints to one coverage). Stepping the agents one after the other diffused it n times."""
+    cloud, basis = plane
+    ex = HedacExplorer(cloud, basis, _cfg())
+    far = np.array([[-0.05, -0.05, 0.0], [-0.05, -0.04, 0.0], [-0.04, -0.05, 0.0]])  # off the target blob
+    ex.reset(far[:n])
+    c0 = ex._coef.copy()
+    ex.step_all()
+    p = ex._p_t
+    source = p * p / (p * p).sum()  # footprints off the target: the source is the target's, normalised
+    once = np.exp(-ex._evals * ex.config.alpha * ex.spacing**2) * (c0 + source @ ex._phitm_t)
+    np.testing.assert_allclose(ex._coef, once, rtol=1e-12, atol=1e-12 * np.abs(once).max())
+
+
+def test_a_refused_reset_keeps_the_run(plane):
+    cloud, basis = plane
+    ex = HedacExplorer(cloud, basis, _cfg())
+    ex.reset(np.array([-0.04, -0.04, 0.0]))
+    for _ in range(20):
+        ex.step()
+    cov, x, steps = ex.coverage.copy(), ex.positions.copy(), ex.step_count
+    with pytest.raises(ExplorationError, match=r"x0\[1\]"):
+        ex.reset(np.array([[-0.04, -0.04, 0.0], [0.0, 0.0, 1.0]]))  # the second start 1 m off the plate
+    np.testing.assert_array_equal(ex.coverage, cov)
+    np.testing.assert_array_equal(ex.positions, x)
+    assert ex.step_count == steps and ex.n_agents == 1
+    ex.step()  # and it walks on from where it was
+
+
 def test_update_target_keeps_the_basis_and_redirects_the_agent(plane):
     cloud, basis = plane
     ex = HedacExplorer(cloud, basis, _cfg())

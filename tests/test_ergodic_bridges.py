@@ -215,3 +215,30 @@ def test_a_hop_keeps_the_agents_acceleration_limit(strips):
         hopping = ex.hopping()
         prev_v = cmd.velocity
     assert ex.bridges_taken >= 1 and checked >= 5
+
+
+def test_a_new_target_mid_hop_lets_the_hop_finish():
+    """update_target used to drop a hop in progress, leaving the agent mid-air over the hole to walk
+    from the neighbourhood where the hop began (5 of its 20 points; up to 2.7 voxels off the cloud).
+    The hop now finishes on the far side, and the walk goes on from there."""
+    cloud = gap_strips(0.017, 0.02, seed=3)
+    basis = build_basis(cloud, n_eigen=60, n_neighbors=40, cache=False)
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, compiled=False))
+    ex.reset(np.array([0.02, 0.045, 0.0]))
+    for _ in range(600):
+        ex.step()
+        if ex.hopping():
+            break
+    assert ex.hopping()
+    for _ in range(2):
+        ex.step()
+    assert ex.hopping()
+    ex.update_target(cloud.target, keep_coverage=True)
+    assert ex.hopping()
+    for _ in range(40):
+        ex.step()
+        if not ex.hopping():
+            break
+    assert not ex.hopping()
+    off = [float(ex._tree.query(ex.step().point)[0]) / cloud.spacing for _ in range(20)]
+    assert max(off) <= 1.0 + 1e-9  # walking again: within max_off_cloud (1 voxel) of the cloud

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 from tactex.config import param
@@ -105,7 +106,7 @@ class HedacConfig:
     )
 
     def __post_init__(self) -> None:
-        if int(self.seed) != self.seed or self.seed < 0:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         positive = (
             "alpha",

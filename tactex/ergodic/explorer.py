@@ -77,6 +77,9 @@ _CUBE_A, _CUBE_B = np.array([0, 0, 2, 2]), np.array([0, 1, 0, 1])
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
+#: Passes of a step (see step_all): one agent does all of it; several agents lay their footprints
+#: first, then (after one diffusion) move.
+_WHOLE, _FOOTPRINT, _MOVE = 0, 1, 2
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -224,6 +227,7 @@ class HedacExplorer:
         self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
         self.step_count = 0
         self.bridges_taken = 0
+        self._pass = _WHOLE
         self.compiled_steps = 0  # agent steps the compiled kernel took (the rest ran in numpy)
 
     # ------------------------------------------------------------------ target and state
@@ -270,6 +274,8 @@ class HedacExplorer:
             raise InputError(f"x0 must have shape (3,) or (n_agents, 3), got {np.shape(x0)}")
         if not np.all(np.isfinite(x)):
             raise InputError(f"x0 holds NaN/inf: {x.tolist()}")
+        for i, xi in enumerate(x):  # every start checked before any state changes: a refused reset keeps the run
+            self._check_distance(xi, "x0" if x.shape[0] == 1 else f"x0[{i}]")
         cfg = self.config
         self._agents = [
             make_agent(cfg.order, self._v_max, cfg.max_acceleration * self.spacing / self._dt**2, self._dt)
@@ -286,7 +292,6 @@ class HedacExplorer:
         self.step_count = 0
         out = []
         for i, xi in enumerate(x):
-            self._check_distance(xi, "x0" if x.shape[0] == 1 else f"x0[{i}]")
             nb = self._tree.query(xi, k=self.config.n_neighbors_fit)[1]
             self._near[i] = int(nb[0])
             patch = fit_sphere_or_plane(self._points[nb], validate=False)
@@ -321,7 +326,8 @@ class HedacExplorer:
         keeps the accumulated coverage and the diffused potential.
         """
         self._set_target(mass)
-        self._bridges = [None] * len(self._bridges)  # planned for the old potential
+        # A hop in progress goes on to the far side of its hole: dropped, it left the agent mid-air,
+        # up to 2.7 voxels off the cloud and walking from a neighbourhood that held 5 of its 20 points.
         if not keep_coverage or not hasattr(self, "_cov"):
             if self._agents:
                 self._reset_fields()
@@ -362,7 +368,24 @@ class HedacExplorer:
             self._x = m.copy()
         self._update_decay()
         exact = measured_positions is not None
-        cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
+        if self.n_agents == 1:
+            cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
+        else:
+            # Eq. 3 and 19 with several agents: every footprint of this step in the coverage first, one
+            # source and one diffusion, then each agent follows that potential. (Stepping the agents one
+            # after the other diffused the potential once per agent.) The compiled step walks one agent
+            # at a time and is not used here.
+            near = self._near.copy()
+            self._pass = _FOOTPRINT
+            try:
+                for i in range(self.n_agents):
+                    self._step_agent(i, exact)
+                self._update_potential()
+                self._near[:] = near  # the move pass starts from the same neighbourhoods
+                self._pass = _MOVE
+                cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
+            finally:
+                self._pass = _WHOLE
         self.step_count += 1
         return cmds
 
@@ -405,7 +428,7 @@ class HedacExplorer:
             return self._bridge_step(i)
         x = self._x[i]
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
-        if self._walk_kernel is not None:
+        if self._walk_kernel is not None and self._pass == _WHOLE:
             cmd = self._compiled_step(i, x, cand)
             if cmd is not None:
                 return cmd
@@ -453,8 +476,11 @@ class HedacExplorer:
         inside = (d2 <= self._r_a2).nonzero()[0]
         fp = cand.take(inside)
         phi = kern.take(inside)
-        self._add_coverage(fp, phi)
-        self._update_potential()
+        if self._pass != _MOVE:
+            self._add_coverage(fp, phi)
+            if self._pass == _FOOTPRINT:
+                return None
+            self._update_potential()
         u = self._phi.take(nbr, 0).dot(self._coef)
 
         # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
@@ -559,12 +585,17 @@ class HedacExplorer:
         idt = 1.0 / self._dt
         v0, v1, v2 = s0 * idt, s1 * idt, s2 * idt
         vn = v0 * m0 + v1 * m1 + v2 * m2
-        agent.velocity = np.array((v0 - vn * m0, v1 - vn * m1, v2 - vn * m2))
+        v_t = (v0 - vn * m0, v1 - vn * m1, v2 - vn * m2)
+        agent.velocity = np.array(v_t)
         self.path_lengths[i] = self.path_lengths.item(i) + sl
         self._nrm_t[i] = n_new
+        # the command's frame at the landing point: the tangent basis of its normal, the velocity's
+        # tangential part (the step is a chord)
+        u0, u1, u2, w0, w1, w2 = tangent_floats(m0, m1, m2)
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
-        return ExplorationCommand(x_new, np.array((v0, v1, v2)), n_new, *tb.T, self.step_count, i)
+        return ExplorationCommand(x_new, np.array(v_t), n_new, np.array((u0, u1, u2)), np.array((w0, w1, w2)),
+                                  self.step_count, i)
 
     def _compile_kernel(self):
         """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.
@@ -686,16 +717,19 @@ class HedacExplorer:
         on along the chord."""
         bridge = self._bridges[i]
         x = self._x[i]
-        nrm = bridge.normal_at(x)
-        cand = self._ball[int(self._tree.query(x)[1])]
-        d = self._points.take(cand, 0)
-        d -= x
-        dd = np.einsum("ij,ij->i", d, d)
-        inside = (dd <= self._r_a2).nonzero()[0]
-        dn = d.take(inside, 0).dot(nrm)
-        phi = np.exp(-self._eps2 * (dd.take(inside) - dn * dn))  # r on the plane ⊥ the chord's normal
-        self._add_coverage(cand.take(inside), phi)
-        self._update_potential()
+        if self._pass != _MOVE:
+            nrm = bridge.normal_at(x)
+            cand = self._ball[int(self._tree.query(x)[1])]
+            d = self._points.take(cand, 0)
+            d -= x
+            dd = np.einsum("ij,ij->i", d, d)
+            inside = (dd <= self._r_a2).nonzero()[0]
+            dn = d.take(inside, 0).dot(nrm)
+            phi = np.exp(-self._eps2 * (dd.take(inside) - dn * dn))  # r on the plane ⊥ the chord's normal
+            self._add_coverage(cand.take(inside), phi)
+            if self._pass == _FOOTPRINT:
+                return None
+            self._update_potential()
         return self._bridge_move(i, x, bridge)
 
     def _bridge_move(self, i: int, x: np.ndarray, bridge: Bridge) -> ExplorationCommand:

@@ -553,11 +553,14 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
     idt = 1.0 / dt
     e0, e1, e2 = st0 * idt, st1 * idt, st2 * idt
     vn = e0 * m0 + e1 * m1 + e2 * m2
+    # the command's frame at the landing point: the tangent basis of its normal, the velocity's
+    # tangential part (the step is a chord)
+    u0, u1, u2, w0, w1, w2 = tangent_floats(m0, m1, m2)
     out[0], out[1], out[2] = x0 + st0, x1 + st1, x2 + st2
-    out[3], out[4], out[5] = e0, e1, e2
+    out[3], out[4], out[5] = e0 - vn * m0, e1 - vn * m1, e2 - vn * m2
     out[6], out[7], out[8] = m0, m1, m2
-    out[9], out[10], out[11] = t0, t1, t2
-    out[12], out[13], out[14] = s0, s1, s2
+    out[9], out[10], out[11] = u0, u1, u2
+    out[12], out[13], out[14] = w0, w1, w2
     out[15], out[16], out[17] = e0 - vn * m0, e1 - vn * m1, e2 - vn * m2
     out[18] = sl
     out[19] = cand[jmin]
