@@ -10,7 +10,9 @@ from tactex.pointcloud import (
     SurfaceCloud,
     load_cloud,
     load_ply,
+    mean_spacing,
     save_cloud,
+    save_ply,
     target_from_channel,
     voxel_down_sample,
 )
@@ -86,12 +88,44 @@ def test_millimetre_cloud_refused() -> None:
         SurfaceCloud(points=grid_cloud().points * 1000.0)
 
 
-def test_duplicates_detected_and_removed() -> None:
+def test_duplicates_are_kept_until_removed() -> None:
+    """A raw scan may repeat points: the cloud loads (h from the distinct points), deduplicated() or a
+    voxel filter removes them, and the Laplacian refuses them with that advice (test_spectral). Before,
+    SurfaceCloud refused them, so a raw scan could not even be loaded to be filtered."""
     pts = np.vstack([grid_cloud().points, grid_cloud().points[:3]])
-    with pytest.raises(CloudError, match="duplicates"):
-        SurfaceCloud(points=pts)
-    cloud = SurfaceCloud(points=pts, spacing=0.01).deduplicated()
-    assert len(cloud) == 100
+    with pytest.raises(CloudError, match="coincide"):
+        mean_spacing(pts)
+    raw = SurfaceCloud(points=pts)
+    assert len(raw) == 103 and raw.spacing == pytest.approx(0.01)
+    assert len(raw.deduplicated()) == 100 and len(voxel_down_sample(raw, 0.009)) == 100
+
+
+def test_the_cloud_owns_its_arrays_and_checks_their_types() -> None:
+    pts = grid_cloud().points.copy()
+    target = np.ones(len(pts))
+    cloud = SurfaceCloud(points=pts, target=target)
+    pts *= 1000.0  # the caller's arrays stay writable, and changing them changes nothing validated
+    target[:] = -5.0
+    assert np.ptp(cloud.points[:, 0]) == pytest.approx(0.09) and cloud.target.min() == 1.0
+    with pytest.raises(ValueError):
+        cloud.points[0, 0] = 1.0  # read-only
+    for bad in ({"points": [[0.0, 0.0], [1.0]]}, {"points": "abc"}, {"spacing": None},
+                {"target": ["a"] * 100}):
+        with pytest.raises(CloudError):
+            SurfaceCloud(**{"points": grid_cloud().points, **bad})
+    with pytest.raises(CloudError, match="rotation matrix"):
+        cloud.transformed(0.5 * np.eye(3), np.zeros(3))
+
+
+def test_a_wide_camera_cloud_in_metres_is_not_taken_for_millimetres() -> None:
+    """A depth frame reaching 3 m with a wide lens spans over 5 m, but its points lie mm apart."""
+    u, v = np.meshgrid(np.linspace(-2.8, 2.8, 1200), np.linspace(-0.5, 0.5, 200))
+    cam = np.c_[u.ravel(), v.ravel(), np.full(u.size, 3.0)]
+    assert len(SurfaceCloud(points=cam)) == 240000
+    with pytest.raises(UnitsError, match="millimetres"):
+        SurfaceCloud(points=grid_cloud().points * 1000.0)  # 10 mm grid read as 10 "m" apart
+    with pytest.raises(UnitsError, match=r"0\.3 apart.*millimetres"):
+        SurfaceCloud(points=grid_cloud(n=14).points * 30.0)  # a 4 mm part in mm: 3.9 "m" wide, 0.3 "m" apart
 
 
 def test_negative_target_and_bad_colours_rejected() -> None:
@@ -131,6 +165,57 @@ def test_round_trip(tmp_path, suffix: str) -> None:
     np.testing.assert_allclose(back.colors, src.colors, atol=1e-9)
     np.testing.assert_allclose(back.normals, src.normals)
     np.testing.assert_allclose(back.target, src.target)
+    # the spacing h travels too (a PLY recomputed it: 0.003 came back as 0.00195 for the voxelised bunny)
+    coarse = SurfaceCloud(points=c.points, spacing=0.013)
+    assert load_cloud(save_cloud(coarse, tmp_path / f"h{suffix}")).spacing == 0.013
+
+
+def _pcd(path, fields: str, types: str, rows, data: str = "ascii") -> None:
+    n = len(rows)
+    head = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS {fields}\nSIZE {' '.join('4' for _ in types.split())}\n"
+            f"TYPE {types}\nCOUNT {' '.join('1' for _ in types.split())}\nWIDTH {n}\nHEIGHT 1\n"
+            f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {data}\n")
+    path.write_text(head + "\n".join(" ".join(str(v) for v in r) for r in rows) + "\n")
+
+
+def test_pcd_colours_as_pcl_writes_them(tmp_path) -> None:
+    """PCL's ascii writer prints the float rgb field as its uint32 integer, and some files declare rgb
+    as U 4: both came back wrong (red 255 as 127, so the target mark was lost)."""
+    want = [[255, 0, 0], [0, 200, 10], [12, 34, 56]]
+    packed = [(r << 16) | (g << 8) | b for r, g, b in want]
+    rows = [(0.01 * i, 0.02, 0.03, p) for i, p in enumerate(packed, start=1)]
+    for types in ("F F F F", "F F F U"):
+        _pcd(tmp_path / "c.pcd", "x y z rgb", types, rows)
+        back = load_cloud(tmp_path / "c.pcd")
+        np.testing.assert_array_equal(np.round(back.colors * 255).astype(int), want)
+    _pcd(tmp_path / "s.pcd", "x y z r g b", "F F F U U U", [(0.01 * i, 0.02, 0.03, *c) for i, c in enumerate(want, 1)])
+    np.testing.assert_array_equal(np.round(load_cloud(tmp_path / "s.pcd").colors * 255).astype(int), want)
+
+
+def test_colour_scales(tmp_path) -> None:
+    from plyfile import PlyData, PlyElement
+
+    pts = grid_cloud().points
+    fields = [("x", "f8"), ("y", "f8"), ("z", "f8"), ("red", "u2"), ("green", "u2"), ("blue", "u2")]
+    d = np.empty(len(pts), dtype=fields)
+    d["x"], d["y"], d["z"] = pts.T
+    d["red"], d["green"], d["blue"] = 65535, 0, 32768  # 16-bit colours
+    PlyData([PlyElement.describe(d, "vertex")]).write(str(tmp_path / "u16.ply"))
+    np.testing.assert_allclose(load_cloud(tmp_path / "u16.ply").colors[0], [1.0, 0.0, 32768 / 65535])
+    cols = np.zeros((len(pts), 3), np.float32)
+    cols[:50, 0] = 1.0
+    cols[0, 0] = np.float32(1.0000001)  # float32 round-off of a 0..1 colour pipeline
+    np.savez(tmp_path / "f.npz", points=pts, colors=cols)
+    assert target_from_channel(load_cloud(tmp_path / "f.npz")).n_target == 50  # not all divided by 255
+
+
+def test_save_and_load_refuse_ambiguous_data(tmp_path) -> None:
+    c = grid_cloud()
+    with pytest.raises(InputError, match="clashes"):
+        save_ply(c, tmp_path / "x.ply", extra={"target": np.ones(len(c))})
+    np.savez(tmp_path / "s.npz", points=c.points, spacing=np.array([0.01, 0.02]))
+    with pytest.raises(CloudError, match="'spacing' must be one number"):
+        load_cloud(tmp_path / "s.npz")
 
 
 def test_pcd_reader(tmp_path) -> None:

@@ -96,6 +96,7 @@ def fake_wipe(label: str = "") -> SimpleNamespace:
     explored = SurfaceCloud(points=tcp[::6][:80], normals=np.tile([0.0, 0.0, 1.0], (80, 1)))
     metrics = {
         "force_mae_n": 0.4, "force_rmse_n": 0.8, "motion_mae_m": [0.001, 0.002, 0.0005],
+        "motion_mae_all_contact_m": [0.003, 0.004, 0.001],
         "motion_rmse_m": [0.002, 0.003, 0.001], "tank_impedance_energy_j": {"min": 5.2, "max": 30.1},
         "tank_force_energy_j": {"min": 1.1, "max": 2.0}, "explore_time_s": 4.5, "contact_fraction": 0.9,
         "sim_time_s": float(t[-1]), "baseline": label or "tactex",
@@ -243,11 +244,12 @@ def test_summary_table_side_by_side() -> None:
     assert "62.0 %" in lines[2] and "40.0 %" in lines[3] and "91.0 %" in lines[2]
     assert "force MAE" not in text  # no wipe metric in these rows
     wipe = summary_table({"tactex": fake_wipe().metrics, "cartesian": {"force_mae_n": 2.5}})
-    assert "1.0/2.0/0.5" in wipe and "5.20–30.10" in wipe and "2.50" in wipe
+    # motion over all contact ticks, the same samples for every controller (not VA-UFIC's aligned subset)
+    assert "3.0/4.0/1.0" in wipe and "1.0/2.0/0.5" not in wipe and "5.20–30.10" in wipe and "2.50" in wipe
     assert wipe.splitlines()[3].count("–") >= 3  # the baseline lacks motion and tank metrics
     # A baseline without tanks (NaN energies, null in JSON) shows "–", not "nan–nan".
     no_tank = summary_table([("cartesian", {"tank_force_energy_j": {"min": None, "max": float("nan")},
-                                            "motion_mae_m": [float("nan")] * 3, "force_mae_n": 2.5})])
+                                            "motion_mae_all_contact_m": [float("nan")] * 3, "force_mae_n": 2.5})])
     assert "nan" not in no_tank and no_tank.splitlines()[2].split()[1:] == ["2.50", "–", "–"]
     with pytest.raises(InputError, match="at least one run"):
         summary_table([])

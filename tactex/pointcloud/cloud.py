@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from tactex.errors import CloudError, UnitsError
 
-__all__ = ["MAX_EXTENT_M", "SurfaceCloud", "mean_spacing", "validate_points"]
+__all__ = ["MAX_EXTENT_M", "MAX_SPACING_M", "SurfaceCloud", "mean_spacing", "validate_points"]
 
 #: A cloud wider than this is almost surely in millimetres (a robot workspace is ~1 m).
 MAX_EXTENT_M = 5.0
@@ -18,9 +18,14 @@ MAX_EXTENT_M = 5.0
 def validate_points(points: object, name: str = "points", min_points: int = 1) -> np.ndarray:
     """Return ``points`` as a C-contiguous float64 (N, 3) array, or raise :class:`CloudError`.
 
-    Checks shape, finiteness, the minimum count and the units (extent ≤ 5 m).
+    Checks shape, finiteness, the minimum count and the units (extent ≤ 5 m, see
+    :func:`check_units`). The array is always a copy: the caller's stays writable and cannot change
+    the validated one.
     """
-    arr = np.asarray(points, dtype=np.float64)
+    try:
+        arr = np.array(points, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise CloudError(f"{name} must be an (N, 3) array of numbers [m]: {exc}") from exc
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise CloudError(f"{name} must have shape (N, 3), got {arr.shape}")
     if arr.shape[0] < min_points:
@@ -36,13 +41,36 @@ def validate_points(points: object, name: str = "points", min_points: int = 1) -
             f"{idx[0]}: {arr[idx[0]].tolist()}); drop them first, e.g. points[np.isfinite(points).all(1)]"
         )
     extent = float(np.max(np.ptp(arr, axis=0))) if arr.shape[0] else 0.0
-    if extent > MAX_EXTENT_M:
+    if extent > MAX_EXTENT_M and _looks_like_millimetres(arr):
         raise UnitsError(
-            f"{name} spans {extent:.3g} along one axis; tactex works in metres and a surface "
-            f"wider than {MAX_EXTENT_M:g} m is probably in millimetres. Rescale it "
-            "(e.g. points * 1e-3) before use."
+            f"{name} spans {extent:.3g} along one axis with points {_median_gap(arr):.3g} apart; tactex works "
+            f"in metres and such a surface is probably in millimetres. Rescale it (e.g. points * 1e-3) before use."
         )
     return np.ascontiguousarray(arr)
+
+
+#: Mean spacing above which any cloud is taken for millimetres (a small part in mm: 4 "m" wide, its
+#: points 0.3 "m" apart); a tactile surface is sampled at a few mm.
+MAX_SPACING_M = 0.1
+#: Typical gap between neighbouring points above which a wide cloud is taken for millimetres: real
+#: scans in metres are sampled at a few mm (a depth camera at 3 m: ~5 mm between pixels).
+MAX_GAP_M = 0.05
+
+
+def _median_gap(arr: np.ndarray, sample: int = 2000) -> float:
+    """Median nearest-neighbour distance of (a fixed sample of) the points, duplicates aside."""
+    if arr.shape[0] < 2:
+        return 0.0
+    idx = np.linspace(0, arr.shape[0] - 1, min(sample, arr.shape[0])).astype(np.intp)
+    d = cKDTree(arr).query(arr[idx], k=2)[0][:, 1]
+    d = d[d > 0]
+    return float(np.median(d)) if d.size else 0.0
+
+
+def _looks_like_millimetres(arr: np.ndarray) -> bool:
+    """A cloud over MAX_EXTENT_M wide is in millimetres unless its points lie a few mm apart (a camera
+    frame reaching 3 m away spans ~5.5 m with an 87° field of view and is in metres)."""
+    return _median_gap(arr) > MAX_GAP_M
 
 
 def mean_spacing(points: np.ndarray, tree: cKDTree | None = None) -> float:
@@ -63,7 +91,10 @@ def mean_spacing(points: np.ndarray, tree: cKDTree | None = None) -> float:
 def _optional_rows(value: object, n: int, name: str) -> np.ndarray | None:
     if value is None:
         return None
-    arr = np.asarray(value, dtype=np.float64)
+    try:
+        arr = np.array(value, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise CloudError(f"{name} must be an ({n}, 3) array of numbers: {exc}") from exc
     if arr.shape != (n, 3):
         raise CloudError(f"{name} must have shape ({n}, 3) to match the points, got {arr.shape}")
     if not np.isfinite(arr).all():
@@ -107,16 +138,30 @@ class SurfaceCloud:
         if self.target is None:
             target = np.zeros(n)
         else:
-            target = np.asarray(self.target, dtype=np.float64)
+            try:
+                target = np.array(self.target, dtype=np.float64, copy=True)
+            except (TypeError, ValueError) as exc:
+                raise CloudError(f"target must be an ({n},) array of numbers ≥ 0: {exc}") from exc
             if target.shape != (n,):
                 raise CloudError(f"target must have shape ({n},), got {target.shape}")
             if not np.isfinite(target).all() or target.min() < 0.0:
                 raise CloudError("target must be finite and ≥ 0 everywhere")
-        spacing = float(self.spacing)
+        try:
+            spacing = float(self.spacing)
+        except (TypeError, ValueError) as exc:
+            raise CloudError(f"spacing must be a number of metres ≥ 0 (0: compute it), got {self.spacing!r}") from exc
         if not np.isfinite(spacing) or spacing < 0.0:
             raise CloudError(f"spacing must be a finite number of metres ≥ 0 (0: compute it), got {self.spacing}")
-        if spacing == 0.0:
-            spacing = mean_spacing(pts) if n >= 2 else 0.0
+        if spacing == 0.0 and n >= 2:
+            # A raw scan may repeat points: they stay (a voxel filter averages them, deduplicated() drops
+            # them, the Laplacian refuses them with that advice); h comes from the distinct points.
+            distinct = np.unique(pts, axis=0)
+            spacing = mean_spacing(distinct) if distinct.shape[0] >= 2 else 0.0
+        if spacing > MAX_SPACING_M:
+            raise UnitsError(
+                f"the points lie {spacing:.3g} apart on average; tactex works in metres and a surface sampled "
+                f"that coarsely (over {MAX_SPACING_M:g} m) is probably in millimetres. Rescale it (e.g. points * 1e-3)"
+            )
         for name, value in (("points", pts), ("normals", normals), ("colors", colors), ("target", target)):
             if value is not None:
                 value.setflags(write=False)
@@ -141,8 +186,14 @@ class SurfaceCloud:
 
     def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> SurfaceCloud:
         """A copy moved rigidly: x' = R x + t (normals rotated). Spacing is kept."""
-        rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
-        t = np.asarray(translation, dtype=np.float64).reshape(3)
+        rot = np.asarray(rotation, dtype=np.float64)
+        t = np.asarray(translation, dtype=np.float64)
+        if rot.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(rot).all() and np.isfinite(t).all()):
+            raise CloudError(
+                f"transformed needs a finite 3×3 rotation and a 3-vector, got shapes {rot.shape}, {t.shape}")
+        if np.abs(rot @ rot.T - np.eye(3)).max() > 1e-6 or np.linalg.det(rot) < 0.0:
+            raise CloudError("transformed needs a rotation matrix (orthonormal, det +1): a scaling would keep a "
+                             "stale spacing; scale the points and build a new SurfaceCloud instead")
         normals = None if self.normals is None else self.normals @ rot.T
         return replace(self, points=self.points @ rot.T + t, normals=normals)
 

@@ -30,13 +30,22 @@ __all__ = [
 SUPPORTED_SUFFIXES = (".ply", ".pcd", ".npz")
 
 
+#: Float colours up to this are taken as 0..1 (and clipped): a float32 1.0 written by another tool
+#: may come back as 1.0000001, and must not turn the whole cloud into 0..255 colours.
+_UNIT_COLOR_TOL = 1e-3
+
+
 def _colors_to_unit(rgb: np.ndarray) -> np.ndarray:
     rgb = np.asarray(rgb)
     if np.issubdtype(rgb.dtype, np.integer):
-        return rgb.astype(np.float64) / 255.0
+        # 8-bit colours are 0..255; 16-bit ones 0..65535 (only when a value exceeds 255 can they be told apart)
+        full = 255.0 if rgb.size == 0 or rgb.max() <= 255 else float(np.iinfo(rgb.dtype).max)
+        return rgb.astype(np.float64) / full
     rgb = rgb.astype(np.float64)
     # Float colours in 0..255 appear in the wild; 0..1 is the convention.
-    return rgb / 255.0 if rgb.size and rgb.max() > 1.0 else rgb
+    if rgb.size and rgb.max() > 1.0 + _UNIT_COLOR_TOL:
+        return rgb / 255.0
+    return np.clip(rgb, 0.0, 1.0)
 
 
 def _check_file(path: str | Path) -> Path:
@@ -73,12 +82,29 @@ def load_ply(path: str | Path) -> SurfaceCloud:
         else None
     )
     target = np.asarray(v["target"], dtype=np.float64) if "target" in names else None
-    return SurfaceCloud(points=points, normals=normals, colors=colors, target=target)
+    return SurfaceCloud(points=points, normals=normals, colors=colors, target=target, spacing=_ply_spacing(ply))
+
+
+#: The comment save_ply writes so that a voxel-filtered cloud keeps its spacing h [m] through a PLY.
+_SPACING_COMMENT = "tactex spacing_m "
+
+
+def _ply_spacing(ply) -> float:
+    for comment in ply.comments:
+        if comment.startswith(_SPACING_COMMENT):
+            try:
+                value = float(comment[len(_SPACING_COMMENT):])
+            except ValueError:
+                break
+            return value if np.isfinite(value) and value > 0.0 else 0.0
+    return 0.0  # computed from the points
 
 
 def save_ply(cloud: SurfaceCloud, path: str | Path, *, extra: dict[str, np.ndarray] | None = None) -> Path:
     """Write a binary PLY with x y z, normals and 8-bit colours when present, the target, and
-    any ``extra`` per-point float properties (e.g. ``curvature``)."""
+    any ``extra`` per-point float properties (e.g. ``curvature``). The spacing h goes in a comment
+    (``load_ply`` reads it back). Colours are quantised to 8 bits: a colour threshold applied again
+    after a round trip may select slightly differently; the ``target`` itself is stored exactly."""
     from plyfile import PlyData, PlyElement
 
     n = len(cloud)
@@ -89,7 +115,10 @@ def save_ply(cloud: SurfaceCloud, path: str | Path, *, extra: dict[str, np.ndarr
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     fields.append(("target", "f8"))
     extra = extra or {}
+    taken = {name for name, _ in fields}
     for key, values in extra.items():
+        if key in taken:
+            raise InputError(f"extra property '{key}' clashes with a standard one ({', '.join(sorted(taken))})")
         if np.shape(values) != (n,):
             raise InputError(f"extra property '{key}' must have shape ({n},), got {np.shape(values)}")
         fields.append((key, "f8"))
@@ -105,7 +134,7 @@ def save_ply(cloud: SurfaceCloud, path: str | Path, *, extra: dict[str, np.ndarr
         data[key] = values
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    PlyData([PlyElement.describe(data, "vertex")]).write(str(out))
+    PlyData([PlyElement.describe(data, "vertex")], comments=[f"{_SPACING_COMMENT}{cloud.spacing!r}"]).write(str(out))
     return out
 
 
@@ -129,11 +158,27 @@ def load_pcd(path: str | Path) -> SurfaceCloud:
     if {"normal_x", "normal_y", "normal_z"} <= set(fields):
         normals = np.stack([col["normal_x"], col["normal_y"], col["normal_z"]], axis=1)[finite]
     colors = None
-    if "rgb" in fields:
-        packed = np.asarray(col["rgb"], dtype=np.float32).view(np.uint32)
+    if "rgb" in fields or "rgba" in fields:
+        ascii_file = str(getattr(pc.metadata.data, "value", pc.metadata.data)).lower() == "ascii"
+        packed = _packed_rgb(pc.pc_data["rgb" if "rgb" in fields else "rgba"], ascii_file)
         rgb = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
         colors = rgb[finite].astype(np.float64) / 255.0
+    elif {"r", "g", "b"} <= set(fields):
+        colors = _colors_to_unit(np.stack([pc.pc_data["r"], pc.pc_data["g"], pc.pc_data["b"]], axis=1))[finite]
     return SurfaceCloud(points=points[finite], normals=normals, colors=colors)
+
+
+def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
+    """PCL's packed 0x00RRGGBB as uint32 from the field as stored: an integer type holds it as is; a
+    float one holds its bits in binary files, while PCL's ascii writer prints the integer itself
+    ("despite the float type, store the rgb field as uint32")."""
+    field = np.asarray(field)
+    if np.issubdtype(field.dtype, np.integer):
+        return field.astype(np.uint32)
+    if ascii_file:
+        values = np.nan_to_num(field.astype(np.float64))
+        return np.clip(np.round(values), 0.0, 2.0**32 - 1).astype(np.uint32)
+    return field.astype(np.float32).view(np.uint32)
 
 
 def load_npz(path: str | Path) -> SurfaceCloud:
@@ -147,7 +192,11 @@ def load_npz(path: str | Path) -> SurfaceCloud:
     if "points" not in data:
         raise CloudError(f"'{p}' has no 'points' array (found {sorted(data)})")
     colors = _colors_to_unit(data["colors"]) if "colors" in data else None
-    spacing = float(data["spacing"]) if "spacing" in data else 0.0
+    spacing = 0.0
+    if "spacing" in data:
+        if np.shape(data["spacing"]) != () or not np.issubdtype(np.asarray(data["spacing"]).dtype, np.number):
+            raise CloudError(f"'{p}': 'spacing' must be one number [m], got shape {np.shape(data['spacing'])}")
+        spacing = float(data["spacing"])
     return SurfaceCloud(
         points=data["points"],
         normals=data.get("normals"),

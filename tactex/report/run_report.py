@@ -588,7 +588,9 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, Any], ...] = (
     ("vision updates", "vision_updates", _num(".0f")),
     ("force MAE [N]", "force_mae_n", _num(".2f")),
     ("force RMSE [N]", "force_rmse_n", _num(".2f")),
-    ("motion MAE x/y/z [mm]", "motion_mae_m", _xyz_mm),
+    # the same samples for every controller (all contact ticks): motion_mae_m is VA-UFIC's aligned
+    # subset (ρ_align = 1), which a baseline without ρ_align cannot have
+    ("motion MAE in contact x/y/z [mm]", "motion_mae_all_contact_m", _xyz_mm),
     ("tank imp. [J]", "tank_impedance_energy_j", _minmax),
     ("tank force [J]", "tank_force_energy_j", _minmax),
     ("explore [s]", "explore_time_s", _num(".1f")),

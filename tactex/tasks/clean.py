@@ -86,7 +86,8 @@ class CleanConfig(SimWorldParams):
     explorer_rate_hz: float = param(20.0, "exploration steps per second of robot time [Hz]")
     vision_every_steps: int = param(200, "exploration steps between visual re-measurements (TEC §VI-B) [-]")
     stop_remaining: float = param(0.02, "stop when vision sees less than this fraction of the first target [-]")
-    budget_s: float = param(120.0, "simulated time budget of the whole program [s]")
+    budget_s: float = param(
+        120.0, "simulated time budget of the whole program; a final 0.4 s lift-off out of contact comes on top [s]")
     capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose, looking down [m]")
     side_capture_distance_m: float = param(
         0.2, "TCP distance from a wall at the capture pose beside it (the cup) [m]: the arm cannot hold the "
@@ -310,6 +311,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     t_end = cfg.budget_s
     vision_updates = 0
     vision_times: list[float] = []  # [s] when each re-measurement was taken
+    vision_trip_s = 3.0  # [s] retract, lift, transit and capture; measured after the first trip
+    agent_path_m = 0.0  # [m] the agent's path in the exploration phases before the current one
     remaining_seen = 1.0
     agent_path: list[np.ndarray] = []
     ergodicity: list[tuple[float, float]] = []
@@ -391,12 +394,14 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         explore_time += loop.t - t_phase
         if cfg.baseline == "raster" and source.done:
             break
-        if cfg.baseline != "" or loop.t >= t_end:
-            break
+        if cfg.baseline != "" or loop.t + vision_trip_s >= t_end:
+            break  # (a re-measurement that would end after the budget could not be used)
         # 4. back to vision: re-measure the dirt on the same points, update the target
+        t_trip = loop.t
         log.phase = PHASES["retract"]
         loop.retract(RETRACT_M, duration_s=0.4)
         new_capture = capture(lift=True)
+        vision_trip_s = loop.t - t_trip  # the next trip's estimate
         vision_updates += 1
         vision_times.append(loop.t)
         mass = remeasure_target(cloud, new_capture)
@@ -408,10 +413,11 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         # restart from the dirt nearest to where the robot is
         left = np.flatnonzero(mass > 0)
         x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
+        agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
         cmd = source.reset(x0)
         cmd = cmd[0] if isinstance(cmd, list) else cmd
 
-    # lift off at the end so the final state is out of contact
+    # lift off at the end so the final state is out of contact (0.4 s, on top of the budget)
     log.phase = PHASES["retract"]
     if loop.state.wrench_tool[2] > cfg.contact_threshold_n:
         loop.retract(RETRACT_M, duration_s=0.4)
@@ -438,7 +444,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         "wall_time_s": time.perf_counter() - wall0,
         "n_points": len(cloud),
         "n_target_initial": n_target0,
-        "agent_path_length_m": float(getattr(source, "path_length", 0.0)),
+        "agent_path_length_m": agent_path_m + float(getattr(source, "path_length", 0.0)),
         "force_set_point_n": cfg.force_n,
         "baseline": cfg.baseline or "tactex",
         "object": cfg.object_name,
