@@ -183,7 +183,7 @@ def test_no_point_above_the_threshold(tmp_path, capsys) -> None:
 
 
 def test_marking_on_a_file_is_refused(tmp_path, capsys) -> None:
-    path = save_npz(SurfaceCloud(points=np.random.default_rng(1).random((50, 3))), tmp_path / "c.npz")
+    path = save_npz(SurfaceCloud(points=0.1 * np.random.default_rng(1).random((50, 3))), tmp_path / "c.npz")
     _fails(["explore", str(path), "--marking", "X", "--out", str(tmp_path / "o")], capsys, "--marking")
 
 
