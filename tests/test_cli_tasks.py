@@ -12,8 +12,9 @@ import pytest
 from tactex.cli import main
 from tactex.errors import ConfigError, InputError
 from tactex.report import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS
+from tactex.report.outdir import prepare_out_dir
 from tactex.report.run_report import RunReport
-from tactex.tasks.demo import DemoConfig, _try_video, check_out_dir, run_compare, run_task, write_replay_video
+from tactex.tasks.demo import DemoConfig, _try_video, run_compare, run_task, write_replay_video
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -53,8 +54,8 @@ def test_out_is_a_file(tmp_path, capsys) -> None:
     code = main(["wipe", "--out", str(target)])
     _one_line_error(capsys, code, "is an existing file")
     with pytest.raises(InputError, match="existing file"):
-        check_out_dir(target)
-    assert check_out_dir(tmp_path / "new") == tmp_path / "new"
+        prepare_out_dir(target)
+    assert prepare_out_dir(tmp_path / "new") == tmp_path / "new"
 
 
 @pytest.mark.parametrize("command", [["explore", "cup", "--steps", "5"], ["sweep", "cup", "--steps", "5"],

@@ -295,7 +295,7 @@ def test_phases_come_from_the_recorded_changes() -> None:
     series = {"t": np.arange(0.0, 3.0, 0.01), "phase": np.zeros(300)}  # the samples saw "move" only
     changes = [(0.0, P["move"]), (1.0, P["capture"]), (1.0, P["move"]), (1.5, P["approach"]),
                (1.503, P["explore"]), (2.5, P["retract"])]
-    spans = _phase_spans(series, changes)
+    spans = _phase_spans(series, np.asarray(changes, dtype=np.float64))
     assert spans[P["capture"]] == [(1.0, 0.0)]
     assert spans[P["approach"]][0] == (1.5, pytest.approx(0.003))
     assert spans[P["retract"]] == [(2.5, pytest.approx(0.49))]  # to the end of the series

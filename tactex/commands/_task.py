@@ -23,13 +23,14 @@ def register_task(parser: argparse.ArgumentParser, kind: str, config_cls: type) 
 
 
 def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> int:
+    from tactex.report.outdir import prepare_out_dir
     from tactex.report.run_report import summary_table
-    from tactex.tasks.demo import check_out_dir, run_compare, run_task
+    from tactex.tasks.demo import run_compare, run_task
 
     cfg = dataclass_from_args(config_cls, args)
     if args.compare and cfg.baseline:
         raise ConfigError(f"--compare runs tactex and every baseline; drop --baseline {cfg.baseline}")
-    out = check_out_dir(args.out)  # made only once the parameters are known to be good
+    out = prepare_out_dir(args.out)  # made only once the parameters are known to be good
     if args.compare:
         reports = run_compare(kind, cfg, out, progress=not args.quiet, video=args.video)
         page = out / "index.html"

@@ -369,7 +369,7 @@ class HedacExplorer:
         self._update_decay()
         exact = measured_positions is not None
         if self.n_agents == 1:
-            cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
+            cmds = [self._step_agent(0, exact)]
         else:
             # Eq. 3 and 19 with several agents: every footprint of this step in the coverage first, one
             # source and one diffusion, then each agent follows that potential. (Stepping the agents one

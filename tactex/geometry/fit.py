@@ -193,8 +193,11 @@ def fit_local_design(w: np.ndarray) -> SurfacePatch:
         cx, cy, cz = v0x / v0, v1x / v0, v2x / v0
         r2 = cx * cx + cy * cy + cz * cz - 2.0 * vinf / v0
         if r2 > 0.0:
-            if r2 < CHECK_RADIUS_RATIO * CHECK_RADIUS_RATIO and not _sphere_beats_plane(w, cx, cy, cz, r2**0.5):
-                return _pca_plane(np.ascontiguousarray(w[:, :3]))
+            if r2 < CHECK_RADIUS_RATIO * CHECK_RADIUS_RATIO:  # a small sphere must beat the PCA plane
+                q = np.ascontiguousarray(w[:, :3])
+                mu, evals, vecs = _pca(q)
+                if not _sphere_residual(q, cx, cy, cz, r2**0.5) < float(evals[0]):
+                    return SurfacePatch("plane", mu, np.inf, vecs[:, 0].copy())
             return SurfacePatch("sphere", np.array((cx, cy, cz)), r2**0.5, _ZERO3)
         # An imaginary sphere (r² < 0) fits only noise; the plane is the sane limit.
         return _pca_plane(np.ascontiguousarray(w[:, :3]))
@@ -205,15 +208,19 @@ def fit_local_design(w: np.ndarray) -> SurfacePatch:
     return SurfacePatch("plane", np.array((off * nx, off * ny, off * nz)), np.inf, np.array((nx, ny, nz)))
 
 
-def _sphere_beats_plane(w: np.ndarray, cx: float, cy: float, cz: float, r: float) -> bool:
-    """Whether the sphere (centre c, radius r) fits the neighbourhood q = w[:, :3] strictly better
-    than its PCA plane: Σ(|q_i − c| − r)² < Σ((q_i − q̄)·n)², the latter being the scatter's smallest
-    eigenvalue (see CHECK_RADIUS_RATIO)."""
-    q = np.ascontiguousarray(w[:, :3])
-    _, evals, _ = _pca(q)
+def _sphere_residual(q: np.ndarray, cx: float, cy: float, cz: float, r: float) -> float:
+    """Σ(|q_i − c| − r)²: the sphere's squared geometric residuals over the points q. The PCA plane's
+    are the scatter's smallest eigenvalue, Σ((q_i − q̄)·n)² (see CHECK_RADIUS_RATIO)."""
     d = q - np.array((cx, cy, cz))
     res = np.sqrt(np.einsum("ij,ij->i", d, d)) - r
-    return float(res.dot(res)) < float(evals[0])
+    return float(res.dot(res))
+
+
+def _sphere_beats_plane(w: np.ndarray, cx: float, cy: float, cz: float, r: float) -> bool:
+    """Whether the sphere (centre c, radius r) fits the neighbourhood q = w[:, :3] strictly better
+    than its PCA plane (the verdict of :func:`fit_local_design`; the compiled step mirrors it)."""
+    q = np.ascontiguousarray(w[:, :3])
+    return _sphere_residual(q, cx, cy, cz, r) < float(_pca(q)[1][0])
 
 
 def _pca(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

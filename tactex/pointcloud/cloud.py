@@ -18,12 +18,12 @@ MAX_EXTENT_M = 5.0
 def validate_points(points: object, name: str = "points", min_points: int = 1) -> np.ndarray:
     """Return ``points`` as a C-contiguous float64 (N, 3) array, or raise :class:`CloudError`.
 
-    Checks shape, finiteness, the minimum count and the units (extent ≤ 5 m, see
-    :func:`check_units`). The array is always a copy: the caller's stays writable and cannot change
-    the validated one.
+    Checks shape, finiteness, the minimum count and the units (a cloud over MAX_EXTENT_M wide whose
+    points lie over MAX_GAP_M apart is in millimetres). No copy is made when ``points`` already is
+    such an array (:class:`SurfaceCloud` copies what it keeps).
     """
     try:
-        arr = np.array(points, dtype=np.float64, copy=True)
+        arr = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise CloudError(f"{name} must be an (N, 3) array of numbers [m]: {exc}") from exc
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -41,11 +41,14 @@ def validate_points(points: object, name: str = "points", min_points: int = 1) -
             f"{idx[0]}: {arr[idx[0]].tolist()}); drop them first, e.g. points[np.isfinite(points).all(1)]"
         )
     extent = float(np.max(np.ptp(arr, axis=0))) if arr.shape[0] else 0.0
-    if extent > MAX_EXTENT_M and _looks_like_millimetres(arr):
-        raise UnitsError(
-            f"{name} spans {extent:.3g} along one axis with points {_median_gap(arr):.3g} apart; tactex works "
-            f"in metres and such a surface is probably in millimetres. Rescale it (e.g. points * 1e-3) before use."
-        )
+    if extent > MAX_EXTENT_M:
+        # a camera frame reaching 3 m away spans ~5.5 m with an 87° field of view, its points mm apart
+        gap = _median_gap(arr)
+        if gap > MAX_GAP_M:
+            raise UnitsError(
+                f"{name} spans {extent:.3g} along one axis with points {gap:.3g} apart; tactex works in metres "
+                "and such a surface is probably in millimetres. Rescale it (e.g. points * 1e-3) before use."
+            )
     return np.ascontiguousarray(arr)
 
 
@@ -66,11 +69,6 @@ def _median_gap(arr: np.ndarray, sample: int = 2000) -> float:
     d = d[d > 0]
     return float(np.median(d)) if d.size else 0.0
 
-
-def _looks_like_millimetres(arr: np.ndarray) -> bool:
-    """A cloud over MAX_EXTENT_M wide is in millimetres unless its points lie a few mm apart (a camera
-    frame reaching 3 m away spans ~5.5 m with an 87° field of view and is in metres)."""
-    return _median_gap(arr) > MAX_GAP_M
 
 
 def mean_spacing(points: np.ndarray, tree: cKDTree | None = None) -> float:
@@ -122,6 +120,8 @@ class SurfaceCloud:
 
     def __post_init__(self) -> None:
         pts = validate_points(self.points)
+        if np.may_share_memory(pts, self.points):  # the cloud owns its arrays: the caller's stay writable
+            pts = pts.copy()
         n = pts.shape[0]
         normals = _optional_rows(self.normals, n, "normals")
         if normals is not None:

@@ -258,13 +258,18 @@ def _plot_clean_force(s: Mapping[str, np.ndarray], force_n: float, path: Path) -
     return _save(fig, path)
 
 
-def _phase_spans(s: Mapping[str, np.ndarray], changes: Any) -> dict[int, list[tuple[float, float]]]:
-    """(start, duration) [s] of each phase: from the recorded phase changes when the run has them
+def _phase_changes(metrics: Mapping[str, Any]) -> np.ndarray | None:
+    """The run's recorded phase changes as (k, 2) rows (t [s], phase id), or None without them."""
+    changes = metrics.get("phase_changes")
+    return np.asarray(changes, dtype=np.float64).reshape(-1, 2) if changes else None
+
+
+def _phase_spans(s: Mapping[str, np.ndarray], ch: np.ndarray | None) -> dict[int, list[tuple[float, float]]]:
+    """(start, duration) [s] of each phase: from the recorded phase changes ``ch`` when the run has them
     (a capture takes no tick and an approach a few ms, which 100 Hz samples miss), else from the series."""
     t = s["t"]
     spans: dict[int, list[tuple[float, float]]] = {}
-    if changes:
-        ch = np.asarray(changes, dtype=np.float64).reshape(-1, 2)
+    if ch is not None:
         t_end = float(t[-1]) if t.size else float(ch[-1, 0])
         for (ta, pa), tb in zip(ch, [*ch[1:, 0], t_end], strict=True):
             spans.setdefault(int(pa), []).append((float(ta), float(tb - ta)))
@@ -276,10 +281,10 @@ def _phase_spans(s: Mapping[str, np.ndarray], changes: Any) -> dict[int, list[tu
     return spans
 
 
-def _plot_phases(s: Mapping[str, np.ndarray], path: Path, changes: Any = None) -> Path:
+def _plot_phases(s: Mapping[str, np.ndarray], path: Path, ch: np.ndarray | None = None) -> Path:
     fig, (ax,) = _figure(height=1.5)
     names = list(CLEAN_PHASES)
-    spans = _phase_spans(s, changes)
+    spans = _phase_spans(s, ch)
     t = s["t"]
     visible = 0.002 * (float(t[-1] - t[0]) if t.size > 1 else 1.0)  # a zero-length phase still shows
     for i, name in enumerate(names):
@@ -334,12 +339,8 @@ def write_clean_report(
     rep.files["cloud_data"] = out / "cloud.npz"
 
     force_n = float(metrics.get("force_set_point_n", getattr(cfg, "force_n", np.nan)))
-    changes = metrics.get("phase_changes")
-    if changes:  # exact phase boundaries; the 100 Hz series can miss a short approach
-        ch = np.asarray(changes, dtype=np.float64).reshape(-1, 2)
-        trips = vision_round_trips(ch[:, 0], ch[:, 1])
-    else:
-        trips = vision_round_trips(s["t"], s["phase"])
+    ch = _phase_changes(metrics)  # exact phase boundaries; the 100 Hz series can miss a short approach
+    trips = vision_round_trips(s["t"], s["phase"]) if ch is None else vision_round_trips(ch[:, 0], ch[:, 1])
     times = metrics.get("vision_update_times_s")
     times = None if times is None else np.asarray(times, dtype=np.float64).reshape(-1)
     shown = len(trips) if times is None else len(times)
@@ -347,7 +348,7 @@ def write_clean_report(
         rep.notes.append(f"dirt plot marks {shown} vision updates, metrics count {metrics.get('vision_updates')}")
     rep.files["dirt_png"] = _plot_dirt(s, trips, times, out / "dirt.png")
     rep.files["force_png"] = _plot_clean_force(s, force_n, out / "force.png")
-    rep.files["phases_png"] = _plot_phases(s, out / "phases.png", changes)
+    rep.files["phases_png"] = _plot_phases(s, out / "phases.png", ch)
     named = {"dirt (first capture)": fields.get("target_initial", cloud.target)}
     for key, name in (("target", "dirt (last capture)"), ("coverage", "coverage"), ("potential", "potential")):
         if key in fields:

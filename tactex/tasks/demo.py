@@ -29,7 +29,6 @@ __all__ = [
     "DemoResult",
     "TaskSpec",
     "baseline_names",
-    "check_out_dir",
     "run_compare",
     "run_demo",
     "run_task",
@@ -66,11 +65,6 @@ def task_spec(kind: str) -> TaskSpec:
 def baseline_names(kind: str) -> tuple[str, ...]:
     """The named baselines of a task (without tactex itself)."""
     return tuple(b for b in task_spec(kind).baselines if b)
-
-
-def check_out_dir(out: str | Path) -> Path:
-    """The run directory, created and checked writable (:func:`tactex.report.outdir.prepare_out_dir`)."""
-    return prepare_out_dir(out)
 
 
 def _note_stderr(msg: str) -> None:
@@ -140,7 +134,7 @@ def run_task(kind: str, config: Any, out_dir: str | Path, *, label: str | None =
     spec = task_spec(kind)
     if not isinstance(config, spec.config_cls):
         raise ConfigError(f"{kind} needs a {spec.config_cls.__name__}, got {type(config).__name__}")
-    out = check_out_dir(out_dir)
+    out = prepare_out_dir(out_dir)
     result = spec.run(config, progress=progress)
     rep = write_run_report(result, out, label=label or (config.baseline or "tactex"))
     _try_video(result, rep, video)
@@ -158,7 +152,7 @@ def run_compare(kind: str, config: Any, out_dir: str | Path, *, baselines: Seque
     for b in names:
         if b not in valid:
             raise ConfigError(f"unknown {kind} baseline '{b}'; valid: {', '.join(valid)}")
-    out = check_out_dir(out_dir)
+    out = prepare_out_dir(out_dir)
     reports = []
     for b in ("", *names):
         label = b or "tactex"
@@ -220,7 +214,7 @@ def run_demo(out_dir: str | Path = "runs/demo", config: DemoConfig | None = None
              note: Note | None = _note_stderr) -> DemoResult:
     """Short clean + short wipe (+ baselines) into ``out_dir/<task>/<run>``, with ``out_dir/index.html``."""
     cfg = config or DemoConfig()
-    out = check_out_dir(out_dir)
+    out = prepare_out_dir(out_dir)
     wall0 = time.perf_counter()
     configs = cfg.task_configs()
     plan = [(kind, b) for kind in ("clean", "wipe")
