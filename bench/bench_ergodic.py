@@ -19,9 +19,10 @@ connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II l
   from the start to the target over the cloud (single linkage; None beyond 10 voxels). An agent
   that stays within ``max_off_cloud`` voxels of the cloud crosses at most 2·max_off_cloud, and
   only where the far side lies along its tangent plane (bunny start 9: 14.9 mm, 61° out of it).
-* ``ergodic.<cloud>.variants.<name>.*``: the same quality figures with one choice undone:
+* ``ergodic.<cloud>.variants.<name>.*``: the same quality figures with one choice changed:
   ``eq2_domain`` normalises the coverage over the whole cloud (eq. 2 literally, instead of over
-  the target's support), ``no_hops`` never hops a scan hole (``max_bridge = 0``).
+  the target's support), ``no_hops`` never hops a scan hole (``max_bridge = 0``), ``cooling``
+  adds eq. 4's heat loss, β = 0.05 per step (``HedacConfig.cooling``, off by default).
 * ``ergodic.<cloud>.realized_accel_over_limit_share`` / ``realized_accel_max_ratio``: the agent's
   realised tangential velocity change per step, |v_k − transport(v_k−1)|, over a_max·dt: the
   commands keep the limit exactly; the landing on a curved patch and slides along scan edges can
@@ -64,7 +65,11 @@ AUTHORS = {
     "cup_X": (0.18, 0.18, 0.18),
     "plate_shapes": (0.49, 0.20, 0.04),
 }
-VARIANTS = {"eq2_domain": {"coverage_normalization": "domain"}, "no_hops": {"max_bridge": 0.0}}
+VARIANTS = {
+    "eq2_domain": {"coverage_normalization": "domain"},
+    "no_hops": {"max_bridge": 0.0},
+    "cooling": {"cooling": 0.05},
+}
 PARK_WINDOW = 20  # steps
 PARK_VOXELS = 2.0  # closer than this to the position PARK_WINDOW steps earlier = parked
 GAP_VOXELS = (1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0)

@@ -217,7 +217,7 @@ def test_metrics_reject_bad_input(fn):
         ("n_eigen", 0), ("n_neighbors_fit", 3), ("order", 3),
         ("max_off_cloud", -1.0), ("max_snap_distance", 0.0), ("alpha_decay_steps", 0),
         ("max_bridge", -1.0), ("max_bridge", float("nan")), ("coverage_normalization", "cloud"),
-        ("edge_braking", 1), ("edge_braking", "yes"),
+        ("edge_braking", 1), ("edge_braking", "yes"), ("cooling", -0.1), ("cooling", float("inf")),
     ],
 )
 def test_config_rejects_bad_values(field, value):
@@ -574,6 +574,31 @@ def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
             best = max(best, cmd.point[0])
         reached[off] = best > 14 * H + 0.009
     assert reached == {1.0: False, 2.5: True}
+
+
+@pytest.mark.parametrize("cooling", [0.0, 0.05, 1.0])
+def test_cooling_is_the_heat_loss_of_eq4(plane, cooling):
+    """u̇ = αΔu − βu + s: each step adds the source to the spectral coefficients and scales them by
+    e^{−(λδt + β)}; with β > 0 old heat is forgotten and the constant mode (λ = 0) stays bounded."""
+    cloud, basis = plane
+    ex = HedacExplorer(cloud, basis, _cfg(cooling=cooling))
+    ex.reset(np.array([-0.05, -0.05, 0.0]))
+    k = ex.config.n_eigen
+    phitm = basis.evecs[:, :k] * basis.mass[:, None]
+    decay = np.exp(-(basis.evals[:k] * ex.config.alpha * ex.spacing**2 + cooling))
+    coef = ex.target / ex.target.sum() @ phitm  # u(x, 0) = p̂ (eq. 5)
+    start, gains = coef[0], []
+    for _ in range(200):
+        ex.step()
+        injected = ex.source @ phitm
+        coef = decay * (coef + injected)
+        gains.append(injected[0])
+    np.testing.assert_allclose(ex._coef, coef, rtol=1e-9, atol=1e-12 * np.abs(coef).max())
+    if cooling == 0.0:  # every step's heat is kept
+        assert coef[0] > 200 * min(gains)
+    else:
+        d = decay[0]
+        assert coef[0] <= max(gains) * d / (1 - d) + d**200 * start
 
 
 def test_source_weight_zero_leaves_the_diffused_potential(plane):

@@ -117,6 +117,7 @@ def _start(cloud, frac: float = 0.3) -> np.ndarray:
         ("cup", {"order": 1, "agent_radius_m": 0.006}),  # a vertical wall and its rim, first order
         ("plate", {"agent_radius_m": 0.015, "coverage_normalization": "domain"}),  # plane fits, eq. 2 literally
         ("bowl", {"source_weight": 0.0, "alpha": 3.0}),  # diffused potential only
+        ("plate", {"agent_radius_m": 0.015, "cooling": 0.05}),  # eq. 4's heat loss
         # 10 neighbours for the fits' 5 and 10 unknowns: ill-conditioned, the two summation orders
         # (and LAPACK's dsyev vs numba's dsyevd for the 5 × 5 eigenproblem) differ by up to ~1e-7 m
         # in a step; a logic error moves the agent by millimetres.

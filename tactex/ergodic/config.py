@@ -60,6 +60,13 @@ class HedacConfig:
         0.0, "α at the end of the schedule (high α first, lower later, §VI-E); 0 = constant α [-]"
     )
     alpha_decay_steps: int = param(300, "steps over which α decays geometrically to alpha_final [steps]")
+    cooling: float = param(
+        0.0,
+        "heat loss β of u̇ = αΔu − βu + s, per step (the −u term of eq. 4, HEDAC's cooling): the potential forgets "
+        "a source within ~1/β steps and settles to eq. 4's screened field, which reaches about √(α/β)·h around "
+        "a source, so the agent finishes what is near before crossing to far target; 0 = none, as the authors' "
+        "code (the potential keeps all past heat) [1/step]",
+    )
     n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion (eq. 19) [-]")
     agent_radius_m: float = param(0.0075, "agent footprint radius r_a (15 mm on the plate) [m]")
     footprint_sharpness: float = param(
@@ -120,7 +127,7 @@ class HedacConfig:
         )
         for name in positive:
             _check_number(name, getattr(self, name), strict=True)
-        for name in ("alpha_final", "source_weight", "max_bridge"):
+        for name in ("alpha_final", "source_weight", "max_bridge", "cooling"):
             _check_number(name, getattr(self, name), strict=False)
         for name, low in (("n_eigen", 1), ("n_neighbors_fit", 5), ("alpha_decay_steps", 1)):
             value = getattr(self, name)
