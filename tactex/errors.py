@@ -8,6 +8,7 @@ value or shape, and say what to do. Subclasses also derive from the matching bui
 from __future__ import annotations
 
 __all__ = [
+    "PYGAFRO_FIX",
     "CacheError",
     "CloudError",
     "ConfigError",
@@ -72,13 +73,23 @@ class SafetyFault(ControllerFault):
     """The safety layer tripped and the controller is holding or retreating."""
 
 
-class MissingDependencyError(TactexError, ImportError):
-    """An optional extra is needed; the message names the ``pip install`` command."""
+#: How to repair pygafro, a core dependency (a failed import means a broken installation, not a missing extra).
+PYGAFRO_FIX = "It is a core dependency of tactex: reinstall it with pip install --force-reinstall pygafro"
 
-    def __init__(self, package: str, extra: str, purpose: str) -> None:
-        super().__init__(
-            f"{purpose} needs the optional package '{package}', which is not installed. "
-            f"Install it with: pip install 'tactex[{extra}]'"
-        )
+
+class MissingDependencyError(TactexError, ImportError):
+    """Something optional is missing. The message says how to get it: the ``pip install`` of the
+    extra ``extra`` that brings it, or ``fix`` where pip cannot help (a GL context, a display, an
+    operating-system feature) or a core dependency is broken."""
+
+    def __init__(self, package: str, extra: str, purpose: str, *, fix: str | None = None) -> None:
+        if fix is None and not extra:
+            raise ValueError("MissingDependencyError needs an extra to install or a fix to describe")
+        if fix is None:
+            msg = f"{purpose} needs the optional package '{package}'. Install it with: pip install 'tactex[{extra}]'"
+        else:
+            msg = f"{purpose}: no {package}. {fix}"
+        super().__init__(msg)
         self.package = package
         self.extra = extra
+        self.fix = fix

@@ -61,3 +61,14 @@ def test_write_json_maps_numpy_and_nan(tmp_path) -> None:
 def test_cli_without_command_prints_help(capsys) -> None:
     assert main([]) == 2
     assert "usage: tactex" in capsys.readouterr().out
+
+
+def test_missing_dependency_says_how_to_get_it():
+    from tactex.errors import PYGAFRO_FIX, MissingDependencyError
+
+    extra = MissingDependencyError("pylibfranka", "franka", "The real-robot backend")
+    assert "pip install 'tactex[franka]'" in str(extra)
+    core = MissingDependencyError("pygafro", "", "The CGA fit", fix=PYGAFRO_FIX)
+    assert "pygafro" in str(core) and "tactex[" not in str(core)
+    with pytest.raises(ValueError, match="extra to install or a fix"):
+        MissingDependencyError("x", "", "y")

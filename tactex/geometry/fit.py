@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg.lapack import dsyev as _dsyev
 
-from tactex.errors import InputError
+from tactex.errors import PYGAFRO_FIX, InputError, MissingDependencyError
 
 __all__ = [
     "SurfacePatch",
@@ -251,12 +251,10 @@ def _pca_plane(q: np.ndarray) -> SurfacePatch:
 
 
 def _gafro():
-    from tactex.errors import MissingDependencyError
-
     try:
         import pygafro
     except ImportError as exc:  # pragma: no cover - pygafro is a core dependency
-        raise MissingDependencyError("pygafro", "dev", "the CGA fit") from exc
+        raise MissingDependencyError("pygafro", "", "The CGA fit", fix=PYGAFRO_FIX) from exc
     return pygafro
 
 

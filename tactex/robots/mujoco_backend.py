@@ -27,6 +27,8 @@ from tactex.sim.scene import Scene, SceneConfig, build_scene
 
 __all__ = ["MujocoBackend"]
 
+_GL_FIX = "Set MUJOCO_GL=egl (or osmesa) for off-screen rendering, or run with a display"
+
 _BAD = {
     int(mujoco.mjtWarning.mjWARN_BADQACC): "an unstable acceleration",
     int(mujoco.mjtWarning.mjWARN_BADQVEL): "NaN/huge joint velocities",
@@ -299,8 +301,7 @@ class MujocoBackend:
         # Without an offscreen back-end, MuJoCo falls back to GLFW, which needs a display; a failed GLFW
         # start leaves it half-initialised and the next attempt aborts the process in C++.
         if backend_gl == "disable" or (backend_gl not in ("egl", "osmesa") and not has_display):
-            raise MissingDependencyError("an OpenGL context (MUJOCO_GL=egl or osmesa, or a display)", "dev",
-                                         "GL rendering")
+            raise MissingDependencyError("OpenGL context", "", "GL rendering", fix=_GL_FIX)
         try:
             if self._renderer is None or (self._renderer.width, self._renderer.height) != (width, height):
                 if self._renderer is not None:
@@ -310,12 +311,15 @@ class MujocoBackend:
             return self._renderer.render().copy()
         except Exception as exc:  # GL back-ends fail in many ways without a GPU/display
             self._renderer = None
-            raise MissingDependencyError("a working OpenGL context", "dev", f"GL rendering ({exc})") from exc
+            raise MissingDependencyError("working OpenGL context", "", f"GL rendering ({exc})", fix=_GL_FIX) from exc
 
     def launch_viewer(self):
         """Open MuJoCo's passive viewer (needs a display); call ``viewer.sync()`` after steps."""
         if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-            raise MissingDependencyError("a display (DISPLAY is not set)", "dev", "the interactive viewer")
+            raise MissingDependencyError(
+                "display", "", "The interactive viewer",
+                fix="DISPLAY is not set: run it in a desktop session or with X forwarding",
+            )
         import mujoco.viewer
 
         self._viewer = mujoco.viewer.launch_passive(self.model, self.data)

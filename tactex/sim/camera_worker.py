@@ -117,7 +117,10 @@ class CameraWorker:
         if not (np.isfinite(timeout_s) and timeout_s > 0):
             raise ConfigError(f"camera worker timeout must be > 0 s, got {timeout_s}")
         if not hasattr(os, "memfd_create"):
-            raise MissingDependencyError("os.memfd_create (Linux)", "", "the camera worker process")
+            raise MissingDependencyError(
+                "os.memfd_create", "", "The camera worker process",
+                fix="It needs Linux; elsewhere set camera_worker=False",
+            )
         caster = camera.caster
         obj = caster.obj
         hf = obj.heightfield() if caster.kind == "hfield" else None

@@ -15,7 +15,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from tactex.errors import MissingDependencyError
+from tactex.errors import PYGAFRO_FIX, MissingDependencyError
 
 __all__ = [
     "FRANKA_HOME_Q",
@@ -69,7 +69,7 @@ def gafro_robot():
     try:
         import pygafro
     except ImportError as exc:  # pragma: no cover - pygafro is a core dependency
-        raise MissingDependencyError("pygafro", "dev", "the Franka model") from exc
+        raise MissingDependencyError("pygafro", "", "The Franka model", fix=PYGAFRO_FIX) from exc
     return pygafro.FrankaEmikaRobot()
 
 
