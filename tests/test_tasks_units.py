@@ -114,9 +114,13 @@ def test_recorder_and_progress() -> None:
     bar = Progress(10.0, "unit", stream=out)
     for i in range(11):
         bar.update(float(i), x=1.0)
+    bar.note("compiling")
     bar.close("done")
     text = out.getvalue()
-    assert "100%" in text and "unit: done" in text
+    assert "100%" in text and "unit: done" in text and "unit: compiling\n" in text
+    quiet = io.StringIO()
+    Progress(10.0, "unit", stream=quiet, enabled=False).note("compiling")
+    assert quiet.getvalue() == ""
 
 
 @pytest.mark.parametrize(

@@ -595,6 +595,11 @@ def available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+def loaded() -> bool:
+    """Whether this process already holds the compiled step (no compile or cache load is pending)."""
+    return _compiled is not None
+
+
 def compiled_walk_step():
     """The walking step compiled by numba (see :func:`_walk_step` for its arguments), or None when
     numba is not installed.

@@ -366,7 +366,9 @@ def write_clean_report(
             title="Ergodicity (TEC eq. 48)",
         )
     else:
-        rep.notes.append("no ergodicity series (the raster baseline has no target distribution to compare)")
+        why = ("the raster baseline has no target distribution to compare" if metrics.get("baseline") == "raster"
+               else "the run ended before any exploration in contact")
+        rep.notes.append(f"no ergodicity series ({why})")
     if html_page:
         scales = {"dirt (first capture)": DIRT_COLORSCALE, "dirt (last capture)": DIRT_COLORSCALE}
         path = tcp_contact if len(tcp_contact) else (agent if len(agent) else None)

@@ -29,6 +29,7 @@ from tactex.config import param
 from tactex.control.ga_line_force import GaLineForceController, GaLineForceParams
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import LineForceReference
+from tactex.ergodic import kernel
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
@@ -300,6 +301,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
             # sliding 93.5 % and 18.2 N (the plate: 92.9 % and 13.6 N against 93.0 % and 13.4 N).
             edge_braking=False,
         )
+        if hcfg.compiled and kernel.available() and not kernel.loaded():
+            bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s)")
         source = HedacExplorer(cloud, basis, hcfg)
     targets = np.flatnonzero(cloud.target > 0)
     x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]

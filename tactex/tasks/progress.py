@@ -51,6 +51,15 @@ class Progress:
                 self.stream.write(f"{self.label}: {100 * frac:3.0f}%  ({now - self._t0:.1f} s wall)  {extra}\n")
                 self.stream.flush()
 
+    def note(self, message: str) -> None:
+        """A line of its own (``label: message``), e.g. before a long silent step."""
+        if not self.enabled:
+            return
+        if self._tty and self._last_draw > 0.0:
+            self.stream.write("\n")
+        self.stream.write(f"{self.label}: {message}\n")
+        self.stream.flush()
+
     def close(self, message: str = "") -> None:
         if not self.enabled:
             return
