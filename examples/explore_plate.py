@@ -19,7 +19,7 @@ from tactex.pointcloud.shapes import get_surface
 from tactex.report import cloud_html, plot_cloud, plot_series, write_metrics
 from tactex.spectral import build_basis
 
-out = Path(sys.argv[1] if len(sys.argv) > 1 else "explore_plate_out")
+out = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/explore_plate")
 cloud = marked_cloud(get_surface("plate"), "shapes", spacing_m=0.003)  # 3 mm, as TEC's voxel grid
 basis = build_basis(cloud, n_eigen=200)  # cached on disk after the first run
 explorer = HedacExplorer(cloud, basis, HedacConfig(alpha=10.0, n_eigen=200, agent_radius_m=0.015))
