@@ -188,6 +188,11 @@ def test_pcd_colours_as_pcl_writes_them(tmp_path) -> None:
         _pcd(tmp_path / "c.pcd", "x y z rgb", types, rows)
         back = load_cloud(tmp_path / "c.pcd")
         np.testing.assert_array_equal(np.round(back.colors * 255).astype(int), want)
+    # writers that bit-cast the float (Open3D, struct.pack) print tiny numbers; 9 digits keep the bits
+    cast = np.array(packed, dtype=np.uint32).view(np.float32)
+    rows = [(0.01 * i, 0.02, 0.03, np.format_float_scientific(f, precision=8)) for i, f in enumerate(cast, start=1)]
+    _pcd(tmp_path / "b.pcd", "x y z rgb", "F F F F", rows)
+    np.testing.assert_array_equal(np.round(load_cloud(tmp_path / "b.pcd").colors * 255).astype(int), want)
     _pcd(tmp_path / "s.pcd", "x y z r g b", "F F F U U U", [(0.01 * i, 0.02, 0.03, *c) for i, c in enumerate(want, 1)])
     np.testing.assert_array_equal(np.round(load_cloud(tmp_path / "s.pcd").colors * 255).astype(int), want)
 

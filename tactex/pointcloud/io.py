@@ -170,13 +170,17 @@ def load_pcd(path: str | Path) -> SurfaceCloud:
 
 def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
     """PCL's packed 0x00RRGGBB as uint32 from the field as stored: an integer type holds it as is; a
-    float one holds its bits in binary files, while PCL's ascii writer prints the integer itself
-    ("despite the float type, store the rgb field as uint32")."""
+    float one holds its bits in binary files. In ascii files PCL's writer prints the integer itself
+    ("despite the float type, store the rgb field as uint32"), while writers that bit-cast the
+    float (Open3D's, struct.pack) print tiny numbers: 0x00RRGGBB read as a float32 is below 2⁻¹²⁵
+    (its exponent byte is 0), which a printed integer never is. Those are decoded as bits."""
     field = np.asarray(field)
     if np.issubdtype(field.dtype, np.integer):
         return field.astype(np.uint32)
     if ascii_file:
         values = np.nan_to_num(field.astype(np.float64))
+        if values.size and np.abs(values).max() < 1.0 and values.any():
+            return values.astype(np.float32).view(np.uint32)
         return np.clip(np.round(values), 0.0, 2.0**32 - 1).astype(np.uint32)
     return field.astype(np.float32).view(np.uint32)
 
