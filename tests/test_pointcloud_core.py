@@ -83,9 +83,12 @@ def test_nan_points_rejected_with_index() -> None:
         SurfaceCloud(points=pts)
 
 
-def test_millimetre_cloud_refused() -> None:
+def test_millimetre_cloud_refused(tmp_path) -> None:
     with pytest.raises(UnitsError, match="millimetres"):
         SurfaceCloud(points=grid_cloud().points * 1000.0)
+    np.savez(tmp_path / "mm.npz", points=grid_cloud().points * 1000.0)
+    with pytest.raises(UnitsError, match=r"mm\.npz'.*millimetres.*convert the file to metres"):
+        load_cloud(tmp_path / "mm.npz")
 
 
 def test_duplicates_are_kept_until_removed() -> None:
@@ -124,7 +127,7 @@ def test_a_wide_camera_cloud_in_metres_is_not_taken_for_millimetres() -> None:
     assert len(SurfaceCloud(points=cam)) == 240000
     with pytest.raises(UnitsError, match="millimetres"):
         SurfaceCloud(points=grid_cloud().points * 1000.0)  # 10 mm grid read as 10 "m" apart
-    with pytest.raises(UnitsError, match=r"0\.3 apart.*millimetres"):
+    with pytest.raises(UnitsError, match=r"0\.3 m apart.*millimetres"):
         SurfaceCloud(points=grid_cloud(n=14).points * 30.0)  # a 4 mm part in mm: 3.9 "m" wide, 0.3 "m" apart
 
 

@@ -46,7 +46,7 @@ def validate_points(points: object, name: str = "points", min_points: int = 1) -
         gap = _median_gap(arr)
         if gap > MAX_GAP_M:
             raise UnitsError(
-                f"{name} spans {extent:.3g} along one axis with points {gap:.3g} apart; tactex works in metres "
+                f"{name} spans {extent:.3g} m along one axis with points {gap:.3g} m apart; tactex works in metres "
                 "and such a surface is probably in millimetres. Rescale it (e.g. points * 1e-3) before use."
             )
     return np.ascontiguousarray(arr)
@@ -159,8 +159,8 @@ class SurfaceCloud:
             spacing = mean_spacing(distinct) if distinct.shape[0] >= 2 else 0.0
         if spacing > MAX_SPACING_M:
             raise UnitsError(
-                f"the points lie {spacing:.3g} apart on average; tactex works in metres and a surface sampled "
-                f"that coarsely (over {MAX_SPACING_M:g} m) is probably in millimetres. Rescale it (e.g. points * 1e-3)"
+                f"the points lie {spacing:.3g} m apart on average; tactex works in metres and a surface sampled "
+                f"that coarsely (over {MAX_SPACING_M:g} m) is probably in millimetres. Rescale it (e.g. points * 1e-3)."
             )
         for name, value in (("points", pts), ("normals", normals), ("colors", colors), ("target", target)):
             if value is not None:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from tactex.errors import CloudError, InputError, MissingDependencyError
+from tactex.errors import CloudError, InputError, MissingDependencyError, UnitsError
 from tactex.pointcloud.cloud import SurfaceCloud
 
 __all__ = [
@@ -232,7 +232,11 @@ def load_cloud(path: str | Path) -> SurfaceCloud:
         raise InputError(
             f"cannot read '{p}': unknown suffix '{p.suffix}'; supported: {', '.join(SUPPORTED_SUFFIXES)}"
         )
-    return reader(p)
+    try:
+        return reader(p)
+    except UnitsError as exc:
+        # the cloud's own message cannot name the file, and a CLI user rescales the file, not an array
+        raise UnitsError(f"'{p}': {exc} At the command line: convert the file to metres first.") from exc
 
 
 def save_cloud(cloud: SurfaceCloud, path: str | Path) -> Path:

@@ -199,7 +199,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
     estimator = SurfaceEstimator(SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005)))
     estimate: SurfaceEstimate | None = None
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
-    bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'va-ufic'}", enabled=progress)
+    bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
 
     wrench_d = np.array([0.0, 0.0, cfg.force_n, 0.0, 0.0, 0.0])
     t0 = loop.t
