@@ -219,3 +219,33 @@ def test_separate_parts_are_reported(tmp_path) -> None:
     assert result.metrics["start_part_has_target"] is False
     # Without heat reaching it, the agent covers none of the target.
     assert result.metrics["final_ergodicity"] == pytest.approx(1.0)
+
+
+def test_stalled_from_finds_the_still_tail() -> None:
+    from tactex.experiments.explore import STALL_MIN_STEPS, _stalled_from
+
+    walk = np.column_stack([np.arange(200) * 0.003, np.zeros(200), np.zeros(200)])
+    assert _stalled_from(walk, 0.003) is None
+    dither = walk.copy()
+    dither[100:] = walk[99] + 0.002 * np.sign(np.sin(np.arange(100)))[:, None] * np.array([1.0, 0.0, 0.0])
+    # the dither around x = 0.297 ± 0.002 m is within 2 voxels (6 mm) of the end, and so are the walk's
+    # last three steps into it (0.291, 0.294, 0.297 m)
+    assert _stalled_from(dither, 0.003) == 97
+    short = walk.copy()
+    short[-(STALL_MIN_STEPS - 5):] = walk[-(STALL_MIN_STEPS - 5)]
+    assert _stalled_from(short, 0.003) is None
+    assert _stalled_from(np.zeros((0, 3)), 0.003) is None
+
+
+def test_an_agent_stuck_on_contact_tracks_is_reported(tmp_path) -> None:
+    """Parallel tracks 12 mm apart (a wipe's contact points, not a surface): the potential rises only
+    across the gaps, which the agent may not leave the cloud to cross; the run says so."""
+    s = np.arange(0.0, 0.06, 0.002)
+    pts = np.vstack([np.column_stack([s, np.full(s.size, 0.012 * k), np.zeros(s.size)]) for k in range(5)])
+    path = save_npz(SurfaceCloud(points=pts, target=np.ones(len(pts))), tmp_path / "tracks.npz")
+    messages: list[str] = []
+    cfg = ExploreConfig(voxel_size=0.0, n_eigen=30, steps=600, x0=(0.03, 0.024, 0.0), html=False, cache=False)
+    result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
+    assert result.metrics["stalled_from_step"] is not None
+    assert result.metrics["final_coverage_residual"] > 0.1
+    assert any("stopped moving" in m for m in messages)

@@ -220,6 +220,25 @@ def _start_position(cloud: SurfaceCloud, cfg: ExploreConfig, source_info: dict[s
     return cloud.points[i].copy(), f"cloud point {i} (seed {cfg.seed})"
 
 
+#: A run ends stalled when its agent stayed within STALL_RADIUS voxels of where it ended over its
+#: last STALL_MIN_STEPS steps (or tenth of the run, if longer) while more than STALL_RESIDUAL of
+#: coverage residual was left (it may still dither in place).
+STALL_MIN_STEPS = 50
+STALL_RADIUS = 2.0
+STALL_RESIDUAL = 0.01
+
+
+def _stalled_from(trajectory: np.ndarray, spacing: float) -> int | None:
+    """The step (0-based) from which the agent stayed within STALL_RADIUS voxels of its final
+    position, when that tail is at least STALL_MIN_STEPS steps (and a tenth of the run) long; else None."""
+    n = len(trajectory)
+    if n == 0:
+        return None
+    away = np.flatnonzero(np.linalg.norm(trajectory - trajectory[-1], axis=1) > STALL_RADIUS * spacing)
+    start = int(away[-1]) + 1 if away.size else 0
+    return start if n - start >= max(STALL_MIN_STEPS, n // 10) else None
+
+
 def _hedac_config(cfg: ExploreConfig, base, radius: float):
     from tactex.ergodic import HedacConfig
 
@@ -307,9 +326,17 @@ def run_explore(
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
         raise ExplorationError("the exploration produced NaN/inf values; please report this with the cloud and seed")
 
+    stalled_from = _stalled_from(trajectory, explorer.spacing)
+    if stalled_from is not None and residual[-1] > STALL_RESIDUAL:
+        say(
+            f"warning: the agent stopped moving at step {stalled_from + 1} with coverage residual {residual[-1]:.3f}: "
+            "the potential rises only across gaps it may not leave the cloud to cross (see --max-off-cloud, "
+            "--max-bridge), typical of a sparse cloud, e.g. contact tracks rather than a surface; a denser cloud helps"
+        )
     coverage = explorer.coverage
     potential = explorer.potential
     metrics: dict[str, Any] = {
+        "stalled_from_step": stalled_from,
         "source": source_info,
         "n_points": len(cloud),
         "n_target": cloud.n_target,
