@@ -433,6 +433,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         fields.update(target=source.target.copy(), coverage=source.coverage.copy(), potential=source.potential.copy())
     metrics = {
         "dirt_removed_fraction": 1.0 - backend.dirt_remaining(),
+        # the shares count the normal force while exploring in contact; the maximum is the force
+        # magnitude over every phase (a transit's or a sideways hit's too)
         "force_within_20pct_fraction": log.within_ticks / contact,
         "max_contact_force_n": log.max_force,
         "force_over_2x_ticks": log.over_2x_ticks,
