@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import re
 import sys
 from collections.abc import Sequence
 
@@ -35,6 +36,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# "HedacConfig.max_snap_distance" / "n_eigen=200" in library messages: the names a Python caller sets
+_CONFIG_FIELD = re.compile(r"\b[A-Z]\w*(?:Config|Params)\.([a-z_][a-z0-9_]*)\b")
+_FIELD_VALUE = re.compile(r"\b([a-z][a-z0-9_]*)=([^\s,;)]+)")
+
+
+def _cli_words(message: str, args: argparse.Namespace) -> str:
+    """``message`` with the config fields this command exposes as options named as those options."""
+    options = vars(args)
+
+    def field(m: re.Match) -> str:
+        name = m.group(1)
+        return f"--{name.replace('_', '-')}" if name in options else m.group(0)
+
+    def field_value(m: re.Match) -> str:
+        name = m.group(1)
+        return f"--{name.replace('_', '-')} {m.group(2)}" if name in options else m.group(0)
+
+    return _FIELD_VALUE.sub(field_value, _CONFIG_FIELD.sub(field, message))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; bad input prints one line and returns a non-zero code, never a traceback."""
     parser = build_parser()
@@ -45,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except TactexError as exc:
-        print(f"tactex {args.command}: error: {exc}", file=sys.stderr)
+        print(f"tactex {args.command}: error: {_cli_words(str(exc), args)}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file system refusal the checks up front did not foresee (disk full, ...)
         where = f" ('{exc.filename}')" if exc.filename else ""

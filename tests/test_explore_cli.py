@@ -140,7 +140,7 @@ def test_too_many_eigenpairs(tmp_path, capsys) -> None:
     _fails(
         ["explore", "cup", "--voxel-size", "0.01", "--n-eigen", "5000", "--quiet", "--out", str(tmp_path / "o")],
         capsys,
-        "n_eigen=5000",
+        "5000 eigenpairs requested (--n-eigen 5000)",
         "must be <",
     )
 
@@ -164,6 +164,10 @@ def test_bad_values(tmp_path, capsys, option: str, value: str, fragment: str) ->
 
 def test_bad_explorer_option(tmp_path, capsys) -> None:
     _fails(["explore", "plate", "--order", "3", "--quiet", "--out", str(tmp_path / "o")], capsys, "order")
+    # the library's message names HedacConfig.coverage_normalization; the CLI names its option
+    _fails(["explore", "plate", "--coverage-normalization", "cloud", "--out", str(tmp_path / "o")], capsys,
+           "--coverage-normalization must be one of")
+    _fails(["explore", "plate", "--n-eigen", "99999", "--out", str(tmp_path / "o")], capsys, "Use e.g. --n-eigen 200")
 
 
 def test_file_without_target(tmp_path, capsys) -> None:
