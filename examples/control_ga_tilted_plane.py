@@ -29,7 +29,8 @@ def main() -> None:
         state = backend.step()
         if k % 500 == 0:
             tilt = np.degrees(np.arccos(np.clip(state.ee_rotation[:, 2] @ z, -1, 1)))
-            print(f"t={state.t:4.1f} s  force {state.wrench_tool[2]:6.2f} N  tilt {tilt:5.2f}°  {ctrl.telemetry()}")
+            tel = "  ".join(f"{k} {v:.3g}" for k, v in ctrl.telemetry().items())
+            print(f"t={state.t:4.1f} s  force {state.wrench_tool[2]:6.2f} N  tilt {tilt:5.2f}°  {tel}")
     print("safety events:", ctrl.counts)
 
 
