@@ -22,7 +22,8 @@ connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II l
 * ``ergodic.<cloud>.variants.<name>.*``: the same quality figures with one choice changed:
   ``eq2_domain`` normalises the coverage over the whole cloud (eq. 2 literally, instead of over
   the target's support), ``no_hops`` never hops a scan hole (``max_bridge = 0``), ``cooling``
-  adds eq. 4's heat loss, β = 0.05 per step (``HedacConfig.cooling``, off by default).
+  adds a heat loss in the form of eq. 4's −u term, β = 0.05 per step (``HedacConfig.cooling``, a
+  tuned value, off by default).
 * ``ergodic.<cloud>.realized_accel_over_limit_share`` / ``realized_accel_max_ratio``: the agent's
   realised tangential velocity change per step, |v_k − transport(v_k−1)|, over a_max·dt: the
   commands keep the limit exactly; the landing on a curved patch and slides along scan edges can

@@ -36,9 +36,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# "HedacConfig.max_snap_distance" / "n_eigen=200" in library messages: the names a Python caller sets
-_CONFIG_FIELD = re.compile(r"\b[A-Z]\w*(?:Config|Params)\.([a-z_][a-z0-9_]*)\b")
-_FIELD_VALUE = re.compile(r"\b([a-z][a-z0-9_]*)=([^\s,;)]+)")
+# "HedacConfig.max_snap_distance" / "n_eigen=200" in library messages: the names a Python caller sets.
+# Only words that stand alone (after a space or "(") outside quotes: quoted spans are the user's own
+# paths and values ('runs/seed=3/x.ply'), which must come back as typed.
+_CONFIG_FIELD = re.compile(r"(?:^|(?<=[\s(]))[A-Z]\w*(?:Config|Params)\.([a-z_][a-z0-9_]*)\b")
+_FIELD_VALUE = re.compile(r"(?:^|(?<=[\s(]))([a-z][a-z0-9_]*)=([^\s,;)'\"]+)")
+_QUOTED = re.compile(r"('[^']*'|\"[^\"]*\")")
 
 
 def _cli_words(message: str, args: argparse.Namespace) -> str:
@@ -53,7 +56,10 @@ def _cli_words(message: str, args: argparse.Namespace) -> str:
         name = m.group(1)
         return f"--{name.replace('_', '-')} {m.group(2)}" if name in options else m.group(0)
 
-    return _FIELD_VALUE.sub(field_value, _CONFIG_FIELD.sub(field, message))
+    parts = _QUOTED.split(message)  # odd indices are the quoted spans
+    return "".join(
+        part if i % 2 else _FIELD_VALUE.sub(field_value, _CONFIG_FIELD.sub(field, part)) for i, part in enumerate(parts)
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -389,3 +389,21 @@ def test_the_command_frame_is_orthonormal_at_its_point(objects, compiled):
         assert np.linalg.det(frame) > 0.0
         assert abs(float(c.velocity @ c.normal)) <= 1e-12 * max(1.0, float(np.linalg.norm(c.velocity)))
     assert (ex.compiled_steps > 100) == compiled
+
+
+@needs_numba
+def test_compile_pending_says_whether_a_compile_or_cache_load_is_ahead(objects, monkeypatch):
+    cloud, basis = objects["plate"]
+    ex = HedacExplorer(cloud, basis, HedacConfig(agent_radius_m=0.015, n_eigen=basis.evecs.shape[1]))
+    ex.reset(_start(cloud))
+    ex.step()
+    assert ex.compiled_steps == 1 and not ker.compile_pending()  # machine code in hand
+    monkeypatch.setattr(ker, "_compiled", None)
+    assert ker.compile_pending()  # a fresh process: numba will compile or load its cache
+    from numba import config
+
+    monkeypatch.setattr(config, "DISABLE_JIT", True)
+    assert not ker.compile_pending()  # the step would run numpy: nothing to wait for
+    monkeypatch.setattr(config, "DISABLE_JIT", False)
+    monkeypatch.setattr(ker, "_failure", "broken")
+    assert not ker.compile_pending()

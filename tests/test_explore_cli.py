@@ -168,6 +168,10 @@ def test_bad_explorer_option(tmp_path, capsys) -> None:
     _fails(["explore", "plate", "--coverage-normalization", "cloud", "--out", str(tmp_path / "o")], capsys,
            "--coverage-normalization must be one of")
     _fails(["explore", "plate", "--n-eigen", "99999", "--out", str(tmp_path / "o")], capsys, "Use e.g. --n-eigen 200")
+    # the user's own paths and values come back as typed, even when they read like field=value
+    missing = tmp_path / "seed=3" / "alpha=10.ply"
+    _fails(["explore", str(missing), "--out", str(tmp_path / "o")], capsys, f"'{missing}' does not exist")
+    _fails(["explore", "plate", "--target-channel", "alpha=1", "--out", str(tmp_path / "o")], capsys, "'alpha=1'")
 
 
 def test_file_without_target(tmp_path, capsys) -> None:
@@ -239,6 +243,8 @@ def test_stalled_from_finds_the_still_tail() -> None:
     short[-(STALL_MIN_STEPS - 5):] = walk[-(STALL_MIN_STEPS - 5)]
     assert _stalled_from(short, 0.003) is None
     assert _stalled_from(np.zeros((0, 3)), 0.003) is None
+    # an agent at 0.02 voxels/step needs 200 steps to cross the 4-voxel circle: 100 still steps are no stall
+    assert _stalled_from(dither, 0.003, max_velocity=0.02) is None
 
 
 def test_an_agent_stuck_on_contact_tracks_is_reported(tmp_path) -> None:
@@ -252,4 +258,5 @@ def test_an_agent_stuck_on_contact_tracks_is_reported(tmp_path) -> None:
     result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
     assert result.metrics["stalled_from_step"] is not None
     assert result.metrics["final_coverage_residual"] > 0.1
-    assert any("stopped moving" in m for m in messages)
+    stalled = result.metrics["stalled_from_step"]
+    assert any(f"stayed in place from step {stalled} on," in m for m in messages)

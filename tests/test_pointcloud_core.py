@@ -87,8 +87,12 @@ def test_millimetre_cloud_refused(tmp_path) -> None:
     with pytest.raises(UnitsError, match="millimetres"):
         SurfaceCloud(points=grid_cloud().points * 1000.0)
     np.savez(tmp_path / "mm.npz", points=grid_cloud().points * 1000.0)
-    with pytest.raises(UnitsError, match=r"mm\.npz'.*millimetres.*convert the file to metres"):
+    with pytest.raises(UnitsError, match=r"mm\.npz'.*millimetres: convert it to metres"):
         load_cloud(tmp_path / "mm.npz")
+    # points in metres with a stored spacing in millimetres: the spacing is named, not the points
+    np.savez(tmp_path / "h.npz", points=grid_cloud().points, spacing=3.0)
+    with pytest.raises(UnitsError, match=r"spacing = 3 m was given.*Give the spacing in metres"):
+        load_cloud(tmp_path / "h.npz")
 
 
 def test_duplicates_are_kept_until_removed() -> None:
@@ -196,6 +200,14 @@ def test_pcd_colours_as_pcl_writes_them(tmp_path) -> None:
     rows = [(0.01 * i, 0.02, 0.03, np.format_float_scientific(f, precision=8)) for i, f in enumerate(cast, start=1)]
     _pcd(tmp_path / "b.pcd", "x y z rgb", "F F F F", rows)
     np.testing.assert_array_equal(np.round(load_cloud(tmp_path / "b.pcd").colors * 255).astype(int), want)
+    rows[0] = (0.01, 0.02, 0.03, 0)  # a black point among bit-cast ones
+    _pcd(tmp_path / "b.pcd", "x y z rgb", "F F F F", rows)
+    back = np.round(load_cloud(tmp_path / "b.pcd").colors * 255).astype(int)
+    np.testing.assert_array_equal(back, [[0, 0, 0], *want[1:]])
+    rows[0] = (0.01, 0.02, 0.03, 0.5)  # a fraction is neither convention
+    _pcd(tmp_path / "b.pcd", "x y z rgb", "F F F F", rows)
+    with pytest.raises(CloudError, match=r"b\.pcd': its rgb .* neither PCL's packed integer nor a bit-cast float"):
+        load_cloud(tmp_path / "b.pcd")
     _pcd(tmp_path / "s.pcd", "x y z r g b", "F F F U U U", [(0.01 * i, 0.02, 0.03, *c) for i, c in enumerate(want, 1)])
     np.testing.assert_array_equal(np.round(load_cloud(tmp_path / "s.pcd").colors * 255).astype(int), want)
 

@@ -62,10 +62,10 @@ class HedacConfig:
     alpha_decay_steps: int = param(300, "steps over which α decays geometrically to alpha_final [steps]")
     cooling: float = param(
         0.0,
-        "heat loss β of u̇ = αΔu − βu + s, per step (the −u term of eq. 4, HEDAC's cooling): the potential forgets "
-        "a source within ~1/β steps and settles to eq. 4's screened field, which reaches about √(α/β)·h around "
-        "a source, so the agent finishes what is near before crossing to far target; 0 = none, as the authors' "
-        "code (the potential keeps all past heat) [1/step]",
+        "heat loss β per step, the −u term of eq. 4 (HEDAC's cooling): each step is u̇ = αh²Δu − βu + s, so the "
+        "potential forgets a source within ~1/β steps and settles to a screened field of eq. 4's form reaching "
+        "about √(α/β)·h around a source; the agent then finishes what is near before crossing to far target. "
+        "0 = none, as the authors' code (the potential keeps all past heat); 0.05 is a tuned value [1/step]",
     )
     n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion (eq. 19) [-]")
     agent_radius_m: float = param(0.0075, "agent footprint radius r_a (15 mm on the plate) [m]")

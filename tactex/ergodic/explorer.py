@@ -14,8 +14,9 @@ One step for each agent:
    injected into the spectral coefficients of the potential, which then diffuse by e^{−λ δt},
    δt = α h² (eq. 19–21): a ← e^{−λδt} ⊙ (a + Φᵀ M s), u = Φ a + w_s·s. The potential carries
    the heat of past sources, as in eq. 19 and the authors' released code; u(x, 0) = p̂ (eq. 5).
-   With ``HedacConfig.cooling`` β > 0 the decay is e^{−(λδt + β)}: u̇ = αΔu − βu + s, whose
-   steady state is eq. 4's screened field (eq. 4 is the case β = 1 per unit of time).
+   With ``HedacConfig.cooling`` β > 0 the decay is e^{−(λδt + β)}: per step u̇ = αh²Δu − βu + s,
+   whose steady state, δt Δu − βu + s = 0, has eq. 4's screened form (β is a rate per step, tuned;
+   eq. 4 written in these units would be β = 1 with α h² in place of α).
    Diffusing *after* injecting matters: the truncated projection of a sharp source rings
    (Gibbs) and spurious maxima trap the agent, its heat-kernel image does not; the raw source
    (weight ``source_weight``) restores the full resolution at the target points;
@@ -394,7 +395,7 @@ class HedacExplorer:
     def _update_decay(self) -> None:
         alpha = self.config.alpha_at(self.step_count)
         if alpha != self._decay_alpha:
-            # e^{−(λ δt + β)}: eq. 19's diffusion and the cooling β of u̇ = αΔu − βu + s (eq. 4's −u)
+            # e^{−(λ δt + β)}: eq. 19's diffusion and the cooling β of u̇ = αh²Δu − βu + s per step (eq. 4's −u)
             self._decay = np.exp(-(self._evals * (alpha * self.spacing**2) + self.config.cooling))
             self._decay_alpha = alpha
 

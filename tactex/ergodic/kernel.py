@@ -595,9 +595,16 @@ def available() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
-def loaded() -> bool:
-    """Whether this process already holds the compiled step (no compile or cache load is pending)."""
-    return _compiled is not None
+def compile_pending() -> bool:
+    """Whether the next explorer will make (or load from numba's cache) the compiled step: numba is
+    installed and enabled, nothing failed, and this process holds no machine code for it yet."""
+    if _failure is not None or not available():
+        return False
+    if _compiled is not None:
+        return not _compiled.signatures
+    from numba import config
+
+    return not config.DISABLE_JIT
 
 
 def compiled_walk_step():

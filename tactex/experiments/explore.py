@@ -221,22 +221,25 @@ def _start_position(cloud: SurfaceCloud, cfg: ExploreConfig, source_info: dict[s
 
 
 #: A run ends stalled when its agent stayed within STALL_RADIUS voxels of where it ended over its
-#: last STALL_MIN_STEPS steps (or tenth of the run, if longer) while more than STALL_RESIDUAL of
-#: coverage residual was left (it may still dither in place).
+#: last STALL_MIN_STEPS steps (or a tenth of the run, or the steps a slow agent needs to cross that
+#: circle, whichever is longest) while more than STALL_RESIDUAL of coverage residual was left (it may
+#: still dither in place).
 STALL_MIN_STEPS = 50
 STALL_RADIUS = 2.0
 STALL_RESIDUAL = 0.01
 
 
-def _stalled_from(trajectory: np.ndarray, spacing: float) -> int | None:
-    """The step (0-based) from which the agent stayed within STALL_RADIUS voxels of its final
-    position, when that tail is at least STALL_MIN_STEPS steps (and a tenth of the run) long; else None."""
+def _stalled_from(trajectory: np.ndarray, spacing: float, max_velocity: float = 1.0) -> int | None:
+    """The 0-based index of the first step from which the agent stayed within STALL_RADIUS voxels of
+    its final position, when that tail is long enough (see STALL_MIN_STEPS; ``max_velocity`` in
+    voxels/step); else None."""
     n = len(trajectory)
     if n == 0:
         return None
     away = np.flatnonzero(np.linalg.norm(trajectory - trajectory[-1], axis=1) > STALL_RADIUS * spacing)
     start = int(away[-1]) + 1 if away.size else 0
-    return start if n - start >= max(STALL_MIN_STEPS, n // 10) else None
+    crossing = math.ceil(2.0 * STALL_RADIUS / max_velocity)
+    return start if n - start >= max(STALL_MIN_STEPS, n // 10, crossing) else None
 
 
 def _hedac_config(cfg: ExploreConfig, base, radius: float):
@@ -326,12 +329,13 @@ def run_explore(
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
         raise ExplorationError("the exploration produced NaN/inf values; please report this with the cloud and seed")
 
-    stalled_from = _stalled_from(trajectory, explorer.spacing)
-    if stalled_from is not None and residual[-1] > STALL_RESIDUAL:
+    stalled = _stalled_from(trajectory, explorer.spacing, hcfg.max_velocity)
+    stalled_from = None if stalled is None or residual[-1] <= STALL_RESIDUAL else stalled + 1  # 1-based, as "step k/n"
+    if stalled_from is not None:
         say(
-            f"warning: the agent stopped moving at step {stalled_from + 1} with coverage residual {residual[-1]:.3f}: "
-            "the potential rises only across gaps it may not leave the cloud to cross (see --max-off-cloud, "
-            "--max-bridge), typical of a sparse cloud, e.g. contact tracks rather than a surface; a denser cloud helps"
+            f"warning: the agent stayed in place from step {stalled_from} on, coverage residual {residual[-1]:.3f}: "
+            "the potential may rise only across gaps it may not leave the cloud to cross (see --max-off-cloud, "
+            "--max-bridge), as on a sparse cloud, e.g. contact tracks rather than a surface"
         )
     coverage = explorer.coverage
     potential = explorer.potential

@@ -47,7 +47,7 @@ def validate_points(points: object, name: str = "points", min_points: int = 1) -
         if gap > MAX_GAP_M:
             raise UnitsError(
                 f"{name} spans {extent:.3g} m along one axis with points {gap:.3g} m apart; tactex works in metres "
-                "and such a surface is probably in millimetres. Rescale it (e.g. points * 1e-3) before use."
+                "and such a surface is probably in millimetres: convert it to metres (× 1e-3) before use."
             )
     return np.ascontiguousarray(arr)
 
@@ -157,10 +157,15 @@ class SurfaceCloud:
             # them, the Laplacian refuses them with that advice); h comes from the distinct points.
             distinct = np.unique(pts, axis=0)
             spacing = mean_spacing(distinct) if distinct.shape[0] >= 2 else 0.0
+        if spacing > MAX_SPACING_M and float(self.spacing) > 0.0:
+            raise UnitsError(
+                f"spacing = {spacing:.3g} m was given; tactex works in metres and a surface sampled that coarsely "
+                f"(over {MAX_SPACING_M:g} m) is probably described in millimetres. Give the spacing in metres."
+            )
         if spacing > MAX_SPACING_M:
             raise UnitsError(
                 f"the points lie {spacing:.3g} m apart on average; tactex works in metres and a surface sampled "
-                f"that coarsely (over {MAX_SPACING_M:g} m) is probably in millimetres. Rescale it (e.g. points * 1e-3)."
+                f"that coarsely (over {MAX_SPACING_M:g} m) is probably in millimetres: convert it to metres (× 1e-3)."
             )
         for name, value in (("points", pts), ("normals", normals), ("colors", colors), ("target", target)):
             if value is not None:

@@ -160,7 +160,10 @@ def load_pcd(path: str | Path) -> SurfaceCloud:
     colors = None
     if "rgb" in fields or "rgba" in fields:
         ascii_file = str(getattr(pc.metadata.data, "value", pc.metadata.data)).lower() == "ascii"
-        packed = _packed_rgb(pc.pc_data["rgb" if "rgb" in fields else "rgba"], ascii_file)
+        try:
+            packed = _packed_rgb(pc.pc_data["rgb" if "rgb" in fields else "rgba"], ascii_file)
+        except CloudError as exc:
+            raise CloudError(f"'{p}': {exc}") from exc
         rgb = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
         colors = rgb[finite].astype(np.float64) / 255.0
     elif {"r", "g", "b"} <= set(fields):
@@ -173,13 +176,20 @@ def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
     float one holds its bits in binary files. In ascii files PCL's writer prints the integer itself
     ("despite the float type, store the rgb field as uint32"), while writers that bit-cast the
     float (Open3D's, struct.pack) print tiny numbers: 0x00RRGGBB read as a float32 is below 2⁻¹²⁵
-    (its exponent byte is 0), which a printed integer never is. Those are decoded as bits."""
+    (its top byte is 0), which a printed integer never is. Those are decoded as bits; fractions
+    between them and 1 are neither convention and are refused."""
     field = np.asarray(field)
     if np.issubdtype(field.dtype, np.integer):
         return field.astype(np.uint32)
     if ascii_file:
         values = np.nan_to_num(field.astype(np.float64))
-        if values.size and np.abs(values).max() < 1.0 and values.any():
+        frac = values != np.round(values)
+        if frac.any():
+            if np.abs(values).max() >= 2.0**-125:
+                raise CloudError(
+                    f"its rgb field holds fractions such as {values[frac][0]:.6g}: neither PCL's packed integer nor "
+                    "a bit-cast float (values below 1.2e-38); write the colours as packed integers or r, g, b fields"
+                )
             return values.astype(np.float32).view(np.uint32)
         return np.clip(np.round(values), 0.0, 2.0**32 - 1).astype(np.uint32)
     return field.astype(np.float32).view(np.uint32)
@@ -235,8 +245,8 @@ def load_cloud(path: str | Path) -> SurfaceCloud:
     try:
         return reader(p)
     except UnitsError as exc:
-        # the cloud's own message cannot name the file, and a CLI user rescales the file, not an array
-        raise UnitsError(f"'{p}': {exc} At the command line: convert the file to metres first.") from exc
+        # the cloud's own message cannot name the file
+        raise UnitsError(f"'{p}': {exc}") from exc
 
 
 def save_cloud(cloud: SurfaceCloud, path: str | Path) -> Path:

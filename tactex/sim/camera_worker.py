@@ -119,7 +119,7 @@ class CameraWorker:
         if not hasattr(os, "memfd_create"):
             raise MissingDependencyError(
                 "os.memfd_create", "", "The camera worker process",
-                fix="It needs Linux; elsewhere set camera_worker=False",
+                fix="It needs Linux; elsewhere use SceneConfig(camera_worker=False)",
             )
         caster = camera.caster
         obj = caster.obj

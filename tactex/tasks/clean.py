@@ -301,8 +301,9 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
             # sliding 93.5 % and 18.2 N (the plate: 92.9 % and 13.6 N against 93.0 % and 13.4 N).
             edge_braking=False,
         )
-        if hcfg.compiled and kernel.available() and not kernel.loaded():
-            bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s)")
+        if hcfg.compiled and kernel.compile_pending():
+            bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s; "
+                     "later runs load it)")
         source = HedacExplorer(cloud, basis, hcfg)
     targets = np.flatnonzero(cloud.target > 0)
     x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
