@@ -48,17 +48,16 @@ def _cli_words(message: str, args: argparse.Namespace) -> str:
     """``message`` with the config fields this command exposes as options named as those options."""
     options = vars(args)
 
-    def field(m: re.Match) -> str:
+    def option(m: re.Match) -> str:  # group 1 the field, group 2 (field=value only) its value
         name = m.group(1)
-        return f"--{name.replace('_', '-')}" if name in options else m.group(0)
-
-    def field_value(m: re.Match) -> str:
-        name = m.group(1)
-        return f"--{name.replace('_', '-')} {m.group(2)}" if name in options else m.group(0)
+        if name not in options:
+            return m.group(0)
+        value = m.group(2) if m.re is _FIELD_VALUE else None
+        return f"--{name.replace('_', '-')}" + ("" if value is None else f" {value}")
 
     parts = _QUOTED.split(message)  # odd indices are the quoted spans
     return "".join(
-        part if i % 2 else _FIELD_VALUE.sub(field_value, _CONFIG_FIELD.sub(field, part)) for i, part in enumerate(parts)
+        part if i % 2 else _FIELD_VALUE.sub(option, _CONFIG_FIELD.sub(option, part)) for i, part in enumerate(parts)
     )
 
 

@@ -270,7 +270,7 @@ def run_explore(
         progress: called with one-line progress messages (e.g. print to stderr).
     """
     from tactex.ergodic import HedacExplorer
-    from tactex.ergodic.kernel import available as kernel_available
+    from tactex.ergodic.kernel import compile_pending
     from tactex.spectral import build_basis
 
     cfg = config if config is not None else ExploreConfig()
@@ -288,7 +288,7 @@ def run_explore(
     basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache)
     basis_s = time.perf_counter() - t0
     say(f"basis: {basis_s:.3f} s ({basis.n_components} connected part(s))")
-    if hcfg.compiled and kernel_available():
+    if hcfg.compiled and compile_pending():
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg)

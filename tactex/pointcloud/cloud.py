@@ -152,17 +152,19 @@ class SurfaceCloud:
             raise CloudError(f"spacing must be a number of metres ≥ 0 (0: compute it), got {self.spacing!r}") from exc
         if not np.isfinite(spacing) or spacing < 0.0:
             raise CloudError(f"spacing must be a finite number of metres ≥ 0 (0: compute it), got {self.spacing}")
-        if spacing == 0.0 and n >= 2:
+        given = spacing > 0.0
+        if not given and n >= 2:
             # A raw scan may repeat points: they stay (a voxel filter averages them, deduplicated() drops
             # them, the Laplacian refuses them with that advice); h comes from the distinct points.
             distinct = np.unique(pts, axis=0)
             spacing = mean_spacing(distinct) if distinct.shape[0] >= 2 else 0.0
-        if spacing > MAX_SPACING_M and float(self.spacing) > 0.0:
-            raise UnitsError(
-                f"spacing = {spacing:.3g} m was given; tactex works in metres and a surface sampled that coarsely "
-                f"(over {MAX_SPACING_M:g} m) is probably described in millimetres. Give the spacing in metres."
-            )
         if spacing > MAX_SPACING_M:
+            if given:
+                raise UnitsError(
+                    f"spacing = {spacing:.3g} m was given; tactex works in metres and a surface sampled that "
+                    f"coarsely (over {MAX_SPACING_M:g} m) is probably described in millimetres. Give the spacing "
+                    "in metres."
+                )
             raise UnitsError(
                 f"the points lie {spacing:.3g} m apart on average; tactex works in metres and a surface sampled "
                 f"that coarsely (over {MAX_SPACING_M:g} m) is probably in millimetres: convert it to metres (× 1e-3)."
