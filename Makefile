@@ -1,30 +1,65 @@
-# tactex: `make demo` and `make test` each build .venv on a fresh machine, then run.
+# tactex: `make demo` and `make test` each build .venv from uv.lock on a fresh machine, then run.
+#
+# Set-up: pip puts the pinned uv (tools/uv-requirements.txt, hash-checked) into .tools/, and uv
+# builds .venv with exactly the versions in uv.lock (`uv sync --frozen`: it never re-resolves).
+# EXTRAS picks the optional extras; the venv holds exactly those (uv sync removes the others).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed-stamp
+UV := .tools/bin/uv
+EXTRAS ?= dev fast
 OUT ?= runs/demo
 
-.PHONY: demo test bench lint clean-venv
+empty :=
+space := $(empty) $(empty)
+STAMP := $(VENV)/.synced-$(subst $(space),-,$(strip $(EXTRAS)))
+# uv uses the Python we name and never downloads one; UV_PROJECT_ENVIRONMENT keeps it on .venv.
+UV_ENV := UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never
+SYNC := $(UV_ENV) $(UV) sync --frozen --python $(PYTHON) $(foreach e,$(EXTRAS),--extra $(e))
 
-$(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev,fast]'
+.PHONY: demo test bench lint lock lock-check test-latest test-franka test-distributed clean-venv
+
+$(UV): tools/uv-requirements.txt
+	$(PYTHON) -m pip install --quiet --disable-pip-version-check --require-hashes --upgrade \
+		--target .tools -r tools/uv-requirements.txt
+	touch $(UV)
+
+$(STAMP): $(UV) uv.lock pyproject.toml
+	rm -f $(VENV)/.synced-*
+	$(SYNC)
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/tactex demo --out $(OUT)
 
 test: $(STAMP)
-	$(VENV)/bin/ruff check tactex tests bench examples
+	$(VENV)/bin/ruff check tactex tests bench examples tools
 	$(PY) -m pytest -q
 
 bench: $(STAMP)
 	$(PY) bench/run.py --out bench/results.json
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check tactex tests bench examples
+	$(VENV)/bin/ruff check tactex tests bench examples tools
+
+# Re-resolve uv.lock deliberately (new releases within pyproject.toml's ranges), then run
+# `make test` and `make bench` and commit uv.lock with what changed.
+lock: $(UV)
+	$(UV_ENV) $(UV) lock --upgrade --python $(PYTHON)
+
+# Proves that .venv is exactly uv.lock: uv's own check, then the installed set against the lock.
+lock-check: $(STAMP)
+	$(UV_ENV) $(UV) lock --check --python $(PYTHON)
+	$(SYNC) --check
+
+# The newest releases that pyproject.toml's ranges admit, in a throw-away venv (not the lock):
+# a warning of what the next `make lock` brings. Never part of CI.
+test-latest: $(UV)
+	rm -rf .venv-latest
+	$(PYTHON) -m venv .venv-latest
+	VIRTUAL_ENV=.venv-latest $(UV) pip install --quiet --python .venv-latest/bin/python \
+		--resolution highest --refresh -e '.[dev,fast]'
+	.venv-latest/bin/python -m pytest -q -p no:cacheprovider
 
 clean-venv:
-	rm -rf $(VENV)
+	rm -rf $(VENV) .tools .venv-latest

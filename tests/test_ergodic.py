@@ -119,6 +119,8 @@ _unit = st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda t: 1e-3 < np.linalg.nor
 @settings(max_examples=200, deadline=None)
 @example(normal=(0.75, 0.0, 5.960464477539063e-08), direction=(1.0, 0.0, 0.0), v_old=(0.0, 0.0, 1.0), speed=1.0,
          v_max=7.8e-3, a_ratio=1.0, order=2)  # found by hypothesis: round-off on a near-degenerate normal
+@example(normal=(0.75, 1.0, 0.0), direction=(0.0, 0.0, 1.0), v_old=(0.75, 1.0, 0.0), speed=1.0, v_max=1e-4,
+         a_ratio=0.5, order=2)  # hypothesis 6.170: the old velocity along the new normal (round-off made full speed)
 @given(normal=_unit, direction=_unit, v_old=_unit, speed=st.floats(0, 1), v_max=st.floats(1e-4, 1e-2),
        a_ratio=st.floats(0.1, 5), order=st.sampled_from([1, 2]))
 def test_agent_limits_are_never_exceeded(normal, direction, v_old, speed, v_max, a_ratio, order):
@@ -157,6 +159,47 @@ def test_reachable_velocity_keeps_the_limits_and_reaches_what_it_can(wanted, w_s
     first.velocity = agent.velocity
     v1, limited1 = first.reachable_velocity(want)
     assert v1 is want and not limited1
+
+
+_vec = st.tuples(*[st.floats(-1e3, 1e3, allow_subnormal=False)] * 3)
+
+
+@settings(max_examples=500, deadline=None)
+@example(v=(0.75, 1.0, 0.0), n=(0.75, 1.0, 0.0), n_scale=1.0)  # v ∥ n
+@example(v=(-0.6, -0.8, 0.0), n=(0.6, 0.8, 0.0), n_scale=1.0 + 3e-16)  # v antiparallel, |n| off 1 by round-off
+@example(v=(0.0, 0.0, 0.0), n=(0.0, 0.0, 1.0), n_scale=1.0)  # v = 0
+@example(v=(1e-3, 2e-3, 1.0), n=(0.0, 0.0, 1.0), n_scale=1.0 - 2e-16)  # just outside the cone: full length
+@given(v=_vec, n=_unit, n_scale=st.floats(1 - 1e-12, 1 + 1e-12))
+def test_transport_is_tangent_and_never_longer(v, n, n_scale):
+    """For any v and a unit n (off by round-off): the transported velocity is tangent and no longer
+    than v; away from the normal cone it keeps v's length; numpy, float and compiled paths agree."""
+    from tactex.ergodic import kernel
+
+    v = np.array(v, dtype=float)
+    n = np.array(n) / np.linalg.norm(n) * n_scale
+    t = transport(v, n)
+    nv = np.linalg.norm(v)
+    assert np.all(np.isfinite(t))
+    assert abs(t @ n) <= 1e-12 * max(nv, 1e-300)
+    assert np.linalg.norm(t) <= nv * (1 + 1e-12)
+    sin_vn = np.linalg.norm(np.cross(v, n)) / max(nv, 1e-300)  # |n| ≈ 1
+    if sin_vn > 2 * kernel.TRANSPORT_CONE:
+        assert np.linalg.norm(t) == pytest.approx(nv, rel=1e-12)
+    if kernel.available() and kernel.compiled_walk_step() is not None:  # the helpers are now numba's
+        compiled = np.array(kernel.transported_floats(*v.tolist(), *n.tolist()))
+        np.testing.assert_allclose(compiled, t, rtol=1e-12, atol=1e-15 * nv)
+
+
+def test_transport_fades_continuously_inside_the_normal_cone():
+    """Inside the cone the length falls linearly with the angle to the normal (no jump to full speed)."""
+    from tactex.ergodic import kernel
+
+    n = np.array([0.0, 0.0, 1.0])
+    for s in (0.5, 0.1, 0.01, 1e-9):
+        sin_ = s * kernel.TRANSPORT_CONE
+        v = np.array([sin_, 0.0, np.sqrt(1 - sin_**2)])
+        assert np.linalg.norm(transport(v, n)) == pytest.approx(s, rel=1e-6)
+    assert np.array_equal(transport(np.array([0.0, 0.0, 2.0]), n), np.zeros(3))
 
 
 def test_transport_keeps_length_and_lands_in_the_plane(rng):

@@ -19,11 +19,11 @@ __all__ = ["Agent", "FirstOrderAgent", "SecondOrderAgent", "make_agent", "transp
 
 
 def transport(v: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """v carried to the plane ⊥ ``normal`` (unit), keeping its length."""
-    vt = v - (v @ normal) * normal
-    nt = float(np.sqrt(vt @ vt))
-    nv = float(np.sqrt(v @ v))
-    return vt * (nv / nt) if nt > 1e-300 else vt
+    """v [m/s] (3,) carried to the plane ⊥ ``normal``, keeping its length (see
+    :func:`tactex.ergodic.kernel.transported_floats`: a v along the normal fades instead)."""
+    v0, v1, v2 = (float(x) for x in v)
+    n0, n1, n2 = (float(x) for x in normal)
+    return np.array(transported_floats(v0, v1, v2, n0, n1, n2))
 
 
 class Agent(ABC):

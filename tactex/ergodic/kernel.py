@@ -144,15 +144,33 @@ def plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2, pivot_rtol):
     return True, c_u, c_v
 
 
+TRANSPORT_CONE = 1e-3
+"""Sine of the angle between a velocity and the new normal below which transport shrinks it."""
+
+
 def transported_floats(v0, v1, v2, n0, n1, n2):
-    """agents.transport on float triples: v carried to the plane ⊥ the unit normal n, length kept."""
-    vn = v0 * n0 + v1 * n1 + v2 * n2
+    """agents.transport on float triples: v carried to the plane ⊥ the normal n, its length kept.
+
+    n need not be exactly unit (round-off); a zero n leaves v as it is. Where v lies within
+    TRANSPORT_CONE (a sine) of n, its tangential remainder is mostly round-off and has no direction
+    of its own, so it is scaled up by at most 1 / TRANSPORT_CONE, not to full length: the result
+    is tangent, never longer than v, and continuous in v and n (it fades to 0 as v → ±n).
+    """
+    nn = n0 * n0 + n1 * n1 + n2 * n2
+    if not nn > 1e-300:
+        return v0, v1, v2
+    vn = (v0 * n0 + v1 * n1 + v2 * n2) / nn
     t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
-    nt2 = t0 * t0 + t1 * t1 + t2 * t2
-    if nt2 > 1e-300:
-        k = ((v0 * v0 + v1 * v1 + v2 * v2) / nt2) ** 0.5
-        t0, t1, t2 = t0 * k, t1 * k, t2 * k
-    return t0, t1, t2
+    tn = (t0 * n0 + t1 * n1 + t2 * n2) / nn  # a second pass removes the first one's round-off
+    t0, t1, t2 = t0 - tn * n0, t1 - tn * n1, t2 - tn * n2
+    tt = t0 * t0 + t1 * t1 + t2 * t2
+    vv = v0 * v0 + v1 * v1 + v2 * v2
+    if not (tt > 1e-300 and vv > 1e-300):
+        return 0.0 * t0, 0.0 * t1, 0.0 * t2
+    k = (vv / tt) ** 0.5
+    if k > 1.0 / TRANSPORT_CONE:
+        k = 1.0 / TRANSPORT_CONE
+    return t0 * k, t1 * k, t2 * k
 
 
 def braked_direction(e0, e1, e2, i0, i1, i2, v_out, a_dt):
