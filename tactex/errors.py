@@ -17,7 +17,9 @@ __all__ = [
     "InputError",
     "MissingDependencyError",
     "PerceptionError",
+    "RobotError",
     "SafetyFault",
+    "SensorFault",
     "SimulationError",
     "SpectralError",
     "TactexError",
@@ -67,6 +69,15 @@ class SimulationError(TactexError, RuntimeError):
 
 class ControllerFault(TactexError, RuntimeError):
     """A controller could not produce a valid torque (NaN state, invalid reference)."""
+
+
+class RobotError(TactexError, RuntimeError):
+    """The real robot (or its protocol twin) refused a command, raised a reflex, or the link to it
+    failed; the message names libfranka's error and what to check."""
+
+
+class SensorFault(TactexError, RuntimeError):
+    """A sensor or the vision process stopped delivering (no data within its timeout)."""
 
 
 class SafetyFault(ControllerFault):

@@ -1,31 +1,399 @@
-"""The real Franka through libfranka (``pylibfranka``) — not implemented yet.
+"""The real Franka through libfranka's official Python bindings (``pylibfranka``, the ``franka`` extra).
 
-The class exists so that code can name the real-robot backend and get a clear error: without the
-optional extra it raises :class:`~tactex.errors.MissingDependencyError` with the install command;
-with it, a :class:`~tactex.errors.TactexError` saying the 1 kHz torque loop is still to be written
-(the protocol it must implement is :class:`tactex.robots.backend.RobotBackend`).
+One tick of the 1 kHz loop is ``readOnce`` → :class:`~tactex.control.state.RobotState` → our
+controller and safety layer → ``writeOnce``, all in the calling thread. libfranka's budget for
+that iteration is about 0.5 ms; our share (:attr:`LoopTiming.compute_us`: from ``readOnce``
+returning to ``writeOnce``) must stay ≤ 0.3 ms, so nothing slow runs here: vision runs in its own
+process (:mod:`tactex.robots.vision_process`) and the F/T stream is polled, not read by a thread
+(pylibfranka holds the GIL while it waits for the robot, which starves every other thread of this
+process).
+
+What comes from the robot: joint state, the TCP pose ``O_T_EE`` (our TCP, set with ``set_EE``
+from the tool), the Jacobian, mass matrix, Coriolis and gravity from libfranka's own ``Model``
+(not ours), the measured torques ``tau_J``, ``control_command_success_rate``. The commanded
+torque excludes gravity (the firmware adds it). The contact wrench comes from a
+:class:`~tactex.robots.wrench.WrenchSource`: the arm's estimate ``K_F_ext_hat_K`` or a Net F/T.
+
+Inverse kinematics (the tasks' transit moves) runs on tactex's MuJoCo model of the same arm and
+tool (the Panda's and FR3's kinematics are the same); the torque loop never uses it.
+
+Failure handling: a libfranka exception (a reflex, ``communication_constraints_violation``, a lost
+link) becomes :class:`~tactex.errors.RobotError` naming libfranka's message, after torque control
+has ended; with ``auto_recovery`` the backend calls ``automatic_error_recovery`` once and the
+error still ends the task. :meth:`close` ends torque control with ``motion_finished`` (idempotent;
+also run by Ctrl-C through the tasks' ``finally``). ``dry_run`` never starts torque control: it
+reads the state at 1 kHz with ``read_once`` and drops the torques, so the arm stays braked/idle.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import ipaddress
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
 
-from tactex.errors import MissingDependencyError, TactexError
+import numpy as np
 
-__all__ = ["LibfrankaBackend"]
+from tactex.config import param
+from tactex.control.state import RobotState
+from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
+from tactex.perception.frame import CameraFrame
+from tactex.robots.netft import NetFTClient, parse_netft_address
+from tactex.robots.wrench import FrankaWrenchSource, NetFTWrenchSource, WrenchSource
+from tactex.sim.tool import ToolGeometry, flange_R_tool
+
+__all__ = ["FrankaConfig", "LibfrankaBackend", "LoopTiming", "flange_T_tcp", "franka_state_to_robot_state"]
+
+_GRAVITY = [0.0, 0.0, -9.81]
+
+
+@dataclass(frozen=True)
+class FrankaConfig:
+    """How to reach and set up a real Franka (units in brackets)."""
+
+    robot_ip: str = param("", "the robot's FCI address (Desk → Settings → Network), e.g. 172.16.0.2")
+    ft: str = param("franka", "wrench source: 'franka' (the arm's estimated external wrench K_F_ext_hat_K) or "
+                              "'netft:HOST[:PORT]' (an ATI Net F/T at the wrist, RDT over UDP)")
+    ft_counts_per_force: float = param(1e6, "Net F/T calibration: counts per newton (cfgcpf) [1/N]")
+    ft_counts_per_torque: float = param(1e6, "Net F/T calibration: counts per newton-metre (cfgcpt) [1/(N·m)]")
+    ft_timeout_s: float = param(0.05, "a Net F/T stream silent this long counts as lost [s]")
+    dry_run: bool = param(False, "read the robot's state and run the whole pipeline, but never start torque "
+                                 "control: the arm stays braked (first tries)")
+    auto_recovery: bool = param(False, "after a libfranka reflex, call automatic_error_recovery before ending "
+                                       "(the run still stops)")
+    realtime: str = param("auto", "libfranka's real-time check: enforce (a PREEMPT_RT kernel is required), ignore, "
+                                  "or auto (ignore on a loopback address, i.e. tactex twin; enforce otherwise)")
+    collision_torque_n_m: float = param(
+        60.0, "libfranka's collision reflex: upper joint-torque threshold for joints 1–4 (5–7 get 2/5 of it) [N·m]")
+    collision_force_n: float = param(60.0, "libfranka's collision reflex: upper Cartesian force threshold [N]")
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.robot_ip, str) or not self.robot_ip.strip():
+            raise ConfigError("robot_ip: give the robot's FCI address, e.g. --robot-ip 172.16.0.2 "
+                              "(or 127.0.0.1 for tactex twin)")
+        if self.realtime not in ("auto", "enforce", "ignore"):
+            raise ConfigError(f"realtime must be auto, enforce or ignore, got {self.realtime!r}")
+        if not (self.ft == "franka" or self.ft.startswith("netft:")):
+            raise ConfigError(f"ft must be 'franka' or 'netft:HOST[:PORT]', got {self.ft!r}")
+        if self.ft.startswith("netft:"):
+            parse_netft_address(self.ft[len("netft:"):])
+        for name in ("ft_counts_per_force", "ft_counts_per_torque", "ft_timeout_s", "collision_torque_n_m",
+                     "collision_force_n"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+
+    @property
+    def ignore_realtime(self) -> bool:
+        if self.realtime != "auto":
+            return self.realtime == "ignore"
+        try:
+            return ipaddress.ip_address(self.robot_ip).is_loopback
+        except ValueError:
+            return self.robot_ip == "localhost"
+
+    def wrench_source(self, tool: ToolGeometry) -> WrenchSource:
+        if self.ft == "franka":
+            return FrankaWrenchSource()
+        host, port = parse_netft_address(self.ft[len("netft:"):])
+        client = NetFTClient(host, port, counts_per_force=self.ft_counts_per_force,
+                             counts_per_torque=self.ft_counts_per_torque, timeout_s=self.ft_timeout_s)
+        mass, com = tool.calibrated_mass_properties()
+        return NetFTWrenchSource(client, mass, com, tool.tcp_offset_m)
+
+
+def flange_T_tcp(tool: ToolGeometry) -> np.ndarray:
+    """Pose (4, 4) of our TCP in the flange frame: the tool frame (flange turned −45° about z) moved
+    ``tcp_offset_m`` along its z axis (the uncompressed pad tip)."""
+    pose = np.eye(4)
+    pose[:3, :3] = flange_R_tool()
+    pose[2, 3] = tool.tcp_offset_m
+    return pose
+
+
+def _col_major(a: Any, rows: int, cols: int) -> np.ndarray:
+    return np.asarray(a, dtype=float).reshape(cols, rows).T
+
+
+def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench_tool: np.ndarray) -> RobotState:
+    """libfranka's state and model → our :class:`RobotState` (world = the robot's base frame O).
+
+    libfranka's arrays are column-major; its Coriolis term is C(q, dq)·dq. The gravity vector
+    uses ``O_ddP_O`` (filled by the firmware; a state without it, as franky-sim sends, gets −9.81 z).
+    """
+    pose = _col_major(state.O_T_EE, 4, 4)
+    jac = _col_major(model.zero_jacobian(state), 6, 7)
+    mass = _col_major(model.mass(state), 7, 7)
+    coriolis = np.asarray(model.coriolis(state), dtype=float)
+    if not any(state.O_ddP_O):
+        state.O_ddP_O = _GRAVITY
+    gravity = np.asarray(model.gravity(state), dtype=float)
+    q = np.asarray(state.q, dtype=float)
+    dq = np.asarray(state.dq, dtype=float)
+    return RobotState(
+        t=t, q=q, dq=dq, tau_measured=np.asarray(state.tau_J, dtype=float), ee_position=pose[:3, 3].copy(),
+        ee_rotation=pose[:3, :3].copy(), ee_twist=jac @ dq, jacobian=jac, mass_matrix=mass, coriolis=coriolis,
+        gravity=gravity, wrench_tool=np.asarray(wrench_tool, dtype=float),
+    )
+
+
+class LoopTiming:
+    """Per-tick timing of the 1 kHz loop, kept in preallocated arrays (grown in blocks).
+
+    ``compute_us``: readOnce returned → writeOnce called (our controller, safety layer and task);
+    ``period_us``: between successive readOnce returns (wall clock); ``lost``: cycles libfranka
+    reports missing (its Duration since the last read, in ms, minus one); ``success``: libfranka's
+    ``control_command_success_rate``.
+    """
+
+    def __init__(self, block: int = 65536) -> None:
+        self._block = block
+        self.n = 0
+        self.compute_us = np.zeros(block)
+        self.period_us = np.zeros(block)
+        self.lost = np.zeros(block, dtype=np.int64)
+        self.success = np.ones(block)
+
+    def add(self, compute_us: float, period_us: float, lost: int, success: float) -> None:
+        if self.n == self.compute_us.size:
+            for name in ("compute_us", "period_us", "lost", "success"):
+                a = getattr(self, name)
+                setattr(self, name, np.concatenate([a, np.zeros(self._block, dtype=a.dtype)]))
+        i = self.n
+        self.compute_us[i] = compute_us
+        self.period_us[i] = period_us
+        self.lost[i] = lost
+        self.success[i] = success
+        self.n = i + 1
+
+    def metrics(self) -> dict[str, Any]:
+        """``loop_compute_us`` and ``loop_period_us`` (p50/p99/p99.9/max), ``lost_cycles``,
+        ``min_command_success_rate``, ``loop_ticks`` for metrics.json."""
+        n = self.n
+
+        def pct(a: np.ndarray) -> dict[str, float]:
+            if a.size == 0:
+                return {k: float("nan") for k in ("p50", "p99", "p99.9", "max")}
+            p = np.percentile(a, [50, 99, 99.9])
+            return {"p50": float(p[0]), "p99": float(p[1]), "p99.9": float(p[2]), "max": float(a.max())}
+
+        return {
+            "loop_ticks": n,
+            "loop_compute_us": pct(self.compute_us[:n]),
+            "loop_period_us": pct(self.period_us[1:n]),
+            "lost_cycles": int(self.lost[:n].sum()),
+            "min_command_success_rate": float(self.success[:n].min()) if n else float("nan"),
+        }
 
 
 class LibfrankaBackend:
-    """Placeholder for the libfranka backend (see the module docstring).
+    """:class:`~tactex.robots.backend.RobotBackend` on a real Franka (or ``tactex twin``).
 
     Args:
-        robot_ip: the robot's FCI address, e.g. "172.16.0.2".
+        config: address, wrench source, dry run, recovery, reflex thresholds.
+        tool: the tool on the flange (TCP, mass for ``set_load``, F/T calibration).
+        ik_scene: a :class:`~tactex.sim.scene.SceneConfig` whose arm and tool serve :meth:`solve_ik`
+            (default: the default scene with ``tool``'s geometry).
+
+    Raises:
+        MissingDependencyError: pylibfranka is not installed.
+        RobotError: the robot cannot be reached or refuses the set-up.
     """
 
-    def __init__(self, robot_ip: str) -> None:
+    n_joints = 7
+    dt = 0.001
+
+    def __init__(self, config: FrankaConfig, tool: ToolGeometry | None = None, ik_scene=None) -> None:
         if importlib.util.find_spec("pylibfranka") is None:
-            raise MissingDependencyError("pylibfranka", "franka", "the real-robot backend")
-        raise TactexError(
-            f"the libfranka backend (robot {robot_ip!r}) is not implemented yet; use "
-            "tactex.robots.MujocoBackend, or implement tactex.robots.backend.RobotBackend on pylibfranka"
-        )
+            raise MissingDependencyError("pylibfranka", "franka", "The real-robot backend (--robot franka)")
+        import pylibfranka
+
+        self._plf = pylibfranka
+        self.config = config
+        self.tool = tool or ToolGeometry()
+        self._ik_scene_config = ik_scene
+        self._ik = None
+        self.timing = LoopTiming()
+        self.events: list[str] = []
+        self._control = None
+        self._pending_write = False
+        self._tau = np.zeros(7)
+        self._closed = False
+        self._t = 0.0
+        self._t_read = 0.0
+        self._last_read_wall: float | None = None
+        self.wrench = config.wrench_source(self.tool)
+        rt = pylibfranka.RealtimeConfig.kIgnore if config.ignore_realtime else pylibfranka.RealtimeConfig.kEnforce
+        try:
+            self.robot = pylibfranka.Robot(config.robot_ip, rt)
+        except pylibfranka.RealtimeException as exc:
+            raise RobotError(
+                f"libfranka refuses to run without a real-time kernel ({exc}): install a PREEMPT_RT kernel "
+                "(docs/real_robot.md), or pass --realtime ignore for a test on a normal kernel") from exc
+        except Exception as exc:
+            raise RobotError(
+                f"cannot connect to the Franka at {config.robot_ip} ({exc}): check the FCI address, that FCI is "
+                "activated in Desk, the brakes are open and no other program holds the robot") from exc
+        try:
+            self._configure()
+            self.model = self.robot.load_model()
+            self.robot.read_once()  # the first read after idling can be stale
+            self._franka_state = self.robot.read_once()
+            self.wrench.start(world_R_tool=_col_major(self._franka_state.O_T_EE, 4, 4)[:3, :3])
+            self._state = self._convert(self._franka_state)
+        except Exception as exc:
+            self.wrench.close()
+            if isinstance(exc, RobotError):
+                raise
+            raise RobotError(f"setting up the Franka at {config.robot_ip} failed: {exc}") from exc
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def _configure(self) -> None:
+        cfg, tool = self.config, self.tool
+        tq = cfg.collision_torque_n_m
+        torque = [tq] * 4 + [0.4 * tq] * 3
+        force = [cfg.collision_force_n] * 3 + [0.4 * cfg.collision_force_n] * 3
+        self.robot.set_collision_behavior(torque, torque, force, force)
+        state = self.robot.read_once()
+        f_T_ne = _col_major(state.F_T_NE, 4, 4)
+        ne_T_ee = np.linalg.inv(f_T_ne) @ flange_T_tcp(tool)
+        self.robot.set_EE(ne_T_ee.T.reshape(16).tolist())
+        mass, com_sensor = tool.calibrated_mass_properties()
+        com_flange = flange_R_tool() @ com_sensor
+        inertia = (np.eye(3) * 1e-3).T.reshape(9).tolist()  # a small tool: a point mass is what matters
+        self.robot.set_load(float(mass), com_flange.tolist(), inertia)
+
+    def _kinematics(self):
+        if self._ik is None:
+            from tactex.robots.mujoco_backend import MujocoBackend
+            from tactex.sim.scene import SceneConfig
+
+            cfg = self._ik_scene_config or SceneConfig(
+                tool_stiffness_n_per_m=self.tool.stiffness_n_per_m, tool_pad_shape=self.tool.pad_shape,
+                tool_pad_radius_m=self.tool.pad_radius_m)
+            self._ik = MujocoBackend(cfg)
+        return self._ik
+
+    # -- RobotBackend ---------------------------------------------------------------------------
+    def _convert(self, franka_state) -> RobotState:
+        rot = _col_major(franka_state.O_T_EE, 4, 4)[:3, :3]
+        return franka_state_to_robot_state(franka_state, self.model, self._t,
+                                           self.wrench.wrench_tool(franka_state, rot))
+
+    def reset(self, seed: int | None = None) -> RobotState:
+        """The current state (a real robot cannot be reset; ``seed`` is ignored)."""
+        return self.state()
+
+    def state(self) -> RobotState:
+        return self._state
+
+    def apply_torque(self, tau: np.ndarray) -> None:
+        tau = np.asarray(tau, dtype=float)
+        if tau.shape != (7,):
+            raise InputError(f"apply_torque takes 7 joint torques [N·m], got shape {tau.shape}")
+        if not np.isfinite(tau).all():  # the safety layer never lets one through; a last guard
+            tau = np.zeros(7)
+        self._tau = tau
+
+    def step(self) -> RobotState:
+        """Send the torque set by :meth:`apply_torque` and wait for the next state (1 ms)."""
+        plf = self._plf
+        if self._closed:
+            raise RobotError("the Franka backend is closed")
+        t_call = time.perf_counter()
+        compute_us = (t_call - self._t_read) * 1e6 if self._last_read_wall is not None else float("nan")
+        try:
+            if self.config.dry_run:
+                franka_state, period_ms = self._read_dry()
+            else:
+                if self._control is None:
+                    self._control = self.robot.start_torque_control()
+                    self._pending_write = False
+                    compute_us = float("nan")  # the first state of a control: nothing to answer yet
+                if self._pending_write:
+                    self._control.writeOnce(plf.Torques(self._tau.tolist()))
+                franka_state, duration = self._control.readOnce()
+                self._pending_write = True
+                period_ms = duration.to_sec() * 1e3
+        except Exception as exc:
+            raise self._fault(exc) from exc
+        now = time.perf_counter()
+        period_us = (now - self._last_read_wall) * 1e6 if self._last_read_wall is not None else float("nan")
+        self._last_read_wall = now
+        lost = max(0, round(period_ms) - 1)
+        if not math.isnan(compute_us):
+            self.timing.add(compute_us, period_us, lost, float(franka_state.control_command_success_rate))
+        self._t += max(period_ms, 1.0) * 1e-3
+        self._t_read = now
+        self._franka_state = franka_state
+        self._state = self._convert(franka_state)
+        return self._state
+
+    def _read_dry(self) -> tuple[Any, float]:
+        """One state at the robot's rate without torque control (read_once waits for the next packet)."""
+        before = time.perf_counter()
+        state = self.robot.read_once()
+        return state, max(1.0, (time.perf_counter() - before) * 1e3)
+
+    def _fault(self, exc: Exception) -> RobotError:
+        """End torque control after a libfranka exception and name it."""
+        plf = self._plf
+        kind = type(exc).__name__
+        detail = str(exc)
+        self.events.append(f"{kind}: {detail}")
+        self._control = None  # libfranka has ended the motion; the object must not be used again
+        self._pending_write = False
+        recovered = ""
+        if self.config.auto_recovery and isinstance(exc, plf.ControlException):
+            try:
+                self.robot.automatic_error_recovery()
+                recovered = " (automatic_error_recovery done: the robot is ready again)"
+            except Exception as rec_exc:  # reported; the original error stands
+                recovered = f" (automatic_error_recovery failed: {rec_exc})"
+        if isinstance(exc, plf.NetworkException):
+            hint = "the link to the robot was lost: check the cable, the FCI address and that nothing else loads the PC"
+        elif "communication_constraints_violation" in detail:
+            hint = ("commands arrived late: use a PREEMPT_RT kernel, the performance CPU governor and a direct "
+                    "cable (docs/real_robot.md)")
+        else:
+            hint = "a libfranka reflex or refusal: see Desk for the error; clear it with the pilot buttons or " \
+                   "--auto-recovery"
+        return RobotError(f"libfranka {kind}: {detail}{recovered}; {hint}")
+
+    def camera_frame(self) -> CameraFrame | None:
+        """None: on the real robot the wrist camera runs in the vision process."""
+        return None
+
+    def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
+                 q_init: np.ndarray | None = None, q_posture: np.ndarray | None = None) -> np.ndarray:
+        """Joint positions (7,) [rad] for a TCP pose, on tactex's kinematic model of the arm and tool
+        (the robot does not move); ``q_init`` defaults to the robot's current q."""
+        q0 = self._state.q if q_init is None else q_init
+        return self._kinematics().solve_ik(position_world, rotation_world, q0, q_posture)
+
+    def loop_metrics(self) -> dict[str, Any]:
+        """The loop's timing figures and the wrench source's counters (metrics.json)."""
+        return {**self.timing.metrics(), **self.wrench.stats(), "robot_errors": list(self.events),
+                "dry_run": self.config.dry_run, "wrench_source": self.wrench.name}
+
+    def close(self) -> None:
+        """End torque control (``motion_finished`` with zero torque) and close the streams; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._control is not None and not self.config.dry_run:
+                cmd = self._plf.Torques([0.0] * 7)
+                cmd.motion_finished = True
+                if not self._pending_write:
+                    self._control.readOnce()
+                self._control.writeOnce(cmd)
+        except Exception as exc:  # the link is gone: libfranka stopped the motion itself
+            self.events.append(f"close: {type(exc).__name__}: {exc}")
+        finally:
+            self._control = None
+            self.wrench.close()
+            if self._ik is not None:
+                self._ik.close()

@@ -1,0 +1,100 @@
+"""Where the contact wrench comes from on a real robot: one small interface, two sources.
+
+- :class:`FrankaWrenchSource`: the arm's own estimate ``K_F_ext_hat_K`` (from the joint torque
+  sensors and the model; VA-UFIC's setting). It is the wrench the *environment* exerts on the
+  robot, in the end-effector frame K (set with ``set_EE``: our tool frame at the TCP), so the
+  wrench the tool exerts on the environment is its negative.
+- :class:`NetFTWrenchSource`: an ATI Net F/T at the wrist (TEC's setting), its reading in the
+  sensor frame calibrated for the tool by :class:`~tactex.sim.ft_sensor.FTSensorModel` (the tool's
+  weight removed, moved to the TCP). A stream that stops gives NaN: the safety layer bridges short
+  dropouts and backs off when the sensor is lost.
+
+Every source returns the wrench the tool exerts on the environment at the TCP in the tool frame
+[f (N), m (N·m)], as :attr:`tactex.RobotState.wrench_tool`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from tactex.robots.netft import NetFTClient
+from tactex.sim.ft_sensor import FTSensorModel
+
+__all__ = ["FrankaWrenchSource", "NetFTWrenchSource", "WrenchSource"]
+
+
+class WrenchSource(ABC):
+    """Base class of the wrench sources (see the module docstring)."""
+
+    name = "wrench"
+
+    def start(self, world_R_tool: np.ndarray | None = None) -> None:  # noqa: B027 (optional hook)
+        """Open the stream (called once, out of contact, before torque control starts)."""
+
+    @abstractmethod
+    def wrench_tool(self, franka_state, world_R_tool: np.ndarray) -> np.ndarray:
+        """Contact wrench (6,) [N, N·m] at the TCP in the tool frame for this tick; NaN when lost."""
+
+    def stats(self) -> dict:
+        """Counters for metrics.json."""
+        return {}
+
+    def close(self) -> None:  # noqa: B027 (optional hook)
+        """Stop the stream (idempotent)."""
+
+
+class FrankaWrenchSource(WrenchSource):
+    """Franka's estimated external wrench ``K_F_ext_hat_K`` (see the module docstring)."""
+
+    name = "franka"
+
+    def wrench_tool(self, franka_state, world_R_tool: np.ndarray) -> np.ndarray:
+        return -np.asarray(franka_state.K_F_ext_hat_K, dtype=float)
+
+
+class NetFTWrenchSource(WrenchSource):
+    """A Net F/T at the wrist whose axes are the tool's (as the sim's sensor: the tool frame is the
+    flange turned −45° about z), the TCP ``tcp_offset_m`` along its z axis.
+
+    Args:
+        client: the stream (not started).
+        tool_mass_kg, tool_com_m: the tool below the sensor (mass [kg], centre of mass in the sensor
+            frame [m]) whose weight is removed; the client's tare removes the bias at the start pose,
+            so the weight is added back for that pose (``start_rotation``).
+        tcp_offset_m: TCP distance along the sensor z axis [m].
+    """
+
+    name = "netft"
+
+    def __init__(self, client: NetFTClient, tool_mass_kg: float, tool_com_m, tcp_offset_m: float) -> None:
+        self.client = client
+        self.model = FTSensorModel(tool_mass_kg, tool_com_m, tcp_offset_m)
+        self._tare_weight = np.zeros(6)
+        self.lost_ticks = 0
+
+    def start(self, world_R_tool: np.ndarray | None = None) -> None:
+        """Start the stream and tare (out of contact). The tare removes the sensor's bias and the
+        tool's weight at the start pose; given that pose's ``world_R_tool``, the weight is put back
+        so that the weight compensation holds at every other orientation."""
+        self.client.start()
+        if world_R_tool is not None:
+            # with no contact the sensor reads minus the tool's weight w = m·Rᵀg and its moment c × w
+            w = self.model.mass * (np.asarray(world_R_tool, dtype=float).T @ self.model.gravity)
+            self._tare_weight = np.concatenate([-w, -np.cross(self.model.com, w)])
+
+    def wrench_tool(self, franka_state, world_R_tool: np.ndarray) -> np.ndarray:
+        raw, _age = self.client.latest()
+        if not np.isfinite(raw[0]):
+            self.lost_ticks += 1
+            return raw
+        raw = raw + self._tare_weight
+        return self.model.measure(raw[:3], raw[3:], world_R_tool)
+
+    def stats(self) -> dict:
+        return {"ft_records": self.client.records, "ft_dropouts": self.client.dropouts,
+                "ft_status_errors": self.client.status_errors, "ft_lost_ticks": self.lost_ticks}
+
+    def close(self) -> None:
+        self.client.close()
