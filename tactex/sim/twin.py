@@ -1,0 +1,532 @@
+"""``tactex twin``: our scene inside franky-sim, a protocol-level stand-in for a real Franka.
+
+franky-sim (the ``franka`` extra) speaks libfranka's network protocol on ``HOST:1337`` over its
+own MuJoCo world. :func:`run_twin` adds our object (with its dirt), our table and our wrist
+assembly (F/T sensor, tool body, sponge on a slide joint: :func:`tactex.sim.tool.tool_xml`) to that
+world in place of the Franka hand, and publishes the simulated wrist sensor over ATI's Net F/T
+protocol (:class:`tactex.robots.netft.NetFTServer`, UDP). A pylibfranka client, e.g.
+:class:`tactex.robots.libfranka_backend.LibfrankaBackend`, then drives it as it would drive the
+arm; the twin knows how much of the marking a cleaning run removed (:attr:`Twin.status`).
+
+What the twin reports beyond stock franky-sim:
+
+- ``K_F_ext_hat_K`` / ``O_F_ext_hat_K`` / ``tau_ext_hat_filtered`` (always zero in franky-sim)
+  from the MuJoCo contact forces on the robot, with libfranka's documented sign: the wrench the
+  robot exerts on the environment is positive (``robot_state.h``: "Forces applied by the robot to
+  the environment are positive, while forces applied by the environment on the robot are
+  negative"), about the K frame's origin (``O_T_EE · EE_T_K``). ``TwinConfig.ext_wrench_on_robot``
+  flips it, for clients written the other way round.
+- The Net F/T record is the raw reading of MuJoCo's force/torque sensors at the sensor site (the
+  wrench the flange exerts on the tool, sensor frame, the tool's weight included): the input of
+  :class:`tactex.sim.ft_sensor.FTSensorModel`; a client tares it out of contact.
+
+Masses: the Franka hand is removed (its finger joints stay, as massless stubs, because franky-sim
+drives them), and franky-sim's dynamics model gets no end effector (as a real arm configured with
+"no end effector" in Desk: ``F_T_NE`` = identity, ``m_ee`` ≈ 0), so the arm holds still under zero
+torque once the client declares the tool with ``set_load`` (the wrist assembly's mass, centre of
+mass as :meth:`ToolGeometry.calibrated_mass_properties`); without it the tool's weight sags it.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param
+from tactex.errors import ConfigError, MissingDependencyError, SimulationError, TactexError
+from tactex.robots.netft import NETFT_PORT
+from tactex.sim.scene import SceneConfig
+from tactex.sim.tool import ToolGeometry, tool_xml
+
+__all__ = ["FRANKA_PORTS", "Twin", "TwinConfig", "export_marking_cloud", "run_twin"]
+
+#: TCP ports franky-sim serves on: the robot (libfranka) and the gripper.
+FRANKA_PORTS = (1337, 1338)
+_PREFIX = "robot0_"  # franky-sim's name prefix of the first robot
+_STUB_MASS_KG = 1e-5  # each finger stub (franky-sim drives the finger joints; they must exist)
+_STUB_Z_M = 0.0584  # finger joint position below the flange [m]
+
+
+@dataclass(frozen=True)
+class TwinConfig:
+    """The twin: object, tool, dirt and network addresses (units in brackets)."""
+
+    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
+    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the robot base "
+                                                        "frame [m]")
+    object_rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "object orientation roll/pitch/yaw [deg]")
+    marking: str = param("", "dirt pattern (X, RLI, blobs, shapes, full); empty = the object's default")
+    tool_stiffness_n_per_m: float = param(10000.0, "sponge stiffness along the tool axis [N/m]")
+    tool_damping_ratio: float = param(0.7, "sponge damping, fraction of critical [-]")
+    tool_friction: float = param(0.4, "pad–surface Coulomb friction coefficient [-]")
+    tool_pad_radius_m: float = param(0.025, "sponge radius [m]")
+    tool_pad_shape: str = param("cylinder", "pad shape: cylinder (flat sponge) or sphere")
+    payload_mass_kg: float = param(0.0, "extra mass hung at the TCP, unknown to the F/T calibration [kg]")
+    dirt_resolution_m: float = param(0.002, "dirt grid cell size [m]")
+    preston_coefficient: float = param(5e-3, "Preston wear coefficient [1/(Pa·m)]")
+    dirt_force_threshold_n: float = param(2.0, "normal force below which no dirt is removed [N]")
+    contact_sample_ticks: int = param(5, "ticks between dirt updates from the pad's contacts [-]")
+    hostname: str = param("127.0.0.1", "address the robot (TCP 1337, gripper 1338) and the Net F/T serve on")
+    ft_port: int = param(NETFT_PORT, "UDP port of the Net F/T stream")
+    ft_rate_hz: float = param(1000.0, "Net F/T record rate [Hz]")
+    status_file: str = param("", "JSON file rewritten every status_period_s with the twin's status ('' = none)")
+    status_period_s: float = param(0.5, "period of the status file [s]")
+    realtime_factor: float = param(1.0, "simulated seconds per wall-clock second the twin aims at (it paces "
+                                        "itself with sleeps; 0 = as fast as it can)")
+    ext_wrench_on_robot: bool = param(False, "report K_F_ext_hat_K as the wrench ON the robot (the opposite of "
+                                             "libfranka's documented sign), for clients written that way")
+
+    def __post_init__(self) -> None:
+        self.scene_config()  # object, marking, tool and dirt checks
+        if not (isinstance(self.ft_port, int) and 0 <= self.ft_port < 65536):
+            raise ConfigError(f"ft_port must be a UDP port in 0..65535 (0: any free one), got {self.ft_port!r}")
+        if not self.hostname.strip():
+            raise ConfigError("hostname must be an address, e.g. 127.0.0.1")
+        for name, lo in (("ft_rate_hz", 1.0), ("status_period_s", 0.01)):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= lo):
+                raise ConfigError(f"{name} must be ≥ {lo:g}, got {v!r}")
+        if not (math.isfinite(self.realtime_factor) and 0.0 <= self.realtime_factor <= 100.0):
+            raise ConfigError(f"realtime_factor must be in [0, 100] (0: unpaced), got {self.realtime_factor!r}")
+
+    def scene_config(self) -> SceneConfig:
+        """The :class:`SceneConfig` of the same object, tool and dirt (validates them)."""
+        return SceneConfig(
+            object_name=self.object_name, object_position=self.object_position, object_rpy_deg=self.object_rpy_deg,
+            marking=self.marking, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
+            tool_damping_ratio=self.tool_damping_ratio, tool_friction=self.tool_friction,
+            tool_pad_radius_m=self.tool_pad_radius_m, tool_pad_shape=self.tool_pad_shape,
+            payload_mass_kg=self.payload_mass_kg, dirt_resolution_m=self.dirt_resolution_m,
+            preston_coefficient=self.preston_coefficient, dirt_force_threshold_n=self.dirt_force_threshold_n,
+            contact_sample_ticks=self.contact_sample_ticks,
+        )
+
+    @property
+    def tool(self) -> ToolGeometry:
+        return self.scene_config().tool
+
+
+def export_marking_cloud(config: TwinConfig, path: str | Path, spacing_m: float = 0.003) -> Path:
+    """Write the object's surface with its marking as a PLY in the robot base frame [m]: points at
+    ``spacing_m``, normals, red (255, 0, 0) and ``target`` = 1 on the marking, as the TEC clouds.
+    This is the cloud ``tactex clean --cloud FILE`` would get from a perfect scan of the twin."""
+    from tactex.pointcloud.io import save_ply
+    from tactex.pointcloud.markings import marked_cloud
+
+    scene = config.scene_config()
+    obj = scene.sim_object
+    pos, rot = scene.object_pose()
+    cloud = marked_cloud(obj.surface, scene.marking or obj.marking, spacing_m).transformed(rot, pos)
+    return save_ply(cloud, path)
+
+
+# -- scene assembly -------------------------------------------------------------------------------
+def _find_body(root: ET.Element, name: str) -> ET.Element:
+    for body in root.iter("body"):
+        if body.get("name") == name:
+            return body
+    raise SimulationError(f"franky-sim's scene has no body '{name}': this franky-sim version is not supported")
+
+
+def _replace_hand(root: ET.Element, scene: SceneConfig) -> None:
+    """Swap franky-sim's Franka hand for our wrist assembly on the flange (link7 + 0.107 m)."""
+    link7 = _find_body(root, f"{_PREFIX}fr3_link7")
+    hand = _find_body(root, f"{_PREFIX}hand")
+    link7.remove(hand)
+    flange = ET.SubElement(link7, "body", name="flange", pos=hand.get("pos", "0 0 0.107"))
+    ET.SubElement(flange, "site", name="flange", size="0.004")
+    flange.append(ET.fromstring(tool_xml(scene.tool, scene.intrinsics.fovy_deg, gravcomp=False)))
+    # franky-sim drives the two finger joints (and its gripper server reads them): keep them as
+    # massless stubs without geometry, turned like the hand
+    stub = ET.SubElement(flange, "body", name=f"{_PREFIX}hand", quat=hand.get("quat", "1 0 0 0"))
+    for finger in hand.findall("body"):
+        for child in list(finger):
+            if child.tag in ("geom", "inertial"):
+                finger.remove(child)
+        ET.SubElement(finger, "inertial", pos="0 0 0", mass=f"{_STUB_MASS_KG:g}", diaginertia="1e-9 1e-9 1e-9")
+        stub.append(finger)
+
+
+def _add_scene(sim: Any, scene: SceneConfig) -> None:
+    root = sim.scene
+    default = root.find("default")
+    if default is None:
+        default = ET.SubElement(root, "default")
+    tool_visual = ET.SubElement(default, "default", {"class": "tool_visual"})
+    ET.SubElement(tool_visual, "geom", contype="0", conaffinity="0", group="2", density="0")
+    option = root.find("option")
+    if option is None:
+        option = ET.SubElement(root, "option")
+    option.set("cone", "elliptic")  # as our own scene: the pad's friction cone
+    _replace_hand(root, scene)
+    pos, rot = scene.object_pose()
+    asset_xml, body_xml = scene.sim_object.mjcf("object", pos, rot)
+    if asset_xml:
+        asset = root.find("asset")
+        if asset is None:
+            asset = ET.SubElement(root, "asset")
+        asset.append(ET.fromstring(asset_xml))
+    world = sim.worldbody
+    ET.SubElement(world, "geom", name="table", type="box", pos="0.4 0 -0.02", size="0.8 0.8 0.02",
+                  rgba="0.4 0.35 0.3 1", contype="0", conaffinity="2", group="0")
+    world.append(ET.fromstring(body_xml))
+    sensor = ET.SubElement(root, "sensor")
+    ET.SubElement(sensor, "force", name="ft_force", site="ft_site")
+    ET.SubElement(sensor, "torque", name="ft_torque", site="ft_site")
+
+
+# -- the twin -------------------------------------------------------------------------------------
+def _franky() -> tuple[Any, Any, Any, Any]:
+    try:
+        from franky_sim import SimulationServer
+        from franky_sim.base_simulator import RobotParameters
+        from franky_sim.mujoco_simulator import FrankaMujocoRobot, MujocoSimulator
+    except ImportError as exc:
+        raise MissingDependencyError("franky-sim", "franka", "tactex twin") from exc
+    return SimulationServer, RobotParameters, FrankaMujocoRobot, MujocoSimulator
+
+
+def _check_addresses(config: TwinConfig) -> None:
+    """Bind every address the twin needs once, to fail early with a message that names it."""
+    tried = [(socket.SOCK_STREAM, port, "tcp") for port in FRANKA_PORTS]
+    if config.ft_port:
+        tried.append((socket.SOCK_DGRAM, config.ft_port, "udp"))
+    for kind, port, proto in tried:
+        sock = socket.socket(socket.AF_INET, kind)
+        if kind == socket.SOCK_STREAM:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as franky-sim does
+        try:
+            sock.bind((config.hostname, port))
+        except OSError as exc:
+            what = "--port-ft" if proto == "udp" else "--hostname (e.g. 127.0.0.2)"
+            in_use = exc.errno == errno.EADDRINUSE
+            reason = "is in use (another twin or franky-sim?)" if in_use else f"cannot be bound ({exc.strerror})"
+            raise TactexError(f"{proto} {config.hostname}:{port} {reason}: stop what serves there, or pick another "
+                              f"address with {what}") from None
+        finally:
+            sock.close()
+
+
+class Twin:
+    """franky-sim with our scene, its Net F/T server and the status; :meth:`run` serves until
+    :meth:`stop` (or a signal, from :func:`run_twin`)."""
+
+    def __init__(self, config: TwinConfig) -> None:
+        self.config = config
+        self.scene = config.scene_config()
+        self._simulation_server_cls, robot_parameters, franka_robot, simulator = _franky()
+        import mujoco
+
+        from tactex.sim.dirt import DirtField, PrestonParams
+
+        self._mujoco = mujoco
+        obj = self.scene.sim_object
+        self.dirt = DirtField(obj.surface, self.scene.marking or obj.marking, self.scene.dirt_resolution_m,
+                              PrestonParams(self.scene.preston_coefficient, self.scene.dirt_force_threshold_n,
+                                            self.scene.tool_pad_radius_m))
+        self.tool = self.scene.tool
+        self._object_pos, self._object_rot = self.scene.object_pose()
+        self.sim = simulator(enable_visualization=False)
+        # no end effector in the dynamics model (the client declares the tool with set_load), except the
+        # finger stubs' mass; the nominal EE is the flange
+        params = robot_parameters(ee_mass=2 * _STUB_MASS_KG, ee_com=(0.0, 0.0, _STUB_Z_M), ee_tcp_xyz=(0.0, 0.0, 0.0),
+                                  ee_tcp_rpy=(0.0, 0.0, 0.0), ee_inertia=(1e-9, 0, 0, 0, 1e-9, 0, 0, 0, 1e-9))
+        self.robot = self.sim.add_robot(robot_parameters=params)
+        self.robot.__class__ = _contact_aware_class(franka_robot)  # add_robot hard-codes its class
+        self.robot._twin_ext = None
+        self.robot._twin_on_robot = bool(config.ext_wrench_on_robot)
+        _add_scene(self.sim, self.scene)
+        self._lock = threading.Lock()
+        self._ft = np.zeros(6)  # latest raw F/T reading, handed to the Net F/T thread under the lock
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self.ticks = 0
+        self.max_contact_force_n = 0.0
+        self.pad_force_n = 0.0
+        self.server: Any = None
+        self.netft: Any = None
+        self._last_status = (0.0, time.monotonic())
+        self._rtf = float("nan")
+
+    # -- per-tick work (the simulation thread) -----------------------------------------------------
+    def _setup_ids(self) -> None:
+        mujoco = self._mujoco
+        m, d = self.sim.model, self.sim.data
+        self.model, self.data = m, d
+        a, b = int(m.sensor("ft_force").adr[0]), int(m.sensor("ft_torque").adr[0])
+        self._ft_force, self._ft_torque = d.sensordata[a:a + 3], d.sensordata[b:b + 3]
+        robot_bodies = np.array([m.body(i).name.startswith(_PREFIX) or i in self._tool_bodies(m)
+                                 for i in range(m.nbody)])
+        self._geom_robot = robot_bodies[m.geom_bodyid].tolist()
+        self._geom_body = m.geom_bodyid.tolist()
+        self._dofs = list(self.robot._dof_addrs)
+        self._jacp = np.zeros((3, m.nv))
+        self._c6 = np.zeros(6)
+        self._pad_geom = m.geom("pad").id
+        self._object_geom = m.geom("object_geom").id
+        self._pad_body = m.body("pad").id
+        self._pad_vel = np.zeros(6)
+        self._pad_bottom = self.tool.pad_thickness_m / 2 if self.tool.pad_shape == "cylinder" else None
+        self._sample = int(self.config.contact_sample_ticks)
+        self._dt = float(m.opt.timestep)
+        self._mj_contact_force = mujoco.mj_contactForce
+        self._mj_jac = mujoco.mj_jac
+
+    @staticmethod
+    def _tool_bodies(m: Any) -> set[int]:
+        flange = m.body("flange").id
+        out = set()
+        for i in range(m.nbody):
+            j = i
+            while j > 0:
+                if j == flange:
+                    out.add(i)
+                    break
+                j = int(m.body_parentid[j])
+        return out
+
+    def _post_step(self, _sim: Any) -> None:
+        try:
+            self._tick()
+        except BaseException as exc:
+            self._error = exc
+            self._stop.set()
+            raise
+
+    def _tick(self) -> None:
+        d = self.data
+        with self._lock:
+            self._ft[:3] = self._ft_force
+            self._ft[3:] = self._ft_torque
+        self.ticks += 1
+        if d.ncon == 0:
+            self.robot._twin_ext = None
+            self.pad_force_n = 0.0
+            return
+        # contact wrench on the robot: force (world), moment about the world origin, joint torques
+        fx = fy = fz = mx = my = mz = 0.0
+        tau = None
+        pad_fx = pad_fy = pad_fz = 0.0
+        is_robot, body_of, c6, jacp = self._geom_robot, self._geom_body, self._c6, self._jacp
+        m = self.model
+        for i in range(d.ncon):
+            con = d.contact[i]
+            g1, g2 = int(con.geom1), int(con.geom2)
+            r1, r2 = is_robot[g1], is_robot[g2]
+            if r1 == r2:
+                continue
+            self._mj_contact_force(m, d, i, c6)
+            f = con.frame.reshape(3, 3).T @ c6[:3]  # on geom2, world frame
+            if not r2:
+                f = -f
+            px, py, pz = con.pos.tolist()
+            ux, uy, uz = f.tolist()
+            fx, fy, fz = fx + ux, fy + uy, fz + uz
+            mx, my, mz = mx + py * uz - pz * uy, my + pz * ux - px * uz, mz + px * uy - py * ux
+            self._mj_jac(m, d, jacp, None, con.pos, body_of[g2 if r2 else g1])
+            t = jacp[:, self._dofs].T @ f
+            tau = t if tau is None else tau + t
+            if g1 == self._pad_geom or g2 == self._pad_geom:
+                pad_fx, pad_fy, pad_fz = pad_fx + ux, pad_fy + uy, pad_fz + uz
+        self.robot._twin_ext = None if tau is None else ((fx, fy, fz), (mx, my, mz), tau)
+        self.pad_force_n = math.sqrt(pad_fx * pad_fx + pad_fy * pad_fy + pad_fz * pad_fz)
+        self.max_contact_force_n = max(self.max_contact_force_n, self.pad_force_n)
+        if self.ticks % self._sample == 0:
+            self._wipe()
+
+    def _wipe(self) -> None:
+        """Preston wear under the pad from its contacts with the object (as MujocoBackend._wipe)."""
+        d, m = self.data, self.model
+        pad, obj = self._pad_geom, self._object_geom
+        force = 0.0
+        point = np.zeros(3)
+        normal = np.zeros(3)
+        for i in range(d.ncon):
+            con = d.contact[i]
+            g1, g2 = int(con.geom1), int(con.geom2)
+            if not ((g1 == pad and g2 == obj) or (g1 == obj and g2 == pad)):
+                continue
+            self._mj_contact_force(m, d, i, self._c6)
+            fn = float(self._c6[0])
+            if fn <= 0.0:
+                continue
+            force += fn
+            point += fn * con.pos
+            normal += (fn if g2 == pad else -fn) * con.frame[:3]  # from the surface to the pad
+        if force <= self.dirt.params.force_threshold_n:
+            return
+        point /= force
+        normal /= np.linalg.norm(normal)
+        if self._pad_bottom is not None:  # flat sponge: the footprint is the pad disc under the pad
+            centre = d.xpos[self._pad_body] + d.xmat[self._pad_body].reshape(3, 3)[:, 2] * self._pad_bottom
+            point = centre + float((point - centre) @ normal) * normal
+        self._mujoco.mj_objectVelocity(m, d, self._mujoco.mjtObj.mjOBJ_BODY, self._pad_body, self._pad_vel, 0)
+        v = self._pad_vel[3:]
+        slip = math.sqrt(max(float(v @ v) - float(v @ normal) ** 2, 0.0))
+        if slip > 0.0:
+            point_obj = (point - self._object_pos) @ self._object_rot
+            self.dirt.apply_wear(point_obj, force * slip * self._dt * self._sample)
+
+    def ft_reading(self) -> np.ndarray:
+        """The latest raw wrist reading [N, N·m] (6,): sensor frame, the tool's weight included."""
+        with self._lock:
+            return self._ft.copy()
+
+    # -- status ---------------------------------------------------------------------------------------
+    def _connected(self) -> bool:
+        rs = self.server.robot_servers[0] if self.server is not None and self.server.robot_servers else None
+        return rs is not None and getattr(rs, "_FrankaServer__tcp_socket", None) is not None
+
+    def status(self) -> dict:
+        """Simulated time, ticks, dirt removed, contact force, client connections, real-time factor."""
+        d = self.data
+        sim_t = float(d.time) if d is not None else 0.0
+        now = time.monotonic()
+        t0, w0 = self._last_status
+        if now - w0 > 0.05:
+            self._rtf = (sim_t - t0) / (now - w0)
+            self._last_status = (sim_t, now)
+        remaining = self.dirt.remaining_fraction()
+        return {
+            "sim_time_s": sim_t,
+            "ticks": self.ticks,
+            "dirt_remaining_fraction": remaining,
+            "dirt_removed_fraction": 1.0 - remaining,
+            "max_contact_force_n": self.max_contact_force_n,
+            "contact_force_n": self.pad_force_n,
+            "connected": self._connected(),
+            "ft_streaming": bool(self.netft is not None and self.netft._client is not None),
+            "ft_records_sent": 0 if self.netft is None else self.netft.sent,
+            "realtime_factor": self._rtf,
+            "object": self.config.object_name,
+            "hostname": self.config.hostname,
+            "ft_port": 0 if self.netft is None else int(self.netft.address[1]),
+        }
+
+    def write_status(self) -> None:
+        path = self.config.status_file
+        if not path:
+            return
+        out = Path(path)
+        tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+        status = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.status().items()}
+        tmp.write_text(json.dumps(status) + "\n")
+        os.replace(tmp, out)
+
+    # -- lifecycle ------------------------------------------------------------------------------------
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self, ready=None) -> None:
+        """Serve until :meth:`stop`; ``ready(twin)`` is called once both servers listen.
+
+        Raises:
+            TactexError: an address is taken; SimulationError: the scene does not compile or the
+            simulation loop failed.
+        """
+        from tactex.robots.netft import NetFTServer
+
+        cfg = self.config
+        _check_addresses(cfg)
+        # the Net F/T thread wakes every millisecond: with Python's default 5 ms switch interval it
+        # would wait for the simulation thread to give up the GIL and skip records
+        sys.setswitchinterval(5e-4)
+        if cfg.status_file:
+            Path(cfg.status_file).parent.mkdir(parents=True, exist_ok=True)
+        with self.sim:
+            server = self._simulation_server_cls(self.sim, hostname_candidates=[cfg.hostname])
+            try:
+                server.init()
+            except OSError as exc:
+                server.cleanup()
+                raise TactexError(f"tcp {cfg.hostname}:{FRANKA_PORTS[0]}: {exc}; stop what serves there or pick "
+                                  "another address with --hostname") from None
+            except ValueError as exc:
+                server.cleanup()
+                raise SimulationError(f"the twin's scene for object '{cfg.object_name}' does not compile: {exc}") \
+                    from exc
+            self.server = server
+            try:
+                self._setup_ids()
+                try:
+                    self.netft = NetFTServer(self.ft_reading, cfg.hostname, cfg.ft_port, rate_hz=cfg.ft_rate_hz)
+                except OSError as exc:
+                    raise TactexError(f"udp {cfg.hostname}:{cfg.ft_port}: {exc.strerror}; stop what serves there "
+                                      "or pick another port with --port-ft") from None
+                self.netft.start()
+                self.sim.register_post_step_callback(self._post_step)
+                realtime: bool | float = (1.0 / cfg.realtime_factor) if cfg.realtime_factor > 0 else False
+                server.run_async(realtime=realtime)
+                if ready is not None:
+                    ready(self)
+                while not self._stop.wait(cfg.status_period_s):
+                    if server.async_thread is None or not server.async_thread.is_alive():
+                        break
+                    self.write_status()
+                self.write_status()
+            finally:
+                server.cleanup()
+                if self.netft is not None:
+                    self.netft.close()
+        if self._error is not None:
+            raise SimulationError(f"the twin's simulation loop failed: {self._error!r}") from self._error
+        if server.async_thread is not None and not self._stop.is_set():
+            raise SimulationError("the twin's simulation loop stopped unexpectedly (see the log above)")
+
+
+def _contact_aware_class(base: type) -> type:
+    """franky-sim's MuJoCo robot whose state carries the contact wrench (see the module docstring)."""
+
+    class TwinRobot(base):  # type: ignore[misc, valid-type]
+        _twin_ext: Any = None
+        _twin_on_robot = False
+
+        @property
+        def state(self):
+            st = super().state
+            ext = self._twin_ext
+            if ext is None:
+                zero6 = (0.0,) * 6
+                return st.replace(O_F_ext_hat_K=zero6, K_F_ext_hat_K=zero6, tau_ext_hat_filtered=(0.0,) * 7)
+            f_on, m0_on, tau_on = ext
+            o_T_k = np.asarray(st.O_T_EE, dtype=float).reshape(4, 4, order="F") @ \
+                np.asarray(st.EE_T_K, dtype=float).reshape(4, 4, order="F")
+            p, rot = o_T_k[:3, 3], o_T_k[:3, :3]
+            f = np.asarray(f_on)
+            m = np.asarray(m0_on) - np.cross(p, f)  # moment about the K origin
+            sign = 1.0 if self._twin_on_robot else -1.0  # libfranka: the robot's wrench on the environment
+            o_f = sign * np.concatenate([f, m])
+            k_f = np.concatenate([rot.T @ o_f[:3], rot.T @ o_f[3:]])
+            return st.replace(O_F_ext_hat_K=tuple(o_f.tolist()), K_F_ext_hat_K=tuple(k_f.tolist()),
+                              tau_ext_hat_filtered=tuple((sign * np.asarray(tau_on)).tolist()))
+
+    return TwinRobot
+
+
+def run_twin(config: TwinConfig, *, ready=None, handle_signals: bool = True) -> Twin:
+    """Build the twin and serve until SIGTERM/SIGINT (when ``handle_signals``) or ``twin.stop()``;
+    ``ready(twin)`` is called once it listens. Returns the stopped twin."""
+    twin = Twin(config)
+    previous = {}
+    if handle_signals and threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            previous[sig] = signal.signal(sig, lambda *_: twin.stop())
+    try:
+        twin.run(ready)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return twin

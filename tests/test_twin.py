@@ -1,0 +1,216 @@
+"""``tactex twin``: franky-sim with our scene, driven over libfranka's protocol by pylibfranka, and
+its wrist F/T over Net F/T. One twin process serves the module (start-up ~5 s); every test is a
+few seconds of wall time.
+
+The twin holds a flat plane raised to 5 cm under the TCP's start pose (so a press is short), fully
+marked (so any rub removes dirt).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+REASON = "needs the franka extra: EXTRAS='dev fast franka' make test"
+plf = pytest.importorskip("pylibfranka", reason=REASON)
+pytest.importorskip("franky_sim", reason=REASON)
+
+from tactex.robots.netft import NetFTClient  # noqa: E402
+from tactex.sim.tool import ToolGeometry, flange_R_tool  # noqa: E402
+from tactex.sim.twin import TwinConfig  # noqa: E402
+from tactex.sim.twin_process import TwinProcess  # noqa: E402
+
+pytestmark = pytest.mark.franka
+
+TOOL = ToolGeometry()  # the twin's default tool
+PLANE_TOP_Z = 0.41  # plane object at z = 0.40 (+ its 1 cm lift) [m]
+FORCE_TOLERANCE = 0.2  # relative agreement of the two wrench sources and the command [-]
+PRESS_N = 15.0  # commanded force [N] (VA-UFIC)
+
+
+@pytest.fixture(scope="module")
+def twin():
+    with TwinProcess("plane", ["--object-position", "0.554", "0", "0.40", "--marking", "full"]) as proc:
+        yield proc
+
+
+@pytest.fixture(scope="module")
+def robot(twin):
+    r = plf.Robot(twin.hostname, plf.RealtimeConfig.kIgnore)
+    state = r.read_once()
+    f_T_ne = np.asarray(state.F_T_NE).reshape(4, 4, order="F")
+    f_T_tcp = np.eye(4)
+    f_T_tcp[:3, :3] = flange_R_tool()
+    f_T_tcp[2, 3] = TOOL.tcp_offset_m
+    r.set_EE((np.linalg.inv(f_T_ne) @ f_T_tcp).T.reshape(16).tolist())
+    mass, com = TOOL.calibrated_mass_properties()
+    r.set_load(float(mass), (flange_R_tool() @ com).tolist(), (np.eye(3) * 1e-3).reshape(9).tolist())
+    for _ in range(20):  # the first state read after a command can be one from before it
+        r.read_once()
+    yield r
+
+
+def _pose(state) -> np.ndarray:
+    return np.asarray(state.O_T_EE).reshape(4, 4, order="F")
+
+
+def _impedance_loop(robot, model, duration_s: float, target, ft: NetFTClient | None = None):
+    """Cartesian impedance (translation 600 N/m, rotation 30 N·m/rad) on the start pose, with
+    ``target(t, p0) -> (pd (3,), f_z_world or None)``: with a force, z is force-controlled (damped).
+    Returns per-tick rows [t, z, K_F_ext z, Net F/T z, commanded force]."""
+    kt, kr = 600.0, 30.0
+    dt_, dr = 2 * np.sqrt(kt), 2 * np.sqrt(kr)
+    ctrl = robot.start_torque_control()
+    state, _ = ctrl.readOnce()
+    t0 = state.time.to_sec()
+    p0, r0 = _pose(state)[:3, 3].copy(), _pose(state)[:3, :3].copy()
+    rows = []
+    while True:
+        state, _ = ctrl.readOnce()
+        t = state.time.to_sec() - t0
+        pose = _pose(state)
+        p, rot = pose[:3, 3], pose[:3, :3]
+        jac = np.asarray(model.zero_jacobian(state)).reshape(6, 7, order="F")
+        v = jac @ np.asarray(state.dq)
+        pd, fz = target(t, p0)
+        e_o = 0.5 * sum(np.cross(rot[:, i], r0[:, i]) for i in range(3))
+        force = np.r_[kt * (pd - p) - dt_ * v[:3], kr * e_o - dr * v[3:]]
+        if fz is not None:
+            force[2] = fz - 100.0 * v[2]
+        tau = jac.T @ force + np.asarray(model.coriolis(state))
+        cmd = plf.Torques(np.clip(tau, -80, 80).tolist())
+        ft_z = ft.latest()[0][2] if ft is not None else np.nan
+        rows.append([t, p[2], state.K_F_ext_hat_K[2], ft_z, -fz if fz is not None else 0.0])
+        if t >= duration_s:
+            cmd.motion_finished = True
+        ctrl.writeOnce(cmd)
+        if cmd.motion_finished:
+            return np.array(rows)
+
+
+def test_twin_config_checks():
+    with pytest.raises(Exception, match="unknown object"):
+        TwinConfig(object_name="nope")
+    with pytest.raises(Exception, match="ft_port"):
+        TwinConfig(ft_port=70000)
+    with pytest.raises(Exception, match="realtime_factor"):
+        TwinConfig(realtime_factor=-1.0)
+
+
+def test_client_connects_and_reads_state(twin, robot):
+    assert twin.ready_line.startswith(f"twin ready: robot {twin.hostname}:1337, Net F/T udp")
+    state = robot.read_once()
+    assert np.asarray(state.q).shape == (7,)
+    pose = _pose(state)
+    # set_EE put O_T_EE at our TCP: tool z points down at the start pose, the plane 5 cm below
+    assert pose[2, 2] < -0.99
+    assert 0.03 < pose[2, 3] - PLANE_TOP_Z < 0.08
+    assert state.m_load == pytest.approx(TOOL.calibrated_mass_properties()[0])
+    assert np.allclose(state.K_F_ext_hat_K, 0.0)  # no contact
+    status = twin.wait_status(lambda s: s.get("connected"), 3.0)
+    assert status["connected"] and status["ticks"] > 0
+
+
+def test_netft_stream_reads_tool_weight_then_zero_after_tare(twin):
+    raw = NetFTClient(twin.hostname, twin.ft_port, tare_samples=0)
+    raw.start()
+    try:
+        weight = raw.latest()[0]
+        # the raw reading holds the tool's weight: the flange pulls the tool up, i.e. along −z of the
+        # sensor (z points down at the start pose)
+        assert weight[2] == pytest.approx(-TOOL.calibrated_mass_properties()[0] * 9.81, rel=0.02)
+        t0, n0 = time.monotonic(), raw.records
+        while time.monotonic() - t0 < 0.5:
+            raw.poll()
+            time.sleep(0.0005)
+        rate = (raw.records - n0) / (time.monotonic() - t0)
+        assert rate > 500, f"Net F/T records at {rate:.0f} Hz, configured 1000 Hz"
+    finally:
+        raw.close()
+    tared = NetFTClient(twin.hostname, twin.ft_port)
+    tared.start()
+    try:
+        assert np.abs(tared.latest()[0]).max() < 0.05
+    finally:
+        tared.close()
+
+
+def test_press_netft_matches_franka_estimate_and_command(twin, robot):
+    """Lower the TCP onto the plane and press with 15 N: the Net F/T force along tool z, the
+    twin's K_F_ext_hat_K (the robot's force on the environment along K z) and the command agree."""
+    model = robot.load_model()
+    ft = NetFTClient(twin.hostname, twin.ft_port)
+    ft.start()  # tared out of contact
+
+    def target(t, p0):
+        if t < 0.6:  # descend at 10 cm/s to 5 mm above the plane, in impedance
+            return np.r_[p0[:2], max(PLANE_TOP_Z + 0.005, p0[2] - 0.1 * t)], None
+        return np.r_[p0[:2], p0[2]], -PRESS_N  # then push down with the force
+
+    try:
+        rows = _impedance_loop(robot, model, 1.6, target, ft)
+    finally:
+        ft.close()
+    settled = rows[rows[:, 0] > 1.2]
+    k_f, ft_z = settled[:, 2].mean(), settled[:, 3].mean()
+    assert settled[:, 1].max() < PLANE_TOP_Z + 0.002  # the pad is on the plane
+    assert ft_z == pytest.approx(PRESS_N, rel=FORCE_TOLERANCE)
+    assert k_f == pytest.approx(PRESS_N, rel=FORCE_TOLERANCE)
+    assert ft_z == pytest.approx(k_f, rel=FORCE_TOLERANCE)
+
+
+def test_rubbing_removes_marking(twin, robot):
+    model = robot.load_model()
+    before = twin.status().get("dirt_removed_fraction", 0.0)
+
+    def target(t, p0):
+        if t < 0.6:
+            return np.r_[p0[:2], max(PLANE_TOP_Z + 0.005, p0[2] - 0.1 * t)], None
+        # press with 15 N while sliding ±2 cm along x at up to ~6 cm/s
+        return np.r_[p0[0] + 0.02 * np.sin(3.0 * (t - 0.6)), p0[1], p0[2]], -PRESS_N
+
+    _impedance_loop(robot, model, 1.8, target)
+    status = twin.wait_status(lambda s: s.get("dirt_removed_fraction", 0.0) > before, 3.0)
+    assert status["dirt_removed_fraction"] > before
+    assert status["max_contact_force_n"] > 0.5 * PRESS_N
+
+
+def test_export_cloud_has_red_target_on_object(tmp_path):
+    from tactex.pointcloud import load_cloud
+    from tactex.sim.scene import SceneConfig
+
+    out = tmp_path / "plate.ply"
+    run = subprocess.run([sys.executable, "-m", "tactex.cli", "twin", "--object", "plate", "--export-cloud",
+                          str(out)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    cloud = load_cloud(out)
+    red = cloud.colors[:, 0] > 0.99
+    assert cloud.n_target > 0 and np.array_equal(red & (cloud.colors[:, 1] < 0.01), cloud.target > 0)
+    assert cloud.spacing == pytest.approx(0.003, rel=0.2)
+    # on the object's surface, in the robot base frame
+    scene = SceneConfig(object_name="plate")
+    pos, rot = scene.object_pose()
+    local = (cloud.points - pos) @ rot
+    surf = scene.sim_object.surface
+    assert np.abs(local[:, 2] - surf.height(local[:, 0], local[:, 1])).max() < 1e-6
+    assert np.allclose(cloud.points[:, :2].mean(axis=0), pos[:2], atol=0.02)
+
+
+def test_address_in_use_is_one_line_error(twin):
+    run = subprocess.run([sys.executable, "-m", "tactex.cli", "twin", "--object", "plane", "--hostname",
+                          twin.hostname], capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0
+    assert f"{twin.hostname}:1337" in run.stderr and "--hostname" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_sigterm_stops_the_twin_cleanly():
+    with TwinProcess("plane") as proc:
+        status = proc.wait_status(lambda s: s.get("ticks", 0) > 0, 3.0)
+        assert status["ticks"] > 0
+        code = proc.close()
+    assert code == 0, proc.stderr()
