@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections import deque
 
 import mujoco
 import numpy as np
@@ -110,6 +111,8 @@ class MujocoBackend:
             self._worker.discard()  # a frame of the previous episode
         self._frame_index = 0
         self._tau = np.zeros(self.n_joints)
+        # commands on their way to the joints, oldest first (SceneConfig.command_delay_ticks of them)
+        self._in_flight = deque(np.zeros(self.n_joints) for _ in range(int(self.config.command_delay_ticks)))
         self.scene.dirt.reset()
         self._tick = 0
         self._last_contact = (0.0, None)
@@ -128,7 +131,11 @@ class MujocoBackend:
         return self._state
 
     def apply_torque(self, tau: np.ndarray) -> None:
-        """Command joint torques (7,) [N·m] without gravity; clipped to the torque limits."""
+        """Command joint torques (7,) [N·m] without gravity; clipped to the torque limits.
+
+        With ``SceneConfig.command_delay_ticks`` = d the command acts d control periods later (the
+        ``step`` applies the command of d steps before; zeros first): a real Franka applies the
+        torque computed from state k during cycle k + 1, not k."""
         t = np.asarray(tau, dtype=float)
         if t.shape != (self.n_joints,):
             raise ControllerFault(f"torque command must have shape ({self.n_joints},), got {t.shape}")
@@ -141,7 +148,11 @@ class MujocoBackend:
     def step(self) -> RobotState:
         """Advance one control period with the last commanded torque; returns the new state."""
         m, d = self.model, self.data
-        self._v_ctrl[:] = self._tau
+        if self._in_flight:  # the command delay: this step's command joins the queue, the oldest acts
+            self._in_flight.append(self._tau)
+            self._v_ctrl[:] = self._in_flight.popleft()
+        else:
+            self._v_ctrl[:] = self._tau
         if not self._gravity_comp:
             np.negative(self._v_gravcomp, out=self._v_applied)
         t_next = d.time + self.dt

@@ -64,6 +64,9 @@ class SceneConfig:
     dirt_force_threshold_n: float = param(2.0, "normal force below which no dirt is removed [N]")
     contact_sample_ticks: int = param(5, "ticks between contact ground-truth samples and dirt updates [-]")
     timestep_s: float = param(0.001, "physics and control period [s]")
+    command_delay_ticks: int = param(
+        0, "control periods between apply_torque and the torque acting (a FIFO) [-]: a real Franka applies the "
+        "torque computed from state k one cycle later (1), franky-sim over libfranka's protocol 0–2 cycles later")
     seed: int = param(0, "seed of sensor noise")
 
     def __post_init__(self) -> None:
@@ -108,6 +111,9 @@ class SceneConfig:
                 f"camera_latency_s must be in [0, 1/camera_rate_hz = {1.0 / self.camera_rate_hz:.4g}] s, "
                 f"got {self.camera_latency_s}"
             )
+        if isinstance(self.command_delay_ticks, bool) or not (
+                isinstance(self.command_delay_ticks, (int, np.integer)) and 0 <= self.command_delay_ticks <= 50):
+            raise ConfigError(f"command_delay_ticks must be an integer in [0, 50], got {self.command_delay_ticks!r}")
         if not (isinstance(self.contact_sample_ticks, int) and 1 <= self.contact_sample_ticks <= 100):
             raise ConfigError(f"contact_sample_ticks must be an integer in [1, 100], got {self.contact_sample_ticks!r}")
         if not (8 <= self.camera_width <= 4096 and 8 <= self.camera_height <= 4096):

@@ -35,6 +35,8 @@ class SimWorldParams:
     ft_noise_n: float = param(0.0, "F/T force noise standard deviation [N]")
     ft_noise_nm: float = param(0.0, "F/T torque noise standard deviation [N·m]")
     depth_noise_m: float = param(0.0, "depth noise standard deviation at 1 m, grows with depth² [m]")
+    command_delay_ticks: int = param(
+        0, "control periods before a torque command acts (1: a real Franka's one-cycle latency) [-]")
     seed: int = param(0, "seed of the sensor noise (the physics is deterministic: with the noise at its "
                          "default 0 the seed changes nothing but what a task seeds itself)")
 
@@ -57,5 +59,6 @@ class SimWorldParams:
             object_name=self.object_name, object_position=self.object_position, camera_width=self.camera_width,
             camera_height=self.camera_height, seed=self.seed, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
             tool_pad_shape=self.tool_pad_shape, tool_friction=self.tool_friction, ft_noise_n=self.ft_noise_n,
-            ft_noise_nm=self.ft_noise_nm, depth_noise_m=self.depth_noise_m, **scene_fields,
+            ft_noise_nm=self.ft_noise_nm, depth_noise_m=self.depth_noise_m,
+            command_delay_ticks=self.command_delay_ticks, **scene_fields,
         )
