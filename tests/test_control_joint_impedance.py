@@ -36,7 +36,7 @@ def test_explicit_damping_rings_on_a_light_mode_and_the_implicit_one_does_not(rn
 
 def test_implicit_damping_is_the_example_damping_on_heavy_modes_and_passive(rng):
     ctrl = JointImpedanceController()
-    heavy = 100.0 * np.eye(7)
+    heavy = 1000.0 * np.eye(7)  # h·D/m = 3 ms · 50 / 1000: the latency horizon leaves heavy modes alone
     np.testing.assert_allclose(ctrl.damping_matrix(heavy), np.diag(ctrl.params.damping), rtol=1e-3)
     d = ctrl.damping_matrix(_light_mode_inertia(rng))
     np.testing.assert_allclose(d, d.T, atol=1e-9)
@@ -44,13 +44,27 @@ def test_implicit_damping_is_the_example_damping_on_heavy_modes_and_passive(rng)
 
 
 def test_torque_uses_the_implicit_damping(rng):
+    """latency_horizon_ticks = 0: stiffness explicit, damping backward Euler over one period."""
+    m = _light_mode_inertia(rng)
+    dq = rng.normal(size=7)
+    state = replace(make_state(dq=dq), mass_matrix=m, coriolis=np.full(7, 0.1))
+    ctrl = JointImpedanceController(JointImpedanceParams(latency_horizon_ticks=0.0))
+    q_goal = np.full(7, 0.2)
+    tau = ctrl.torque(state, JointTarget(np.zeros(7), q_goal, t_start=-10.0, duration_s=1.0))
+    expected = np.asarray(ctrl.params.stiffness) * q_goal - ctrl.damping_matrix(m) @ dq + 0.1
+    np.testing.assert_allclose(tau, expected, atol=1e-9)
+
+
+def test_torque_is_the_impedance_applied_implicitly_over_the_latency_horizon(rng):
+    """Default: τ = M (M + h·D + h²·K)⁻¹ (K e − D q̇) + C, h = 3 dt."""
     m = _light_mode_inertia(rng)
     dq = rng.normal(size=7)
     state = replace(make_state(dq=dq), mass_matrix=m, coriolis=np.full(7, 0.1))
     ctrl = JointImpedanceController()
+    k, d, h = np.diag(ctrl.params.stiffness), np.diag(ctrl.params.damping), 3 * DT
     q_goal = np.full(7, 0.2)
     tau = ctrl.torque(state, JointTarget(np.zeros(7), q_goal, t_start=-10.0, duration_s=1.0))
-    expected = np.asarray(ctrl.params.stiffness) * q_goal - ctrl.damping_matrix(m) @ dq + 0.1
+    expected = m @ np.linalg.solve(m + h * d + h * h * k, k @ q_goal - d @ dq) + 0.1
     np.testing.assert_allclose(tau, expected, atol=1e-9)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -32,7 +33,7 @@ def _ref(position, rotation=DOWN, wrench=F15, surface=None):
 
 
 def test_ufic_spring_damper_and_force_feedforward():
-    params = UficParams(kp=0.0, ki=0.0)
+    params = UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0)
     ctrl = UficController(params)
     state = make_state(position=np.array([0.51, 0.0, 0.3]), rotation=DOWN, jacobian=JAC,
                        twist=np.array([0.1, 0, 0, 0, 0, 0]))
@@ -45,7 +46,7 @@ def test_ufic_spring_damper_and_force_feedforward():
 
 
 def test_ufic_force_pi_sign_is_negative_feedback():
-    ctrl = UficController(UficParams(kp=0.6, ki=0.3))
+    ctrl = UficController(UficParams(latency_horizon_ticks=0.0, kp=0.6, ki=0.3))
     state = make_state(rotation=DOWN, jacobian=JAC, wrench_tool=np.array([0, 0, 10.0, 0, 0, 0]))
     tau = ctrl.torque(state, _ref(state.ee_position))
     # measured 10 N < 15 N wanted: command more than the feed-forward (along tool z = world −z)
@@ -85,7 +86,7 @@ def test_desired_rotation_from_normal_rejects_bad_normals(z):
 def test_ufic_feeds_the_desired_wrench_forward_on_every_axis():
     """Eq. 11: f_f = f_d + K_p f̃ + K_i ∫f̃; force_axes selects the fed-back error only. A tangential
     set point on an axis without feedback is applied, not dropped."""
-    ctrl = UficController(UficParams(kp=0.6, ki=0.0))
+    ctrl = UficController(UficParams(latency_horizon_ticks=0.0, kp=0.6, ki=0.0))
     state = make_state(rotation=DOWN, jacobian=JAC, wrench_tool=np.array([2.0, 0, 15.0, 0, 0, 0]))
     tau = ctrl.torque(state, _ref(state.ee_position, wrench=np.array([5.0, 0, 15.0, 0, 0, 0])))
     assert tau[0] == pytest.approx(5.0)  # tool x = world x: f_d only (the 3 N error on x is not fed back)
@@ -101,7 +102,7 @@ def _estimate(t, normal, curvature=0.0, valid=True):
 
 def test_va_ufic_compliant_start_feeds_back_position():
     """ρ_align(0) = 0: the translation error is zeroed by feeding the actual position back (no spring)."""
-    ctrl = VaUficController(VaUficParams(ufic=UficParams(kp=0.0, ki=0.0)))
+    ctrl = VaUficController(VaUficParams(ufic=UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0)))
     state = make_state(position=np.array([0.55, 0.02, 0.3]), rotation=DOWN, jacobian=JAC)
     tau = ctrl.torque(state, _ref([0.5, 0.0, 0.3]))
     assert tau[0] == pytest.approx(0.0, abs=TOL) and tau[1] == pytest.approx(0.0, abs=TOL)
@@ -111,7 +112,8 @@ def test_va_ufic_compliant_start_feeds_back_position():
 
 
 def test_va_ufic_full_stiffness_when_aligned():
-    ctrl = VaUficController(VaUficParams(rho_align_initial=1.0, ufic=UficParams(kp=0.0, ki=0.0)))
+    ufic = UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0)
+    ctrl = VaUficController(VaUficParams(rho_align_initial=1.0, ufic=ufic))
     state = make_state(position=np.array([0.51, 0.0, 0.3]), rotation=DOWN, jacobian=JAC)
     tau = ctrl.torque(state, _ref([0.5, 0.0, 0.3]))
     tel = ctrl.telemetry()
@@ -258,7 +260,8 @@ def test_cartesian_impedance_baseline():
 
 
 def test_ufic_damps_the_approach_more_than_the_contact():
-    params = UficParams(kp=0.0, ki=0.0)
+    # switched at once, on the raw wrench (no low-pass)
+    params = UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0, damping_switch_s=0.0, wrench_cutoff_hz=1e9)
     ctrl = UficController(params)
     twist = np.array([0.0, 0.0, -0.1, 0, 0, 0])  # moving along the tool axis (world −z) at 0.1 m/s
     ref = _ref([0.5, 0.0, 0.3], wrench=np.zeros(6))
@@ -268,6 +271,10 @@ def test_ufic_damps_the_approach_more_than_the_contact():
     d_contact = 2 * 0.7 * math.sqrt(3.0 * 1000.0)
     assert free[2] == pytest.approx(250.0 * 0.1)
     assert touching[2] == pytest.approx(d_contact * 0.1)
+    # by default the tool-axis damping moves to the new value with the time constant damping_switch_s
+    ctrl = UficController(replace(params, damping_switch_s=0.02))  # starts with the contact damping
+    free = ctrl.torque(make_state(rotation=DOWN, jacobian=JAC, twist=twist), ref)
+    assert free[2] == pytest.approx((d_contact + 1e-3 / (1e-3 + 0.02) * (250.0 - d_contact)) * 0.1)
     with pytest.raises(ConfigError, match="approach_damping_z"):
         UficParams(approach_damping_z=-1.0)
 

@@ -14,7 +14,8 @@ V = 0.1  # reference and robot both move along world x [m/s]
 
 
 def _tick(feedforward: bool) -> tuple[np.ndarray, VaUficController, float]:
-    params = VaUficParams(rho_align_initial=1.0, damping_feedforward=feedforward, ufic=UficParams(kp=0.0, ki=0.0))
+    ufic = UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0)  # eq. 13 as computed
+    params = VaUficParams(rho_align_initial=1.0, damping_feedforward=feedforward, ufic=ufic)
     ctrl = VaUficController(params)
     twist = np.array([V, 0, 0, 0, 0, 0])
     state = make_state(position=np.array([0.5, 0.0, 0.3]), rotation=DOWN, twist=twist, jacobian=JAC,

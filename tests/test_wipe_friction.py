@@ -166,7 +166,8 @@ class _Constant:
 
 
 def _va_tick(hook, tank_x0: float = 7.0, v: float = 0.1):
-    params = VaUficParams(rho_align_initial=1.0, ufic=UficParams(kp=0.0, ki=0.0), tank_i_x0=tank_x0)
+    ufic = UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0)  # eq. 13 as computed
+    params = VaUficParams(rho_align_initial=1.0, ufic=ufic, tank_i_x0=tank_x0)
     ctrl = VaUficController(params, port_feedforward=hook)
     twist = np.array([v, 0, 0, 0, 0, 0])
     state = _state([0, 0, F_N, 0, 0, 0], twist=twist)

@@ -11,6 +11,10 @@ Per tick, in the tool (end-effector) frame, the frame the paper's Jacobian J_G^e
    [linear; angular] convention is τ = J_worldᵀ · blockdiag(R, R) · (K⊙V − D⊙v_tool + w_C). The
    paper's minus belongs to its GA inner product (B·W = −τ, §III-B); with plain Jᵀ it cancels, and the
    closed-loop tests confirm the sign (the tool descends the line error and presses into the surface).
+   The damping term D⊙v_tool enters as the joint damping Jᵀ·blockdiag(R, R)·D·blockdiag(R, R)ᵀ·J,
+   and the whole torque is applied implicitly over ``latency_horizon_ticks`` control periods
+   (:mod:`tactex.control.damping`): the same on heavy modes, and stable on the light wrist rotation,
+   where the explicit form chatters at 1 kHz, and behind the real robot's one-cycle command delay.
 
 Steps 2–3 are evaluated with the closed forms of :mod:`tactex.geometry.motor`, which
 ``tests/test_geometry_motor.py`` checks against ``pygafro.Line.getMotor`` / ``Motor.log``; a
@@ -31,6 +35,7 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
+from tactex.control.damping import latency_shaped_torque
 from tactex.control.references import LineForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
@@ -57,6 +62,13 @@ class GaLineForceParams:
         "force, and K_d = 0.5 on a less filtered derivative destabilised the simulated Franka (20 Hz: diverged, "
         "5 Hz: lost contact)",
     )
+    wrench_cutoff_hz: float = param(
+        50.0,
+        "first-order low-pass of the measured wrench the PID regulates [Hz]: a sliding contact's stick-slip "
+        "shows on the F/T as one-tick spikes of ~4 N, which K_p and K_d (as K_d·ΔW/τ, 6× K_p) passed straight to "
+        "the joints; a lower cut-off, or a second low-pass on the derivative, destabilised the force loop on a "
+        "stiff (10 kN/m) pad",
+    )
     force_axes: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
         "wrench components the PID regulates (1) or ignores (0), tool frame [f; m]. The paper applies "
@@ -75,6 +87,19 @@ class GaLineForceParams:
         "[m/s]: the force loop alone would approach at K_p·F/D_z ≈ 0.1 m/s (and faster after a lost contact), and "
         "the impact on a stiff pad would exceed 2× the set point",
     )
+    force_command_rate_max: float = param(
+        1000.0, "slew limit of the PID output W_C per axis [N/s, N·m/s]: a sliding pad's one-tick F/T dips "
+        "(−4 N) reached the joints through K_d's high-frequency gain (K_d/τ_d ≈ 6) as 6 N steps, each a "
+        "torque-rate clip on joints 2 and 4 (2000 N/s left 12 in a 20 s clean, 1000 none); 0: no limit")
+    latency_horizon_ticks: float = param(
+        2.0, "horizon h of the implicit impedance in control periods [-]: τ = M (M + h·B + h²·K)⁻¹ τ_explicit "
+        "with the line stiffness K and damping D mapped to the joints (tactex.control.damping), so that a "
+        "command acting one or two ticks late does not ring on the light wrist modes: 2 caps dt·B/m at 1/2, "
+        "inside the 0.618 that two ticks of delay allow (0 clips on the plate at a delay of 2); 3 raised the "
+        "cup's touch-down peak from 27.9 to 31.0 N; 0: explicit, as eq. 47")
+    approach_speed_min: float = param(
+        0.005, "out of contact, below this speed along the tool axis the tool counts as held by joint friction and "
+        "the force integrator builds up the push [m/s]")
     approach_damping_z: float = param(
         400.0, "damping on the approach speed in excess of approach_speed_max [N·s/m]")
     approach_below: float = param(
@@ -90,10 +115,14 @@ class GaLineForceParams:
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"GaLineForceParams.{name} must be 3 finite values ≥ 0, got {getattr(self, name)!r}")
-        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "contact_threshold_n",
-                     "integral_leak_time", "approach_damping_z", "approach_below", "approach_speed_max"):
+        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "force_command_rate_max",
+                     "latency_horizon_ticks",
+                     "wrench_cutoff_hz", "contact_threshold_n",
+                     "integral_leak_time", "approach_damping_z", "approach_below", "approach_speed_max",
+                     "approach_speed_min"):
             v = getattr(self, name)
-            if not np.isfinite(v) or v < 0 or (name in ("dt", "derivative_cutoff_hz", "integral_leak_time") and v == 0):
+            positive = ("dt", "derivative_cutoff_hz", "wrench_cutoff_hz", "integral_leak_time")
+            if not np.isfinite(v) or v < 0 or (name in positive and v == 0):
                 raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
         axes = np.asarray(self.force_axes, dtype=float)
         if axes.shape != (6,) or not np.isin(axes, (0.0, 1.0)).all():
@@ -114,7 +143,6 @@ class GaLineForceController(Controller):
         # The tick runs on Python floats (gains as tuples, PID states as lists): at 1 kHz a numpy call on
         # a 6-vector costs more than the float operations it replaces, and the tick had ~30 of them.
         self._k_f = tuple(self._k.tolist())
-        self._d_f = tuple(self._d.tolist())
         self._axes_f = tuple(self._axes.tolist())
         self._integral = [0.0] * 6  # ∫W_e per tool axis [N·s, N·m·s]
         self._err_prev = [0.0] * 6
@@ -122,14 +150,19 @@ class GaLineForceController(Controller):
         self._t_prev: float | None = None
         self._ilim = p.integral_limit / p.ki if p.ki > 0 else 0.0
         self._tau_d = 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz)
+        self._tau_w = 1.0 / (2.0 * np.pi * p.wrench_cutoff_hz)
+        self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
         self._w_line: tuple[float, ...] | None = None
         self._w_c2 = 0.0
+        self._w_c_prev: list[float] | None = None  # last PID output W_C, tool frame
         self._err2 = 0.0
 
     def reset(self, state: RobotState) -> None:
         self._integral = [0.0] * 6
         self._err_prev = [0.0] * 6
         self._derr = [0.0] * 6
+        self._w_filt = None
+        self._w_c_prev = None
         self._t_prev = None
         self._w_line = None
 
@@ -174,21 +207,33 @@ class GaLineForceController(Controller):
 
         # eq. 39–41, per tool axis on floats; the clamp to ±lim keeps a NaN, as np.minimum/np.maximum did
         force_n = reference.force_n
-        w_meas = state.wrench_tool.tolist()
+        w_raw = state.wrench_tool.tolist()
+        w_meas = self._w_filt
+        if w_meas is None:
+            w_meas = w_raw
+        else:
+            a_w = dt / (dt + self._tau_w)
+            w_meas = [m + a_w * (r - m) for m, r in zip(w_meas, w_raw, strict=True)]
+        self._w_filt = w_meas
         w_des = (0.0, 0.0, force_n, 0.0, 0.0, 0.0)
         axes, integral, derr, err_prev = self._axes_f, self._integral, self._derr, self._err_prev
-        in_contact = w_meas[2] >= p.contact_threshold_n
+        in_contact = w_raw[2] >= p.contact_threshold_n
+        # out of contact and not moving in: joint friction holds the tool (a real arm's joints stick at
+        # ~1 N·m, more than K_p·F pushes), so the pressing integrator builds up until it moves; the
+        # approach speed cap below keeps the touch-down gentle
+        stalled = not in_contact and v_tool[2] < p.approach_speed_min
         lim = self._ilim
         leak = 1.0 - dt / (dt + p.integral_leak_time)
         alpha = self._alpha(dt)
         kp, ki, kd = p.kp, p.ki, p.kd
         err = [0.0] * 6
         w_tool = [0.0] * 6
-        d_f = self._d_f
+        w_c_all = [0.0] * 6
+        wc_prev, wc_step = self._w_c_prev if p.force_command_rate_max > 0 else None, p.force_command_rate_max * dt
         for i in range(6):
             e = axes[i] * (w_des[i] - w_meas[i])
             err[i] = e
-            if in_contact:
+            if in_contact or (i == 2 and stalled):
                 s = integral[i] + e * dt
                 integral[i] = lim if s > lim else (-lim if s < -lim else s)
             else:
@@ -196,11 +241,16 @@ class GaLineForceController(Controller):
             e_prev = e if tp is None else err_prev[i]
             derr[i] += alpha * ((e - e_prev) / dt - derr[i])
             w_c = kp * e + ki * integral[i] + kd * derr[i]  # eq. 40
-            w_tool[i] = w_line[i] - d_f[i] * v_tool[i] + w_c  # eq. 47 in [linear; angular]
+            if wc_prev is not None:  # slew limit: a one-tick F/T spike must not step the torque
+                lo, hi = wc_prev[i] - wc_step, wc_prev[i] + wc_step
+                w_c = lo if w_c < lo else (hi if w_c > hi else w_c)
+            w_c_all[i] = w_c
+            w_tool[i] = w_line[i] + w_c  # eq. 47 in [linear; angular]; −D W_V is added below, implicitly
             if i == 2:
                 self._w_c2 = w_c
         self._err_prev = err
         self._err2 = err[2]
+        self._w_c_prev = w_c_all
 
         excess = v_tool[2] - p.approach_speed_max
         if excess > 0.0 and w_meas[2] < p.approach_below * force_n:
@@ -210,7 +260,21 @@ class GaLineForceController(Controller):
         f0, f1, f2, m0, m1, m2 = w_tool
         f_world = (r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2, r20 * f0 + r21 * f1 + r22 * f2,
                    r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2, r20 * m0 + r21 * m1 + r22 * m2)
-        return np.dot(f_world, state.jacobian)
+        jac = state.jacobian
+        # eq. 46–47's −Jᵀ D J^ee q̇ as joint damping, and the whole impedance applied implicitly over
+        # latency_horizon_ticks (tactex.control.damping): the explicit form rings at 500 Hz on the wrist,
+        # whose rotation about the flange axis is too light for 10 N·m·s/rad at 1 kHz, and at 60 Hz behind
+        # a one-tick command delay; on heavy modes the two are the same
+        jac_tool = np.empty_like(jac)
+        rt = state.ee_rotation.T
+        np.dot(rt, jac[:3], out=jac_tool[:3])
+        np.dot(rt, jac[3:], out=jac_tool[3:])
+        damping = jac_tool.T @ (self._d[:, None] * jac_tool)
+        stiffness = jac_tool.T @ (self._k[:, None] * jac_tool)
+        tau = np.dot(f_world, jac) - damping @ state.dq
+        if p.latency_horizon_ticks <= 0:
+            return tau
+        return latency_shaped_torque(state.mass_matrix, tau, damping, stiffness, p.latency_horizon_ticks * p.dt)
 
     def _alpha(self, dt: float) -> float:
         return dt / (dt + self._tau_d)

@@ -19,7 +19,7 @@ from tactex.control.controller import Controller
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault, InputError
 
-__all__ = ["NullspaceParams", "NullspacePosture", "nullspace_projector"]
+__all__ = ["NullspaceParams", "NullspacePosture", "nullspace_projector", "project_nullspace"]
 
 
 def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarray:
@@ -30,17 +30,35 @@ def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarr
     return np.eye(j.shape[1]) - j.T @ j_pinv_t
 
 
+_EYE6_DAMPED = 1e-3**2 * np.eye(6)
+
+
+def project_nullspace(jacobian: np.ndarray, tau: np.ndarray, damping: float = 1e-3) -> np.ndarray:
+    """N τ = τ − Jᵀ (J Jᵀ + δ² I)⁻¹ J τ, without forming N (one 6×6 solve with a vector: the 1 kHz path)."""
+    j = jacobian
+    reg = _EYE6_DAMPED if damping == 1e-3 and j.shape[0] == 6 else damping**2 * np.eye(j.shape[0])
+    return tau - j.T @ np.linalg.solve(j @ j.T + reg, j @ tau)
+
+
 @dataclass(frozen=True)
 class NullspaceParams:
     """Posture spring in the null space (Franka example: stiffness 20, damping 2·√20)."""
 
     stiffness: float = param(20.0, "null-space posture stiffness [N·m/rad]")
     damping: float = param(2.0 * np.sqrt(20.0), "null-space joint damping [N·m·s/rad]")
+    latency_horizon_ticks: float = param(
+        3.0, "the posture torque is applied as M (M + (h·D + h²·K)·I)⁻¹ τ over the horizon h = this × dt "
+        "(tactex.control.damping) [-]; 0: as computed. Explicit, the null-space damping made the wrist "
+        "chatter at 60 Hz behind a one-tick command delay (9.6k torque-rate clips in a 20 s clean)")
+    dt: float = param(1e-3, "control period [s]")
 
     def __post_init__(self) -> None:
         k, d = self.stiffness, self.damping
         if not (np.isfinite(k) and np.isfinite(d) and k >= 0 and d >= 0):
             raise ConfigError(f"null-space gains must be finite and ≥ 0, got {self.stiffness}, {self.damping}")
+        h, dt = self.latency_horizon_ticks, self.dt
+        if not (np.isfinite(h) and h >= 0 and np.isfinite(dt) and dt > 0):
+            raise ConfigError(f"NullspaceParams: latency_horizon_ticks must be ≥ 0 and dt > 0, got {h!r}, {dt!r}")
 
 
 class NullspacePosture(Controller):
@@ -76,8 +94,12 @@ class NullspacePosture(Controller):
         if self.q_posture.shape != state.q.shape:
             raise ControllerFault(f"q_posture has {self.q_posture.shape[0]} joints, the robot {state.q.shape[0]}")
         p = self.params
-        tau_ns = p.stiffness * (self.q_posture - state.q) - p.damping * state.dq
-        return tau + nullspace_projector(state.jacobian) @ tau_ns
+        tau_ns = project_nullspace(state.jacobian, p.stiffness * (self.q_posture - state.q) - p.damping * state.dq)
+        h = p.latency_horizon_ticks * p.dt
+        if h > 0:
+            m = state.mass_matrix
+            tau_ns = m @ np.linalg.solve(m + (h * p.damping + h * h * p.stiffness) * np.eye(m.shape[0]), tau_ns)
+        return tau + tau_ns
 
     def telemetry(self) -> dict[str, float]:
         return self.inner.telemetry()

@@ -13,7 +13,9 @@
    resumes from the current state (``force_limit`` / ``retreat_end`` events; :meth:`Controller.resume`
    restarts its integrators but keeps its tanks' energy: a retreat must not refill a dry tank);
 3. the inner controller's torque; an exception or a non-finite torque → hold (``controller_fault`` /
-   ``nan_torque``);
+   ``nan_torque``). When the inner controller changes (``layer.inner = other``) or resumes after a
+   retreat, its torque is blended in from the last command over ``handover_blend_s``: two controllers
+   seldom agree on the torque at the switch, and the step would otherwise hit the rate limit;
 4. joint-limit repulsion inside ``joint_limit_margin`` of a limit (``joint_limit``);
 5. saturation to the Franka torque limits and the torque-rate limit (``torque_limit`` /
    ``torque_rate_limit``, reported when saturation starts, counted every tick).
@@ -31,6 +33,7 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
+from tactex.control.joint_impedance import min_jerk
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, TactexError
 
@@ -77,6 +80,9 @@ class SafetyLimits:
         10.0, "damping along the tool axis during the retreat: low, so a surface that pushes is yielded to [N·s/m]")
     retreat_angular_damping: float = param(3.0, "rotational damping during the retreat [N·m·s/rad]")
     hold_decay_time: float = param(0.1, "a held command decays to zero with this time constant [s]")
+    handover_blend_s: float = param(
+        0.05, "a new or resumed inner controller's torque is blended in from the last command over this time "
+        "(minimum-jerk weight); 0 switches at once [s]")
     dt: float = param(1e-3, "control period [s]")
 
     def __post_init__(self) -> None:
@@ -92,6 +98,7 @@ class SafetyLimits:
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"SafetyLimits.{name} must be finite and > 0, got {v!r}")
         for name in ("joint_limit_margin", "joint_limit_stiffness", "joint_limit_damping", "retreat_force",
+                     "handover_blend_s",
                      "lost_contact_force_n",
                      "retreat_damping", "retreat_angular_damping"):
             v = getattr(self, name)
@@ -133,6 +140,9 @@ class SafetyLayer(Controller):
         self._retreat_until: float | None = None
         self._saturating = {"torque_limit": False, "torque_rate_limit": False}
         self._held = False
+        self._last_inner: Controller = inner
+        self._blend_from: list[float] | None = None  # the command a hand-over blends from
+        self._blend_t0 = 0.0  # when the hand-over started [s]
 
     # -- bookkeeping ----------------------------------------------------------------------
     def _event(self, t: float, kind: str, detail: str) -> None:
@@ -150,6 +160,8 @@ class SafetyLayer(Controller):
         self._over = 0
         self._retreat_until = None
         self._held = False
+        self._last_inner = self.inner
+        self._blend_from = None
         self.inner.reset(state)
 
     @property
@@ -215,9 +227,13 @@ class SafetyLayer(Controller):
                 self._retreat_until = None
                 self.inner.resume(state)  # integrators restart; tanks keep their (possibly low) energy
                 self._event(state.t, "retreat_end", "retreat finished; inner controller resumed")
+                self._start_blend(state.t)
             else:
                 return self._finish(state, self._retreat_torque(state).tolist())
 
+        if self.inner is not self._last_inner:
+            self._last_inner = self.inner
+            self._start_blend(state.t)
         try:
             tau = self.inner.torque(state, reference)
             if tau.__class__ is not np.ndarray or tau.dtype is not _F64:  # skip the keyword call when it is a no-op
@@ -229,7 +245,25 @@ class SafetyLayer(Controller):
         if tau_l is None or not math.isfinite(sum(tau_l)):
             self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
             return self._finish(state, self._hold())
+        if self._blend_from is not None:
+            tau_l = self._blend(state.t, tau_l)
         return self._finish(state, tau_l)
+
+    def _start_blend(self, t: float) -> None:
+        if self.limits.handover_blend_s > 0:
+            self._blend_from = list(self._tau_prev_l)
+            self._blend_t0 = float(t)
+
+    def _blend(self, t: float, tau_l: list[float]) -> list[float]:
+        """(1 − w)·the command at the hand-over + w·``tau_l``, w a minimum-jerk ramp from 0 at the
+        hand-over's first tick to 1 after ``handover_blend_s``."""
+        lim = self.limits
+        w, _ = min_jerk((t - self._blend_t0 + lim.dt) / lim.handover_blend_s)
+        start = self._blend_from
+        if w >= 1.0 or start is None:
+            self._blend_from = None
+            return tau_l
+        return [a + w * (b - a) for a, b in zip(start, tau_l, strict=True)]
 
     def _retreat_torque(self, state: RobotState) -> np.ndarray:
         """The compliant retreat: a pull back along −tool z and damping. With the sensor lost the pull

@@ -17,6 +17,7 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
+from tactex.control.damping import latency_shaped_torque
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
@@ -58,17 +59,30 @@ class UficParams:
     integral_limit: float = param(30.0, "bound on |K_i ∫f̃| per component [N or N·m]")
     stiffness_scale: float = param(1.0, "translational stiffness scale ρ (time-varying K_C(t) = ρ·K_max,t) [-]")
     dt: float = param(1e-3, "nominal control period [s]")
+    wrench_cutoff_hz: float = param(
+        20.0, "first-order low-pass of the measured wrench the controller uses [Hz]: a sliding contact's "
+        "stick-slip shows on the F/T as one-tick spikes of ~7 N, which K_p passed straight to the joints")
+    latency_horizon_ticks: float = param(
+        3.0, "horizon h of the implicit impedance in control periods [-]: τ = M (M + h·B + h²·K)⁻¹ Jᵀf with "
+        "D_C and K_max mapped to the joints (tactex.control.damping); 0: τ = Jᵀf as in eq. 13. Explicit, the "
+        "rotational damping (2·√(0.1·200) ≈ 9 N·m·s/rad) on the light wrist rotation diverged behind a "
+        "one-tick command delay (19k torque-rate clips, 460 N in a wipe)")
+    damping_switch_s: float = param(
+        0.02, "time constant of the change between the free and the contact damping along the tool axis [s]: "
+        "switched in one tick at touch-down, the step of (D_free − D_contact)·v hit the torque-rate limit")
 
     def __post_init__(self) -> None:
         for name in ("stiffness_max", "damping_ratio", "apparent_mass", "damping_reference_stiffness", "force_axes"):
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (6,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"UficParams.{name} must be 6 finite values ≥ 0, got {getattr(self, name)!r}")
-        scalars = ("kp", "ki", "integral_limit", "dt", "stiffness_scale", "approach_damping_z", "contact_threshold_n")
+        scalars = ("kp", "ki", "integral_limit", "dt", "stiffness_scale", "approach_damping_z", "contact_threshold_n",
+                   "latency_horizon_ticks",
+                   "wrench_cutoff_hz", "damping_switch_s")
         for name in scalars:
             v = getattr(self, name)
-            if not np.isfinite(v) or v < 0 or (name == "dt" and v == 0):
-                raise ConfigError(f"UficParams.{name} must be finite and ≥ 0 (dt > 0), got {v!r}")
+            if not np.isfinite(v) or v < 0 or (name in ("dt", "wrench_cutoff_hz") and v == 0):
+                raise ConfigError(f"UficParams.{name} must be finite and ≥ 0 (dt, wrench_cutoff_hz > 0), got {v!r}")
 
     def damping_tool(self, in_contact: bool = True) -> np.ndarray:
         """Diagonal of D_C in the tool frame [N·s/m ×3, N·m·s/rad ×3] (in contact or approaching)."""
@@ -102,10 +116,14 @@ class UficController(Controller):
         self._ilim = self.params.integral_limit / self.params.ki if self.params.ki > 0 else 0.0
         self._t_prev: float | None = None
         self._last: dict[str, float] = {}
+        self._tau_w = 1.0 / (2.0 * np.pi * self.params.wrench_cutoff_hz)
+        self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
 
     def reset(self, state: RobotState) -> None:
         self._integral = [0.0] * 6
         self._t_prev = None
+        self._w_filt = None
+        self._d_tool, self._d_tool_f = self._d_contact, self._d_contact_f
         self.stiffness_scale = self.params.stiffness_scale
         self._last = {}
 
@@ -116,14 +134,30 @@ class UficController(Controller):
         self._t_prev = state.t
         return dt
 
-    def _select_damping(self, force_z: float) -> None:
+    def _wrench_filtered(self, state: RobotState, dt: float) -> list[float]:
+        """The measured wrench low-passed at ``wrench_cutoff_hz`` (6 Python floats, tool frame)."""
+        raw = state.wrench_tool.tolist()
+        w = self._w_filt
+        if w is not None:
+            a = dt / (dt + self._tau_w)
+            raw = [x + a * (r - x) for x, r in zip(w, raw, strict=True)]
+        self._w_filt = raw
+        return raw
+
+    def _select_damping(self, force_z: float, dt: float | None = None) -> None:
         """D_C for this tick from the measured pressing force ``force_z`` [N] (``wrench_tool[2]``): more
-        damping along the tool axis while out of contact (damping of any size is passive, so switching
-        it costs no energy)."""
-        if force_z >= self.params.contact_threshold_n:  # in contact
-            self._d_tool, self._d_tool_f = self._d_contact, self._d_contact_f
+        damping along the tool axis while out of contact (damping of any size is passive, so changing
+        it costs no energy). With ``dt`` [s] the tool-axis damping moves towards the new value with the
+        time constant ``damping_switch_s``; without, it switches at once."""
+        target = self._d_contact_f if force_z >= self.params.contact_threshold_n else self._d_free_f
+        tau = self.params.damping_switch_s
+        if dt is None or tau <= 0:
+            self._d_tool_f = target
         else:
-            self._d_tool, self._d_tool_f = self._d_free, self._d_free_f
+            d = self._d_tool_f
+            dz = d[2] + dt / (dt + tau) * (target[2] - d[2])
+            self._d_tool_f = (target[0], target[1], dz, target[3], target[4], target[5])
+        self._d_tool = np.array(self._d_tool_f)
 
     @staticmethod
     def pose_error_world(state: RobotState, position_d: np.ndarray, rotation_d: np.ndarray) -> np.ndarray:
@@ -183,8 +217,8 @@ class UficController(Controller):
             self._neg_k_tool_f = tuple(self._neg_k_tool.tolist())
         k0, k1, k2, k3, k4, k5 = self._neg_k_tool_f
         wd = reference.wrench_tool.tolist()
-        wm = state.wrench_tool.tolist()
-        self._select_damping(wm[2])
+        wm = self._wrench_filtered(state, dt)
+        self._select_damping(wm[2], dt)
         d0, d1, d2, d3, d4, d5 = self._d_tool_f
         f0, f1, f2, f3, f4, f5 = self.force_wrench_tool(state, wd, dt, True, wm)  # eq. 10–12
         # eq. 8, gains in tool axes, plus the force controller
@@ -194,7 +228,23 @@ class UficController(Controller):
         # eq. 9, 13: τ = Jᵀ [R f; R m], the rotation on floats, one (6,) · (6, 7) product
         f_world = (r00 * g0 + r01 * g1 + r02 * g2, r10 * g0 + r11 * g1 + r12 * g2, r20 * g0 + r21 * g1 + r22 * g2,
                    r00 * g3 + r01 * g4 + r02 * g5, r10 * g3 + r11 * g4 + r12 * g5, r20 * g3 + r21 * g4 + r22 * g5)
-        return np.dot(f_world, state.jacobian)
+        return self.joint_torque(state, f_world)
+
+    def joint_torque(self, state: RobotState, f_world: tuple[float, ...]) -> np.ndarray:
+        """τ = Jᵀ f (eq. 13) for the world wrench ``f_world`` [N, N·m], applied implicitly over
+        ``latency_horizon_ticks`` with this tick's D_C and K_max in the tool frame
+        (:func:`tactex.control.damping.latency_shaped_torque`): unchanged on heavy modes."""
+        jac = state.jacobian
+        tau = np.dot(f_world, jac)
+        h = self.params.latency_horizon_ticks * self.params.dt
+        if h <= 0:
+            return tau
+        jac_tool = np.empty_like(jac)
+        rt = state.ee_rotation.T
+        np.dot(rt, jac[:3], out=jac_tool[:3])
+        np.dot(rt, jac[3:], out=jac_tool[3:])
+        gains = self._d_tool + h * self._k_max
+        return latency_shaped_torque(state.mass_matrix, tau, jac_tool.T @ (gains[:, None] * jac_tool), None, h)
 
     def telemetry(self) -> dict[str, float]:
         return dict(self._last)

@@ -257,7 +257,7 @@ class VaUficController(UficController):
         e3, e4, e5 = log_so3_rows(matmul3_tn_rows(self._rot_d, rl))
         usable, theta, ls, z_des = self._surface(state, reference.surface, rl)
 
-        wm = state.wrench_tool.tolist()
+        wm = self._wrench_filtered(state, dt)
         c = contact_alignment(wm, (e0, e1, e2, e3, e4, e5), theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
         h = alignment_coefficient(c, v.c_margin)  # eq. 18
         rho_align = self.shaper.step(h, dt)  # eq. 20–21
@@ -282,7 +282,7 @@ class VaUficController(UficController):
         vx, vy, vz, wx, wy, wz = state.ee_twist.tolist()
         x0, x1, x2 = r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz
         x3, x4, x5 = r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz
-        self._select_damping(wm[2])
+        self._select_damping(wm[2], dt)
         d0, d1, d2, d3, d4, d5 = self._d_tool_f
         dx0, dx1, dx2, dx3, dx4, dx5 = d0 * x0, d1 * x1, d2 * x2, d3 * x3, d4 * x4, d5 * x5  # D ẋ
         f0, f1, f2, f3, f4, f5 = self.force_wrench_tool(state, wd, dt, rho_frc > 1e-3, wm)
@@ -327,7 +327,7 @@ class VaUficController(UficController):
         # τ = Jᵀ [R f_lin; R f_ang]: the rotation on floats, one (6,) · (6, 7) product
         f_world = (r00 * g0 + r01 * g1 + r02 * g2, r10 * g0 + r11 * g1 + r12 * g2, r20 * g0 + r21 * g1 + r22 * g2,
                    r00 * g3 + r01 * g4 + r02 * g5, r10 * g3 + r11 * g4 + r12 * g5, r20 * g3 + r21 * g4 + r22 * g5)
-        return np.dot(f_world, state.jacobian)
+        return self.joint_torque(state, f_world)
 
     @property
     def rotation_desired(self) -> np.ndarray | None:
