@@ -3,11 +3,12 @@
 # Set-up: pip puts the pinned uv (tools/uv-requirements.txt, hash-checked) into .tools/, and uv
 # builds .venv with exactly the versions in uv.lock (`uv sync --frozen`: it never re-resolves).
 # EXTRAS picks the optional extras; the venv holds exactly those (uv sync removes the others).
+# franka is in by default: the real-robot tests run against tactex twin (franky-sim) on loopback.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 UV := .tools/bin/uv
-EXTRAS ?= dev fast
+EXTRAS ?= dev fast franka
 OUT ?= runs/demo
 
 empty :=

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import sys
 
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 from tactex.errors import ConfigError
+from tactex.tasks.robot import RealRobotParams
 
 
 def register_task(parser: argparse.ArgumentParser, kind: str, config_cls: type) -> None:
@@ -20,6 +23,24 @@ def register_task(parser: argparse.ArgumentParser, kind: str, config_cls: type) 
                         help="skip the replay video (otherwise written when GL rendering works)")
     group = parser.add_argument_group(f"{kind} parameters")
     add_dataclass_arguments(group, config_cls)
+    parser.add_argument("--robot", choices=("sim", "franka"), default="sim",
+                        help="sim: the MuJoCo world (default); franka: a real Franka through libfranka, or "
+                             "tactex twin (docs/real_robot.md)")
+    robot = parser.add_argument_group("real robot (with --robot franka)")
+    add_dataclass_arguments(robot, RealRobotParams)
+
+
+def robot_params(args: argparse.Namespace) -> RealRobotParams | None:
+    """The real robot's parameters with ``--robot franka``; None in simulation (where giving one of
+    them is a mistake worth naming)."""
+    from tactex.tasks.robot import RealRobotParams
+
+    if args.robot == "franka":
+        return dataclass_from_args(RealRobotParams, args)
+    given = [f.name for f in dataclasses.fields(RealRobotParams) if getattr(args, f.name, None) is not None]
+    if given:
+        raise ConfigError(f"--{given[0].replace('_', '-')} is for a real robot: add --robot franka")
+    return None
 
 
 def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> int:
@@ -28,15 +49,24 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
     from tactex.tasks.demo import run_compare, run_task
 
     cfg = dataclass_from_args(config_cls, args)
+    robot = robot_params(args)
     if args.compare and cfg.baseline:
         raise ConfigError(f"--compare runs tactex and every baseline; drop --baseline {cfg.baseline}")
+    if args.compare and robot is not None:
+        raise ConfigError("--compare runs in simulation only; on a robot run tactex and a --baseline one at a time")
     out = prepare_out_dir(args.out)  # made only once the parameters are known to be good
     if args.compare:
         reports = run_compare(kind, cfg, out, progress=not args.quiet, video=args.video)
         page = out / "index.html"
     else:
-        reports = [run_task(kind, cfg, out, progress=not args.quiet, video=args.video)]
+        reports = [run_task(kind, cfg, out, progress=not args.quiet, video=args.video and robot is None,
+                            robot=robot)]
         page = reports[0].html or out
     print(summary_table([(r.label, r.metrics) for r in reports]))
     print(f"report: {page}")
+    aborted = [r.metrics.get("aborted") for r in reports if r.metrics.get("aborted")]
+    if aborted:
+        print(f"tactex {kind}: error: the run stopped early ({aborted[0]}); what it recorded is in {out}",
+              file=sys.stderr)
+        return 1
     return 0

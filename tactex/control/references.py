@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -72,6 +73,8 @@ class PoseForceReference:
     surface: SurfaceEstimate | None = None
 
     def __post_init__(self) -> None:
+        if self._fast_valid():
+            return
         pos = _finite("PoseForceReference.position_world", self.position_world, (3,))
         object.__setattr__(self, "position_world", pos)
         rot = _finite("PoseForceReference.rotation_world", self.rotation_world, (3, 3))
@@ -80,3 +83,22 @@ class PoseForceReference:
         object.__setattr__(self, "rotation_world", rot)
         object.__setattr__(self, "wrench_tool", _finite("PoseForceReference.wrench_tool", self.wrench_tool, (6,)))
         object.__setattr__(self, "twist_world", _finite("PoseForceReference.twist_world", self.twist_world, (6,)))
+
+    def _fast_valid(self) -> bool:
+        """The common case, built once per tick at 1 kHz: float arrays of the right shapes, finite, a
+        proper rotation. Checked with a handful of scalar operations; anything else goes through
+        the full checks, which name the bad field."""
+        pos, rot, wrench, twist = self.position_world, self.rotation_world, self.wrench_tool, self.twist_world
+        if not (type(pos) is np.ndarray and type(rot) is np.ndarray and type(wrench) is np.ndarray
+                and type(twist) is np.ndarray and pos.shape == (3,) and rot.shape == (3, 3)
+                and wrench.shape == (6,) and twist.shape == (6,) and pos.dtype == rot.dtype == wrench.dtype
+                == twist.dtype == np.float64):
+            return False
+        total = float(pos.sum()) + float(rot.sum()) + float(wrench.sum()) + float(twist.sum())
+        if not math.isfinite(total):
+            return False
+        (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+        det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+        gram = (a * a + b * b + c * c - 1.0, d * d + e * e + f * f - 1.0, g * g + h * h + i * i - 1.0,
+                a * d + b * e + c * f, a * g + b * h + c * i, d * g + e * h + f * i)
+        return det > 0.0 and max(abs(x) for x in gram) <= 1e-6

@@ -47,6 +47,9 @@ from tactex.sim.tool import ToolGeometry, flange_R_tool
 __all__ = ["FrankaConfig", "LibfrankaBackend", "LoopTiming", "flange_T_tcp", "franka_state_to_robot_state"]
 
 _GRAVITY = [0.0, 0.0, -9.81]
+#: A tick whose command comes this late ends the run [µs]: libfranka tolerates a few lost cycles,
+#: not tens of them in a row.
+LATE_COMMAND_ABORT_US = 20_000.0
 
 
 @dataclass(frozen=True)
@@ -114,7 +117,9 @@ def flange_T_tcp(tool: ToolGeometry) -> np.ndarray:
 
 
 def _col_major(a: Any, rows: int, cols: int) -> np.ndarray:
-    return np.asarray(a, dtype=float).reshape(cols, rows).T
+    """A column-major libfranka array as a C-contiguous (rows, cols) matrix (controllers write into
+    products of it with ``out=``, which needs C order)."""
+    return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(cols, rows).T)
 
 
 def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench_tool: np.ndarray) -> RobotState:
@@ -320,6 +325,14 @@ class LibfrankaBackend:
         except Exception as exc:
             raise self._fault(exc) from exc
         now = time.perf_counter()
+        if compute_us > LATE_COMMAND_ABORT_US and not self.config.dry_run:
+            # a real Franka stops here (communication_constraints_violation); a twin would keep the last
+            # torque on an arm nobody controls
+            self.close()
+            raise RobotError(
+                f"the control loop answered {compute_us / 1e3:.0f} ms late (budget 1 ms): something slow ran "
+                "between two ticks while torque control was on; a real Franka stops with "
+                "communication_constraints_violation. Torque control ended")
         period_us = (now - self._last_read_wall) * 1e6 if self._last_read_wall is not None else float("nan")
         self._last_read_wall = now
         lost = max(0, round(period_ms) - 1)
@@ -397,3 +410,7 @@ class LibfrankaBackend:
             self.wrench.close()
             if self._ik is not None:
                 self._ik.close()
+            # dropping libfranka's Robot closes its connection: the robot (or twin) serves one client at
+            # a time and a second one would wait forever
+            self.robot = None
+            self.model = None

@@ -1,9 +1,9 @@
 """Where the contact wrench comes from on a real robot: one small interface, two sources.
 
 - :class:`FrankaWrenchSource`: the arm's own estimate ``K_F_ext_hat_K`` (from the joint torque
-  sensors and the model; VA-UFIC's setting). It is the wrench the *environment* exerts on the
-  robot, in the end-effector frame K (set with ``set_EE``: our tool frame at the TCP), so the
-  wrench the tool exerts on the environment is its negative.
+  sensors and the model; VA-UFIC's setting), in the stiffness frame K (the end effector set with
+  ``set_EE``: our tool frame at the TCP). libfranka's sign (robot_state.h): "forces applied by the
+  robot to the environment are positive", which is our convention already.
 - :class:`NetFTWrenchSource`: an ATI Net F/T at the wrist (TEC's setting), its reading in the
   sensor frame calibrated for the tool by :class:`~tactex.sim.ft_sensor.FTSensorModel` (the tool's
   weight removed, moved to the TCP). A stream that stops gives NaN: the safety layer bridges short
@@ -51,7 +51,7 @@ class FrankaWrenchSource(WrenchSource):
     name = "franka"
 
     def wrench_tool(self, franka_state, world_R_tool: np.ndarray) -> np.ndarray:
-        return -np.asarray(franka_state.K_F_ext_hat_K, dtype=float)
+        return np.asarray(franka_state.K_F_ext_hat_K, dtype=float)
 
 
 class NetFTWrenchSource(WrenchSource):

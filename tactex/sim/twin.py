@@ -68,12 +68,14 @@ class TwinConfig:
     object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the robot base "
                                                         "frame [m]")
     object_rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "object orientation roll/pitch/yaw [deg]")
-    marking: str = param("", "dirt pattern (X, RLI, blobs, shapes, full); empty = the object's default")
-    tool_stiffness_n_per_m: float = param(10000.0, "sponge stiffness along the tool axis [N/m]")
+    marking: str = param("X", "dirt pattern (X, RLI, blobs, shapes, full; tactex clean's default X); empty = the "
+                              "object's default")
+    # the tool of tactex clean and wipe (tactex.tasks.world.SimWorldParams): the client declares it
+    tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness along the tool axis [N/m]")
     tool_damping_ratio: float = param(0.7, "sponge damping, fraction of critical [-]")
     tool_friction: float = param(0.4, "pad–surface Coulomb friction coefficient [-]")
     tool_pad_radius_m: float = param(0.025, "sponge radius [m]")
-    tool_pad_shape: str = param("cylinder", "pad shape: cylinder (flat sponge) or sphere")
+    tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
     payload_mass_kg: float = param(0.0, "extra mass hung at the TCP, unknown to the F/T calibration [kg]")
     dirt_resolution_m: float = param(0.002, "dirt grid cell size [m]")
     preston_coefficient: float = param(5e-3, "Preston wear coefficient [1/(Pa·m)]")
@@ -430,6 +432,15 @@ class Twin:
     def stop(self) -> None:
         self._stop.set()
 
+    def toggle_ft_stream(self) -> None:
+        """Stop the Net F/T stream, or start it again (the client sees a dead, then a live sensor)."""
+        server = getattr(self, "netft", None)
+        if server is not None:
+            if server.paused.is_set():
+                server.paused.clear()
+            else:
+                server.paused.set()
+
     def run(self, ready=None) -> None:
         """Serve until :meth:`stop`; ``ready(twin)`` is called once both servers listen.
 
@@ -518,12 +529,15 @@ def _contact_aware_class(base: type) -> type:
 
 def run_twin(config: TwinConfig, *, ready=None, handle_signals: bool = True) -> Twin:
     """Build the twin and serve until SIGTERM/SIGINT (when ``handle_signals``) or ``twin.stop()``;
-    ``ready(twin)`` is called once it listens. Returns the stopped twin."""
+    SIGUSR1 stops and restarts the Net F/T stream (a sensor drill). ``ready(twin)`` is called once
+    it listens. Returns the stopped twin."""
     twin = Twin(config)
     previous = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
             previous[sig] = signal.signal(sig, lambda *_: twin.stop())
+        # a dead-sensor drill: SIGUSR1 stops the Net F/T stream, the next SIGUSR1 starts it again
+        previous[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda *_: twin.toggle_ft_stream())
     try:
         twin.run(ready)
     finally:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,18 +34,18 @@ from tactex.ergodic import kernel
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
-from tactex.errors import ConfigError, ExplorationError, SimulationError
+from tactex.errors import ConfigError, ExplorationError, InputError, RobotError, SensorFault, SimulationError
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
-from tactex.robots.mujoco_backend import MujocoBackend
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
+from tactex.tasks.robot import RealRobotParams, open_backend
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
 from tactex.tasks.world import SimWorldParams
@@ -106,6 +107,9 @@ class CleanConfig(SimWorldParams):
         "fitted normal jumps between the two faces from one exploration step to the next [deg/s]",
     )
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
+    cloud: str = param("", "a coloured point cloud (.ply/.pcd/.npz) in the robot base frame [m] whose red marking "
+                           "(or stored target) is the dirt: no camera capture, no re-measurement (a robot without a "
+                           "camera; TEC: markings annotated by an expert). Needed with --robot franka")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
     seed: int = param(0, "seed of the sensor noise and of the explorer's random headings")
@@ -142,6 +146,10 @@ class CleanConfig(SimWorldParams):
         if self.vision_every_steps < 1 or self.n_eigen < 1:
             raise ConfigError(
                 f"vision_every_steps and n_eigen must be ≥ 1, got {self.vision_every_steps} and {self.n_eigen}")
+        if self.cloud and not Path(self.cloud).is_file():
+            raise ConfigError(f"--cloud '{self.cloud}' is not a file (give a .ply/.pcd/.npz in the robot base frame)")
+        if self.cloud and self.baseline == "no_feedback":
+            raise ConfigError("--cloud already runs without vision feedback; drop --baseline no_feedback")
         if not 0.0 <= self.stop_remaining < 1.0:
             raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
 
@@ -166,8 +174,9 @@ class CleanResult:
 class _Log:
     """Per-tick bookkeeping: force statistics every tick, a time series at ``record_hz``."""
 
-    def __init__(self, backend: MujocoBackend, cfg: CleanConfig) -> None:
+    def __init__(self, backend, cfg: CleanConfig) -> None:
         self.backend = backend
+        self.truth = hasattr(backend, "dirt_remaining")  # a simulation knows the dirt; a real robot does not
         self.cfg = cfg
         self.rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
         self.t = 0.0  # time of the last tick [s]
@@ -207,16 +216,17 @@ class _Log:
             self.rec.add(
                 t=state.t, phase=self.phase, q=state.q, tcp=state.ee_position, agent=self.agent, force_z_n=fn,
                 force_norm_n=fmag, set_point_n=self.set_point if self.phase == PHASES["explore"] else 0.0,
-                pad_force_n=self.backend.pad_contact()[0], dirt_remaining=self.backend.dirt_remaining(),
+                pad_force_n=self.backend.pad_contact()[0] if self.truth else np.nan,
+                dirt_remaining=self.backend.dirt_remaining() if self.truth else np.nan,
             )
         else:
             self.rec.add()
 
 
-def _capture_pose(backend: MujocoBackend, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
+def _capture_pose(scene: SceneConfig, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
     """Where the robot looks from: above a height field, beside a cylinder wall (camera ⟂ surface)."""
-    pos, rot = backend.object_pose()
-    surface = backend.scene.sim_object.surface
+    pos, rot = scene.object_pose()
+    surface = scene.sim_object.surface
     if isinstance(surface, CylinderWallSurface):
         out = rot @ np.array([0.0, -1.0, 0.0])  # the side the cup's marking faces
         centre = pos + rot @ np.array([0.0, 0.0, surface.height_m / 2])
@@ -225,30 +235,80 @@ def _capture_pose(backend: MujocoBackend, cfg: CleanConfig) -> tuple[np.ndarray,
     return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
 
 
-def _acquisition(backend: MujocoBackend) -> AcquisitionConfig:
-    pos, _ = backend.object_pose()
-    half = float(np.max(np.abs(backend.scene.sim_object.surface.bounds_m[:, :2]))) + 0.01
+def _acquisition(scene: SceneConfig) -> AcquisitionConfig:
+    pos, _ = scene.object_pose()
+    half = float(np.max(np.abs(scene.sim_object.surface.bounds_m[:, :2]))) + 0.01
     lo, hi = workspace_crop(pos, half)
     return AcquisitionConfig(crop_min_m=lo, crop_max_m=hi, voxel_size_m=0.0, sor_mean_k=20, sor_std_mul=2.0)
 
 
-def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> CleanResult:
-    """Run the cleaning program in simulation and return its metrics, series and fields."""
+def load_target_cloud(path: str | Path, voxel_size_m: float) -> SurfaceCloud:
+    """A user's cloud in the robot base frame as the cleaning target: voxelised, its stored target
+    or else its red marking (red = 1, green and blue ≤ 0.5: white is not dirt), with normals
+    estimated (16 neighbours, oriented up) where the file has none."""
+    from tactex.perception.normals import knn_normals
+    from tactex.pointcloud.io import load_cloud
+    from tactex.pointcloud.voxel import voxel_down_sample
+
+    raw = load_cloud(path)
+    cloud = voxel_down_sample(raw, voxel_size_m) if voxel_size_m > 0 else raw
+    if cloud.n_target == 0:
+        if cloud.colors is None:
+            raise InputError(f"--cloud '{path}' has neither a target nor colours: mark the dirt red (255, 0, 0)")
+        c = cloud.colors
+        marked = (c[:, 0] >= 0.99) & (c[:, 1] <= 0.5) & (c[:, 2] <= 0.5)
+        cloud = cloud.with_target(marked.astype(float))
+    if cloud.n_target == 0:
+        raise InputError(f"--cloud '{path}' marks no point as dirt: mark it red (255, 0, 0) or store a target")
+    if cloud.normals is None:
+        field = knn_normals(cloud.points, 16, viewpoint=cloud.points.mean(axis=0) + np.array([0.0, 0.0, 1.0]))
+        cloud = replace(cloud.subset(field.ok), normals=field.normals[field.ok], spacing=cloud.spacing)
+    return cloud
+
+
+def _cloud_capture_pose(cloud: SurfaceCloud, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Above a user's cloud: its top, ``capture_distance_m`` higher, looking down."""
+    lo, hi = cloud.points.min(axis=0), cloud.points.max(axis=0)
+    top = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]])
+    return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
+
+
+def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
+              robot: RealRobotParams | None = None) -> CleanResult:
+    """Run the cleaning program in simulation, or on a real Franka (``robot``, with ``config.cloud``),
+    and return its metrics, series and fields.
+
+    A libfranka error, a lost sensor or Ctrl-C ends the program early: torque control stops and the
+    result holds what was recorded, ``aborted`` naming the cause in its metrics."""
     cfg = config or CleanConfig()
+    if robot is not None and not cfg.cloud:
+        raise ConfigError("clean on a real robot takes its target from --cloud FILE (a coloured cloud in the robot "
+                          "base frame); capturing it with the wrist camera is done in simulation only")
+    scene_cfg = cfg.scene()
+    backend = open_backend(scene_cfg, robot)
+    try:
+        return _run_clean(cfg, backend, scene_cfg, robot, progress)
+    finally:
+        backend.close()
+
+
+def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
+               progress: bool) -> CleanResult:
     wall0 = time.perf_counter()
-    backend = MujocoBackend(cfg.scene())
     log = _Log(backend, cfg)
     loop = ControlLoop(backend, on_tick=log)
     bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
-    acq = replace(_acquisition(backend), voxel_size_m=cfg.voxel_size_m)
-    cap_pos, cap_rot = _capture_pose(backend, cfg)
+    given = load_target_cloud(cfg.cloud, cfg.voxel_size_m) if cfg.cloud else None
+    acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
+    cap_pos, cap_rot = _capture_pose(scene_cfg, cfg) if given is None else _cloud_capture_pose(given, cfg)
     try:
         q_capture = backend.solve_ik(cap_pos, cap_rot)  # TEC's pre-recorded capture posture
     except SimulationError as exc:
-        which = "side_capture_distance_m" if isinstance(backend.scene.sim_object.surface, CylinderWallSurface) \
+        which = "side_capture_distance_m" if isinstance(scene_cfg.sim_object.surface, CylinderWallSurface) \
             else "capture_distance_m"
         raise ConfigError(f"the capture pose at {np.round(cap_pos, 3).tolist()} m is out of the arm's reach ({exc}); "
                           f"lower {which} (now {getattr(cfg, which)} m)") from exc
+    dirt = backend.dirt_remaining if log.truth else (lambda: float("nan"))
 
     def capture(lift: bool = False) -> SurfaceCloud:
         log.phase = PHASES["move"]
@@ -264,10 +324,13 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
                               RuntimeWarning, stacklevel=2)
         loop.move_joints(q_capture, settle_s=0.3)
         log.phase = PHASES["capture"]
+        if given is not None:
+            return given
         return capture_target_cloud(backend.render_depth(), acq)
 
-    # 1. capture and segment the dirt
-    cloud = capture()
+    # 1. capture and segment the dirt. A given cloud needs no capture: the basis and the explorer are
+    # made before the arm moves, since on a real robot nothing slow may run while torque control is on
+    cloud = capture() if given is None else given
     n_target0 = cloud.n_target
     if n_target0 == 0:
         raise ExplorationError("the first capture sees no dirt: nothing to clean (check the marking and the view)")
@@ -307,6 +370,10 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         source = HedacExplorer(cloud, basis, hcfg)
     targets = np.flatnonzero(cloud.target > 0)
     x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
+    if given is not None:
+        source.reset(x0)  # a first step here, not in the loop: numba loads the compiled step on first use
+        source.step()
+        capture()  # to the capture posture, as the camera path did
     cmd: ExplorationCommand = source.reset(x0)
     cmd = cmd[0] if isinstance(cmd, list) else cmd
 
@@ -315,117 +382,127 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     t_end = cfg.budget_s
     vision_updates = 0
     vision_times: list[float] = []  # [s] when each re-measurement was taken
-    vision_trip_s = 3.0  # [s] retract, lift, transit and capture; measured after the first trip
+    vision_trip_s = 5.0  # [s] retract, lift, transit and capture (~4.5 s on the plate); measured after the first trip
     agent_path_m = 0.0  # [m] the agent's path in the exploration phases before the current one
     remaining_seen = 1.0
     agent_path: list[np.ndarray] = []
     ergodicity: list[tuple[float, float]] = []
     explore_time = 0.0
 
-    while loop.t < t_end:
-        # 3a. hover over the agent and approach along its normal line
-        log.phase = PHASES["move"]
-        # Through a waypoint straight above the hover pose: a joint move from the high capture pose
-        # down to a hover inside a bowl can swing the tool through the rim on the way. The waypoint is
-        # solved from the hover (same IK branch) and dropped when it is not a short step from it.
-        rot = tool_rotation_for_normal(cmd.normal)
-        hover = cmd.point + cfg.hover_height_m * cmd.normal
-        q_hover = loop.solve_pose(hover, rot, q_seed=q_capture)
-        try:
-            q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
-        except SimulationError:
-            q_above = None
-        if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
-            q_above = None
-        if q_above is None:
-            move_s = loop.joint_move_duration(q_hover)
-        else:
-            move_s = loop.joint_move_duration(q_above) + loop.joint_move_duration(q_hover, q_from=q_above)
-        if loop.t + move_s + HOVER_SETTLE_S >= t_end:
-            break  # the move alone would use up the budget
-        if q_above is not None:
-            loop.move_joints(q_above, settle_s=0.0)
-        loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
-        log.phase = PHASES["approach"]
-        loop.use(ga)
-        t_touch = None
-        t_approach_end = loop.t + 6.0
-        while loop.t < min(t_approach_end, t_end):
-            s = loop.tick(LineForceReference(cmd.point, cmd.normal, cfg.approach_force_n))
-            if s.wrench_tool[2] >= cfg.contact_threshold_n:
-                t_touch = loop.t
-                break
-        if t_touch is None and loop.t >= t_end:
-            break  # the time budget ended during the approach
-        if t_touch is None:
-            raise ExplorationError(
-                f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
-                "surface and the real one disagree (object moved?)"
-            )
-        # 3b. contact exploration
-        log.phase = PHASES["explore"]
-        prev = cmd
-        n_prev = n_next = cmd.normal.copy()  # the commanded normal line, turned at a bounded rate
-        max_turn = np.radians(cfg.max_normal_rate_deg_s) * dt_step
-        next_step = loop.t
-        steps_since_vision = 0
-        t_phase = loop.t
+    aborted = ""
+    try:
         while loop.t < t_end:
-            if loop.t >= next_step - 1e-9:
-                prev = cmd
-                measured = loop.state.ee_position if cfg.agent_feedback else None
-                cmd = source.step(measured)
-                n_prev, n_next = n_next, rotate_towards(n_next, cmd.normal, max_turn)
-                next_step += dt_step
-                steps_since_vision += 1
-                agent_path.append(cmd.point)
-                log.agent = cmd.point
-                if isinstance(source, HedacExplorer) and steps_since_vision % 20 == 0:
-                    ergodicity.append((loop.t, source.ergodicity()))
-            frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
-            point = prev.point + frac * (cmd.point - prev.point)
-            normal = n_prev + frac * (n_next - n_prev)
-            ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
-            force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
-            log.set_point = force
-            loop.tick(LineForceReference(point, normal, force))
-            if int(loop.t * 1000) % 250 == 0:
-                bar.update(loop.t, dirt=backend.dirt_remaining(), vision=vision_updates)
+            # 3a. hover over the agent and approach along its normal line
+            log.phase = PHASES["move"]
+            # Through a waypoint straight above the hover pose: a joint move from the high capture pose
+            # down to a hover inside a bowl can swing the tool through the rim on the way. The waypoint is
+            # solved from the hover (same IK branch) and dropped when it is not a short step from it.
+            rot = tool_rotation_for_normal(cmd.normal)
+            hover = cmd.point + cfg.hover_height_m * cmd.normal
+            q_hover = loop.solve_pose(hover, rot, q_seed=q_capture)
+            try:
+                q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
+            except SimulationError:
+                q_above = None
+            if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
+                q_above = None
+            if q_above is None:
+                move_s = loop.joint_move_duration(q_hover)
+            else:
+                move_s = loop.joint_move_duration(q_above) + loop.joint_move_duration(q_hover, q_from=q_above)
+            if loop.t + move_s + HOVER_SETTLE_S >= t_end:
+                break  # the move alone would use up the budget
+            if q_above is not None:
+                loop.move_joints(q_above, settle_s=0.0)
+            loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
+            log.phase = PHASES["approach"]
+            loop.use(ga)
+            t_touch = None
+            t_approach_end = loop.t + 6.0
+            while loop.t < min(t_approach_end, t_end):
+                s = loop.tick(LineForceReference(cmd.point, cmd.normal, cfg.approach_force_n))
+                if s.wrench_tool[2] >= cfg.contact_threshold_n:
+                    t_touch = loop.t
+                    break
+            if t_touch is None and loop.t >= t_end:
+                break  # the time budget ended during the approach
+            if t_touch is None:
+                raise ExplorationError(
+                    f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
+                    "surface and the real one disagree (object moved?)"
+                )
+            # 3b. contact exploration
+            log.phase = PHASES["explore"]
+            prev = cmd
+            n_prev = n_next = cmd.normal.copy()  # the commanded normal line, turned at a bounded rate
+            max_turn = np.radians(cfg.max_normal_rate_deg_s) * dt_step
+            next_step = loop.t
+            steps_since_vision = 0
+            covered = False
+            t_phase = loop.t
+            while loop.t < t_end:
+                if loop.t >= next_step - 1e-9:
+                    prev = cmd
+                    measured = loop.state.ee_position if cfg.agent_feedback else None
+                    cmd = source.step(measured)
+                    n_prev, n_next = n_next, rotate_towards(n_next, cmd.normal, max_turn)
+                    next_step += dt_step
+                    steps_since_vision += 1
+                    agent_path.append(cmd.point)
+                    log.agent = cmd.point
+                    if isinstance(source, HedacExplorer) and steps_since_vision % 20 == 0:
+                        ergodicity.append((loop.t, source.ergodicity()))
+                        covered = given is not None and source.coverage_residual() <= cfg.stop_remaining
+                frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
+                point = prev.point + frac * (cmd.point - prev.point)
+                normal = n_prev + frac * (n_next - n_prev)
+                ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
+                force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
+                log.set_point = force
+                loop.tick(LineForceReference(point, normal, force))
+                if int(loop.t * 1000) % 250 == 0:
+                    bar.update(loop.t, dirt=dirt(), vision=vision_updates)
+                if cfg.baseline == "raster" and source.done:
+                    break
+                if cfg.baseline == "" and given is None and steps_since_vision >= cfg.vision_every_steps:
+                    break
+                if covered:
+                    break  # no camera to re-measure: the explorer's own coverage of the given target says done
+            explore_time += loop.t - t_phase
             if cfg.baseline == "raster" and source.done:
                 break
-            if cfg.baseline == "" and steps_since_vision >= cfg.vision_every_steps:
+            if cfg.baseline != "" or given is not None or loop.t + vision_trip_s >= t_end:
+                break  # (a re-measurement that would end after the budget could not be used)
+            # 4. back to vision: re-measure the dirt on the same points, update the target
+            t_trip = loop.t
+            log.phase = PHASES["retract"]
+            loop.retract(RETRACT_M, duration_s=0.4)
+            new_capture = capture(lift=True)
+            vision_trip_s = loop.t - t_trip  # the next trip's estimate
+            vision_updates += 1
+            vision_times.append(loop.t)
+            mass = remeasure_target(cloud, new_capture)
+            remaining_seen = float(np.count_nonzero(mass)) / n_target0
+            bar.update(loop.t, dirt=dirt(), vision=vision_updates)
+            if remaining_seen < cfg.stop_remaining or not np.any(mass > 0):
                 break
-        explore_time += loop.t - t_phase
-        if cfg.baseline == "raster" and source.done:
-            break
-        if cfg.baseline != "" or loop.t + vision_trip_s >= t_end:
-            break  # (a re-measurement that would end after the budget could not be used)
-        # 4. back to vision: re-measure the dirt on the same points, update the target
-        t_trip = loop.t
-        log.phase = PHASES["retract"]
-        loop.retract(RETRACT_M, duration_s=0.4)
-        new_capture = capture(lift=True)
-        vision_trip_s = loop.t - t_trip  # the next trip's estimate
-        vision_updates += 1
-        vision_times.append(loop.t)
-        mass = remeasure_target(cloud, new_capture)
-        remaining_seen = float(np.count_nonzero(mass)) / n_target0
-        bar.update(loop.t, dirt=backend.dirt_remaining(), vision=vision_updates)
-        if remaining_seen < cfg.stop_remaining or not np.any(mass > 0):
-            break
-        source.update_target(mass)
-        # restart from the dirt nearest to where the robot is
-        left = np.flatnonzero(mass > 0)
-        x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
-        agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
-        cmd = source.reset(x0)
-        cmd = cmd[0] if isinstance(cmd, list) else cmd
+            source.update_target(mass)
+            # restart from the dirt nearest to where the robot is
+            left = np.flatnonzero(mass > 0)
+            x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
+            agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
+            cmd = source.reset(x0)
+            cmd = cmd[0] if isinstance(cmd, list) else cmd
+    except (RobotError, SensorFault, KeyboardInterrupt) as exc:
+        # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
+        aborted = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        bar.note(f"stopped early: {aborted}")
 
     # lift off at the end so the final state is out of contact (0.4 s, on top of the budget)
     log.phase = PHASES["retract"]
-    if loop.state.wrench_tool[2] > cfg.contact_threshold_n:
+    if not aborted and loop.state.wrench_tool[2] > cfg.contact_threshold_n:
         loop.retract(RETRACT_M, duration_s=0.4)
-    bar.close(f"dirt removed {100 * (1 - backend.dirt_remaining()):.1f} %")
+    bar.close(f"dirt removed {100 * (1 - dirt()):.1f} %" if log.truth else "done (the dirt is not measured here)")
 
     series = log.rec.arrays()
     contact = max(log.contact_ticks, 1)
@@ -433,7 +510,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
     if isinstance(source, HedacExplorer):
         fields.update(target=source.target.copy(), coverage=source.coverage.copy(), potential=source.potential.copy())
     metrics = {
-        "dirt_removed_fraction": 1.0 - backend.dirt_remaining(),
+        "dirt_removed_fraction": 1.0 - dirt(),
         # the shares count the normal force while exploring in contact; the maximum is the force
         # magnitude over every phase (a transit's or a sideways hit's too)
         "force_within_20pct_fraction": log.within_ticks / contact,
@@ -456,9 +533,15 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True) -> Cl
         "object": cfg.object_name,
         "marking": cfg.marking,
         "safety_events": len(loop.safety.events),
+        # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
+        "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
         "ergodicity": ergodicity,
+        "robot": "franka" if robot is not None else "sim",
+        "target_source": "cloud" if given is not None else "camera",
+        "aborted": aborted,
     }
-    backend.close()
+    if robot is not None:
+        metrics.update(backend.loop_metrics())
     return CleanResult(
         config=cfg, metrics=metrics, series=series, cloud=cloud, fields=fields,
         agent_path=np.asarray(agent_path).reshape(-1, 3), tcp_path=series.get("tcp", np.zeros((0, 3))),

@@ -129,13 +129,14 @@ def _try_video(result: Any, rep: RunReport, enabled: bool) -> None:
 
 
 def run_task(kind: str, config: Any, out_dir: str | Path, *, label: str | None = None, progress: bool = True,
-             video: bool = True, note: Note | None = _note_stderr) -> RunReport:
-    """Run one task with ``config`` and write its run folder; returns the report (metrics, files, notes)."""
+             video: bool = True, note: Note | None = _note_stderr, robot: Any = None) -> RunReport:
+    """Run one task with ``config`` and write its run folder; returns the report (metrics, files, notes).
+    ``robot``: :class:`~tactex.tasks.robot.RealRobotParams` to run on a real Franka, None for simulation."""
     spec = task_spec(kind)
     if not isinstance(config, spec.config_cls):
         raise ConfigError(f"{kind} needs a {spec.config_cls.__name__}, got {type(config).__name__}")
     out = prepare_out_dir(out_dir)
-    result = spec.run(config, progress=progress)
+    result = spec.run(config, progress=progress) if robot is None else spec.run(config, progress=progress, robot=robot)
     rep = write_run_report(result, out, label=label or (config.baseline or "tactex"))
     _try_video(result, rep, video)
     if note is not None:

@@ -47,15 +47,15 @@ from tactex.control.friction import FrictionCompensator, FrictionCompensatorPara
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import PoseForceReference
 from tactex.control.va_ufic import VaUficController, VaUficParams
-from tactex.errors import ConfigError
+from tactex.errors import ConfigError, RobotError, SensorFault
 from tactex.perception.estimate import SurfaceEstimate
-from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
+from tactex.perception.estimator import SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.voxel import voxel_indices
-from tactex.robots.mujoco_backend import MujocoBackend
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
+from tactex.tasks.robot import RealRobotParams, SurfaceVision, open_backend, open_vision
 from tactex.tasks.runner import TOOL_DOWN, ControlLoop
 from tactex.tasks.world import SimWorldParams
 
@@ -169,14 +169,37 @@ def _exploration_accuracy(explored: SurfaceCloud, surface, obj_pos: np.ndarray, 
     }
 
 
-def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> WipeResult:
-    """Run the wiping exploration in simulation; returns metrics, series and the explored surface."""
+def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
+             robot: RealRobotParams | None = None) -> WipeResult:
+    """Run the wiping exploration in simulation, or on a real Franka (``robot``); returns metrics, series
+    and the explored surface.
+
+    On a real robot the object's registry shape at ``object_position`` places the start above the
+    surface (the controller never uses it), and a libfranka error, a lost sensor or Ctrl-C ends the
+    policy early: torque control stops and the result holds what was recorded, with ``aborted``
+    naming the cause in its metrics."""
     cfg = config or WipeConfig()
     wall0 = time.perf_counter()
-    backend = MujocoBackend(cfg.scene())
+    scene_cfg = cfg.scene()
+    backend = open_backend(scene_cfg, robot)
+    try:
+        # the vision process starts before the arm moves: nothing slow may run once torque control is on
+        compression = scene_cfg.tool.max_compression_m
+        estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
+        vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
+        try:
+            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0)
+        finally:
+            vision.close()
+    finally:
+        backend.close()
+
+
+def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
+              progress: bool, wall0: float) -> WipeResult:
     loop = ControlLoop(backend)
-    surface = backend.scene.sim_object.surface
-    obj_pos, obj_rot = backend.object_pose()
+    surface = scene_cfg.sim_object.surface
+    obj_pos, obj_rot = scene_cfg.object_pose()
 
     # start: above the surface at (0, start_y), tilted (not aligned), out of contact
     z_surf = float(surface.project(np.array([[0.0, cfg.start_y_m, 0.0]]))[0][0, 2])
@@ -195,8 +218,6 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
     loop.use(controller)
     # The TCP is the uncompressed pad tip: in contact the surface lies up to the pad's maximum
     # compression behind it, so the region of interest must start that far back.
-    compression = backend.config.tool.max_compression_m
-    estimator = SurfaceEstimator(SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005)))
     estimate: SurfaceEstimate | None = None
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
     bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
@@ -224,78 +245,82 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
     estimates_valid = 0
     estimates_total = 0
 
-    while loop.t - t0 < cfg.duration_s - 1e-9:
-        state = loop.state
-        tau_t = loop.t - t0
-        frame = backend.camera_frame()
-        if frame is not None:
-            world_T_tool = np.eye(4)
-            world_T_tool[:3, :3], world_T_tool[:3, 3] = state.ee_rotation, state.ee_position
-            estimate = estimator.estimate(frame, world_T_tool)
-            estimates_total += 1
-            estimates_valid += int(estimate.valid)
-        x_d, v_d = wiping_policy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
-        rot = state.ee_rotation
-        # the policy lives in the tool frame: apply its increments in the current tool frame
-        pos_ref = pos_ref + rot @ (x_d - x_prev)
-        x_prev = x_d
-        twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
-        rot_ref = r_start if cfg.baseline == "cartesian" else rot
-        reference = PoseForceReference(pos_ref, rot_ref, wrench_d, twist_d, estimate)
-        state_ctrl = state  # the state this tick's torque was computed from
-        state = loop.tick(reference)
-        n_ticks += 1
+    aborted = ""
+    try:
+        while loop.t - t0 < cfg.duration_s - 1e-9:
+            state = loop.state
+            tau_t = loop.t - t0
+            new_estimate = vision.update(state)
+            if new_estimate is not None:
+                estimate = new_estimate
+                estimates_total += 1
+                estimates_valid += int(estimate.valid)
+            x_d, v_d = wiping_policy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+            rot = state.ee_rotation
+            # the policy lives in the tool frame: apply its increments in the current tool frame
+            pos_ref = pos_ref + rot @ (x_d - x_prev)
+            x_prev = x_d
+            twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
+            rot_ref = r_start if cfg.baseline == "cartesian" else rot
+            reference = PoseForceReference(pos_ref, rot_ref, wrench_d, twist_d, estimate)
+            state_ctrl = state  # the state this tick's torque was computed from
+            state = loop.tick(reference)
+            n_ticks += 1
 
-        fz = float(state.wrench_tool[2])
-        in_contact = fz >= cfg.contact_threshold_n
-        offset = inner.position_offset if isinstance(inner, VaUficController) else np.zeros(3)
-        desired = pos_ref + offset
-        # x − x_d in the base frame, as the paper's Fig. 3b and its per-axis MAE/RMSE (§IV); the
-        # tool-frame error is kept beside it
-        err_world = state.ee_position - desired
-        err_tool = state.ee_rotation.T @ err_world
-        tel = inner.telemetry() if cfg.baseline == "" else {}
-        if compensator is not None and "tank_i_valve" in tel:
-            # power the compensation delivered through the impedance tank's port (σ_i scales it)
-            comp_energy += backend.dt * tel["tank_i_valve"] * float(
-                (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ compensator.last[:3])
-        if "tank_i_energy_j" in tel:
-            tank_i.append(tel["tank_i_energy_j"])
-            tank_f.append(tel["tank_f_energy_j"])
-        if in_contact:
-            n_contact += 1
-            if first_contact is None:
-                first_contact, first_contact_tick = loop.t - t0, n_ticks
-            forces.append(fz)
-            errors_world.append(err_world)
-            if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
-                t_aligned = loop.t - t0 if t_aligned is None else t_aligned
-                aligned_errors.append(err_world)
-                aligned_errors_tool.append(err_tool)
-                aligned_forces.append(fz)
-            if n_contact % 10 == 0:
-                contact_pts.append(state.ee_position.copy())
-                if estimate is not None and estimate.valid:
-                    contact_normals.append(np.asarray(estimate.normal_world, dtype=float))
-                    contact_curv.append(float(estimate.curvature))
-                else:
-                    contact_normals.append(-state.ee_rotation[:, 2])
-                    contact_curv.append(float("nan"))
-        if rec.due():
-            rec.add(
-                t=loop.t - t0, q=state.q, tcp=state.ee_position, desired=desired, motion_error_world=err_world,
-                motion_error_tool=err_tool, force_z_n=fz, wrench_tool=state.wrench_tool,
-                friction_comp_tool=compensator.last[:2] if compensator is not None else np.zeros(2),
-                force_set_n=cfg.force_n, in_contact=float(in_contact), rho_align=tel.get("rho_align", np.nan),
-                rho_frc=tel.get("rho_frc", np.nan), tank_i_energy_j=tel.get("tank_i_energy_j", np.nan),
-                tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
-                tcp_object=obj_rot.T @ (state.ee_position - obj_pos),
-                theta_rad=estimate.theta_rad if estimate is not None and estimate.valid else np.nan,
-            )
-        else:
-            rec.add()
-        if n_ticks % 250 == 0:
-            bar.update(loop.t - t0, force=fz, contact=n_contact / n_ticks)
+            fz = float(state.wrench_tool[2])
+            in_contact = fz >= cfg.contact_threshold_n
+            offset = inner.position_offset if isinstance(inner, VaUficController) else np.zeros(3)
+            desired = pos_ref + offset
+            # x − x_d in the base frame, as the paper's Fig. 3b and its per-axis MAE/RMSE (§IV); the
+            # tool-frame error is kept beside it
+            err_world = state.ee_position - desired
+            err_tool = state.ee_rotation.T @ err_world
+            tel = inner.telemetry() if cfg.baseline == "" else {}
+            if compensator is not None and "tank_i_valve" in tel:
+                # power the compensation delivered through the impedance tank's port (σ_i scales it)
+                comp_energy += backend.dt * tel["tank_i_valve"] * float(
+                    (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ compensator.last[:3])
+            if "tank_i_energy_j" in tel:
+                tank_i.append(tel["tank_i_energy_j"])
+                tank_f.append(tel["tank_f_energy_j"])
+            if in_contact:
+                n_contact += 1
+                if first_contact is None:
+                    first_contact, first_contact_tick = loop.t - t0, n_ticks
+                forces.append(fz)
+                errors_world.append(err_world)
+                if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
+                    t_aligned = loop.t - t0 if t_aligned is None else t_aligned
+                    aligned_errors.append(err_world)
+                    aligned_errors_tool.append(err_tool)
+                    aligned_forces.append(fz)
+                if n_contact % 10 == 0:
+                    contact_pts.append(state.ee_position.copy())
+                    if estimate is not None and estimate.valid:
+                        contact_normals.append(np.asarray(estimate.normal_world, dtype=float))
+                        contact_curv.append(float(estimate.curvature))
+                    else:
+                        contact_normals.append(-state.ee_rotation[:, 2])
+                        contact_curv.append(float("nan"))
+            if rec.due():
+                rec.add(
+                    t=loop.t - t0, q=state.q, tcp=state.ee_position, desired=desired, motion_error_world=err_world,
+                    motion_error_tool=err_tool, force_z_n=fz, wrench_tool=state.wrench_tool,
+                    friction_comp_tool=compensator.last[:2] if compensator is not None else np.zeros(2),
+                    force_set_n=cfg.force_n, in_contact=float(in_contact), rho_align=tel.get("rho_align", np.nan),
+                    rho_frc=tel.get("rho_frc", np.nan), tank_i_energy_j=tel.get("tank_i_energy_j", np.nan),
+                    tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
+                    tcp_object=obj_rot.T @ (state.ee_position - obj_pos),
+                    theta_rad=estimate.theta_rad if estimate is not None and estimate.valid else np.nan,
+                )
+            else:
+                rec.add()
+            if n_ticks % 250 == 0:
+                bar.update(loop.t - t0, force=fz, contact=n_contact / n_ticks)
+    except (RobotError, SensorFault, KeyboardInterrupt) as exc:
+        # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
+        aborted = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        bar.note(f"stopped early: {aborted}")
     bar.close(f"contact {100 * n_contact / max(n_ticks, 1):.0f} % of the time")
 
     f_err = np.asarray(forces) - cfg.force_n
@@ -336,7 +361,14 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
         "controller": inner.name,
         "baseline": cfg.baseline or "va_ufic",
         "safety_events": len(loop.safety.events),
+        # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
+        "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
+        "robot": "franka" if robot is not None else "sim",
+        "aborted": aborted,
+        **vision.stats(),
     }
+    if robot is not None:
+        metrics.update(backend.loop_metrics())
     ys = np.linspace(-0.255, 0.255, 256) if cfg.object_name == "sine_panel" else np.linspace(-0.1, 0.1, 256)
     prof_pts, _ = surface.project(np.column_stack([np.zeros_like(ys), ys, np.zeros_like(ys)]))
     explored = None
@@ -349,7 +381,6 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True) -> Wipe
         explored = SurfaceCloud(points=pts[first], normals=np.asarray(contact_normals)[first], spacing=0.003)
         curv = np.asarray(contact_curv)[first]
         metrics.update(_exploration_accuracy(explored, surface, obj_pos, obj_rot))
-    backend.close()
     return WipeResult(
         config=cfg, metrics=metrics, series=rec.arrays(), profile={"y_m": prof_pts[:, 1], "z_m": prof_pts[:, 2]},
         explored=explored, explored_curvature=curv, events=list(loop.safety.events),

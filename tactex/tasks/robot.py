@@ -1,0 +1,205 @@
+"""Which robot a task drives, and where its surface estimate comes from.
+
+``--robot sim`` (default) is the MuJoCo world of :mod:`tactex.sim`; ``--robot franka`` a real
+Franka (or ``tactex twin``) through :class:`~tactex.robots.libfranka_backend.LibfrankaBackend`.
+The task code is the same: it gets a backend and a :class:`SurfaceVision`.
+
+Vision: in simulation the camera's frames arrive through the backend and the estimate is made in
+the loop (the simulated clock waits for it). On the real robot the estimate is made in the vision
+process (:mod:`tactex.robots.vision_process`); the loop publishes the tool pose and picks up the
+newest estimate, so a slow frame never delays a torque command.
+"""
+
+from __future__ import annotations
+
+import json
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactex.config import param
+from tactex.errors import ConfigError, InputError
+from tactex.perception.estimate import SurfaceEstimate
+from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
+from tactex.robots.libfranka_backend import FrankaConfig
+
+__all__ = [
+    "InLoopVision",
+    "NoVision",
+    "ProcessVision",
+    "RealRobotParams",
+    "SurfaceVision",
+    "load_hand_eye",
+    "open_backend",
+    "open_vision",
+]
+
+#: How often the loop asks whether the vision process is alive [ticks].
+VISION_CHECK_TICKS = 100
+
+
+@dataclass(frozen=True)
+class RealRobotParams(FrankaConfig):
+    """``--robot franka``: the robot (see FrankaConfig) and its camera."""
+
+    robot_ip: str = param("", "the robot's FCI address, e.g. 172.16.0.2 (127.0.0.1 for tactex twin)")
+    camera: str = param("auto", "wrist camera: sim (tactex twin's simulated camera), realsense, none, or auto "
+                                "(sim on a loopback robot address, realsense otherwise)")
+    hand_eye: str = param("", "hand-eye calibration: a .npy or .json 4×4 tool_T_camera (camera optical frame in the "
+                              "tool frame, metres); empty: the nominal mount of the tactex tool")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.camera not in ("auto", "sim", "realsense", "none"):
+            raise ConfigError(f"camera must be auto, sim, realsense or none, got {self.camera!r}")
+        if self.hand_eye:
+            load_hand_eye(self.hand_eye)
+
+    @property
+    def camera_kind(self) -> str:
+        if self.camera != "auto":
+            return self.camera
+        return "sim" if self.ignore_realtime and self.realtime == "auto" else "realsense"
+
+    def franka(self) -> FrankaConfig:
+        """The backend's part of these parameters."""
+        names = {f.name for f in fields(FrankaConfig)}
+        return FrankaConfig(**{n: getattr(self, n) for n in names})
+
+
+def load_hand_eye(path: str | Path) -> np.ndarray:
+    """tool_T_camera (4, 4) from a ``.npy`` array or a ``.json`` nested list (no pickle)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"hand-eye calibration '{p}' is not a file (give a .npy or .json 4×4 tool_T_camera)")
+    try:
+        if p.suffix == ".json":
+            pose = np.asarray(json.loads(p.read_text()), dtype=float)
+        else:
+            pose = np.load(p, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise InputError(f"hand-eye calibration '{p}' cannot be read: {exc}") from exc
+    pose = np.asarray(pose, dtype=float)
+    rot = pose[:3, :3] if pose.shape == (4, 4) else None
+    if rot is None or not np.isfinite(pose).all() or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) \
+            or not np.allclose(pose[3], [0, 0, 0, 1]) or np.linalg.det(rot) < 0:
+        raise InputError(f"hand-eye calibration '{p}' must hold a 4×4 rigid transform (rotation, translation in "
+                         f"metres, last row 0 0 0 1), got shape {pose.shape}")
+    if np.abs(pose[:3, 3]).max() > 1.0:
+        raise InputError(f"hand-eye calibration '{p}': the camera sits {np.abs(pose[:3, 3]).max():.3g} from the "
+                         "tool; give the translation in metres")
+    return pose
+
+
+class SurfaceVision(ABC):
+    """The task's view of the wrist camera: the newest surface estimate, if a new one arrived."""
+
+    @abstractmethod
+    def update(self, state) -> SurfaceEstimate | None:
+        """Called once per tick with the current state; a new estimate or None."""
+
+    def stats(self) -> dict[str, Any]:
+        return {}
+
+    def close(self) -> None:  # noqa: B027 (optional hook)
+        """Release the camera (idempotent)."""
+
+
+def _world_T_tool(state) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = state.ee_rotation, state.ee_position
+    return pose
+
+
+class InLoopVision(SurfaceVision):
+    """Simulation: the backend's frames, estimated in the loop."""
+
+    def __init__(self, backend, estimator: SurfaceEstimator) -> None:
+        self.backend = backend
+        self.estimator = estimator
+
+    def update(self, state) -> SurfaceEstimate | None:
+        frame = self.backend.camera_frame()
+        if frame is None:
+            return None
+        return self.estimator.estimate(frame, _world_T_tool(state))
+
+
+class ProcessVision(SurfaceVision):
+    """The real robot: estimates from the vision process; a dead process is a SensorFault."""
+
+    def __init__(self, process) -> None:
+        self.process = process
+        self._ticks = 0
+
+    def update(self, state) -> SurfaceEstimate | None:
+        self._ticks += 1
+        self.process.publish_pose(state.t, _world_T_tool(state))
+        if self._ticks % VISION_CHECK_TICKS == 0:
+            self.process.check()
+        return self.process.latest()
+
+    def stats(self) -> dict[str, Any]:
+        return {"vision_process_estimates": self.process.estimates}
+
+    def close(self) -> None:
+        self.process.close()
+
+
+class NoVision(SurfaceVision):
+    """No camera: the task runs on touch alone."""
+
+    def update(self, state) -> SurfaceEstimate | None:
+        return None
+
+
+def open_backend(scene_config, robot: RealRobotParams | None):
+    """The task's robot: the MuJoCo scene of ``scene_config``, or the real Franka with that scene's tool
+    (its kinematics serve the transit IK)."""
+    if robot is None:
+        from tactex.robots.mujoco_backend import MujocoBackend
+
+        return MujocoBackend(scene_config)
+    from tactex.robots.libfranka_backend import LibfrankaBackend
+
+    return LibfrankaBackend(robot.franka(), tool=scene_config.tool, ik_scene=scene_config)
+
+
+def open_vision(backend, estimator_config: SurfaceEstimatorConfig, scene_config, robot: RealRobotParams | None,
+                rate_hz: float = 30.0) -> SurfaceVision:
+    """The task's vision: in-loop in simulation; for a real robot the vision process with the
+    twin's simulated camera (``scene_config``'s object) or a RealSense posed by ``hand_eye``."""
+    if robot is None:
+        return InLoopVision(backend, SurfaceEstimator(estimator_config))
+    kind = robot.camera_kind
+    if kind == "none":
+        return NoVision()
+    from dataclasses import asdict
+
+    from tactex.robots.vision_process import VisionProcess
+
+    est = {f.name: getattr(estimator_config, f.name) for f in fields(estimator_config)}
+    if kind == "sim":
+        scene = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(scene_config).items()}
+        source = {"kind": "sim", "scene": scene, "estimator": est, "rate_hz": rate_hz}
+    else:
+        if robot.hand_eye:
+            tool_T_camera = load_hand_eye(robot.hand_eye)
+        else:
+            tool_T_camera = nominal_tool_T_camera(scene_config)
+        source = {"kind": "realsense", "tool_T_camera": tool_T_camera.tolist(), "estimator": est, "rate_hz": rate_hz}
+    return ProcessVision(VisionProcess(source))
+
+
+def nominal_tool_T_camera(scene_config) -> np.ndarray:
+    """The camera's pose in the tool frame on tactex's tool (the simulated mount)."""
+    from tactex.robots.mujoco_backend import MujocoBackend
+
+    sim = MujocoBackend(scene_config)
+    try:
+        return np.linalg.inv(_world_T_tool(sim.state())) @ sim.camera.pose(sim.data)
+    finally:
+        sim.close()

@@ -1,0 +1,251 @@
+"""The real-robot path end to end over libfranka's protocol: LibfrankaBackend (pylibfranka) against
+``tactex twin`` (franky-sim with our scene) on loopback, the Net F/T stream, the vision process,
+and every failure path: the twin killed, the F/T stream stopped, the vision process killed, Ctrl-C.
+
+Each test drives a short task (a few seconds of robot time); the twin processes are shared where a
+test does not kill them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+REASON = "needs the franka extra: EXTRAS='dev fast franka' make test"
+pytest.importorskip("pylibfranka", reason=REASON)
+pytest.importorskip("franky_sim", reason=REASON)
+
+from tactex.cli import main  # noqa: E402
+from tactex.errors import ConfigError, RobotError  # noqa: E402
+from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming  # noqa: E402
+from tactex.sim.twin_process import TwinProcess  # noqa: E402
+from tactex.tasks import robot as robot_mod  # noqa: E402
+from tactex.tasks.robot import RealRobotParams  # noqa: E402
+from tactex.tasks.wipe import WipeConfig, run_wipe  # noqa: E402
+
+pytestmark = pytest.mark.franka
+
+#: The longest a failure may take to end the program [s] (libfranka's own UDP timeout is ~1 s).
+STOP_WITHIN_S = 2.0
+
+
+@pytest.fixture(scope="module")
+def panel():
+    with TwinProcess("sine_panel") as proc:
+        yield proc
+
+
+def _params(twin, **kw) -> RealRobotParams:
+    return RealRobotParams(robot_ip=twin.hostname, ft=f"netft:{twin.hostname}:{twin.ft_port}", **kw)
+
+
+def _cli(args: list[str], **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "tactex.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
+
+
+# -- configuration ---------------------------------------------------------------------------------
+@pytest.mark.parametrize(("kw", "match"), [
+    ({"robot_ip": ""}, "robot-ip"),
+    ({"robot_ip": "1.2.3.4", "ft": "ati"}, "netft:HOST"),
+    ({"robot_ip": "1.2.3.4", "ft": "netft:"}, "needs a host"),
+    ({"robot_ip": "1.2.3.4", "ft": "netft:h:99999"}, "port"),
+    ({"robot_ip": "1.2.3.4", "realtime": "maybe"}, "realtime"),
+    ({"robot_ip": "1.2.3.4", "collision_force_n": -1.0}, "collision_force_n"),
+])
+def test_franka_config_checks(kw, match):
+    with pytest.raises(ConfigError, match=match):
+        FrankaConfig(**kw)
+
+
+def test_realtime_check_is_ignored_only_on_loopback():
+    assert FrankaConfig(robot_ip="127.0.0.5").ignore_realtime
+    assert not FrankaConfig(robot_ip="172.16.0.2").ignore_realtime
+    assert FrankaConfig(robot_ip="172.16.0.2", realtime="ignore").ignore_realtime
+
+
+def test_hand_eye_file_is_checked(tmp_path):
+    good = np.eye(4)
+    good[:3, 3] = [0.05, 0.0, 0.02]
+    np.save(tmp_path / "ok.npy", good)
+    assert RealRobotParams(robot_ip="1.2.3.4", hand_eye=str(tmp_path / "ok.npy")).hand_eye
+    bad = good.copy()
+    bad[:3, 3] = [50.0, 0.0, 20.0]  # millimetres
+    np.save(tmp_path / "mm.npy", bad)
+    with pytest.raises(Exception, match="metres"):
+        RealRobotParams(robot_ip="1.2.3.4", hand_eye=str(tmp_path / "mm.npy"))
+    (tmp_path / "skew.json").write_text(json.dumps((np.eye(4) * 2).tolist()))
+    with pytest.raises(Exception, match="rigid transform"):
+        RealRobotParams(robot_ip="1.2.3.4", hand_eye=str(tmp_path / "skew.json"))
+
+
+def test_loop_timing_statistics():
+    timing = LoopTiming(block=4)
+    for i in range(10):  # grows past its block
+        timing.add(100.0 + i, 1000.0, int(i == 3) * 2, 1.0 - 0.01 * i)
+    m = timing.metrics()
+    assert m["loop_ticks"] == 10 and m["lost_cycles"] == 2
+    assert m["loop_compute_us"]["max"] == 109.0 and m["loop_compute_us"]["p50"] == pytest.approx(104.5)
+    assert m["min_command_success_rate"] == pytest.approx(0.91)
+
+
+def test_no_robot_there_is_one_line_and_names_the_address():
+    # nothing listens on this loopback address: libfranka's TCP connect is refused at once
+    with pytest.raises(RobotError, match=r"127\.0\.0\.254"):
+        LibfrankaBackend(FrankaConfig(robot_ip="127.0.0.254"))
+
+
+# -- nominal runs ------------------------------------------------------------------------------------
+def test_robot_check_passes_on_the_twin(panel, capsys, tmp_path):
+    out = tmp_path / "check.json"
+    code = main(["robot", "check", "--robot-ip", panel.hostname, "--ft", f"netft:{panel.hostname}:{panel.ft_port}",
+                 "--duration-s", "1", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "check passed" in text
+    found = json.loads(out.read_text())
+    assert found["loop_ticks"] > 500 and found["min_command_success_rate"] >= 0.99
+    assert found["tcp_offset_error_m"] < 1e-6 and found["wrench_source"] == "netft"
+    assert found["q_drift_rad"] < 0.01
+
+
+def test_wipe_on_the_twin_presses_with_netft_and_vision(panel):
+    res = run_wipe(WipeConfig(duration_s=3.0), progress=False, robot=_params(panel))
+    m = res.metrics
+    assert m["aborted"] == "" and m["robot"] == "franka"
+    assert m["contact_fraction_after_first_contact"] > 0.8
+    assert abs(np.median(res.series["force_z_n"][res.series["in_contact"] > 0]) - 15.0) < 3.0
+    assert m["vision_process_estimates"] > 30 and m["vision_valid_fraction"] > 0.9
+    assert m["ft_records"] > 1000 and m["ft_lost_ticks"] == 0
+    assert m["loop_ticks"] > 3000 and np.isfinite(m["loop_compute_us"]["p99.9"])
+    lo, hi = m["tank_impedance_limits_j"]
+    assert lo <= m["tank_impedance_energy_j"]["min"] and m["tank_impedance_energy_j"]["max"] <= hi
+
+
+def test_dry_run_never_moves_the_arm(panel):
+    cfg = WipeConfig(duration_s=0.5)
+    before = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    q0 = before.state().q.copy()
+    before.close()
+    res = run_wipe(cfg, progress=False, robot=_params(panel, dry_run=True, camera="none"))
+    after = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    q1 = after.state().q.copy()
+    after.close()
+    assert res.metrics["dry_run"] and res.metrics["aborted"] == ""
+    assert np.abs(q1 - q0).max() < 2e-3  # the twin's arm rests; our torques were never sent
+
+
+# -- failures ------------------------------------------------------------------------------------------
+def _wait_for_contact(proc: subprocess.Popen, deadline_s: float) -> None:
+    """Read the CLI's progress lines until it reports contact (the task is running on the robot)."""
+    t_end = time.monotonic() + deadline_s
+    assert proc.stderr is not None
+    while time.monotonic() < t_end:
+        line = proc.stderr.readline()
+        if "contact=" in line:
+            return
+        if not line and proc.poll() is not None:
+            break
+    raise AssertionError(f"the wipe did not start: {proc.stderr.read()}")
+
+
+def test_twin_killed_mid_run_ends_cleanly_with_data(tmp_path):
+    with TwinProcess("sine_panel") as twin:
+        out = tmp_path / "run"
+        proc = _cli(["wipe", "--robot", "franka", "--robot-ip", twin.hostname, "--camera", "none",
+                     "--duration-s", "20", "--out", str(out)])
+        try:
+            _wait_for_contact(proc, 60.0)
+            twin.kill(signal.SIGKILL)
+            t_kill = time.monotonic()
+            code = proc.wait(timeout=30)
+            took = time.monotonic() - t_kill
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert code == 1, proc.stderr.read()
+    assert took <= STOP_WITHIN_S + 1.0  # libfranka's UDP timeout (~1 s) plus writing the report
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "NetworkException" in metrics["aborted"]
+    assert metrics["loop_ticks"] > 100  # what ran before the loss is kept
+    assert (out / "series.npz").is_file()
+
+
+def test_ctrl_c_ends_torque_control_and_saves(panel, tmp_path):
+    out = tmp_path / "run"
+    proc = _cli(["wipe", "--robot", "franka", "--robot-ip", panel.hostname, "--camera", "none", "--duration-s", "20",
+                 "--out", str(out)])
+    try:
+        _wait_for_contact(proc, 60.0)
+        proc.send_signal(signal.SIGINT)
+        t_int = time.monotonic()
+        code = proc.wait(timeout=30)
+        took = time.monotonic() - t_int
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 1
+    assert took <= STOP_WITHIN_S + 1.0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["aborted"].startswith("KeyboardInterrupt")
+    # the robot is free again: a new connection can take control at once
+    check = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    check.close()
+
+
+def test_ft_stream_stopped_is_a_lost_sensor_as_in_simulation(panel):
+    """The twin stops its Net F/T stream mid-contact: the safety layer declares the sensor lost and
+    backs off (as in simulation), then resumes when the stream returns; the run completes."""
+    def drill() -> None:
+        time.sleep(2.0)
+        panel.process.send_signal(signal.SIGUSR1)  # stream off
+        time.sleep(0.5)
+        panel.process.send_signal(signal.SIGUSR1)  # and on again
+
+    thread = threading.Thread(target=drill)
+    thread.start()
+    try:
+        res = run_wipe(WipeConfig(duration_s=4.0), progress=False, robot=_params(panel, camera="none"))
+    finally:
+        thread.join()
+    kinds = [e.kind for e in res.events]
+    assert "wrench_lost" in kinds
+    assert res.metrics["aborted"] == ""
+    assert res.metrics["ft_lost_ticks"] > 100
+    assert np.all(np.isfinite(res.series["q"]))
+
+
+def test_vision_process_killed_is_a_named_fault(panel, monkeypatch):
+    opened = []
+    real_open = robot_mod.open_vision
+
+    def spy(*a, **kw):
+        vision = real_open(*a, **kw)
+        opened.append(vision)
+        return vision
+
+    monkeypatch.setattr("tactex.tasks.wipe.open_vision", spy)
+
+    def killer() -> None:
+        while not opened:
+            time.sleep(0.05)
+        time.sleep(2.5)
+        os.kill(opened[0].process.proc.pid, signal.SIGKILL)
+
+    thread = threading.Thread(target=killer)
+    thread.start()
+    t0 = time.monotonic()
+    try:
+        res = run_wipe(WipeConfig(duration_s=20.0), progress=False, robot=_params(panel))
+    finally:
+        thread.join()
+    assert "SensorFault" in res.metrics["aborted"] and "vision process stopped" in res.metrics["aborted"]
+    assert time.monotonic() - t0 < 15.0  # it ended at the fault, not after the 20 s policy
