@@ -149,22 +149,30 @@ TRANSPORT_CONE = 1e-3
 
 
 def transported_floats(v0, v1, v2, n0, n1, n2):
-    """agents.transport on float triples: v carried to the plane ⊥ the normal n, its length kept.
+    """agents.transport on float triples: v carried to the plane ⊥ the unit normal n, its length kept.
 
-    n need not be exactly unit (round-off); a zero n leaves v as it is. Where v lies within
-    TRANSPORT_CONE (a sine) of n, its tangential remainder is mostly round-off and has no direction
-    of its own, so it is scaled up by at most 1 / TRANSPORT_CONE, not to full length: the result
-    is tangent, never longer than v, and continuous in v and n (it fades to 0 as v → ±n).
+    Where v lies within TRANSPORT_CONE (a sine) of n, its tangential remainder is mostly round-off
+    and has no direction of its own: it is projected again (exactly, also for an n off unit length)
+    and scaled up by at most 1 / TRANSPORT_CONE, not to full length. So the result is tangent, never
+    longer than v, and continuous in v and n (it fades to 0 as v → ±n). Outside the cone the
+    arithmetic is the plain projection and rescaling. A zero n leaves v as it is.
     """
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
+    tt = t0 * t0 + t1 * t1 + t2 * t2
+    vv = v0 * v0 + v1 * v1 + v2 * v2
+    if tt > 1e-300 and tt >= TRANSPORT_CONE * TRANSPORT_CONE * vv:
+        k = (vv / tt) ** 0.5
+        return t0 * k, t1 * k, t2 * k
     nn = n0 * n0 + n1 * n1 + n2 * n2
     if not nn > 1e-300:
         return v0, v1, v2
+    # v (almost) along n: remove the normal part exactly, twice (the first pass leaves round-off)
     vn = (v0 * n0 + v1 * n1 + v2 * n2) / nn
     t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
-    tn = (t0 * n0 + t1 * n1 + t2 * n2) / nn  # a second pass removes the first one's round-off
+    tn = (t0 * n0 + t1 * n1 + t2 * n2) / nn
     t0, t1, t2 = t0 - tn * n0, t1 - tn * n1, t2 - tn * n2
     tt = t0 * t0 + t1 * t1 + t2 * t2
-    vv = v0 * v0 + v1 * v1 + v2 * v2
     if not (tt > 1e-300 and vv > 1e-300):
         return 0.0 * t0, 0.0 * t1, 0.0 * t2
     k = (vv / tt) ** 0.5
