@@ -87,10 +87,11 @@ class GaLineForceParams:
         "[m/s]: the force loop alone would approach at K_p·F/D_z ≈ 0.1 m/s (and faster after a lost contact), and "
         "the impact on a stiff pad would exceed 2× the set point",
     )
-    force_command_rate_max: float = param(
-        1000.0, "slew limit of the PID output W_C per axis [N/s, N·m/s]: a sliding pad's one-tick F/T dips "
-        "(−4 N) reached the joints through K_d's high-frequency gain (K_d/τ_d ≈ 6) as 6 N steps, each a "
-        "torque-rate clip on joints 2 and 4 (2000 N/s left 12 in a 20 s clean, 1000 none); 0: no limit")
+    wrench_median_ticks: int = param(
+        3, "median over this many ticks of the measured wrench before the low-pass (1: none) [-]: a sliding "
+        "pad's one-tick F/T dips (−4 N) reached the joints through K_d's high-frequency gain (K_d/τ_d ≈ 6) as "
+        "6 N steps, each a torque-rate clip on joints 2 and 4 (67 in a 20 s clean); a slew limit on W_C "
+        "instead kept the controller from recovering after a 100 N spike")
     latency_horizon_ticks: float = param(
         2.0, "horizon h of the implicit impedance in control periods [-]: τ = M (M + h·B + h²·K)⁻¹ τ_explicit "
         "with the line stiffness K and damping D mapped to the joints (tactex.control.damping), so that a "
@@ -115,7 +116,7 @@ class GaLineForceParams:
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
                 raise ConfigError(f"GaLineForceParams.{name} must be 3 finite values ≥ 0, got {getattr(self, name)!r}")
-        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz", "force_command_rate_max",
+        for name in ("kp", "ki", "kd", "integral_limit", "dt", "derivative_cutoff_hz",
                      "latency_horizon_ticks",
                      "wrench_cutoff_hz", "contact_threshold_n",
                      "integral_leak_time", "approach_damping_z", "approach_below", "approach_speed_max",
@@ -124,6 +125,9 @@ class GaLineForceParams:
             positive = ("dt", "derivative_cutoff_hz", "wrench_cutoff_hz", "integral_leak_time")
             if not np.isfinite(v) or v < 0 or (name in positive and v == 0):
                 raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
+        m = self.wrench_median_ticks
+        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 15 or m % 2 == 0:
+            raise ConfigError(f"GaLineForceParams.wrench_median_ticks must be an odd integer in [1, 15], got {m!r}")
         axes = np.asarray(self.force_axes, dtype=float)
         if axes.shape != (6,) or not np.isin(axes, (0.0, 1.0)).all():
             raise ConfigError(f"GaLineForceParams.force_axes must be six 0/1 flags, got {self.force_axes!r}")
@@ -154,7 +158,7 @@ class GaLineForceController(Controller):
         self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
         self._w_line: tuple[float, ...] | None = None
         self._w_c2 = 0.0
-        self._w_c_prev: list[float] | None = None  # last PID output W_C, tool frame
+        self._w_hist: list[list[float]] = []  # the last wrench_median_ticks raw wrenches, oldest first
         self._err2 = 0.0
 
     def reset(self, state: RobotState) -> None:
@@ -162,7 +166,7 @@ class GaLineForceController(Controller):
         self._err_prev = [0.0] * 6
         self._derr = [0.0] * 6
         self._w_filt = None
-        self._w_c_prev = None
+        self._w_hist = []
         self._t_prev = None
         self._w_line = None
 
@@ -208,12 +212,21 @@ class GaLineForceController(Controller):
         # eq. 39–41, per tool axis on floats; the clamp to ±lim keeps a NaN, as np.minimum/np.maximum did
         force_n = reference.force_n
         w_raw = state.wrench_tool.tolist()
+        w_med = w_raw
+        n_med = p.wrench_median_ticks
+        if n_med > 1:
+            hist = self._w_hist
+            hist.append(w_raw)
+            if len(hist) > n_med:
+                del hist[0]
+            if len(hist) == n_med:
+                w_med = [sorted(col)[n_med // 2] for col in zip(*hist, strict=True)]
         w_meas = self._w_filt
         if w_meas is None:
-            w_meas = w_raw
+            w_meas = w_med
         else:
             a_w = dt / (dt + self._tau_w)
-            w_meas = [m + a_w * (r - m) for m, r in zip(w_meas, w_raw, strict=True)]
+            w_meas = [m + a_w * (r - m) for m, r in zip(w_meas, w_med, strict=True)]
         self._w_filt = w_meas
         w_des = (0.0, 0.0, force_n, 0.0, 0.0, 0.0)
         axes, integral, derr, err_prev = self._axes_f, self._integral, self._derr, self._err_prev
@@ -228,8 +241,6 @@ class GaLineForceController(Controller):
         kp, ki, kd = p.kp, p.ki, p.kd
         err = [0.0] * 6
         w_tool = [0.0] * 6
-        w_c_all = [0.0] * 6
-        wc_prev, wc_step = self._w_c_prev if p.force_command_rate_max > 0 else None, p.force_command_rate_max * dt
         for i in range(6):
             e = axes[i] * (w_des[i] - w_meas[i])
             err[i] = e
@@ -241,16 +252,11 @@ class GaLineForceController(Controller):
             e_prev = e if tp is None else err_prev[i]
             derr[i] += alpha * ((e - e_prev) / dt - derr[i])
             w_c = kp * e + ki * integral[i] + kd * derr[i]  # eq. 40
-            if wc_prev is not None:  # slew limit: a one-tick F/T spike must not step the torque
-                lo, hi = wc_prev[i] - wc_step, wc_prev[i] + wc_step
-                w_c = lo if w_c < lo else (hi if w_c > hi else w_c)
-            w_c_all[i] = w_c
             w_tool[i] = w_line[i] + w_c  # eq. 47 in [linear; angular]; −D W_V is added below, implicitly
             if i == 2:
                 self._w_c2 = w_c
         self._err_prev = err
         self._err2 = err[2]
-        self._w_c_prev = w_c_all
 
         excess = v_tool[2] - p.approach_speed_max
         if excess > 0.0 and w_meas[2] < p.approach_below * force_n:
