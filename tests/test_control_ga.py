@@ -150,7 +150,8 @@ def test_wrong_reference_type_is_a_fault():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [({"stiffness_linear": (1.0, 2.0)}, "stiffness_linear"), ({"damping_angular": (-1.0, 0, 0)}, "damping_angular"),
-     ({"kp": float("nan")}, "kp"), ({"dt": 0.0}, "dt"), ({"force_axes": (0, 0, 2, 0, 0, 0)}, "force_axes")],
+     ({"kp": float("nan")}, "kp"), ({"dt": 0.0}, "dt"), ({"force_axes": (0, 0, 2, 0, 0, 0)}, "force_axes"),
+     ({"wrench_median_ticks": 2}, "wrench_median_ticks"), ({"wrench_median_ticks": True}, "wrench_median_ticks")],
 )
 def test_params_validation(kwargs, match):
     with pytest.raises(ConfigError, match=match):
@@ -203,3 +204,20 @@ def test_approach_speed_cap_acts_only_out_of_contact_and_above_the_cap():
     # out of contact and above the cap: the excess speed is damped as well
     expected = d_z * 0.10 + params.approach_damping_z * (0.10 - params.approach_speed_max)
     assert fz_world(0.10, 0.0) == pytest.approx(expected)
+
+
+def test_a_one_tick_wrench_dip_does_not_reach_the_torque():
+    """A sliding pad's F/T shows one-tick dips of ~4 N; through K_d's high-frequency gain they stepped the
+    joint torque by ~1 N·m (a torque-rate clip each). The 3-tick median drops them; a step passes one tick late."""
+    jac = np.hstack([np.eye(6), np.zeros((6, 1))])
+    ref = LineForceReference(np.array([0.5, 0.0, 0.3]), np.array([0.0, 0.0, 1.0]), 10.0)
+    runs = {}
+    for name, dip in (("steady", 0.0), ("dip", -4.0)):
+        ctrl = _ctrl()
+        taus = []
+        for k in range(40):
+            fz = 10.0 + (dip if k == 20 else 0.0)
+            state = make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac, wrench_tool=np.array([0, 0, fz, 0, 0, 0]))
+            taus.append(ctrl.torque(state, ref))
+        runs[name] = np.array(taus)
+    np.testing.assert_allclose(runs["dip"], runs["steady"], atol=1e-12)
