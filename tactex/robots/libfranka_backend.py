@@ -211,6 +211,9 @@ class LibfrankaBackend:
     dt = 0.001
 
     def __init__(self, config: FrankaConfig, tool: ToolGeometry | None = None, ik_scene=None) -> None:
+        if not isinstance(config, FrankaConfig):
+            raise InputError(f"LibfrankaBackend takes a FrankaConfig (e.g. FrankaConfig(robot_ip='172.16.0.2')), "
+                             f"got {type(config).__name__}")
         if importlib.util.find_spec("pylibfranka") is None:
             raise MissingDependencyError("pylibfranka", "franka", "The real-robot backend (--robot franka)")
         import pylibfranka

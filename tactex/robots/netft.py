@@ -234,7 +234,8 @@ class NetFTServer:
     to the last client that asked, until it sends stop. A bias request zeroes the stream at the
     current reading (as the box's software bias does).
 
-    Used by ``tactex twin``; ``wrench_fn`` is called from the server's thread.
+    :meth:`start` streams from a thread of its own; ``tactex twin`` instead calls :meth:`pump` from
+    its simulation step. ``wrench_fn`` is called from whichever thread sends.
     """
 
     def __init__(self, wrench_fn: Callable[[], np.ndarray], host: str = "127.0.0.1", port: int = NETFT_PORT, *,
@@ -251,6 +252,7 @@ class NetFTServer:
         self.address = self.sock.getsockname()
         self.sent = 0
         self.paused = threading.Event()  # set: records are not sent (a test's dead stream)
+        self._seq = 0
         self._bias = np.zeros(6)
         self._client: tuple[str, int] | None = None
         self._remaining = 0  # records left to send; -1: until stopped
@@ -280,24 +282,32 @@ class NetFTServer:
             elif command == CMD_SET_BIAS:
                 self._bias = np.asarray(self.wrench_fn(), dtype=float).copy()
 
+    def pump(self, wrench: np.ndarray | None = None) -> None:
+        """Answer pending requests and send one record of ``wrench`` (default ``wrench_fn()``) now.
+
+        For a simulation that samples its sensor at each physics step: called from the step, in the
+        simulation's own thread, it streams one record per step with no extra latency (a thread of
+        its own waits for the GIL and sends late, in bursts)."""
+        self._handle_requests()
+        if self._client is None or self._remaining == 0 or self.paused.is_set():
+            return
+        w = np.asarray(self.wrench_fn() if wrench is None else wrench, dtype=float) - self._bias
+        status = 0 if np.all(np.isfinite(w)) else 0x80000000
+        self._seq += 1
+        record = pack_record(self._seq, self._seq, status, np.nan_to_num(w), self.counts_per_force,
+                             self.counts_per_torque)
+        try:
+            self.sock.sendto(record, self._client)
+            self.sent += 1
+        except OSError:
+            pass
+        if self._remaining > 0:
+            self._remaining -= 1
+
     def _serve(self) -> None:
-        seq = 0
         next_t = time.monotonic()
         while not self._stop.is_set():
-            self._handle_requests()
-            if self._client is not None and self._remaining != 0 and not self.paused.is_set():
-                wrench = np.asarray(self.wrench_fn(), dtype=float) - self._bias
-                status = 0 if np.all(np.isfinite(wrench)) else 0x80000000
-                seq += 1
-                record = pack_record(seq, seq, status, np.nan_to_num(wrench), self.counts_per_force,
-                                     self.counts_per_torque)
-                try:
-                    self.sock.sendto(record, self._client)
-                    self.sent += 1
-                except OSError:
-                    pass
-                if self._remaining > 0:
-                    self._remaining -= 1
+            self.pump()
             next_t += self.period_s
             delay = next_t - time.monotonic()
             if delay > 0:

@@ -35,7 +35,6 @@ import math
 import os
 import signal
 import socket
-import sys
 import threading
 import time
 import xml.etree.ElementTree as ET
@@ -314,6 +313,8 @@ class Twin:
             self._ft[:3] = self._ft_force
             self._ft[3:] = self._ft_torque
         self.ticks += 1
+        if self.netft is not None and self.ticks % self._ft_every == 0:
+            self.netft.pump(self._ft)  # sampled at the physics step, sent at once: no thread, no lag
         if d.ncon == 0:
             self.robot._twin_ext = None
             self.pad_force_n = 0.0
@@ -452,9 +453,6 @@ class Twin:
 
         cfg = self.config
         _check_addresses(cfg)
-        # the Net F/T thread wakes every millisecond: with Python's default 5 ms switch interval it
-        # would wait for the simulation thread to give up the GIL and skip records
-        sys.setswitchinterval(5e-4)
         if cfg.status_file:
             Path(cfg.status_file).parent.mkdir(parents=True, exist_ok=True)
         with self.sim:
@@ -477,7 +475,7 @@ class Twin:
                 except OSError as exc:
                     raise TactexError(f"udp {cfg.hostname}:{cfg.ft_port}: {exc.strerror}; stop what serves there "
                                       "or pick another port with --port-ft") from None
-                self.netft.start()
+                self._ft_every = max(1, round(1.0 / (cfg.ft_rate_hz * self._dt)))
                 self.sim.register_post_step_callback(self._post_step)
                 realtime: bool | float = (1.0 / cfg.realtime_factor) if cfg.realtime_factor > 0 else False
                 server.run_async(realtime=realtime)
