@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from tactex.control.linalg import solve
+
 __all__ = ["implicit_damping_torque", "latency_shaped_torque"]
 
 
@@ -23,7 +25,7 @@ def implicit_damping_torque(mass_matrix: np.ndarray, damping: np.ndarray, dq: np
     """−B_dt·q̇ [N·m] for joint inertia ``mass_matrix`` (n, n) [kg·m²], joint-space damping ``damping``
     (n, n) [N·m·s/rad], joint velocity ``dq`` (n,) [rad/s] and control period ``dt`` [s]."""
     m = mass_matrix
-    return -(m @ np.linalg.solve(m + dt * damping, damping @ dq))
+    return -(m @ solve(m + dt * damping, damping @ dq))
 
 
 def latency_shaped_torque(mass_matrix: np.ndarray, tau: np.ndarray, damping: np.ndarray,
@@ -43,4 +45,4 @@ def latency_shaped_torque(mass_matrix: np.ndarray, tau: np.ndarray, damping: np.
     a = mass_matrix + horizon_s * damping
     if stiffness is not None:
         a = a + (horizon_s * horizon_s) * stiffness
-    return mass_matrix @ np.linalg.solve(a, tau)
+    return mass_matrix @ solve(a, tau)

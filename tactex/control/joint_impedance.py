@@ -10,6 +10,7 @@ from scipy.interpolate import PchipInterpolator
 
 from tactex.config import param
 from tactex.control.controller import Controller
+from tactex.control.linalg import solve
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault, InputError
 
@@ -143,7 +144,7 @@ class JointImpedanceController(Controller):
     def damping_matrix(self, mass_matrix: np.ndarray) -> np.ndarray:
         """The effective damping M (M + h·D)⁻¹ D [N·m·s/rad] for the joint-space inertia ``mass_matrix`` [kg·m²]."""
         m = np.asarray(mass_matrix, dtype=float)
-        return m @ np.linalg.solve(m + self._dt_d_mat, self._d_mat)
+        return m @ solve(m + self._dt_d_mat, self._d_mat)
 
     def torque(self, state: RobotState, reference: JointTarget) -> np.ndarray:
         if not isinstance(reference, JointTarget):
@@ -154,7 +155,7 @@ class JointImpedanceController(Controller):
         q_d, dq_d = reference.at(state.t)
         m = state.mass_matrix
         if self.params.latency_horizon_ticks <= 0:  # stiffness explicit, damping over one period
-            accel = np.linalg.solve(m + self._dt_d_mat, self._d * (dq_d - state.dq))
+            accel = solve(m + self._dt_d_mat, self._d * (dq_d - state.dq))
             return self._k * (q_d - state.q) + m @ accel + state.coriolis
-        accel = np.linalg.solve(m + self._h_mat, self._k * (q_d - state.q) + self._d * (dq_d - state.dq))
+        accel = solve(m + self._h_mat, self._k * (q_d - state.q) + self._d * (dq_d - state.dq))
         return m @ accel + state.coriolis

@@ -16,6 +16,7 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
+from tactex.control.linalg import solve
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault, InputError
 
@@ -26,7 +27,7 @@ def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarr
     """N = I − Jᵀ J⁺ᵀ (n, n), with J⁺ the damped pseudo-inverse Jᵀ (J Jᵀ + δ² I)⁻¹."""
     j = jacobian
     jjt = j @ j.T + damping**2 * np.eye(j.shape[0])
-    j_pinv_t = np.linalg.solve(jjt, j)  # (J⁺)ᵀ = (J Jᵀ + δ²I)⁻¹ J
+    j_pinv_t = solve(jjt, j)  # (J⁺)ᵀ = (J Jᵀ + δ²I)⁻¹ J
     return np.eye(j.shape[1]) - j.T @ j_pinv_t
 
 
@@ -37,7 +38,7 @@ def project_nullspace(jacobian: np.ndarray, tau: np.ndarray, damping: float = 1e
     """N τ = τ − Jᵀ (J Jᵀ + δ² I)⁻¹ J τ, without forming N (one 6×6 solve with a vector: the 1 kHz path)."""
     j = jacobian
     reg = _EYE6_DAMPED if damping == 1e-3 and j.shape[0] == 6 else damping**2 * np.eye(j.shape[0])
-    return tau - j.T @ np.linalg.solve(j @ j.T + reg, j @ tau)
+    return tau - j.T @ solve(j @ j.T + reg, j @ tau)
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,7 @@ class NullspacePosture(Controller):
         h = p.latency_horizon_ticks * p.dt
         if h > 0:
             m = state.mass_matrix
-            tau_ns = m @ np.linalg.solve(m + (h * p.damping + h * h * p.stiffness) * np.eye(m.shape[0]), tau_ns)
+            tau_ns = m @ solve(m + (h * p.damping + h * h * p.stiffness) * np.eye(m.shape[0]), tau_ns)
         return tau + tau_ns
 
     def telemetry(self) -> dict[str, float]:

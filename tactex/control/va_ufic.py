@@ -342,6 +342,15 @@ class VaUficController(UficController):
         ``reference.position_world + position_offset``."""
         return np.array(self._offset)
 
+    def tick_telemetry(self) -> dict[str, float]:
+        """What a task reads every tick, cheaply: ρ_align, ρ_frc, the tank energies and the impedance
+        tank's valve σ_i (the full :meth:`telemetry` costs ~10× more: read it at the recording rate)."""
+        if self._raw is None:
+            return {}
+        raw = self._raw
+        return {"rho_align": raw[0], "rho_frc": raw[1], "tank_i_valve": raw[7], "tank_i_energy_j": self.tank_i.energy,
+                "tank_f_energy_j": self.tank_f.energy}
+
     def telemetry(self) -> dict[str, float]:
         """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""
         if self._raw is None:

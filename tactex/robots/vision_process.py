@@ -105,7 +105,8 @@ class VisionProcess:
     Args:
         source: ``{"kind": "sim", "scene": {SceneConfig fields}}`` or ``{"kind": "realsense",
             "tool_T_camera": 4×4 nested list, "serial": str | None}``; plus optional
-            ``"rate_hz"`` (30) and ``"estimator": {SurfaceEstimatorConfig fields}``.
+            ``"rate_hz"`` (30), ``"estimator": {SurfaceEstimatorConfig fields}`` and ``"cpus"`` (the
+            cores the worker may use; default: the parent's, which a pinned control loop is not).
         timeout_s: a worker silent this long (or not ready within ``start_timeout_s``) is a fault [s].
     """
 
@@ -232,6 +233,8 @@ def _worker_main(fd_text: str, spec_text: str) -> None:
 
     fd = int(fd_text)
     spec = json.loads(spec_text)
+    if spec.get("cpus"):  # off the control loop's core
+        os.sched_setaffinity(0, set(spec["cpus"]))
     mapping = mmap.mmap(fd, _BYTES)
     buf = np.frombuffer(mapping, dtype=np.float64, count=_SIZE)
     parent = os.getppid()

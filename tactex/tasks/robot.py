@@ -13,6 +13,7 @@ newest estimate, so a slow frame never delays a torque command.
 from __future__ import annotations
 
 import json
+import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -181,16 +182,19 @@ def open_vision(backend, estimator_config: SurfaceEstimatorConfig, scene_config,
 
     from tactex.robots.vision_process import VisionProcess
 
+    cpus = sorted(set(range(os.cpu_count() or 1)) - {robot.control_cpu}) if robot.control_cpu >= 0 else []
+
     est = {f.name: getattr(estimator_config, f.name) for f in fields(estimator_config)}
     if kind == "sim":
         scene = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(scene_config).items()}
-        source = {"kind": "sim", "scene": scene, "estimator": est, "rate_hz": rate_hz}
+        source = {"kind": "sim", "scene": scene, "estimator": est, "rate_hz": rate_hz, "cpus": cpus}
     else:
         if robot.hand_eye:
             tool_T_camera = load_hand_eye(robot.hand_eye)
         else:
             tool_T_camera = nominal_tool_T_camera(scene_config)
-        source = {"kind": "realsense", "tool_T_camera": tool_T_camera.tolist(), "estimator": est, "rate_hz": rate_hz}
+        source = {"kind": "realsense", "tool_T_camera": tool_T_camera.tolist(), "estimator": est, "rate_hz": rate_hz,
+                  "cpus": cpus}
     return ProcessVision(VisionProcess(source))
 
 

@@ -275,7 +275,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
             # tool-frame error is kept beside it
             err_world = state.ee_position - desired
             err_tool = state.ee_rotation.T @ err_world
-            tel = inner.telemetry() if cfg.baseline == "" else {}
+            tel = inner.tick_telemetry() if cfg.baseline == "" else {}
             if compensator is not None and "tank_i_valve" in tel:
                 # power the compensation delivered through the impedance tank's port (σ_i scales it)
                 comp_energy += backend.dt * tel["tank_i_valve"] * float(
