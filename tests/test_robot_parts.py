@@ -1,0 +1,179 @@
+"""The real-robot parts that need no robot: the Net F/T protocol (client and server on loopback),
+the vision process, the small LAPACK solve of the 1 kHz path, the control-core option."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from tactex.control.linalg import solve
+from tactex.errors import ConfigError, SensorFault
+from tactex.robots.libfranka_backend import FrankaConfig, pin_control_thread
+from tactex.robots.netft import (
+    CMD_START_REALTIME,
+    RECORD_SIZE,
+    NetFTClient,
+    NetFTServer,
+    pack_record,
+    pack_request,
+    parse_netft_address,
+    unpack_record,
+    unpack_request,
+)
+from tactex.robots.wrench import NetFTWrenchSource
+
+WRENCH = np.array([1.5, -2.0, 15.0, 0.1, -0.2, 0.03])
+
+
+# -- Net F/T ------------------------------------------------------------------------------------------
+def test_rdt_request_and_record_round_trip():
+    assert unpack_request(pack_request(CMD_START_REALTIME, 0)) == (CMD_START_REALTIME, 0)
+    with pytest.raises(ValueError, match="header"):
+        unpack_request(b"\x00\x01\x00\x02\x00\x00\x00\x00")
+    rec = pack_record(7, 9, 0, WRENCH, 1e6, 1e6)
+    assert len(rec) == RECORD_SIZE == 36
+    rdt, ft, status, w = unpack_record(rec, 1e6, 1e6)
+    assert (rdt, ft, status) == (7, 9, 0)
+    np.testing.assert_allclose(w, WRENCH, atol=1e-6)
+    # counts saturate at int32 instead of wrapping
+    _, _, _, big = unpack_record(pack_record(1, 1, 0, np.full(6, 1e9), 1e6, 1e6), 1e6, 1e6)
+    assert np.all(big > 2000.0)
+
+
+@pytest.mark.parametrize(("text", "expected"), [("192.168.1.1", ("192.168.1.1", 49152)),
+                                                ("127.0.0.1:5000", ("127.0.0.1", 5000))])
+def test_netft_address(text, expected):
+    assert parse_netft_address(text) == expected
+
+
+@pytest.mark.parametrize("text", ["", ":5000", "h:0", "h:x"])
+def test_netft_address_errors_name_the_option(text):
+    with pytest.raises(ConfigError, match="netft:"):
+        parse_netft_address(text)
+
+
+def test_netft_stream_over_loopback_tares_and_reports_a_dead_stream():
+    reading = {"w": WRENCH.copy()}
+    server = NetFTServer(lambda: reading["w"], port=0).start()
+    client = NetFTClient("127.0.0.1", server.address[1], tare_samples=20, timeout_s=0.05)
+    try:
+        client.start()
+        w, age = client.latest()
+        np.testing.assert_allclose(w, 0.0, atol=1e-5)  # tared at the start reading
+        reading["w"] = WRENCH + np.array([0.0, 0.0, 5.0, 0, 0, 0])
+        time.sleep(0.05)
+        w, age = client.latest()
+        assert w[2] == pytest.approx(5.0, abs=1e-5) and age < 0.05
+        server.paused.set()
+        time.sleep(0.1)
+        w, _ = client.latest()
+        assert np.isnan(w).all() and client.lost
+        server.paused.clear()
+        time.sleep(0.05)
+        assert not client.lost and client.records > 50
+    finally:
+        client.close()
+        server.close()
+
+
+def test_netft_without_a_box_is_a_named_fault():
+    client = NetFTClient("127.0.0.1", 9, tare_samples=1)  # the discard port: nothing answers
+    with pytest.raises(SensorFault, match="sent no data"):
+        client.start(wait_s=0.3)
+
+
+def test_netft_source_removes_the_tool_weight_at_any_orientation():
+    """Tared hanging down, the source reads zero contact wrench when the tool is turned sideways."""
+    mass, com, tcp = 0.42, np.array([0.0, 0.0, 0.06]), 0.16
+    g = np.array([0.0, 0.0, -9.81])
+    down = np.diag([1.0, -1.0, -1.0])
+
+    class Fake:
+        bias = np.zeros(6)
+
+        def __init__(self):
+            self.raw = np.zeros(6)
+
+        def start(self):
+            self.bias = self.raw.copy()
+
+        def latest(self):
+            return self.raw - self.bias, 0.0
+
+        def close(self):
+            pass
+
+    def raw_weight(rot):  # what a real sensor reads with no contact: minus the weight and its moment
+        w = mass * (rot.T @ g)
+        return np.concatenate([-w, -np.cross(com, w)])
+
+    fake = Fake()
+    fake.raw = raw_weight(down)
+    source = NetFTWrenchSource(fake, mass, com, tcp)
+    source.start(world_R_tool=down)
+    c, s = np.cos(np.pi / 2), np.sin(np.pi / 2)
+    side = down @ np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+    fake.raw = raw_weight(side)
+    np.testing.assert_allclose(source.wrench_tool(None, side), 0.0, atol=1e-9)
+    fake.raw = raw_weight(down) + np.array([0.0, 0.0, 12.0, 0, 0, 0])  # pressing 12 N along tool z
+    assert source.wrench_tool(None, down)[2] == pytest.approx(12.0)
+
+
+# -- vision process -----------------------------------------------------------------------------------
+def test_vision_process_estimates_the_panel_and_a_dead_worker_is_a_fault():
+    from tactex.robots.vision_process import VisionProcess
+    from tactex.tasks.runner import TOOL_DOWN
+
+    vp = VisionProcess({"kind": "sim", "scene": {"object_name": "sine_panel"},
+                        "estimator": {"max_grid_cells": 2000, "axis_start_m": -0.02}})
+    try:
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = TOOL_DOWN, [0.5, 0.0, 0.12]
+        estimate = None
+        t_end = time.monotonic() + 20.0
+        while estimate is None and time.monotonic() < t_end:
+            vp.publish_pose(0.0, pose)
+            estimate = vp.latest()
+            time.sleep(0.01)
+        assert estimate is not None and estimate.valid
+        assert estimate.normal_world[2] > 0.9  # the panel's crest under the tool faces up
+        os.kill(vp.proc.pid, signal.SIGKILL)
+        vp.proc.wait(timeout=5)
+        with pytest.raises(SensorFault, match="vision process stopped"):
+            vp.check()
+    finally:
+        vp.close()
+
+
+def test_vision_process_refuses_an_unknown_source():
+    from tactex.robots.vision_process import VisionProcess
+
+    with pytest.raises(ConfigError, match="sim' or 'realsense"):
+        VisionProcess({"kind": "webcam"})
+
+
+# -- the 1 kHz path -----------------------------------------------------------------------------------
+def test_small_solve_is_numpys_answer_and_refuses_a_singular_matrix(rng):
+    a = rng.normal(size=(7, 7))
+    a = a @ a.T + np.eye(7)
+    b = rng.normal(size=7)
+    np.testing.assert_allclose(solve(a, b), np.linalg.solve(a, b), rtol=1e-12, atol=1e-14)
+    bm = rng.normal(size=(7, 3))
+    np.testing.assert_allclose(solve(a, bm), np.linalg.solve(a, bm), rtol=1e-12, atol=1e-14)
+    a_copy = a.copy()
+    solve(a, b)
+    assert np.array_equal(a, a_copy)  # inputs untouched
+    with pytest.raises(np.linalg.LinAlgError):
+        solve(np.zeros((3, 3)), np.ones(3))
+
+
+def test_control_cpu_option():
+    assert pin_control_thread(-1) == "not pinned"
+    with pytest.raises(ConfigError, match="control_cpu"):
+        FrankaConfig(robot_ip="1.2.3.4", control_cpu=(os.cpu_count() or 1))
+    with pytest.raises(ConfigError, match="control_cpu"):
+        FrankaConfig(robot_ip="1.2.3.4", control_cpu=True)
