@@ -15,21 +15,24 @@ from tactex.tasks.wipe import WipeConfig, run_wipe
 CLEAN_OBJECTS = ("plate", "bowl")
 CLEAN_METHODS = {"tactex": "", "raster": "raster", "no_feedback": "no_feedback"}
 CLEAN_KEYS = ("dirt_removed_fraction", "force_within_20pct_fraction", "max_contact_force_n", "sim_time_s",
-              "vision_updates", "contact_time_s", "wall_time_s")
+              "vision_updates", "contact_time_s", "wall_time_s", "torque_rate_clip_ticks")
 WIPE_KEYS = ("force_mae_n", "force_rmse_n", "force_mae_aligned_n", "force_rmse_aligned_n", "contact_fraction",
              "contact_fraction_after_first_contact",
              "aligned_at_s", "explore_time_s", "max_force_n", "wall_time_s", "sim_time_s", "explored_points",
              "explored_normal_error_deg_median", "explored_normal_error_deg_p95",
              "explored_depth_below_surface_m_median", "explored_inclination_span_deg",
-             "friction_compensation_energy_j")
+             "friction_compensation_energy_j", "torque_rate_clip_ticks")
 
 TARGETS: dict[str, tuple[str, float]] = {}
 for _obj in CLEAN_OBJECTS:
     TARGETS[f"tasks.clean.{_obj}.tactex.dirt_removed_fraction"] = (">=", 0.95)
     TARGETS[f"tasks.clean.{_obj}.tactex.force_within_20pct_fraction"] = (">=", 0.90)
     TARGETS[f"tasks.clean.{_obj}.tactex.max_contact_force_n"] = ("<=", 20.0)
+    # issue 17: torques smooth enough for a real arm (the safety layer's rate limiter never engages)
+    TARGETS[f"tasks.clean.{_obj}.tactex.torque_rate_clip_ticks"] = ("<=", 0)
 TARGETS.update({
     "tasks.wipe.va_ufic.force_mae_n": ("<=", 0.5),
+    "tasks.wipe.va_ufic.torque_rate_clip_ticks": ("<=", 0),
     "tasks.wipe.va_ufic.force_rmse_n": ("<=", 1.0),
     "tasks.wipe.va_ufic.motion_mae_x_m": ("<=", 0.003),
     "tasks.wipe.va_ufic.motion_mae_y_m": ("<=", 0.003),

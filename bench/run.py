@@ -58,6 +58,18 @@ def _probe_ms(repeats: int = 5) -> float:
     return 1e3 * sorted(times)[len(times) // 2]
 
 
+def _versions(names: tuple[str, ...]) -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in names:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
 def _fmt(v: object) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
@@ -99,6 +111,9 @@ def main() -> int:
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
         # the probe's time before each stage [ms]: compare runs only at similar probe times
         "probe_ms": {**results.get("machine", {}).get("probe_ms", {}), **probes},
+        # what uv.lock installed: a figure that moves with a lock refresh says so here
+        "packages": _versions(("numpy", "scipy", "mujoco", "numba", "robust-laplacian", "pygafro", "pylibfranka",
+                               "franky-sim")),
     }
     out_path.parent.mkdir(parents=True, exist_ok=True)
     out_path.write_text(json.dumps(results, indent=2) + "\n")
