@@ -157,6 +157,20 @@ def _wait_for_contact(proc: subprocess.Popen, deadline_s: float) -> None:
     raise AssertionError(f"the wipe did not start: {proc.stderr.read()}")
 
 
+def _wait_for_stop(proc: subprocess.Popen, deadline_s: float) -> float:
+    """Seconds until the CLI reports that the run stopped early (torque control has ended by then;
+    the report is written after it)."""
+    t0 = time.monotonic()
+    assert proc.stderr is not None
+    while time.monotonic() - t0 < deadline_s:
+        line = proc.stderr.readline()
+        if "stopped early" in line:
+            return time.monotonic() - t0
+        if not line and proc.poll() is not None:
+            break
+    raise AssertionError("the run never reported that it stopped")
+
+
 def test_twin_killed_mid_run_ends_cleanly_with_data(tmp_path):
     with TwinProcess("sine_panel") as twin:
         out = tmp_path / "run"
@@ -166,13 +180,21 @@ def test_twin_killed_mid_run_ends_cleanly_with_data(tmp_path):
             _wait_for_contact(proc, 60.0)
             twin.kill(signal.SIGKILL)
             t_kill = time.monotonic()
+            stopped = None  # the task's "stopped early" line: torque control has ended
+            for line in proc.stderr:
+                if "stopped early" in line:
+                    stopped = time.monotonic() - t_kill
+                    break
             code = proc.wait(timeout=30)
             took = time.monotonic() - t_kill
         finally:
             if proc.poll() is None:
                 proc.kill()
     assert code == 1, proc.stderr.read()
-    assert took <= STOP_WITHIN_S + 1.0  # libfranka's UDP timeout (~1 s) plus writing the report
+    assert stopped is not None and stopped <= STOP_WITHIN_S  # libfranka's UDP timeout (~1 s)
+    # then the report: with the pad already down (first contact ~0.2 s into the wipe) it holds the
+    # explored cloud and the contact plots, ~2 s on a loaded 2-core machine
+    assert took <= STOP_WITHIN_S + 3.0
     metrics = json.loads((out / "metrics.json").read_text())
     assert "NetworkException" in metrics["aborted"]
     assert metrics["loop_ticks"] > 100  # what ran before the loss is kept
@@ -186,14 +208,13 @@ def test_ctrl_c_ends_torque_control_and_saves(panel, tmp_path):
     try:
         _wait_for_contact(proc, 60.0)
         proc.send_signal(signal.SIGINT)
-        t_int = time.monotonic()
-        code = proc.wait(timeout=30)
-        took = time.monotonic() - t_int
+        took = _wait_for_stop(proc, 30.0)
+        code = proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
     assert code == 1
-    assert took <= STOP_WITHIN_S + 1.0
+    assert took <= STOP_WITHIN_S
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["aborted"].startswith("KeyboardInterrupt")
     # the robot is free again: a new connection can take control at once

@@ -99,6 +99,28 @@ def test_twin_config_checks():
         TwinConfig(ft_port=70000)
     with pytest.raises(Exception, match="realtime_factor"):
         TwinConfig(realtime_factor=-1.0)
+    with pytest.raises(Exception, match="joint_friction_residual"):
+        TwinConfig(joint_friction_residual=1.5)
+
+
+def test_tool_joints_do_not_inherit_frankys_arm_defaults():
+    """The sponge's slide joint sits in franky-sim's childclass "fr3" tree: it must keep MuJoCo's plain
+    defaults (as in tactex's scene), not a Franka joint's rotor inertia and gear friction (a 0.2 kg pad
+    with 1.1 N of dry friction hopped on the surface, 0–40 N tick to tick, once the arm stiffened)."""
+    import xml.etree.ElementTree as ET
+
+    import mujoco
+
+    from tactex.sim.twin import Twin
+
+    twin = Twin(TwinConfig(object_name="plane"))
+    m = mujoco.MjModel.from_xml_string(ET.tostring(twin.sim.scene, encoding="unicode"))
+    pad = m.joint("pad_slide").dofadr[0]
+    assert m.dof_armature[pad] == 0.0 and m.dof_frictionloss[pad] == 0.0
+    assert m.jnt_stiffness[m.joint("pad_slide").id] == pytest.approx(TwinConfig().tool_stiffness_n_per_m)
+    # franky-sim's arm and finger stubs keep theirs
+    assert m.dof_armature[m.joint("robot0_fr3_joint7").dofadr[0]] > 0.0
+    assert m.dof_frictionloss[m.joint("robot0_finger_joint1").dofadr[0]] > 0.0
 
 
 def test_client_connects_and_reads_state(twin, robot):

@@ -57,6 +57,7 @@ FRANKA_PORTS = (1337, 1338)
 _PREFIX = "robot0_"  # franky-sim's name prefix of the first robot
 _STUB_MASS_KG = 1e-5  # each finger stub (franky-sim drives the finger joints; they must exist)
 _STUB_Z_M = 0.0584  # finger joint position below the flange [m]
+_TOOL_CLASS = "tactex_tool"  # default class of the wrist assembly (not franky-sim's "fr3")
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,10 @@ class TwinConfig:
     status_period_s: float = param(0.5, "period of the status file [s]")
     realtime_factor: float = param(1.0, "simulated seconds per wall-clock second the twin aims at (it paces "
                                         "itself with sleeps; 0 = as fast as it can)")
+    joint_friction_residual: float = param(
+        0.0, "fraction of franky-sim's dry joint friction (MuJoCo frictionloss 0.25–1.14 N·m) left on the arm: a "
+             "real Franka adds gravity and friction to the commanded torques (libfranka's Torques are 'without "
+             "gravity and friction'), franky-sim only gravity; 1 = franky-sim as it is [-]")
     ext_wrench_on_robot: bool = param(False, "report K_F_ext_hat_K as the wrench ON the robot (the opposite of "
                                              "libfranka's documented sign), for clients written that way")
 
@@ -100,6 +105,8 @@ class TwinConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= lo):
                 raise ConfigError(f"{name} must be ≥ {lo:g}, got {v!r}")
+        if not (math.isfinite(self.joint_friction_residual) and 0.0 <= self.joint_friction_residual <= 1.0):
+            raise ConfigError(f"joint_friction_residual must be in [0, 1], got {self.joint_friction_residual!r}")
         if not (math.isfinite(self.realtime_factor) and 0.0 <= self.realtime_factor <= 100.0):
             raise ConfigError(f"realtime_factor must be in [0, 100] (0: unpaced), got {self.realtime_factor!r}")
 
@@ -147,7 +154,12 @@ def _replace_hand(root: ET.Element, scene: SceneConfig) -> None:
     link7 = _find_body(root, f"{_PREFIX}fr3_link7")
     hand = _find_body(root, f"{_PREFIX}hand")
     link7.remove(hand)
-    flange = ET.SubElement(link7, "body", name="flange", pos=hand.get("pos", "0 0 0.107"))
+    # childclass: franky-sim's arm bodies carry childclass "fr3", whose joint defaults (armature 0.195 kg·m²,
+    # frictionloss 1.137, the reflected rotor and gear friction of a Franka joint) the sponge's slide joint
+    # would otherwise inherit: a 0.2 kg pad with 1.1 N of dry friction instead of 20 g, which hopped on the
+    # surface (0–40 N tick to tick) once the arm stiffened. The tool takes MuJoCo's plain defaults, as in
+    # tactex's own scene; the finger stubs keep their explicit class "finger".
+    flange = ET.SubElement(link7, "body", name="flange", pos=hand.get("pos", "0 0 0.107"), childclass=_TOOL_CLASS)
     ET.SubElement(flange, "site", name="flange", size="0.004")
     flange.append(ET.fromstring(tool_xml(scene.tool, scene.intrinsics.fovy_deg, gravcomp=False)))
     # franky-sim drives the two finger joints (and its gripper server reads them): keep them as
@@ -168,6 +180,8 @@ def _add_scene(sim: Any, scene: SceneConfig) -> None:
         default = ET.SubElement(root, "default")
     tool_visual = ET.SubElement(default, "default", {"class": "tool_visual"})
     ET.SubElement(tool_visual, "geom", contype="0", conaffinity="0", group="2", density="0")
+    tool_class = ET.SubElement(default, "default", {"class": _TOOL_CLASS})  # MuJoCo's defaults, see _replace_hand
+    ET.SubElement(tool_class, "joint", armature="0", frictionloss="0", damping="0")
     option = root.find("option")
     if option is None:
         option = ET.SubElement(root, "option")
@@ -274,6 +288,16 @@ class Twin:
         self._geom_robot = robot_bodies[m.geom_bodyid].tolist()
         self._geom_body = m.geom_bodyid.tolist()
         self._dofs = list(self.robot._dof_addrs)
+        # the firmware's friction compensation (see TwinConfig.joint_friction_residual)
+        m.dof_frictionloss[self._dofs] *= float(self.config.joint_friction_residual)
+        # franky-sim holds an idle arm (no client, between motions) with an explicit joint PD whose damping
+        # (200 N·m·s/rad on joints 5–7) exceeds 2·I/dt of the wrist (I ≈ 0.08 kg·m² on joint 7, its
+        # armature included): only the joints' dry friction kept it from chattering at the torque limit
+        # (±12 N·m every tick). Cap the damping at I/(2·dt) so the hold is stable without friction.
+        full = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, d, full)
+        inertia = np.diag(full)[self._dofs]
+        self.robot.kv = np.minimum(np.asarray(self.robot.kv, dtype=float), 0.5 * inertia / float(m.opt.timestep))
         self._jacp = np.zeros((3, m.nv))
         self._c6 = np.zeros(6)
         self._pad_geom = m.geom("pad").id
