@@ -418,7 +418,27 @@ class LibfrankaBackend:
         """Joint positions (7,) [rad] for a TCP pose, on tactex's kinematic model of the arm and tool
         (the robot does not move); ``q_init`` defaults to the robot's current q."""
         q0 = self._state.q if q_init is None else q_init
+        self.pause()  # an IK solve takes milliseconds: more than a control cycle
         return self._kinematics().solve_ik(position_world, rotation_world, q0, q_posture)
+
+    def pause(self) -> None:
+        """End torque control until the next :meth:`step` (which starts it again), so that work
+        longer than a cycle can run between two ticks: the last torque is sent with
+        ``motion_finished`` and the robot holds its posture itself meanwhile. A no-op when torque
+        control is not running."""
+        if self._control is None or self.config.dry_run:
+            return
+        try:
+            cmd = self._plf.Torques(self._tau.tolist())
+            cmd.motion_finished = True
+            if not self._pending_write:
+                self._control.readOnce()
+            self._control.writeOnce(cmd)
+        except Exception as exc:
+            raise self._fault(exc) from exc
+        self._control = None
+        self._pending_write = False
+        self._last_read_wall = None  # the pause is not a late tick
 
     def loop_metrics(self) -> dict[str, Any]:
         """The loop's timing figures and the wrench source's counters (metrics.json)."""

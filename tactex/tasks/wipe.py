@@ -62,6 +62,8 @@ from tactex.tasks.world import SimWorldParams
 __all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]
 
 WIPE_BASELINES = ("", "cartesian")
+#: Lift-off along the tool axis after the policy [m].
+LIFT_OFF_M = 0.03
 
 
 def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift_m_s: float = 0.005) -> tuple[
@@ -322,6 +324,13 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         aborted = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
         bar.note(f"stopped early: {aborted}")
     bar.close(f"contact {100 * n_contact / max(n_ticks, 1):.0f} % of the time")
+    t_end = loop.t
+    if not aborted and loop.state.wrench_tool[2] >= cfg.contact_threshold_n:
+        # lift off, so the next run (or a sensor tare) starts out of contact; not part of the policy
+        try:
+            loop.retract(LIFT_OFF_M, duration_s=0.4)
+        except (RobotError, SensorFault, KeyboardInterrupt) as exc:
+            aborted = f"{type(exc).__name__} during the lift-off: {exc}"
 
     f_err = np.asarray(forces) - cfg.force_n
     mae_all, rmse_all = _errors(np.asarray(errors_world).reshape(-1, 3))
@@ -356,7 +365,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "friction_compensation_energy_j": comp_energy if compensator is not None else float("nan"),
         "vision_valid_fraction": estimates_valid / max(estimates_total, 1),
         "vision_estimates": estimates_total,
-        "sim_time_s": loop.t,
+        "sim_time_s": t_end,
         "wall_time_s": time.perf_counter() - wall0,
         "controller": inner.name,
         "baseline": cfg.baseline or "va_ufic",
