@@ -73,7 +73,8 @@ class TwinProcess:
 
     def __init__(self, object_name: str = "plate", args: list[str] | tuple[str, ...] = (), *,
                  timeout_s: float = 60.0, hostname: str | None = None, ft_port: int | None = None,
-                 python: str | None = None) -> None:
+                 python: str | None = None, cpus: set[int] | None = None) -> None:
+        self.cpus = set(cpus) if cpus else None  # cores the twin may run on (None: any)
         if hostname is None or ft_port is None:
             host, port = free_loopback_address()
             hostname = hostname or host
@@ -99,6 +100,8 @@ class TwinProcess:
         self._stderr = open(self._stderr_path, "w")
         self.process = subprocess.Popen(self.command, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
                                         env=env, start_new_session=True)
+        if self.cpus:  # e.g. off the core a pinned control loop uses
+            os.sched_setaffinity(self.process.pid, self.cpus)
         threading.Thread(target=self._read_stdout, daemon=True).start()
         deadline = time.monotonic() + self.timeout_s
         while True:
