@@ -27,6 +27,7 @@ reads the state at 1 kHz with ``read_once`` and drops the torques, so the arm st
 
 from __future__ import annotations
 
+import gc
 import importlib.util
 import ipaddress
 import math
@@ -350,6 +351,7 @@ class LibfrankaBackend:
                 if self._control is None:
                     self._control = self.robot.start_torque_control()
                     self._pending_write = False
+                    self._gc_off()
                     compute_us = float("nan")  # the first state of a control: nothing to answer yet
                 if self._pending_write:
                     self._control.writeOnce(plf.Torques(self._tau.tolist()))
@@ -384,8 +386,24 @@ class LibfrankaBackend:
         state = self.robot.read_once()
         return state, max(1.0, (time.perf_counter() - before) * 1e3)
 
+    def _gc_off(self) -> None:
+        """No cyclic garbage collection while torque control runs: a full collection takes
+        milliseconds, a lost cycle or more; the loop's objects are freed by reference counting, and
+        the objects that exist now are frozen out of later collections (:func:`gc.freeze`)."""
+        if gc.isenabled():
+            gc.freeze()
+            gc.disable()
+            self._gc_was_on = True
+
+    def _gc_on(self) -> None:
+        if getattr(self, "_gc_was_on", False):
+            gc.unfreeze()
+            gc.enable()
+            self._gc_was_on = False
+
     def _fault(self, exc: Exception) -> RobotError:
         """End torque control after a libfranka exception and name it."""
+        self._gc_on()
         plf = self._plf
         kind = type(exc).__name__
         detail = str(exc)
@@ -439,6 +457,7 @@ class LibfrankaBackend:
         self._control = None
         self._pending_write = False
         self._last_read_wall = None  # the pause is not a late tick
+        self._gc_on()
 
     def loop_metrics(self) -> dict[str, Any]:
         """The loop's timing figures and the wrench source's counters (metrics.json)."""
@@ -462,6 +481,7 @@ class LibfrankaBackend:
             self.events.append(f"close: {type(exc).__name__}: {exc}")
         finally:
             self._control = None
+            self._gc_on()
             self.wrench.close()
             if self._ik is not None:
                 self._ik.close()
