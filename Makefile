@@ -59,7 +59,7 @@ test-latest: $(UV)
 	rm -rf .venv-latest
 	$(PYTHON) -m venv .venv-latest
 	VIRTUAL_ENV=.venv-latest $(UV) pip install --quiet --python .venv-latest/bin/python \
-		--resolution highest --refresh -e '.[dev,fast]'
+		--resolution highest --refresh -e '.[dev,fast,franka]'
 	.venv-latest/bin/python -m pytest -q -p no:cacheprovider
 
 clean-venv:

@@ -7,7 +7,8 @@ import argparse
 from tactex.commands._task import register_task, run_task_command
 
 NAME = "clean"
-HELP = "clean the marked dirt off a built-in object in simulation (tactile ergodic control) and write a report"
+HELP = ("clean the marked dirt off an object (tactile ergodic control) in simulation, or on a Franka with "
+        "--robot franka, and write a report")
 
 
 def register(parser: argparse.ArgumentParser) -> None:

@@ -7,7 +7,8 @@ import argparse
 from tactex.commands._task import register_task, run_task_command
 
 NAME = "wipe"
-HELP = "wipe an unknown curved surface in simulation (VA-UFIC force-impedance control) and write a report"
+HELP = ("wipe an unknown curved surface (VA-UFIC force-impedance control) in simulation, or on a Franka with "
+        "--robot franka, and write a report")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
