@@ -221,7 +221,8 @@ def test_ft_stream_stopped_is_a_lost_sensor_as_in_simulation(panel):
     """The twin stops its Net F/T stream mid-contact: the safety layer declares the sensor lost and
     backs off (as in simulation), then resumes when the stream returns; the run completes."""
     def drill() -> None:
-        time.sleep(2.0)
+        # in contact first (the twin's status, every 0.5 s): on a loaded machine the start takes a while
+        panel.wait_status(lambda st: st.get("connected") and st.get("contact_force_n", 0.0) > 5.0, timeout_s=30.0)
         panel.process.send_signal(signal.SIGUSR1)  # stream off
         time.sleep(0.5)
         panel.process.send_signal(signal.SIGUSR1)  # and on again
@@ -229,7 +230,7 @@ def test_ft_stream_stopped_is_a_lost_sensor_as_in_simulation(panel):
     thread = threading.Thread(target=drill)
     thread.start()
     try:
-        res = run_wipe(WipeConfig(duration_s=4.0), progress=False, robot=_params(panel, camera="none"))
+        res = run_wipe(WipeConfig(duration_s=5.0), progress=False, robot=_params(panel, camera="none"))
     finally:
         thread.join()
     kinds = [e.kind for e in res.events]

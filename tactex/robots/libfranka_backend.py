@@ -386,6 +386,14 @@ class LibfrankaBackend:
         state = self.robot.read_once()
         return state, max(1.0, (time.perf_counter() - before) * 1e3)
 
+    def _finish_motion(self, tau: np.ndarray) -> None:
+        """Answer the pending state with ``tau`` and ``motion_finished``: libfranka ends torque control."""
+        cmd = self._plf.Torques(tau.tolist())
+        cmd.motion_finished = True
+        if not self._pending_write:
+            self._control.readOnce()
+        self._control.writeOnce(cmd)
+
     def _gc_off(self) -> None:
         """No cyclic garbage collection while torque control runs: a full collection takes
         milliseconds, a lost cycle or more; the loop's objects are freed by reference counting, and
@@ -447,11 +455,7 @@ class LibfrankaBackend:
         if self._control is None or self.config.dry_run:
             return
         try:
-            cmd = self._plf.Torques(self._tau.tolist())
-            cmd.motion_finished = True
-            if not self._pending_write:
-                self._control.readOnce()
-            self._control.writeOnce(cmd)
+            self._finish_motion(self._tau)
         except Exception as exc:
             raise self._fault(exc) from exc
         self._control = None
@@ -472,11 +476,7 @@ class LibfrankaBackend:
         self._closed = True
         try:
             if self._control is not None and not self.config.dry_run:
-                cmd = self._plf.Torques([0.0] * 7)
-                cmd.motion_finished = True
-                if not self._pending_write:
-                    self._control.readOnce()
-                self._control.writeOnce(cmd)
+                self._finish_motion(np.zeros(7))
         except Exception as exc:  # the link is gone: libfranka stopped the motion itself
             self.events.append(f"close: {type(exc).__name__}: {exc}")
         finally:

@@ -35,7 +35,7 @@ import numpy as np
 from tactex.errors import ConfigError, SensorFault
 from tactex.perception.estimate import SurfaceEstimate
 
-__all__ = ["VisionProcess"]
+__all__ = ["VisionProcess", "camera_mount"]
 
 # slot layout (float64 indices)
 _P_SEQ, _P_T, _P_POSE = 0, 1, 2  # pose slot: seq, t [s], world_T_tool (16, row-major)
@@ -193,6 +193,15 @@ class VisionProcess:
 
 
 # -- worker side -------------------------------------------------------------------------------
+def camera_mount(sim) -> np.ndarray:
+    """tool_T_camera (4, 4) of a :class:`~tactex.robots.mujoco_backend.MujocoBackend`'s wrist camera:
+    the tactex tool's nominal mount."""
+    state = sim.state()
+    world_T_tool = np.eye(4)
+    world_T_tool[:3, :3], world_T_tool[:3, 3] = state.ee_rotation, state.ee_position
+    return np.linalg.inv(world_T_tool) @ sim.camera.pose(sim.data)
+
+
 def _sim_frames(spec: dict):
     """(capture(world_T_tool, t) -> CameraFrame) on tactex's simulated scene."""
     from tactex.robots.mujoco_backend import MujocoBackend
@@ -200,11 +209,7 @@ def _sim_frames(spec: dict):
 
     scene = SceneConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in spec["scene"].items()})
     sim = MujocoBackend(scene)
-    state = sim.state()
-    world_T_cam0 = sim.camera.pose(sim.data)
-    world_T_tool0 = np.eye(4)
-    world_T_tool0[:3, :3], world_T_tool0[:3, 3] = state.ee_rotation, state.ee_position
-    tool_T_cam = np.linalg.inv(world_T_tool0) @ world_T_cam0
+    tool_T_cam = camera_mount(sim)
     obj_pos, obj_rot = sim.object_pose()
 
     def capture(world_T_tool: np.ndarray, t: float):

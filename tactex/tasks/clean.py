@@ -34,7 +34,7 @@ from tactex.ergodic import kernel
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
-from tactex.errors import ConfigError, ExplorationError, InputError, RobotError, SensorFault, SimulationError
+from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -45,7 +45,7 @@ from tactex.spectral.basis import build_basis
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
-from tactex.tasks.robot import RealRobotParams, open_backend
+from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
 from tactex.tasks.world import SimWorldParams
@@ -493,9 +493,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
             cmd = source.reset(x0)
             cmd = cmd[0] if isinstance(cmd, list) else cmd
-    except (RobotError, SensorFault, KeyboardInterrupt) as exc:
+    except ROBOT_STOPS as exc:
         # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
-        aborted = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        aborted = stop_reason(exc)
         bar.note(f"stopped early: {aborted}")
 
     # lift off at the end so the final state is out of contact (0.4 s, on top of the budget)

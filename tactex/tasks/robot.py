@@ -22,12 +22,13 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import ConfigError, InputError
+from tactex.errors import ConfigError, InputError, RobotError, SensorFault
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.robots.libfranka_backend import FrankaConfig
 
 __all__ = [
+    "ROBOT_STOPS",
     "InLoopVision",
     "NoVision",
     "ProcessVision",
@@ -36,7 +37,18 @@ __all__ = [
     "load_hand_eye",
     "open_backend",
     "open_vision",
+    "stop_reason",
 ]
+
+#: What ends a run on a robot early and keeps its data: a libfranka error or lost link, a lost
+#: sensor or vision process, Ctrl-C (torque control has ended by the time they reach the task).
+ROBOT_STOPS = (RobotError, SensorFault, KeyboardInterrupt)
+
+
+def stop_reason(exc: BaseException) -> str:
+    """The ``aborted`` entry of a run's metrics for one of :data:`ROBOT_STOPS`."""
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
 
 #: How often the loop asks whether the vision process is alive [ticks].
 VISION_CHECK_TICKS = 100
@@ -201,9 +213,10 @@ def open_vision(backend, estimator_config: SurfaceEstimatorConfig, scene_config,
 def nominal_tool_T_camera(scene_config) -> np.ndarray:
     """The camera's pose in the tool frame on tactex's tool (the simulated mount)."""
     from tactex.robots.mujoco_backend import MujocoBackend
+    from tactex.robots.vision_process import camera_mount
 
     sim = MujocoBackend(scene_config)
     try:
-        return np.linalg.inv(_world_T_tool(sim.state())) @ sim.camera.pose(sim.data)
+        return camera_mount(sim)
     finally:
         sim.close()

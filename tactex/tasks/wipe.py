@@ -47,7 +47,7 @@ from tactex.control.friction import FrictionCompensator, FrictionCompensatorPara
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import PoseForceReference
 from tactex.control.va_ufic import VaUficController, VaUficParams
-from tactex.errors import ConfigError, RobotError, SensorFault
+from tactex.errors import ConfigError
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -55,7 +55,7 @@ from tactex.pointcloud.voxel import voxel_indices
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
-from tactex.tasks.robot import RealRobotParams, SurfaceVision, open_backend, open_vision
+from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, SurfaceVision, open_backend, open_vision, stop_reason
 from tactex.tasks.runner import TOOL_DOWN, ControlLoop
 from tactex.tasks.world import SimWorldParams
 
@@ -319,9 +319,9 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
                 rec.add()
             if n_ticks % 250 == 0:
                 bar.update(loop.t - t0, force=fz, contact=n_contact / n_ticks)
-    except (RobotError, SensorFault, KeyboardInterrupt) as exc:
+    except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
-        aborted = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        aborted = stop_reason(exc)
         bar.note(f"stopped early: {aborted}")
     bar.close(f"contact {100 * n_contact / max(n_ticks, 1):.0f} % of the time")
     t_end = loop.t
@@ -329,8 +329,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         # lift off, so the next run (or a sensor tare) starts out of contact; not part of the policy
         try:
             loop.retract(LIFT_OFF_M, duration_s=0.4)
-        except (RobotError, SensorFault, KeyboardInterrupt) as exc:
-            aborted = f"{type(exc).__name__} during the lift-off: {exc}"
+        except ROBOT_STOPS as exc:
+            aborted = f"during the lift-off: {stop_reason(exc)}"
 
     f_err = np.asarray(forces) - cfg.force_n
     mae_all, rmse_all = _errors(np.asarray(errors_world).reshape(-1, 3))
