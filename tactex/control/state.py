@@ -49,6 +49,13 @@ class RobotState:
         return int(self.q.shape[0])
 
     @property
+    def ee_pose(self) -> np.ndarray:
+        """(4, 4) world_T_tool: the TCP pose as a homogeneous transform."""
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = self.ee_rotation, self.ee_position
+        return pose
+
+    @property
     def wrench_world(self) -> np.ndarray:
         """Contact wrench rotated into the world frame [f, m] (moments about the TCP)."""
         rot = self.ee_rotation

@@ -138,8 +138,9 @@ def _col_major(a: Any, rows: int, cols: int) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(cols, rows).T)
 
 
-def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench_tool: np.ndarray) -> RobotState:
-    """libfranka's state and model → our :class:`RobotState` (world = the robot's base frame O).
+def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: WrenchSource) -> RobotState:
+    """libfranka's state and model → our :class:`RobotState` (world = the robot's base frame O), the
+    contact wrench read from ``wrench`` at the pose of this state.
 
     libfranka's arrays are column-major; its Coriolis term is C(q, dq)·dq. The gravity vector
     uses ``O_ddP_O`` (filled by the firmware; a state without it, as franky-sim sends, gets −9.81 z).
@@ -156,7 +157,7 @@ def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench_tool: n
     return RobotState(
         t=t, q=q, dq=dq, tau_measured=np.asarray(state.tau_J, dtype=float), ee_position=pose[:3, 3].copy(),
         ee_rotation=pose[:3, :3].copy(), ee_twist=jac @ dq, jacobian=jac, mass_matrix=mass, coriolis=coriolis,
-        gravity=gravity, wrench_tool=np.asarray(wrench_tool, dtype=float),
+        gravity=gravity, wrench_tool=np.asarray(wrench.wrench_tool(state, pose[:3, :3]), dtype=float),
     )
 
 
@@ -318,9 +319,7 @@ class LibfrankaBackend:
 
     # -- RobotBackend ---------------------------------------------------------------------------
     def _convert(self, franka_state) -> RobotState:
-        rot = _col_major(franka_state.O_T_EE, 4, 4)[:3, :3]
-        return franka_state_to_robot_state(franka_state, self.model, self._t,
-                                           self.wrench.wrench_tool(franka_state, rot))
+        return franka_state_to_robot_state(franka_state, self.model, self._t, self.wrench)
 
     def reset(self, seed: int | None = None) -> RobotState:
         """The current state (a real robot cannot be reset; ``seed`` is ignored)."""

@@ -196,10 +196,7 @@ class VisionProcess:
 def camera_mount(sim) -> np.ndarray:
     """tool_T_camera (4, 4) of a :class:`~tactex.robots.mujoco_backend.MujocoBackend`'s wrist camera:
     the tactex tool's nominal mount."""
-    state = sim.state()
-    world_T_tool = np.eye(4)
-    world_T_tool[:3, :3], world_T_tool[:3, 3] = state.ee_rotation, state.ee_position
-    return np.linalg.inv(world_T_tool) @ sim.camera.pose(sim.data)
+    return np.linalg.inv(sim.state().ee_pose) @ sim.camera.pose(sim.data)
 
 
 def _sim_frames(spec: dict):

@@ -121,12 +121,6 @@ class SurfaceVision(ABC):
         """Release the camera (idempotent)."""
 
 
-def _world_T_tool(state) -> np.ndarray:
-    pose = np.eye(4)
-    pose[:3, :3], pose[:3, 3] = state.ee_rotation, state.ee_position
-    return pose
-
-
 class InLoopVision(SurfaceVision):
     """Simulation: the backend's frames, estimated in the loop."""
 
@@ -138,7 +132,7 @@ class InLoopVision(SurfaceVision):
         frame = self.backend.camera_frame()
         if frame is None:
             return None
-        return self.estimator.estimate(frame, _world_T_tool(state))
+        return self.estimator.estimate(frame, state.ee_pose)
 
 
 class ProcessVision(SurfaceVision):
@@ -150,7 +144,7 @@ class ProcessVision(SurfaceVision):
 
     def update(self, state) -> SurfaceEstimate | None:
         self._ticks += 1
-        self.process.publish_pose(state.t, _world_T_tool(state))
+        self.process.publish_pose(state.t, state.ee_pose)
         if self._ticks % VISION_CHECK_TICKS == 0:
             self.process.check()
         return self.process.latest()
