@@ -101,7 +101,10 @@ def test_netft_source_removes_the_tool_weight_at_any_orientation():
         def start(self):
             self.bias = self.raw.copy()
 
-        def latest(self):
+        def poll(self):
+            return 0
+
+        def latest(self, poll=True):
             return self.raw - self.bias, 0.0
 
         def close(self):

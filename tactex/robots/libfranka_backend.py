@@ -263,6 +263,7 @@ class LibfrankaBackend:
         self._closed = False
         self._t = 0.0
         self._t_read = 0.0
+        self._compute_us = float("nan")
         self._last_read_wall: float | None = None
         self.wrench = config.wrench_source(self.tool)
         self.scheduling = pin_control_thread(config.control_cpu)
@@ -329,46 +330,65 @@ class LibfrankaBackend:
         return self._state
 
     def apply_torque(self, tau: np.ndarray) -> None:
+        """Answer the current state with ``tau`` [N·m] (gravity excluded): sent at once while torque
+        control runs, so whatever the task does before :meth:`step` runs while the robot executes
+        it, not between a state and its command."""
         tau = np.asarray(tau, dtype=float)
         if tau.shape != (7,):
             raise InputError(f"apply_torque takes 7 joint torques [N·m], got shape {tau.shape}")
         if not np.isfinite(tau).all():  # the safety layer never lets one through; a last guard
             tau = np.zeros(7)
         self._tau = tau
+        if self._pending_write:
+            self._send()
+
+    def _send(self) -> None:
+        """writeOnce the torque set last, timing our share of the cycle (state read → command sent)."""
+        t_send = time.perf_counter()
+        self._compute_us = (t_send - self._t_read) * 1e6
+        if self._compute_us > LATE_COMMAND_ABORT_US:
+            # a real Franka stops here (communication_constraints_violation); a twin would keep the last
+            # torque on an arm nobody controls
+            self.close()
+            raise RobotError(
+                f"the control loop answered {self._compute_us / 1e3:.0f} ms late (budget 1 ms): something slow "
+                "ran between two ticks while torque control was on; a real Franka stops with "
+                "communication_constraints_violation. Torque control ended")
+        try:
+            self._control.writeOnce(self._plf.Torques(self._tau.tolist()))
+        except Exception as exc:
+            raise self._fault(exc) from exc
+        self._pending_write = False
 
     def step(self) -> RobotState:
-        """Send the torque set by :meth:`apply_torque` and wait for the next state (1 ms)."""
-        plf = self._plf
+        """Send the torque set by :meth:`apply_torque` (unless it went already) and wait for the next
+        state (1 ms)."""
         if self._closed:
             raise RobotError("the Franka backend is closed")
-        t_call = time.perf_counter()
-        compute_us = (t_call - self._t_read) * 1e6 if self._last_read_wall is not None else float("nan")
         try:
             if self.config.dry_run:
+                self._compute_us = (time.perf_counter() - self._t_read) * 1e6
+                self.wrench.prefetch()
                 franka_state, period_ms = self._read_dry()
             else:
                 if self._control is None:
                     self._control = self.robot.start_torque_control()
                     self._pending_write = False
                     self._gc_off()
-                    compute_us = float("nan")  # the first state of a control: nothing to answer yet
-                if self._pending_write:
-                    self._control.writeOnce(plf.Torques(self._tau.tolist()))
+                    self._compute_us = float("nan")  # the first state of a control: nothing to answer yet
+                elif self._pending_write:  # the task stepped without a new torque: the last one again
+                    self._send()
+                self.wrench.prefetch()
                 franka_state, duration = self._control.readOnce()
                 self._pending_write = True
                 period_ms = duration.to_sec() * 1e3
+        except RobotError:
+            raise
         except Exception as exc:
             raise self._fault(exc) from exc
         now = time.perf_counter()
-        if compute_us > LATE_COMMAND_ABORT_US and not self.config.dry_run:
-            # a real Franka stops here (communication_constraints_violation); a twin would keep the last
-            # torque on an arm nobody controls
-            self.close()
-            raise RobotError(
-                f"the control loop answered {compute_us / 1e3:.0f} ms late (budget 1 ms): something slow ran "
-                "between two ticks while torque control was on; a real Franka stops with "
-                "communication_constraints_violation. Torque control ended")
         period_us = (now - self._last_read_wall) * 1e6 if self._last_read_wall is not None else float("nan")
+        compute_us = self._compute_us if self._last_read_wall is not None else float("nan")
         self._last_read_wall = now
         lost = max(0, round(period_ms) - 1)
         if not math.isnan(compute_us):

@@ -204,9 +204,11 @@ class NetFTClient:
             self.records += n
         return n
 
-    def latest(self) -> tuple[np.ndarray, float]:
-        """(wrench [N, N·m] (6,) in the sensor frame, tared; its age [s]). NaN when the stream is lost."""
-        self.poll()
+    def latest(self, poll: bool = True) -> tuple[np.ndarray, float]:
+        """(wrench [N, N·m] (6,) in the sensor frame, tared; its age [s]). NaN when the stream is lost.
+        ``poll=False`` skips reading the socket (the caller has just called :meth:`poll`)."""
+        if poll:
+            self.poll()
         age = time.monotonic() - self._stamp
         if age > self.timeout_s:
             return np.full(6, np.nan), age

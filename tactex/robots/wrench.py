@@ -33,6 +33,10 @@ class WrenchSource(ABC):
     def start(self, world_R_tool: np.ndarray | None = None) -> None:  # noqa: B027 (optional hook)
         """Open the stream (called once, out of contact, before torque control starts)."""
 
+    def prefetch(self) -> None:  # noqa: B027 (optional hook)
+        """Read what the sensor has sent so far. Called after each command is sent and before the next
+        state is read, so the I/O runs while the robot executes, not between state and command."""
+
     @abstractmethod
     def wrench_tool(self, franka_state, world_R_tool: np.ndarray) -> np.ndarray:
         """Contact wrench (6,) [N, N·m] at the TCP in the tool frame for this tick; NaN when lost."""
@@ -84,8 +88,12 @@ class NetFTWrenchSource(WrenchSource):
             w = self.model.mass * (np.asarray(world_R_tool, dtype=float).T @ self.model.gravity)
             self._tare_weight = np.concatenate([-w, -np.cross(self.model.com, w)])
 
+    def prefetch(self) -> None:
+        self.client.poll()
+
     def wrench_tool(self, franka_state, world_R_tool: np.ndarray) -> np.ndarray:
-        raw, _age = self.client.latest()
+        # the socket was read by prefetch() less than one cycle ago, as the robot state's age
+        raw, _age = self.client.latest(poll=False)
         if not np.isfinite(raw[0]):
             self.lost_ticks += 1
             return raw

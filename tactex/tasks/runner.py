@@ -84,9 +84,18 @@ class ControlLoop:
                 self._started.append(controller)
                 controller.reset(self.state)
 
-    def tick(self, reference: Any) -> RobotState:
-        tau = self.safety.torque(self.state, reference)
+    def tick(self, reference: Any, after_send: Callable[[RobotState], None] | None = None) -> RobotState:
+        """One control cycle: the torque for the current state, sent, then the next state.
+
+        ``after_send(state)`` runs once the torque computed from ``state`` is sent and before the next
+        state is read: on a real robot that is time the robot spends executing the command, so
+        bookkeeping placed there stays out of the cycle's critical path (state read → command sent).
+        It must not command the robot."""
+        state = self.state
+        tau = self.safety.torque(state, reference)
         self.backend.apply_torque(tau)
+        if after_send is not None:
+            after_send(state)
         self.state = self.backend.step()
         if self.on_tick is not None:
             self.on_tick(self.state, reference, self.safety.inner)

@@ -171,6 +171,113 @@ def _exploration_accuracy(explored: SurfaceCloud, surface, obj_pos: np.ndarray, 
     }
 
 
+
+class _WipeLog:
+    """The wipe's per-tick bookkeeping: force and motion errors, tank energies, contact points, the
+    recorded series.
+
+    A tick's figures need the state its torque produced, so each tick is completed one tick later,
+    in :meth:`sent` while the next command executes (``ControlLoop.tick``'s ``after_send``): on a real
+    robot none of this runs between reading a state and answering it. What the controller holds
+    after its torque (telemetry, the position offset, the friction feed-forward) is noted in the same
+    call, before the next torque overwrites it. Set :attr:`pos_ref` and :attr:`estimate` before each
+    tick.
+    """
+
+    def __init__(self, cfg: WipeConfig, inner, compensator: FrictionCompensator | None, dt: float,
+                 rec: Recorder, bar: Progress, t0: float, obj_pos: np.ndarray, obj_rot: np.ndarray) -> None:
+        self.cfg, self.inner, self.compensator, self.dt = cfg, inner, compensator, dt
+        self._obj_pos, self._obj_rot = obj_pos, obj_rot
+        self.rec, self.bar, self.t0 = rec, bar, t0
+        self.va = isinstance(inner, VaUficController)
+        self.pos_ref = np.zeros(3)
+        self.estimate: SurfaceEstimate | None = None
+        self.n_ticks = self.n_contact = self.first_contact_tick = 0
+        self.first_contact: float | None = None
+        self.t_aligned: float | None = None
+        self.comp_energy = 0.0
+        self.forces: list[float] = []
+        self.errors_world: list[np.ndarray] = []
+        self.aligned_errors: list[np.ndarray] = []
+        self.aligned_errors_tool: list[np.ndarray] = []
+        self.aligned_forces: list[float] = []
+        self.contact_pts: list[np.ndarray] = []
+        self.contact_normals: list[np.ndarray] = []
+        self.contact_curv: list[float] = []
+        self.tank_i: list[float] = []
+        self.tank_f: list[float] = []
+        self._pending: tuple | None = None
+
+    def sent(self, state_ctrl) -> None:
+        """The torque computed from ``state_ctrl`` is on its way: complete the previous tick (whose
+        result ``state_ctrl`` is), then note this tick's controller figures."""
+        if self._pending is not None:
+            self._complete(state_ctrl)
+        tel = self.inner.tick_telemetry() if self.cfg.baseline == "" else {}
+        comp = self.compensator
+        if comp is not None and "tank_i_valve" in tel:
+            # power the compensation delivered through the impedance tank's port (σ_i scales it)
+            self.comp_energy += self.dt * tel["tank_i_valve"] * float(
+                (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ comp.last[:3])
+        offset = self.inner.position_offset if self.va else np.zeros(3)
+        friction = comp.last[:2] if comp is not None else np.zeros(2)
+        self._pending = (state_ctrl, self.pos_ref + offset, tel, friction, self.estimate)
+
+    def finish(self, state) -> None:
+        """After the loop: complete the last tick sent, if the state it produced arrived."""
+        if self._pending is not None and state is not self._pending[0]:
+            self._complete(state)
+        self._pending = None
+
+    def _complete(self, state) -> None:
+        cfg = self.cfg
+        _, desired, tel, friction, estimate = self._pending
+        self.n_ticks += 1
+        t = state.t - self.t0
+        fz = float(state.wrench_tool[2])
+        in_contact = fz >= cfg.contact_threshold_n
+        # x − x_d in the base frame, as the paper's Fig. 3b and its per-axis MAE/RMSE (§IV); the
+        # tool-frame error is kept beside it
+        err_world = state.ee_position - desired
+        err_tool = state.ee_rotation.T @ err_world
+        if "tank_i_energy_j" in tel:
+            self.tank_i.append(tel["tank_i_energy_j"])
+            self.tank_f.append(tel["tank_f_energy_j"])
+        if in_contact:
+            self.n_contact += 1
+            if self.first_contact is None:
+                self.first_contact, self.first_contact_tick = t, self.n_ticks
+            self.forces.append(fz)
+            self.errors_world.append(err_world)
+            if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
+                self.t_aligned = t if self.t_aligned is None else self.t_aligned
+                self.aligned_errors.append(err_world)
+                self.aligned_errors_tool.append(err_tool)
+                self.aligned_forces.append(fz)
+            if self.n_contact % 10 == 0:
+                self.contact_pts.append(state.ee_position.copy())
+                if estimate is not None and estimate.valid:
+                    self.contact_normals.append(np.asarray(estimate.normal_world, dtype=float))
+                    self.contact_curv.append(float(estimate.curvature))
+                else:
+                    self.contact_normals.append(-state.ee_rotation[:, 2])
+                    self.contact_curv.append(float("nan"))
+        if self.rec.due():
+            self.rec.add(
+                t=t, q=state.q, tcp=state.ee_position, desired=desired, motion_error_world=err_world,
+                motion_error_tool=err_tool, force_z_n=fz, wrench_tool=state.wrench_tool,
+                friction_comp_tool=friction, force_set_n=cfg.force_n, in_contact=float(in_contact),
+                rho_align=tel.get("rho_align", np.nan), rho_frc=tel.get("rho_frc", np.nan),
+                tank_i_energy_j=tel.get("tank_i_energy_j", np.nan), tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
+                tcp_object=self._obj_rot.T @ (state.ee_position - self._obj_pos),
+                theta_rad=estimate.theta_rad if estimate is not None and estimate.valid else np.nan,
+            )
+        else:
+            self.rec.add()
+        if self.n_ticks % 250 == 0:
+            self.bar.update(t, force=fz, contact=self.n_contact / self.n_ticks)
+
+
 def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
              robot: RealRobotParams | None = None) -> WipeResult:
     """Run the wiping exploration in simulation, or on a real Franka (``robot``); returns metrics, series
@@ -223,27 +330,12 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     estimate: SurfaceEstimate | None = None
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
     bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
+    t0 = loop.t
+    log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
 
     wrench_d = np.array([0.0, 0.0, cfg.force_n, 0.0, 0.0, 0.0])
-    t0 = loop.t
     pos_ref = p_start.copy()
     x_prev, _ = wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
-    forces: list[float] = []
-    errors_world: list[np.ndarray] = []
-    aligned_errors: list[np.ndarray] = []
-    aligned_errors_tool: list[np.ndarray] = []
-    aligned_forces: list[float] = []
-    t_aligned: float | None = None
-    contact_pts: list[np.ndarray] = []
-    contact_normals: list[np.ndarray] = []
-    contact_curv: list[float] = []
-    tank_i: list[float] = []
-    tank_f: list[float] = []
-    n_ticks = 0
-    comp_energy = 0.0
-    n_contact = 0
-    first_contact: float | None = None
-    first_contact_tick = 0
     estimates_valid = 0
     estimates_total = 0
 
@@ -265,64 +357,16 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
             twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
             rot_ref = r_start if cfg.baseline == "cartesian" else rot
             reference = PoseForceReference(pos_ref, rot_ref, wrench_d, twist_d, estimate)
-            state_ctrl = state  # the state this tick's torque was computed from
-            state = loop.tick(reference)
-            n_ticks += 1
-
-            fz = float(state.wrench_tool[2])
-            in_contact = fz >= cfg.contact_threshold_n
-            offset = inner.position_offset if isinstance(inner, VaUficController) else np.zeros(3)
-            desired = pos_ref + offset
-            # x − x_d in the base frame, as the paper's Fig. 3b and its per-axis MAE/RMSE (§IV); the
-            # tool-frame error is kept beside it
-            err_world = state.ee_position - desired
-            err_tool = state.ee_rotation.T @ err_world
-            tel = inner.tick_telemetry() if cfg.baseline == "" else {}
-            if compensator is not None and "tank_i_valve" in tel:
-                # power the compensation delivered through the impedance tank's port (σ_i scales it)
-                comp_energy += backend.dt * tel["tank_i_valve"] * float(
-                    (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ compensator.last[:3])
-            if "tank_i_energy_j" in tel:
-                tank_i.append(tel["tank_i_energy_j"])
-                tank_f.append(tel["tank_f_energy_j"])
-            if in_contact:
-                n_contact += 1
-                if first_contact is None:
-                    first_contact, first_contact_tick = loop.t - t0, n_ticks
-                forces.append(fz)
-                errors_world.append(err_world)
-                if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
-                    t_aligned = loop.t - t0 if t_aligned is None else t_aligned
-                    aligned_errors.append(err_world)
-                    aligned_errors_tool.append(err_tool)
-                    aligned_forces.append(fz)
-                if n_contact % 10 == 0:
-                    contact_pts.append(state.ee_position.copy())
-                    if estimate is not None and estimate.valid:
-                        contact_normals.append(np.asarray(estimate.normal_world, dtype=float))
-                        contact_curv.append(float(estimate.curvature))
-                    else:
-                        contact_normals.append(-state.ee_rotation[:, 2])
-                        contact_curv.append(float("nan"))
-            if rec.due():
-                rec.add(
-                    t=loop.t - t0, q=state.q, tcp=state.ee_position, desired=desired, motion_error_world=err_world,
-                    motion_error_tool=err_tool, force_z_n=fz, wrench_tool=state.wrench_tool,
-                    friction_comp_tool=compensator.last[:2] if compensator is not None else np.zeros(2),
-                    force_set_n=cfg.force_n, in_contact=float(in_contact), rho_align=tel.get("rho_align", np.nan),
-                    rho_frc=tel.get("rho_frc", np.nan), tank_i_energy_j=tel.get("tank_i_energy_j", np.nan),
-                    tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
-                    tcp_object=obj_rot.T @ (state.ee_position - obj_pos),
-                    theta_rad=estimate.theta_rad if estimate is not None and estimate.valid else np.nan,
-                )
-            else:
-                rec.add()
-            if n_ticks % 250 == 0:
-                bar.update(loop.t - t0, force=fz, contact=n_contact / n_ticks)
+            log.pos_ref = pos_ref
+            log.estimate = estimate
+            loop.tick(reference, after_send=log.sent)
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
         aborted = stop_reason(exc)
         bar.note(f"stopped early: {aborted}")
+    log.finish(loop.state)
+    n_ticks, n_contact = log.n_ticks, log.n_contact
+    forces, first_contact, t_aligned = log.forces, log.first_contact, log.t_aligned
     bar.close(f"contact {100 * n_contact / max(n_ticks, 1):.0f} % of the time")
     t_end = loop.t
     if not aborted and loop.state.wrench_tool[2] >= cfg.contact_threshold_n:
@@ -333,11 +377,11 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
             aborted = f"during the lift-off: {stop_reason(exc)}"
 
     f_err = np.asarray(forces) - cfg.force_n
-    mae_all, rmse_all = _errors(np.asarray(errors_world).reshape(-1, 3))
-    mae_m, rmse_m = _errors(np.asarray(aligned_errors).reshape(-1, 3))
-    mae_tool, rmse_tool = _errors(np.asarray(aligned_errors_tool).reshape(-1, 3))
-    f_err_al = np.asarray(aligned_forces) - cfg.force_n
-    after_first = n_ticks - first_contact_tick + 1 if first_contact is not None else 0  # ticks from the touch on
+    mae_all, rmse_all = _errors(np.asarray(log.errors_world).reshape(-1, 3))
+    mae_m, rmse_m = _errors(np.asarray(log.aligned_errors).reshape(-1, 3))
+    mae_tool, rmse_tool = _errors(np.asarray(log.aligned_errors_tool).reshape(-1, 3))
+    f_err_al = np.asarray(log.aligned_forces) - cfg.force_n
+    after_first = n_ticks - log.first_contact_tick + 1 if first_contact is not None else 0  # ticks from the touch on
     va_params = VaUficParams()
     metrics: dict[str, Any] = {
         "force_mae_n": float(np.mean(np.abs(f_err))) if f_err.size else float("nan"),
@@ -351,8 +395,10 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "force_mae_aligned_n": float(np.mean(np.abs(f_err_al))) if f_err_al.size else float("nan"),
         "force_rmse_aligned_n": float(np.sqrt(np.mean(f_err_al**2))) if f_err_al.size else float("nan"),
         "aligned_at_s": t_aligned,
-        "tank_impedance_energy_j": {"min": min(tank_i, default=float("nan")), "max": max(tank_i, default=float("nan"))},
-        "tank_force_energy_j": {"min": min(tank_f, default=float("nan")), "max": max(tank_f, default=float("nan"))},
+        "tank_impedance_energy_j": {"min": min(log.tank_i, default=float("nan")),
+                                    "max": max(log.tank_i, default=float("nan"))},
+        "tank_force_energy_j": {"min": min(log.tank_f, default=float("nan")),
+                                "max": max(log.tank_f, default=float("nan"))},
         "tank_impedance_limits_j": [va_params.tank_i_lower, va_params.tank_i_upper],
         "tank_force_limits_j": [va_params.tank_f_lower, va_params.tank_f_upper],
         "contact_fraction": n_contact / max(n_ticks, 1),
@@ -362,7 +408,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "explore_time_s": (cfg.duration_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
         "friction_compensation": compensator is not None,
-        "friction_compensation_energy_j": comp_energy if compensator is not None else float("nan"),
+        "friction_compensation_energy_j": log.comp_energy if compensator is not None else float("nan"),
         "vision_valid_fraction": estimates_valid / max(estimates_total, 1),
         "vision_estimates": estimates_total,
         "sim_time_s": t_end,
@@ -382,15 +428,15 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     prof_pts, _ = surface.project(np.column_stack([np.zeros_like(ys), ys, np.zeros_like(ys)]))
     explored = None
     curv = np.zeros(0)
-    if len(contact_pts) >= 2:
-        pts = np.asarray(contact_pts)
+    if len(log.contact_pts) >= 2:
+        pts = np.asarray(log.contact_pts)
         inv, counts = voxel_indices(pts, 0.003)
         first = np.full(counts.size, -1)
         first[inv[::-1]] = np.arange(inv.size)[::-1]  # one contact point per 3 mm voxel
-        explored = SurfaceCloud(points=pts[first], normals=np.asarray(contact_normals)[first], spacing=0.003)
-        curv = np.asarray(contact_curv)[first]
+        explored = SurfaceCloud(points=pts[first], normals=np.asarray(log.contact_normals)[first], spacing=0.003)
+        curv = np.asarray(log.contact_curv)[first]
         metrics.update(_exploration_accuracy(explored, surface, obj_pos, obj_rot))
     return WipeResult(
-        config=cfg, metrics=metrics, series=rec.arrays(), profile={"y_m": prof_pts[:, 1], "z_m": prof_pts[:, 2]},
+        config=cfg, metrics=metrics, series=log.rec.arrays(), profile={"y_m": prof_pts[:, 1], "z_m": prof_pts[:, 2]},
         explored=explored, explored_curvature=curv, events=list(loop.safety.events),
     )
