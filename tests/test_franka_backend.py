@@ -286,3 +286,30 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
         assert abs(loop.state.ee_position[2] - (p[2] + 0.01)) < 3e-3
     finally:
         backend.close()
+
+
+def test_torque_is_sent_before_the_tasks_bookkeeping_runs(panel):
+    """``ControlLoop.tick(after_send=...)``: the callback sees the torque already written to the
+    robot (nothing pending) and the state that torque answered; the next state arrives after it."""
+    from tactex.control.joint_impedance import JointTarget
+    from tactex.tasks.runner import ControlLoop
+
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        loop = ControlLoop(backend)
+        loop.hold(0.05)
+        q = loop.state.q.copy()
+        seen = []
+
+        def after_send(state):
+            seen.append((backend._pending_write, state is loop.state, state.t))
+
+        for _ in range(20):
+            before = loop.state
+            after = loop.tick(JointTarget(q, q, loop.t, 0.0), after_send=after_send)
+            assert after is not before and after.t > before.t
+        assert len(seen) == 20
+        assert all(not pending and current for pending, current, _ in seen)
+        assert backend.loop_metrics()["loop_ticks"] >= 20
+    finally:
+        backend.close()
