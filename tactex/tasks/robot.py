@@ -114,6 +114,10 @@ class SurfaceVision(ABC):
     def update(self, state) -> SurfaceEstimate | None:
         """Called once per tick with the current state; a new estimate or None."""
 
+    def publish(self, state) -> None:  # noqa: B027 (optional hook)
+        """Tell the camera where the tool is at ``state`` (to pose its next frame). Called once per
+        tick after the tick's command is sent: nothing the torque needs waits for it."""
+
     def stats(self) -> dict[str, Any]:
         return {}
 
@@ -144,10 +148,12 @@ class ProcessVision(SurfaceVision):
 
     def update(self, state) -> SurfaceEstimate | None:
         self._ticks += 1
-        self.process.publish_pose(state.t, state.ee_pose)
         if self._ticks % VISION_CHECK_TICKS == 0:
             self.process.check()
         return self.process.latest()
+
+    def publish(self, state) -> None:
+        self.process.publish_pose(state.t, state.ee_pose)
 
     def stats(self) -> dict[str, Any]:
         return {"vision_process_estimates": self.process.estimates}

@@ -339,6 +339,10 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     estimates_valid = 0
     estimates_total = 0
 
+    def after_send(state_ctrl) -> None:  # while the robot executes the tick's command
+        vision.publish(state_ctrl)
+        log.sent(state_ctrl)
+
     aborted = ""
     try:
         while loop.t - t0 < cfg.duration_s - 1e-9:
@@ -359,7 +363,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
             reference = PoseForceReference(pos_ref, rot_ref, wrench_d, twist_d, estimate)
             log.pos_ref = pos_ref
             log.estimate = estimate
-            loop.tick(reference, after_send=log.sent)
+            loop.tick(reference, after_send=after_send)
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
         aborted = stop_reason(exc)
