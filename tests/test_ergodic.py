@@ -607,7 +607,7 @@ def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
     start = np.array([0.02, 0.045, 0.0])
     reached = {}
     for off in (1.0, 2.5):
-        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud=off, max_bridge=0.0))
+        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud=off, max_bridge=0.0, relocate=False))
         ex.reset(start)
         best = -np.inf
         for _ in range(250):

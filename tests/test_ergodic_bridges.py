@@ -57,7 +57,8 @@ def test_the_agent_hops_the_hole_only_when_allowed(strips):
     start = np.array([0.02, 0.045, 0.0])
     result = {}
     for max_bridge in (0.0, 6.0):
-        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge))
+        # relocation off: this is about the walk and its hops (relocation crosses the hole through the air)
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge, relocate=False))
         (prev,) = ex.reset(start)
         v_max = ex.config.max_velocity * H
         for _ in range(250):
@@ -139,7 +140,8 @@ def test_no_hop_through_a_thin_wall(thickness_voxels):
     for j in np.flatnonzero(links.has):  # whatever remains sits at the rim, none in the middle
         rim = min(pts[j, 0], pts[j, 1], 24.5 * H - pts[j, 0], 24.5 * H - pts[j, 1])
         assert rim < 3 * H
-    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+    # relocation off: it may fly to the underside, which the walk must never reach through the wall
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40, relocate=False))
     ex.reset(np.array([0.036, 0.036, 0.0]))
     for _ in range(300):
         cmd = ex.step()
@@ -185,13 +187,20 @@ def test_on_the_tec_bunny_an_agent_started_on_its_base_reaches_the_x():
     basis = build_basis(bunny, n_eigen=60, n_neighbors=40, cache=False)
     residual = {}
     for max_bridge in (0.0, 6.0):
-        ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge))
+        ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge, relocate=False))
         ex.reset(start)
         while ex.path_length < 1.0 and ex.step_count < MAX_STEPS:
             ex.step()
         residual[max_bridge] = (ex.bridges_taken, ex.coverage_residual())
     assert residual[0.0] == (0, 1.0)
     assert residual[6.0][0] >= 1 and residual[6.0][1] < 0.3, residual
+    # Without hops, relocation gets it there too: it stalls at the rim and flies across.
+    ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge=0.0))
+    ex.reset(start)
+    while ex.total_path_length < 1.0 and ex.step_count < MAX_STEPS:
+        ex.step()
+    assert ex.relocations and ex.bridges_taken == 0
+    assert ex.coverage_residual() < 0.3
 
 
 def test_a_hop_keeps_the_agents_acceleration_limit(strips):

@@ -209,22 +209,46 @@ def test_output_path_is_a_file(tmp_path, capsys) -> None:
     _fails(["explore", "cup", "--quiet", "--out", str(tmp_path / "f")], capsys, "is an existing file")
 
 
-def test_separate_parts_are_reported(tmp_path) -> None:
+def _two_plates(tmp_path):
     g = np.linspace(0.0, 0.06, 21)
     x, y = np.meshgrid(g, g)
     patch = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
     pts = np.vstack([patch, patch + np.array([0.3, 0.0, 0.0])])  # two plates 30 cm apart
     target = np.r_[np.ones(len(patch)), np.zeros(len(patch))]
-    path = save_npz(SurfaceCloud(points=pts, target=target), tmp_path / "two.npz")
+    return save_npz(SurfaceCloud(points=pts, target=target), tmp_path / "two.npz"), len(patch)
+
+
+def test_separate_parts_are_handled_and_reported(tmp_path) -> None:
+    path, n = _two_plates(tmp_path)
+    messages: list[str] = []
+    cfg = ExploreConfig(
+        voxel_size=0.0, n_eigen=20, n_neighbors=10, steps=150, x0=(0.33, 0.03, 0.0), html=False, cache=False
+    )
+    result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
+    assert any("2 separate parts" in m and "lifts off" in m for m in messages)
+    assert any("part without target: the agent relocates" in m for m in messages)
+    assert not any("warning" in m for m in messages)
+    m = result.metrics
+    assert m["component_sizes"] == [n, n]
+    assert m["start_part_has_target"] is False
+    assert m["relocations"] == 1 and m["relocation_events"][0]["reason"] == "part_done"
+    assert m["final_air_path_length_m"] > 0.29
+    assert m["final_total_path_length_m"] == pytest.approx(m["final_path_length_m"] + m["final_air_path_length_m"])
+    assert m["final_coverage_residual"] < 0.5
+    assert any("relocated 1 time(s) (part_done 1)" in msg for msg in messages)
+
+
+def test_separate_parts_without_relocation_are_warned_about(tmp_path) -> None:
+    from tactex.ergodic import HedacConfig
+
+    path, _ = _two_plates(tmp_path)
     messages: list[str] = []
     cfg = ExploreConfig(
         voxel_size=0.0, n_eigen=20, n_neighbors=10, steps=5, x0=(0.33, 0.03, 0.0), html=False, cache=False
     )
-    result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
+    result = run_explore(path, tmp_path / "run", cfg, hedac=HedacConfig(relocate=False), progress=messages.append)
     assert any("2 separate parts" in m and "--n-neighbors" in m for m in messages)
-    assert any("part without target" in m for m in messages)
-    assert result.metrics["component_sizes"] == [len(patch), len(patch)]
-    assert result.metrics["start_part_has_target"] is False
+    assert any("part without target and relocation is off" in m for m in messages)
     # Without heat reaching it, the agent covers none of the target.
     assert result.metrics["final_ergodicity"] == pytest.approx(1.0)
 
@@ -255,8 +279,16 @@ def test_an_agent_stuck_on_contact_tracks_is_reported(tmp_path) -> None:
     path = save_npz(SurfaceCloud(points=pts, target=np.ones(len(pts))), tmp_path / "tracks.npz")
     messages: list[str] = []
     cfg = ExploreConfig(voxel_size=0.0, n_eigen=30, steps=600, x0=(0.03, 0.024, 0.0), html=False, cache=False)
-    result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
+    from tactex.ergodic import HedacConfig
+
+    result = run_explore(path, tmp_path / "run", cfg, hedac=HedacConfig(relocate=False), progress=messages.append)
     assert result.metrics["stalled_from_step"] is not None
     assert result.metrics["final_coverage_residual"] > 0.1
     stalled = result.metrics["stalled_from_step"]
-    assert any(f"stayed in place from step {stalled} on," in m for m in messages)
+    assert any(f"stayed in place from step {stalled} on," in m and "--relocate" in m for m in messages)
+    # With relocation (the default) the stall sends the agent to the other tracks through the air.
+    messages.clear()
+    result = run_explore(path, tmp_path / "run2", cfg, progress=messages.append)
+    assert result.metrics["relocations"] >= 1
+    assert result.metrics["final_coverage_residual"] <= 0.05
+    assert not any("warning" in m for m in messages)

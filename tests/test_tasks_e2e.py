@@ -96,3 +96,41 @@ def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
     m = run_clean(CleanConfig(object_name="cup", budget_s=25.0), progress=False).metrics
     assert m["vision_updates"] >= 1 and m["dirt_removed_fraction"] > 0.9
     assert m["max_contact_force_n"] < 3.0 * 10.0
+
+
+def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path) -> None:
+    """Dirt on both sides of a keep-out strip across the plate (a --cloud in the base frame with a
+    --keep-out-mask): the agent cleans one side, stalls at the strip, and the robot lifts off, flies
+    and touches down on the other side (issue 18), never pressing on the strip."""
+    from tactex.pointcloud import save_npz
+    from tactex.pointcloud.markings import marked_cloud
+
+    cfg0 = CleanConfig(object_name="plate")
+    scene = cfg0.scene()
+    pos, rot = scene.object_pose()
+    local = marked_cloud(scene.sim_object.surface, "full", 0.003)
+    x, y = local.points[:, 0], local.points[:, 1]
+    dirt = (np.hypot(x + 0.06, y) <= 0.025) | (np.hypot(x - 0.06, y) <= 0.025)
+    cloud = local.with_target(dirt.astype(float)).transformed(rot, pos)
+    path = save_npz(cloud, tmp_path / "plate.npz")
+    np.save(tmp_path / "strip.npy", np.abs(x) <= 0.01)
+    cfg = CleanConfig(object_name="plate", budget_s=30.0, n_eigen=60, cloud=str(path),
+                      keep_out_mask=str(tmp_path / "strip.npy"))
+    r = run_clean(cfg, progress=False)
+    m = r.metrics
+    assert m["relocations"] >= 1 and m["air_path_length_m"] > 0.0
+    assert m["keep_out_points"] >= int((np.abs(x) <= 0.01).sum()) // 2  # on the 3 mm voxels of the file
+    assert m["keep_out_contacts"] == 0
+    # touched down on both sides: the agent's path holds points left and right of the strip
+    side = r.agent_path[:, 0] - pos[0]
+    assert (side < -0.03).any() and (side > 0.03).any()
+    # within the force limits over the whole run, lift-off and touch-down included
+    assert 0.0 < m["max_contact_force_n"] <= 2.0 * cfg.force_n
+    assert m["force_over_2x_ticks"] == 0
+    # the sponge's centre never pressed within an agent radius of the strip (a few mm of tracking error allowed)
+    pressing = r.series["force_z_n"] >= cfg.contact_threshold_n
+    assert pressing.any()
+    assert np.min(np.abs(r.series["tcp"][pressing, 0] - pos[0])) >= 0.01 + cfg.agent_radius_m - 0.005
+    phases = [p for _, p in m["phase_changes"]]
+    first_explore = phases.index(PHASES["explore"])
+    assert PHASES["retract"] in phases[first_explore:] and phases[first_explore:].count(PHASES["explore"]) >= 2

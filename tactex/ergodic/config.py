@@ -106,6 +106,21 @@ class HedacConfig:
         "the realised velocity change stays within max_acceleration; False: the outward part is dropped on "
         "landing (a change of up to ~1.3 a_max·dt in one step, but the agent slides along the edge)",
     )
+    relocate: bool = param(
+        True,
+        "lift and move (TEC §VI-B) when walking makes no progress: the agent's Laplacian part holds no untouched "
+        "target, it stalls (stall_steps within stall_radius), or the untouched target stops shrinking "
+        "(progress_steps); it touches down at untouched target elsewhere (see tactex.ergodic.relocation)",
+    )
+    stall_steps: int = param(20, "steps within stall_radius of one point that count as a stall [steps]")
+    stall_radius: float = param(2.0, "radius of the stall rule [voxels]")
+    progress_steps: int = param(
+        300, "steps without a newly touched target point, while untouched target is left, before relocating "
+        "(0 = never) [steps]"
+    )
+    relocation_clearance_m: float = param(
+        0.02, "height of a relocation's flight above the lift-off and touch-down points, along their normals [m]"
+    )
     compiled: bool = param(
         True,
         "run the walking step compiled by numba when the optional 'fast' extra is installed (about 5x faster; "
@@ -124,17 +139,20 @@ class HedacConfig:
             "step_duration_s",
             "max_off_cloud",
             "max_snap_distance",
+            "stall_radius",
+            "relocation_clearance_m",
         )
         for name in positive:
             _check_number(name, getattr(self, name), strict=True)
         for name in ("alpha_final", "source_weight", "max_bridge", "cooling"):
             _check_number(name, getattr(self, name), strict=False)
-        for name, low in (("n_eigen", 1), ("n_neighbors_fit", 5), ("alpha_decay_steps", 1)):
+        for name, low in (("n_eigen", 1), ("n_neighbors_fit", 5), ("alpha_decay_steps", 1), ("stall_steps", 2),
+                          ("progress_steps", 0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"HedacConfig.{name} must be an integer ≥ {low}, got {value!r}")
         check_coverage_normalization(self.coverage_normalization, "HedacConfig")
-        for name in ("compiled", "edge_braking"):
+        for name in ("compiled", "edge_braking", "relocate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"HedacConfig.{name} must be True or False, got {getattr(self, name)!r}")
         if self.order not in (1, 2) or isinstance(self.order, bool):

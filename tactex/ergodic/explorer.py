@@ -58,6 +58,7 @@ from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTOL
 from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
+from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
@@ -80,6 +81,11 @@ _CUBE_A, _CUBE_B = np.array([0, 0, 2, 2]), np.array([0, 1, 0, 1])
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
+#: Steps between the checks of the untouched target (part done, no progress) of the relocation rules.
+RELOCATION_CHECK_EVERY = 10
+#: A keep-out zone's clearance beyond the footprint radius [voxels]: the footprint is laid around the
+#: agent projected on its fitted patch, a fraction of a voxel from the agent point the guard checks.
+KEEP_OUT_MARGIN = 0.5
 #: Passes of a step (see step_all): one agent does all of it; several agents lay their footprints
 #: first, then (after one diffusion) move.
 _WHOLE, _FOOTPRINT, _MOVE = 0, 1, 2
@@ -148,9 +154,18 @@ class HedacExplorer:
         basis: a :class:`tactex.spectral.LaplaceBasis` of ``cloud`` (anything with ``mass`` (N,),
             ``evals`` (K,), ``evecs`` (N, K) M-orthonormal, ``spacing`` [m]).
         config: :class:`HedacConfig`.
+        keep_out: optional boolean mask (N,) of cloud points no footprint may touch (a sticker, a
+            sensor): they hold no target, and every agent keeps its point at least r_a + ½ voxel
+            from them (its step slides along the zone or stops; a stop is a stall, and the agent
+            relocates). ``keep_out_contacts`` counts kept-out points a footprint touched anyway.
+
+    Relocation (``config.relocate``, :mod:`.relocation`): when walking makes no progress, ``step``
+    returns a :class:`~tactex.ergodic.relocation.RelocationCommand` (lift off, fly, touch down)
+    instead of an :class:`ExplorationCommand`, and the agent jumps to the touch-down point.
     """
 
-    def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None) -> None:
+    def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None,
+                 keep_out: np.ndarray | None = None) -> None:
         self.config = config if config is not None else HedacConfig()
         if not isinstance(self.config, HedacConfig):
             raise ConfigError(f"config must be a HedacConfig, got {type(self.config).__name__}")
@@ -214,6 +229,8 @@ class HedacExplorer:
         self._bridges: list[Bridge | None] = []
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
+        self._labels = self._part_labels(basis, n)
+        self._set_keep_out(keep_out)
         self._decay_alpha = np.nan
         self._decay = np.ones(k)
         self._set_target(cloud.target)
@@ -232,6 +249,64 @@ class HedacExplorer:
         self.bridges_taken = 0
         self._pass = _WHOLE
         self.compiled_steps = 0  # agent steps the compiled kernel took (the rest ran in numpy)
+        self._monitors: list[ProgressMonitor] = []
+        self.relocations: list[RelocationCommand] = []
+        self.air_path_lengths = np.zeros(0)
+
+    # ------------------------------------------------------------------ parts and keep-out zones
+    @staticmethod
+    def _part_labels(basis, n: int) -> np.ndarray:
+        """Connected part (N,) of each point as the basis' Laplacian links them (all 0 without one)."""
+        if hasattr(basis, "component_labels") and getattr(basis, "L", None) is not None:
+            return np.asarray(basis.component_labels(), dtype=np.intp)
+        return np.zeros(n, dtype=np.intp)
+
+    def _set_keep_out(self, keep_out: np.ndarray | None) -> None:
+        n = len(self.cloud)
+        if keep_out is None:
+            mask = np.zeros(n, dtype=bool)
+        else:
+            mask = np.asarray(keep_out)
+            if mask.shape != (n,) or mask.dtype != bool:
+                raise InputError(f"keep_out must be a boolean mask of shape ({n},) (one per cloud point), "
+                                 f"got {mask.dtype} {mask.shape}")
+            mask = mask.copy()
+        if mask.all():
+            raise InputError("keep_out marks every cloud point: nothing may be touched; mark fewer points")
+        self._keep_out = mask
+        self._ko_idx = np.flatnonzero(mask)
+        self._ko_clear = self._r_a + KEEP_OUT_MARGIN * self.spacing
+        if self._ko_idx.size:
+            self._ko_tree = cKDTree(self._points[self._ko_idx])
+            self._ko_dist = self._ko_tree.query(self._points)[0]
+        else:
+            self._ko_tree = None
+            self._ko_dist = np.full(n, np.inf)
+        # Agent points near cloud point j are surely clear when j is this much farther than the
+        # clearance: the agent is at most a step plus max_off_cloud from its nearest point.
+        self._ko_sure = self._ko_clear + 2.0 * (self._step_max + self._off) + self.spacing
+        self._safe = self._ko_dist >= self._ko_clear
+
+    @property
+    def keep_out(self) -> np.ndarray:
+        """The kept-out cloud points (N,) (bool)."""
+        return self._keep_out.copy()
+
+    @property
+    def clear_points(self) -> np.ndarray:
+        """Cloud points (N,) (bool) an agent may stand on: at least r_a + ½ voxel from every kept-out point."""
+        return self._safe.copy()
+
+    @property
+    def keep_out_contacts(self) -> int:
+        """Kept-out cloud points inside a footprint so far (0 unless something is wrong)."""
+        self._require_state()
+        return int(np.count_nonzero(self._cov.take(self._ko_idx) > 0.0)) if self._ko_idx.size else 0
+
+    def _clear_of_keep_out(self, x: np.ndarray, near: int) -> bool:
+        if self._ko_tree is None or self._ko_dist.item(near) >= self._ko_sure:
+            return True
+        return float(self._ko_tree.query(x)[0]) >= self._ko_clear
 
     # ------------------------------------------------------------------ target and state
     def _set_target(self, mass: np.ndarray) -> None:
@@ -240,6 +315,13 @@ class HedacExplorer:
             raise InputError(f"target mass must have shape ({len(self.cloud)},), got {p.shape}")
         if not np.all(np.isfinite(p)) or p.min() < 0:
             raise InputError("target mass must be finite and ≥ 0 everywhere")
+        if self._ko_idx.size:
+            if float(p.sum()) > 0 and not p[~self._keep_out].any():
+                raise ExplorationError(
+                    "every target point is kept out (keep-out zone): nothing may be touched; shrink the keep-out "
+                    "zone (--keep-out-threshold, --keep-out-mask) or mark other target points"
+                )
+            p = np.where(self._keep_out, 0.0, p)
         total = float(p.sum())
         if total <= 0:
             raise ExplorationError(
@@ -257,6 +339,9 @@ class HedacExplorer:
         # cloud point (tpos = −1 off the target) without a mask.
         self._s_ext = np.zeros(self._tidx.size + 1)
         self._s_t = self._s_ext[:-1]
+        # Target points a footprint may touch (clear of the keep-out zones), and their parts.
+        self._t_safe = self._safe[self._tidx]
+        self._t_part = self._labels[self._tidx]
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
@@ -289,6 +374,8 @@ class HedacExplorer:
         self._nrm_t = [(0.0, 0.0, 0.0)] * x.shape[0]
         self._bridges = [None] * x.shape[0]
         self.path_lengths = np.zeros(x.shape[0])
+        self.air_path_lengths = np.zeros(x.shape[0])
+        self.relocations = []
         self.bridges_taken = 0
         self.compiled_steps = 0
         self._near = np.zeros(x.shape[0], dtype=np.intp)
@@ -303,6 +390,17 @@ class HedacExplorer:
             self._nrm_t[i] = tuple(nrm.tolist())
             t1, t2 = _tangent_basis(nrm)
             out.append(ExplorationCommand(p.copy(), np.zeros(3), nrm.copy(), t1, t2, 0, i))
+        if not cfg.relocate:
+            for i, p in enumerate(self._x):
+                if not self._clear_of_keep_out(p, int(self._near[i])):
+                    raise ExplorationError(
+                        f"the start {np.round(p, 4).tolist()} m lies within {self._ko_clear * 1e3:.1f} mm (footprint "
+                        "radius + ½ voxel) of a keep-out point; start elsewhere, or let the explorer relocate "
+                        "(HedacConfig.relocate)"
+                    )
+        self._monitors = [
+            ProgressMonitor(p, 0, cfg.stall_radius * self.spacing, cfg.stall_steps, cfg.progress_steps) for p in self._x
+        ]
         return out
 
     def _initial_normal(self, x: np.ndarray) -> np.ndarray:
@@ -371,7 +469,15 @@ class HedacExplorer:
             self._x = m.copy()
         self._update_decay()
         exact = measured_positions is not None
-        if self.n_agents == 1:
+        before = self._x.copy() if self._ko_tree is not None else None
+        moves = None
+        if self.config.relocate:
+            moves = [self._relocation_due(i) for i in range(self.n_agents)]
+            if not any(m is not None for m in moves):
+                moves = None
+        if moves is not None:
+            cmds = self._step_with_relocations(moves, exact)
+        elif self.n_agents == 1:
             cmds = [self._step_agent(0, exact)]
         else:
             # Eq. 3 and 19 with several agents: every footprint of this step in the coverage first, one
@@ -389,8 +495,141 @@ class HedacExplorer:
                 cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
             finally:
                 self._pass = _WHOLE
+        if before is not None:
+            cmds = [c if isinstance(c, RelocationCommand) else self._keep_out_guard(c, before[c.agent]) for c in cmds]
+        if self._monitors:
+            for c in cmds:
+                self._monitors[c.agent].moved_to(c.point, self.step_count)
         self.step_count += 1
         return cmds
+
+    # ------------------------------------------------------------------ relocation (lift-and-move)
+    def _untouched(self) -> np.ndarray:
+        """Per target point, True when no footprint has touched it yet and one may (clear of keep-out)."""
+        return (self._cov.take(self._tidx) < self._p_t) & self._t_safe
+
+    def _relocation_due(self, i: int) -> str | None:
+        """Why agent i should relocate now (a :data:`~.relocation.RELOCATION_REASONS` entry), or None."""
+        if self._bridges[i] is not None:
+            return None
+        mon = self._monitors[i]
+        k = self.step_count
+        if self._ko_tree is not None and not self._clear_of_keep_out(self._x[i], int(self._near[i])):
+            return "keep_out"
+        stalled = mon.stalled(k)
+        if not stalled and k % RELOCATION_CHECK_EVERY:
+            return None
+        untouched = self._untouched()
+        count = int(np.count_nonzero(untouched))
+        if count == 0:
+            mon.restart(self._x[i], k, 0)  # nothing left to touch: HEDAC goes on revisiting in place
+            return None
+        if stalled:
+            return "stall"
+        part = self._labels.item(int(self._near[i]))
+        if not (untouched & (self._t_part == part)).any():
+            return "part_done"
+        if mon.no_progress(count, k):
+            return "no_progress"
+        return None
+
+    def _step_with_relocations(self, moves: list[str | None], exact: bool) -> list:
+        """One step in which some agents relocate; the others (and those with nowhere to go) walk."""
+        out: list = [self._relocate(i, m) if m is not None else None for i, m in enumerate(moves)]
+        walking = [i for i, c in enumerate(out) if c is None]
+        if len(walking) == 1:
+            out[walking[0]] = self._step_agent(walking[0], exact)
+        elif walking:
+            near = self._near.copy()
+            self._pass = _FOOTPRINT
+            try:
+                for i in walking:
+                    self._step_agent(i, exact)
+                self._update_potential()
+                self._near[:] = near
+                self._pass = _MOVE
+                for i in walking:
+                    out[i] = self._step_agent(i, exact)
+            finally:
+                self._pass = _WHOLE
+        return out
+
+    def _relocate(self, i: int, reason: str) -> RelocationCommand | None:
+        """Agent i lifts off, flies to the chosen untouched target and lands there at rest."""
+        untouched = self._untouched()
+        cand = self._tidx[untouched]
+        x = self._x[i].copy()
+        j = choose_touch_down(self._points, cand, self._p_t[untouched], x, self._r_a)
+        mon = self._monitors[i]
+        if j is None:
+            mon.restart(x, self.step_count, 0)
+            return None
+        end = self._points[j].copy()
+        n_end = self._touch_down_normal(j, np.array(self._nrm_t[i]))
+        n_start = np.array(self._nrm_t[i])
+        c = self.config.relocation_clearance_m
+        air = air_length(x, n_start, end, n_end, c)
+        self._x[i] = end
+        self._nrm_t[i] = tuple(n_end.tolist())
+        self._near[i] = j
+        self._agents[i].velocity = np.zeros(3)
+        self.air_path_lengths[i] += air
+        mon.restart(end, self.step_count, None)
+        t1, t2 = _tangent_basis(n_end)
+        cmd = RelocationCommand(end.copy(), np.zeros(3), n_end, t1, t2, self.step_count, i, x, n_start, c, air, reason)
+        self.relocations.append(cmd)
+        _log.info("agent %d relocates (%s) from %s to %s m, %.3f m through the air", i, reason,
+                  np.round(x, 4).tolist(), np.round(end, 4).tolist(), air)
+        return cmd
+
+    def _touch_down_normal(self, j: int, current: np.ndarray) -> np.ndarray:
+        """Unit outward normal at cloud point j: the fitted patch's, oriented along the cloud's own normal
+        when it has normals, else away from the cloud's centroid (a closed object) or, where that is
+        ambiguous (an open sheet seen edge-on from its centroid), along the agent's current normal."""
+        end = self._points[j]
+        nb = self._tree.query(end, k=self._n_n)[1]
+        if self.cloud.normals is not None:
+            ref = self.cloud.normals[j]
+        else:
+            ref = current
+            radial = end - self._points.mean(axis=0)
+            rn = float(np.sqrt(radial @ radial))
+            if rn > 0.0:
+                _, probe = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, radial / rn)
+                if abs(float(probe @ radial)) > 0.3 * rn:
+                    ref = radial / rn
+        _, n = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, ref)
+        return n
+
+    def _keep_out_guard(self, cmd: ExplorationCommand, x_old: np.ndarray) -> ExplorationCommand:
+        """The step of cmd, kept clear of the keep-out zones: slid along the zone (its part towards the
+        nearest kept-out point dropped), or not taken at all (the agent stops; a stop is a stall)."""
+        i = cmd.agent
+        x_new = cmd.point
+        if self._clear_of_keep_out(x_new, int(self._near[i])):
+            return cmd
+        self._bridges[i] = None  # a hop towards a keep-out zone ends here
+        _, q = self._ko_tree.query(x_new)
+        away = x_old - self._points[self._ko_idx[q]]
+        na = float(np.sqrt(away @ away))
+        move = x_new - x_old
+        step_old = float(np.sqrt(move @ move))
+        x_fix = x_old.copy()
+        if na > 0.0:
+            away /= na
+            slid = move - min(float(move @ away), 0.0) * away
+            if self._clear_of_keep_out(x_old + slid, int(self._near[i])) and \
+                    float(self._ko_tree.query(x_old + slid)[0]) >= self._ko_clear:
+                x_fix = x_old + slid
+        move = x_fix - x_old
+        step = float(np.sqrt(move @ move))
+        self.path_lengths[i] += step - step_old
+        v = move * (1.0 / self._dt)
+        v -= float(v @ cmd.normal) * cmd.normal
+        self._agents[i].velocity = v
+        self._x[i] = x_fix
+        self._near[i] = int(self._tree.query(x_fix)[1])
+        return cmd._replace(point=x_fix.copy(), velocity=v.copy())
 
     def _update_decay(self) -> None:
         alpha = self.config.alpha_at(self.step_count)
@@ -838,6 +1077,16 @@ class HedacExplorer:
     def path_length(self) -> float:
         """Total path travelled on the surface by all agents [m]."""
         return float(self.path_lengths.sum()) if self._agents else 0.0
+
+    @property
+    def air_path_length(self) -> float:
+        """Total path of all agents' relocations through the air [m] (see RelocationCommand.air_length_m)."""
+        return float(self.air_path_lengths.sum()) if self._agents else 0.0
+
+    @property
+    def total_path_length(self) -> float:
+        """Surface plus air path of all agents [m]."""
+        return self.path_length + self.air_path_length
 
     @property
     def target(self) -> np.ndarray:

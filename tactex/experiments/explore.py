@@ -12,6 +12,7 @@ Outputs in the run directory: ``metrics.json``, ``trajectory.npy`` (steps × 3 [
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import statistics
@@ -27,6 +28,7 @@ from tactex.config import param, to_jsonable
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.pointcloud import SurfaceCloud, load_cloud, target_from_channel, voxel_down_sample
 from tactex.pointcloud.io import SUPPORTED_SUFFIXES
+from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxels, raw_keep_out
 from tactex.pointcloud.markings import marked_cloud, marking_names
 from tactex.pointcloud.shapes import get_surface, surface_names
 from tactex.report.outdir import prepare_out_dir
@@ -83,6 +85,13 @@ class ExploreConfig:
     )
     target_threshold: float = param(1.0, "colour level marking the target, 0–1 (TEC: red = 255 → 1.0) [-]")
     marking: str | None = param(None, "drawn target of a built-in object (default: plate shapes, bowl RLI, else X)")
+    keep_out_channel: str = param(
+        "", "colour channel marking a keep-out zone no footprint may touch: red, green or blue ('' = none)"
+    )
+    keep_out_threshold: float = param(1.0, "channel level at or above which a point is kept out, 0–1 [-]")
+    keep_out_mask: str = param(
+        "", "a .npy file with one boolean per point of the cloud file (or of the sampled built-in): True = keep out"
+    )
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
     html: bool = param(True, "write the interactive explore.html (inline plotly, ~5 MB)")
 
@@ -115,6 +124,7 @@ class ExploreConfig:
             raise ConfigError(f"target_threshold must lie in [0, 1], got {self.target_threshold}")
         if self.marking is not None and self.marking not in marking_names():
             raise ConfigError(f"unknown marking '{self.marking}'; valid: {', '.join(marking_names())}")
+        check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
 
 
 @dataclass
@@ -162,6 +172,15 @@ def load_explore_cloud(source: str | Path, cfg: ExploreConfig) -> tuple[SurfaceC
     ``source`` is a .ply/.pcd/.npz file (voxelised at ``cfg.voxel_size``, target by
     ``cfg.target_channel``) or a built-in object name (sampled at ``cfg.voxel_size`` with a marking).
     """
+    cloud, info, _ = load_explore_cloud_keep_out(source, cfg)
+    return cloud, info
+
+
+def load_explore_cloud_keep_out(
+    source: str | Path, cfg: ExploreConfig
+) -> tuple[SurfaceCloud, dict[str, Any], np.ndarray | None]:
+    """:func:`load_explore_cloud` and the keep-out zone (a boolean per point of the returned cloud, or
+    None without ``--keep-out-*`` options; see :mod:`tactex.pointcloud.keep_out`)."""
     src = str(source)
     if src in surface_names():
         if cfg.voxel_size <= 0:
@@ -170,7 +189,8 @@ def load_explore_cloud(source: str | Path, cfg: ExploreConfig) -> tuple[SurfaceC
         cloud = marked_cloud(get_surface(src), marking, spacing_m=cfg.voxel_size)
         if cloud.n_target == 0:
             raise InputError(f"the marking '{marking}' leaves no target point on '{src}' at {cfg.voxel_size} m spacing")
-        return cloud, {"kind": "builtin", "name": src, "marking": marking}
+        keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
+        return cloud, {"kind": "builtin", "name": src, "marking": marking}, keep_out
     if not _is_file_source(src):
         raise ConfigError(
             f"'{src}' is neither a built-in object ({', '.join(surface_names())}) nor a cloud file "
@@ -184,9 +204,12 @@ def load_explore_cloud(source: str | Path, cfg: ExploreConfig) -> tuple[SurfaceC
     if cfg.marking is not None:
         raise ConfigError("--marking applies to built-in objects; a file's target comes from --target-channel")
     raw = load_cloud(path)
+    keep_out = raw_keep_out(raw, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
     cloud = voxel_down_sample(raw, cfg.voxel_size) if cfg.voxel_size > 0 else raw
+    if keep_out is not None and cfg.voxel_size > 0:
+        keep_out = keep_out_on_voxels(raw.points, keep_out, cfg.voxel_size)
     cloud = _target_from_file_cloud(cloud, cfg, src)
-    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw)}
+    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw)}, keep_out
 
 
 def _default_agent_radius(source_info: dict[str, Any]) -> float:
@@ -276,7 +299,7 @@ def run_explore(
     cfg = config if config is not None else ExploreConfig()
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
-    cloud, source_info = load_explore_cloud(source, cfg)
+    cloud, source_info, keep_out = load_explore_cloud_keep_out(source, cfg)
     load_s = time.perf_counter() - t0
     out = prepare_out_dir(out_dir)  # before the basis and the steps, which take the time
     radius = cfg.agent_radius if cfg.agent_radius is not None else _default_agent_radius(source_info)
@@ -291,29 +314,43 @@ def run_explore(
     if hcfg.compiled and compile_pending():
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
-    explorer = HedacExplorer(cloud, basis, hcfg)
+    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
     labels = basis.component_labels()
     sizes = np.bincount(labels)
     if basis.n_components > 1:
-        say(
-            f"warning: the Laplacian sees {basis.n_components} separate parts (sizes {sorted(sizes.tolist())[::-1]}); "
-            f"heat does not diffuse between them (TEC §VI-D): raise --n-neighbors (now {cfg.n_neighbors}) to join them"
-        )
+        if hcfg.relocate:
+            say(
+                f"the Laplacian sees {basis.n_components} separate parts (sizes {sorted(sizes.tolist())[::-1]}; heat "
+                "does not diffuse between them, TEC §VI-D): the agent lifts off and moves to the target left on "
+                "another part when its own is done"
+            )
+        else:
+            say(
+                f"warning: the Laplacian sees {basis.n_components} separate parts (sizes "
+                f"{sorted(sizes.tolist())[::-1]}); heat does not diffuse between them (TEC §VI-D) and relocation is "
+                f"off (--relocate): raise --n-neighbors (now {cfg.n_neighbors}) to join them"
+            )
+    if keep_out is not None:
+        say(f"keep-out zone: {int(keep_out.sum())} points; the footprint stays off them")
 
     x0, x0_source = _start_position(cloud, cfg, source_info)
     start = explorer.reset(x0)[0].point
     start_part = int(labels[int(np.argmin(np.linalg.norm(cloud.points - start, axis=1)))])
-    start_part_target = float(cloud.target[labels == start_part].sum())
+    start_part_target = float(explorer.target[labels == start_part].sum())
     if start_part_target <= 0:
-        say("warning: the start lies in a part without target; the agent will not find any (see above)")
+        say("the start lies in a part without target: the agent relocates to the target at its first step"
+            if hcfg.relocate else
+            "warning: the start lies in a part without target and relocation is off (--relocate); "
+            "the agent will not find any")
     n = cfg.steps
     trajectory = np.empty((n, 3))
     ergodicity = np.empty(n)
     residual = np.empty(n)
     path_length = np.empty(n)
+    air_length = np.empty(n)
     step_s = np.empty(n)
     every = max(1, n // 10)
     for k in range(n):
@@ -324,6 +361,7 @@ def run_explore(
         ergodicity[k] = explorer.ergodicity()
         residual[k] = explorer.coverage_residual()
         path_length[k] = explorer.path_length
+        air_length[k] = explorer.air_path_length
         if (k + 1) % every == 0 or k + 1 == n:
             say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}")
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
@@ -331,11 +369,19 @@ def run_explore(
 
     stalled = _stalled_from(trajectory, explorer.spacing, hcfg.max_velocity)
     stalled_from = None if stalled is None or residual[-1] <= STALL_RESIDUAL else stalled + 1  # 1-based, as "step k/n"
+    relocations = explorer.relocations
+    if relocations:
+        counts = collections.Counter(m.reason for m in relocations)
+        why = ", ".join(f"{r} {c}" for r, c in counts.items())
+        say(f"relocated {len(relocations)} time(s) ({why}): {air_length[-1]:.3f} m through the air, "
+            f"{path_length[-1]:.3f} m on the surface")
     if stalled_from is not None:
         say(
-            f"warning: the agent stayed in place from step {stalled_from} on, coverage residual {residual[-1]:.3f}: "
-            "the potential may rise only across gaps it may not leave the cloud to cross (see --max-off-cloud, "
-            "--max-bridge), as on a sparse cloud, e.g. contact tracks rather than a surface"
+            f"warning: the agent stayed in place from step {stalled_from} on, coverage residual {residual[-1]:.3f}"
+            + (": the target left is out of reach (within a footprint radius of a keep-out zone) or "
+               "already touched; HEDAC revisits it in place" if hcfg.relocate else
+               ": the potential may rise only across gaps it may not leave the cloud to cross; let it relocate "
+               "(--relocate), or see --max-off-cloud, --max-bridge")
         )
     coverage = explorer.coverage
     potential = explorer.potential
@@ -365,6 +411,17 @@ def run_explore(
         "ergodicity": ergodicity,
         "coverage_residual": residual,
         "path_length_m": path_length,
+        "air_path_length_m": air_length,
+        "final_air_path_length_m": float(air_length[-1]),
+        "final_total_path_length_m": float(path_length[-1] + air_length[-1]),
+        "relocations": len(relocations),
+        "relocation_events": [
+            {"step": r.step + 1, "reason": r.reason, "lift_off": r.lift_off, "touch_down": r.point,
+             "touch_down_normal": r.normal, "air_length_m": r.air_length_m}
+            for r in relocations
+        ],
+        "keep_out_points": int(keep_out.sum()) if keep_out is not None else 0,
+        "keep_out_contacts": explorer.keep_out_contacts,
         "config": dataclasses.asdict(cfg),
         "explorer_config": dataclasses.asdict(hcfg),
     }
@@ -404,6 +461,7 @@ def write_explore_report(
             "ergodicity ε (eq. 48)": metrics["ergodicity"],
             "coverage residual": metrics["coverage_residual"],
             "path length [m]": metrics["path_length_m"],
+            **({"air path [m]": metrics["air_path_length_m"]} if metrics.get("relocations") else {}),
         },
         out / "metrics.png",
         x=steps,

@@ -34,10 +34,12 @@ from tactex.ergodic import kernel
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
+from tactex.ergodic.relocation import RelocationCommand
 from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxels, raw_keep_out
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
 from tactex.sim.scene import SceneConfig
@@ -113,6 +115,12 @@ class CleanConfig(SimWorldParams):
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
     seed: int = param(0, "seed of the sensor noise and of the explorer's random headings")
+    keep_out_channel: str = param(
+        "", "colour channel marking a keep-out zone the sponge must never touch: red, green or blue ('' = none); "
+            "read on --cloud's points, else on the captured cloud")
+    keep_out_threshold: float = param(1.0, "channel level at or above which a point is kept out, 0–1 [-]")
+    keep_out_mask: str = param(
+        "", "a .npy file with one boolean per point of --cloud (True = keep out); needs --cloud")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -152,6 +160,12 @@ class CleanConfig(SimWorldParams):
             raise ConfigError("--cloud already runs without vision feedback; drop --baseline no_feedback")
         if not 0.0 <= self.stop_remaining < 1.0:
             raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
+        check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
+        if self.keep_out_mask and not self.cloud:
+            raise ConfigError("--keep-out-mask marks points of --cloud FILE: give --cloud too (a captured cloud's "
+                              "points are not known in advance; mark the zone by colour with --keep-out-channel)")
+        if (self.keep_out_channel or self.keep_out_mask) and self.baseline == "raster":
+            raise ConfigError("the raster baseline has no keep-out zones; drop --keep-out-* or --baseline raster")
 
     def scene(self) -> SceneConfig:
         return super().scene(marking=self.marking)
@@ -246,12 +260,23 @@ def load_target_cloud(path: str | Path, voxel_size_m: float) -> SurfaceCloud:
     """A user's cloud in the robot base frame as the cleaning target: voxelised, its stored target
     or else its red marking (red = 1, green and blue ≤ 0.5: white is not dirt), with normals
     estimated (16 neighbours, oriented up) where the file has none."""
+    return load_target_cloud_keep_out(path, voxel_size_m)[0]
+
+
+def load_target_cloud_keep_out(path: str | Path, voxel_size_m: float, keep_out_channel: str = "",
+                               keep_out_threshold: float = 1.0,
+                               keep_out_mask: str = "") -> tuple[SurfaceCloud, np.ndarray | None]:
+    """:func:`load_target_cloud` and its keep-out zone (a boolean per returned point, None without one;
+    see :mod:`tactex.pointcloud.keep_out`)."""
     from tactex.perception.normals import knn_normals
     from tactex.pointcloud.io import load_cloud
     from tactex.pointcloud.voxel import voxel_down_sample
 
     raw = load_cloud(path)
+    keep_out = raw_keep_out(raw, keep_out_channel, keep_out_threshold, keep_out_mask)
     cloud = voxel_down_sample(raw, voxel_size_m) if voxel_size_m > 0 else raw
+    if keep_out is not None and voxel_size_m > 0:
+        keep_out = keep_out_on_voxels(raw.points, keep_out, voxel_size_m)
     if cloud.n_target == 0:
         if cloud.colors is None:
             raise InputError(f"--cloud '{path}' has neither a target nor colours: mark the dirt red (255, 0, 0)")
@@ -263,7 +288,8 @@ def load_target_cloud(path: str | Path, voxel_size_m: float) -> SurfaceCloud:
     if cloud.normals is None:
         field = knn_normals(cloud.points, 16, viewpoint=cloud.points.mean(axis=0) + np.array([0.0, 0.0, 1.0]))
         cloud = replace(cloud.subset(field.ok), normals=field.normals[field.ok], spacing=cloud.spacing)
-    return cloud
+        keep_out = None if keep_out is None else keep_out[field.ok]
+    return cloud, keep_out
 
 
 def _cloud_capture_pose(cloud: SurfaceCloud, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -298,7 +324,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     log = _Log(backend, cfg)
     loop = ControlLoop(backend, on_tick=log)
     bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
-    given = load_target_cloud(cfg.cloud, cfg.voxel_size_m) if cfg.cloud else None
+    given, keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
+                                                  cfg.keep_out_threshold, cfg.keep_out_mask)
+                       if cfg.cloud else (None, None))
     acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
     cap_pos, cap_rot = _capture_pose(scene_cfg, cfg) if given is None else _cloud_capture_pose(given, cfg)
     try:
@@ -331,6 +359,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     # 1. capture and segment the dirt. A given cloud needs no capture: the basis and the explorer are
     # made before the arm moves, since on a real robot nothing slow may run while torque control is on
     cloud = capture() if given is None else given
+    if given is None and cfg.keep_out_channel:
+        keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, "")
     n_target0 = cloud.n_target
     if n_target0 == 0:
         raise ExplorationError("the first capture sees no dirt: nothing to clean (check the marking and the view)")
@@ -367,8 +397,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         if hcfg.compiled and kernel.compile_pending():
             bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s; "
                      "later runs load it)")
-        source = HedacExplorer(cloud, basis, hcfg)
-    targets = np.flatnonzero(cloud.target > 0)
+        source = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
+    # start at the dirt nearest to the camera that the sponge may touch (clear of any keep-out zone)
+    targets = np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0)
+    if isinstance(source, HedacExplorer) and keep_out is not None and source.clear_points[targets].any():
+        targets = targets[source.clear_points[targets]]
     x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
     if given is not None:
         source.reset(x0)  # a first step here, not in the loop: numba loads the compiled step on first use
@@ -384,6 +417,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     vision_times: list[float] = []  # [s] when each re-measurement was taken
     vision_trip_s = 5.0  # [s] retract, lift, transit and capture (~4.5 s on the plate); measured after the first trip
     agent_path_m = 0.0  # [m] the agent's path in the exploration phases before the current one
+    air_path_m = 0.0  # [m] and its relocations' flights
+    relocations = 0
+    keep_out_contacts = 0
     remaining_seen = 1.0
     agent_path: list[np.ndarray] = []
     ergodicity: list[tuple[float, float]] = []
@@ -439,12 +475,16 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             next_step = loop.t
             steps_since_vision = 0
             covered = False
+            relocation = None
             t_phase = loop.t
             while loop.t < t_end:
                 if loop.t >= next_step - 1e-9:
                     prev = cmd
                     measured = loop.state.ee_position if cfg.agent_feedback else None
                     cmd = source.step(measured)
+                    if isinstance(cmd, RelocationCommand):
+                        relocation = cmd  # lift off here, fly, touch down at cmd.point (3a below)
+                        break
                     n_prev, n_next = n_next, rotate_towards(n_next, cmd.normal, max_turn)
                     next_step += dt_step
                     steps_since_vision += 1
@@ -469,6 +509,12 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 if covered:
                     break  # no camera to re-measure: the explorer's own coverage of the given target says done
             explore_time += loop.t - t_phase
+            if relocation is not None:
+                # TEC §VI-B: lift off along the normal, then the hover and approach of 3a at the touch-down
+                log.phase = PHASES["retract"]
+                loop.retract(max(relocation.clearance_m, cfg.hover_height_m), duration_s=0.4)
+                bar.note(f"relocating ({relocation.reason}): {relocation.air_length_m:.3f} m through the air")
+                continue
             if cfg.baseline == "raster" and source.done:
                 break
             if cfg.baseline != "" or given is not None or loop.t + vision_trip_s >= t_end:
@@ -489,8 +535,13 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             source.update_target(mass)
             # restart from the dirt nearest to where the robot is
             left = np.flatnonzero(mass > 0)
+            if keep_out is not None and source.clear_points[left].any():
+                left = left[source.clear_points[left]]
             x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
             agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
+            air_path_m += source.air_path_length
+            relocations += len(source.relocations)
+            keep_out_contacts += source.keep_out_contacts
             cmd = source.reset(x0)
             cmd = cmd[0] if isinstance(cmd, list) else cmd
     except ROBOT_STOPS as exc:
@@ -528,6 +579,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "n_points": len(cloud),
         "n_target_initial": n_target0,
         "agent_path_length_m": agent_path_m + float(getattr(source, "path_length", 0.0)),
+        "air_path_length_m": air_path_m + float(getattr(source, "air_path_length", 0.0)),
+        "relocations": relocations + len(getattr(source, "relocations", ())),
+        "keep_out_points": int(keep_out.sum()) if keep_out is not None else 0,
+        "keep_out_contacts": keep_out_contacts + (source.keep_out_contacts if isinstance(source, HedacExplorer) else 0),
         "force_set_point_n": cfg.force_n,
         "baseline": cfg.baseline or "tactex",
         "object": cfg.object_name,

@@ -1,0 +1,155 @@
+"""Relocation (lift-and-move): when walking on the surface makes no progress, go elsewhere through the air.
+
+TEC §VI-B: an agent that walks on the surface cannot reach target on a part the Laplacian does not
+connect to its own (heat does not diffuse there), nor across a gap wider than it may leave the cloud
+to cross, nor past a keep-out zone; "for unconnected regions the robot can lift off and move". The
+explorer watches for these cases (:class:`ProgressMonitor`) and then emits a
+:class:`RelocationCommand` instead of a walking step: lift off along the normal where the agent is,
+move through free space, touch down along the normal at the chosen point. A virtual agent jumps; a
+robot (``tactex clean``) flies the waypoints.
+
+Where to touch down (:func:`choose_touch_down`): among the target points no footprint has touched
+yet (and that a footprint may touch: clear of keep-out zones), the one with the most such mass
+within a footprint radius per metre of flight: ``score = m_r(j) / (|x_j − x| + r_a)``. Nearer wins,
+and a clump beats a lone speck at the same distance.
+
+Hops across scan holes (``HedacConfig.max_bridge``, :mod:`.bridges`) stay as they are: a hop is a
+short in-contact slide along a link of the Laplacian (a few voxels, the tool never leaves the
+surface); a relocation is the general fallback for everything a hop cannot join, and it costs a
+lift-off. The explorer hops first when the Laplacian joins the two sides; it relocates only when
+neither walking nor hopping makes progress.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "RELOCATION_REASONS",
+    "ProgressMonitor",
+    "RelocationCommand",
+    "choose_touch_down",
+]
+
+#: Why the explorer relocated (RelocationCommand.reason).
+RELOCATION_REASONS = ("part_done", "stall", "no_progress", "keep_out")
+#: Candidates scored per relocation at most (the nearest ones; the score falls with distance).
+MAX_CANDIDATES = 4000
+
+
+class RelocationCommand(NamedTuple):
+    """A lift-and-move of one agent (world frame): lift off at ``lift_off`` along ``lift_off_normal``
+    by ``clearance_m``, fly to ``clearance_m`` above ``point`` along ``normal``, touch down at ``point``.
+
+    The first seven fields are those of :class:`~tactex.ergodic.command.ExplorationCommand`, at the
+    touch-down: code that reads only ``point`` and ``normal`` sees the virtual agent jump.
+
+    Attributes:
+        point: touch-down point [m] (3,), a cloud point.
+        velocity: zero [m/s] (3,): the agent lands at rest.
+        normal: unit outward normal at the touch-down (3,); the approach runs along −normal.
+        tangent_u, tangent_v: tangent-plane basis at the touch-down (3,) each.
+        step: index of the step that produced the command.
+        agent: index of the agent.
+        lift_off: where the agent left the surface [m] (3,).
+        lift_off_normal: unit outward normal there (3,); the lift-off runs along it.
+        clearance_m: height of the flight above both ends along their normals [m].
+        air_length_m: length of the flight through the waypoints [m].
+        reason: one of :data:`RELOCATION_REASONS`.
+    """
+
+    point: np.ndarray
+    velocity: np.ndarray
+    normal: np.ndarray
+    tangent_u: np.ndarray
+    tangent_v: np.ndarray
+    step: int
+    agent: int
+    lift_off: np.ndarray
+    lift_off_normal: np.ndarray
+    clearance_m: float
+    air_length_m: float
+    reason: str
+
+    def waypoints(self) -> np.ndarray:
+        """(4, 3) [m]: lift-off, above it, above the touch-down, touch-down."""
+        c = self.clearance_m
+        return np.array([self.lift_off, self.lift_off + c * self.lift_off_normal, self.point + c * self.normal,
+                         self.point])
+
+
+def air_length(lift_off: np.ndarray, lift_off_normal: np.ndarray, touch_down: np.ndarray, normal: np.ndarray,
+               clearance_m: float) -> float:
+    """Length [m] of the flight lift-off → clearance above it → clearance above the touch-down → touch-down."""
+    a = lift_off + clearance_m * lift_off_normal
+    b = touch_down + clearance_m * normal
+    return float(2.0 * clearance_m + np.linalg.norm(b - a))
+
+
+def choose_touch_down(points: np.ndarray, candidates: np.ndarray, mass: np.ndarray, x: np.ndarray,
+                      radius_m: float) -> int | None:
+    """The cloud point to touch down at, or None without candidates.
+
+    Args:
+        points: cloud points (N, 3) [m].
+        candidates: indices of the target points not yet touched that a footprint may touch.
+        mass: their target mass (same length as ``candidates``).
+        x: where the agent lifts off [m] (3,).
+        radius_m: footprint radius r_a [m].
+
+    The score of candidate j is m_r(j) / (|x_j − x| + r_a), m_r(j) the candidates' mass within r_a of j.
+    """
+    if candidates.size == 0:
+        return None
+    pts = points[candidates]
+    dist = np.linalg.norm(pts - x, axis=1)
+    near = np.arange(candidates.size)
+    if candidates.size > MAX_CANDIDATES:
+        near = np.argpartition(dist, MAX_CANDIDATES)[:MAX_CANDIDATES]
+    tree = cKDTree(pts)
+    balls = tree.query_ball_point(pts[near], radius_m)
+    clump = np.array([float(mass[b].sum()) for b in balls])
+    score = clump / (dist[near] + radius_m)
+    return int(candidates[near[int(np.argmax(score))]])
+
+
+class ProgressMonitor:
+    """Stall and progress bookkeeping of one agent.
+
+    A stall: the agent stayed within ``radius_m`` of an anchor for ``stall_steps`` steps (the anchor
+    moves to the agent whenever it leaves that circle). No progress: the count of untouched target
+    points did not fall for ``progress_steps`` steps (0 = never).
+    """
+
+    def __init__(self, x: np.ndarray, step: int, radius_m: float, stall_steps: int, progress_steps: int) -> None:
+        self.radius2 = radius_m * radius_m
+        self.stall_steps = stall_steps
+        self.progress_steps = progress_steps
+        self.restart(x, step, None)
+
+    def restart(self, x: np.ndarray, step: int, untouched: int | None) -> None:
+        """Start watching afresh from x at ``step`` (after a reset or a relocation)."""
+        self.anchor = np.array(x, dtype=float)
+        self.anchor_step = step
+        self.untouched = untouched
+        self.progress_step = step
+
+    def moved_to(self, x: np.ndarray, step: int) -> None:
+        d = x - self.anchor
+        if float(d @ d) > self.radius2:
+            self.anchor = np.array(x, dtype=float)
+            self.anchor_step = step
+
+    def stalled(self, step: int) -> bool:
+        return step - self.anchor_step >= self.stall_steps
+
+    def no_progress(self, untouched: int, step: int) -> bool:
+        """Record the untouched count at ``step``; True when it has not fallen for progress_steps."""
+        if self.untouched is None or untouched < self.untouched:
+            self.untouched = untouched
+            self.progress_step = step
+            return False
+        return self.progress_steps > 0 and step - self.progress_step >= self.progress_steps
