@@ -81,7 +81,10 @@ _CUBE_A, _CUBE_B = np.array([0, 0, 2, 2]), np.array([0, 1, 0, 1])
 #: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
 #: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
 EDGE_OFFSET = 0.25
-#: Steps between the checks of the untouched target (part done, no progress) of the relocation rules.
+#: Steps between the samples of the agent's position for the stall rule (a multiple of them is a
+#: stall: an agent sampled inside the stall circle every time), and between the checks of the untouched
+#: target (part done, no progress) of the relocation rules: a few µs each, not paid every step.
+STALL_SAMPLE_EVERY = 5
 RELOCATION_CHECK_EVERY = 10
 #: A keep-out zone's clearance beyond the footprint radius [voxels]: the footprint is laid around the
 #: agent projected on its fitted patch, a fraction of a voxel from the agent point the guard checks.
@@ -250,6 +253,7 @@ class HedacExplorer:
         self._pass = _WHOLE
         self.compiled_steps = 0  # agent steps the compiled kernel took (the rest ran in numpy)
         self._monitors: list[ProgressMonitor] = []
+        self._relocating = cfg.relocate
         self.relocations: list[RelocationCommand] = []
         self.air_path_lengths = np.zeros(0)
 
@@ -471,7 +475,7 @@ class HedacExplorer:
         exact = measured_positions is not None
         before = self._x.copy() if self._ko_tree is not None else None
         moves = None
-        if self.config.relocate:
+        if self._relocating and self.step_count % STALL_SAMPLE_EVERY == 0:
             moves = [self._relocation_due(i) for i in range(self.n_agents)]
             if not any(m is not None for m in moves):
                 moves = None
@@ -497,9 +501,6 @@ class HedacExplorer:
                 self._pass = _WHOLE
         if before is not None:
             cmds = [c if isinstance(c, RelocationCommand) else self._keep_out_guard(c, before[c.agent]) for c in cmds]
-        if self._monitors:
-            for c in cmds:
-                self._monitors[c.agent].moved_to(c.point, self.step_count)
         self.step_count += 1
         return cmds
 
@@ -514,6 +515,7 @@ class HedacExplorer:
             return None
         mon = self._monitors[i]
         k = self.step_count
+        mon.moved_to(self._x[i], k)
         if self._ko_tree is not None and not self._clear_of_keep_out(self._x[i], int(self._near[i])):
             return "keep_out"
         stalled = mon.stalled(k)

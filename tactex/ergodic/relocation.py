@@ -131,16 +131,19 @@ class ProgressMonitor:
         self.restart(x, step, None)
 
     def restart(self, x: np.ndarray, step: int, untouched: int | None) -> None:
-        """Start watching afresh from x at ``step`` (after a reset or a relocation)."""
-        self.anchor = np.array(x, dtype=float)
+        """Start watching afresh from x [m] at ``step`` (after a reset or a relocation)."""
+        self.anchor = tuple(float(v) for v in x)
         self.anchor_step = step
         self.untouched = untouched
         self.progress_step = step
 
     def moved_to(self, x: np.ndarray, step: int) -> None:
-        d = x - self.anchor
-        if float(d @ d) > self.radius2:
-            self.anchor = np.array(x, dtype=float)
+        """The agent is at x [m] (3,) after ``step`` (Python floats: this runs every step)."""
+        x0, x1, x2 = x.tolist()
+        a0, a1, a2 = self.anchor
+        d0, d1, d2 = x0 - a0, x1 - a1, x2 - a2
+        if d0 * d0 + d1 * d1 + d2 * d2 > self.radius2:
+            self.anchor = (x0, x1, x2)
             self.anchor_step = step
 
     def stalled(self, step: int) -> bool:
