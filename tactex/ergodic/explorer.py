@@ -1126,6 +1126,11 @@ class HedacExplorer:
         self._require_state()
         return normalized_ergodicity(self._target, self._cov, self._mass, normalize)
 
+    def untouched_count(self) -> int:
+        """Target points no footprint has touched yet that one may touch (clear of the keep-out zones)."""
+        self._require_state()
+        return int(np.count_nonzero(self._untouched()))
+
     def coverage_residual(self) -> float:
         """Coverage residual of the authors' code (√share of target never inside a footprint)."""
         self._require_state()
