@@ -216,3 +216,17 @@ def test_keep_out_input_is_checked(strip_plate):
 def test_relocation_parameters_are_validated(field, value):
     with pytest.raises(ConfigError, match=field):
         HedacConfig(**{field: value})
+
+
+def test_with_several_agents_one_relocates_while_the_other_walks(two_plates):
+    cloud, basis = two_plates
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=20))
+    ex.reset(np.array([[0.03, 0.03, 0.0], [0.33, 0.03, 0.0]]))
+    cmds = ex.step_all()
+    assert not isinstance(cmds[0], RelocationCommand) and isinstance(cmds[1], RelocationCommand)
+    assert [c.agent for c in cmds] == [0, 1]
+    for _ in range(150):
+        cmds = ex.step_all()
+        assert len(cmds) == 2 and all(np.isfinite(c.point).all() for c in cmds)
+    assert ex.coverage_residual() <= 0.05
+    assert ex.air_path_lengths[0] == 0.0 and ex.air_path_lengths[1] > 0.29

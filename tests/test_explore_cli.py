@@ -292,3 +292,78 @@ def test_an_agent_stuck_on_contact_tracks_is_reported(tmp_path) -> None:
     assert result.metrics["relocations"] >= 1
     assert result.metrics["final_coverage_residual"] <= 0.05
     assert not any("warning" in m for m in messages)
+
+
+def _strip_plate_file(tmp_path, blue_strip: bool = True):
+    """A 150 × 60 mm plate: red target patches at both ends, a blue 12 mm strip across the middle."""
+    g = np.arange(0.0, 0.1501, 0.003)
+    x, y = np.meshgrid(g, np.arange(0.0, 0.0601, 0.003))
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    colors = np.full((len(pts), 3), 0.5)
+    colors[(pts[:, 0] < 0.035) | (pts[:, 0] > 0.115)] = (1.0, 0.0, 0.0)
+    strip = np.abs(pts[:, 0] - 0.075) <= 0.006
+    if blue_strip:
+        colors[strip] = (0.0, 0.0, 1.0)
+    return save_ply(SurfaceCloud(points=pts, colors=colors), tmp_path / "strip.ply"), strip, pts[strip]
+
+
+@pytest.mark.parametrize("how", ["channel", "mask"])
+def test_explore_keeps_the_footprint_off_a_keep_out_zone(tmp_path, capsys, how: str) -> None:
+    path, strip, zone = _strip_plate_file(tmp_path, blue_strip=how == "channel")
+    out = tmp_path / "run"
+    args = ["explore", str(path), "--voxel-size", "0", "--n-eigen", "40", "--steps", "700", "--x0", "0.01", "0.03",
+            "0", "--agent-radius", "0.0075", "--no-html", "--quiet", "--out", str(out)]
+    if how == "channel":
+        args += ["--keep-out-channel", "blue", "--keep-out-threshold", "0.9"]
+    else:
+        np.save(tmp_path / "strip.npy", strip)
+        args += ["--keep-out-mask", str(tmp_path / "strip.npy")]
+    assert main(args) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["keep_out_points"] == int(strip.sum())
+    assert m["keep_out_contacts"] == 0
+    assert m["relocations"] >= 1 and m["final_air_path_length_m"] > 0
+    assert m["final_coverage_residual"] <= 0.05  # both patches: the far one reached through the air
+    trajectory = np.load(out / "trajectory.npy")
+    # the agent (the footprint's centre) stayed more than a footprint radius from every kept-out point
+    assert np.min(np.linalg.norm(trajectory[:, None, :] - zone[None], axis=2)) >= 0.0075
+    assert "keep-out contacts 0 of" in capsys.readouterr().out
+
+
+def test_keep_out_options_are_checked(tmp_path, capsys) -> None:
+    path, strip, _ = _strip_plate_file(tmp_path, blue_strip=False)
+    o = str(tmp_path / "o")
+    _fails(["explore", str(path), "--keep-out-channel", "purple", "--out", o], capsys, "--keep-out-channel")
+    _fails(["explore", str(path), "--keep-out-channel", "blue", "--keep-out-threshold", "2", "--out", o], capsys,
+           "--keep-out-threshold")
+    _fails(["explore", str(path), "--keep-out-mask", "zone.txt", "--out", o], capsys, ".npy")
+    _fails(["explore", str(path), "--keep-out-mask", str(tmp_path / "none.npy"), "--out", o], capsys, "does not exist")
+    np.save(tmp_path / "short.npy", strip[:-3])
+    _fails(["explore", str(path), "--keep-out-mask", str(tmp_path / "short.npy"), "--out", o], capsys,
+           "one boolean per point")
+    np.save(tmp_path / "float.npy", strip.astype(float) * 0.5)
+    _fails(["explore", str(path), "--keep-out-mask", str(tmp_path / "float.npy"), "--out", o], capsys, "boolean")
+    _fails(["explore", str(path), "--keep-out-channel", "blue", "--voxel-size", "0", "--out", o], capsys,
+           "selects no point")
+    red = strip | (np.arange(len(strip)) >= 0)  # everything, the red target included
+    np.save(tmp_path / "all.npy", red)
+    _fails(["explore", str(path), "--keep-out-mask", str(tmp_path / "all.npy"), "--voxel-size", "0", "--out", o],
+           capsys, "every cloud point")
+    grey = save_npz(SurfaceCloud(points=np.random.default_rng(0).random((100, 3)) * 0.05, target=np.ones(100)),
+                    tmp_path / "grey.npz")
+    _fails(["explore", str(grey), "--keep-out-channel", "blue", "--voxel-size", "0", "--out", o], capsys,
+           "no colours", "--keep-out-mask")
+
+
+def test_keep_out_mask_is_carried_onto_the_voxels() -> None:
+    from tactex.pointcloud.keep_out import keep_out_on_voxels
+    from tactex.pointcloud.voxel import voxel_down_sample
+
+    rng = np.random.default_rng(4)
+    pts = rng.random((2000, 3)) * [0.06, 0.06, 0.001]
+    mask = pts[:, 0] < 0.01
+    vox = keep_out_on_voxels(pts, mask, 0.003)
+    down = voxel_down_sample(SurfaceCloud(points=pts), 0.003)
+    assert vox.shape == (len(down),)
+    # a voxel holding any kept-out point is kept out; its mean may lie a little past the line
+    assert np.all(down.points[vox, 0] < 0.01 + 0.003) and np.all(down.points[~vox, 0] >= 0.009 - 1e-12)

@@ -131,6 +131,10 @@ def test_recorder_and_progress() -> None:
         ({"baseline": "zigzag"}, "raster"),
         ({"stop_remaining": 1.5}, "stop_remaining"),
         ({"approach_force_n": 50.0}, "approach_force_n"),
+        ({"keep_out_mask": "zone.npy"}, "give --cloud too"),
+        ({"keep_out_channel": "purple"}, "--keep-out-channel"),
+        ({"keep_out_channel": "blue", "keep_out_threshold": 1.5}, "--keep-out-threshold"),
+        ({"keep_out_channel": "blue", "baseline": "raster"}, "raster baseline has no keep-out"),
     ],
 )
 def test_clean_config_validation(kwargs, match) -> None:

@@ -49,6 +49,11 @@ def run(args: argparse.Namespace) -> int:
         f"{m['n_points']} points, {m['n_target']} target; preprocessing {m['preprocess_time_s']:.3f} s; "
         f"step median {m['step_time_median_s'] * 1e3:.3f} ms; after {len(result.trajectory)} steps: "
         f"ergodicity {m['final_ergodicity']:.4f}, coverage residual {m['final_coverage_residual']:.4f}, "
-        f"path {m['final_path_length_m']:.3f} m; report in {result.out_dir}"
+        f"path {m['final_path_length_m']:.3f} m"
+        + (f" + {m['final_air_path_length_m']:.3f} m through the air ({m['relocations']} relocation(s))"
+           if m["relocations"] else "")
+        + (f", keep-out contacts {m['keep_out_contacts']} of {m['keep_out_points']} points"
+           if m["keep_out_points"] else "")
+        + f"; report in {result.out_dir}"
     )
     return 0
