@@ -22,6 +22,7 @@ neither walking nor hopping makes progress.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import NamedTuple
 
 import numpy as np
@@ -120,22 +121,26 @@ class ProgressMonitor:
     """Stall and progress bookkeeping of one agent.
 
     A stall: the agent stayed within ``radius_m`` of an anchor for ``stall_steps`` steps (the anchor
-    moves to the agent whenever it leaves that circle). No progress: the count of untouched target
-    points did not fall for ``progress_steps`` steps (0 = never).
+    moves to the agent whenever it leaves that circle). No progress: over the last ``progress_steps``
+    steps the count of untouched target points fell by less than ``min_gain`` (0 steps = never).
     """
 
-    def __init__(self, x: np.ndarray, step: int, radius_m: float, stall_steps: int, progress_steps: int) -> None:
+    def __init__(self, x: np.ndarray, step: int, radius_m: float, stall_steps: int, progress_steps: int,
+                 min_gain: float = 1.0) -> None:
         self.radius2 = radius_m * radius_m
         self.stall_steps = stall_steps
         self.progress_steps = progress_steps
+        self.min_gain = min_gain
         self.restart(x, step, None)
 
     def restart(self, x: np.ndarray, step: int, untouched: int | None) -> None:
         """Start watching afresh from x [m] at ``step`` (after a reset or a relocation)."""
         self.anchor = tuple(float(v) for v in x)
         self.anchor_step = step
-        self.untouched = untouched
-        self.progress_step = step
+        self.start_step = step
+        self.history: deque[tuple[int, int]] = deque()
+        if untouched is not None:
+            self.history.append((step, untouched))
 
     def moved_to(self, x: np.ndarray, step: int) -> None:
         """The agent is at x [m] (3,) after ``step`` (Python floats: this runs every step)."""
@@ -150,9 +155,13 @@ class ProgressMonitor:
         return step - self.anchor_step >= self.stall_steps
 
     def no_progress(self, untouched: int, step: int) -> bool:
-        """Record the untouched count at ``step``; True when it has not fallen for progress_steps."""
-        if self.untouched is None or untouched < self.untouched:
-            self.untouched = untouched
-            self.progress_step = step
+        """Record the untouched count at ``step``; True when over the last progress_steps steps it fell
+        by less than min_gain."""
+        if self.progress_steps <= 0:
             return False
-        return self.progress_steps > 0 and step - self.progress_step >= self.progress_steps
+        h = self.history
+        h.append((step, untouched))
+        while len(h) > 1 and h[1][0] <= step - self.progress_steps:
+            h.popleft()
+        first_step, first = h[0]
+        return step - first_step >= self.progress_steps and first - untouched < self.min_gain
