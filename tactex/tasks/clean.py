@@ -361,7 +361,12 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     cloud = capture() if given is None else given
     if given is None and cfg.keep_out_channel:
         keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, "")
-    n_target0 = cloud.n_target
+    # dirt under a keep-out zone is never cleaned: it counts neither in the start nor in what is left
+    cleanable = np.ones(len(cloud), dtype=bool) if keep_out is None else ~keep_out
+    n_target0 = int(np.count_nonzero(cloud.target[cleanable] > 0))
+    if n_target0 == 0 and keep_out is not None and cloud.n_target > 0:
+        raise ExplorationError("every dirty point the capture sees lies in the keep-out zone: nothing may be "
+                               "cleaned; check --keep-out-channel/--keep-out-threshold/--keep-out-mask")
     if n_target0 == 0:
         raise ExplorationError("the first capture sees no dirt: nothing to clean (check the marking and the view)")
 
@@ -528,6 +533,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             vision_updates += 1
             vision_times.append(loop.t)
             mass = remeasure_target(cloud, new_capture)
+            mass = np.where(cleanable, mass, 0.0)
             remaining_seen = float(np.count_nonzero(mass)) / n_target0
             bar.update(loop.t, dirt=dirt(), vision=vision_updates)
             if remaining_seen < cfg.stop_remaining or not np.any(mass > 0):
