@@ -230,3 +230,10 @@ def test_with_several_agents_one_relocates_while_the_other_walks(two_plates):
         assert len(cmds) == 2 and all(np.isfinite(c.point).all() for c in cmds)
     assert ex.coverage_residual() <= 0.05
     assert ex.air_path_lengths[0] == 0.0 and ex.air_path_lengths[1] > 0.29
+
+
+def test_with_config_keeps_the_keep_out_zone(strip_plate):
+    cloud, keep_out, basis = strip_plate
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40), keep_out=keep_out).with_config(stall_steps=30)
+    assert ex.config.stall_steps == 30 and np.array_equal(ex.keep_out, keep_out)
+    assert not ex.clear_points[keep_out].any()

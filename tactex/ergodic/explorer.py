@@ -35,6 +35,11 @@ Cost per step is independent of N where it matters: s vanishes off the target, s
 needs the target rows of Φ (n_target × K, premultiplied by the mass), and u is only needed at
 the n_N neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally.
 
+When walking makes no progress (the agent's Laplacian part holds no untouched target, it stalls,
+or it touches nothing new for long) the step is a relocation instead (:mod:`.relocation`): the agent
+lifts off, flies and touches down at untouched target elsewhere. Keep-out zones (``keep_out``) hold
+no target, and the agent's point stays a footprint radius plus half a voxel away from them.
+
 Starting and measured positions farther than ``max_snap_distance`` voxels from the cloud are
 rejected with :class:`~tactex.errors.ExplorationError` (a robot that far from the surface is not
 in contact, and a silent snap would hide it); nearer ones are projected onto the surface.
@@ -1142,4 +1147,5 @@ class HedacExplorer:
 
     def with_config(self, **changes) -> HedacExplorer:
         """A fresh explorer on the same cloud and basis with some parameters changed."""
-        return HedacExplorer(self.cloud, self.basis, replace(self.config, **changes))
+        return HedacExplorer(self.cloud, self.basis, replace(self.config, **changes),
+                             keep_out=self._keep_out if self._ko_idx.size else None)
