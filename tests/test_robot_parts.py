@@ -80,6 +80,25 @@ def test_netft_stream_over_loopback_tares_and_reports_a_dead_stream():
         server.close()
 
 
+def test_netft_age_is_taken_when_the_socket_was_read():
+    """A reading fresh when the socket was last read stays valid however long the caller then waits
+    (the robot's late cycle is not the sensor's dropout); the next read finds the stream silent."""
+    server = NetFTServer(lambda: WRENCH.copy(), port=0).start()
+    client = NetFTClient("127.0.0.1", server.address[1], tare_samples=0, timeout_s=0.05)
+    try:
+        client.start()
+        client.poll()
+        server.paused.set()
+        time.sleep(0.1)  # longer than timeout_s, without looking at the socket
+        w, age = client.latest(poll=False)
+        assert np.isfinite(w).all() and age < 0.05
+        w, age = client.latest()  # looks now: nothing arrived for 0.1 s
+        assert np.isnan(w).all() and age > 0.05
+    finally:
+        client.close()
+        server.close()
+
+
 def test_netft_without_a_box_is_a_named_fault():
     client = NetFTClient("127.0.0.1", 9, tare_samples=1)  # the discard port: nothing answers
     with pytest.raises(SensorFault, match="sent no data"):

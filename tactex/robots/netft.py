@@ -138,6 +138,7 @@ class NetFTClient:
         self.status_errors = 0  # records whose status word flags a sensor error
         self._latest = np.full(6, np.nan)
         self._stamp = -math.inf  # time.monotonic() of the latest record's arrival [s]
+        self._polled_at = -math.inf  # time.monotonic() of the last look at the socket [s]
         self._rdt_last: int | None = None
         self._sock: socket.socket | None = None
 
@@ -179,6 +180,7 @@ class NetFTClient:
     def poll(self) -> int:
         """Read every record waiting in the socket (keeping the newest); the number read."""
         sock = self._sock
+        self._polled_at = time.monotonic()
         if sock is None:
             return 0
         n = 0
@@ -200,7 +202,7 @@ class NetFTClient:
             self._latest = wrench
             n += 1
         if n:
-            self._stamp = time.monotonic()
+            self._stamp = self._polled_at
             self.records += n
         return n
 
@@ -209,7 +211,9 @@ class NetFTClient:
         ``poll=False`` skips reading the socket (the caller has just called :meth:`poll`)."""
         if poll:
             self.poll()
-        age = time.monotonic() - self._stamp
+        # the age at the last look: a reading fresh when the socket was read is not stale because
+        # the caller then waited (a robot cycle that came late is the robot's delay, not the sensor's)
+        age = self._polled_at - self._stamp
         if age > self.timeout_s:
             return np.full(6, np.nan), age
         return self._latest - self.bias, age
@@ -218,7 +222,7 @@ class NetFTClient:
     def lost(self) -> bool:
         """True while no record arrived within ``timeout_s``."""
         self.poll()
-        return time.monotonic() - self._stamp > self.timeout_s
+        return self._polled_at - self._stamp > self.timeout_s
 
     def close(self) -> None:
         """Ask the box to stop streaming and close the socket (idempotent)."""
