@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import json
 import pkgutil
 import re
 import sys
+import time
+import typing
+import warnings
 from collections.abc import Sequence
+from pathlib import Path
 
 from tactex import __version__
 from tactex.errors import TactexError
@@ -22,8 +28,19 @@ def _command_modules() -> list:
     return sorted((m for m in mods if hasattr(m, "run")), key=lambda m: m.NAME)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: the option and what is wrong, then where the help is (argparse
+    would print the whole usage first, 30 lines for clean)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        message = re.sub(r"invalid int value: ('[^']*')", r"needs a whole number, got \1", message)
+        message = re.sub(r"invalid float value: ('[^']*')", r"needs a number, got \1", message)
+        message = message.replace("argument ", "", 1) if message.startswith("argument ") else message
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="tactex",
         description="Tactile exploration: ergodic coverage on point clouds and visuo-tactile force control.",
     )
@@ -44,42 +61,145 @@ _FIELD_VALUE = re.compile(r"(?:^|(?<=[\s(]))([a-z][a-z0-9_]*)=([^\s,;)'\"]+)")
 _QUOTED = re.compile(r"('[^']*'|\"[^\"]*\")")
 
 
-def _cli_words(message: str, args: argparse.Namespace) -> str:
-    """``message`` with the config fields this command exposes as options named as those options."""
+# "voxel_size_m must ..." / "force_n = 3 N": a field named bare, with an underscore (never an English
+# word) or followed by "must"/"=": the library's way of naming a parameter.
+_FIELD_EQ = re.compile(r"(?:^|(?<=[\s(]))([a-z][a-z0-9_]*) = ([^\s,;)'\"]+)")
+_FIELD_WORD = re.compile(r"(?:^|(?<=[\s(]))([a-z][a-z0-9]*_[a-z0-9_]+|[a-z]+(?= must\b))(?![\w=-])")
+
+
+def _typed_options(parser: argparse.ArgumentParser, argv: Sequence[str], command: str | None) -> dict[str, str]:
+    """Destination → the option string the user gave for it (an alias as typed, an abbreviation as
+    the option it stands for)."""
+    sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    cmd_parser = sub.choices.get(command) if sub is not None and command else None
+    if cmd_parser is None:
+        return {}
+    strings = cmd_parser._option_string_actions
+    typed: dict[str, str] = {}
+    for token in argv:
+        if not token.startswith("--") or token == "--":
+            continue
+        word = token.split("=", 1)[0]
+        action = strings.get(word)
+        if action is None:
+            matches = [s for s in strings if s.startswith(word)]
+            if len({id(strings[m]) for m in matches}) != 1:
+                continue
+            word, action = matches[0], strings[matches[0]]
+        if action.dest not in typed and action.dest != "help":
+            typed[action.dest] = word
+    return typed
+
+
+def _cli_words(message: str, args: argparse.Namespace, typed: dict[str, str] | None = None) -> str:
+    """``message`` with the config fields this command exposes named as the options the user typed
+    (or, if not typed, as the command's option for them)."""
     options = vars(args)
+    typed = typed or {}
+    canonical = getattr(args, "_options", {})
+
+    def name_of(field: str) -> str:
+        return typed.get(field) or canonical.get(field) or f"--{field.replace('_', '-')}"
 
     def option(m: re.Match) -> str:  # group 1 the field, group 2 (field=value only) its value
         name = m.group(1)
-        if name not in options:
+        if name not in options or name.startswith("_"):
             return m.group(0)
-        value = m.group(2) if m.re is _FIELD_VALUE else None
-        return f"--{name.replace('_', '-')}" + ("" if value is None else f" {value}")
+        value = m.group(2) if m.re in (_FIELD_VALUE, _FIELD_EQ) else None
+        return name_of(name) + ("" if value is None else f" {value}")
+
+    def words(part: str) -> str:
+        for pattern in (_CONFIG_FIELD, _FIELD_VALUE, _FIELD_EQ, _FIELD_WORD):
+            part = pattern.sub(option, part)
+        return part
 
     parts = _QUOTED.split(message)  # odd indices are the quoted spans
-    return "".join(
-        part if i % 2 else _FIELD_VALUE.sub(option, _CONFIG_FIELD.sub(option, part)) for i, part in enumerate(parts)
-    )
+    text = "".join(part if i % 2 else words(part) for i, part in enumerate(parts))
+    return _once(text)
+
+
+def _once(text: str) -> str:
+    """Drop a repeated "--opt value" echo: "--steps -1: --steps -1 must be ..." says it twice."""
+    m = re.match(r"(--[\w-]+(?: \S+)?): (.*)$", text)
+    if m and m.group(2).startswith(m.group(1)):
+        return m.group(2)
+    return text
+
+
+def _show_warning(command: str):
+    """Python warnings as one plain line, "tactex explore: warning: ...", without file and line."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"tactex {command}: warning: {message}", file=sys.stderr, flush=True)
+
+    return show
+
+
+def _write_status(args: argparse.Namespace, argv: Sequence[str], status: str, started: float,
+                  error: str | None = None) -> None:
+    """status.json in the run folder, if the command made one: what was asked, how it ended, and why."""
+    out = getattr(args, "out", None)
+    if not out or not Path(out).is_dir():
+        return
+    data = {
+        "command": args.command,
+        "argv": list(argv),
+        "options": {k: v for k, v in vars(args).items() if not k.startswith("_")},
+        "status": status,
+        "error": error,
+        "started": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(started)),
+        "wall_time_s": round(time.time() - started, 3),
+    }
+    with contextlib.suppress(OSError):  # a folder we cannot write must not hide the error itself
+        (Path(out) / "status.json").write_text(json.dumps(data, indent=2, default=str) + "\n")
+
+
+def _canonical_options(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:
+    """Destination → the option a command's help shows for it."""
+    sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    cmd_parser = sub.choices.get(command) if sub is not None and command else None
+    if cmd_parser is None:
+        return {}
+    return {a.dest: a.option_strings[0] for a in cmd_parser._actions
+            if a.option_strings and a.help != argparse.SUPPRESS and a.dest not in ("help",)}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; bad input prints one line and returns a non-zero code, never a traceback."""
+    """Entry point; bad input prints one line and returns a non-zero code, never a traceback.
+
+    Python warnings reach the user as one line each, without a source path. When the command made
+    its run folder (``--out``), ``status.json`` there says how the run ended: done, failed (with the
+    error) or interrupted."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "_run"):
         parser.print_help()
         return 2
-    try:
-        return int(args._run(args) or 0)
-    except TactexError as exc:
-        print(f"tactex {args.command}: error: {_cli_words(str(exc), args)}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # a file system refusal the checks up front did not foresee (disk full, ...)
-        where = f" ('{exc.filename}')" if exc.filename else ""
-        print(f"tactex {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"tactex {args.command}: interrupted", file=sys.stderr)
-        return 130
+    args._options = _canonical_options(parser, args.command)
+    typed = _typed_options(parser, argv, args.command)
+    started = time.time()
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning(args.command)
+        try:
+            code = int(args._run(args) or 0)
+        except TactexError as exc:
+            message = _cli_words(str(exc), args, typed)
+            print(f"tactex {args.command}: error: {message}", file=sys.stderr)
+            _write_status(args, argv, "failed", started, message)
+            return 2
+        except OSError as exc:  # a file system refusal the checks up front did not foresee (disk full, ...)
+            where = f" ('{exc.filename}')" if exc.filename else ""
+            message = f"{exc.strerror or exc}{where}"
+            print(f"tactex {args.command}: error: {message}", file=sys.stderr)
+            _write_status(args, argv, "failed", started, message)
+            return 2
+        except KeyboardInterrupt:
+            print(f"tactex {args.command}: interrupted", file=sys.stderr)
+            _write_status(args, argv, "interrupted", started, "interrupted by the user (Ctrl-C)")
+            return 130
+    _write_status(args, argv, "done" if code == 0 else "stopped early", started)
+    return code
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Every parameter set in tactex is a dataclass whose defaults are the papers' values and whose
 fields carry ``metadata={"help": "... [unit]"}``. :func:`add_dataclass_arguments` turns such a
-class into argparse options (``agent_radius`` → ``--agent-radius``), so the CLI never drifts from
+class into argparse options (``agent_radius_m`` → ``--agent-radius-m``), so the CLI never drifts from
 the code; :func:`dataclass_from_args` builds the instance back, validating through the class.
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from tactex.errors import ConfigError
 
-__all__ = ["add_dataclass_arguments", "dataclass_from_args", "param", "to_jsonable", "write_json"]
+__all__ = ["add_dataclass_arguments", "dataclass_from_args", "option_aliases", "param", "to_jsonable", "write_json"]
 
 T = TypeVar("T")
 
@@ -35,6 +35,28 @@ def _option(name: str, prefix: str) -> str:
     return "--" + (prefix + name).replace("_", "-")
 
 
+def _default_text(default: Any) -> str:
+    """A default as a user would type it: tuples as space-separated numbers, nothing for None/''."""
+    if default is None or default == "":
+        return ""
+    if isinstance(default, bool):
+        return "on" if default else "off"
+    if isinstance(default, (tuple, list)):
+        return " ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in default)
+    if isinstance(default, float):
+        return f"{default:g}"
+    return str(default)
+
+
+def option_aliases(cls: type) -> dict[str, list[str]]:
+    """Field name → the option strings of a dataclass's CLI (the first is the one help shows)."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        name = f.metadata.get("option", f.name)
+        out[f.name] = [_option(name, ""), *f.metadata.get("aliases", ())]
+    return out
+
+
 def add_dataclass_arguments(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup,
     cls: type,
@@ -43,7 +65,12 @@ def add_dataclass_arguments(
     skip: tuple[str, ...] = (),
 ) -> None:
     """Add one option per scalar/bool/tuple field of dataclass ``cls``; defaults stay ``None``
-    so that only options the user gave override the dataclass defaults."""
+    so that only options the user gave override the dataclass defaults.
+
+    A field's metadata may rename its option (``option="object"`` for ``object_name``) and give
+    older names that still work (``aliases=("--object-name",)``, hidden from the help). The help
+    shows the default once, as it would be typed; a help text that states its own default (it
+    says "default") or a default of None/'' adds nothing."""
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
         if f.name in skip or f.metadata.get("cli") is False:
@@ -53,20 +80,28 @@ def add_dataclass_arguments(
         args = typing.get_args(typ)
         help_text = f.metadata.get("help", "")
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        help_text = f"{help_text} (default: {default})" if help_text else f"default: {default}"
-        opt = _option(f.name, prefix)
+        shown = _default_text(default)
+        if shown and "default" not in help_text.lower():
+            help_text = f"{help_text} (default: {shown})" if help_text else f"default: {shown}"
+        help_text = help_text.replace("%", "%%")
+        opt = _option(f.metadata.get("option", f.name), prefix)
         dest = prefix + f.name
+        kw: dict[str, Any] | None = None
         if typ is bool:
-            parser.add_argument(opt, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+            kw = {"action": argparse.BooleanOptionalAction}
         elif typ in (int, float, str):
-            parser.add_argument(opt, dest=dest, type=typ, default=None, help=help_text)
+            kw = {"type": typ}
         elif origin is tuple and args and all(a in (int, float) for a in args if a is not Ellipsis):
-            n = "+" if Ellipsis in args else len(args)
-            parser.add_argument(opt, dest=dest, type=float, nargs=n, default=None, help=help_text)
+            kw = {"type": float, "nargs": "+" if Ellipsis in args else len(args)}
         elif origin in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
             base = next(a for a in args if a is not type(None))
             if base in (int, float, str):
-                parser.add_argument(opt, dest=dest, type=base, default=None, help=help_text)
+                kw = {"type": base}
+        if kw is None:
+            continue
+        parser.add_argument(opt, dest=dest, default=None, help=help_text, **kw)
+        for alias in f.metadata.get("aliases", ()):
+            parser.add_argument(alias, dest=dest, default=None, help=argparse.SUPPRESS, **kw)
 
 
 def dataclass_from_args(cls: type[T], args: argparse.Namespace, *, prefix: str = "", **overrides: Any) -> T:

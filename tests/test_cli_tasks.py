@@ -35,8 +35,8 @@ def _one_line_error(capsys: pytest.CaptureFixture, code: int, *needles: str) -> 
     [
         (["clean", "--object-name", "teapot"], ("tactex clean: error:", "unknown object 'teapot'", "plate")),
         (["wipe", "--object-name", "teapot"], ("tactex wipe: error:", "unknown object 'teapot'")),
-        (["clean", "--force-n", "-5"], ("force_n must be a positive number", "-5")),
-        (["wipe", "--force-n", "-5"], ("force_n must be a positive number", "-5")),
+        (["clean", "--force-n", "-5"], ("--force-n must be a positive number", "-5")),
+        (["wipe", "--force-n", "-5"], ("--force-n must be a positive number", "-5")),
         (["clean", "--baseline", "zigzag"], ("unknown baseline 'zigzag'", "raster")),
         (["wipe", "--baseline", "zigzag"], ("unknown baseline 'zigzag'", "cartesian")),
         (["clean", "--compare", "--baseline", "raster"], ("--compare", "drop --baseline raster")),
@@ -76,7 +76,7 @@ def test_missing_cloud_file(tmp_path, capsys) -> None:
 
 def test_demo_bad_input(tmp_path, capsys) -> None:
     code = main(["demo", "--clean-budget-s", "-1", "--out", str(tmp_path / "d")])
-    _one_line_error(capsys, code, "clean_budget_s must be a positive number", "-1")
+    _one_line_error(capsys, code, "--clean-budget-s must be a positive number", "-1")
 
 
 def test_demo_configs_scale_with_quick() -> None:
@@ -216,4 +216,4 @@ def test_a_tiny_cloud_gets_no_impossible_n_eigen_hint() -> None:
 
 def test_an_unreachable_capture_pose_names_the_parameter(tmp_path, capsys) -> None:
     code = main(["clean", "--object-name", "cup", "--side-capture-distance-m", "0.45", "--out", str(tmp_path / "c")])
-    _one_line_error(capsys, code, "out of the arm's reach", "lower side_capture_distance_m (now 0.45 m)")
+    _one_line_error(capsys, code, "out of the arm's reach", "lower --side-capture-distance-m (now 0.45 m)")

@@ -35,7 +35,7 @@ NRM_TOL = 1e-9  # unit normals and tangents: the fit far from a rim or with few 
 def objects():
     out = {}
     for name in ("bowl", "cup", "plate"):
-        cloud, _ = load_explore_cloud(name, ExploreConfig(voxel_size=0.004))
+        cloud, _ = load_explore_cloud(name, ExploreConfig(voxel_size_m=0.004))
         out[name] = (cloud, build_basis(cloud, n_eigen=60, cache=False))
     return out
 

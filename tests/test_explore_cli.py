@@ -51,7 +51,10 @@ def test_explore_builtin_plate_end_to_end(tmp_path, capsys: pytest.CaptureFixtur
     code = main(["explore", "plate", "--steps", str(STEPS), "--n-eigen", "60", "--out", str(out), "--seed", "3"])
     assert code == 0
     metrics = _check_run(out, STEPS)
-    assert metrics["source"] == {"kind": "builtin", "name": "plate", "marking": "shapes"}
+    source = metrics["source"]
+    assert {k: source[k] for k in ("kind", "name", "marking")} == {
+        "kind": "builtin", "name": "plate", "marking": "shapes"}
+    assert source["target_where"].startswith(f"{metrics['n_target']} of {metrics['n_points']} points are target")
     assert metrics["explorer_config"]["agent_radius_m"] == pytest.approx(0.015)  # TEC: 15 mm on the plate
     assert metrics["config"]["n_eigen"] == 60 and metrics["explorer_config"]["n_eigen"] == 60
     # Exploring covers target: the residual falls from its start.
@@ -148,17 +151,20 @@ def test_too_many_eigenpairs(tmp_path, capsys) -> None:
 @pytest.mark.parametrize(
     ("option", "value", "fragment"),
     [
-        ("--voxel-size", "-0.003", "voxel_size"),
-        ("--steps", "0", "steps"),
-        ("--alpha", "-10", "alpha"),
-        ("--agent-radius", "-0.0075", "agent_radius"),
-        ("--max-velocity", "0", "max_velocity"),
-        ("--target-channel", "purple", "target channel"),
-        ("--marking", "Z", "marking"),
+        ("--voxel-size", "-0.003", "--voxel-size -0.003"),
+        ("--voxel-size-m", "-0.003", "--voxel-size-m -0.003"),
+        ("--steps", "0", "--steps 0"),
+        ("--alpha", "-10", "--alpha -10"),
+        ("--agent-radius", "-0.0075", "--agent-radius -0.0075"),
+        ("--max-velocity", "0", "--max-velocity 0"),
+        ("--target-channel", "purple", "unknown target 'purple'"),
+        ("--target", "purple", "unknown target 'purple'"),
+        ("--marking", "Z", "unknown marking 'Z'"),
         ("--voxel-size", "3", "in metres"),
     ],
 )
 def test_bad_values(tmp_path, capsys, option: str, value: str, fragment: str) -> None:
+    """The message names the option as typed (an old alias included), never the Python field."""
     _fails(["explore", "plate", option, value, "--out", str(tmp_path / "o")], capsys, fragment)
 
 
@@ -178,7 +184,7 @@ def test_file_without_target(tmp_path, capsys) -> None:
     rng = np.random.default_rng(0)
     path = save_npz(SurfaceCloud(points=rng.random((200, 3)) * 0.05), tmp_path / "plain.npz")
     _fails(["explore", str(path), "--voxel-size", "0", "--out", str(tmp_path / "o")], capsys, "no target", "all")
-    cfg = ExploreConfig(voxel_size=0.0, target_channel="all")
+    cfg = ExploreConfig(voxel_size_m=0.0, target="all")
     cloud, info = load_explore_cloud(path, cfg)
     assert cloud.n_target == 200 and info["kind"] == "file"
 
@@ -187,7 +193,10 @@ def test_no_point_above_the_threshold(tmp_path, capsys) -> None:
     rng = np.random.default_rng(0)
     cloud = SurfaceCloud(points=rng.random((200, 3)) * 0.05, colors=np.full((200, 3), 0.5))
     path = save_ply(cloud, tmp_path / "grey.ply")
-    _fails(["explore", str(path), "--voxel-size", "0", "--out", str(tmp_path / "o")], capsys, "red ≥ 1")
+    _fails(["explore", str(path), "--voxel-size", "0", "--out", str(tmp_path / "o")], capsys, "red by hue",
+           "--target-saturation")
+    _fails(["explore", str(path), "--voxel-size", "0", "--target-threshold", "0.9", "--out", str(tmp_path / "o")],
+           capsys, "red channel ≥ 0.9", "lower --target-threshold")
 
 
 def test_marking_on_a_file_is_refused(tmp_path, capsys) -> None:
@@ -222,7 +231,7 @@ def test_separate_parts_are_handled_and_reported(tmp_path) -> None:
     path, n = _two_plates(tmp_path)
     messages: list[str] = []
     cfg = ExploreConfig(
-        voxel_size=0.0, n_eigen=20, n_neighbors=10, steps=150, x0=(0.33, 0.03, 0.0), html=False, cache=False
+        voxel_size_m=0.0, n_eigen=20, n_neighbors=10, steps=150, x0=(0.33, 0.03, 0.0), html=False, cache=False
     )
     result = run_explore(path, tmp_path / "run", cfg, progress=messages.append)
     assert any("2 separate parts" in m and "lifts off" in m for m in messages)
@@ -244,7 +253,7 @@ def test_separate_parts_without_relocation_are_warned_about(tmp_path) -> None:
     path, _ = _two_plates(tmp_path)
     messages: list[str] = []
     cfg = ExploreConfig(
-        voxel_size=0.0, n_eigen=20, n_neighbors=10, steps=5, x0=(0.33, 0.03, 0.0), html=False, cache=False
+        voxel_size_m=0.0, n_eigen=20, n_neighbors=10, steps=5, x0=(0.33, 0.03, 0.0), html=False, cache=False
     )
     result = run_explore(path, tmp_path / "run", cfg, hedac=HedacConfig(relocate=False), progress=messages.append)
     assert any("2 separate parts" in m and "--n-neighbors" in m for m in messages)
@@ -278,7 +287,7 @@ def test_an_agent_stuck_on_contact_tracks_is_reported(tmp_path) -> None:
     pts = np.vstack([np.column_stack([s, np.full(s.size, 0.012 * k), np.zeros(s.size)]) for k in range(5)])
     path = save_npz(SurfaceCloud(points=pts, target=np.ones(len(pts))), tmp_path / "tracks.npz")
     messages: list[str] = []
-    cfg = ExploreConfig(voxel_size=0.0, n_eigen=30, steps=600, x0=(0.03, 0.024, 0.0), html=False, cache=False)
+    cfg = ExploreConfig(voxel_size_m=0.0, n_eigen=30, steps=600, x0=(0.03, 0.024, 0.0), html=False, cache=False)
     from tactex.ergodic import HedacConfig
 
     result = run_explore(path, tmp_path / "run", cfg, hedac=HedacConfig(relocate=False), progress=messages.append)

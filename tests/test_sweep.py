@@ -95,7 +95,7 @@ def test_starts_come_from_the_authors_file_then_the_seed(tmp_path):
     ({"starts": 0}, "starts"),
     ({"steps": 0}, "steps"),
     ({"workers": -1}, "workers"),
-    ({"voxel_size": 3.0}, "metres"),
+    ({"voxel_size_m": 3.0}, "metres"),
     ({"coverage_normalization": "all"}, "coverage_normalization"),
 ])
 def test_config_validation(changes, match):
@@ -123,8 +123,8 @@ def test_cli_prints_the_grid(tmp_path, capsys):
     assert main(["sweep", "cup", "--out", str(tmp_path / "t"), "--alpha", "-1"]) == 2
 
 
-def test_a_cloud_without_colours_is_swept_with_target_channel_all(tmp_path, capsys):
-    """explore's hint for an uncoloured cloud ('pass --target-channel all') holds for sweep too."""
+def test_a_cloud_without_colours_is_swept_with_target_all(tmp_path, capsys):
+    """explore's hint for an uncoloured cloud ('use --target all') holds for sweep too."""
     g = np.linspace(0.0, 0.06, 21)
     x, y = np.meshgrid(g, g)
     path = tmp_path / "plain.npz"
@@ -132,6 +132,6 @@ def test_a_cloud_without_colours_is_swept_with_target_channel_all(tmp_path, caps
     argv = ["sweep", str(path), "--n-eigen", "10", "--alpha", "5", "--starts", "1", "--steps", "10",
             "--workers", "1", "--quiet"]
     assert main([*argv, "--out", str(tmp_path / "a")]) == 2
-    assert "--target-channel all" in capsys.readouterr().err
-    assert main([*argv, "--target-channel", "all", "--out", str(tmp_path / "b")]) == 0
+    assert "--target all" in capsys.readouterr().err
+    assert main([*argv, "--target", "all", "--out", str(tmp_path / "b")]) == 0
     assert (tmp_path / "b" / "sweep.json").is_file()

@@ -22,7 +22,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "cloud",
         metavar="CLOUD",
-        help=f"a .ply/.pcd/.npz file, or a built-in object: {', '.join(surface_names())}",
+        help=f"a cloud file (.ply, .pcd, .npz) or mesh (.ply with faces, .stl, .obj), or a built-in object: "
+             f"{', '.join(surface_names())}",
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="run directory for metrics, trajectory and plots")
     add_dataclass_arguments(parser, ExploreConfig)

@@ -16,7 +16,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     from tactex.pointcloud.shapes import surface_names
 
     parser.add_argument("clouds", metavar="CLOUD", nargs="+",
-                        help=f".ply/.pcd/.npz files or built-in objects: {', '.join(surface_names())}")
+                        help=f"cloud files (.ply, .pcd, .npz), meshes (.ply with faces, .stl, .obj) or built-in "
+                             f"objects: {', '.join(surface_names())}")
     parser.add_argument("--out", required=True, metavar="DIR", help="run directory for sweep.json, curves.npz, plots")
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     add_dataclass_arguments(parser, SweepConfig)

@@ -1,7 +1,8 @@
 """`tactex explore`: kinematic ergodic exploration of one cloud, with metrics and plots (TEC §V-B).
 
 The run follows the paper's simulated experiments: voxelise the cloud (3 mm), take the target
-from the red channel (or draw a marking on a built-in object), build the Laplace basis once,
+from its red marking (by hue and saturation, :mod:`tactex.pointcloud.target`; TEC's raw red channel
+threshold on request) or draw a marking on a built-in object, build the Laplace basis once,
 then step the HEDAC explorer kinematically and record the normalised ergodicity (eq. 48), the
 coverage residual and the path length after every step.
 
@@ -26,11 +27,12 @@ import numpy as np
 
 from tactex.config import param, to_jsonable
 from tactex.errors import ConfigError, ExplorationError, InputError
-from tactex.pointcloud import SurfaceCloud, load_cloud, target_from_channel, voxel_down_sample
-from tactex.pointcloud.io import SUPPORTED_SUFFIXES
+from tactex.pointcloud import SurfaceCloud
+from tactex.pointcloud.io import SUPPORTED_SUFFIXES, read_cloud
 from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxels, raw_keep_out
-from tactex.pointcloud.markings import marked_cloud, marking_names
-from tactex.pointcloud.shapes import get_surface, surface_names
+from tactex.pointcloud.markings import marked_cloud, resolve_marking
+from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
+from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target, file_target
 from tactex.report.outdir import prepare_out_dir
 
 __all__ = [
@@ -47,7 +49,7 @@ __all__ = [
 #: TEC §V-C marks its plate with shapes, its bowl with 'RLI' and its cup with an 'X'.
 DEFAULT_MARKINGS = {"plate": "shapes", "bowl": "RLI", "cup": "X"}
 #: Where the target comes from for a cloud file.
-TARGET_CHANNELS = ("auto", "red", "green", "blue", "stored", "all")
+TARGET_CHANNELS = TARGET_CHOICES
 #: TEC §V-B: r_a = 15 mm on the (larger) plate, 7.5 mm on the cup and the bunny.
 PLATE_AGENT_RADIUS_M = 0.015
 AGENT_RADIUS_M = 0.0075
@@ -62,14 +64,16 @@ Progress = Callable[[str], None]
 class ExploreConfig:
     """One exploration run; defaults are TEC's (§V-B, Table II, Fig. 11: K = 200, α = 10)."""
 
-    voxel_size: float = param(0.003, "voxel edge of the down-sampling (sampling spacing of built-ins); 0 = none [m]")
+    voxel_size_m: float = param(
+        0.003, "voxel edge of the down-sampling, and sampling spacing of meshes and built-in objects; 0 = none [m]",
+        aliases=("--voxel-size",))
     n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion (TEC eq. 19) [-]")
     n_neighbors: int = param(30, "neighbours of the Laplacian; decides which parts connect (TEC §VI-D) [-]")
     alpha: float = param(10.0, "diffusion scale α of δt = α h² (TEC eq. 21) [-]")
     steps: int = param(1000, "exploration steps [-]")
-    agent_radius: float | None = param(
-        None, "agent footprint radius r_a; default 15 mm on plates, 7.5 mm otherwise (TEC §V-B) [m]"
-    )
+    agent_radius_m: float | None = param(
+        None, "agent footprint radius r_a [m]; by default 0.015 on plates, else 0.0075 (TEC §V-B)",
+        aliases=("--agent-radius",))
     max_velocity: float = param(1.0, "agent speed limit (Table II: 3 mm/s at 3 mm voxels) [voxels/step]")
     x0: tuple[float, float, float] | None = param(
         None,
@@ -78,13 +82,19 @@ class ExploreConfig:
         cli=False,
     )
     seed: int = param(0, "seed of the start position and of the explorer [-]")
-    target_channel: str = param(
+    target: str = param(
         "auto",
-        "target of a cloud file: auto (red channel if coloured, else the stored target), red, green, blue, "
-        "stored, or all (the whole surface)",
-    )
-    target_threshold: float = param(1.0, "colour level marking the target, 0–1 (TEC: red = 255 → 1.0) [-]")
-    marking: str | None = param(None, "drawn target of a built-in object (default: plate shapes, bowl RLI, else X)")
+        "target of a cloud file: red, green or blue (a marking of that colour, judged by hue and saturation), "
+        "stored (the file's target array), all (the whole surface), or auto (red if the file has colours, "
+        "else stored)", aliases=("--target-channel",))
+    target_saturation: float = param(
+        DEFAULT_MIN_SATURATION, "least saturation of a marked colour, 0–1 (white 0, beige ~0.3, a red marker ~0.8)")
+    target_threshold: float | None = param(
+        None, "TEC's raw rule instead of hue: the --target colour's channel ≥ this level, 0–1 (TEC clouds: 1.0); "
+        "white passes a red ≥ level rule too")
+    marking: str | None = param(
+        None, "drawn target of a built-in object: X, RLI, blobs, shapes, full; by default plate shapes, bowl RLI, "
+        "else X")
     keep_out_channel: str = param(
         "", "colour channel marking a keep-out zone no footprint may touch: red, green or blue ('' = none)"
     )
@@ -98,33 +108,35 @@ class ExploreConfig:
     def __post_init__(self) -> None:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
-        if not math.isfinite(self.voxel_size) or self.voxel_size < 0:
-            raise ConfigError(f"voxel_size must be ≥ 0 m (0 = keep the cloud), got {self.voxel_size}")
-        if self.voxel_size > 0.1:
-            raise ConfigError(f"voxel_size = {self.voxel_size} m is larger than 10 cm; it is in metres (0.003 = 3 mm)")
+        if not math.isfinite(self.voxel_size_m) or self.voxel_size_m < 0:
+            raise ConfigError(f"voxel_size_m={self.voxel_size_m} is negative; give metres ≥ 0 (0 keeps the cloud)")
+        if self.voxel_size_m > 0.1:
+            raise ConfigError(f"voxel_size_m={self.voxel_size_m} is over 10 cm; it is in metres (0.003 = 3 mm)")
         for name in ("steps", "n_eigen", "n_neighbors"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+                raise ConfigError(f"{name}={value!r} is not a whole number ≥ 1")
         if not math.isfinite(self.alpha) or self.alpha <= 0:
-            raise ConfigError(f"alpha must be a positive number, got {self.alpha}")
+            raise ConfigError(f"alpha={self.alpha} must be a positive number")
         if not math.isfinite(self.max_velocity) or self.max_velocity <= 0:
-            raise ConfigError(f"max_velocity must be a positive number of voxels per step, got {self.max_velocity}")
-        if self.agent_radius is not None and (not math.isfinite(self.agent_radius) or not 0 < self.agent_radius <= 1):
-            raise ConfigError(
-                f"agent_radius must be a positive number of metres (0.0075 = 7.5 mm), got {self.agent_radius}"
-            )
+            raise ConfigError(f"max_velocity={self.max_velocity} must be a positive number of voxels per step")
+        if self.agent_radius_m is not None and (
+            not math.isfinite(self.agent_radius_m) or not 0 < self.agent_radius_m <= 1
+        ):
+            raise ConfigError(f"agent_radius_m={self.agent_radius_m} must be a positive number of metres up to 1 "
+                              "(0.0075 = 7.5 mm)")
         if self.x0 is not None:
             x0 = np.asarray(self.x0, dtype=float)
             if x0.shape != (3,) or not np.isfinite(x0).all():
-                raise ConfigError(f"x0 must be three finite coordinates [m], got {self.x0!r}")
-        if self.target_channel not in TARGET_CHANNELS:
-            raise ConfigError(f"unknown target channel '{self.target_channel}'; valid: {', '.join(TARGET_CHANNELS)}")
-        if not 0.0 <= self.target_threshold <= 1.0:
-            raise ConfigError(f"target_threshold must lie in [0, 1], got {self.target_threshold}")
-        if self.marking is not None and self.marking not in marking_names():
-            raise ConfigError(f"unknown marking '{self.marking}'; valid: {', '.join(marking_names())}")
+                raise ConfigError(f"x0={self.x0!r} must be three finite coordinates [m]")
+        object.__setattr__(self, "target", self.target_rule().target)
+        if self.marking is not None:
+            object.__setattr__(self, "marking", resolve_marking(self.marking))
         check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
+
+    def target_rule(self) -> TargetRule:
+        """How a cloud file's target is chosen (``target``, ``target_saturation``, ``target_threshold``)."""
+        return TargetRule(self.target, self.target_saturation, self.target_threshold)
 
 
 @dataclass
@@ -142,35 +154,13 @@ def _is_file_source(source: str) -> bool:
     return p.suffix.lower() in SUPPORTED_SUFFIXES or p.exists() or "/" in source or "\\" in source
 
 
-def _target_from_file_cloud(cloud: SurfaceCloud, cfg: ExploreConfig, source: str) -> SurfaceCloud:
-    channel = cfg.target_channel
-    if channel == "all":
-        return cloud.with_target(np.ones(len(cloud)))
-    if channel == "auto":
-        channel = "red" if cloud.colors is not None else "stored"
-    if channel == "stored":
-        if cloud.n_target == 0:
-            raise InputError(
-                f"'{source}' carries no target (no colours, no non-zero 'target' array); mark the target in red, "
-                "or pass --target-channel all to explore the whole surface"
-            )
-        return cloud
-    if cloud.colors is None:
-        raise InputError(f"'{source}' has no colours, so --target-channel {channel} cannot select a target")
-    marked = target_from_channel(cloud, channel, cfg.target_threshold)
-    if marked.n_target == 0:
-        raise InputError(
-            f"no point of '{source}' has {channel} ≥ {cfg.target_threshold:g} (after {cfg.voxel_size * 1e3:g} mm "
-            "voxels); lower --target-threshold, choose another --target-channel, or use --target-channel all"
-        )
-    return marked
-
-
 def load_explore_cloud(source: str | Path, cfg: ExploreConfig) -> tuple[SurfaceCloud, dict[str, Any]]:
     """The cloud to explore, with its target, and a description of where it came from.
 
-    ``source`` is a .ply/.pcd/.npz file (voxelised at ``cfg.voxel_size``, target by
-    ``cfg.target_channel``) or a built-in object name (sampled at ``cfg.voxel_size`` with a marking).
+    ``source`` is a cloud or mesh file (voxelised, or sampled, at ``cfg.voxel_size_m``; target by
+    ``cfg.target_rule()``) or a built-in object name, in any case (sampled at ``cfg.voxel_size_m`` with
+    a marking). The description holds what loading did (``notes``: points dropped, a mesh sampled)
+    and where the target is (``target_where``).
     """
     cloud, info, _ = load_explore_cloud_keep_out(source, cfg)
     return cloud, info
@@ -182,15 +172,19 @@ def load_explore_cloud_keep_out(
     """:func:`load_explore_cloud` and the keep-out zone (a boolean per point of the returned cloud, or
     None without ``--keep-out-*`` options; see :mod:`tactex.pointcloud.keep_out`)."""
     src = str(source)
-    if src in surface_names():
-        if cfg.voxel_size <= 0:
-            raise ConfigError("a built-in object needs voxel_size > 0: it is its sampling spacing [m]")
+    builtin = resolve_surface_name(src)
+    if builtin is not None and not Path(src).is_file():
+        src = builtin
+        if cfg.voxel_size_m <= 0:
+            raise ConfigError("voxel_size_m=0 cannot sample a built-in object: give its spacing in metres (0.003)")
         marking = cfg.marking or DEFAULT_MARKINGS.get(src, "X")
-        cloud = marked_cloud(get_surface(src), marking, spacing_m=cfg.voxel_size)
+        cloud = marked_cloud(get_surface(src), marking, spacing_m=cfg.voxel_size_m)
         if cloud.n_target == 0:
-            raise InputError(f"the marking '{marking}' leaves no target point on '{src}' at {cfg.voxel_size} m spacing")
+            raise InputError(f"the marking '{marking}' leaves no target point on '{src}' at "
+                             f"{cfg.voxel_size_m} m spacing")
         keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
-        return cloud, {"kind": "builtin", "name": src, "marking": marking}, keep_out
+        return cloud, {"kind": "builtin", "name": src, "marking": marking, "target_rule": f"marking {marking}",
+                       "target_where": describe_target(cloud), "notes": []}, keep_out
     if not _is_file_source(src):
         raise ConfigError(
             f"'{src}' is neither a built-in object ({', '.join(surface_names())}) nor a cloud file "
@@ -202,14 +196,16 @@ def load_explore_cloud_keep_out(
     if not path.is_file():
         raise InputError(f"point cloud file '{path}' does not exist")
     if cfg.marking is not None:
-        raise ConfigError("--marking applies to built-in objects; a file's target comes from --target-channel")
-    raw = load_cloud(path)
+        raise ConfigError("--marking applies to built-in objects; a file's target comes from --target")
+    read = read_cloud(path, mesh_spacing_m=cfg.voxel_size_m or 0.003)
+    raw = read.cloud
     keep_out = raw_keep_out(raw, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
-    cloud = voxel_down_sample(raw, cfg.voxel_size) if cfg.voxel_size > 0 else raw
-    if keep_out is not None and cfg.voxel_size > 0:
-        keep_out = keep_out_on_voxels(raw.points, keep_out, cfg.voxel_size)
-    cloud = _target_from_file_cloud(cloud, cfg, src)
-    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw)}, keep_out
+    cloud, rule = file_target(raw, cfg.voxel_size_m, cfg.target_rule(), src)
+    if keep_out is not None and cfg.voxel_size_m > 0:
+        keep_out = keep_out_on_voxels(raw.points, keep_out, cfg.voxel_size_m)
+    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw),
+                   "n_dropped_nonfinite": read.n_dropped, "n_mesh_faces": read.n_faces, "notes": list(read.notes),
+                   "target_rule": rule, "target_where": describe_target(cloud)}, keep_out
 
 
 def _default_agent_radius(source_info: dict[str, Any]) -> float:
@@ -302,9 +298,12 @@ def run_explore(
     cloud, source_info, keep_out = load_explore_cloud_keep_out(source, cfg)
     load_s = time.perf_counter() - t0
     out = prepare_out_dir(out_dir)  # before the basis and the steps, which take the time
-    radius = cfg.agent_radius if cfg.agent_radius is not None else _default_agent_radius(source_info)
+    radius = cfg.agent_radius_m if cfg.agent_radius_m is not None else _default_agent_radius(source_info)
     hcfg = _hedac_config(cfg, hedac, radius)
-    say(f"cloud: {len(cloud)} points, {cloud.n_target} target points, spacing {cloud.spacing * 1e3:.2f} mm")
+    for note in source_info.get("notes", []):
+        say(f"cloud: {note}")
+    say(f"cloud: {len(cloud)} points, spacing {cloud.spacing * 1e3:.2f} mm")
+    say(f"target: {source_info['target_rule']}: {source_info['target_where']}")
 
     say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
     t0 = time.perf_counter()

@@ -50,20 +50,24 @@ class SweepConfig:
     alpha: tuple[float, ...] = param((1.0, 5.0, 10.0, 50.0, 100.0), "diffusion scales α to compare (Fig. 7, 10) [-]")
     starts: int = param(10, "start positions per setting (the authors' *_x0_arr_10.npz when beside the file) [-]")
     steps: int = param(1000, "exploration steps per run [-]")
-    voxel_size: float = param(0.003, "voxel edge of the down-sampling (sampling spacing of built-ins) [m]")
+    voxel_size_m: float = param(0.003, "voxel edge of the down-sampling (sampling spacing of meshes and built-ins) "
+                                       "[m]", aliases=("--voxel-size",))
     n_neighbors: int = param(30, "neighbours of the Laplacian; decides which parts connect (TEC §VI-D) [-]")
-    agent_radius: float | None = param(
-        None, "agent footprint radius r_a; default 15 mm on plates, 7.5 mm otherwise (TEC §V-B) [m]")
+    agent_radius_m: float | None = param(
+        None, "agent footprint radius r_a [m]; by default 0.015 on plates, else 0.0075 (TEC §V-B)",
+        aliases=("--agent-radius",))
     seed: int = param(0, "seed of the random start positions (clouds without the authors' starts) [-]")
     coverage_normalization: str = param(
         "domain",
         "coverage normalisation of the source: 'domain' = eq. 2 as in the paper's study (the explorer's default "
         "'target' favours touching every target point over the time share that eq. 48 measures)",
     )
-    target_channel: str = param(
-        "auto", "target of a cloud file, as in `tactex explore`: auto (red channel if coloured, else the stored "
-        "target), red, green, blue, stored, or all (the whole surface)")
-    target_threshold: float = param(1.0, "colour level marking the target, 0–1 (TEC: red = 255 → 1.0) [-]")
+    target: str = param(
+        "auto", "target of a cloud file, as in `tactex explore`: red, green or blue (by hue and saturation), "
+        "stored, all (the whole surface), or auto (red if coloured, else stored)", aliases=("--target-channel",))
+    target_saturation: float = param(0.5, "least saturation of a marked colour, 0–1, as in `tactex explore`")
+    target_threshold: float | None = param(
+        None, "TEC's raw rule instead of hue: the --target colour's channel ≥ this level, 0–1")
     workers: int = param(0, "worker processes; 0 = one per core [-]")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
 
@@ -96,9 +100,10 @@ class SweepConfig:
         self.explore_config()
 
     def explore_config(self) -> ExploreConfig:
-        return ExploreConfig(voxel_size=self.voxel_size, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
-                             steps=self.steps, agent_radius=self.agent_radius, seed=self.seed, cache=self.cache,
-                             target_channel=self.target_channel, target_threshold=self.target_threshold, html=False)
+        return ExploreConfig(voxel_size_m=self.voxel_size_m, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
+                             steps=self.steps, agent_radius_m=self.agent_radius_m, seed=self.seed, cache=self.cache,
+                             target=self.target, target_saturation=self.target_saturation,
+                             target_threshold=self.target_threshold, html=False)
 
 
 @dataclass
@@ -197,7 +202,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
         t0 = time.perf_counter()
         basis = build_basis(cloud, n_eigen=max(cfg.n_eigen), n_neighbors=cfg.n_neighbors, cache=cfg.cache)
         basis_s = time.perf_counter() - t0
-        radius = cfg.agent_radius if cfg.agent_radius is not None else _default_agent_radius(info)
+        radius = cfg.agent_radius_m if cfg.agent_radius_m is not None else _default_agent_radius(info)
         starts, origin = sweep_starts(cloud, info, cfg.starts, cfg.seed)
         clouds[key] = (cloud, basis, starts, radius)
         info_out[key] = {"source": info, "n_points": len(cloud), "n_target": cloud.n_target,

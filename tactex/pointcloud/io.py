@@ -1,11 +1,18 @@
-"""Reading and writing point clouds: PLY (plyfile), PCD (pypcd4), NPZ, and Open3D objects.
+"""Reading and writing point clouds: PLY (plyfile), PCD (pypcd4), NPZ, meshes (trimesh), Open3D.
 
 All readers return a :class:`SurfaceCloud` in metres; colours are scaled to [0, 1]. NPZ files are
 read with ``allow_pickle=False`` (a cloud a user receives must never execute code).
+
+One rule for points with NaN/inf coordinates (or normals), in every format: they are dropped and
+counted (:attr:`CloudFile.n_dropped`), and the commands say so. Meshes — a PLY with faces, STL, OBJ:
+the CAD parts industrial users have — are sampled on their surface at the voxel spacing
+(:func:`tactex.pointcloud.mesh.sample_mesh`), never reduced to their vertices.
 """
 
 from __future__ import annotations
 
+import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,19 +22,69 @@ from tactex.errors import CloudError, InputError, MissingDependencyError, UnitsE
 from tactex.pointcloud.cloud import SurfaceCloud
 
 __all__ = [
+    "MESH_SUFFIXES",
     "SUPPORTED_SUFFIXES",
+    "CloudFile",
     "from_open3d",
     "load_cloud",
     "load_npz",
     "load_pcd",
     "load_ply",
+    "read_cloud",
     "save_cloud",
     "save_npz",
     "save_ply",
     "to_open3d",
 ]
 
-SUPPORTED_SUFFIXES = (".ply", ".pcd", ".npz")
+SUPPORTED_SUFFIXES = (".ply", ".pcd", ".npz", ".stl", ".obj")
+#: Suffixes that always hold a mesh (a .ply holds one when it has faces).
+MESH_SUFFIXES = (".stl", ".obj")
+#: Sampling spacing of a mesh when none is given: TEC's voxel size [m].
+DEFAULT_MESH_SPACING_M = 0.003
+
+
+@dataclass(frozen=True)
+class CloudFile:
+    """A cloud read from a file, with what reading it did.
+
+    Attributes:
+        cloud: the points (finite), in metres.
+        n_dropped: points left out for NaN/inf coordinates or normals.
+        n_faces: faces of a mesh file (0 for a point cloud); its points are samples of its surface.
+        notes: those facts in words, for the user.
+    """
+
+    cloud: SurfaceCloud
+    n_dropped: int = 0
+    n_faces: int = 0
+    notes: tuple[str, ...] = ()
+
+
+class _Finite:
+    """Drops the rows where points (or normals) are not finite, remembering how many."""
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray | None) -> None:
+        points = np.asarray(points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            self.keep = None  # SurfaceCloud reports the shape
+            self.dropped = 0
+            return
+        keep = np.isfinite(points).all(axis=1)
+        if normals is not None and np.shape(normals) == points.shape:
+            keep &= np.isfinite(np.asarray(normals, dtype=np.float64)).all(axis=1)
+        self.keep = keep
+        self.dropped = int(keep.size - keep.sum())
+
+    def __call__(self, values: Any) -> Any:
+        if values is None or self.keep is None or not self.dropped:
+            return values
+        values = np.asarray(values)
+        return values[self.keep] if values.shape[:1] == self.keep.shape else values
+
+
+def _dropped_note(n: int, total: int) -> tuple[str, ...]:
+    return (f"dropped {n} of {total} points with NaN/inf coordinates or normals",) if n else ()
 
 
 #: Float colours up to this are taken as 0..1 (and clipped): a float32 1.0 written by another tool
@@ -56,14 +113,22 @@ def _check_file(path: str | Path) -> Path:
 
 
 def load_ply(path: str | Path) -> SurfaceCloud:
-    """Read a PLY file's vertex element: x y z, optional nx ny nz and red green blue."""
+    """Read a PLY file's vertex element: x y z, optional nx ny nz and red green blue (a PLY with
+    faces is sampled as a mesh: see :func:`read_cloud`)."""
+    return _read_ply(_check_file(path), DEFAULT_MESH_SPACING_M).cloud
+
+
+def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     from plyfile import PlyData, PlyParseError
 
-    p = _check_file(path)
     try:
         ply = PlyData.read(str(p))
-    except (PlyParseError, ValueError, OSError) as exc:
+    except (PlyParseError, ValueError, OSError, IndexError, KeyError, TypeError) as exc:
         raise CloudError(f"'{p}' is not a readable PLY file: {exc}") from exc
+    if "face" in ply and ply["face"].count > 0:
+        from tactex.pointcloud.mesh import read_mesh
+
+        return read_mesh(p, mesh_spacing_m)
     if "vertex" not in ply:
         raise CloudError(f"'{p}' has no 'vertex' element")
     v = ply["vertex"]
@@ -76,13 +141,16 @@ def load_ply(path: str | Path) -> SurfaceCloud:
         if {"nx", "ny", "nz"} <= names
         else None
     )
+    finite = _Finite(points, normals)
     colors = (
-        _colors_to_unit(np.stack([v["red"], v["green"], v["blue"]], axis=1))
+        _colors_to_unit(finite(np.stack([v["red"], v["green"], v["blue"]], axis=1)))
         if {"red", "green", "blue"} <= names
         else None
     )
     target = np.asarray(v["target"], dtype=np.float64) if "target" in names else None
-    return SurfaceCloud(points=points, normals=normals, colors=colors, target=target, spacing=_ply_spacing(ply))
+    cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors, target=finite(target),
+                         spacing=_ply_spacing(ply))
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)))
 
 
 #: The comment save_ply writes so that a voxel-filtered cloud keeps its spacing h [m] through a PLY.
@@ -139,24 +207,28 @@ def save_ply(cloud: SurfaceCloud, path: str | Path, *, extra: dict[str, np.ndarr
 
 
 def load_pcd(path: str | Path) -> SurfaceCloud:
-    """Read a PCL PCD file (ascii/binary/binary_compressed) with pypcd4; packed ``rgb`` is decoded."""
-    from pypcd4 import PointCloud
+    """Read a PCL PCD file (VERSION .5/.6/.7; ascii/binary/binary_compressed) with pypcd4; packed
+    ``rgb`` is decoded."""
+    return _read_pcd(_check_file(path)).cloud
 
-    p = _check_file(path)
+
+def _read_pcd(p: Path) -> CloudFile:
+    from tactex.pointcloud.pcd_header import read_pcd
+
     try:
-        pc = PointCloud.from_path(p)
-    except Exception as exc:  # pypcd4 raises bare exceptions of several kinds on bad headers
-        raise CloudError(f"'{p}' is not a readable PCD file: {exc}") from exc
+        pc = read_pcd(p)
+    except CloudError as exc:
+        raise CloudError(f"'{p}': {exc}") from None
     fields = tuple(pc.fields)
     arr = pc.numpy()
     col = {name: arr[:, i] for i, name in enumerate(fields)}
     if not {"x", "y", "z"} <= set(fields):
         raise CloudError(f"'{p}' lacks x/y/z fields (found {list(fields)})")
     points = np.stack([col["x"], col["y"], col["z"]], axis=1).astype(np.float64)
-    finite = np.isfinite(points).all(axis=1)  # organised PCDs pad with NaN
     normals = None
     if {"normal_x", "normal_y", "normal_z"} <= set(fields):
-        normals = np.stack([col["normal_x"], col["normal_y"], col["normal_z"]], axis=1)[finite]
+        normals = np.stack([col["normal_x"], col["normal_y"], col["normal_z"]], axis=1).astype(np.float64)
+    finite = _Finite(points, normals)  # organised PCDs pad with NaN
     colors = None
     if "rgb" in fields or "rgba" in fields:
         ascii_file = str(getattr(pc.metadata.data, "value", pc.metadata.data)).lower() == "ascii"
@@ -165,10 +237,11 @@ def load_pcd(path: str | Path) -> SurfaceCloud:
         except CloudError as exc:
             raise CloudError(f"'{p}': {exc}") from exc
         rgb = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
-        colors = rgb[finite].astype(np.float64) / 255.0
+        colors = finite(rgb).astype(np.float64) / 255.0
     elif {"r", "g", "b"} <= set(fields):
-        colors = _colors_to_unit(np.stack([pc.pc_data["r"], pc.pc_data["g"], pc.pc_data["b"]], axis=1))[finite]
-    return SurfaceCloud(points=points[finite], normals=normals, colors=colors)
+        colors = _colors_to_unit(finite(np.stack([pc.pc_data["r"], pc.pc_data["g"], pc.pc_data["b"]], axis=1)))
+    cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors)
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)))
 
 
 def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
@@ -197,12 +270,23 @@ def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
 
 def load_npz(path: str | Path) -> SurfaceCloud:
     """Read an ``.npz`` with ``points`` (N, 3) and optional ``normals``, ``colors``, ``target``."""
-    p = _check_file(path)
+    return _read_npz(_check_file(path)).cloud
+
+
+def _read_npz(p: Path) -> CloudFile:
+    if not zipfile.is_zipfile(p):
+        raise CloudError(f"'{p}' is not an .npz file (a zip archive of arrays written by numpy.savez); "
+                         "give a .npz with a 'points' array, or a .ply/.pcd file")
     try:
         with np.load(p, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except (ValueError, OSError) as exc:
-        raise CloudError(f"'{p}' is not a readable .npz of arrays: {exc}") from exc
+    except ValueError as exc:  # numpy's own words would advise allow_pickle, which we never use
+        pickled = "pickle" in str(exc)
+        raise CloudError(f"'{p}' holds " + ("Python objects (pickled), not plain arrays: tactex reads only "
+                         "numeric arrays ('points', 'colors', ...)" if pickled else
+                         "no readable arrays (a damaged or non-numpy zip file)")) from exc
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise CloudError(f"'{p}' is not a readable .npz file (damaged or truncated)") from exc
     if "points" not in data:
         raise CloudError(f"'{p}' has no 'points' array (found {sorted(data)})")
     colors = _colors_to_unit(data["colors"]) if "colors" in data else None
@@ -211,13 +295,15 @@ def load_npz(path: str | Path) -> SurfaceCloud:
         if np.shape(data["spacing"]) != () or not np.issubdtype(np.asarray(data["spacing"]).dtype, np.number):
             raise CloudError(f"'{p}': 'spacing' must be one number [m], got shape {np.shape(data['spacing'])}")
         spacing = float(data["spacing"])
-    return SurfaceCloud(
-        points=data["points"],
-        normals=data.get("normals"),
-        colors=colors,
-        target=data.get("target"),
+    finite = _Finite(data["points"], data.get("normals"))
+    cloud = SurfaceCloud(
+        points=finite(data["points"]),
+        normals=finite(data.get("normals")),
+        colors=finite(colors),
+        target=finite(data.get("target")),
         spacing=spacing,
     )
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(data["points"])))
 
 
 def save_npz(cloud: SurfaceCloud, path: str | Path) -> Path:
@@ -233,20 +319,41 @@ def save_npz(cloud: SurfaceCloud, path: str | Path) -> Path:
     return out
 
 
-def load_cloud(path: str | Path) -> SurfaceCloud:
-    """Read a cloud, choosing the reader from the suffix (.ply, .pcd, .npz)."""
+def load_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING_M) -> SurfaceCloud:
+    """Read a cloud, choosing the reader from the suffix (.ply, .pcd, .npz, .stl, .obj); points with
+    NaN/inf coordinates are dropped (:func:`read_cloud` says how many)."""
+    return read_cloud(path, mesh_spacing_m=mesh_spacing_m).cloud
+
+
+def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING_M) -> CloudFile:
+    """Read a cloud file and report what reading it did (points dropped, a mesh sampled).
+
+    Args:
+        path: .ply, .pcd, .npz, .stl or .obj file.
+        mesh_spacing_m: sampling spacing of a mesh's surface [m] (the voxel size of the run).
+    """
+    from tactex.pointcloud.mesh import read_mesh
+
     p = Path(path)
-    readers = {".ply": load_ply, ".pcd": load_pcd, ".npz": load_npz}
-    reader = readers.get(p.suffix.lower())
-    if reader is None:
+    suffix = p.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
         raise InputError(
             f"cannot read '{p}': unknown suffix '{p.suffix}'; supported: {', '.join(SUPPORTED_SUFFIXES)}"
         )
+    p = _check_file(p)
     try:
-        return reader(p)
-    except UnitsError as exc:
+        if suffix == ".ply":
+            return _read_ply(p, mesh_spacing_m)
+        if suffix == ".pcd":
+            return _read_pcd(p)
+        if suffix == ".npz":
+            return _read_npz(p)
+        return read_mesh(p, mesh_spacing_m)
+    except (CloudError, UnitsError) as exc:
+        if f"'{p}'" in str(exc):
+            raise
         # the cloud's own message cannot name the file
-        raise UnitsError(f"'{p}': {exc}") from exc
+        raise type(exc)(f"'{p}': {exc}") from exc
 
 
 def save_cloud(cloud: SurfaceCloud, path: str | Path) -> Path:

@@ -16,7 +16,8 @@ from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import Surface
 
-__all__ = ["BASE_RGB", "MARKINGS", "MARK_RGB", "marked_cloud", "marking_mask", "marking_names", "mask_from_image"]
+__all__ = ["BASE_RGB", "MARKINGS", "MARK_RGB", "marked_cloud", "marking_mask", "marking_names", "mask_from_image",
+           "resolve_marking"]
 
 #: Colour of marked (dirty) points: pure red, as the TEC clouds mark their target.
 MARK_RGB = np.array([1.0, 0.0, 0.0])
@@ -93,10 +94,17 @@ def marking_names() -> list[str]:
     return sorted(MARKINGS)
 
 
+def resolve_marking(name: str) -> str:
+    """The marking called ``name`` in any case ('x' → 'X', 'rli' → 'RLI'); the error lists them."""
+    found = {n.lower(): n for n in MARKINGS}.get(str(name).lower())
+    if found is None:
+        raise ConfigError(f"unknown marking '{name}'; valid: {', '.join(marking_names())}")
+    return found
+
+
 def marking_mask(name: str, uv: np.ndarray) -> np.ndarray:
     """Boolean mask (N,) of the uv points (N, 2) covered by marking ``name``."""
-    if name not in MARKINGS:
-        raise ConfigError(f"unknown marking '{name}'; valid: {', '.join(marking_names())}")
+    name = resolve_marking(name)
     uv = np.asarray(uv, dtype=float)
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise InputError(f"uv must have shape (N, 2), got {uv.shape}")

@@ -24,6 +24,7 @@ __all__ = [
     "HeightFieldSurface",
     "Surface",
     "get_surface",
+    "resolve_surface_name",
     "sine_panel_height",
     "surface_names",
 ]
@@ -233,6 +234,11 @@ SURFACES: dict[str, Surface] = {
 
 def surface_names() -> list[str]:
     return sorted(SURFACES)
+
+
+def resolve_surface_name(name: str) -> str | None:
+    """The built-in surface called ``name`` in any case ('Plate' → 'plate'), or None."""
+    return {n.lower(): n for n in SURFACES}.get(str(name).lower())
 
 
 def get_surface(name: str) -> Surface:

@@ -26,6 +26,7 @@ __all__ = [
     "heightfield_object",
     "object_names",
     "register_object",
+    "resolve_object_name",
     "rotation_from_rpy_deg",
 ]
 
@@ -144,12 +145,17 @@ def object_names() -> list[str]:
     return sorted(OBJECTS)
 
 
+def resolve_object_name(name: str) -> str:
+    """The registered name of object ``name``, in any case ('Plate' → 'plate'); the error lists them."""
+    found = {n.lower(): n for n in OBJECTS}.get(str(name).lower())
+    if found is None:
+        raise ConfigError(f"unknown object '{name}'; registered objects: {', '.join(object_names())}")
+    return found
+
+
 def get_object(name: str) -> SimObject:
-    """A registered object by name; the error lists the valid names."""
-    try:
-        return OBJECTS[name]
-    except KeyError:
-        raise ConfigError(f"unknown object '{name}'; registered objects: {', '.join(object_names())}") from None
+    """A registered object by name, in any case; the error lists the valid names."""
+    return OBJECTS[resolve_object_name(name)]
 
 
 def heightfield_object(

@@ -40,6 +40,7 @@ from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxels, raw_keep_out
+from tactex.pointcloud.markings import resolve_marking
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
 from tactex.sim.scene import SceneConfig
@@ -79,7 +80,8 @@ def _approach_too_weak(cfg: CleanConfig) -> bool:
 class CleanConfig(SimWorldParams):
     """Parameters of ``tactex clean`` (TEC §V-A3 and Table II where the paper gives them)."""
 
-    object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)")
+    object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)",
+                             option="object", aliases=("--object-name",))
     marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full")
     force_n: float = param(10.0, "pressing force set point along the tool axis [N]")
     n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion [-]")
@@ -109,7 +111,8 @@ class CleanConfig(SimWorldParams):
         "fitted normal jumps between the two faces from one exploration step to the next [deg/s]",
     )
     baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
-    cloud: str = param("", "a coloured point cloud (.ply/.pcd/.npz) in the robot base frame [m] whose red marking "
+    cloud: str = param("", "a coloured point cloud or mesh (.ply/.pcd/.npz/.stl/.obj) in the robot base frame [m] "
+                           "whose red marking "
                            "(or stored target) is the dirt: no camera capture, no re-measurement (a robot without a "
                            "camera; TEC: markings annotated by an expert). Needed with --robot franka")
     camera_width: int = param(320, "capture image width [px]")
@@ -124,6 +127,7 @@ class CleanConfig(SimWorldParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        object.__setattr__(self, "marking", resolve_marking(self.marking))  # 'x' is X
         if self.baseline not in CLEAN_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
         positive = ("force_n", "alpha", "agent_radius_m", "voxel_size_m", "max_velocity", "explorer_rate_hz",
@@ -257,9 +261,9 @@ def _acquisition(scene: SceneConfig) -> AcquisitionConfig:
 
 
 def load_target_cloud(path: str | Path, voxel_size_m: float) -> SurfaceCloud:
-    """A user's cloud in the robot base frame as the cleaning target: voxelised, its stored target
-    or else its red marking (red = 1, green and blue ≤ 0.5: white is not dirt), with normals
-    estimated (16 neighbours, oriented up) where the file has none."""
+    """A user's cloud (or mesh) in the robot base frame as the cleaning target: voxelised, its stored
+    target or else its red marking (by hue and saturation: ``tactex explore --target auto``, white is
+    not dirt), with normals estimated (16 neighbours, oriented up) where the file has none."""
     return load_target_cloud_keep_out(path, voxel_size_m)[0]
 
 
@@ -269,22 +273,18 @@ def load_target_cloud_keep_out(path: str | Path, voxel_size_m: float, keep_out_c
     """:func:`load_target_cloud` and its keep-out zone (a boolean per returned point, None without one;
     see :mod:`tactex.pointcloud.keep_out`)."""
     from tactex.perception.normals import knn_normals
-    from tactex.pointcloud.io import load_cloud
-    from tactex.pointcloud.voxel import voxel_down_sample
+    from tactex.pointcloud.io import read_cloud
+    from tactex.pointcloud.target import TargetRule, file_target
 
-    raw = load_cloud(path)
+    read = read_cloud(path, mesh_spacing_m=voxel_size_m)
+    raw = read.cloud
+    voxel_size_m = 0.0 if read.n_faces else voxel_size_m  # a mesh is sampled at the voxel spacing already
     keep_out = raw_keep_out(raw, keep_out_channel, keep_out_threshold, keep_out_mask)
-    cloud = voxel_down_sample(raw, voxel_size_m) if voxel_size_m > 0 else raw
+    if raw.colors is None and raw.n_target == 0:
+        raise InputError(f"--cloud '{path}' has neither a target nor colours: mark the dirt red (255, 0, 0)")
+    cloud, _ = file_target(raw, voxel_size_m, TargetRule("auto"), str(path))
     if keep_out is not None and voxel_size_m > 0:
         keep_out = keep_out_on_voxels(raw.points, keep_out, voxel_size_m)
-    if cloud.n_target == 0:
-        if cloud.colors is None:
-            raise InputError(f"--cloud '{path}' has neither a target nor colours: mark the dirt red (255, 0, 0)")
-        c = cloud.colors
-        marked = (c[:, 0] >= 0.99) & (c[:, 1] <= 0.5) & (c[:, 2] <= 0.5)
-        cloud = cloud.with_target(marked.astype(float))
-    if cloud.n_target == 0:
-        raise InputError(f"--cloud '{path}' marks no point as dirt: mark it red (255, 0, 0) or store a target")
     if cloud.normals is None:
         field = knn_normals(cloud.points, 16, viewpoint=cloud.points.mean(axis=0) + np.array([0.0, 0.0, 1.0]))
         cloud = replace(cloud.subset(field.ok), normals=field.normals[field.ok], spacing=cloud.spacing)

@@ -84,7 +84,8 @@ def _rot_x(deg: float) -> np.ndarray:
 class WipeConfig(SimWorldParams):
     """Parameters of ``tactex wipe`` (VA-UFIC §III and Table I)."""
 
-    object_name: str = param("sine_panel", "the unknown surface (VA-UFIC §III: sine_panel)")
+    object_name: str = param("sine_panel", "the unknown surface (VA-UFIC §III: sine_panel)", option="object",
+                             aliases=("--object-name",))
     duration_s: float = param(20.0, "duration of the wiping policy [s]")
     force_n: float = param(15.0, "commanded force along the tool axis f_d,z [N]")
     amplitude_m: float = param(0.04, "circle radius of the policy [m]")

@@ -14,7 +14,7 @@ from typing import Any
 
 from tactex.config import param
 from tactex.errors import ConfigError
-from tactex.sim.objects import get_object
+from tactex.sim.objects import resolve_object_name
 from tactex.sim.scene import SceneConfig
 
 __all__ = ["SimWorldParams"]
@@ -24,7 +24,8 @@ __all__ = ["SimWorldParams"]
 class SimWorldParams:
     """Object, tool and camera of a simulated task (units in brackets)."""
 
-    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
+    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)", option="object",
+                             aliases=("--object-name",))
     object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
     tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m] (a kitchen sponge: ~2–3 kN/m)")
     tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
@@ -41,7 +42,7 @@ class SimWorldParams:
                          "default 0 the seed changes nothing but what a task seeds itself)")
 
     def __post_init__(self) -> None:
-        get_object(self.object_name)  # unknown names raise with the valid list
+        object.__setattr__(self, "object_name", resolve_object_name(self.object_name))  # 'Plate' is plate
         for name in ("tool_stiffness_n_per_m", "record_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):

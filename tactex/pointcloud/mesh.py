@@ -1,0 +1,96 @@
+"""Meshes as clouds: a PLY with faces, STL or OBJ sampled on its surface (trimesh).
+
+CAD parts come as meshes whose vertices are a few corners: a 2 m cube is 8 points. The explorer
+needs the surface, so the faces are sampled uniformly by area (``trimesh.sample.sample_surface``,
+:data:`SAMPLES_PER_CELL` points per spacing² of area, then one point per voxel of the run). Vertex
+or face colours are carried to the samples; normals are those of the sampled faces.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from tactex.errors import CloudError, UnitsError
+from tactex.pointcloud.cloud import MAX_EXTENT_M, SurfaceCloud
+
+__all__ = ["MAX_MESH_POINTS", "SAMPLES_PER_CELL", "read_mesh", "sample_mesh"]
+
+#: Samples drawn per spacing² of surface before the voxel grid thins them to one per voxel.
+SAMPLES_PER_CELL = 4
+#: Largest cloud a mesh is sampled into [points]: the Laplacian and eigenbasis of a bigger one take
+#: minutes and gigabytes on a workstation.
+MAX_MESH_POINTS = 200_000
+#: Seed of the surface samples: the same file gives the same cloud.
+SAMPLE_SEED = 0
+
+
+def read_mesh(path: Path, spacing_m: float):
+    """The cloud sampled from the mesh file at ``path`` every ``spacing_m`` [m], as a
+    :class:`tactex.pointcloud.io.CloudFile`."""
+    import trimesh
+
+    from tactex.pointcloud.io import CloudFile
+
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=True)
+    except Exception as exc:  # trimesh raises many kinds on files it cannot parse
+        detail = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise CloudError(f"'{path}' is not a readable mesh: {detail}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise CloudError(f"'{path}' holds no triangles (an empty or unreadable mesh file)")
+    n_faces = len(mesh.faces)
+    good = np.isfinite(mesh.vertices).all(axis=1)
+    dropped = int((~good).sum())
+    if dropped:
+        mesh.update_faces(good[mesh.faces].all(axis=1))
+        mesh.remove_unreferenced_vertices()
+    cloud = sample_mesh(mesh, spacing_m, f"'{path}'")
+    notes = [f"a mesh of {n_faces} faces ({mesh.area:.4g} m² of surface), sampled every {spacing_m * 1e3:.3g} mm"]
+    if dropped:
+        notes.append(f"dropped {dropped} vertices with NaN/inf coordinates (and their faces)")
+    return CloudFile(cloud, dropped, n_faces=n_faces, notes=tuple(notes))
+
+
+def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
+    """A cloud with one point per ``spacing_m`` voxel of ``mesh``'s surface (a ``trimesh.Trimesh``).
+
+    Raises:
+        UnitsError: the mesh spans more than :data:`MAX_EXTENT_M` (it is probably in millimetres).
+        CloudError: the sampling would exceed :data:`MAX_MESH_POINTS` points, or the mesh has no area.
+    """
+    import trimesh
+
+    from tactex.pointcloud.voxel import voxel_down_sample
+
+    if not (math.isfinite(spacing_m) and spacing_m > 0):
+        raise CloudError("a mesh is sampled at the voxel size, so it needs voxel_size_m > 0")
+    if len(mesh.faces) == 0:
+        raise CloudError(f"{name} holds no triangles")
+    extent = float(np.max(np.ptp(mesh.vertices, axis=0)))
+    if extent > MAX_EXTENT_M:
+        raise UnitsError(f"{name} spans {extent:.4g} along one axis; tactex works in metres and an object "
+                         f"over {MAX_EXTENT_M:g} m is probably in millimetres: scale it by 1e-3")
+    area = float(mesh.area)
+    if not (math.isfinite(area) and area > 0):
+        raise CloudError(f"{name} has no surface area (all its triangles are degenerate)")
+    cells = area / spacing_m**2
+    if cells > MAX_MESH_POINTS:
+        finest = math.sqrt(area / MAX_MESH_POINTS)
+        raise CloudError(
+            f"{name} has {area:.3g} m² of surface, {cells:,.0f} points at {spacing_m * 1e3:.3g} mm: more than the "
+            f"{MAX_MESH_POINTS:,} points tactex handles; give voxel_size_m={math.ceil(finest * 1e4) / 1e4:g} or more")
+    count = max(math.ceil(SAMPLES_PER_CELL * cells), 16)
+    points, faces, bary = trimesh.sample.sample_surface(mesh, count, return_barycentric=True, seed=SAMPLE_SEED)
+    normals = np.asarray(mesh.face_normals[faces], dtype=np.float64)
+    colors = None
+    if mesh.visual.defined and mesh.visual.kind == "vertex":
+        rgb = np.asarray(mesh.visual.vertex_colors[:, :3], dtype=np.float64) / 255.0
+        colors = np.einsum("nk,nkc->nc", bary, rgb[mesh.faces[faces]])
+    elif mesh.visual.defined and mesh.visual.kind == "face":
+        colors = np.asarray(mesh.visual.face_colors[faces, :3], dtype=np.float64) / 255.0
+    cloud = SurfaceCloud(points=np.asarray(points, dtype=np.float64), normals=normals,
+                         colors=None if colors is None else np.clip(colors, 0.0, 1.0), spacing=spacing_m)
+    return voxel_down_sample(cloud, spacing_m)
