@@ -199,10 +199,11 @@ def load_explore_cloud_keep_out(
         raise ConfigError("--marking applies to built-in objects; a file's target comes from --target")
     read = read_cloud(path, mesh_spacing_m=cfg.voxel_size_m or 0.003)
     raw = read.cloud
+    voxel = 0.0 if read.n_faces else cfg.voxel_size_m  # a mesh is sampled at the voxel spacing already
     keep_out = raw_keep_out(raw, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
-    cloud, rule = file_target(raw, cfg.voxel_size_m, cfg.target_rule(), src)
-    if keep_out is not None and cfg.voxel_size_m > 0:
-        keep_out = keep_out_on_voxels(raw.points, keep_out, cfg.voxel_size_m)
+    cloud, rule = file_target(raw, voxel, cfg.target_rule(), src)
+    if keep_out is not None and voxel > 0:
+        keep_out = keep_out_on_voxels(raw.points, keep_out, voxel)
     return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw),
                    "n_dropped_nonfinite": read.n_dropped, "n_mesh_faces": read.n_faces, "notes": list(read.notes),
                    "target_rule": rule, "target_where": describe_target(cloud)}, keep_out

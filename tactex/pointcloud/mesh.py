@@ -2,8 +2,11 @@
 
 CAD parts come as meshes whose vertices are a few corners: a 2 m cube is 8 points. The explorer
 needs the surface, so the faces are sampled uniformly by area (``trimesh.sample.sample_surface``,
-:data:`SAMPLES_PER_CELL` points per spacing² of area, then one point per voxel of the run). Vertex
-or face colours are carried to the samples; normals are those of the sampled faces.
+:data:`SAMPLES_PER_CELL` points per spacing² of area), then one sample is kept per voxel of the run
+(the voxel grid of :func:`tactex.pointcloud.voxel_down_sample`). A kept sample, unlike a voxel mean,
+stays on the surface at edges and corners. Vertex or face colours are carried to the samples;
+normals are those of the sampled faces. Such a cloud is already at the voxel spacing: it is not
+voxel-filtered again.
 """
 
 from __future__ import annotations
@@ -63,7 +66,7 @@ def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
     """
     import trimesh
 
-    from tactex.pointcloud.voxel import voxel_down_sample
+    from tactex.pointcloud.voxel import voxel_indices
 
     if not (math.isfinite(spacing_m) and spacing_m > 0):
         raise CloudError("a mesh is sampled at the voxel size, so it needs voxel_size_m > 0")
@@ -91,6 +94,9 @@ def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
         colors = np.einsum("nk,nkc->nc", bary, rgb[mesh.faces[faces]])
     elif mesh.visual.defined and mesh.visual.kind == "face":
         colors = np.asarray(mesh.visual.face_colors[faces, :3], dtype=np.float64) / 255.0
-    cloud = SurfaceCloud(points=np.asarray(points, dtype=np.float64), normals=normals,
-                         colors=None if colors is None else np.clip(colors, 0.0, 1.0), spacing=spacing_m)
-    return voxel_down_sample(cloud, spacing_m)
+    points = np.asarray(points, dtype=np.float64)
+    inverse, counts = voxel_indices(points, spacing_m)
+    first = np.empty(counts.size, dtype=np.int64)
+    first[inverse[::-1]] = np.arange(inverse.size)[::-1]  # the first sample of each voxel
+    return SurfaceCloud(points=points[first], normals=normals[first],
+                        colors=None if colors is None else np.clip(colors[first], 0.0, 1.0), spacing=spacing_m)
