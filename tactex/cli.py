@@ -38,6 +38,17 @@ class _Parser(argparse.ArgumentParser):
         message = message.replace("argument ", "", 1) if message.startswith("argument ") else message
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
+    def _get_option_tuples(self, option_string: str) -> list:
+        # An abbreviation matching an option and its old alias (--object, --object-name) is not ambiguous.
+        tuples = super()._get_option_tuples(option_string)
+        seen: set[str] = set()
+        unique = []
+        for t in tuples:
+            if t[0].dest not in seen:
+                seen.add(t[0].dest)
+                unique.append(t)
+        return unique
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(

@@ -17,8 +17,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     from tactex.sim.twin import TwinConfig
 
     fields = TwinConfig.__dataclass_fields__
-    parser.add_argument("--object", "--object-name", dest="object_name", default=None, metavar="NAME",
+    parser.add_argument("--object", dest="object_name", default=None, metavar="NAME",
                         help=f"{fields['object_name'].metadata['help']} (default: {fields['object_name'].default})")
+    parser.add_argument("--object-name", dest="object_name", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--port-ft", "--ft-port", dest="ft_port", type=int, default=None, metavar="P",
                         help=f"{fields['ft_port'].metadata['help']} (default: {fields['ft_port'].default})")
     parser.add_argument("--export-cloud", metavar="FILE.ply", default=None,

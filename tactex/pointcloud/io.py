@@ -275,8 +275,8 @@ def load_npz(path: str | Path) -> SurfaceCloud:
 
 def _read_npz(p: Path) -> CloudFile:
     if not zipfile.is_zipfile(p):
-        raise CloudError(f"'{p}' is not an .npz file (a zip archive of arrays written by numpy.savez); "
-                         "give a .npz with a 'points' array, or a .ply/.pcd file")
+        raise CloudError(f"'{p}' is not an .npz file (a zip archive of named arrays); give a .npz with a "
+                         "'points' array, or a .ply/.pcd file")
     try:
         with np.load(p, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

@@ -90,8 +90,8 @@ def _check_n_eigen(n_eigen: object, n_points: int) -> int:
             )
         suggestion = max(1, min(200, n_points // 2))
         raise SpectralError(
-            f"{k} eigenpairs requested (n_eigen={k}) but the cloud has only {n_points} points; n_eigen must be "
-            f"< {n_points}. Use e.g. n_eigen={suggestion}, or a denser cloud (smaller voxel size)"
+            f"n_eigen={k} eigenpairs requested but the cloud has only {n_points} points: ask for fewer than "
+            f"{n_points} (e.g. {suggestion}), or use a denser cloud (smaller voxel size)"
         )
     return k
 

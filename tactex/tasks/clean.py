@@ -153,7 +153,7 @@ class CleanConfig(SimWorldParams):
             raise ConfigError(
                 f"approach_force_n = {self.approach_force_n} N settles below contact_threshold_n = "
                 f"{self.contact_threshold_n} N (out of contact the force loop balances at Kp·F/(1 + Kp) with the "
-                "paper's Kp = 0.5); raise approach_force_n or lower contact_threshold_n"
+                "paper's Kp = 0.5): raise the first or lower the second"
             )
         if self.vision_every_steps < 1 or self.n_eigen < 1:
             raise ConfigError(

@@ -1,0 +1,297 @@
+"""What a new user meets with their own files and careless input, through the CLI: every mistake is
+one line on stderr, exit code 2, no traceback, no Python or numpy advice, and names the option as
+the user typed it, once. Python warnings reach stderr as one plain line, never with a source path.
+A run folder that was made always says how the run ended (status.json)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+
+import numpy as np
+import pytest
+
+from tactex.cli import build_parser, main
+from tactex.config import dataclass_from_args
+from tactex.pointcloud import SurfaceCloud, save_ply
+from tests.format_fixtures import box_mesh, camera_like_cloud, write_pcd
+
+# Words a CLI user must never be shown: Python's and numpy's advice, library internals, source paths.
+FORBIDDEN = ("Traceback", "allow_pickle", "pickled data", "pydantic", "http", "validation error", ".py:",
+             "Config.", "np.", "numpy", "ValueError", "(default: None)")
+
+
+def _fields(command: str) -> set[str]:
+    """The Python names (argparse destinations) of a command's options: voxel_size_m, n_eigen, ..."""
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {a.dest for a in sub.choices[command]._actions if a.option_strings and a.dest != "help"}
+
+
+def _unquoted(line: str) -> str:
+    return re.sub(r"'[^']*'", "''", line)
+
+
+def _one_line(capsys, code: int, command: str, *needles: str) -> str:
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(f"tactex {command}: warning:")]
+    assert code == 2, err
+    assert len(lines) == 1, err
+    line = lines[0]
+    assert line.startswith(f"tactex {command}: error: "), line
+    for word in FORBIDDEN:
+        assert word not in line, line
+    words = set(re.findall(r"(?<![-\w])[a-z][a-z0-9_]*(?![\w-])", _unquoted(line)))
+    assert not {w for w in words & _fields(command) if "_" in w or f"{w} must" in line}, line
+    for needle in needles:
+        assert needle in line, line
+    return line
+
+
+def _run(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as exc:  # argparse's own refusals exit from parse_args, as the console script does
+        return int(exc.code)
+
+
+# --- cloud files -----------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def files(tmp_path):
+    """Broken and awkward files as users have them."""
+    f = {}
+    good = save_ply(SurfaceCloud(points=np.random.default_rng(0).random((50, 3)) * 0.05), tmp_path / "good.ply")
+    raw = good.read_bytes()
+    (tmp_path / "truncated.ply").write_bytes(raw[: len(raw) // 2])
+    f["truncated"] = tmp_path / "truncated.ply"
+    (tmp_path / "empty.ply").write_text("ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+                                        "property float z\nend_header\n")
+    f["empty"] = tmp_path / "empty.ply"
+    (tmp_path / "x.npz").write_text("hello")
+    f["fake_npz"] = tmp_path / "x.npz"
+    np.savez(tmp_path / "objects.npz", points=np.array([{"a": 1}], dtype=object))
+    f["object_npz"] = tmp_path / "objects.npz"
+    (tmp_path / "bad.pcd").write_text("VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1\nPOINTS 1\n"
+                                      "DATA ascii\n1 2 3\n")
+    f["bad_pcd"] = tmp_path / "bad.pcd"
+    (tmp_path / "v9.pcd").write_text("VERSION .9\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n")
+    f["v9_pcd"] = tmp_path / "v9.pcd"
+    (tmp_path / "notes.txt").write_text("x")
+    f["txt"] = tmp_path / "notes.txt"
+    (tmp_path / "folder.ply").mkdir()
+    f["dir"] = tmp_path / "folder.ply"
+    box_mesh(2.0).export(str(tmp_path / "cube.ply"))
+    f["cube"] = tmp_path / "cube.ply"
+    box_mesh(200.0).export(str(tmp_path / "part_mm.stl"))
+    f["mm"] = tmp_path / "part_mm.stl"
+    save_ply(SurfaceCloud(points=np.random.default_rng(1).random((300, 3)) * 0.05, colors=np.full((300, 3), 0.9)),
+             tmp_path / "white.ply")
+    f["white"] = tmp_path / "white.ply"
+    return f
+
+
+@pytest.mark.parametrize(
+    ("name", "extra", "needles"),
+    [
+        ("truncated", [], ("not a readable PLY file",)),
+        ("empty", [], ("empty",)),
+        ("fake_npz", [], ("is not an .npz file",)),
+        ("object_npz", [], ("Python objects",)),
+        ("bad_pcd", [], ("3 FIELDS but 2 COUNT",)),
+        ("v9_pcd", [], ("VERSION .9", ".5, .6 or .7")),
+        ("txt", [], ("unknown suffix", ".stl")),
+        ("dir", [], ("is a directory",)),
+        ("cube", [], ("--voxel-size-m 0.011",)),
+        ("cube", ["--voxel-size", "0.003"], ("--voxel-size 0.011",)),
+        ("mm", [], ("millimetres", "1e-3")),
+        ("white", [], ("no point of", "red by hue", "--target-saturation", "--target-threshold")),
+        ("white", ["--target", "green"], ("green by hue",)),
+        ("white", ["--target-threshold", "1.0"], ("red channel ≥ 1", "lower --target-threshold")),
+    ],
+)
+def test_explore_file_mistakes(files, tmp_path, capsys, name, extra, needles) -> None:
+    code = _run(["explore", str(files[name]), *extra, "--quiet", "--out", str(tmp_path / "run")])
+    _one_line(capsys, code, "explore", *needles)
+    assert not (tmp_path / "run").exists()  # nothing ran, no empty folder
+
+
+def test_clean_cloud_mistakes(files, tmp_path, capsys) -> None:
+    code = _run(["clean", "--cloud", str(files["fake_npz"]), "--quiet", "--out", str(tmp_path / "c")])
+    _one_line(capsys, code, "clean", "is not an .npz file")
+
+
+def test_sweep_file_mistakes(files, tmp_path, capsys) -> None:
+    code = _run(["sweep", str(files["bad_pcd"]), "--quiet", "--out", str(tmp_path / "s")])
+    _one_line(capsys, code, "sweep", "3 FIELDS but 2 COUNT")
+
+
+# --- option values ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("argv", "needles"),
+    [
+        (["explore", "cup", "--steps", "abc"], ("--steps", "needs a whole number, got 'abc'")),
+        (["explore", "cup", "--alpha", "x"], ("--alpha", "needs a number, got 'x'")),
+        (["explore", "cup", "--steps", "0"], ("--steps 0",)),
+        (["explore", "cup", "--n-eigen", "-2"], ("--n-eigen -2",)),
+        (["explore", "cup", "--voxel-size-m", "-1"], ("--voxel-size-m -1",)),
+        (["explore", "cup", "--voxel-size", "-1"], ("--voxel-size -1",)),
+        (["explore", "cup", "--agent-radius-m", "5"], ("--agent-radius-m 5",)),
+        (["explore", "cup", "--agent-radius", "0"], ("--agent-radius 0",)),
+        (["explore", "cup", "--target", "purple"], ("unknown target 'purple'", "red")),
+        (["explore", "cup", "--target-saturation", "2"], ("--target-saturation 2",)),
+        (["explore", "cup", "--target", "all", "--target-threshold", "0.5"], ("--target-threshold", "--target all")),
+        (["explore", "cup", "--marking", "Z"], ("unknown marking 'Z'", "RLI")),
+        (["explore", "teapot"], ("'teapot'", "plate")),
+        (["explore", "cup", "--x0", "1", "2"], ("--x0", "expected 3 arguments")),
+        (["explore", "cup", "--n-eigen", "99999"], ("--n-eigen",)),
+        (["explore", "cup", "--coverage-normalization", "cloud"], ("--coverage-normalization",)),
+        (["explore", "cup", "--bogus", "1"], ("unrecognized arguments: --bogus 1",)),
+        (["clean", "--obj", "plate"], ("ambiguous option: --obj could match --object, --object-position",)),
+        (["clean", "--object", "teapot"], ("unknown object 'teapot'", "plate")),
+        (["clean", "--object-name", "teapot"], ("unknown object 'teapot'",)),
+        (["clean", "--marking", "Q"], ("unknown marking 'Q'",)),
+        (["clean", "--force-n", "-5"], ("--force-n must be a positive number",)),
+        (["clean", "--voxel-size-m", "0"], ("--voxel-size-m must be a positive number",)),
+        (["clean", "--approach-force-n", "0.5"], ("--approach-force-n 0.5 N", "--contact-threshold-n")),
+        (["wipe", "--object", "nope"], ("unknown object 'nope'",)),
+        (["wipe", "--force-n", "nan"], ("--force-n",)),
+        (["sweep", "cup", "--n-eigen", "0"], ("--n-eigen values must be positive",)),
+        (["sweep", "cup", "--alpha", "-1"], ("--alpha values must be positive",)),
+        (["sweep", "cup", "--voxel-size-m", "3"], ("--voxel-size-m 3", "in metres")),
+        (["demo", "--clean-budget-s", "-1"], ("--clean-budget-s",)),
+    ],
+)
+def test_option_mistakes_name_the_option_once(tmp_path, capsys, argv, needles) -> None:
+    code = _run([*argv, "--quiet", "--out", str(tmp_path / "run")])
+    line = _one_line(capsys, code, argv[0], *needles)
+    typed = [a for a in argv if a.startswith("--")]
+    if typed and "ambiguous" not in line and "unrecognized" not in line:
+        assert line.count(typed[0] + " ") + line.count(typed[0] + ":") <= 1 or typed[0] in ("--target",), line
+
+
+def test_object_names_and_markings_in_any_case() -> None:
+    parser = build_parser()
+    from tactex.tasks.clean import CleanConfig
+    from tactex.tasks.wipe import WipeConfig
+
+    args = parser.parse_args(["clean", "--object", "Plate", "--marking", "x", "--out", "o"])
+    cfg = dataclass_from_args(CleanConfig, args)
+    assert (cfg.object_name, cfg.marking) == ("plate", "X")
+    args = parser.parse_args(["clean", "--object-name", "BOWL", "--marking", "rli", "--out", "o"])
+    assert (dataclass_from_args(CleanConfig, args).object_name, dataclass_from_args(CleanConfig, args).marking) == (
+        "bowl", "RLI")
+    args = parser.parse_args(["wipe", "--object", "Sine_Panel", "--out", "o"])
+    assert dataclass_from_args(WipeConfig, args).object_name == "sine_panel"
+    from tactex.experiments.explore import ExploreConfig, load_explore_cloud
+
+    cloud, info = load_explore_cloud("CUP", ExploreConfig(voxel_size_m=0.006, marking="x"))
+    assert info["name"] == "cup" and info["marking"] == "X" and cloud.n_target > 0
+
+
+def test_help_shows_each_default_once_as_typed(capsys) -> None:
+    parser = build_parser()
+    for command in ("explore", "sweep", "clean", "wipe", "demo", "twin"):
+        with pytest.raises(SystemExit):
+            parser.parse_args([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        for bad in ("(default: None)", "(default: )", "(default: (", "(default: [", "(default: '')"):
+            assert bad not in text, (command, bad)
+        assert not re.search(r"default[^()]*\) \(default:", text), command
+        assert "--object-name" not in text and "--voxel-size " not in text  # old names work, help shows one
+        assert "--voxel-size VOXEL" not in text and "--target-channel" not in text
+
+
+def test_one_vocabulary_across_commands() -> None:
+    """The same parameter has the same option in every command (README 'Options')."""
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    shown = {}
+    for name, p in sub.choices.items():
+        shown[name] = {s for a in p._actions if a.help != "==SUPPRESS==" for s in a.option_strings}
+    for command in ("explore", "sweep"):
+        assert {"--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha", "--steps", "--seed", "--target",
+                "--out", "--quiet"} <= shown[command], command
+    for command in ("clean", "wipe"):
+        assert {"--object", "--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha", "--out",
+                "--quiet"} <= shown[command] | {"--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha"}
+    assert "--object" in shown["twin"] and "--object" in shown["clean"]
+    for command, options in shown.items():
+        assert not {"--voxel-size", "--agent-radius", "--object-name", "--target-channel"} & options, command
+
+
+# --- warnings, notes, run folders ------------------------------------------------------------------
+
+
+def test_warnings_reach_stderr_as_one_plain_line(tmp_path, capsys) -> None:
+    """The voxel filter's warning (a cloud sparser than the voxel) printed "…/voxel.py:81: RuntimeWarning"."""
+    g = np.arange(0.0, 0.1, 0.01)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    path = save_ply(SurfaceCloud(points=pts, colors=np.tile([1.0, 0.0, 0.0], (len(pts), 1))), tmp_path / "sparse.ply")
+    code = _run(["explore", str(path), "--steps", "5", "--n-eigen", "8", "--no-html", "--no-cache",
+                 "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    warning = [ln for ln in err.splitlines() if "warning:" in ln]
+    assert any(ln.startswith("tactex explore: warning: voxel size 3 mm is finer") for ln in warning), err
+    assert not re.search(r"\.py:\d+", err) and "RuntimeWarning" not in err and "warnings.warn" not in err
+
+
+def test_nan_points_are_dropped_counted_and_said(tmp_path, capsys) -> None:
+    pts, rgb, _ = camera_like_cloud(spacing_m=0.004)
+    path = write_pcd(tmp_path / "table.pcd", pts, ".5", "binary", rgb)
+    code = _run(["explore", str(path), "--steps", "5", "--n-eigen", "8", "--no-html", "--no-cache",
+                 "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "tactex explore: cloud: dropped 25 of 2500 points with NaN/inf coordinates or normals" in err
+    target = [ln for ln in err.splitlines() if ln.startswith("tactex explore: target: red by hue")]
+    assert len(target) == 1 and "points are target" in target[0] and "within x" in target[0], err
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["source"]["n_dropped_nonfinite"] == 25
+    # only the red stroke (|y - 0.1 m| < 4 mm) is target
+    fields = np.load(tmp_path / "run" / "fields.npz", allow_pickle=False)
+    marked = fields["points"][fields["target"] > 0]
+    assert len(marked) > 0 and np.abs(marked[:, 1] - 0.1).max() < 0.004 + 0.003
+
+
+def _status(out) -> dict:
+    return json.loads((out / "status.json").read_text())
+
+
+def test_a_failed_run_says_why_in_its_folder(tmp_path, capsys) -> None:
+    out = tmp_path / "far"
+    code = _run(["explore", "cup", "--x0", "5", "5", "5", "--quiet", "--no-cache", "--out", str(out)])
+    line = _one_line(capsys, code, "explore", "--x0")
+    status = _status(out)
+    assert status["status"] == "failed" and status["error"] == line.split("error: ", 1)[1]
+    assert status["options"]["x0"] == [5.0, 5.0, 5.0] and status["argv"][:2] == ["explore", "cup"]
+    out = tmp_path / "eigen"
+    code = _run(["explore", "cup", "--voxel-size-m", "0.01", "--n-eigen", "5000", "--quiet", "--out", str(out)])
+    _one_line(capsys, code, "explore", "--n-eigen 5000")
+    assert _status(out)["status"] == "failed"
+
+
+def test_an_interrupted_run_says_so(tmp_path, capsys, monkeypatch) -> None:
+    from tactex.ergodic import HedacExplorer
+
+    def interrupt(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(HedacExplorer, "step", interrupt)
+    out = tmp_path / "ctrl_c"
+    assert _run(["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-cache", "--out", str(out)]) == 130
+    assert "tactex explore: interrupted" in capsys.readouterr().err
+    assert _status(out)["status"] == "interrupted"
+
+
+def test_a_finished_run_says_done(tmp_path, capsys) -> None:
+    out = tmp_path / "ok"
+    assert _run(["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-html", "--no-cache",
+                 "--out", str(out)]) == 0
+    assert _status(out)["status"] == "done" and (out / "metrics.json").is_file()
