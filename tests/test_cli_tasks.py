@@ -210,7 +210,7 @@ def test_a_tiny_cloud_gets_no_impossible_n_eigen_hint() -> None:
 
     with pytest.raises(SpectralError, match=r"only 1 point\(s\): too few"):
         _check_n_eigen(200, 1)
-    with pytest.raises(SpectralError, match=r"Use e\.g\. n_eigen=5"):
+    with pytest.raises(SpectralError, match=r"fewer than 10 \(e\.g\. 5\)"):
         _check_n_eigen(20, 10)
 
 

@@ -144,7 +144,7 @@ def test_too_many_eigenpairs(tmp_path, capsys) -> None:
         ["explore", "cup", "--voxel-size", "0.01", "--n-eigen", "5000", "--quiet", "--out", str(tmp_path / "o")],
         capsys,
         "--n-eigen 5000 eigenpairs requested",
-        "must be <",
+        "ask for fewer than",
     )
 
 
