@@ -18,7 +18,7 @@ STAMP := $(VENV)/.synced-$(subst $(space),-,$(strip $(EXTRAS)))
 UV_ENV := UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never
 SYNC := $(UV_ENV) $(UV) sync --frozen --python $(PYTHON) $(foreach e,$(EXTRAS),--extra $(e))
 
-.PHONY: demo test bench lint lock lock-check test-latest test-franka test-distributed clean-venv
+.PHONY: demo test bench readme-status lint lock lock-check test-latest test-franka test-distributed clean-venv
 
 $(UV): tools/uv-requirements.txt
 	$(PYTHON) -m pip install --quiet --disable-pip-version-check --require-hashes --upgrade \
@@ -39,6 +39,11 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/run.py --out bench/results.json
+	$(PY) tools/readme_status.py
+
+# The README's Status table from bench/results.json (make test fails when they differ).
+readme-status: $(STAMP)
+	$(PY) tools/readme_status.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check tactex tests bench examples tools
