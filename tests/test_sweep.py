@@ -135,3 +135,37 @@ def test_a_cloud_without_colours_is_swept_with_target_all(tmp_path, capsys):
     assert "--target all" in capsys.readouterr().err
     assert main([*argv, "--target", "all", "--out", str(tmp_path / "b")]) == 0
     assert (tmp_path / "b" / "sweep.json").is_file()
+
+
+def test_an_interrupted_sweep_keeps_its_settings_and_resumes(tmp_path, capsys, monkeypatch):
+    """14 of 20 settings done and Ctrl-C wrote nothing; now each setting is saved as it ends."""
+    from tactex.experiments import sweep as sweep_module
+
+    argv = ["sweep", "cup", "--voxel-size-m", "0.006", "--n-eigen", "10", "20", "--alpha", "5", "--starts", "1",
+            "--steps", "10", "--workers", "1", "--no-cache"]
+    assert main([*argv, "--out", str(tmp_path / "whole")]) == 0
+    whole = json.loads((tmp_path / "whole" / "sweep.json").read_text())
+    real = sweep_module._run_setting
+    calls = []
+
+    def stop_at_second(*args):
+        calls.append(args)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args)
+
+    monkeypatch.setattr(sweep_module, "_run_setting", stop_at_second)
+    out = tmp_path / "cut"
+    assert main([*argv, "--out", str(out)]) == 130
+    assert json.loads((out / "status.json").read_text())["status"] == "interrupted"
+    assert [p.name for p in (out / "settings").iterdir()] == ["cup_K10_alpha5.npz"]
+    monkeypatch.setattr(sweep_module, "_run_setting", real)
+    capsys.readouterr()
+    assert main([*argv, "--out", str(out)]) == 0
+    assert "resuming: 1 of 2 settings already done" in capsys.readouterr().err
+    resumed = json.loads((out / "sweep.json").read_text())
+    assert resumed["clouds"]["cup"]["results"] == whole["clouds"]["cup"]["results"]
+    # other parameters do not reuse those settings
+    capsys.readouterr()
+    assert main([*argv[:-3], "--steps", "12", "--workers", "1", "--no-cache", "--out", str(out)]) == 0
+    assert "resuming" not in capsys.readouterr().err

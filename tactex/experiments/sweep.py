@@ -9,6 +9,11 @@ The basis is built once per cloud with the largest n_K; a smaller n_K uses its f
 which are exactly the smaller eigenbasis (the eigenpairs are sorted). Runs are independent and
 spread over worker processes; the result does not depend on the number of workers.
 
+Each setting is written to ``settings/`` in the run directory as soon as it is done (an ``.npz``
+named by cloud, n_K and α, holding a fingerprint of everything its result depends on). A sweep
+that stops — Ctrl-C, a power cut, an error — is resumed by running the same command again with the
+same ``--out``: settings whose fingerprint matches are read back instead of run again.
+
 Outputs in the run directory: ``sweep.json`` (configuration and per-setting statistics),
 ``curves.npz`` (per cloud: ergodicity, coverage residual and path length of every run and step,
 and the path of the first start for every setting), and per cloud ``<name>_vs_n_eigen.png``,
@@ -17,6 +22,8 @@ and the path of the first start for every setting), and per cloud ``<name>_vs_n_
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import os
 import re
@@ -212,26 +219,39 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
             say(f"{key}: warning: the Laplacian sees {basis.n_components} separate parts; heat does not cross "
                 f"between them (TEC §VI-D); raise --n-neighbors (now {cfg.n_neighbors}) to join them")
 
-    jobs = [(key, k, a) for key in clouds for k in cfg.n_eigen for a in cfg.alpha]
-    workers = min(cfg.workers or os.cpu_count() or 1, len(jobs))
+    all_jobs = [(key, k, a) for key in clouds for k in cfg.n_eigen for a in cfg.alpha]
+    store = _SettingStore(out / "settings", clouds, cfg)
+    results: dict[tuple, dict[str, np.ndarray]] = {job: r for job in all_jobs if (r := store.load(job)) is not None}
+    if results:
+        say(f"resuming: {len(results)} of {len(all_jobs)} settings already done in {store.folder}")
+    jobs = [job for job in all_jobs if job not in results]
+    workers = max(1, min(cfg.workers or os.cpu_count() or 1, len(jobs)))
     runs = len(jobs) * cfg.starts
     say(f"{len(jobs)} settings × {cfg.starts} starts × {cfg.steps} steps = {runs} runs on {workers} worker(s)")
     t0 = time.perf_counter()
-    results: dict[tuple, dict[str, np.ndarray]] = {}
+
+    def done(i: int, job: tuple, r: dict[str, np.ndarray]) -> None:
+        results[job] = r
+        store.save(job, r)
+        _report(say, i + 1, len(jobs), job, r, t0)
+
     if workers == 1:
         _init_worker(clouds)
         try:
             for i, job in enumerate(jobs):
-                results[job] = _run_setting(*job, cfg.steps, cfg.coverage_normalization)
-                _report(say, i + 1, len(jobs), job, results[job], t0)
+                done(i, job, _run_setting(*job, cfg.steps, cfg.coverage_normalization))
         finally:
             _WORKER.clear()
-    else:
+    elif jobs:
         with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(clouds,)) as pool:
             futures = {job: pool.submit(_run_setting, *job, cfg.steps, cfg.coverage_normalization) for job in jobs}
-            for i, job in enumerate(jobs):  # in submission order: deterministic output
-                results[job] = futures[job].result()
-                _report(say, i + 1, len(jobs), job, results[job], t0)
+            try:
+                for i, job in enumerate(jobs):  # in submission order: deterministic output
+                    done(i, job, futures[job].result())
+            except BaseException:  # Ctrl-C or an error: what finished is saved, the rest is not waited for
+                for future in futures.values():
+                    future.cancel()
+                raise
     sweep_s = time.perf_counter() - t0
 
     curves: dict[str, dict[str, np.ndarray]] = {}
@@ -270,8 +290,51 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
 def _report(say: Progress, done: int, total: int, job: tuple, r: dict[str, np.ndarray], t0: float) -> None:
     key, k, a = job
     final = r["ergodicity"][:, -1]
+    elapsed = time.perf_counter() - t0
+    eta = elapsed / done * (total - done)
     say(f"[{done}/{total}] {key} n_K={k} α={a:g}: final ergodicity {final.mean():.4f} ± {final.std():.4f} "
-        f"({time.perf_counter() - t0:.0f} s)")
+        f"({elapsed:.0f} s, about {eta:.0f} s left)")
+
+
+class _SettingStore:
+    """One ``.npz`` per finished (cloud, n_K, α) setting, keyed by a fingerprint of its inputs."""
+
+    def __init__(self, folder: Path, clouds: dict[str, tuple], cfg: SweepConfig) -> None:
+        self.folder = folder
+        self.prints: dict[str, str] = {}
+        for key, (cloud, _basis, starts, radius) in clouds.items():
+            h = hashlib.sha256()
+            for arr in (cloud.points, cloud.target, np.asarray(starts, dtype=float)):
+                h.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+            h.update(json.dumps([cfg.steps, cfg.n_neighbors, cfg.coverage_normalization, float(radius),
+                                 float(cloud.spacing), max(cfg.n_eigen)]).encode())
+            self.prints[key] = h.hexdigest()
+
+    def _path(self, job: tuple) -> Path:
+        key, k, a = job
+        return self.folder / f"{key}_K{k}_alpha{a:g}.npz"
+
+    def _print(self, job: tuple) -> str:
+        key, k, a = job
+        return f"{self.prints[key]}:{k}:{a!r}"
+
+    def load(self, job: tuple) -> dict[str, np.ndarray] | None:
+        path = self._path(job)
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if str(z["fingerprint"]) != self._print(job):
+                    return None  # another cloud or other parameters: run it again
+                return {name: z[name] for name in ("ergodicity", "coverage_residual", "path_length_m", "first_path")}
+        except (OSError, ValueError, KeyError):  # a file cut short by the stop: run it again
+            return None
+
+    def save(self, job: tuple, r: dict[str, np.ndarray]) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        tmp = self._path(job).with_suffix(".tmp.npz")
+        np.savez(tmp, fingerprint=np.asarray(self._print(job)), **r)
+        os.replace(tmp, self._path(job))  # never a half-written setting under its real name
 
 
 # -- report ----------------------------------------------------------------------------------------------
