@@ -295,3 +295,26 @@ def test_a_finished_run_says_done(tmp_path, capsys) -> None:
     assert _run(["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-html", "--no-cache",
                  "--out", str(out)]) == 0
     assert _status(out)["status"] == "done" and (out / "metrics.json").is_file()
+
+
+def test_long_runs_keep_small_files_and_say_how_long(tmp_path, capsys, monkeypatch) -> None:
+    """--steps 200000 wrote an 11 MB metrics.json and a 14 MB page: per-step series go to series.npz,
+    the page's path is decimated, and progress comes every few seconds with the time left."""
+    from tactex.experiments import explore
+    from tactex.report.html import cloud_html
+
+    monkeypatch.setattr(explore, "PROGRESS_EVERY_S", 0.0)  # every step is "a few seconds" later
+    out = tmp_path / "run"
+    assert _run(["explore", "cup", "--steps", "40", "--n-eigen", "8", "--no-cache", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    steps = [ln for ln in err.splitlines() if ": step " in ln]
+    assert len(steps) == 40 and "s left)" in steps[0] and "left" not in steps[-1]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "ergodicity" not in metrics and metrics["series_file"] == "series.npz"
+    with np.load(out / "series.npz", allow_pickle=False) as z:
+        assert z["ergodicity"].shape == z["step_time_s"].shape == (40,)
+    pts = np.random.default_rng(0).random((500, 3)) * 0.1
+    long_path = np.cumsum(np.random.default_rng(1).normal(0, 1e-3, (200_000, 3)), axis=0)
+    short = cloud_html(pts, None, tmp_path / "short.html", trajectory=long_path[:4000], include_plotlyjs=False)
+    long = cloud_html(pts, None, tmp_path / "long.html", trajectory=long_path, include_plotlyjs=False)
+    assert long.stat().st_size < 1.2 * short.stat().st_size

@@ -24,6 +24,9 @@ def _cache_dir(tmp_path_factory, monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _check_run(out, steps: int) -> dict:
     metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["series_file"] == "series.npz" and "ergodicity" not in metrics  # per-step series in the npz
+    with np.load(out / "series.npz", allow_pickle=False) as z:
+        metrics.update({k: z[k] for k in z.files})
     traj = np.load(out / "trajectory.npy", allow_pickle=False)
     assert traj.shape == (steps, 3) and np.isfinite(traj).all()
     for key in ("ergodicity", "coverage_residual", "path_length_m"):

@@ -6,9 +6,10 @@ threshold on request) or draw a marking on a built-in object, build the Laplace 
 then step the HEDAC explorer kinematically and record the normalised ergodicity (eq. 48), the
 coverage residual and the path length after every step.
 
-Outputs in the run directory: ``metrics.json``, ``trajectory.npy`` (steps × 3 [m]),
+Outputs in the run directory: ``metrics.json`` (scalars), ``series.npz`` (per step: ergodicity,
+coverage residual, path length [m], step time [s]), ``trajectory.npy`` (steps × 3 [m]),
 ``fields.npz`` (points, target, coverage, potential), ``metrics.png``, ``cloud.png`` and
-``explore.html`` (interactive, works offline).
+``explore.html`` (interactive, works offline; a long path is drawn decimated).
 """
 
 from __future__ import annotations
@@ -53,6 +54,11 @@ TARGET_CHANNELS = TARGET_CHOICES
 #: TEC §V-B: r_a = 15 mm on the (larger) plate, 7.5 mm on the cup and the bunny.
 PLATE_AGENT_RADIUS_M = 0.015
 AGENT_RADIUS_M = 0.0075
+
+#: Seconds between progress lines on a long run (and at least every tenth of the steps).
+PROGRESS_EVERY_S = 3.0
+#: Per-step series kept in metrics.json's place: series.npz.
+SERIES = ("ergodicity", "coverage_residual", "path_length_m", "air_path_length_m")
 
 #: Target in red on a grey surface (TEC Fig. 8 style); a white zero would hide the cloud.
 TARGET_COLORSCALE = [[0.0, "lightgrey"], [1.0, "red"]]
@@ -353,6 +359,7 @@ def run_explore(
     air_length = np.empty(n)
     step_s = np.empty(n)
     every = max(1, n // 10)
+    t_loop = last_said = time.perf_counter()
     for k in range(n):
         t = time.perf_counter()
         cmd = explorer.step()
@@ -362,8 +369,12 @@ def run_explore(
         residual[k] = explorer.coverage_residual()
         path_length[k] = explorer.path_length
         air_length[k] = explorer.air_path_length
-        if (k + 1) % every == 0 or k + 1 == n:
-            say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}")
+        now = time.perf_counter()
+        if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
+            last_said = now
+            eta = (now - t_loop) / (k + 1) * (n - k - 1)
+            say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
+                + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
         raise ExplorationError("the exploration produced NaN/inf values; please report this with the cloud and seed")
 
@@ -422,6 +433,7 @@ def run_explore(
         ],
         "keep_out_points": int(keep_out.sum()) if keep_out is not None else 0,
         "keep_out_contacts": explorer.keep_out_contacts,
+        "step_time_s": step_s,
         "config": dataclasses.asdict(cfg),
         "explorer_config": dataclasses.asdict(hcfg),
     }
@@ -448,7 +460,12 @@ def write_explore_report(
     target_cmap = LinearSegmentedColormap.from_list("target", [c for _, c in TARGET_COLORSCALE])
 
     out.mkdir(parents=True, exist_ok=True)
-    files = {"metrics": write_metrics(metrics, out / "metrics.json")}
+    per_step = (*SERIES, "step_time_s")
+    scalars = {k: v for k, v in metrics.items() if k not in per_step}
+    scalars["series_file"] = "series.npz"
+    files = {"metrics": write_metrics(scalars, out / "metrics.json")}
+    np.savez(out / "series.npz", **{k: np.asarray(metrics[k], dtype=float) for k in per_step if k in metrics})
+    files["series"] = out / "series.npz"
     np.save(out / "trajectory.npy", trajectory, allow_pickle=False)
     files["trajectory"] = out / "trajectory.npy"
     np.savez(out / "fields.npz", points=cloud.points, target=cloud.target, coverage=coverage, potential=potential)

@@ -28,6 +28,7 @@ def cloud_html(
     colorscales: Mapping[str, Any] | None = None,
     point_size: float = 2.5,
     include_plotlyjs: bool | str = True,
+    max_path_points: int = 4000,
 ) -> Path:
     """Write an HTML page with the cloud coloured by each field (switchable) and the path.
 
@@ -40,6 +41,8 @@ def cloud_html(
         colorscales: plotly colour scale (name or [[0, colour], …, [1, colour]]) per field (default "Viridis").
         point_size: marker size [px].
         include_plotlyjs: True (inline, works offline), "cdn", or False.
+        max_path_points: a longer path is drawn through this many evenly spaced samples (its start
+            and end kept), so that a 200 000-step run gives a page of the same size as a short one.
     """
     import plotly.graph_objects as go
 
@@ -48,6 +51,8 @@ def cloud_html(
     pts = as_points(points)
     data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
     traj = as_path(trajectory)
+    if traj is not None and traj.shape[0] > max_path_points > 1:
+        traj = traj[np.unique(np.linspace(0, traj.shape[0] - 1, max_path_points).round().astype(int))]
     scales = dict(colorscales or {})
     names = list(data)
     traces = []
