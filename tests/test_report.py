@@ -142,3 +142,28 @@ def test_metrics_bad_input(tmp_path) -> None:
     (tmp_path / "list.json").write_text("[1, 2]")
     with pytest.raises(InputError, match="JSON object"):
         read_metrics(tmp_path / "list.json")
+
+
+def test_plot_fixes_of_issue_22(tmp_path) -> None:
+    """A whole-surface target has a colour scale, the ergodicity breaks at vision updates, start and
+    end are separate legend entries, curvature is blue-low/red-high in the PNG and the page alike."""
+    import matplotlib
+
+    from tactex.report.cloud import color_limits
+    from tactex.report.html import cloud_html
+    from tactex.report.run_report import CURVATURE_COLORSCALE, _ergodicity
+
+    assert color_limits(np.ones(5)) == (0.0, 1.0) and color_limits(np.array([0.2, 0.7])) == (0.2, 0.7)
+    assert color_limits(np.zeros(3)) == (0.0, 1.0) and color_limits(np.full(3, -2.0)) == (-2.0, 0.0)
+    erg = _ergodicity({"ergodicity": [[1.0, 0.9], [2.0, 0.8], [3.0, 0.95], [4.0, 0.9]],
+                       "vision_update_times_s": [2.5, 9.0]})
+    assert erg.shape == (5, 2) and erg[2, 0] == 2.5 and np.isnan(erg[2, 1])
+    assert np.isfinite(np.delete(erg, 2, axis=0)).all()
+    pts = np.random.default_rng(0).random((50, 3)) * 0.1
+    page = cloud_html(pts, {"a": pts[:, 0], "b": pts[:, 1]}, tmp_path / "p.html", trajectory=pts[:10],
+                      include_plotlyjs=False).read_text()
+    assert '"name":"start"' in page and '"name":"end"' in page and "start / end" not in page
+    cool = matplotlib.colormaps["coolwarm"]
+    for pos, colour in CURVATURE_COLORSCALE[::2]:
+        rgb = [int(v) for v in colour[4:-1].split(",")]
+        np.testing.assert_allclose(rgb, np.array(cool(pos)[:3]) * 255, atol=3)

@@ -10,7 +10,22 @@ import numpy as np
 
 from tactex.report._validate import as_fields, as_path, as_points
 
-__all__ = ["plot_cloud"]
+__all__ = ["color_limits", "plot_cloud"]
+
+
+def color_limits(values: np.ndarray) -> tuple[float, float]:
+    """Colour-scale limits of a field: its range; a constant field (a whole-surface target) spans
+    0..its value, so that it shows in the map's top colour with a colour bar, not as mid-scale grey."""
+    finite = np.asarray(values, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    lo, hi = float(finite.min()), float(finite.max())
+    if hi > lo:
+        return lo, hi
+    if hi == 0.0:
+        return 0.0, 1.0
+    return (0.0, hi) if hi > 0 else (hi, 0.0)
 
 
 def _equal_aspect(ax, points: np.ndarray) -> None:
@@ -65,6 +80,7 @@ def plot_cloud(
         ax = fig.add_subplot(1, n, i + 1, projection="3d")
         # Draw in call order: the depth-sorted default hides a path lying on the surface.
         ax.computed_zorder = False
+        lo, hi = color_limits(values)
         sc = ax.scatter(
             pts[:, 0],
             pts[:, 1],
@@ -72,15 +88,20 @@ def plot_cloud(
             c=values,
             s=point_size,
             cmap=cmaps.get(name, "viridis"),
+            vmin=lo,
+            vmax=hi,
             depthshade=False,
             zorder=1,
         )
-        if np.ptp(values) > 0:
+        if name != "cloud":
             fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16, orientation="horizontal")
         if traj is not None and traj.shape[0] > 0:
-            ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=1.2, zorder=3)
-            ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False, zorder=4)
-            ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False, zorder=4)
+            ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=1.2, zorder=3, label="path")
+            ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False, zorder=4,
+                       label="start")
+            ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False, zorder=4, label="end")
+            if i == 0:
+                ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
         _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
         ax.view_init(*view)
         ax.set_title(name)

@@ -81,17 +81,18 @@ def cloud_html(
                 x=traj[:, 0], y=traj[:, 1], z=traj[:, 2], mode="lines", name="path", line={"color": "black", "width": 4}
             )
         )
-        traces.append(
-            go.Scatter3d(
-                x=traj[[0, -1], 0],
-                y=traj[[0, -1], 1],
-                z=traj[[0, -1], 2],
-                mode="markers",
-                name="start / end",
-                marker={"size": 6, "color": ["limegreen", "purple"], "line": {"color": "black", "width": 1}},
+        for name, i, colour in (("start", 0, "limegreen"), ("end", -1, "purple")):
+            traces.append(
+                go.Scatter3d(
+                    x=traj[[i], 0],
+                    y=traj[[i], 1],
+                    z=traj[[i], 2],
+                    mode="markers",
+                    name=name,
+                    marker={"size": 6, "color": colour, "line": {"color": "black", "width": 1}},
+                )
             )
-        )
-        extra = 2
+        extra = 3
     buttons = [
         {
             "label": name,
@@ -101,13 +102,17 @@ def cloud_html(
         for i, name in enumerate(names)
     ]
     fig = go.Figure(data=traces)
+    # The title on top, the field menu on its own row below it (over the title it hid the text).
     fig.update_layout(
-        title={"text": title or ""},
+        title={"text": title or "", "x": 0.01, "xanchor": "left", "y": 0.98, "yanchor": "top"},
         scene={"aspectmode": "data", "xaxis_title": "x [m]", "yaxis_title": "y [m]", "zaxis_title": "z [m]"},
-        updatemenus=[{"buttons": buttons, "direction": "down", "x": 0.0, "y": 1.08, "xanchor": "left"}]
+        updatemenus=[{"buttons": buttons, "direction": "down", "x": 0.01, "xanchor": "left", "y": 1.0,
+                      "yanchor": "top", "pad": {"t": 0}}]
         if len(names) > 1
         else [],
-        margin={"l": 0, "r": 0, "t": 40, "b": 0},
+        annotations=[{"text": "colour by:", "x": 0.0, "xref": "paper", "y": 1.0, "yref": "paper",
+                      "xanchor": "right", "yanchor": "top", "showarrow": False}] if len(names) > 1 else [],
+        margin={"l": 0, "r": 0, "t": 80, "b": 0},
         legend={"x": 0.8, "y": 0.95},
     )
     out = Path(path)

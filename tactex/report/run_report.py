@@ -55,6 +55,9 @@ __all__ = [
     "write_wipe_report",
 ]
 
+#: Curvature in both the PNG (matplotlib's coolwarm) and the page: blue low, red high.
+CURVATURE_COLORSCALE = [[0.0, "rgb(59,76,192)"], [0.5, "rgb(221,221,221)"], [1.0, "rgb(180,4,38)"]]
+
 #: Keys every ``tactex clean`` metrics.json holds (issue 6 metrics contract).
 CLEAN_METRIC_KEYS = (
     "dirt_removed_fraction",
@@ -297,12 +300,19 @@ def _plot_phases(s: Mapping[str, np.ndarray], path: Path, ch: np.ndarray | None 
 
 
 def _ergodicity(metrics: Mapping[str, Any]) -> np.ndarray:
+    """(t, ε) pairs, with a NaN row at each vision update: the samples after it are measured against
+    a new target, so the curve breaks there instead of joining two different quantities."""
     pairs = metrics.get("ergodicity") or []
     arr = np.asarray(pairs, dtype=np.float64)
     if arr.size == 0:
         return np.zeros((0, 2))
     if arr.ndim != 2 or arr.shape[1] != 2:
         raise InputError(f"metrics 'ergodicity' must be (t, value) pairs, got shape {arr.shape}")
+    updates = np.asarray(metrics.get("vision_update_times_s") or [], dtype=np.float64)
+    breaks = [t for t in updates if arr[0, 0] < t <= arr[-1, 0]]
+    if breaks:
+        arr = np.vstack([arr, [[t, np.nan] for t in breaks]])
+        arr = arr[np.argsort(arr[:, 0], kind="stable")]
     return arr
 
 
@@ -363,7 +373,7 @@ def write_clean_report(
     if len(erg):
         rep.files["ergodicity_png"] = plot_series(
             {"normalised ergodicity [-]": erg[:, 1]}, out / "ergodicity.png", x=erg[:, 0], xlabel="time [s]",
-            title="Ergodicity (TEC eq. 48)",
+            title="Ergodicity (TEC eq. 48); the line breaks at each vision update (a new target)",
         )
     else:
         why = ("the raster baseline has no target distribution to compare" if metrics.get("baseline") == "raster"
@@ -505,7 +515,7 @@ def write_wipe_report(
         if len(pts):
             page = cloud_html(pts, {"curvature l_s [-]": curv}, out / "report.html",
                               trajectory=tcp_contact if len(tcp_contact) else None,
-                              colorscales={"curvature l_s [-]": "RdBu"}, title=f"tactex wipe — {label}")
+                              colorscales={"curvature l_s [-]": CURVATURE_COLORSCALE}, title=f"tactex wipe — {label}")
         else:
             page = out / "report.html"
             page.write_text(f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>tactex wipe — "

@@ -73,6 +73,8 @@ def plot_series(
         if label in logy:
             ax.set_yscale("log")
         ax.set_ylabel(label)
+        if label not in logy:  # "+9.999e-1" above the axis hides that a curve is flat
+            ax.ticklabel_format(axis="y", useOffset=False, style="plain")
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel(xlabel)
     if title:
