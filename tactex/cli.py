@@ -137,11 +137,13 @@ def _once(text: str) -> str:
     return text
 
 
-def _show_warning(command: str):
-    """Python warnings as one plain line, "tactex explore: warning: ...", without file and line."""
+def _show_warning(args: argparse.Namespace, typed: dict[str, str]):
+    """Python warnings as one plain line, "tactex explore: warning: ...", without file and line, the
+    parameters it names named as options."""
 
     def show(message, category, filename, lineno, file=None, line=None) -> None:
-        print(f"tactex {command}: warning: {message}", file=sys.stderr, flush=True)
+        print(f"tactex {args.command}: warning: {_cli_words(str(message), args, typed)}", file=sys.stderr,
+              flush=True)
 
     return show
 
@@ -194,7 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     typed = _typed_options(parser, argv, args.command)
     started = time.time()
     with warnings.catch_warnings():
-        warnings.showwarning = _show_warning(args.command)
+        warnings.showwarning = _show_warning(args, typed)
         try:
             code = int(args._run(args) or 0)
         except TactexError as exc:

@@ -238,7 +238,8 @@ def test_warnings_reach_stderr_as_one_plain_line(tmp_path, capsys) -> None:
     err = capsys.readouterr().err
     assert code == 0, err
     warning = [ln for ln in err.splitlines() if "warning:" in ln]
-    assert any(ln.startswith("tactex explore: warning: voxel size 3 mm is finer") for ln in warning), err
+    assert any(ln.startswith("tactex explore: warning: voxel size 3 mm is finer") and "--voxel-size-m 0.01 or more"
+               in ln for ln in warning), err
     assert not re.search(r"\.py:\d+", err) and "RuntimeWarning" not in err and "warnings.warn" not in err
 
 

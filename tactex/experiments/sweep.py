@@ -439,7 +439,7 @@ def _plot_paths(c: dict[str, np.ndarray], cloud, path: Path, key: str) -> Path:
         ax.set_zlabel("z [m]", fontsize=7)
         ax.tick_params(labelsize=5)
         if n == 0:
-            ax.legend(loc="upper left", fontsize=6, markerscale=3, framealpha=0.8)
+            ax.legend(loc="upper left", fontsize=6, framealpha=0.8)
     fig.suptitle(f"{key}: (n_K, α, r_a [mm]) and final ergodicity")
     fig.tight_layout()
     fig.savefig(path)

@@ -46,7 +46,8 @@ def validate_points(points: object, name: str = "points", min_points: int = 1) -
         gap = _median_gap(arr)
         if gap > MAX_GAP_M:
             raise UnitsError(
-                f"{name} spans {extent:.3g} m along one axis with points {gap:.3g} m apart; tactex works in metres "
+                f"{'the cloud' if name == 'points' else name} spans {extent:.3g} m along one axis with points "
+                f"{gap:.3g} m apart; tactex works in metres "
                 "and such a surface is probably in millimetres: convert it to metres (× 1e-3) before use."
             )
     return np.ascontiguousarray(arr)

@@ -81,7 +81,7 @@ def voxel_down_sample(cloud: SurfaceCloud, voxel_size_m: float) -> SurfaceCloud:
             warnings.warn(
                 f"voxel size {voxel_size_m * 1e3:.3g} mm is finer than the cloud's own mean spacing "
                 f"{own * 1e3:.3g} mm: the filter changed little, and the spacing h is the cloud's "
-                f"{own * 1e3:.3g} mm. Use a voxel size ≥ {own * 1e3:.2g} mm (the TEC paper: 3 mm)",
+                f"{own * 1e3:.3g} mm. Use voxel_size_m={np.ceil(own * 1e4) / 1e4:g} or more (the TEC paper: 0.003)",
                 RuntimeWarning, stacklevel=2)
             spacing = own
     return SurfaceCloud(points=points, normals=normals, colors=colors, target=target, spacing=spacing)

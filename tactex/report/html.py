@@ -110,8 +110,6 @@ def cloud_html(
                       "yanchor": "top", "pad": {"t": 0}}]
         if len(names) > 1
         else [],
-        annotations=[{"text": "colour by:", "x": 0.0, "xref": "paper", "y": 1.0, "yref": "paper",
-                      "xanchor": "right", "yanchor": "top", "showarrow": False}] if len(names) > 1 else [],
         margin={"l": 0, "r": 0, "t": 80, "b": 0},
         legend={"x": 0.8, "y": 0.95},
     )
