@@ -127,7 +127,7 @@ def test_clean_n_eigen_larger_than_cloud(tmp_path, capsys) -> None:
     # The plate captured at 3 mm has ~5.5k points: the eigensolver refuses n_K ≈ N with one line.
     code = main(["clean", "--n-eigen", "100000", "--budget-s", "4", "--quiet", "--no-video",
                  "--out", str(tmp_path / "c")])
-    _one_line_error(capsys, code, "tactex clean: error:", "n_eigen")
+    _one_line_error(capsys, code, "tactex clean: error:", "--n-eigen 100000 eigenpairs", "ask for fewer")
 
 
 @pytest.mark.slow
@@ -135,7 +135,8 @@ def test_clean_n_eigen_refused_with_the_value_given(tmp_path, capsys) -> None:
     # 12 mm voxels leave a few hundred points: small enough for the dense solver, so only a check refuses it.
     code = main(["clean", "--n-eigen", "100000", "--voxel-size-m", "0.012", "--budget-s", "3", "--quiet",
                  "--no-video", "--out", str(tmp_path / "c")])
-    _one_line_error(capsys, code, "n_eigen", "100000")
+    line = _one_line_error(capsys, code, "--n-eigen 100000")
+    assert line.count("--n-eigen") == 1, line
 
 
 @pytest.mark.slow

@@ -147,6 +147,7 @@ def _figure(n_rows: int = 1, height: float = 2.4, width: float = 7.5, sharex: bo
     axes = fig.subplots(n_rows, 1, sharex=sharex, squeeze=False)[:, 0]
     for ax in axes:
         ax.grid(True, alpha=0.3)
+        ax.ticklabel_format(axis="y", useOffset=False)  # an offset ("+9.999e-1") hides a flat curve
     return fig, axes
 
 

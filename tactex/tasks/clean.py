@@ -376,8 +376,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     if cfg.baseline != "raster":
         if cfg.n_eigen >= len(cloud):
             raise ConfigError(
-                f"n_eigen = {cfg.n_eigen} but the captured cloud has only {len(cloud)} points; n_eigen must be "
-                f"smaller (TEC uses 100–200; try --n-eigen {min(200, len(cloud) - 1)})"
+                f"n_eigen = {cfg.n_eigen} eigenpairs, but the captured cloud has only {len(cloud)} points: ask for "
+                f"fewer (TEC uses 100–200; e.g. {min(200, len(cloud) - 1)})"
             )
         basis = build_basis(cloud, n_eigen=cfg.n_eigen, cache=False)
     basis_s = time.perf_counter() - t_basis
