@@ -230,3 +230,19 @@ def test_stored_and_all_targets(tmp_path) -> None:
     path = save_ply(SurfaceCloud(points=pts), tmp_path / "plain.ply")
     cloud, words = file_target(read_cloud(path).cloud, 0.0, TargetRule("ALL"), "plain")
     assert cloud.n_target == len(pts) and words == "the whole surface"
+
+
+def test_auto_takes_a_stored_target_before_colours(tmp_path) -> None:
+    """A cloud tactex wrote (colours and a target array) keeps its target under --target auto, as
+    `tactex clean --cloud` always did; without a stored target, auto is red by hue."""
+    pts = bumpy_patch()
+    target = (pts[:, 0] > 0.03).astype(float)
+    grey = np.full((len(pts), 3), 0.6)
+    path = save_ply(SurfaceCloud(points=pts, colors=grey, target=target), tmp_path / "written.ply")
+    cloud, words = file_target(read_cloud(path).cloud, 0.0, TargetRule(), "written")
+    assert words == "the target stored in the file" and cloud.n_target == int(target.sum())
+    red = grey.copy()
+    red[:40] = (0.9, 0.1, 0.1)
+    path = save_ply(SurfaceCloud(points=pts, colors=red), tmp_path / "marked.ply")
+    cloud, words = file_target(read_cloud(path).cloud, 0.0, TargetRule("AUTO"), "marked")
+    assert "red by hue" in words and cloud.n_target == 40

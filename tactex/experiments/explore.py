@@ -91,8 +91,8 @@ class ExploreConfig:
     target: str = param(
         "auto",
         "target of a cloud file: red, green or blue (a marking of that colour, judged by hue and saturation), "
-        "stored (the file's target array), all (the whole surface), or auto (red if the file has colours, "
-        "else stored)", aliases=("--target-channel",))
+        "stored (the file's target array), all (the whole surface), or auto (the stored target if the file "
+        "has one, else red)", aliases=("--target-channel",))
     target_saturation: float = param(
         DEFAULT_MIN_SATURATION, "least saturation of a marked colour, 0–1 (white 0, beige ~0.3, a red marker ~0.8)")
     target_threshold: float | None = param(

@@ -71,7 +71,8 @@ class SweepConfig:
     )
     target: str = param(
         "auto", "target of a cloud file, as in `tactex explore`: red, green or blue (by hue and saturation), "
-        "stored, all (the whole surface), or auto (red if coloured, else stored)", aliases=("--target-channel",))
+        "stored, all (the whole surface), or auto (the stored target if there is one, else red)",
+        aliases=("--target-channel",))
     target_saturation: float = param(0.5, "least saturation of a marked colour, 0–1, as in `tactex explore`")
     target_threshold: float | None = param(
         None, "TEC's raw rule instead of hue: the --target colour's channel ≥ this level, 0–1")

@@ -110,7 +110,8 @@ class TargetRule:
     """How a cloud file's target is chosen.
 
     Attributes:
-        target: ``auto`` (red by hue when the file has colours, else its stored target), ``red``,
+        target: ``auto`` (the file's stored target when it has one, else red by hue when it has
+            colours; ``tactex clean --cloud`` decides the same way), ``red``,
             ``green``, ``blue`` (by hue and saturation), ``stored`` or ``all`` (the whole surface).
         saturation: minimum HSV saturation of a marked colour, 0–1.
         threshold: when given, TEC's raw rule instead of hue: the colour's channel ≥ this level, 0–1.
@@ -131,10 +132,11 @@ class TargetRule:
             if name in ("stored", "all"):
                 raise ConfigError(f"target_threshold applies to a colour; target={name} takes no threshold")
 
-    def color(self, has_colors: bool) -> str | None:
-        """The marking colour this rule uses on a cloud with/without colours (None: no colour)."""
+    def color(self, has_colors: bool, has_target: bool = False) -> str | None:
+        """The marking colour this rule uses on a cloud with/without colours and a stored target
+        (None: no colour, the stored target or the whole surface)."""
         if self.target == "auto":
-            return "red" if has_colors else None
+            return "red" if has_colors and not has_target else None
         return self.target if self.target in COLOR_HUES_DEG else None
 
     def describe(self, color: str) -> str:
@@ -169,7 +171,7 @@ def file_target(raw: SurfaceCloud, voxel_size_m: float, rule: TargetRule, source
     if rule.target == "all":
         cloud = voxels(raw)
         return cloud.with_target(np.ones(len(cloud))), "the whole surface"
-    color = rule.color(raw.colors is not None)
+    color = rule.color(raw.colors is not None, raw.n_target > 0)
     if rule.target in COLOR_HUES_DEG and raw.colors is None:
         raise InputError(f"'{source}' has no colours, so --target {rule.target} cannot select a target; "
                          "use --target all for the whole surface")

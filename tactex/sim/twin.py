@@ -96,6 +96,9 @@ class TwinConfig:
                                              "libfranka's documented sign), for clients written that way")
 
     def __post_init__(self) -> None:
+        from tactex.sim.objects import resolve_object_name
+
+        object.__setattr__(self, "object_name", resolve_object_name(self.object_name))  # 'Plate' is plate
         self.scene_config()  # object, marking, tool and dirt checks
         if not (isinstance(self.ft_port, int) and 0 <= self.ft_port < 65536):
             raise ConfigError(f"ft_port must be a UDP port in 0..65535 (0: any free one), got {self.ft_port!r}")
