@@ -13,7 +13,8 @@ from scipy.sparse.csgraph import connected_components
 from tactex.errors import CacheError, CloudError, ConfigError, SpectralError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.spectral.cache import basis_key, default_cache_dir, load_arrays, save_arrays
-from tactex.spectral.eigen import laplace_eigenpairs
+from tactex.spectral.eigen import check_eigensolver, laplace_eigenpairs, resolve_eigensolver
+from tactex.spectral.hierarchy import DEFAULT_TOL
 from tactex.spectral.laplacian import point_cloud_laplacian
 
 __all__ = ["LaplaceBasis", "build_basis", "compute_basis", "load_basis", "save_basis"]
@@ -34,6 +35,8 @@ class LaplaceBasis:
         key: content hash of the points and parameters (the cache file name).
         mollify_factor: robust_laplacian's mollification.
         n_components: connected parts of the cloud as the Laplacian sees them (TEC §VI-D).
+        eigensolver: the solver that computed the pairs ("arpack" exact, or "hierarchical").
+        eigen_tol: the hierarchical solver's tolerance on η² (0 for ARPACK, exact).
         from_cache: True when the basis was read from a cache file rather than computed.
     """
 
@@ -47,6 +50,8 @@ class LaplaceBasis:
     key: str
     mollify_factor: float = 1e-5
     n_components: int = 1
+    eigensolver: str = "arpack"
+    eigen_tol: float = 0.0
     from_cache: bool = False
 
     def __post_init__(self) -> None:
@@ -109,12 +114,14 @@ def _count_components(L: sp.csr_matrix) -> int:
 
 
 def compute_basis(
-    points: np.ndarray, spacing: float, n_eigen: int, n_neighbors: int, mollify_factor: float, key: str
+    points: np.ndarray, spacing: float, n_eigen: int, n_neighbors: int, mollify_factor: float, key: str,
+    eigensolver: str = "arpack", eigen_tol: float = DEFAULT_TOL,
 ) -> LaplaceBasis:
     """Build a basis without any caching (see :func:`build_basis`)."""
     L, M = point_cloud_laplacian(points, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
     mass = M.diagonal().copy()
-    evals, evecs = laplace_eigenpairs(L, mass, n_eigen)
+    solver = resolve_eigensolver(eigensolver, len(points))
+    evals, evecs = laplace_eigenpairs(L, mass, n_eigen, solver=solver, tol=eigen_tol, points=points, spacing=spacing)
     return LaplaceBasis(
         L=L,
         M=M,
@@ -126,6 +133,8 @@ def compute_basis(
         key=key,
         mollify_factor=float(mollify_factor),
         n_components=_count_components(L),
+        eigensolver=solver,
+        eigen_tol=float(eigen_tol) if solver == "hierarchical" else 0.0,
     )
 
 
@@ -143,6 +152,8 @@ def save_basis(basis: LaplaceBasis, path: str | Path) -> Path:
             "n_neighbors": np.asarray(basis.n_neighbors),
             "mollify_factor": np.asarray(basis.mollify_factor),
             "n_components": np.asarray(basis.n_components),
+            "eigensolver": np.asarray(basis.eigensolver),
+            "eigen_tol": np.asarray(basis.eigen_tol),
             "key": np.asarray(basis.key),
         },
     )
@@ -181,6 +192,8 @@ def load_basis(path: str | Path, expected_key: str | None = None) -> LaplaceBasi
             key=key,
             mollify_factor=float(a["mollify_factor"]),
             n_components=int(a["n_components"]),
+            eigensolver=str(a["eigensolver"]),
+            eigen_tol=float(a["eigen_tol"]),
             from_cache=True,
         )
     except KeyError as exc:
@@ -198,6 +211,8 @@ def build_basis(
     *,
     cache: bool = True,
     mollify_factor: float = 1e-5,
+    eigensolver: str = "auto",
+    eigen_tol: float = DEFAULT_TOL,
 ) -> LaplaceBasis:
     """The Laplace basis of ``cloud``: L, M and the ``n_eigen`` smallest eigenpairs (TEC eq. 20).
 
@@ -208,6 +223,11 @@ def build_basis(
         cache_dir: where basis files live; None → ``$TACTEX_CACHE_DIR`` or ``~/.cache/tactex/basis``.
         cache: False computes without reading or writing any file.
         mollify_factor: robust_laplacian's intrinsic mollification.
+        eigensolver: "arpack" (exact shift-invert Lanczos, the authors' method), "hierarchical"
+            (hierarchical subspace iteration, several times faster on large clouds) or "auto"
+            (hierarchical from ``HIERARCHICAL_MIN_POINTS`` points on). Part of the cache key.
+        eigen_tol: the hierarchical solver's bound on each pair's squared relative residual
+            (≈ relative eigenvalue error), in (0, 1). Part of the cache key.
 
     A corrupt or mismatching cache file is reported with a ``RuntimeWarning``, recomputed and
     overwritten (use :func:`load_basis` to get a :class:`CacheError` instead).
@@ -215,7 +235,10 @@ def build_basis(
     if not isinstance(cloud, SurfaceCloud):
         raise CloudError(f"build_basis needs a SurfaceCloud, got {type(cloud).__name__}")
     k = _check_n_eigen(n_eigen, len(cloud))
-    key = basis_key(cloud.points, k, n_neighbors, mollify_factor, cloud.spacing)
+    check_eigensolver(eigensolver, eigen_tol)
+    solver = resolve_eigensolver(eigensolver, len(cloud))
+    tol = float(eigen_tol) if solver == "hierarchical" else 0.0
+    key = basis_key(cloud.points, k, n_neighbors, mollify_factor, cloud.spacing, solver, tol)
     path = None
     if cache:
         path = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
@@ -228,7 +251,7 @@ def build_basis(
                 raise CacheError(f"basis cache file '{path}' has {basis.n_points}×{basis.n_eigen} vectors")
             except CacheError as exc:
                 warnings.warn(f"{exc}; recomputing the basis", RuntimeWarning, stacklevel=2)
-    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key)
+    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key, solver, eigen_tol)
     if path is not None:
         try:
             save_basis(basis, path)

@@ -23,7 +23,7 @@ __all__ = ["CACHE_ENV", "FORMAT_VERSION", "basis_key", "default_cache_dir", "loa
 #: Environment variable overriding the default cache directory.
 CACHE_ENV = "TACTEX_CACHE_DIR"
 #: Bump when the solver or the file layout changes: old files then simply stop matching.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 
 def default_cache_dir() -> Path:
@@ -32,13 +32,15 @@ def default_cache_dir() -> Path:
     return Path(env).expanduser() if env else Path.home() / ".cache" / "tactex" / "basis"
 
 
-def basis_key(points: np.ndarray, n_eigen: int, n_neighbors: int, mollify_factor: float, spacing: float) -> str:
+def basis_key(points: np.ndarray, n_eigen: int, n_neighbors: int, mollify_factor: float, spacing: float,
+              eigensolver: str = "arpack", eigen_tol: float = 0.0) -> str:
     """Content hash of the points [m] and of the parameters that define the basis, including the
-    spacing h [m] it stores (the same points filtered with another voxel size keep another h)."""
+    spacing h [m] it stores (the same points filtered with another voxel size keep another h) and
+    the eigensolver with its tolerance (an approximate basis never stands in for the exact one)."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(points, dtype=np.float64).tobytes())
     h.update(f"|N={points.shape[0]}|K={n_eigen}|nn={n_neighbors}|mollify={mollify_factor!r}|h={float(spacing)!r}"
-             f"|v{FORMAT_VERSION}".encode())
+             f"|solver={eigensolver}|tol={float(eigen_tol)!r}|v{FORMAT_VERSION}".encode())
     return h.hexdigest()
 
 

@@ -4,7 +4,10 @@ M is diagonal, so the problem is solved in the symmetric standard form A = S L S
 S = M^{-1/2} (A w = λ w, φ = S w); the eigenvectors come out M-orthonormal (Φᵀ M Φ = I).
 Small problems go to dense LAPACK; large ones to ARPACK in shift-invert mode around a small
 negative shift (A − σI is then positive definite), with our own sparse LU so that the
-factorisation is done once with a symmetric fill-reducing ordering.
+factorisation is done once with a symmetric fill-reducing ordering. That is the exact reference
+(``solver="arpack"``, the authors' method). ``solver="hierarchical"`` is the faster hierarchical
+subspace iteration of :mod:`tactex.spectral.hierarchy` for large clouds (it needs the points);
+``"auto"`` picks it from ``HIERARCHICAL_MIN_POINTS`` points on.
 """
 
 from __future__ import annotations
@@ -17,9 +20,24 @@ import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from tactex.errors import SpectralError
+from tactex.errors import ConfigError, SpectralError
+from tactex.spectral.hierarchy import DEFAULT_TOL, HierarchyInfo, hierarchical_eigenpairs
 
-__all__ = ["DENSE_MAX_POINTS", "lanczos_basis_size", "laplace_eigenpairs"]
+__all__ = [
+    "DENSE_MAX_POINTS",
+    "EIGENSOLVERS",
+    "HIERARCHICAL_MIN_POINTS",
+    "check_eigensolver",
+    "lanczos_basis_size",
+    "laplace_eigenpairs",
+    "resolve_eigensolver",
+]
+
+#: The eigensolver choices (``--eigensolver``): the exact reference, the hierarchical one, or by size.
+EIGENSOLVERS = ("auto", "arpack", "hierarchical")
+#: From this many points on, ``auto`` takes the hierarchical solver (measured: below, ARPACK on the
+#: whole cloud is as fast as the hierarchy's coarsest solve plus its refinements; bench_large).
+HIERARCHICAL_MIN_POINTS = 10_000
 
 #: Below this many points dense LAPACK beats ARPACK and never fails to converge.
 DENSE_MAX_POINTS = 800
@@ -97,8 +115,34 @@ def _shift_invert(A: sp.csc_matrix, k: int, seed: int) -> tuple[np.ndarray, np.n
     return evals, W
 
 
+def check_eigensolver(solver: object, tol: object) -> None:
+    """Raise :class:`ConfigError` unless ``solver`` is one of :data:`EIGENSOLVERS` and 0 < ``tol`` < 1."""
+    if solver not in EIGENSOLVERS:
+        raise ConfigError(f"--eigensolver must be one of {', '.join(EIGENSOLVERS)}, got {solver!r}")
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 < float(tol) < 1.0:
+        raise ConfigError(f"--eigen-tol must be a number in (0, 1), got {tol!r} (default {DEFAULT_TOL:g})")
+
+
+def resolve_eigensolver(solver: str, n_points: int) -> str:
+    """The solver that ``solver`` (one of :data:`EIGENSOLVERS`) means for a cloud of ``n_points``."""
+    if solver not in EIGENSOLVERS:
+        raise ConfigError(f"--eigensolver must be one of {', '.join(EIGENSOLVERS)}, got {solver!r}")
+    if solver == "auto":
+        return "hierarchical" if n_points >= HIERARCHICAL_MIN_POINTS else "arpack"
+    return solver
+
+
 def laplace_eigenpairs(
-    L: sp.spmatrix, M: sp.spmatrix | np.ndarray, k: int, seed: int = 0
+    L: sp.spmatrix,
+    M: sp.spmatrix | np.ndarray,
+    k: int,
+    seed: int = 0,
+    *,
+    solver: str = "arpack",
+    tol: float = DEFAULT_TOL,
+    points: np.ndarray | None = None,
+    spacing: float | None = None,
+    info: HierarchyInfo | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The k smallest eigenpairs of L φ = λ M φ for a diagonal mass matrix M.
 
@@ -107,6 +151,12 @@ def laplace_eigenpairs(
         M: (N, N) diagonal mass matrix [m²], or its (N,) diagonal.
         k: number of pairs, 1 ≤ k < N.
         seed: start vector of the Krylov iteration (results are reproducible).
+        solver: "arpack" (exact), "hierarchical" (needs ``points`` and ``spacing``) or "auto".
+        tol: the hierarchical solver's bound on each pair's squared relative residual (≈ relative
+            eigenvalue error); ARPACK always runs to machine precision.
+        points: (N, 3) positions [m] of the cloud (hierarchical solver only).
+        spacing: mean spacing h [m] of the points (hierarchical solver only).
+        info: filled by the hierarchical solver with its levels, iterations and timings.
 
     Returns:
         (evals, evecs): (k,) ascending eigenvalues [1/m²] clipped at 0, (N, k) M-orthonormal vectors.
@@ -115,6 +165,17 @@ def laplace_eigenpairs(
     n = L.shape[0]
     if not 1 <= k < n:
         raise SpectralError(f"n_eigen must satisfy 1 ≤ n_eigen < {n} (the number of points), got {k}")
+    solver = resolve_eigensolver(solver, n)
+    if solver == "hierarchical":
+        if points is None or spacing is None:
+            raise ConfigError("the hierarchical eigensolver needs the cloud's points and spacing; "
+                              "use --eigensolver arpack for a bare matrix")
+        with _single_threaded_blas():
+            pairs = hierarchical_eigenpairs(L, mass, k, np.asarray(points, dtype=np.float64), float(spacing),
+                                            tol=tol, seed=seed, info=info)
+        if pairs is not None:  # None: too few points for a coarser level, the exact path below is as fast
+            evals, evecs = pairs
+            return _canonical(evals, evecs, np.ones(n))
     A, s = _symmetric_form(L, mass)
     dense = n <= DENSE_MAX_POINTS or (2 * k + 1 >= n and n <= DENSE_LIMIT_POINTS)
     if not dense and k >= n - 1:
@@ -124,12 +185,16 @@ def laplace_eigenpairs(
         )
     with _single_threaded_blas():
         evals, W = _dense(A, k) if dense else _shift_invert(A, k, seed)
+    return _canonical(evals, W, s)
+
+
+def _canonical(evals: np.ndarray, W: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ascending pairs, φ = s ⊙ w, the largest-magnitude entry of each vector positive (reproducible
+    output), eigenvalues clipped at 0 (the null space comes out at ±1e-12; L is PSD)."""
     order = np.argsort(evals)
     evals = evals[order]
     W = W[:, order]
-    # Sign convention: the largest-magnitude entry of each vector is positive (reproducible output).
     flip = np.sign(W[np.argmax(np.abs(W), axis=0), np.arange(W.shape[1])])
     W = W * np.where(flip == 0, 1.0, flip)
     evecs = s[:, None] * W
-    # The null space comes out at ±1e-12; eigenvalues of a PSD operator are ≥ 0.
     return np.clip(evals, 0.0, None), np.ascontiguousarray(evecs)
