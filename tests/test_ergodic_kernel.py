@@ -217,7 +217,8 @@ def _kernel_state(pts: np.ndarray, k: int = 8, seed: int = 0) -> dict:
         prm=ker.params(agent_radius_m=0.0075, eps2=(1 / 0.0075) ** 2, source_weight=1.0, max_acceleration=0.003,
                        max_velocity=0.003, max_step_m=0.003, dt=1.0, max_off_m=0.003, edge_offset=0.25,
                        normalize_by_target=True, order=2),
-        out=np.zeros(ker.OUT_SIZE),
+        out=np.zeros(ker.OUT_SIZE), c_used=np.zeros(n), active=np.zeros(n, dtype=np.uint8), sums=np.zeros((3, k)),
+        dcoef=np.zeros(k),
     )
 
 

@@ -31,9 +31,10 @@ tangent plane the outward part of the gradient is dropped, so the agent follows 
 that would leave the cloud loses its outward velocity, and the agent never strays farther than
 ``max_off_cloud`` voxels from the nearest cloud point (it still lies on the fitted surface).
 
-Cost per step is independent of N where it matters: s vanishes off the target, so Φᵀ M s only
-needs the target rows of Φ (n_target × K, premultiplied by the mass), and u is only needed at
-the n_N neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally.
+Cost per step is independent of N and of the target's size where it matters: Φᵀ M s is kept as
+running sums over the target rows (:mod:`.source`) that change only where the footprint did, so a
+step costs O(footprint · K) plus an O(n_target) scalar pass; u is only needed at the n_N
+neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally.
 
 When walking makes no progress (the agent's Laplacian part holds no untouched target, it stalls,
 or it touches nothing new for long) the step is a relocation instead (:mod:`.relocation`): the agent
@@ -64,6 +65,7 @@ from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTO
 from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
+from tactex.ergodic.source import REBUILD_STEPS, SourceSums, update_source_numpy
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
@@ -351,6 +353,8 @@ class HedacExplorer:
         # Target points a footprint may touch (clear of the keep-out zones), and their parts.
         self._t_safe = self._safe[self._tidx]
         self._t_part = self._labels[self._tidx]
+        self._src = SourceSums(self._tidx.size, self._phi.shape[1])
+        self._dcoef = np.zeros(self._phi.shape[1])
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
@@ -358,6 +362,7 @@ class HedacExplorer:
         self._cov_sum = 0.0
         self._coef = self._p_t @ self._phitm_t  # u(x, 0) = p̂ (eq. 5)
         self._s_ext[:] = 0.0
+        self._src.clear()
 
     def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
         """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
@@ -477,6 +482,8 @@ class HedacExplorer:
                 self._check_distance(mi, "measured position" if m.shape[0] == 1 else f"measured position {i}")
             self._x = m.copy()
         self._update_decay()
+        if self.step_count % REBUILD_STEPS == 0:
+            self._src.clear()  # the running source sums restart from the direct sum: no drift builds up
         exact = measured_positions is not None
         before = self._x.copy() if self._ko_tree is not None else None
         moves = None
@@ -865,7 +872,8 @@ class HedacExplorer:
             fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),
                np.zeros(n), 0.0, self._tidx, self._tpos, self._p_t, self._phitm_t, np.zeros(k),
                np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._kernel_prm,
-               np.empty(_kernel.OUT_SIZE))
+               np.empty(_kernel.OUT_SIZE), np.zeros_like(self._src.c_used), np.zeros_like(self._src.active),
+               np.zeros_like(self._src.sums), np.zeros(k))
         except Exception as exc:  # numba's import, typing or compilation: numpy still works
             reason = f"{type(exc).__name__}: {exc}"
             _kernel.disable(reason)
@@ -884,7 +892,8 @@ class HedacExplorer:
             status = self._walk_kernel(
                 self._points, cand, x, np.array(self._nrm_t[i]), agent.velocity, self._cov, self._cov_sum,
                 self._tidx, self._tpos, self._p_t, self._phitm_t, self._coef, self._s_ext, self._decay, self._phi,
-                self._gaps.has, self._n_n, self._kernel_prm, out,
+                self._gaps.has, self._n_n, self._kernel_prm, out, self._src.c_used, self._src.active,
+                self._src.sums, self._dcoef,
             )
         except Exception as exc:  # e.g. numba failing to type arguments it has not seen: numpy goes on
             self._walk_kernel = None
@@ -1037,23 +1046,12 @@ class HedacExplorer:
     def _update_potential(self) -> None:
         """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
         cov = self._cov
-        s = self._s_t
-        ct = cov.take(self._tidx)  # (take with out= is slower: it buffers)
-        norm = float(_sum(ct)) if self._norm_target else self._cov_sum
-        if norm > 0.0:
-            np.multiply(ct, -1.0 / norm, s)
-            s += self._p_t
-            np.maximum(s, 0.0, out=s)
-            s *= s
-        else:
-            np.multiply(self._p_t, self._p_t, s)
-        tot = float(_sum(s))
-        if tot > 0.0:
-            s *= 1.0 / tot
+        norm = float(_sum(cov.take(self._tidx))) if self._norm_target else self._cov_sum
+        dcoef = update_source_numpy(cov, self._tidx, self._p_t, norm, self._s_t, self._src, self._phitm_t)
         # Diffuse after adding the source: the truncated projection of a sharp source rings
         # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
         coef = self._coef
-        coef += s.dot(self._phitm_t)
+        coef += dcoef
         coef *= self._decay
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,

@@ -36,6 +36,7 @@ import importlib.util
 import numpy as np
 
 from tactex.ergodic.gradient import PLANE_PIVOT_RTOL, RIDGE_RTOL
+from tactex.ergodic.source import update_source
 from tactex.geometry.fit import CHECK_RADIUS_RATIO, DEGENERACY_RTOL, MAX_RADIUS_RATIO
 
 __all__ = ["DEGENERATE", "EDGE_GAP", "FLAT", "OK", "OUT_SIZE", "available", "compiled_walk_step", "disable", "params"]
@@ -260,7 +261,7 @@ def _restore(cov, fp, fp_old, coef, coef_old, s, s_old):
 
 
 def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, coef, s_ext, decay, phi,
-               gap_has, n_n, prm, out):
+               gap_has, n_n, prm, out, c_used, active, sums, dcoef):
     """One walking step of one agent; see the module doc. Changes cov, coef, s_ext and out on OK only.
 
     Args:
@@ -272,6 +273,9 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             potential; s_ext: (T + 1,) source with a trailing 0; decay: (K,) exp(−λ δt); phi: (N, K) Φ.
         gap_has: (N,) bool, point has a link across a scan hole. n_n: neighbours of the fits.
         prm: parameters, see :func:`params`. out: (OUT_SIZE,) results on OK.
+        c_used, active, sums: the running source sums (:class:`~tactex.ergodic.source.SourceSums`);
+            a failed step leaves them describing its coverage, which the next update corrects.
+        dcoef: (K,) scratch for Φᵀ M s.
     """
     m = cand.shape[0]
     if m < n_n:  # never from the explorer's balls; compiled code has no bounds checks, so refuse
@@ -385,28 +389,9 @@ def _walk_step(pts, cand, x, nrm, vel, cov, cov_sum, tidx, tpos, p_t, phitm_t, c
             norm += cov[tidx[r]]
     else:
         norm = cov_sum
-    tot = 0.0
-    if norm > 0.0:
-        ni = -1.0 / norm
-        for r in range(T):
-            z = cov[tidx[r]] * ni + p_t[r]
-            z = z * z if z > 0.0 else 0.0
-            s_ext[r] = z
-            tot += z
-    else:
-        for r in range(T):
-            s_ext[r] = p_t[r] * p_t[r]
-            tot += s_ext[r]
-    if tot > 0.0:
-        ti = 1.0 / tot
-        for r in range(T):
-            z = s_ext[r] * ti
-            s_ext[r] = z
-            if z != 0.0:  # covered target points have no source: their rows cost nothing
-                for k in range(K):
-                    coef[k] += z * phitm_t[r, k]
+    update_source(cov, tidx, p_t, norm, s_ext, c_used, active, sums, phitm_t, dcoef)
     for k in range(K):
-        coef[k] *= decay[k]
+        coef[k] = (coef[k] + dcoef[k]) * decay[k]
 
     # Gradient on the tangent plane (eq. 32–33): weighted cubic through the potential at the
     # neighbours, in (u, v) scaled by the neighbourhood radius; its linear terms are the slope.
@@ -646,7 +631,7 @@ def compiled_walk_step():
     explorer reports them and runs numpy. After :func:`disable` it raises at once.
     """
     global _compiled, _nearest, _restore, _land, _sphere_beats_plane, project_floats, tangent_floats, plane_slope
-    global transported_floats, braked_direction
+    global transported_floats, braked_direction, update_source
     if _failure is not None:
         raise RuntimeError(_failure)
     if _compiled is None:
@@ -667,6 +652,7 @@ def compiled_walk_step():
         _sphere_beats_plane = jit(_sphere_beats_plane)
         project_floats, tangent_floats, plane_slope = jit(project_floats), jit(tangent_floats), jit(plane_slope)
         transported_floats, braked_direction = jit(transported_floats), jit(braked_direction)
+        update_source = jit(update_source)
         _compiled = jit(_walk_step)
     return _compiled
 
