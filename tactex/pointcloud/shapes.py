@@ -23,7 +23,9 @@ __all__ = [
     "CylinderWallSurface",
     "HeightFieldSurface",
     "Surface",
+    "door_height",
     "get_surface",
+    "hull_height",
     "resolve_surface_name",
     "sine_panel_height",
     "surface_names",
@@ -218,6 +220,25 @@ def _bowl_height(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 0.01 + 0.05 * r2 / 0.09**2
 
 
+def door_height(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """A car door's outer skin lying on its inside: 0.4 m (x, the door's height) × 0.6 m (y, its length).
+
+    Crowned 20 mm over its height (radius 1 m) and 15 mm over its length (radius 3 m), with a
+    character line: a 6 mm step, 30 mm wide, 5 cm above the middle [m].
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    return 0.045 - x**2 / (2 * 1.0) - y**2 / (2 * 3.0) + 0.003 * np.tanh((x - 0.05) / 0.015)
+
+
+def hull_height(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """A doubly curved hull patch (the bilge of a boat), 0.5 m × 0.4 m: principal radii 0.6 m and 0.9 m
+    with a slight twist (the principal directions turn across the patch) [m]."""
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    return 0.08 - x**2 / (2 * 0.6) - y**2 / (2 * 0.9) + 0.05 * x * y
+
+
 def _flat(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return 0.0 * np.asarray(x) + 0.0 * np.asarray(y)
 
@@ -229,6 +250,8 @@ SURFACES: dict[str, Surface] = {
     "plate": HeightFieldSurface("plate", 0.26, 0.26, _plate_height, radius_m=0.13),
     "bowl": HeightFieldSurface("bowl", 0.18, 0.18, _bowl_height, radius_m=0.09),
     "cup": CylinderWallSurface("cup", radius_m=0.04, height_m=0.10, arc_deg=180.0),
+    "door": HeightFieldSurface("door", 0.40, 0.60, door_height),
+    "hull": HeightFieldSurface("hull", 0.40, 0.50, hull_height),
 }
 
 

@@ -223,6 +223,10 @@ def _register_builtins() -> None:
     register_object(SimObject("bowl", SURFACES["bowl"], rgb=(0.75, 0.82, 0.9), marking="RLI"))
     register_object(SimObject("cup", SURFACES["cup"], rgb=(0.9, 0.9, 0.95), marking="X"))
     register_object(heightfield_object("bumps", _bumps_height, 0.24, 0.24, marking="blobs"))
+    # The large parts: a door (0.4 × 0.6 m, long side across the robot so every corner is within reach at
+    # the default 0.5 m) and a hull patch; gently curved, so a 1 cm height field interpolates them to < 0.02 mm.
+    register_object(SimObject("door", SURFACES["door"], rgb=(0.55, 0.6, 0.7), marking="X", hfield_spacing_m=0.01))
+    register_object(SimObject("hull", SURFACES["hull"], rgb=(0.9, 0.88, 0.8), marking="blobs", hfield_spacing_m=0.01))
 
 
 _register_builtins()
