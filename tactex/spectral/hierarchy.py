@@ -12,8 +12,7 @@ with a sparse Cholesky factorisation on each level. Here:
   nearest coarse points (rows sum to 1, so constants are kept; a point that is itself a coarse
   point takes its own value). The coarse operators are Galerkin products Pᵀ L P and Pᵀ M P, so
   every level's space is a subspace of the finer one's;
-- the coarsest problem (a few thousand points) goes to :func:`laplace_eigenpairs`' exact path
-  with the mass lumped (its error is removed by the finer levels);
+- the coarsest problem (about a thousand points) goes to :func:`laplace_eigenpairs`' exact path;
 - on each finer level one block iteration Y = (L − σM)⁻¹ M X (Θ − σ), all p right-hand sides in
   one sparse-Cholesky solve (cholespy, i.e. CHOLMOD), then Rayleigh–Ritz on span Y. The column
   scaling by Θ − σ only keeps Y's columns at unit size (the span is that of (L − σM)⁻¹ M X);
@@ -36,6 +35,7 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
+from scipy.linalg.blas import dsyrk
 from scipy.spatial import cKDTree
 
 from tactex.errors import ConfigError, SpectralError
@@ -156,26 +156,23 @@ class _Factor:
         return X
 
 
-def _apply_mass(M: sp.spmatrix | np.ndarray, X: np.ndarray) -> np.ndarray:
-    return M[:, None] * X if isinstance(M, np.ndarray) else M @ X
-
-
-def _refine(factor: _Factor, M, X: np.ndarray, theta: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """One block shift-invert iteration from X and Rayleigh–Ritz on its image.
+def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
+            sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """One block shift-invert iteration from X and Rayleigh–Ritz on its image (M = diag(mass)).
 
     With Y = (L − σM)⁻¹ M X D, the projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is
-    never applied to the block.
+    never applied to the block; Yᵀ M Y is a symmetric rank-k product (half a matrix product).
     """
-    scale = np.maximum(theta - sigma, 1e-300)
-    MX = _apply_mass(M, X)
-    MX *= scale
+    MX = X * (mass[:, None] * np.maximum(theta - sigma, 1e-300)[None, :])
     Y = factor.solve(MX)
-    B = Y.T @ _apply_mass(M, Y)
     A = Y.T @ MX
-    A += sigma * B
     del MX
+    root = np.sqrt(mass)[:, None] * Y
+    B = dsyrk(1.0, root.T, trans=0, lower=0)  # upper triangle of rootᵀ root (root.T is Fortran-ordered)
+    del root
+    B = np.triu(B) + np.triu(B, 1).T
+    A += sigma * B
     A = 0.5 * (A + A.T)
-    B = 0.5 * (B + B.T)
     try:
         theta, Q = la.eigh(A, B, check_finite=False)
     except la.LinAlgError as exc:
@@ -234,31 +231,30 @@ def hierarchical_eigenpairs(
     if not levels:
         return None
     L = sp.csr_matrix(L)
-    ops: list[tuple[sp.csr_matrix, sp.spmatrix | np.ndarray]] = [(L, mass)]
+    ops: list[tuple[sp.csr_matrix, np.ndarray]] = [(L, mass)]
     for _, P in levels:
-        Lf, Mf = ops[-1]
-        Mf_sp = sp.diags(Mf, format="csr") if isinstance(Mf, np.ndarray) else Mf
+        Lf, mf = ops[-1]
         PT = sp.csr_matrix(P.T)
-        ops.append((sp.csr_matrix(PT @ Lf @ P), sp.csr_matrix(PT @ Mf_sp @ P)))
+        # Lumped Pᵀ M P: its row sums, Pᵀ (M P 1) = Pᵀ mf since P's rows sum to 1.
+        ops.append((sp.csr_matrix(PT @ Lf @ P), PT @ mf))
     info.level_points = [n] + [len(idx) for idx, _ in levels]
     info.subspace_size = p
     info.seconds["hierarchy"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    Lc, Mc = ops[-1]
-    lumped = np.asarray(Mc.sum(axis=1)).ravel()
-    theta, X = laplace_eigenpairs(Lc, lumped, p, seed=seed, solver="arpack")
+    Lc, mc = ops[-1]
+    theta, X = laplace_eigenpairs(Lc, mc, p, seed=seed, solver="arpack")
     info.seconds["coarsest"] = time.perf_counter() - t0
     # A shift below the spectrum keeps L − σM positive definite whatever the null space.
     sigma = -1e-6 * float(np.mean(L.diagonal() / mass))
     t_factor = t_iter = 0.0
     for level in range(len(levels) - 1, -1, -1):
         X = levels[level][1] @ X
-        Lf, Mf = ops[level]
+        Lf, mf = ops[level]
         t0 = time.perf_counter()
-        factor = _Factor(Lf - sigma * (sp.diags(Mf) if isinstance(Mf, np.ndarray) else Mf))
+        factor = _Factor(Lf - sigma * sp.diags(mf))
         t1 = time.perf_counter()
-        theta, X = _refine(factor, Mf, X, theta, sigma)
+        theta, X = _refine(factor, mf, X, theta, sigma)
         if level == 0:
             for it in range(1, MAX_ITERATIONS + 1):
                 eta2 = _relative_residual2(L, mass, theta[:k], X[:, :k])
@@ -272,7 +268,7 @@ def hierarchical_eigenpairs(
                         f"the hierarchical eigensolver did not reach eigen_tol={tol:g} in {MAX_ITERATIONS} "
                         f"iterations (max η² {info.max_residual2:.2e}); raise --eigen-tol or use --eigensolver arpack"
                     )
-                theta, X = _refine(factor, Mf, X, theta, sigma)
+                theta, X = _refine(factor, mf, X, theta, sigma)
         t_factor += t1 - t0
         t_iter += time.perf_counter() - t1
         del factor
