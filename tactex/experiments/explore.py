@@ -35,6 +35,8 @@ from tactex.pointcloud.markings import marked_cloud, resolve_marking
 from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
 from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target, file_target
 from tactex.report.outdir import prepare_out_dir
+from tactex.spectral.eigen import check_eigensolver
+from tactex.spectral.modes import auto_n_eigen
 
 __all__ = [
     "DEFAULT_MARKINGS",
@@ -73,7 +75,9 @@ class ExploreConfig:
     voxel_size_m: float = param(
         0.003, "voxel edge of the down-sampling, and sampling spacing of meshes and built-in objects; 0 = none [m]",
         aliases=("--voxel-size",))
-    n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion (TEC eq. 19) [-]")
+    n_eigen: int | None = param(
+        None, "eigenpairs n_K of the spectral diffusion (TEC eq. 19); default: one per 5 footprint areas of the "
+        "surface, at least TEC's 200 (which small objects keep), at most 1000 [-]")
     n_neighbors: int = param(30, "neighbours of the Laplacian; decides which parts connect (TEC §VI-D) [-]")
     alpha: float = param(10.0, "diffusion scale α of δt = α h² (TEC eq. 21) [-]")
     steps: int = param(1000, "exploration steps [-]")
@@ -109,6 +113,11 @@ class ExploreConfig:
         "", "a .npy file with one boolean per point of the cloud file (or of the sampled built-in): True = keep out"
     )
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
+    eigensolver: str = param(
+        "auto", "eigensolver of the Laplace basis: arpack (exact, the papers'), hierarchical (hierarchical subspace "
+        "iteration, faster on large clouds) or auto (hierarchical from 10 000 points on)")
+    eigen_tol: float = param(5e-3, "hierarchical eigensolver: bound on each pair's squared relative residual "
+                                   "(≈ relative eigenvalue error) [-]")
     html: bool = param(True, "write the interactive explore.html (inline plotly, ~5 MB)")
 
     def __post_init__(self) -> None:
@@ -120,10 +129,13 @@ class ExploreConfig:
             raise ConfigError(f"voxel_size_m={self.voxel_size_m} is over 10 cm; it is in metres (0.003 = 3 mm)")
         for name in ("steps", "n_eigen", "n_neighbors"):
             value = getattr(self, name)
+            if name == "n_eigen" and value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ConfigError(f"{name}={value!r} is not a whole number ≥ 1")
         if not math.isfinite(self.alpha) or self.alpha <= 0:
             raise ConfigError(f"alpha={self.alpha} must be a positive number")
+        check_eigensolver(self.eigensolver, self.eigen_tol)
         if not math.isfinite(self.max_velocity) or self.max_velocity <= 0:
             raise ConfigError(f"max_velocity={self.max_velocity} must be a positive number of voxels per step")
         if self.agent_radius_m is not None and (
@@ -306,6 +318,9 @@ def run_explore(
     load_s = time.perf_counter() - t0
     out = prepare_out_dir(out_dir)  # before the basis and the steps, which take the time
     radius = cfg.agent_radius_m if cfg.agent_radius_m is not None else _default_agent_radius(source_info)
+    if cfg.n_eigen is None:
+        # Each point of a voxelised cloud stands for about h² of surface.
+        cfg = replace(cfg, n_eigen=auto_n_eigen(len(cloud) * cloud.spacing**2, radius, len(cloud)))
     hcfg = _hedac_config(cfg, hedac, radius)
     for note in source_info.get("notes", []):
         say(f"cloud: {note}")
@@ -314,9 +329,10 @@ def run_explore(
 
     say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
     t0 = time.perf_counter()
-    basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache)
+    basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache,
+                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
     basis_s = time.perf_counter() - t0
-    say(f"basis: {basis_s:.3f} s ({basis.n_components} connected part(s))")
+    say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
     if hcfg.compiled and compile_pending():
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()

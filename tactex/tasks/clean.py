@@ -45,6 +45,8 @@ from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
+from tactex.spectral.eigen import check_eigensolver
+from tactex.spectral.modes import auto_n_eigen
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
@@ -84,7 +86,14 @@ class CleanConfig(SimWorldParams):
                              option="object", aliases=("--object-name",))
     marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full")
     force_n: float = param(10.0, "pressing force set point along the tool axis [N]")
-    n_eigen: int = param(200, "eigenpairs n_K of the spectral diffusion [-]")
+    n_eigen: int | None = param(
+        None, "eigenpairs n_K of the spectral diffusion; default: one per 5 footprint areas of the captured "
+        "surface, at least TEC's 200 (which small objects keep), at most 1000 [-]")
+    eigensolver: str = param(
+        "auto", "eigensolver of the Laplace basis: arpack (exact, the papers'), hierarchical (hierarchical subspace "
+        "iteration, faster on large clouds) or auto (hierarchical from 10 000 points on)")
+    eigen_tol: float = param(5e-3, "hierarchical eigensolver: bound on each pair's squared relative residual "
+                                   "(≈ relative eigenvalue error) [-]")
     alpha: float = param(10.0, "diffusion scale α, δt = α h² (TEC eq. 21) [-]")
     agent_radius_m: float = param(0.02, "agent footprint radius r_a, about the sponge radius [m]")
     voxel_size_m: float = param(0.003, "voxel grid of the captured cloud [m] (TEC: 3 mm)")
@@ -155,13 +164,14 @@ class CleanConfig(SimWorldParams):
                 f"{self.contact_threshold_n} N (out of contact the force loop balances at Kp·F/(1 + Kp) with the "
                 "paper's Kp = 0.5): raise the first or lower the second"
             )
-        if self.vision_every_steps < 1 or self.n_eigen < 1:
+        if self.vision_every_steps < 1 or (self.n_eigen is not None and self.n_eigen < 1):
             raise ConfigError(
                 f"vision_every_steps and n_eigen must be ≥ 1, got {self.vision_every_steps} and {self.n_eigen}")
         if self.cloud and not Path(self.cloud).is_file():
             raise ConfigError(f"--cloud '{self.cloud}' is not a file (give a .ply/.pcd/.npz in the robot base frame)")
         if self.cloud and self.baseline == "no_feedback":
             raise ConfigError("--cloud already runs without vision feedback; drop --baseline no_feedback")
+        check_eigensolver(self.eigensolver, self.eigen_tol)
         if not 0.0 <= self.stop_remaining < 1.0:
             raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
         check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
@@ -374,12 +384,16 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     t_basis = time.perf_counter()
     basis = None
     if cfg.baseline != "raster":
-        if cfg.n_eigen >= len(cloud):
+        n_eigen = cfg.n_eigen
+        if n_eigen is None:  # each point of the voxelised capture stands for about h² of surface
+            n_eigen = auto_n_eigen(len(cloud) * cloud.spacing**2, cfg.agent_radius_m, len(cloud))
+        if n_eigen >= len(cloud):
             raise ConfigError(
-                f"n_eigen = {cfg.n_eigen} eigenpairs, but the captured cloud has only {len(cloud)} points: ask for "
+                f"n_eigen = {n_eigen} eigenpairs, but the captured cloud has only {len(cloud)} points: ask for "
                 f"fewer (TEC uses 100–200; e.g. {min(200, len(cloud) - 1)})"
             )
-        basis = build_basis(cloud, n_eigen=cfg.n_eigen, cache=False)
+        basis = build_basis(cloud, n_eigen=n_eigen, cache=False, eigensolver=cfg.eigensolver,
+                            eigen_tol=cfg.eigen_tol)
     basis_s = time.perf_counter() - t_basis
     dt_step = 1.0 / cfg.explorer_rate_hz
     if cfg.baseline == "raster":
@@ -581,6 +595,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "phase_changes": [[t, p] for t, p in log.phase_changes],
         "vision_remaining_fraction": remaining_seen,
         "basis_time_s": basis_s,
+        "n_eigen": 0 if basis is None else basis.n_eigen,
+        "eigensolver": "" if basis is None else basis.eigensolver,
         "wall_time_s": time.perf_counter() - wall0,
         "n_points": len(cloud),
         "n_target_initial": n_target0,
