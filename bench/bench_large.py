@@ -22,7 +22,8 @@ medians of calls interleaved in the same run (a, b, a, b, …), since this machi
   per size: the step's cost does not depend on how it was computed); ``step_us_median_target_1pct``
   the same with a 1 % band (what the target's size still costs: an O(n_target) scalar pass).
 * ``large.tec_coverage``: coverage residual at 0.5/1/2 m of path on the TEC clouds (bench_ergodic's
-  protocol and starts) with the ARPACK basis and with the hierarchical one, and their difference.
+  protocol and ten starts) with the ARPACK basis and with the hierarchical one, and the mean and
+  standard error of their per-start difference.
 * ``bench/large.png``: the scaling table as a plot.
 
 ``--quick`` runs the bunny comparison (2 repeats), the 3k and 18k sizes and no 60k/150k or coverage.
@@ -213,6 +214,9 @@ def _panel_vs_arpack(repeats: int) -> dict:
 
 
 def _tec_coverage() -> dict:
+    """bench_ergodic's protocol (ten starts, residual at 0.5/1/2 m of path) with the ARPACK and the
+    hierarchical basis; per mark the two means, and the mean and standard error of the per-start
+    difference (a difference within ~2 standard errors is the starts' noise)."""
     import bench_ergodic as be
 
     from tactex.ergodic import HedacConfig, HedacExplorer
@@ -224,12 +228,17 @@ def _tec_coverage() -> dict:
     for name in be.CLOUDS:
         cloud, x0 = be._load(name)
         radius = 0.015 if name.startswith("plate") else 0.0075
-        res = {}
+        per_start = {}
         for solver in ("arpack", "hierarchical"):
             basis = build_basis(cloud, n_eigen=200, n_neighbors=40, cache=False, eigensolver=solver)
             ex = HedacExplorer(cloud, basis, HedacConfig(agent_radius_m=radius))
-            res[solver] = be._quality(ex, x0, name)["residual_at_path_m"]
-        res["difference"] = {m: res["hierarchical"][m] - res["arpack"][m] for m in res["arpack"]}
+            per_start[solver] = np.array([be._residual_vs_path(ex, x)["residual"] for x in x0])
+        diff = per_start["hierarchical"] - per_start["arpack"]
+        marks = [f"{m:g}" for m in be.PATHS_M]
+        res = {solver: dict(zip(marks, v.mean(axis=0).tolist(), strict=True)) for solver, v in per_start.items()}
+        res["difference"] = dict(zip(marks, diff.mean(axis=0).tolist(), strict=True))
+        res["difference_stderr"] = dict(zip(marks, (diff.std(axis=0, ddof=1) / np.sqrt(len(x0))).tolist(),
+                                            strict=True))
         out[name] = res
         print(f"   TEC coverage {name}: {res}", flush=True)
     return out
