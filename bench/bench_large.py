@@ -261,6 +261,7 @@ def _plot(sizes: dict) -> Path | None:
     axes[0].legend(fontsize=8)
     axes[1].semilogx(n, [r["step_us_median"] for _, r in rows], "o-", label="median")
     axes[1].semilogx(n, [r["step_us_p90"] for _, r in rows], "^--", label="p90")
+    axes[1].semilogx(n, [r["step_us_median_target_1pct"] for _, r in rows], "s:", label="median, 1 % target")
     axes[1].axhline(1000, color="r", lw=0.8, ls=":", label="1 ms target")
     axes[1].set(xlabel="points", ylabel="µs", title=f"exploration step, {TARGET_FRACTION:.0%} target")
     axes[1].legend(fontsize=8)
