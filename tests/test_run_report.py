@@ -146,6 +146,22 @@ def test_clean_report_files_and_contract(tmp_path) -> None:
     assert page.rstrip().endswith("</html>")
 
 
+def test_clean_report_shows_the_time_breakdown(tmp_path) -> None:
+    res = fake_clean()
+    res.metrics.update(time_breakdown_s={"contact_dirt": 2.0, "contact_clean": 1.0, "explore_no_contact": 0.0,
+                                         "touch_down": 0.5, "transit": 0.8, "vision": 0.6, "lift_off": 0.0},
+                       time_to_95pct_s=3.2)
+    rep = write_run_report(res, tmp_path / "clean")
+    assert "time_breakdown.png" in _pngs_ok(rep)
+    assert "time_breakdown_s" in json.loads((tmp_path / "clean" / "metrics.json").read_text())
+    table = summary_table([("tactex", res.metrics), ("raster", {**res.metrics, "time_to_95pct_s": None})])
+    header, _, tactex_row, raster_row = table.splitlines()
+    assert "95 % removed at [s]" in header and "3.2" in tactex_row.split() and "–" in raster_row.split()
+    res.metrics["time_breakdown_s"] = {"vision": 0.0}  # nothing accounted: a note, not a crash
+    rep = write_run_report(res, tmp_path / "empty")
+    assert "time_breakdown.png" not in _pngs_ok(rep) and any("time breakdown" in n for n in rep.notes)
+
+
 def test_clean_report_raster_baseline_notes_missing_ergodicity(tmp_path) -> None:
     rep = write_run_report(fake_clean("raster"), tmp_path / "raster")
     assert rep.label == "raster" and "ergodicity_png" not in rep.files

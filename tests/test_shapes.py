@@ -48,6 +48,19 @@ def test_marking_x_covers_both_diagonals_only() -> None:
     assert not marking_mask("X", off).any()
 
 
+def test_spots_are_three_one_centimetre_spots_on_the_plate() -> None:
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    cloud = marked_cloud(get_surface("plate"), "spots", 0.001)
+    pts = cloud.points[cloud.target > 0]
+    n, labels = connected_components(cKDTree(pts).sparse_distance_matrix(cKDTree(pts), 0.0015), directed=False)
+    assert n == 3
+    for k in range(n):
+        spot = pts[labels == k, :2]
+        assert 0.008 <= np.ptp(spot, axis=0).max() <= 0.011  # 1 cm across (to the 1 mm sampling)
+
+
 def test_marked_cloud_target_is_the_mark_and_red() -> None:
     cloud = marked_cloud(get_surface("plate"), "RLI", 0.004)
     marked = cloud.target > 0

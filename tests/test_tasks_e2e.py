@@ -24,9 +24,17 @@ def _finite_series(series: dict) -> None:
 
 def test_short_clean_removes_dirt_with_bounded_force() -> None:
     # 17 s: a ~4.5 s trip back to the camera fits (transits are one smooth motion since issue 17)
-    cfg = CleanConfig(object_name="plate", budget_s=17.0, n_eigen=60, vision_every_steps=80)
+    cfg = CleanConfig(object_name="plate", budget_s=17.0, n_eigen=60, vision_max_steps=80)
     r = run_clean(cfg, progress=False)
     m = r.metrics
+    # issue 21: every tick of the run is in one bucket of the time breakdown; each bucket this program has
+    # (camera, transit, touch-down, contact) is used
+    bd = m["time_breakdown_s"]
+    assert sum(bd.values()) == pytest.approx(m["sim_time_s"], abs=0.002)
+    assert min(bd["vision"], bd["transit"], bd["touch_down"], bd["contact_dirt"]) > 0.0
+    assert bd["contact_dirt"] + bd["contact_clean"] == pytest.approx(m["contact_time_s"], abs=0.05)
+    t95 = m["time_to_95pct_s"]
+    assert (t95 is None) == (m["dirt_removed_fraction"] < 0.95 and np.nanmin(r.series["dirt_remaining"]) > 0.05)
     assert 0.05 < m["dirt_removed_fraction"] <= 1.0  # it cleaned something in a few seconds of contact
     assert 0.0 <= m["force_within_20pct_fraction"] <= 1.0
     assert 0.0 < m["max_contact_force_n"] <= 2.0 * cfg.force_n

@@ -196,6 +196,14 @@ def test_nullspace_posture_validation() -> None:
         ({"n_eigen": 0}, "and 0"),
         ({"max_normal_rate_deg_s": 0.0}, "max_normal_rate_deg_s"),
         ({"max_normal_rate_deg_s": 2000.0}, "90° or more"),
+        ({"objective": "coverage"}, "clean, ergodic"),
+        ({"wear_margin": 0.0}, "wear_margin"),
+        ({"preston_coefficient": float("nan")}, "preston_coefficient"),
+        ({"pad_radius_m": -0.01}, "pad_radius_m"),
+        ({"cooling": -0.1}, "cooling"),
+        ({"model_update_steps": 0}, "model_update_steps"),
+        ({"model_stall_steps": 0}, "model_stall_steps"),
+        ({"vision_max_steps": 0}, "vision_max_steps"),
     ],
 )
 def test_clean_config_validation_more(kwargs, match) -> None:

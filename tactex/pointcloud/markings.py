@@ -73,6 +73,13 @@ def _blobs(uv: np.ndarray) -> np.ndarray:
     return (d <= radii[None]).any(axis=1)
 
 
+def _spots(uv: np.ndarray) -> np.ndarray:
+    # Sparse dirt: three small spots far apart, 1 cm across on the 26 cm plate (issue 21's sparse case).
+    centres = np.array([[0.27, 0.3], [0.74, 0.42], [0.42, 0.76]])
+    d = np.linalg.norm(uv[:, None, :] - centres[None], axis=2)
+    return (d <= 0.005 / 0.26).any(axis=1)
+
+
 def _shapes(uv: np.ndarray) -> np.ndarray:
     # Hand-drawn-like shapes as on the TEC plate: a ring, a triangle outline, a square outline.
     ring = np.abs(np.linalg.norm(uv - [0.3, 0.68], axis=1) - 0.12) <= 0.025
@@ -86,6 +93,7 @@ MARKINGS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "RLI": _text("RLI", (0.1, 0.3, 0.9, 0.7), 0.06),
     "blobs": _blobs,
     "shapes": _shapes,
+    "spots": _spots,
     "full": lambda uv: np.ones(len(uv), dtype=bool),
 }
 

@@ -9,7 +9,7 @@
 - ``explored.ply`` (wipe) — the explored contact points with normals and curvature, which
   ``tactex explore`` loads,
 - ``events.json`` — safety events,
-- PNG plots (clean: dirt, force band, phases, cloud fields, ergodicity; wipe: VA-UFIC Fig. 2 and 3a–d,
+- PNG plots (clean: dirt, force band, phases, time breakdown, cloud fields, ergodicity; wipe: VA-UFIC Fig. 2 and 3a–d,
   explored curvature),
 - ``report.html`` — an interactive 3-D view of the cloud (inline plotly, works offline) with the
   metrics and the PNGs embedded.
@@ -243,6 +243,39 @@ def _plot_dirt(s: Mapping[str, np.ndarray], trips: np.ndarray, times: np.ndarray
     return _save(fig, path)
 
 
+#: Labels and colours of the time-breakdown buckets (tactex.tasks.time_breakdown.BUCKETS).
+TIME_BUCKETS = {
+    "contact_dirt": ("contact on dirt", "C3"),
+    "contact_clean": ("contact on clean surface", "C1"),
+    "contact": ("contact (dirt not known)", "C1"),
+    "explore_no_contact": ("exploring, contact lost", "C7"),
+    "touch_down": ("touch-downs", "C4"),
+    "transit": ("transit (camera → hover)", "C2"),
+    "vision": ("vision (capture, trips)", "C0"),
+    "lift_off": ("final lift-off", "C8"),
+}
+
+
+def _plot_time_breakdown(breakdown: Mapping[str, Any], t95: Any, path: Path) -> Path:
+    """One horizontal stacked bar of where the run's time went [s], with the time to 95 % removed."""
+    parts = [(k, float(v)) for k, v in breakdown.items() if v is not None and float(v) > 0]
+    if not parts:
+        raise InputError("the time breakdown is empty (no tick was accounted)")
+    fig, (ax,) = _figure(height=1.4)
+    left = 0.0
+    for key, v in parts:
+        label, color = TIME_BUCKETS.get(key, (key, "C9"))
+        ax.barh([0], [v], left=left, color=color, label=f"{label}: {v:.1f} s")
+        left += v
+    if t95 is not None:
+        ax.axvline(float(t95), color="k", ls="--", lw=1.2, label=f"95 % removed at {float(t95):.1f} s")
+    ax.set_yticks([])
+    ax.set_xlabel("time [s] (bucket durations stacked, not in time order)")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.55), fontsize=7, ncol=3, frameon=False)
+    ax.set_title("Where the time went")
+    return _save(fig, path)
+
+
 def _plot_clean_force(s: Mapping[str, np.ndarray], force_n: float, path: Path) -> Path:
     fig, (ax,) = _figure(height=2.8)
     t, sp = s["t"], s["set_point_n"]
@@ -360,6 +393,9 @@ def write_clean_report(
     rep.files["dirt_png"] = _plot_dirt(s, trips, times, out / "dirt.png")
     rep.files["force_png"] = _plot_clean_force(s, force_n, out / "force.png")
     rep.files["phases_png"] = _plot_phases(s, out / "phases.png", ch)
+    if metrics.get("time_breakdown_s"):
+        _try_plot(rep, "time_breakdown_png", _plot_time_breakdown, metrics["time_breakdown_s"],
+                  metrics.get("time_to_95pct_s"), out / "time_breakdown.png")
     named = {"dirt (first capture)": fields.get("target_initial", cloud.target)}
     for key, name in (("target", "dirt (last capture)"), ("coverage", "coverage"), ("potential", "potential")):
         if key in fields:
@@ -600,6 +636,7 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, Any], ...] = (
     ("force in ±20 %", "force_within_20pct_fraction", _pct),
     ("max force [N]", "max_contact_force_n", _num(".1f")),
     ("vision updates", "vision_updates", _num(".0f")),
+    ("95 % removed at [s]", "time_to_95pct_s", _num(".1f")),
     ("force MAE [N]", "force_mae_n", _num(".2f")),
     ("force RMSE [N]", "force_rmse_n", _num(".2f")),
     # the same samples for every controller (all contact ticks): motion_mae_m is VA-UFIC's aligned

@@ -43,6 +43,7 @@ from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxel
 from tactex.pointcloud.markings import resolve_marking
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
+from tactex.sim.dirt import PrestonParams
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.eigen import check_eigensolver
@@ -52,12 +53,16 @@ from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
+from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
+from tactex.tasks.wear_model import WearModel
 from tactex.tasks.world import SimWorldParams
 
-__all__ = ["CLEAN_BASELINES", "PHASES", "CleanConfig", "CleanResult", "run_clean"]
+__all__ = ["CLEAN_BASELINES", "CLEAN_OBJECTIVES", "PHASES", "CleanConfig", "CleanResult", "run_clean"]
 
 CLEAN_BASELINES = ("", "raster", "no_feedback")
+#: What the HEDAC agent follows between camera views (see CleanConfig.objective).
+CLEAN_OBJECTIVES = ("clean", "ergodic")
 #: Phase codes recorded in the time series (shared with the report).
 PHASES = CLEAN_PHASES
 #: Lift-off distance along the tool axis before vision and at the end [m].
@@ -99,7 +104,31 @@ class CleanConfig(SimWorldParams):
     voxel_size_m: float = param(0.003, "voxel grid of the captured cloud [m] (TEC: 3 mm)")
     max_velocity: float = param(1.0, "agent speed limit [voxels/step] (Table II)")
     explorer_rate_hz: float = param(20.0, "exploration steps per second of robot time [Hz]")
-    vision_every_steps: int = param(200, "exploration steps between visual re-measurements (TEC §VI-B) [-]")
+    vision_every_steps: int = param(
+        200, "exploration steps between visual re-measurements with --objective ergodic (TEC §VI-B) [-]")
+    vision_max_steps: int = param(
+        1200, "with --objective clean, the longest stretch of exploration steps between camera views; the wear "
+        "model usually sends the robot back earlier, when it says the dirt is gone or stops falling [-]")
+    objective: str = param(
+        "clean", "what the agent follows between camera views: 'clean' = the captured dirt minus what the robot's "
+        "own Preston wear model (force, slip, pad) says it has removed, so clean points stop attracting; "
+        "'ergodic' = the captured dirt as TEC's coverage target (eq. 2)")
+    preston_coefficient: float = param(
+        5e-3, "Preston coefficient k_p of the sponge on this dirt for the wear model [1/(Pa·m)] (the simulated "
+        "sponge's value; calibrate it on a real one: dirt level removed per pascal per metre slid)")
+    pad_radius_m: float = param(0.025, "radius of the sponge's pressure disc for the wear model [m]")
+    wear_margin: float = param(
+        1.5, "predicted removal a point needs before the wear model calls it clean (1 = the model exactly; more "
+        "tolerates a miscalibrated k_p or tracking error) [-]")
+    model_update_steps: int = param(10, "exploration steps between updates of the explorer's target from the "
+                                        "wear model [-]")
+    model_stall_steps: int = param(
+        60, "with --objective clean, back to the camera when the wear model predicts less than a hundredth of the "
+        "first capture's dirt removed over this many exploration steps (what is left is not where the agent goes) [-]")
+    cooling: float = param(
+        0.2, "HEDAC heat loss β per exploration step (TEC eq. 4's −u term): the potential reaches about "
+        "sqrt(alpha / cooling) voxels around the dirt, so the agent finishes a stroke before crossing to the next; "
+        "0 = none (the authors' code) [1/step]")
     stop_remaining: float = param(0.02, "stop when vision sees less than this fraction of the first target [-]")
     budget_s: float = param(
         120.0, "simulated time budget of the whole program; a final 0.4 s lift-off out of contact comes on top [s]")
@@ -164,14 +193,27 @@ class CleanConfig(SimWorldParams):
                 f"{self.contact_threshold_n} N (out of contact the force loop balances at Kp·F/(1 + Kp) with the "
                 "paper's Kp = 0.5): raise the first or lower the second"
             )
-        if self.vision_every_steps < 1 or (self.n_eigen is not None and self.n_eigen < 1):
+        if (self.vision_every_steps < 1 or self.vision_max_steps < 1
+                or (self.n_eigen is not None and self.n_eigen < 1)):
             raise ConfigError(
-                f"vision_every_steps and n_eigen must be ≥ 1, got {self.vision_every_steps} and {self.n_eigen}")
+                f"vision_every_steps, vision_max_steps and n_eigen must be ≥ 1, got {self.vision_every_steps}, "
+                f"{self.vision_max_steps} and {self.n_eigen}")
         if self.cloud and not Path(self.cloud).is_file():
             raise ConfigError(f"--cloud '{self.cloud}' is not a file (give a .ply/.pcd/.npz in the robot base frame)")
         if self.cloud and self.baseline == "no_feedback":
             raise ConfigError("--cloud already runs without vision feedback; drop --baseline no_feedback")
         check_eigensolver(self.eigensolver, self.eigen_tol)
+        if self.objective not in CLEAN_OBJECTIVES:
+            raise ConfigError(f"unknown objective '{self.objective}'; valid: {', '.join(CLEAN_OBJECTIVES)}")
+        for name in ("preston_coefficient", "pad_radius_m", "wear_margin"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if not (np.isfinite(self.cooling) and self.cooling >= 0):
+            raise ConfigError(f"cooling must be a finite number ≥ 0 [1/step], got {self.cooling!r}")
+        if self.model_update_steps < 1 or self.model_stall_steps < 1:
+            raise ConfigError(f"model_update_steps and model_stall_steps must be ≥ 1, got {self.model_update_steps} "
+                              f"and {self.model_stall_steps}")
         if not 0.0 <= self.stop_remaining < 1.0:
             raise ConfigError(f"stop_remaining must lie in [0, 1), got {self.stop_remaining}")
         check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
@@ -218,6 +260,12 @@ class _Log:
         self.explore_contact_ticks = 0
         self.max_force = 0.0
         self.set_point = cfg.force_n
+        self.time = TimeBreakdown(backend.dt, cfg.contact_threshold_n, self.truth)
+
+    def activity(self, phase: str, activity: str) -> None:
+        """Enter a phase of the state machine (:data:`PHASES`) doing ``activity`` (time breakdown)."""
+        self.phase = PHASES[phase]
+        self.time.set_activity(activity)
 
     @property
     def phase(self) -> int:
@@ -234,6 +282,7 @@ class _Log:
         fn = float(f[2])
         fmag = float(np.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]))
         self.max_force = max(self.max_force, fmag)
+        self.time.tick(fn)
         if fn >= self.cfg.contact_threshold_n and self.phase == PHASES["explore"]:
             self.contact_ticks += 1
             if abs(fn - self.set_point) <= 0.2 * self.set_point:
@@ -241,11 +290,13 @@ class _Log:
             if fn > 2.0 * self.set_point:
                 self.over_2x_ticks += 1
         if self.rec.due():
+            dirt = self.backend.dirt_remaining() if self.truth else np.nan
+            self.time.dirt(dirt)
             self.rec.add(
                 t=state.t, phase=self.phase, q=state.q, tcp=state.ee_position, agent=self.agent, force_z_n=fn,
                 force_norm_n=fmag, set_point_n=self.set_point if self.phase == PHASES["explore"] else 0.0,
                 pad_force_n=self.backend.pad_contact()[0] if self.truth else np.nan,
-                dirt_remaining=self.backend.dirt_remaining() if self.truth else np.nan,
+                dirt_remaining=dirt,
             )
         else:
             self.rec.add()
@@ -349,7 +400,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     dirt = backend.dirt_remaining if log.truth else (lambda: float("nan"))
 
     def capture(lift: bool = False) -> SurfaceCloud:
-        log.phase = PHASES["move"]
+        log.activity("move", "vision")
         if lift:
             # From a retract inside a bowl a single joint move to the capture pose dipped the tool back
             # into the bowl (hits of up to 720 N, a force trip that aborted the move, and a camera that
@@ -361,7 +412,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 warnings.warn(f"clean: no straight way back to the camera ({exc}); moving in joint space",
                               RuntimeWarning, stacklevel=2)
         loop.move_joints(q_capture, settle_s=0.3)
-        log.phase = PHASES["capture"]
+        log.activity("capture", "vision")
         if given is not None:
             return given
         return capture_target_cloud(backend.render_depth(), acq)
@@ -412,6 +463,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             # hole in the rim's shadow, braking gave 87.9 % of contact within ±20 % and 21.0 N peaks,
             # sliding 93.5 % and 18.2 N (the plate: 92.9 % and 13.6 N against 93.0 % and 13.4 N).
             edge_braking=False,
+            cooling=cfg.cooling,
         )
         if hcfg.compiled and kernel.compile_pending():
             bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s; "
@@ -428,6 +480,13 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         capture()  # to the capture posture, as the camera path did
     cmd: ExplorationCommand = source.reset(x0)
     cmd = cmd[0] if isinstance(cmd, list) else cmd
+    # the robot's own estimate of what it has wiped off since the last view (tactex only: the baselines
+    # keep TEC's coverage target)
+    wear = (WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m, PrestonParams().force_threshold_n,
+                      cfg.wear_margin) if cfg.baseline == "" and cfg.objective == "clean" else None)
+    target0 = float(cloud.target.sum())
+    vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
+    wear_ticks = 10  # control ticks between wear-model updates (the pad moves well under a millimetre)
 
     # the posture of the capture pose keeps the redundant elbow where it was planned
     ga = NullspacePosture(GaLineForceController(GaLineForceParams()), q_posture=q_capture)
@@ -448,7 +507,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     try:
         while loop.t < t_end:
             # 3a. hover over the agent and approach along its normal line
-            log.phase = PHASES["move"]
+            log.activity("move", "transit")
             # Through a waypoint straight above the hover pose: a joint move from the high capture pose
             # down to a hover inside a bowl can swing the tool through the rim on the way. The waypoint is
             # solved from the hover (same IK branch) and dropped when it is not a short step from it.
@@ -470,7 +529,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if q_above is not None:
                 loop.move_joints(q_above, settle_s=0.0)
             loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
-            log.phase = PHASES["approach"]
+            log.activity("approach", "touch_down")
             loop.use(ga)
             t_touch = None
             t_approach_end = loop.t + 6.0
@@ -487,7 +546,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     "surface and the real one disagree (object moved?)"
                 )
             # 3b. contact exploration
-            log.phase = PHASES["explore"]
+            log.activity("explore", "explore")
             prev = cmd
             n_prev = n_next = cmd.normal.copy()  # the commanded normal line, turned at a bounded rate
             max_turn = np.radians(cfg.max_normal_rate_deg_s) * dt_step
@@ -496,6 +555,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             covered = False
             relocation = None
             t_phase = loop.t
+            fv_integral, ticks_since_wear = 0.0, 0  # ∫F_n·v dt [N·m] since the last wear update
+            predicted_left: list[float] = []  # the wear model's remaining fraction at each update
             while loop.t < t_end:
                 if loop.t >= next_step - 1e-9:
                     prev = cmd
@@ -512,21 +573,41 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     if isinstance(source, HedacExplorer) and steps_since_vision % 20 == 0:
                         ergodicity.append((loop.t, source.ergodicity()))
                         covered = given is not None and source.coverage_residual() <= cfg.stop_remaining
+                    if wear is not None and steps_since_vision % cfg.model_update_steps == 0:
+                        predicted = wear.remaining()
+                        left = float(predicted.sum()) / target0
+                        predicted_left.append(left)
+                        back = cfg.model_stall_steps // cfg.model_update_steps
+                        stalled = len(predicted_left) > back and predicted_left[-1 - back] - left < 0.01
+                        if left <= cfg.stop_remaining or stalled:
+                            covered = True  # the model says the job is done: time for the camera to judge
+                        else:
+                            source.update_target(predicted, keep_coverage=True)
                 frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
                 point = prev.point + frac * (cmd.point - prev.point)
                 normal = n_prev + frac * (n_next - n_prev)
                 ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
                 force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
                 log.set_point = force
-                loop.tick(LineForceReference(point, normal, force))
+                st = loop.tick(LineForceReference(point, normal, force))
+                if wear is not None:
+                    fn = float(st.wrench_tool[2])
+                    if fn > wear.threshold:
+                        v = st.ee_twist[:3]
+                        vn = float(v @ normal)
+                        fv_integral += fn * float(np.sqrt(max(float(v @ v) - vn * vn, 0.0))) * backend.dt
+                    ticks_since_wear += 1
+                    if ticks_since_wear >= wear_ticks:
+                        wear.wipe(st.ee_position, fv_integral)
+                        fv_integral, ticks_since_wear = 0.0, 0
                 if int(loop.t * 1000) % 250 == 0:
                     bar.update(loop.t, dirt=dirt(), vision=vision_updates)
                 if cfg.baseline == "raster" and source.done:
                     break
-                if cfg.baseline == "" and given is None and steps_since_vision >= cfg.vision_every_steps:
+                if cfg.baseline == "" and given is None and steps_since_vision >= vision_steps:
                     break
                 if covered:
-                    break  # no camera to re-measure: the explorer's own coverage of the given target says done
+                    break  # the wear model (or, for a given cloud, the coverage) says the dirt is gone
             explore_time += loop.t - t_phase
             if relocation is not None:
                 # TEC §VI-B: lift off along the normal, then the hover and approach of 3a at the touch-down
@@ -540,7 +621,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 break  # (a re-measurement that would end after the budget could not be used)
             # 4. back to vision: re-measure the dirt on the same points, update the target
             t_trip = loop.t
-            log.phase = PHASES["retract"]
+            log.activity("retract", "vision")
             loop.retract(RETRACT_M, duration_s=0.4)
             new_capture = capture(lift=True)
             vision_trip_s = loop.t - t_trip  # the next trip's estimate
@@ -553,6 +634,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if remaining_seen < cfg.stop_remaining or not np.any(mass > 0):
                 break
             source.update_target(mass)
+            if wear is not None:
+                wear.reset(mass)  # the camera's view replaces the prediction
             # restart from the dirt nearest to where the robot is
             left = np.flatnonzero(mass > 0)
             if keep_out is not None and source.clear_points[left].any():
@@ -570,13 +653,15 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         bar.note(f"stopped early: {aborted}")
 
     # lift off at the end so the final state is out of contact (0.4 s, on top of the budget)
-    log.phase = PHASES["retract"]
+    log.activity("retract", "lift_off")
     if not aborted and loop.state.wrench_tool[2] > cfg.contact_threshold_n:
         loop.retract(RETRACT_M, duration_s=0.4)
     bar.close(f"dirt removed {100 * (1 - dirt()):.1f} %" if log.truth else "done (the dirt is not measured here)")
 
     series = log.rec.arrays()
     contact = max(log.contact_ticks, 1)
+    t95 = (time_to_fraction_removed(series["t"], series["dirt_remaining"], 0.95)
+           if log.truth and len(series.get("t", ())) else None)
     fields = {"target_initial": cloud.target.copy()}
     if isinstance(source, HedacExplorer):
         fields.update(target=source.target.copy(), coverage=source.coverage.copy(), potential=source.potential.copy())
@@ -590,6 +675,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "contact_time_s": log.contact_ticks * backend.dt,
         "sim_time_s": loop.t,
         "explore_time_s": explore_time,
+        # issue 21: where the time went, and when 95 % of the marking was off (None: never, or no ground truth)
+        "time_breakdown_s": log.time.seconds(),
+        "time_to_95pct_s": t95,
         "vision_updates": vision_updates,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],

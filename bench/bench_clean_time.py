@@ -1,0 +1,83 @@
+"""Time to clean (issue 21): simulated seconds until 95 % of the marking is off, tactex against the
+boustrophedon raster with the same controller, force and speed, on plate, bowl and cup with the X,
+RLI and blobs markings, and on sparse dirt (the plate with three 1 cm spots).
+
+``time_to_95pct_s`` is the first time the simulator's dirt (ground truth, not what vision sees) is
+down to 5 % of the marking; a run that never gets there counts its whole simulated time
+(``reached_95pct`` < 1 says so). Each figure is the mean over seeds (the explorer's random headings;
+the raster ignores the seed and is run with each of them all the same). The ratio tactex / raster is
+the figure with a target; the tactex runs' force band (share of contact within ±20 %) and peak force
+(2 × the 10 N set point) are recorded beside it, with the time breakdown of one seed.
+
+The full stage runs 2 × 3 × 3 × 3 + 2 × 3 cleans (10–25 min on 2 cores); ``--quick`` runs the plate X
+and the sparse case with one seed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactex.tasks.clean import CleanConfig, run_clean
+
+OBJECTS = ("plate", "bowl", "cup")
+MARKINGS = ("X", "RLI", "blobs")
+METHODS = {"tactex": "", "raster": "raster"}
+SEEDS = (0, 1, 2)
+SPARSE = ("plate", "spots")
+#: tactex's time over the raster's: every object × marking, and sparse dirt.
+RATIO_TARGET, SPARSE_RATIO_TARGET = 0.7, 0.3
+FORCE_N = CleanConfig().force_n
+
+TARGETS: dict[str, tuple[str, float]] = {"tasks.clean_time.sparse.ratio": ("<=", SPARSE_RATIO_TARGET)}
+for _obj in OBJECTS:
+    for _mark in MARKINGS:
+        _k = f"tasks.clean_time.{_obj}.{_mark}"
+        TARGETS[f"{_k}.ratio"] = ("<=", RATIO_TARGET)
+        TARGETS[f"{_k}.tactex.force_within_20pct_fraction"] = (">=", 0.90)
+        TARGETS[f"{_k}.tactex.max_contact_force_n"] = ("<=", 2.0 * FORCE_N)
+
+
+def _one(obj: str, marking: str, baseline: str, seed: int) -> dict:
+    m = run_clean(CleanConfig(object_name=obj, marking=marking, baseline=baseline, seed=seed), progress=False).metrics
+    t95 = m["time_to_95pct_s"]
+    return {"t95": m["sim_time_s"] if t95 is None else t95, "reached": float(t95 is not None),
+            "removed": m["dirt_removed_fraction"], "within": m["force_within_20pct_fraction"],
+            "max_force": m["max_contact_force_n"], "sim": m["sim_time_s"], "vision": m["vision_updates"],
+            "breakdown": m["time_breakdown_s"]}
+
+
+def _case(obj: str, marking: str, seeds: tuple[int, ...]) -> dict:
+    out: dict = {}
+    for name, baseline in METHODS.items():
+        runs = []
+        for seed in seeds:
+            print(f"   clean_time {obj} {marking} {name} seed {seed} ...", flush=True)
+            runs.append(_one(obj, marking, baseline, seed))
+        out[name] = {
+            "time_to_95pct_s": float(np.mean([r["t95"] for r in runs])),
+            "time_to_95pct_s_per_seed": [round(r["t95"], 3) for r in runs],
+            "reached_95pct": float(np.mean([r["reached"] for r in runs])),
+            "dirt_removed_fraction": float(np.mean([r["removed"] for r in runs])),
+            # the worst seed: the targets hold for every run, not on average
+            "force_within_20pct_fraction": float(min(r["within"] for r in runs)),
+            "max_contact_force_n": float(max(r["max_force"] for r in runs)),
+            "sim_time_s": float(np.mean([r["sim"] for r in runs])),
+            "vision_updates": float(np.mean([r["vision"] for r in runs])),
+            "time_breakdown_s": {k: round(v, 2) for k, v in runs[0]["breakdown"].items()},
+            "n_seeds": len(runs),
+        }
+    out["ratio"] = out["tactex"]["time_to_95pct_s"] / out["raster"]["time_to_95pct_s"]
+    return out
+
+
+def run(args) -> dict:
+    quick = getattr(args, "quick", False)
+    seeds = SEEDS[:1] if quick else SEEDS
+    result: dict = {}
+    for obj in OBJECTS[:1] if quick else OBJECTS:
+        result[obj] = {}
+        for marking in MARKINGS[:1] if quick else MARKINGS:
+            result[obj][marking] = _case(obj, marking, seeds)
+    result["sparse"] = _case(*SPARSE, seeds)
+    result["sparse"]["case"] = f"{SPARSE[0]} with marking '{SPARSE[1]}' (three 1 cm spots)"
+    return {"tasks": {"clean_time": result}}
