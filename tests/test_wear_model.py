@@ -62,3 +62,24 @@ def test_wear_model_validation(kwargs, match) -> None:
     args = {"preston_coefficient": K_P, "pad_radius_m": R, **kwargs}
     with pytest.raises(ConfigError, match=match):
         WearModel(_plane(), **args)
+
+
+def test_islands_left_and_the_next_one() -> None:
+    """Two islands of dirt on a plane: after one is wiped, the next touch-down is the other one's nearest
+    point, and an island already tried since the last view is not offered again."""
+    cloud = _plane()
+    x = cloud.points[:, 0]
+    target = ((np.abs(x + 0.05) < 0.006) | (np.abs(x - 0.05) < 0.006)).astype(float)
+    wear = WearModel(cloud, K_P, R)
+    wear.reset(target)
+    left_island = np.array([-0.05, 0.0, 0.0])
+    assert wear.island_left(left_island, 2 * R)
+    assert wear.dirty().sum() == target.sum()
+    for y in np.arange(-0.09, 0.09 + 1e-9, 0.0005):  # wipe the left strip along its length, and past its ends
+        wear.wipe(np.array([-0.05, y, 0.0]), F * 0.0005)
+    assert not wear.island_left(left_island, 0.02)  # every point there had its pass (removal ≥ 1)
+    nxt = wear.next_island(left_island, [], 0.02)
+    assert nxt is not None and abs(nxt[0] - 0.044) < 0.003 and abs(nxt[1]) < 0.003  # the right strip's nearest
+    assert wear.next_island(left_island, [nxt], 0.07) is None  # tried (all of it within 7 cm): the camera judges
+    assert wear.dirt_near(nxt, 0.01) == pytest.approx(target[np.linalg.norm(cloud.points - nxt, axis=1) <= 0.01].sum())
+    assert wear.dirt_near(left_island, 0.01) == 0.0

@@ -7,10 +7,17 @@ The state machine of TEC §V-A3:
 2. **hover** — move above the surface while the Laplacian eigenbasis is computed;
 3. **contact exploration** — each tick the GA line-and-force controller tracks the normal line of
    the HEDAC agent and presses with the set force; the agent steps at ``explorer_rate_hz``;
-4. every ``vision_every_steps`` exploration steps (TEC §VI-B: ~200) the robot returns to the
-   capture pose, re-measures the remaining dirt and updates the target on the same points (no new
-   basis), then goes back to contact. The run stops when vision sees less than ``stop_remaining``
-   of the initial dirt, or when the time budget ends.
+4. the robot returns to the capture pose, re-measures the remaining dirt and updates the target on
+   the same points (no new basis), then goes back to contact. The run stops when vision sees less
+   than ``stop_remaining`` of the initial dirt, or when the time budget ends.
+
+When to return to the camera, and what the agent follows until then, is ``objective``:
+``ergodic`` is TEC's loop (the captured dirt as the coverage target of eq. 2, a trip every
+``vision_every_steps``, ~200 in TEC §VI-B); ``clean`` (the default, issue 21) makes the target the
+captured dirt minus what the robot's own Preston wear model says it has removed
+(:class:`~tactex.tasks.wear_model.WearModel`), so clean points stop attracting, and returns when
+that model says the dirt is gone or stops falling. Each tick is accounted in a time breakdown
+(:mod:`tactex.tasks.time_breakdown`).
 
 Baselines (same controller, force and robot): ``raster`` — a boustrophedon path over the whole
 surface; ``no_feedback`` — HEDAC on the first capture only, never re-measuring.
@@ -486,6 +493,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                       cfg.wear_margin) if cfg.baseline == "" and cfg.objective == "clean" else None)
     target0 = float(cloud.target.sum())
     vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
+    islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
+    island_moves = 0  # those relocations
     wear_ticks = 10  # control ticks between wear-model updates (the pad moves well under a millimetre)
 
     # the posture of the capture pose keeps the redundant elbow where it was planned
@@ -557,6 +566,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             t_phase = loop.t
             fv_integral, ticks_since_wear = 0.0, 0  # ∫F_n·v dt [N·m] since the last wear update
             predicted_left: list[float] = []  # the wear model's remaining fraction at each update
+            relocate_to = None
             while loop.t < t_end:
                 if loop.t >= next_step - 1e-9:
                     prev = cmd
@@ -578,8 +588,26 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         left = float(predicted.sum()) / target0
                         predicted_left.append(left)
                         back = cfg.model_stall_steps // cfg.model_update_steps
-                        stalled = len(predicted_left) > back and predicted_left[-1 - back] - left < 0.01
-                        if left <= cfg.stop_remaining or stalled:
+                        # stalled: less than a hundredth of the first view's dirt (or a tenth of what is
+                        # left) wiped off over the last model_stall_steps
+                        stalled = (len(predicted_left) > back
+                                   and predicted_left[-1 - back] - left < max(0.01, 0.1 * left))
+                        # or the island under the agent is done: nothing the model calls dirty within two pad
+                        # radii (the cooled potential barely reaches the next island)
+                        stalled = stalled or not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)
+                        if left > cfg.stop_remaining and stalled:
+                            # dirt left, but not where the agent is: lift off and touch down at the nearest
+                            # island the model calls dirty, unless there is none it has not tried since the
+                            # last view or it holds less than the camera's stop level (then the camera judges)
+                            island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
+                            if (island is None
+                                    or wear.dirt_near(island, 2.0 * cfg.pad_radius_m) < cfg.stop_remaining * target0):
+                                covered = True
+                            else:
+                                islands_tried.append(island)
+                                relocate_to = island
+                                break
+                        elif left <= cfg.stop_remaining:
                             covered = True  # the model says the job is done: time for the camera to judge
                         else:
                             source.update_target(predicted, keep_coverage=True)
@@ -611,9 +639,21 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             explore_time += loop.t - t_phase
             if relocation is not None:
                 # TEC §VI-B: lift off along the normal, then the hover and approach of 3a at the touch-down
-                log.phase = PHASES["retract"]
+                log.activity("retract", "transit")
                 loop.retract(max(relocation.clearance_m, cfg.hover_height_m), duration_s=0.4)
                 bar.note(f"relocating ({relocation.reason}): {relocation.air_length_m:.3f} m through the air")
+                continue
+            if relocate_to is not None:
+                # to the next island through the air: lift off here, then the hover and approach of 3a
+                log.activity("retract", "transit")
+                loop.retract(RETRACT_M, duration_s=0.4)
+                island_moves += 1
+                agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
+                air_path_m += source.air_path_length
+                relocations += len(source.relocations)
+                keep_out_contacts += source.keep_out_contacts
+                cmd = source.reset(relocate_to)
+                cmd = cmd[0] if isinstance(cmd, list) else cmd
                 continue
             if cfg.baseline == "raster" and source.done:
                 break
@@ -636,6 +676,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             source.update_target(mass)
             if wear is not None:
                 wear.reset(mass)  # the camera's view replaces the prediction
+                islands_tried.clear()
             # restart from the dirt nearest to where the robot is
             left = np.flatnonzero(mass > 0)
             if keep_out is not None and source.clear_points[left].any():
@@ -679,6 +720,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "time_breakdown_s": log.time.seconds(),
         "time_to_95pct_s": t95,
         "vision_updates": vision_updates,
+        "island_relocations": island_moves,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],
         "vision_remaining_fraction": remaining_seen,

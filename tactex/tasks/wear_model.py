@@ -69,6 +69,34 @@ class WearModel:
         if idx:
             self.removed[idx] += self._scale * force_slip_integral
 
+    def dirty(self) -> np.ndarray:
+        """Points (N,) of the view's dirt the model has not yet seen wiped off once (predicted removal < 1,
+        the margin left aside: an island is done when every point has had its pass; the margin only decides
+        when a point stops attracting the agent)."""
+        return (self._target > 0) & (self.removed < 1.0)
+
+    def dirt_near(self, here_m: np.ndarray, radius_m: float) -> float:
+        """The view's dirt mass on the :meth:`dirty` points within ``radius_m`` of ``here_m`` (3,) [m]."""
+        near = np.linalg.norm(self.cloud.points - np.asarray(here_m, dtype=float), axis=1) <= radius_m
+        return float(self._target[near & self.dirty()].sum())
+
+    def island_left(self, here_m: np.ndarray, radius_m: float) -> bool:
+        """Whether dirt (:meth:`dirty`) is left within ``radius_m`` of ``here_m`` (3,) [m]."""
+        return self.dirt_near(here_m, radius_m) > 0.0
+
+    def next_island(self, here_m: np.ndarray, tried_m: list[np.ndarray], clearance_m: float) -> np.ndarray | None:
+        """Where to touch down next (3,) [m]: the dirty point (:meth:`dirty`) nearest to ``here_m``, farther
+        than ``clearance_m`` from it and from every earlier touch-down in ``tried_m`` (dirt the agent stalled on
+        after touching down next to it is left to the camera). None when there is no such point."""
+        pts = self.cloud.points
+        dirty = self.dirty()
+        for p in [here_m, *tried_m]:
+            dirty &= np.linalg.norm(pts - np.asarray(p, dtype=float), axis=1) > clearance_m
+        idx = np.flatnonzero(dirty)
+        if idx.size == 0:
+            return None
+        return pts[idx[np.argmin(np.linalg.norm(pts[idx] - np.asarray(here_m, dtype=float), axis=1))]].copy()
+
     def remaining(self) -> np.ndarray:
         """Predicted dirt mass (N,): the view's target times the share the prediction leaves."""
         return self._target * np.clip(1.0 - self.removed / self.margin, 0.0, 1.0)
