@@ -4,19 +4,21 @@ RLI and blobs markings, and on sparse dirt (the plate with three 1 cm spots).
 
 ``time_to_95pct_s`` is the first time the simulator's dirt (ground truth, not what vision sees) is
 down to 5 % of the marking; a run that never gets there counts its whole simulated time
-(``reached_95pct`` < 1 says so). Each figure is the mean over seeds (the explorer's random headings;
-the raster ignores the seed and is run with each of them all the same). The ratio tactex / raster is
+(``reached_95pct`` < 1 says so). tactex's figure is the mean over three seeds (the explorer's random
+headings). The raster runs once: it never reads the seed (the seed only draws sensor noise, which is
+off here, and the explorer's headings), and the physics is deterministic. The ratio tactex / raster is
 the figure with a target; the tactex runs' force band (share of contact within ±20 %) and peak force
 (2 × the 10 N set point) are recorded beside it, with the time breakdown of one seed.
 
-The full stage runs 2 × 3 × 3 × 3 + 2 × 3 cleans (10–25 min on 2 cores); ``--quick`` runs the plate X
-and the sparse case with one seed.
+The full stage runs 10 × (3 + 1) cleans (10–20 min on 2 cores); ``--quick`` runs the plate X and the
+sparse case with one seed.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from tactex.errors import TactexError
 from tactex.tasks.clean import CleanConfig, run_clean
 
 OBJECTS = ("plate", "bowl", "cup")
@@ -38,7 +40,14 @@ for _obj in OBJECTS:
 
 
 def _one(obj: str, marking: str, baseline: str, seed: int) -> dict:
-    m = run_clean(CleanConfig(object_name=obj, marking=marking, baseline=baseline, seed=seed), progress=False).metrics
+    try:
+        m = run_clean(CleanConfig(object_name=obj, marking=marking, baseline=baseline, seed=seed),
+                      progress=False).metrics
+    except TactexError as exc:  # a failed run is a result (NaN: its case misses its targets), not a lost stage
+        print(f"   FAILED: {type(exc).__name__}: {exc}", flush=True)
+        nan = float("nan")
+        return {"t95": nan, "reached": 0.0, "removed": nan, "within": nan, "max_force": nan, "sim": nan,
+                "vision": nan, "breakdown": {}, "error": f"{type(exc).__name__}: {exc}"}
     t95 = m["time_to_95pct_s"]
     return {"t95": m["sim_time_s"] if t95 is None else t95, "reached": float(t95 is not None),
             "removed": m["dirt_removed_fraction"], "within": m["force_within_20pct_fraction"],
@@ -50,7 +59,7 @@ def _case(obj: str, marking: str, seeds: tuple[int, ...]) -> dict:
     out: dict = {}
     for name, baseline in METHODS.items():
         runs = []
-        for seed in seeds:
+        for seed in seeds if baseline == "" else seeds[:1]:
             print(f"   clean_time {obj} {marking} {name} seed {seed} ...", flush=True)
             runs.append(_one(obj, marking, baseline, seed))
         out[name] = {
@@ -59,12 +68,13 @@ def _case(obj: str, marking: str, seeds: tuple[int, ...]) -> dict:
             "reached_95pct": float(np.mean([r["reached"] for r in runs])),
             "dirt_removed_fraction": float(np.mean([r["removed"] for r in runs])),
             # the worst seed: the targets hold for every run, not on average
-            "force_within_20pct_fraction": float(min(r["within"] for r in runs)),
-            "max_contact_force_n": float(max(r["max_force"] for r in runs)),
+            "force_within_20pct_fraction": float(np.min([r["within"] for r in runs])),
+            "max_contact_force_n": float(np.max([r["max_force"] for r in runs])),
             "sim_time_s": float(np.mean([r["sim"] for r in runs])),
             "vision_updates": float(np.mean([r["vision"] for r in runs])),
             "time_breakdown_s": {k: round(v, 2) for k, v in runs[0]["breakdown"].items()},
             "n_seeds": len(runs),
+            "failed_runs": sum("error" in r for r in runs),
         }
     out["ratio"] = out["tactex"]["time_to_95pct_s"] / out["raster"]["time_to_95pct_s"]
     return out

@@ -522,7 +522,29 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             # solved from the hover (same IK branch) and dropped when it is not a short step from it.
             rot = tool_rotation_for_normal(cmd.normal)
             hover = cmd.point + cfg.hover_height_m * cmd.normal
-            q_hover = loop.solve_pose(hover, rot, q_seed=q_capture)
+            try:
+                q_hover = loop.solve_pose(hover, rot, q_seed=q_capture)
+            except SimulationError:
+                # out of the arm's reach (the far side of the cup): the nearest other dirt the wear model
+                # knows of, or the end of the program when there is none (TEC's loop has no other to offer)
+                island = None
+                if wear is not None:
+                    islands_tried.append(cmd.point.copy())
+                    island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
+                if wear is None:
+                    raise
+                if island is None:
+                    warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach and "
+                                  "no other dirt left to the wear model; ending the program", RuntimeWarning,
+                                  stacklevel=2)
+                    break
+                warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach; "
+                              f"moving on to the dirt at {np.round(island, 3).tolist()} m", RuntimeWarning,
+                              stacklevel=2)
+                agent_path_m += float(getattr(source, "path_length", 0.0))
+                cmd = source.reset(island)
+                cmd = cmd[0] if isinstance(cmd, list) else cmd
+                continue
             try:
                 q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
             except SimulationError:
