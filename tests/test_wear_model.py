@@ -83,3 +83,4 @@ def test_islands_left_and_the_next_one() -> None:
     assert wear.next_island(left_island, [nxt], 0.07) is None  # tried (all of it within 7 cm): the camera judges
     assert wear.dirt_near(nxt, 0.01) == pytest.approx(target[np.linalg.norm(cloud.points - nxt, axis=1) <= 0.01].sum())
     assert wear.dirt_near(left_island, 0.01) == 0.0
+    assert wear.dirty_fraction(target.sum()) == pytest.approx(0.5, abs=0.02)  # the right strip is left

@@ -130,8 +130,8 @@ class CleanConfig(SimWorldParams):
     model_update_steps: int = param(10, "exploration steps between updates of the explorer's target from the "
                                         "wear model [-]")
     model_stall_steps: int = param(
-        60, "with --objective clean, back to the camera when the wear model predicts less than a hundredth of the "
-        "first capture's dirt removed over this many exploration steps (what is left is not where the agent goes) [-]")
+        60, "with --objective clean, back to the camera (or on to the next island of dirt) when the wear model "
+        "predicts less than a tenth of what is left removed over this many exploration steps [-]")
     cooling: float = param(
         0.2, "HEDAC heat loss β per exploration step (TEC eq. 4's −u term): the potential reaches about "
         "sqrt(alpha / cooling) voxels around the dirt, so the agent finishes a stroke before crossing to the next; "
@@ -588,6 +588,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             t_phase = loop.t
             fv_integral, ticks_since_wear = 0.0, 0  # ∫F_n·v dt [N·m] since the last wear update
             predicted_left: list[float] = []  # the wear model's remaining fraction at each update
+            # done when the model says the camera would stop, and after a return for a remnant, once most
+            # of that remnant is off: each trip back costs a touch-down and a trip to the camera
+            done_level = (cfg.stop_remaining if wear is None
+                          else min(cfg.stop_remaining, 0.2 * wear.remaining_fraction(target0)))
             relocate_to = None
             while loop.t < t_end:
                 if loop.t >= next_step - 1e-9:
@@ -610,17 +614,17 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         left = float(predicted.sum()) / target0
                         predicted_left.append(left)
                         back = cfg.model_stall_steps // cfg.model_update_steps
-                        # stalled: less than a hundredth of the first view's dirt (or a tenth of what is
-                        # left) wiped off over the last model_stall_steps
-                        stalled = (len(predicted_left) > back
-                                   and predicted_left[-1 - back] - left < max(0.01, 0.1 * left))
-                        # or the island under the agent is done: nothing the model calls dirty within two pad
-                        # radii (the cooled potential barely reaches the next island)
-                        stalled = stalled or not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)
-                        if left > cfg.stop_remaining and stalled:
+                        # stalled: less than a tenth of what is left wiped off over the last model_stall_steps
+                        stalled = len(predicted_left) > back and predicted_left[-1 - back] - left < 0.1 * left
+                        # or the island under the agent is done while a far one holds a fair share (the cooled
+                        # potential barely reaches it): nothing the model calls dirty within two pad radii
+                        stalled = stalled or (left > 4 * cfg.stop_remaining
+                                              and not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m))
+                        if left > done_level and stalled:
                             # dirt left, but not where the agent is: lift off and touch down at the nearest
                             # island the model calls dirty, unless there is none it has not tried since the
-                            # last view or it holds less than the camera's stop level (then the camera judges)
+                            # last view or it holds less than the camera's stop level (then the camera judges:
+                            # each touch-down costs about half a second of force settling and a second of time)
                             island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
                             if (island is None
                                     or wear.dirt_near(island, 2.0 * cfg.pad_radius_m) < cfg.stop_remaining * target0):
@@ -629,7 +633,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                                 islands_tried.append(island)
                                 relocate_to = island
                                 break
-                        elif left <= cfg.stop_remaining:
+                        elif left <= done_level:
                             covered = True  # the model says the job is done: time for the camera to judge
                         else:
                             source.update_target(predicted, keep_coverage=True)

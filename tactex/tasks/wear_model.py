@@ -75,6 +75,10 @@ class WearModel:
         when a point stops attracting the agent)."""
         return (self._target > 0) & (self.removed < 1.0)
 
+    def dirty_fraction(self, reference_total: float) -> float:
+        """The view's dirt on the :meth:`dirty` points as a fraction of ``reference_total``."""
+        return float(self._target[self.dirty()].sum()) / reference_total if reference_total > 0 else 0.0
+
     def dirt_near(self, here_m: np.ndarray, radius_m: float) -> float:
         """The view's dirt mass on the :meth:`dirty` points within ``radius_m`` of ``here_m`` (3,) [m]."""
         near = np.linalg.norm(self.cloud.points - np.asarray(here_m, dtype=float), axis=1) <= radius_m
