@@ -261,17 +261,18 @@ def _plot_time_breakdown(breakdown: Mapping[str, Any], t95: Any, path: Path) -> 
     parts = [(k, float(v)) for k, v in breakdown.items() if v is not None and float(v) > 0]
     if not parts:
         raise InputError("the time breakdown is empty (no tick was accounted)")
-    fig, (ax,) = _figure(height=1.4)
+    fig, (ax,) = _figure(height=2.2)
     left = 0.0
     for key, v in parts:
         label, color = TIME_BUCKETS.get(key, (key, "C9"))
-        ax.barh([0], [v], left=left, color=color, label=f"{label}: {v:.1f} s")
+        ax.barh([0], [v], height=0.6, left=left, color=color, label=f"{label}: {v:.1f} s")
         left += v
     if t95 is not None:
         ax.axvline(float(t95), color="k", ls="--", lw=1.2, label=f"95 % removed at {float(t95):.1f} s")
+    ax.set_ylim(-0.5, 2.4)  # the legend sits above the bar
     ax.set_yticks([])
     ax.set_xlabel("time [s] (bucket durations stacked, not in time order)")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.55), fontsize=7, ncol=3, frameon=False)
+    ax.legend(loc="upper center", fontsize=7, ncol=3, frameon=False)
     ax.set_title("Where the time went")
     return _save(fig, path)
 
