@@ -471,6 +471,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             # sliding 93.5 % and 18.2 N (the plate: 92.9 % and 13.6 N against 93.0 % and 13.4 N).
             edge_braking=False,
             cooling=cfg.cooling,
+            # with the wear model the task moves between islands itself, from what the model says is left
+            # (the explorer's stall rule fired at a 1 cm spot the cooled potential holds the agent on); the
+            # explorer's relocation stays for keep-out zones, whose flights it plans around them
+            relocate=keep_out is not None or not (cfg.baseline == "" and cfg.objective == "clean"),
         )
         if hcfg.compiled and kernel.compile_pending():
             bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s; "
@@ -542,6 +546,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                               f"moving on to the dirt at {np.round(island, 3).tolist()} m", RuntimeWarning,
                               stacklevel=2)
                 agent_path_m += float(getattr(source, "path_length", 0.0))
+                air_path_m += source.air_path_length
+                relocations += len(source.relocations)
+                keep_out_contacts += source.keep_out_contacts
                 cmd = source.reset(island)
                 cmd = cmd[0] if isinstance(cmd, list) else cmd
                 continue
