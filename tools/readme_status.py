@@ -107,6 +107,17 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
                    f"{base}/max_contact_force_n", f"{base}/sim_time_s"),
                   lambda rem, within, peak, t: f"{rem * 100:.1f} %; {within * 100:.1f} %; {peak:.1f} N "
                                                 f"({t:.0f} s)")
+    for obj in ("plate", "bowl", "cup"):
+        base = f"tasks/clean_time/{obj}"
+        r.add(f"time to 95 % removed, {obj}, tactex / raster (X; RLI; blobs)", "≤ 0.7× the raster",
+              tuple(f"{base}/{m}/{k}" for m in ("X", "RLI", "blobs")
+                    for k in ("tactex/time_to_95pct_s", "raster/time_to_95pct_s", "ratio")),
+              lambda *v: "; ".join(f"{v[i]:.1f} / {v[i + 1]:.1f} s ({v[i + 2]:.2f}×)" for i in (0, 3, 6)),
+              lambda *v: max(v[2], v[5], v[8]) <= 0.7)
+    r.add("time to 95 % removed, sparse dirt (plate, three 1 cm spots), tactex / raster", "≤ 0.3× the raster",
+          ("tasks/clean_time/sparse/tactex/time_to_95pct_s", "tasks/clean_time/sparse/raster/time_to_95pct_s",
+           "tasks/clean_time/sparse/ratio"),
+          lambda t, rs, q: f"{t:.1f} / {rs:.1f} s ({q:.2f}×)", lambda t, rs, q: q <= 0.3)
     r.add("torque-rate limiter ticks, tactex clean (plate, bowl) and wipe", "0",
           ("tasks/clean/plate/tactex/torque_rate_clip_ticks", "tasks/clean/bowl/tactex/torque_rate_clip_ticks",
            "tasks/wipe/va_ufic/torque_rate_clip_ticks"),
