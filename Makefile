@@ -4,6 +4,7 @@
 # builds .venv with exactly the versions in uv.lock (`uv sync --frozen`: it never re-resolves).
 # EXTRAS picks the optional extras; the venv holds exactly those (uv sync removes the others).
 # franka is in by default: the real-robot tests run against tactex twin (franky-sim) on loopback.
+# `make test-distributed` (and CI) add the distributed extra: the Ray tests run instead of skipping.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -66,6 +67,9 @@ test-latest: $(UV)
 	VIRTUAL_ENV=.venv-latest $(UV) pip install --quiet --python .venv-latest/bin/python \
 		--resolution highest --refresh -e '.[dev,fast,franka]'
 	.venv-latest/bin/python -m pytest -q -p no:cacheprovider
+
+test-distributed:
+	$(MAKE) test EXTRAS="$(EXTRAS) distributed"
 
 clean-venv:
 	rm -rf $(VENV) .tools .venv-latest
