@@ -8,10 +8,12 @@ import sys
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 
 NAME = "sweep"
-HELP = "explore clouds over a grid of n_K and α from several starts (TEC Fig. 6-11) and plot the ergodicity"
+HELP = ("explore clouds over a grid of n_K and α from several starts (TEC Fig. 6-11) and plot the ergodicity, "
+        "on local processes or Ray; or tune HEDAC's parameters with Ray Tune (--tune)")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
+    from tactex.commands.study import add_executor_arguments
     from tactex.experiments.sweep import SweepConfig
     from tactex.pointcloud.shapes import surface_names
 
@@ -20,10 +22,15 @@ def register(parser: argparse.ArgumentParser) -> None:
                              f"objects: {', '.join(surface_names())}")
     parser.add_argument("--out", required=True, metavar="DIR", help="run directory for sweep.json, curves.npz, plots")
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    parser.add_argument("--tune", metavar="SPACE", default=None,
+                        help="instead of the grid, search HEDAC's parameters with Ray Tune: a .toml/.yaml file with "
+                             "metric, mode, samples, seed and [space] (docs/distributed.md); runs on Ray")
     add_dataclass_arguments(parser, SweepConfig)
+    add_executor_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    from tactex.experiments.executor import make_executor
     from tactex.experiments.sweep import SweepConfig, run_sweep
 
     cfg = dataclass_from_args(SweepConfig, args)
@@ -31,7 +38,15 @@ def run(args: argparse.Namespace) -> int:
     def progress(msg: str) -> None:
         print(f"tactex sweep: {msg}", file=sys.stderr, flush=True)
 
-    result = run_sweep(args.clouds, args.out, cfg, progress=None if args.quiet else progress)
+    say = None if args.quiet else progress
+    if args.tune:
+        return _tune(args, cfg, say)
+    with make_executor(cfg.workers, ray=args.ray, ray_address=args.ray_address) as ex:
+        try:
+            result = run_sweep(args.clouds, args.out, cfg, progress=say, executor=ex)
+        except KeyboardInterrupt:
+            print("tactex sweep: interrupted; nothing was written", file=sys.stderr)
+            return 130
     alphas = cfg.alpha
     for key, cloud in result.summary["clouds"].items():
         print(f"{key}: {cloud['n_points']} points, final ergodicity (eq. 48), mean of {cfg.starts} starts")
@@ -41,5 +56,19 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {k:8d} " + "".join(f"{row[a]:9.4f}" for a in alphas))
         best = cloud["best"]
         print(f"  best: n_K = {best['n_eigen']}, α = {best['alpha']:g} ({best['final_ergodicity_mean']:.4f})")
+    for f in result.summary["failed"]:
+        print(f"  failed: {f['cloud']} n_K = {f['n_eigen']}, α = {f['alpha']:g}: {f['error']}", file=sys.stderr)
     print(f"report: {result.out_dir} ({result.summary['sweep_time_s']:.1f} s)")
+    return 0
+
+
+def _tune(args: argparse.Namespace, cfg, say) -> int:
+    from tactex.experiments.tune import load_tune_spec, run_tune
+
+    spec = load_tune_spec(args.tune)
+    result = run_tune(args.clouds, args.out, spec, cfg, workers=cfg.workers, ray_address=args.ray_address,
+                      progress=say)
+    best = ", ".join(f"{k} = {v:g}" for k, v in result.best.items())
+    print(f"best of {len(result.trials)} trials: {best}: {spec.metric} = {result.best_value:.4f}")
+    print(f"trials: {result.files['table']}")
     return 0

@@ -6,15 +6,19 @@ steps each, and reports the normalised ergodicity (eq. 48) against n_K (Fig. 6, 
 (Fig. 7, 10) and over time at n_K = 200, α = 10 (Fig. 11), with example paths (Fig. 8).
 
 The basis is built once per cloud with the largest n_K; a smaller n_K uses its first columns,
-which are exactly the smaller eigenbasis (the eigenpairs are sorted). Runs are independent and
-spread over worker processes; the result does not depend on the number of workers.
+which are exactly the smaller eigenbasis (the eigenpairs are sorted). The settings are
+independent runs on an :class:`~tactex.experiments.executor.Executor` (local processes or Ray; the
+clouds and bases are its shared input); the result does not depend on the executor, the number of
+workers or the order the settings finish in.
 
 Each setting is written to ``settings/`` in the run directory as soon as it is done (an ``.npz``
 named by cloud, n_K and α, holding a fingerprint of everything its result depends on). A sweep
 that stops — Ctrl-C, a power cut, an error — is resumed by running the same command again with the
 same ``--out``: settings whose fingerprint matches are read back instead of run again.
 
-Outputs in the run directory: ``sweep.json`` (configuration and per-setting statistics),
+Outputs in the run directory: ``sweep.json`` (configuration, per-setting statistics, failed
+settings with their errors), ``table.csv`` (one row per cloud, setting and start: the final
+ergodicity, coverage residual and path length — the table pandas or polars users load),
 ``curves.npz`` (per cloud: ergodicity, coverage residual and path length of every run and step,
 and the path of the first start for every setting), and per cloud ``<name>_vs_n_eigen.png``,
 ``<name>_vs_alpha.png``, ``<name>_time.png`` and ``<name>_paths.png``.
@@ -29,7 +33,6 @@ import os
 import re
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +41,7 @@ import numpy as np
 
 from tactex.config import param, to_jsonable, write_json
 from tactex.errors import ConfigError, ExplorationError
+from tactex.experiments.executor import Executor, LocalExecutor
 from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
 from tactex.report.outdir import prepare_out_dir
 
@@ -152,21 +156,12 @@ def _cloud_key(source: str, info: dict[str, Any], taken: set[str]) -> str:
 
 
 # -- worker side: one (cloud, n_K, α) setting, all starts -----------------------------------------------
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(clouds: dict[str, tuple]) -> None:
-    # one single-threaded BLAS per process: the processes are the parallelism
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    _WORKER.clear()
-    _WORKER.update(clouds)
-
-
-def _run_setting(key: str, n_eigen: int, alpha: float, steps: int, normalization: str) -> dict[str, np.ndarray]:
+def _run_setting(task: tuple, clouds: dict[str, tuple]) -> dict[str, np.ndarray]:
+    """One setting (a run of the executor); ``clouds`` are the shared, read-only clouds and bases."""
     from tactex.ergodic import HedacConfig, HedacExplorer
 
-    cloud, basis, starts, radius = _WORKER[key]
+    key, n_eigen, alpha, steps, normalization = task
+    cloud, basis, starts, radius = clouds[key]
     hedac = HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius, coverage_normalization=normalization)
     explorer = HedacExplorer(cloud, basis, hedac)
     n = len(starts)
@@ -187,18 +182,13 @@ def _run_setting(key: str, n_eigen: int, alpha: float, steps: int, normalization
 
 
 # -- driver ----------------------------------------------------------------------------------------------
-def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepConfig | None = None, *,
-              progress: Progress | None = None) -> SweepResult:
-    """Run the grid of ``config`` on every source (cloud file or built-in object) and write the report."""
+def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progress) -> tuple[dict[str, tuple],
+                                                                                          dict[str, Any]]:
+    """Per source: (cloud, basis of the largest n_K, starts, agent radius) — the runs' shared input —
+    and what ``sweep.json`` says about it."""
     from tactex.spectral import build_basis
 
-    cfg = config if config is not None else SweepConfig()
-    say = progress or (lambda msg: None)
-    if isinstance(sources, (str, Path)) or not sources:
-        raise ConfigError("run_sweep needs a list of one or more clouds (files or built-in objects)")
-    out = prepare_out_dir(out_dir)
     ecfg = cfg.explore_config()
-
     clouds: dict[str, tuple] = {}
     info_out: dict[str, Any] = {}
     for source in sources:
@@ -219,44 +209,61 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
         if basis.n_components > 1:
             say(f"{key}: warning: the Laplacian sees {basis.n_components} separate parts; heat does not cross "
                 f"between them (TEC §VI-D); raise --n-neighbors (now {cfg.n_neighbors}) to join them")
+    return clouds, info_out
 
+
+def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepConfig | None = None, *,
+              progress: Progress | None = None, executor: Executor | None = None) -> SweepResult:
+    """Run the grid of ``config`` on every source (cloud file or built-in object) and write the report.
+
+    The settings run on ``executor`` (default: ``config.workers`` local processes), which gets the
+    clouds and bases once as shared input. A setting that raises is listed under ``failed`` in
+    ``sweep.json`` with its error; its curves are NaN and the others are unaffected."""
+    cfg = config if config is not None else SweepConfig()
+    say = progress or (lambda msg: None)
+    if isinstance(sources, (str, Path)) or not sources:
+        raise ConfigError("run_sweep needs a list of one or more clouds (files or built-in objects)")
+    out = prepare_out_dir(out_dir)
+    clouds, info_out = prepare_clouds(sources, cfg, say)
     all_jobs = [(key, k, a) for key in clouds for k in cfg.n_eigen for a in cfg.alpha]
     store = _SettingStore(out / "settings", clouds, cfg)
     results: dict[tuple, dict[str, np.ndarray]] = {job: r for job in all_jobs if (r := store.load(job)) is not None}
     if results:
         say(f"resuming: {len(results)} of {len(all_jobs)} settings already done in {store.folder}")
     jobs = [job for job in all_jobs if job not in results]
-    workers = max(1, min(cfg.workers or os.cpu_count() or 1, len(jobs)))
+    ex = executor if executor is not None else LocalExecutor(max(1, min(cfg.workers or os.cpu_count() or 1,
+                                                                       len(jobs))))
     runs = len(jobs) * cfg.starts
-    say(f"{len(jobs)} settings × {cfg.starts} starts × {cfg.steps} steps = {runs} runs on {workers} worker(s)")
+    say(f"{len(jobs)} settings × {cfg.starts} starts × {cfg.steps} steps = {runs} runs on {ex.describe()}")
     t0 = time.perf_counter()
-
-    def done(i: int, job: tuple, r: dict[str, np.ndarray]) -> None:
-        results[job] = r
-        store.save(job, r)
-        _report(say, i + 1, len(jobs), job, r, t0)
-
-    if workers == 1:
-        _init_worker(clouds)
-        try:
-            for i, job in enumerate(jobs):
-                done(i, job, _run_setting(*job, cfg.steps, cfg.coverage_normalization))
-        finally:
-            _WORKER.clear()
-    elif jobs:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(clouds,)) as pool:
-            futures = {job: pool.submit(_run_setting, *job, cfg.steps, cfg.coverage_normalization) for job in jobs}
-            try:
-                for i, job in enumerate(jobs):  # in submission order: deterministic output
-                    done(i, job, futures[job].result())
-            except BaseException:  # Ctrl-C or an error: what finished is saved, the rest is not waited for
-                for future in futures.values():
-                    future.cancel()
-                raise
+    failed: list[dict[str, Any]] = []
+    tasks = [(*job, cfg.steps, cfg.coverage_normalization) for job in jobs]
+    try:
+        for done, outcome in enumerate(ex.run(_run_setting, tasks, clouds), start=1):
+            job = jobs[outcome.index]
+            if outcome.ok:
+                results[job] = outcome.value
+                store.save(job, outcome.value)  # on disk at once: a stopped sweep resumes from here
+                _report(say, done, len(jobs), job, results[job], t0)
+            else:
+                failed.append({"cloud": job[0], "n_eigen": job[1], "alpha": job[2], "error": outcome.error,
+                               "traceback": outcome.traceback})
+                say(f"[{done}/{len(jobs)}] {job[0]} n_K={job[1]} α={job[2]:g}: FAILED {outcome.error}")
+    finally:
+        if executor is None:
+            ex.close()
+    if not results:
+        raise ExplorationError(f"every setting of the sweep failed; the first: {failed[0]['error']}")
+    nan = {"ergodicity": np.full((cfg.starts, cfg.steps), np.nan),
+           "coverage_residual": np.full((cfg.starts, cfg.steps), np.nan),
+           "path_length_m": np.full((cfg.starts, cfg.steps), np.nan), "first_path": np.full((cfg.steps, 3), np.nan)}
+    for job in all_jobs:
+        results.setdefault(job, nan)
     sweep_s = time.perf_counter() - t0
 
     curves: dict[str, dict[str, np.ndarray]] = {}
-    summary: dict[str, Any] = {"config": asdict(cfg), "sweep_time_s": sweep_s, "clouds": {}}
+    summary: dict[str, Any] = {"config": asdict(cfg), "executor": ex.describe(), "sweep_time_s": sweep_s,
+                               "failed": failed, "clouds": {}}
     nk, na = len(cfg.n_eigen), len(cfg.alpha)
     for key in clouds:
         c = {name: np.empty((nk, na, cfg.starts, cfg.steps)) for name in ("ergodicity", "coverage_residual",
@@ -279,13 +286,32 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
         c["agent_radius_m"] = np.asarray(clouds[key][3])
         c["starts"] = clouds[key][2]
         curves[key] = c
-        best = min(rows, key=lambda row: row["final_ergodicity_mean"])
+        best = min(rows, key=lambda row: (not np.isfinite(row["final_ergodicity_mean"]), row["final_ergodicity_mean"]))
         summary["clouds"][key] = {**info_out[key], "results": rows,
                                   "best": {"n_eigen": best["n_eigen"], "alpha": best["alpha"],
                                            "final_ergodicity_mean": best["final_ergodicity_mean"]}}
     say(f"writing the report to {out}")
     files = _write(out, summary, curves, clouds)
+    files["table"] = _write_table(out / "table.csv", curves, {(f["cloud"], f["n_eigen"], f["alpha"]): f["error"]
+                                                              for f in failed})
     return SweepResult(out_dir=out, summary=to_jsonable(summary), curves=curves, files=files)
+
+
+def _write_table(path: Path, curves: dict[str, dict[str, np.ndarray]], failed: dict[tuple, str]) -> Path:
+    from tactex.experiments.study_report import write_csv
+
+    cols = ["cloud", "n_eigen", "alpha", "start", "status", "error", "final_ergodicity", "final_coverage_residual",
+            "path_length_m"]
+    rows = []
+    for key, c in curves.items():
+        for i, k in enumerate(c["n_eigen"].tolist()):
+            for j, a in enumerate(c["alpha"].tolist()):
+                error = failed.get((key, k, a), "")
+                for s in range(c["ergodicity"].shape[2]):
+                    rows.append([key, k, a, s, "failed" if error else "ok", error.splitlines()[0] if error else "",
+                                 float(c["ergodicity"][i, j, s, -1]), float(c["coverage_residual"][i, j, s, -1]),
+                                 float(c["path_length_m"][i, j, s, -1])])
+    return write_csv(path, cols, rows)
 
 
 def _report(say: Progress, done: int, total: int, job: tuple, r: dict[str, np.ndarray], t0: float) -> None:

@@ -1,0 +1,306 @@
+"""Where independent runs execute: local worker processes (the default) or a Ray cluster.
+
+A study or a sweep is a list of runs, each a pure function of its task (config and seed) and of
+read-only inputs shared by all runs (clouds, eigenbases). :class:`Executor` runs them and yields an
+:class:`Outcome` per run as it finishes, in whatever order; the caller orders the results by run
+index, so what it writes does not depend on the executor or the order.
+
+- :class:`LocalExecutor`: ``workers`` spawned processes; the shared inputs go to each process once
+  (its initializer). A process that dies (out of memory, killed) breaks the pool: it is rebuilt and
+  the unfinished runs are submitted again, up to ``max_retries`` times.
+- :class:`RayExecutor`: Ray tasks on a local instance (``address=None``) or an existing cluster
+  (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``). The shared inputs are put in Ray's object
+  store once; a node fetches them once and its workers read them without a copy. Ray re-runs a task
+  whose worker or node is lost (``max_retries``); an exception raised by the run itself is not retried.
+
+Either way a run that raises becomes an outcome with its error and traceback (the study goes on),
+every run is limited to one BLAS thread (the processes are the parallelism, and results do not
+depend on a thread count), and Ctrl-C (KeyboardInterrupt in the caller) cancels what is pending or
+running before it propagates. Ray is imported only by :class:`RayExecutor`.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import socket
+import time
+import traceback
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+from tactex.errors import ConfigError, MissingDependencyError
+
+__all__ = ["Executor", "LocalExecutor", "Outcome", "RayExecutor", "echo", "make_executor"]
+
+#: A run: ``fn(task, shared)`` → a picklable result. Must be a module-level function.
+RunFn = Callable[[Any, Any], Any]
+
+#: How often a run is started again after its worker process or node was lost.
+DEFAULT_MAX_RETRIES = 3
+
+
+@dataclass
+class Outcome:
+    """One finished run: ``index`` into the task list; ``value`` when it returned, otherwise
+    ``error`` (``Type: message``) and ``traceback``. ``worker`` is ``host:pid`` of the process
+    that ran it; ``seconds`` its wall time there [s]."""
+
+    index: int
+    value: Any = None
+    error: str = ""
+    traceback: str = ""
+    worker: str = ""
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return not self.error
+
+
+def _limit_threads() -> None:
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def _call(fn: RunFn, index: int, task: Any, shared: Any) -> Outcome:
+    """Run one task where it is executed; an exception becomes an error outcome."""
+    from threadpoolctl import threadpool_limits
+
+    where = f"{socket.gethostname()}:{os.getpid()}"
+    t0 = time.perf_counter()
+    try:
+        with threadpool_limits(limits=1):
+            value = fn(task, shared)
+    except Exception as exc:  # recorded with its run; KeyboardInterrupt / SystemExit still propagate
+        return Outcome(index, error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(), worker=where,
+                       seconds=time.perf_counter() - t0)
+    return Outcome(index, value=value, worker=where, seconds=time.perf_counter() - t0)
+
+
+def echo(task: Any, shared: Any = None) -> Any:
+    """A run that returns its task at once: what an executor costs per run by itself (bench)."""
+    return task
+
+
+class Executor(ABC):
+    """Runs independent tasks; use as a context manager (``close`` frees workers or a Ray instance)."""
+
+    name = "executor"
+
+    @property
+    @abstractmethod
+    def slots(self) -> int:
+        """How many runs execute at once."""
+
+    @abstractmethod
+    def run(self, fn: RunFn, tasks: Sequence[Any], shared: Any = None) -> Iterator[Outcome]:
+        """Run ``fn(task, shared)`` for every task; yield an :class:`Outcome` per task as each
+        finishes. ``running`` tells how many are executing now (for progress lines)."""
+
+    running: int = 0
+
+    def describe(self) -> str:
+        return f"{self.name} ({self.slots} worker{'s' if self.slots != 1 else ''})"
+
+    def close(self) -> None:  # noqa: B027 — nothing to free by default
+        pass
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# -- local processes -------------------------------------------------------------------------------------
+_SHARED: dict[str, Any] = {}
+
+
+def _init_local_worker(shared: Any) -> None:
+    _limit_threads()
+    _SHARED["value"] = shared
+
+
+def _call_local(fn: RunFn, index: int, task: Any) -> Outcome:
+    return _call(fn, index, task, _SHARED.get("value"))
+
+
+class LocalExecutor(Executor):
+    """``workers`` processes on this machine (0 = one per core); 1 runs in this process."""
+
+    name = "local"
+
+    def __init__(self, workers: int = 0, *, max_retries: int = DEFAULT_MAX_RETRIES) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+            raise ConfigError(f"--workers must be an integer ≥ 0 (0 = one per core), got {workers!r}")
+        self.workers = workers or os.cpu_count() or 1
+        self.max_retries = max_retries
+
+    @property
+    def slots(self) -> int:
+        return self.workers
+
+    def run(self, fn: RunFn, tasks: Sequence[Any], shared: Any = None) -> Iterator[Outcome]:
+        if not tasks:
+            return
+        if self.workers == 1:
+            yield from self._run_here(fn, tasks, shared)
+        else:
+            yield from self._run_pool(fn, tasks, shared)
+
+    def _run_here(self, fn: RunFn, tasks: Sequence[Any], shared: Any) -> Iterator[Outcome]:
+        for i, task in enumerate(tasks):
+            self.running = 1
+            out = _call(fn, i, task, shared)
+            self.running = 0
+            yield out
+
+    def _run_pool(self, fn: RunFn, tasks: Sequence[Any], shared: Any) -> Iterator[Outcome]:
+        remaining = set(range(len(tasks)))
+        attempts = dict.fromkeys(remaining, 0)
+        # spawn, not fork: the caller may hold threads (a Ray driver, BLAS pools) that fork would copy half-way
+        ctx = multiprocessing.get_context("spawn")
+        try:
+            while remaining:
+                pool = ProcessPoolExecutor(max_workers=min(self.workers, len(remaining)), mp_context=ctx,
+                                           initializer=_init_local_worker, initargs=(shared,))
+                pending: dict[Future, int] = {}
+                broken = False
+                try:
+                    for i in sorted(remaining):
+                        attempts[i] += 1
+                        pending[pool.submit(_call_local, fn, i, tasks[i])] = i
+                    while pending:
+                        self.running = min(len(pending), self.workers)
+                        done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                        for fut in done:
+                            i = pending.pop(fut)
+                            try:
+                                out = fut.result()
+                            except BrokenProcessPool:  # a worker died: this run goes to a fresh pool
+                                broken = True
+                                continue
+                            remaining.discard(i)
+                            self.running = min(len(pending), self.workers)
+                            yield out
+                except BaseException:
+                    _stop_pool(pool)
+                    raise
+                if broken:
+                    _stop_pool(pool)
+                else:
+                    pool.shutdown(wait=True)
+                for i in sorted(remaining):
+                    if attempts[i] > self.max_retries:
+                        remaining.discard(i)
+                        yield Outcome(i, error=f"WorkerLost: the worker process died in all {attempts[i]} attempts")
+        finally:
+            self.running = 0
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Cancel the queue and end the workers now (Ctrl-C, or a broken pool)."""
+    procs = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=5)
+
+
+# -- Ray -------------------------------------------------------------------------------------------------
+def _import_ray():
+    try:
+        import ray
+    except ImportError as exc:
+        raise MissingDependencyError("ray", "distributed", "running on Ray (--ray, --ray-address)") from exc
+    return ray
+
+
+class RayExecutor(Executor):
+    """Ray tasks, one CPU each. ``address`` None starts a local instance with ``workers`` CPUs (0 =
+    all cores) and stops it on ``close``; otherwise connects to that cluster (``ray://`` client
+    addresses included) and only disconnects. If this process is already connected to Ray (a test,
+    a notebook), that connection is used as it is. ``workers`` > 0 caps the runs in flight."""
+
+    name = "ray"
+
+    def __init__(self, workers: int = 0, *, address: str | None = None,
+                 max_retries: int = DEFAULT_MAX_RETRIES) -> None:
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+            raise ConfigError(f"--workers must be an integer ≥ 0 (0 = all CPUs of the cluster), got {workers!r}")
+        ray = _import_ray()
+        self._ray = ray
+        self.max_retries = max_retries
+        self._owns = False
+        if not ray.is_initialized():
+            env = {"env_vars": {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
+            try:
+                if address is None:
+                    ray.init(num_cpus=workers or None, include_dashboard=False, runtime_env=env,
+                             log_to_driver=False, configure_logging=False)
+                else:
+                    ray.init(address=address, runtime_env=env, log_to_driver=False, configure_logging=False)
+            except ConnectionError as exc:
+                raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
+            self._owns = True
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.workers = min(workers, cpus) if workers else cpus
+        self.address = address or "local"
+
+    @property
+    def slots(self) -> int:
+        return self.workers
+
+    def describe(self) -> str:
+        return f"ray at {self.address} ({self.slots} worker{'s' if self.slots != 1 else ''})"
+
+    def run(self, fn: RunFn, tasks: Sequence[Any], shared: Any = None) -> Iterator[Outcome]:
+        ray = self._ray
+        if not tasks:
+            return
+        # once into the object store; a task given the reference reads the node's copy
+        shared_ref = ray.put(shared)
+        remote = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False)(_call)
+        queue = list(range(len(tasks)))
+        refs: dict[Any, int] = {}
+        try:
+            while queue or refs:
+                while queue and len(refs) < self.workers:
+                    i = queue.pop(0)
+                    refs[remote.remote(fn, i, tasks[i], shared_ref)] = i
+                self.running = len(refs)
+                ready, _ = ray.wait(list(refs), num_returns=1, timeout=1.0)
+                for ref in ready:
+                    i = refs.pop(ref)
+                    self.running = len(refs)
+                    try:
+                        yield ray.get(ref)
+                    except ray.exceptions.RayError as exc:  # worker or node lost more often than max_retries
+                        yield Outcome(i, error=f"WorkerLost: {type(exc).__name__}: {exc}"[:2000])
+        except BaseException:
+            for ref in refs:
+                ray.cancel(ref, force=True)
+            raise
+        finally:
+            self.running = 0
+
+    def close(self) -> None:
+        if self._owns and self._ray.is_initialized():
+            self._ray.shutdown()
+        self._owns = False
+
+
+def make_executor(workers: int = 0, *, ray: bool = False, ray_address: str | None = None) -> Executor:
+    """The executor of the CLI options ``--workers``, ``--ray`` and ``--ray-address``."""
+    if ray_address is not None and not ray_address.strip():
+        raise ConfigError("--ray-address is empty; give HOST:PORT, ray://HOST:10001 or auto")
+    if ray or ray_address:
+        return RayExecutor(workers, address=ray_address)
+    return LocalExecutor(workers)
