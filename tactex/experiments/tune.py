@@ -186,8 +186,7 @@ def run_tune(sources: Sequence[str | Path], out_dir: str | Path, spec: TuneSpec,
         tuner = tune.Tuner(
             tune.with_resources(trainable, {"cpu": 1}), param_space=spec.ray_space(),
             tune_config=tune.TuneConfig(metric=spec.metric, mode=spec.mode, num_samples=spec.samples,
-                                        search_alg=BasicVariantGenerator(random_state=spec.seed,
-                                                                         max_concurrent=ex.slots)),
+                                        search_alg=BasicVariantGenerator(random_state=spec.seed)),
             run_config=tune.RunConfig(name="hedac", storage_path=str((out / "ray_tune").resolve()), verbose=0),
         )
         grid = tuner.fit()
