@@ -240,3 +240,15 @@ def test_tune_space_file(tmp_path):
     path.write_text("samples = 3\n")
     with pytest.raises(InputError, match=r"\[space\]"):
         load_tune_spec(path)
+
+
+def test_table_columns_leave_out_wall_clock_and_series_and_split_axes():
+    from tactex.experiments.study import _flat_scalars
+
+    flat = _flat_scalars({"dirt_removed_fraction": 0.5, "wall_time_s": 3.2, "basis_time_s": 1.0,
+                          "ergodicity": [[0.0, 1.0]], "vision_update_times_s": [1.0, 2.0, 3.0],
+                          "motion_rmse_m": [0.1, None, 0.3], "tank_force_energy_j": {"min": 1.0, "max": 2.0},
+                          "baseline": "raster"})
+    assert flat == {"dirt_removed_fraction": 0.5, "motion_rmse_m.x": 0.1, "motion_rmse_m.y": None,
+                    "motion_rmse_m.z": 0.3, "tank_force_energy_j.min": 1.0, "tank_force_energy_j.max": 2.0,
+                    "baseline": "raster"}

@@ -45,8 +45,11 @@ WALL_CLOCK_METRICS = ("wall_time_s", "basis_time_s")
 MAIN_METRICS = {
     "clean": ("dirt_removed_fraction", "force_within_20pct_fraction", "max_contact_force_n", "sim_time_s",
               "agent_path_length_m"),
-    "wipe": ("force_rmse_n", "motion_rmse_m", "contact_fraction_after_first_contact", "max_force_n"),
+    "wipe": ("force_rmse_n", "force_mae_n", "contact_fraction_after_first_contact", "max_force_n"),
 }
+#: Metrics given per axis of the base frame as [x, y, z]: columns ``name.x``, ``name.y``, ``name.z``.
+PER_AXIS_METRICS = ("motion_mae_m", "motion_rmse_m", "motion_mae_tool_m", "motion_rmse_tool_m",
+                    "motion_mae_all_contact_m", "motion_rmse_all_contact_m")
 
 
 def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
@@ -99,12 +102,15 @@ def _append_record(path: Path, rec: dict[str, Any]) -> None:
 
 
 def _flat_scalars(metrics: dict[str, Any]) -> dict[str, Any]:
-    """The table's metric columns: scalars, and one level of dicts as ``name.key``; lists dropped."""
+    """The table's metric columns: scalars, one level of dicts as ``name.key``, per-axis metrics as
+    ``name.x/y/z``; other lists (time series) stay in ``runs.jsonl``."""
     out: dict[str, Any] = {}
     for k, v in metrics.items():
         if k in WALL_CLOCK_METRICS:
             continue
-        if isinstance(v, dict):
+        if k in PER_AXIS_METRICS and isinstance(v, list) and len(v) == 3:
+            out.update({f"{k}.{axis}": x for axis, x in zip("xyz", v, strict=True)})
+        elif isinstance(v, dict):
             for kk, vv in v.items():
                 if vv is None or isinstance(vv, (bool, int, float, str)):
                     out[f"{k}.{kk}"] = vv
