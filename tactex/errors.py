@@ -13,6 +13,7 @@ __all__ = [
     "CloudError",
     "ConfigError",
     "ControllerFault",
+    "ExecutorError",
     "ExplorationError",
     "InputError",
     "MissingDependencyError",
@@ -61,6 +62,10 @@ class ConfigError(InputError):
 
 class CacheError(TactexError, OSError):
     """A cache file is corrupt or does not match the data it claims to describe."""
+
+
+class ExecutorError(TactexError, RuntimeError):
+    """Where a study's runs execute (local worker processes, a Ray instance) could not be started."""
 
 
 class SimulationError(TactexError, RuntimeError):

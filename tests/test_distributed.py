@@ -17,7 +17,7 @@ import pytest
 
 ray = pytest.importorskip("ray", reason="the distributed extra is not installed (pip install 'tactex[distributed]')")
 
-from tactex.experiments.executor import LocalExecutor, RayExecutor  # noqa: E402
+from tactex.experiments.executor import LocalExecutor, RayExecutor, start_local_ray  # noqa: E402
 from tactex.experiments.study import run_study  # noqa: E402
 from tactex.experiments.study_spec import spec_from_dict  # noqa: E402
 from tactex.experiments.sweep import SweepConfig, run_sweep  # noqa: E402
@@ -35,8 +35,7 @@ SWEEP = {"n_eigen": (10, 30), "alpha": (5.0, 20.0), "starts": 2, "steps": 30}
 def local_ray():
     if ray.is_initialized():
         ray.shutdown()
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             runtime_env={"env_vars": {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}})
+    start_local_ray(num_cpus=2)
     yield ray
     ray.shutdown()
 

@@ -33,9 +33,9 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from tactex.errors import ConfigError, MissingDependencyError
+from tactex.errors import ConfigError, ExecutorError, MissingDependencyError
 
-__all__ = ["Executor", "LocalExecutor", "Outcome", "RayExecutor", "echo", "make_executor"]
+__all__ = ["Executor", "LocalExecutor", "Outcome", "RayExecutor", "echo", "make_executor", "start_local_ray"]
 
 #: A run: ``fn(task, shared)`` → a picklable result. Must be a module-level function.
 RunFn = Callable[[Any, Any], Any]
@@ -223,6 +223,30 @@ def _import_ray():
     return ray
 
 
+#: Every Ray worker of a study: one BLAS thread (the runs are the parallelism).
+_RUNTIME_ENV = {"env_vars": {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
+
+
+def start_local_ray(num_cpus: int | None, attempts: int = 3) -> None:
+    """Start a Ray instance on this machine with ``num_cpus`` CPUs (None: all).
+
+    Tried ``attempts`` times: on a heavily loaded machine Ray's raylet can give up waiting for its
+    agent process (a fixed 15 s wait) and the start fails; a second start usually succeeds."""
+    ray = _import_ray()
+    for attempt in range(1, attempts + 1):
+        try:
+            ray.init(num_cpus=num_cpus, include_dashboard=False, runtime_env=_RUNTIME_ENV, log_to_driver=False,
+                     configure_logging=False)
+            return
+        except Exception as exc:  # Ray raises plain Exception / RuntimeError on a failed start
+            ray.shutdown()
+            if attempt == attempts:
+                raise ExecutorError(
+                    f"a local Ray instance (--ray) did not start in {attempts} attempts ({exc}); see "
+                    "/tmp/ray/session_latest/logs, or start one yourself (ray start --head) and pass "
+                    "--ray-address auto") from exc
+
+
 class RayExecutor(Executor):
     """Ray tasks, one CPU each. ``address`` None starts a local instance with ``workers`` CPUs (0 =
     all cores) and stops it on ``close``; otherwise connects to that cluster (``ray://`` client
@@ -240,15 +264,13 @@ class RayExecutor(Executor):
         self.max_retries = max_retries
         self._owns = False
         if not ray.is_initialized():
-            env = {"env_vars": {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
-            try:
-                if address is None:
-                    ray.init(num_cpus=workers or None, include_dashboard=False, runtime_env=env,
-                             log_to_driver=False, configure_logging=False)
-                else:
-                    ray.init(address=address, runtime_env=env, log_to_driver=False, configure_logging=False)
-            except ConnectionError as exc:
-                raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
+            if address is None:
+                start_local_ray(workers or None)
+            else:
+                try:
+                    ray.init(address=address, runtime_env=_RUNTIME_ENV, log_to_driver=False, configure_logging=False)
+                except ConnectionError as exc:
+                    raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
             self._owns = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.workers = min(workers, cpus) if workers else cpus

@@ -32,7 +32,7 @@ from typing import Any
 from tactex.config import to_jsonable, write_json
 from tactex.errors import ConfigError
 from tactex.experiments.executor import Executor, LocalExecutor
-from tactex.experiments.study_spec import StudyRun, StudySpec
+from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
 from tactex.report.outdir import prepare_out_dir
 
 __all__ = ["StudyResult", "run_study", "run_study_task"]
@@ -138,9 +138,9 @@ class _Progress:
         self.t0 = time.perf_counter()
 
     def line(self, running: int, last: str) -> None:
+        self.done += 1
         if self.say is None:
             return
-        self.done += 1
         elapsed = time.perf_counter() - self.t0
         rate = self.done / elapsed * 60.0 if elapsed > 0 else 0.0
         left = self.total - self.skipped - self.done
@@ -187,9 +187,11 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
             _append_record(jsonl, rec)
             if not outcome.ok:
                 bar.failed += 1
-            label = ", ".join(f"{k}={_label(k, v)}" for k, v in run.factors.items())
-            what = (f"{spec.success_metric} {rec['metrics'].get(spec.success_metric, float('nan')):.3g}"
-                    if outcome.ok else f"FAILED {outcome.error[:120]}")
+            label = ", ".join(f"{k}={level_label(k, v)}" for k, v in run.factors.items())
+            value = rec["metrics"].get(spec.success_metric) if outcome.ok else None
+            what = (f"FAILED {outcome.error[:120]}" if not outcome.ok else
+                    f"{spec.success_metric} {value:.3g}" if isinstance(value, (int, float)) else
+                    f"{spec.success_metric} -")
             bar.line(ex.running, f"{label}: {what}")
             _write_table(out, spec, runs, known)  # the table so far: a crash loses nothing finished
     except KeyboardInterrupt:
@@ -206,12 +208,6 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
     if interrupted:
         raise KeyboardInterrupt
     return result
-
-
-def _label(name: str, value: Any) -> str:
-    if name == "baseline" and value == "":
-        return "tactex"
-    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def _record(spec: StudySpec, run: StudyRun, outcome) -> dict[str, Any]:

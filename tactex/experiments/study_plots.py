@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from tactex.experiments.study_spec import StudySpec
+from tactex.experiments.study_spec import StudySpec, level_label
 
 __all__ = ["plot_factors"]
 
@@ -21,12 +21,6 @@ def _figure(width: float, height: float):
     fig = Figure(figsize=(width, height), dpi=100)
     FigureCanvasAgg(fig)
     return fig
-
-
-def _level(name: str, value: Any) -> str:
-    if name == "baseline" and value == "":
-        return "tactex"
-    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def plot_factors(out: Path, spec: StudySpec, records: list[dict[str, Any]],
@@ -44,7 +38,7 @@ def plot_factors(out: Path, spec: StudySpec, records: list[dict[str, Any]],
         ok = [r for r in records if r["status"] == "ok"]
         if name in spec.grid:
             levels = list(spec.grid[name])
-            labels = [_level(name, v) for v in levels]
+            labels = [level_label(name, v) for v in levels]
             ax = fig.add_subplot(math.ceil(panels / cols), cols, 1)
             rates, lows, highs = [], [], []
             for v in levels:

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import write_json
-from tactex.experiments.study_spec import StudyRun, StudySpec
+from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
 
 __all__ = ["summarize", "t_interval", "wilson_interval", "write_csv", "write_study_outputs"]
 
@@ -44,12 +44,6 @@ def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[floa
     return (float(v.mean()), std, float(t.ppf(0.5 + confidence / 2, v.size - 1)) * std / math.sqrt(v.size))
 
 
-def _display(name: str, value: Any) -> str:
-    if name == "baseline" and value == "":
-        return "tactex"
-    return f"{value:g}" if isinstance(value, float) else str(value)
-
-
 def summarize(spec: StudySpec, records: list[dict[str, Any]], metrics: tuple[str, ...]) -> list[dict[str, Any]]:
     """One row per setting (every factor but the seed), in plan order."""
     from tactex.experiments.study import is_success
@@ -80,7 +74,7 @@ def _summary_text(spec: StudySpec, rows: list[dict[str, Any]], metrics: tuple[st
     head = [*keys, "runs", "failed", "success [95% CI]", *(f"{m} (mean ± ci95)" for m in metrics)]
     body = []
     for r in rows:
-        cells = [_display(k, r[k]) for k in keys]
+        cells = [level_label(k, r[k]) for k in keys]
         cells += [str(r["runs"]), str(r["failed"]),
                   f"{r['success_rate']:.2f} [{r['success_ci_low']:.2f}, {r['success_ci_high']:.2f}]"]
         for m in metrics:

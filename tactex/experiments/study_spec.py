@@ -46,7 +46,7 @@ import numpy as np
 
 from tactex.errors import ConfigError, InputError, MissingDependencyError
 
-__all__ = ["DEFAULT_SUCCESS", "StudyRun", "StudySpec", "load_spec_file", "parse_assignment"]
+__all__ = ["DEFAULT_SUCCESS", "StudyRun", "StudySpec", "level_label", "load_spec_file", "parse_assignment"]
 
 #: Success of a run per task: the metric and the least value that counts (with no error and no abort).
 DEFAULT_SUCCESS = {"clean": ("dirt_removed_fraction", 0.9), "wipe": ("contact_fraction_after_first_contact", 0.9)}
@@ -241,6 +241,13 @@ class StudySpec:
                 "random": {k: [v[0], *(list(v[1]) if v[0] == "choice" else v[1:])] for k, v in self.random.items()},
                 "draws": self.draws, "seeds": list(self.seeds), "draw_seed": self.draw_seed,
                 "success": {"metric": self.success_metric, "at_least": self.success_at_least}}
+
+
+def level_label(name: str, value: Any) -> str:
+    """A factor's value as shown in summaries and plots (the baseline '' is tactex itself)."""
+    if name == "baseline" and value == "":
+        return "tactex"
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def run_id(task: str, config: dict[str, Any]) -> str:
