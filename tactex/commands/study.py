@@ -97,9 +97,9 @@ def run(args: argparse.Namespace) -> int:
         try:
             result = run_study(spec, args.out, ex, retry_failed=args.retry_failed, progress=say)
         except KeyboardInterrupt:
-            print(f"tactex study: interrupted; the finished runs are in {args.out}/runs.jsonl — run the same "
-                  "command again to resume", file=sys.stderr)
-            return 130
+            print(f"tactex study: the finished runs are in {args.out}/runs.jsonl — run the same command again "
+                  "to resume", file=sys.stderr)
+            raise  # the CLI reports the interruption (exit code 130, status.json)
     text = result.files.get("summary_text")
     if text is not None:
         print(text.read_text().rstrip())

@@ -45,8 +45,9 @@ def run(args: argparse.Namespace) -> int:
         try:
             result = run_sweep(args.clouds, args.out, cfg, progress=say, executor=ex)
         except KeyboardInterrupt:
-            print("tactex sweep: interrupted; nothing was written", file=sys.stderr)
-            return 130
+            print(f"tactex sweep: the finished settings are in {args.out}/settings — run the same command again "
+                  "to resume", file=sys.stderr)
+            raise
     alphas = cfg.alpha
     for key, cloud in result.summary["clouds"].items():
         print(f"{key}: {cloud['n_points']} points, final ergodicity (eq. 48), mean of {cfg.starts} starts")
