@@ -22,7 +22,7 @@ from tactex.experiments.study import run_study  # noqa: E402
 from tactex.experiments.study_spec import spec_from_dict  # noqa: E402
 from tactex.experiments.sweep import SweepConfig, run_sweep  # noqa: E402
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.distributed]
 
 # Short cleaning runs: tactex and the raster baseline on the plate, two seeds with F/T noise (so the
 # seeds differ), and one run that raises in its worker (n_eigen above the capture's point count).
