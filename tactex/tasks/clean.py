@@ -248,6 +248,47 @@ class CleanResult:
     events: list[Any] = field(default_factory=list)
 
 
+class _WearTicks:
+    """The contact work ∫F_n·v_t dt [N·m] of each control tick, handed to the wear model every
+    ``every`` ticks (:meth:`WearModel.wipe`).
+
+    A tick's resulting state is noted (:meth:`note`) and accounted by :meth:`settle`, which the task
+    calls from the next tick's ``after_send`` (on a real robot: while the robot executes that command,
+    outside the cycle's critical path) and before anything reads the model. The states and their
+    order are those of accounting at once, so the model holds the same values whenever it is read.
+    """
+
+    def __init__(self, wear: WearModel, dt: float, every: int = 10) -> None:
+        self.wear, self.dt, self.every = wear, dt, every
+        self.restart()
+
+    def restart(self) -> None:
+        """A new contact phase: nothing carried over."""
+        self.fv = 0.0
+        self.ticks = 0
+        self._pending: tuple | None = None
+
+    def note(self, state, normal: np.ndarray) -> None:
+        """The state a tick produced, with the normal line it was commanded along."""
+        self._pending = (state, normal)
+
+    def settle(self, _state=None) -> None:
+        """Account the noted tick, if not done yet (usable as ``after_send``)."""
+        if self._pending is None:
+            return
+        st, normal = self._pending
+        self._pending = None
+        fn = float(st.wrench_tool[2])
+        if fn > self.wear.threshold:
+            v = st.ee_twist[:3]
+            vn = float(v @ normal)
+            self.fv += fn * float(np.sqrt(max(float(v @ v) - vn * vn, 0.0))) * self.dt
+        self.ticks += 1
+        if self.ticks >= self.every:
+            self.wear.wipe(st.ee_position, self.fv)
+            self.fv, self.ticks = 0.0, 0
+
+
 class _Log:
     """Per-tick bookkeeping: force statistics every tick, a time series at ``record_hz``."""
 
@@ -499,7 +540,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
     islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
     island_moves = 0  # those relocations
-    wear_ticks = 10  # control ticks between wear-model updates (the pad moves well under a millimetre)
+    # control ticks between wear-model updates (the pad moves well under a millimetre)
+    wear_ticks = _WearTicks(wear, backend.dt, every=10) if wear is not None else None
 
     # the posture of the capture pose keeps the redundant elbow where it was planned
     ga = NullspacePosture(GaLineForceController(GaLineForceParams()), q_posture=q_capture)
@@ -593,7 +635,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             covered = False
             relocation = None
             t_phase = loop.t
-            fv_integral, ticks_since_wear = 0.0, 0  # ∫F_n·v dt [N·m] since the last wear update
+            if wear_ticks is not None:
+                wear_ticks.restart()
             predicted_left: list[float] = []  # the wear model's remaining fraction at each update
             # done when the model says the camera would stop, and after a return for a remnant, once most
             # of that remnant is off: each trip back costs a touch-down and a trip to the camera
@@ -617,6 +660,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         ergodicity.append((loop.t, source.ergodicity()))
                         covered = given is not None and source.coverage_residual() <= cfg.stop_remaining
                     if wear is not None and steps_since_vision % cfg.model_update_steps == 0:
+                        wear_ticks.settle()
                         predicted = wear.remaining()
                         left = float(predicted.sum()) / target0
                         predicted_left.append(left)
@@ -650,17 +694,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
                 force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
                 log.set_point = force
-                st = loop.tick(LineForceReference(point, normal, force))
-                if wear is not None:
-                    fn = float(st.wrench_tool[2])
-                    if fn > wear.threshold:
-                        v = st.ee_twist[:3]
-                        vn = float(v @ normal)
-                        fv_integral += fn * float(np.sqrt(max(float(v @ v) - vn * vn, 0.0))) * backend.dt
-                    ticks_since_wear += 1
-                    if ticks_since_wear >= wear_ticks:
-                        wear.wipe(st.ee_position, fv_integral)
-                        fv_integral, ticks_since_wear = 0.0, 0
+                if wear_ticks is None:
+                    loop.tick(LineForceReference(point, normal, force))
+                else:
+                    wear_ticks.note(loop.tick(LineForceReference(point, normal, force),
+                                              after_send=wear_ticks.settle), normal)
                 if int(loop.t * 1000) % 250 == 0:
                     bar.update(loop.t, dirt=dirt(), vision=vision_updates)
                 if cfg.baseline == "raster" and source.done:
@@ -669,6 +707,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     break
                 if covered:
                     break  # the wear model (or, for a given cloud, the coverage) says the dirt is gone
+            if wear_ticks is not None:
+                wear_ticks.settle()  # the phase's last tick
             explore_time += loop.t - t_phase
             if relocation is not None:
                 # TEC §VI-B: lift off along the normal, then the hover and approach of 3a at the touch-down
