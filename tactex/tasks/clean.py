@@ -248,6 +248,27 @@ class CleanResult:
     events: list[Any] = field(default_factory=list)
 
 
+class _Legs:
+    """The explorer's path figures summed over its legs (each ``reset`` starts its path again)."""
+
+    def __init__(self, source) -> None:
+        self.source = source
+        self.path_m = 0.0  # [m] the agent's path on the surface in the legs before the current one
+        self.air_m = 0.0  # [m] and its relocations' flights
+        self.relocations = 0
+        self.keep_out_contacts = 0
+
+    def restart(self, x0: np.ndarray) -> ExplorationCommand:
+        """Close the current leg and start the next at ``x0`` [m]; its first command."""
+        s = self.source
+        self.path_m += float(getattr(s, "path_length", 0.0))
+        self.air_m += float(getattr(s, "air_path_length", 0.0))
+        self.relocations += len(getattr(s, "relocations", ()))
+        self.keep_out_contacts += int(getattr(s, "keep_out_contacts", 0))
+        cmd = s.reset(x0)
+        return cmd[0] if isinstance(cmd, list) else cmd
+
+
 class _WearTicks:
     """The contact work ∫F_n·v_t dt [N·m] of each control tick, handed to the wear model every
     ``every`` ticks (:meth:`WearModel.wipe`).
@@ -549,10 +570,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     vision_updates = 0
     vision_times: list[float] = []  # [s] when each re-measurement was taken
     vision_trip_s = 5.0  # [s] retract, lift, transit and capture (~4.5 s on the plate); measured after the first trip
-    agent_path_m = 0.0  # [m] the agent's path in the exploration phases before the current one
-    air_path_m = 0.0  # [m] and its relocations' flights
-    relocations = 0
-    keep_out_contacts = 0
+    legs = _Legs(source)
     remaining_seen = 1.0
     agent_path: list[np.ndarray] = []
     ergodicity: list[tuple[float, float]] = []
@@ -587,12 +605,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach; "
                               f"moving on to the dirt at {np.round(island, 3).tolist()} m", RuntimeWarning,
                               stacklevel=2)
-                agent_path_m += float(getattr(source, "path_length", 0.0))
-                air_path_m += source.air_path_length
-                relocations += len(source.relocations)
-                keep_out_contacts += source.keep_out_contacts
-                cmd = source.reset(island)
-                cmd = cmd[0] if isinstance(cmd, list) else cmd
+                cmd = legs.restart(island)
                 continue
             try:
                 q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
@@ -721,12 +734,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 log.activity("retract", "transit")
                 loop.retract(RETRACT_M, duration_s=0.4)
                 island_moves += 1
-                agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
-                air_path_m += source.air_path_length
-                relocations += len(source.relocations)
-                keep_out_contacts += source.keep_out_contacts
-                cmd = source.reset(relocate_to)
-                cmd = cmd[0] if isinstance(cmd, list) else cmd
+                cmd = legs.restart(relocate_to)
                 continue
             if cfg.baseline == "raster" and source.done:
                 break
@@ -755,12 +763,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if keep_out is not None and source.clear_points[left].any():
                 left = left[source.clear_points[left]]
             x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
-            agent_path_m += float(getattr(source, "path_length", 0.0))  # reset() starts the path again
-            air_path_m += source.air_path_length
-            relocations += len(source.relocations)
-            keep_out_contacts += source.keep_out_contacts
-            cmd = source.reset(x0)
-            cmd = cmd[0] if isinstance(cmd, list) else cmd
+            cmd = legs.restart(x0)
     except ROBOT_STOPS as exc:
         # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
         aborted = stop_reason(exc)
@@ -803,11 +806,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "wall_time_s": time.perf_counter() - wall0,
         "n_points": len(cloud),
         "n_target_initial": n_target0,
-        "agent_path_length_m": agent_path_m + float(getattr(source, "path_length", 0.0)),
-        "air_path_length_m": air_path_m + float(getattr(source, "air_path_length", 0.0)),
-        "relocations": relocations + len(getattr(source, "relocations", ())),
+        "agent_path_length_m": legs.path_m + float(getattr(source, "path_length", 0.0)),
+        "air_path_length_m": legs.air_m + float(getattr(source, "air_path_length", 0.0)),
+        "relocations": legs.relocations + len(getattr(source, "relocations", ())),
         "keep_out_points": int(keep_out.sum()) if keep_out is not None else 0,
-        "keep_out_contacts": keep_out_contacts + (source.keep_out_contacts if isinstance(source, HedacExplorer) else 0),
+        "keep_out_contacts": legs.keep_out_contacts + int(getattr(source, "keep_out_contacts", 0)),
         "force_set_point_n": cfg.force_n,
         "baseline": cfg.baseline or "tactex",
         "object": cfg.object_name,
