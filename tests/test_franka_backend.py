@@ -221,7 +221,11 @@ def test_ft_stream_stopped_is_a_lost_sensor_as_in_simulation(panel):
     """The twin stops its Net F/T stream mid-contact: the safety layer declares the sensor lost and
     backs off (as in simulation), then resumes when the stream returns; the run completes."""
     def drill() -> None:
-        # in contact first (the twin's status, every 0.5 s): on a loaded machine the start takes a while
+        # in contact in this run (the twin's status, every 0.5 s): out of contact first, as the run
+        # starts above the surface (the previous test may have left the tool pressing, and a stream
+        # stopped while this run is still tared and moving to its start shows no loss), then pressing;
+        # on a loaded machine the start takes a while
+        panel.wait_status(lambda st: st.get("contact_force_n", 0.0) < 1.0, timeout_s=30.0)
         panel.wait_status(lambda st: st.get("connected") and st.get("contact_force_n", 0.0) > 5.0, timeout_s=30.0)
         panel.process.send_signal(signal.SIGUSR1)  # stream off
         time.sleep(0.5)
