@@ -52,8 +52,9 @@ TABLE1_SIZES = (2996, 6070, 9097, 11910, 14993, 18001)  # TEC Table I
 TABLE1_PAPER_MS = (59, 103, 178, 228, 293, 342)
 N_NEIGHBORS = 30  # tactex's default (robust_laplacian's too)
 
+# The bunny's Laplacian + 100 eigenpairs has no absolute target: the basis is compared with the
+# authors' pipeline as a ratio in one run (bench_large).
 TARGETS = {
-    "spectral.bun270_X.laplacian_eig100_s": ("<=", 0.125),
     "spectral.table1_18k_s": ("<=", 0.342),
 }
 

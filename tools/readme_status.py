@@ -64,9 +64,11 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
         r.add(f"realised acceleration over the limit, {name}", "–",
               (f"ergodic/{key}/realized_accel_over_limit_share", f"ergodic/{key}/realized_accel_max_ratio"),
               lambda share, ratio: f"{share * 100:.1f} % of steps, at most {ratio:.2f}×")
-    r.add("Laplacian + 100 eigenpairs, bunny (authors' pipeline)", "≤ 125 ms",
+    # an absolute time is a diary entry on these machines: the target is the interleaved ratio of the
+    # large stage (basis at 3k points, below)
+    r.add("Laplacian + 100 eigenpairs, bunny (authors' pipeline)", "–",
           ("spectral/bun270_X/laplacian_eig100_s", "spectral/bun270_X/authors_laplacian_eig100_s"),
-          lambda ours, theirs: f"{ours * 1e3:.0f} ms ({theirs * 1e3:.0f} ms)", lambda ours, theirs: ours <= 0.125)
+          lambda ours, theirs: f"{ours * 1e3:.0f} ms ({theirs * 1e3:.0f} ms)")
     r.add("Laplacian of Table I's 18k points", "≤ 0.342 s (TEC Table I)",
           ("spectral/table1_18k_s",), lambda s: f"{s:.2f} s", lambda s: s <= 0.342)
     r.add("basis at 3k points (bunny, K = 100): ours over the authors' pipeline (hierarchical forced)", "≥ 2×",
