@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from tactex.errors import RobotError, SensorFault
-from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, flange_T_tcp
+from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, _col_major, flange_T_tcp
 from tactex.sim.tool import ToolGeometry
 
 __all__ = ["LINK_MAX_LOST_FRACTION", "LINK_MIN_SUCCESS_RATE", "CheckResult", "check_robot"]
@@ -51,7 +51,7 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
     try:
         fs = backend._franka_state
         state = backend.state()
-        f_T_ee = np.asarray(fs.F_T_EE, dtype=float).reshape(4, 4).T
+        f_T_ee = _col_major(fs.F_T_EE, 4, 4)
         info.update({
             "robot_mode": str(fs.robot_mode),
             "current_errors": str(fs.current_errors) if bool(fs.current_errors) else "",

@@ -164,8 +164,8 @@ def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: Wrench
 def pin_control_thread(cpu: int, priority: int = 80) -> str:
     """Pin the calling process to ``cpu`` and give it SCHED_FIFO ``priority`` when the system allows
     (root, or an rtprio limit; libfranka does the same with RealtimeConfig.kEnforce). Returns what
-    was done, for the run's metrics. A core of its own keeps the loop's caches warm: on a shared core
-    the same tick took 2–3× longer after each wait for the robot."""
+    was done, for the run's metrics. A core of its own keeps the loop's caches warm between ticks
+    (docs/real_robot.md: the cost of a tick after each wait for the robot)."""
     if cpu < 0:
         return "not pinned"
     os.sched_setaffinity(0, {cpu})
@@ -264,6 +264,7 @@ class LibfrankaBackend:
         self._t = 0.0
         self._t_read = 0.0
         self._compute_us = float("nan")
+        self._gc_was_on = False  # set while torque control runs with the collector switched off by us
         self._last_read_wall: float | None = None
         self.wrench = config.wrench_source(self.tool)
         self.scheduling = pin_control_thread(config.control_cpu)
@@ -423,7 +424,7 @@ class LibfrankaBackend:
             self._gc_was_on = True
 
     def _gc_on(self) -> None:
-        if getattr(self, "_gc_was_on", False):
+        if self._gc_was_on:
             gc.unfreeze()
             gc.enable()
             self._gc_was_on = False
