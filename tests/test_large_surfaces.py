@@ -14,8 +14,14 @@ from tactex.pointcloud import SurfaceCloud
 from tactex.pointcloud.markings import marked_cloud
 from tactex.pointcloud.shapes import get_surface
 from tactex.spectral import build_basis, laplace_eigenpairs, load_basis, point_cloud_laplacian, save_basis
-from tactex.spectral.eigen import HIERARCHICAL_MIN_POINTS, resolve_eigensolver
-from tactex.spectral.hierarchy import HierarchyInfo, subspace_size, voxel_levels
+from tactex.spectral.eigen import HIERARCHICAL_MIN_POINTS, _canonical, resolve_eigensolver
+from tactex.spectral.hierarchy import (
+    HierarchyInfo,
+    _relative_residual2,
+    fine_subspace_size,
+    subspace_size,
+    voxel_levels,
+)
 from tactex.spectral.modes import MAX_AUTO_EIGEN, MIN_AUTO_EIGEN, auto_n_eigen
 
 needs_numba = pytest.mark.skipif(not ker.available(), reason="numba (the 'fast' extra) is not installed")
@@ -60,6 +66,39 @@ def test_hierarchical_eigenvectors_are_m_orthonormal_and_span_the_exact_ones(pan
     np.testing.assert_allclose(V_h.T @ (mass[:, None] * V_h), np.eye(V_h.shape[1]), atol=1e-9)
     cosines = np.linalg.svd(V_a.T @ (mass[:, None] * V_h), compute_uv=False)
     assert np.degrees(np.arccos(min(1.0, cosines.min()))) < 10.0
+
+
+def test_the_convergence_test_equals_the_residual_it_stands_for(panel_pairs) -> None:
+    # η² is computed as ‖Lφ‖²_{M⁻¹} − θ² (valid for M-orthonormal Ritz pairs); check it against the residual.
+    cloud, mass, _, (ev_h, V_h), _ = panel_pairs
+    L, _ = point_cloud_laplacian(cloud.points)
+    R = L @ V_h - mass[:, None] * V_h * ev_h
+    den = np.maximum(ev_h, 1e-3 * ev_h.max()) ** 2
+    direct = np.einsum("ij,ij->j", R, R / mass[:, None]) / den
+    np.testing.assert_allclose(_relative_residual2(L, mass, ev_h, V_h), direct, rtol=1e-6, atol=1e-10)
+
+
+def test_each_eigenvector_has_its_first_entry_of_largest_magnitude_positive() -> None:
+    rng = np.random.default_rng(3)
+    W = rng.standard_normal((50, 6))
+    W[:, 0] = 0.0
+    W[[4, 9], 1] = [-5.0, 5.0]  # a tie: the first of the two decides
+    W[[4, 9], 2] = [5.0, -5.0]
+    evals = rng.random(6)
+    ev, V = _canonical(evals, W.copy(), None)
+    order = np.argsort(evals)
+    ref = W[:, order]
+    first = np.argmax(np.abs(ref), axis=0)
+    ref = ref * np.where(ref[first, np.arange(6)] < 0, -1.0, 1.0)
+    np.testing.assert_array_equal(V, ref)
+    np.testing.assert_array_equal(ev, np.sort(evals))
+    s = rng.random(50)
+    np.testing.assert_array_equal(_canonical(evals, W.copy(), s)[1], s[:, None] * ref)
+
+
+def test_the_finest_level_keeps_fewer_guard_vectors() -> None:
+    assert subspace_size(200) == 300 and fine_subspace_size(200) == 240
+    assert fine_subspace_size(10) == 30  # at least 20 guard vectors
 
 
 def test_a_tighter_tolerance_gives_more_accurate_eigenvalues(panel_pairs) -> None:

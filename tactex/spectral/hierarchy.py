@@ -45,6 +45,7 @@ __all__ = [
     "COARSE_POINTS_PER_VECTOR",
     "DEFAULT_TOL",
     "HierarchyInfo",
+    "fine_subspace_size",
     "hierarchical_eigenpairs",
     "subspace_size",
     "voxel_levels",
@@ -81,6 +82,12 @@ class HierarchyInfo:
 def subspace_size(k: int) -> int:
     """p = k + max(k/2, 20): the block size of the subspace iteration for k wanted pairs."""
     return k + max(k // 2, 20)
+
+
+def fine_subspace_size(k: int) -> int:
+    """p_fine = k + max(k/5, 20): the block size on the finest level, where the cost is (p solves, n p²
+    products), and which starts from Ritz vectors already refined on the level below (see the module doc)."""
+    return k + max(k // 5, 20)
 
 
 def _voxel_representatives(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -151,29 +158,38 @@ class _Factor:
             cholespy.MatrixType.CSC,
         )
 
-    def solve(self, B: np.ndarray) -> np.ndarray:
+    def solve(self, B: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(L − σM)⁻¹ B for a C-ordered (n, p) block B, written into ``out`` when given (same shape)."""
         if self._chol is None:  # pragma: no cover
-            return self._lu.solve(np.asfortranarray(B))
+            X = self._lu.solve(np.asfortranarray(B))
+            if out is None:
+                return X
+            out[...] = X
+            return out
         B = np.ascontiguousarray(B)
-        X = np.empty_like(B)
+        X = np.empty_like(B) if out is None else out
         self._chol.solve(B, X)
         return X
 
 
-def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
-            sigma: float) -> tuple[np.ndarray, np.ndarray]:
+def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray, sigma: float,
+            out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One block shift-invert iteration from X and Rayleigh–Ritz on its image (M = diag(mass)).
 
-    With Y = (L − σM)⁻¹ M X D, the projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is
-    never applied to the block; Yᵀ M Y is a symmetric rank-k product (half a matrix product).
+    Returns (θ, Q, Y, spare): the Ritz values and vectors Y Q of span Y, Y = (L − σM)⁻¹ M X D. X itself is
+    overwritten and handed back as ``spare``, an (n, p) buffer for the caller's Y Q; Y goes into ``out``
+    when given. At 60k points each (n, p) block is 144 MB, whose first touch costs as much as a matrix
+    product on this kind of machine, so the iteration lives in two buffers.
+
+    The projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is never applied to the block;
+    Yᵀ M Y is a symmetric rank-k product (half a matrix product).
     """
-    MX = X * (mass[:, None] * np.maximum(theta - sigma, 1e-300)[None, :])
-    Y = factor.solve(MX)
-    A = Y.T @ MX
-    del MX
-    root = np.sqrt(mass)[:, None] * Y
+    X *= mass[:, None]
+    X *= np.maximum(theta - sigma, 1e-300)[None, :]
+    Y = factor.solve(X, out=out)
+    A = Y.T @ X
+    root = np.multiply(Y, np.sqrt(mass)[:, None], out=X)
     B = dsyrk(1.0, root.T, trans=0, lower=0)  # upper triangle of rootᵀ root (root.T is Fortran-ordered)
-    del root
     B = np.triu(B) + np.triu(B, 1).T
     A += sigma * B
     A = 0.5 * (A + A.T)
@@ -183,14 +199,20 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
         raise SpectralError(
             f"the hierarchical eigensolver lost the rank of its subspace ({exc}); use --eigensolver arpack"
         ) from exc
-    return theta, Y @ Q
+    return theta, Q, Y, X
 
 
 def _relative_residual2(L: sp.spmatrix, mass: np.ndarray, theta: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """η_k² = ‖L φ_k − θ_k M φ_k‖²_{M⁻¹} / θ_k² (θ floored at 1e-3 θ_max: the null space has θ ≈ 0)."""
+    """η_k² = ‖L φ_k − θ_k M φ_k‖²_{M⁻¹} / θ_k² for Ritz pairs (θ floored at 1e-3 θ_max: the null space has
+    θ ≈ 0).
+
+    Ritz vectors are M-orthonormal with φ_kᵀ L φ_k = θ_k, so the numerator is ‖L φ_k‖²_{M⁻¹} − θ_k²: one
+    product with L and no (n, k) temporaries besides it. Its cancellation costs ~1e-16 relative, far below
+    any tolerance in (0, 1).
+    """
     R = L @ X
-    R -= mass[:, None] * X * theta
-    num = np.einsum("ij,ij->j", R, R / mass[:, None])
+    R *= (1.0 / np.sqrt(mass))[:, None]
+    num = np.maximum(np.einsum("ij,ij->j", R, R) - theta**2, 0.0)
     den = np.maximum(np.abs(theta), 1e-3 * float(np.max(np.abs(theta)))) ** 2
     return num / den
 
@@ -221,7 +243,7 @@ def hierarchical_eigenpairs(
         (evals (k,), evecs (N, k)) M-orthonormal, unsorted signs; or None when the cloud is too small for a
         coarser level (the caller then solves exactly).
     """
-    from tactex.spectral.eigen import _dense, _symmetric_form, laplace_eigenpairs
+    from tactex.spectral.eigen import _symmetric_form, laplace_eigenpairs
 
     if not (isinstance(tol, (float, int)) and 0.0 < float(tol) < 1.0):
         raise ConfigError(f"eigen_tol must be a number in (0, 1), got {tol!r} (e.g. 5e-3)")
@@ -234,6 +256,8 @@ def hierarchical_eigenpairs(
     levels = voxel_levels(points, spacing, COARSE_POINTS_PER_VECTOR * p)
     if not levels:
         return None
+    # Guard vectors are dropped on the finest level only when the vectors reaching it were refined below.
+    p_fine = min(p, fine_subspace_size(k)) if len(levels) >= 2 else p
     L = sp.csr_matrix(L)
     ops: list[tuple[sp.csr_matrix, np.ndarray]] = [(L, mass)]
     for _, P in levels:
@@ -248,9 +272,12 @@ def hierarchical_eigenpairs(
     t0 = time.perf_counter()
     Lc, mc = ops[-1]
     if Lc.shape[0] <= COARSE_DENSE_MAX_POINTS:
+        # Single precision: these vectors only start the refinement, which works in double (half the time
+        # of a double-precision solve at 1164 points).
         A, scale = _symmetric_form(Lc, mc)
-        theta, W = _dense(A, p)
-        X = scale[:, None] * W
+        theta, W = la.eigh(A.toarray().astype(np.float32), subset_by_index=[0, p - 1], check_finite=False)
+        theta = theta.astype(np.float64)
+        X = scale[:, None] * W.astype(np.float64)
     else:
         theta, X = laplace_eigenpairs(Lc, mc, p, seed=seed, solver="arpack")
     info.seconds["coarsest"] = time.perf_counter() - t0
@@ -258,29 +285,39 @@ def hierarchical_eigenpairs(
     sigma = -1e-6 * float(np.mean(L.diagonal() / mass))
     t_factor = t_iter = 0.0
     for level in range(len(levels) - 1, -1, -1):
+        if level == 0:
+            X, theta = X[:, :p_fine], theta[:p_fine]
         X = levels[level][1] @ X
         Lf, mf = ops[level]
         t0 = time.perf_counter()
         factor = _Factor(Lf - sigma * sp.diags(mf))
         t1 = time.perf_counter()
-        theta, X = _refine(factor, mf, X, theta, sigma)
-        if level == 0:
+        theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma)
+        if level > 0:
+            X = np.matmul(Y, Q, out=spare)
+        else:
             for it in range(1, MAX_ITERATIONS + 1):
-                eta2 = _relative_residual2(L, mass, theta[:k], X[:, :k])
+                # The wanted vectors first: when they have converged the other p − k are never formed.
+                Xk = Y @ Q[:, :k]
+                eta2 = _relative_residual2(L, mass, theta[:k], Xk)
                 info.fine_iterations = it
                 info.max_residual2 = float(eta2.max())
                 _log.debug("hierarchical eigensolver: iteration %d, max η² %.2e", it, info.max_residual2)
                 if info.max_residual2 <= tol:
+                    X = Xk
                     break
                 if it == MAX_ITERATIONS:
                     raise SpectralError(
                         f"the hierarchical eigensolver did not reach eigen_tol={tol:g} in {MAX_ITERATIONS} "
                         f"iterations (max η² {info.max_residual2:.2e}); raise --eigen-tol or use --eigensolver arpack"
                     )
-                theta, X = _refine(factor, mf, X, theta, sigma)
+                del Xk
+                X = np.matmul(Y, Q, out=spare)
+                theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma, out=Y)
+        del Y, spare
         t_factor += t1 - t0
         t_iter += time.perf_counter() - t1
         del factor
     info.seconds["factor"] = t_factor
     info.seconds["iterations"] = t_iter
-    return theta[:k], np.ascontiguousarray(X[:, :k])
+    return theta[:k], X
