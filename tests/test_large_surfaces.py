@@ -39,7 +39,7 @@ def curved_panel(nx: int = 60, ny: int = 40, h: float = 0.003, seed: int = 0) ->
 
 @pytest.fixture(scope="module")
 def panel_pairs():
-    cloud = curved_panel()
+    cloud = curved_panel(80, 50)  # 4000 points: two coarse levels for k = 30
     L, M = point_cloud_laplacian(cloud.points)
     mass = M.diagonal().copy()
     k = 30
