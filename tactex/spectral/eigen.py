@@ -35,9 +35,9 @@ __all__ = [
 
 #: The eigensolver choices (``--eigensolver``): the exact reference, the hierarchical one, or by size.
 EIGENSOLVERS = ("auto", "arpack", "hierarchical")
-#: From this many points on, ``auto`` takes the hierarchical solver. Below, the hierarchy has one or two
-#: coarse levels and gains little (bunny, 3k points, K = 100, Laplacian included: 0.49 s against 0.57 s
-#: with ARPACK in bench_large), so the small clouds of the papers keep the exact basis.
+#: From this many points on, ``auto`` takes the hierarchical solver. Below, the hierarchy has one coarse
+#: level and gains little (bunny, 3k points, K = 100, Laplacian included: 0.25 s against 0.29 s with ARPACK
+#: in bench_large), so the small clouds of the papers keep the exact basis.
 HIERARCHICAL_MIN_POINTS = 10_000
 
 #: Below this many points dense LAPACK beats ARPACK and never fails to converge.
