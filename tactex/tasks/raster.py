@@ -1,8 +1,9 @@
 """Boustrophedon (raster) coverage of a point cloud: the classic baseline for surface cleaning.
 
-Lanes run across the cloud's principal plane (PCA), ``lane_spacing_m`` apart; the path walks them
-in alternating directions in steps of ``step_m`` and is snapped to the cloud (nearest point and its
-normal). It ignores the target: it cleans everything, in order.
+Lanes run across the cloud's principal plane (PCA), ``lane_spacing_m`` apart, along the direction in
+which the surface bends (a cup's arc; spaced along its straight direction, so the spacing holds on the
+surface); the path walks them in alternating directions in steps of ``step_m`` and is snapped to the
+cloud (nearest point and its normal). It ignores the target: it cleans everything, in order.
 """
 
 from __future__ import annotations
@@ -14,7 +15,11 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 
-__all__ = ["RasterPath", "boustrophedon"]
+__all__ = ["RasterPath", "WaypointPath", "boustrophedon"]
+
+#: How much more the normals tilt along the second principal axis than along the first before the lanes
+#: run along the second (see :func:`boustrophedon`) [-].
+BEND_SWAP_RATIO = 1.5
 
 
 def boustrophedon(cloud: SurfaceCloud, lane_spacing_m: float, step_m: float) -> np.ndarray:
@@ -25,11 +30,24 @@ def boustrophedon(cloud: SurfaceCloud, lane_spacing_m: float, step_m: float) -> 
     pts = cloud.points
     centre = pts.mean(axis=0)
     _, _, vt = np.linalg.svd(pts - centre, full_matrices=False)
-    uv = (pts - centre) @ vt[:2].T
+    axes = vt[:2]
+    if cloud.normals is not None:
+        # Lanes run along the direction in which the surface bends and are spaced along the one in which
+        # it stays straight, so the spacing holds on the surface: on a half cylinder (the cup) lanes spaced
+        # across the arc would be 1/cos(angle) farther apart on the surface towards its sides, and the
+        # pad would miss strips there. A surface bending about alike both ways keeps the principal order.
+        bend = np.mean((cloud.normals @ axes.T) ** 2, axis=0)
+        if bend[1] > BEND_SWAP_RATIO * bend[0]:
+            axes = axes[::-1]
+    uv = (pts - centre) @ axes.T
     (u0, v0), (u1, v1) = uv.min(axis=0), uv.max(axis=0)
     tree2d = cKDTree(uv)
     waypoints = []
-    lanes = np.arange(v0 + lane_spacing_m / 2, v1, lane_spacing_m)
+    # as many lanes as it takes to be at most lane_spacing_m apart, spread evenly: the first and the last
+    # half a spacing or less from the edges (at a fixed spacing from one edge, the other edge's strip
+    # could be up to a whole spacing from the last lane, out of the pad's reach)
+    n_lanes = max(int(np.ceil((v1 - v0) / lane_spacing_m - 1e-9)), 1)
+    lanes = v0 + (np.arange(n_lanes) + 0.5) * (v1 - v0) / n_lanes
     for k, v in enumerate(lanes):
         us = np.arange(u0, u1 + 1e-12, step_m)
         if k % 2:
@@ -43,16 +61,22 @@ def boustrophedon(cloud: SurfaceCloud, lane_spacing_m: float, step_m: float) -> 
     return np.concatenate(waypoints)
 
 
-class RasterPath:
-    """Serves the raster as :class:`ExplorationCommand`s, like the explorer does (same interface:
-    ``reset(x0)``, ``step()``), moving at most ``max_step_m`` per step along the waypoints."""
+class WaypointPath:
+    """Serves a path of waypoints on a cloud as :class:`ExplorationCommand`s, like the explorer does (same
+    interface: ``reset(x0)``, ``step()``, ``done``), moving at most ``max_step_m`` per step along them; each
+    command's normal is that of the cloud point nearest to it."""
 
-    def __init__(self, cloud: SurfaceCloud, lane_spacing_m: float, max_step_m: float) -> None:
+    def __init__(self, cloud: SurfaceCloud, waypoints: np.ndarray, max_step_m: float) -> None:
         if cloud.normals is None:
-            raise InputError("the raster baseline needs a cloud with normals")
+            raise InputError("a path on the surface needs a cloud with normals")
+        if not max_step_m > 0:
+            raise ConfigError(f"the path's step must be > 0 m, got {max_step_m}")
+        waypoints = np.asarray(waypoints, dtype=float).reshape(-1, 3)
+        if len(waypoints) == 0:
+            raise InputError("a path needs at least one waypoint")
         self.cloud = cloud
         self.max_step_m = float(max_step_m)
-        self.waypoints = boustrophedon(cloud, lane_spacing_m, max_step_m)
+        self.waypoints = waypoints
         self._tree = cKDTree(cloud.points)
         self._k = 0
         self.path_length = 0.0
@@ -69,14 +93,18 @@ class RasterPath:
         return ExplorationCommand(self._x.copy(), velocity, n.copy(), u, np.cross(n, u), step, 0)
 
     def reset(self, x0: np.ndarray | None = None) -> ExplorationCommand:
-        """Start at the waypoint nearest ``x0`` (default: the first)."""
+        """Start at the waypoint nearest ``x0`` (default: the first) and walk on from there, wrapping
+        around to the beginning."""
         self._k = 0 if x0 is None else int(np.argmin(np.linalg.norm(self.waypoints - np.asarray(x0), axis=1)))
-        # walk the lanes from where we start, wrapping around to the beginning
         self.waypoints = np.concatenate([self.waypoints[self._k:], self.waypoints[: self._k]])
         self._k = 0
         self._x = self.waypoints[0].copy()
         self.path_length = 0.0
         return self._command(0, np.zeros(3))
+
+    def extend(self, waypoints: np.ndarray) -> None:
+        """Append waypoints (M, 3) [m] to the path (the walk goes on through them)."""
+        self.waypoints = np.concatenate([self.waypoints, np.asarray(waypoints, dtype=float).reshape(-1, 3)])
 
     def step(self, measured_position: np.ndarray | None = None) -> ExplorationCommand:
         budget = self.max_step_m
@@ -93,3 +121,13 @@ class RasterPath:
                 budget = 0.0
         self.path_length += float(np.linalg.norm(self._x - start))
         return self._command(self._k, self._x - start)
+
+
+class RasterPath(WaypointPath):
+    """The boustrophedon of :func:`boustrophedon` as a path (``lane_spacing_m`` apart, ``max_step_m`` per
+    step)."""
+
+    def __init__(self, cloud: SurfaceCloud, lane_spacing_m: float, max_step_m: float) -> None:
+        if cloud.normals is None:
+            raise InputError("the raster baseline needs a cloud with normals")
+        super().__init__(cloud, boustrophedon(cloud, lane_spacing_m, max_step_m), max_step_m)
