@@ -104,7 +104,9 @@ def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
     # TEC's loop: with the default objective the trip to the camera starts where the wear model calls the
     # cup clean, near the rim, and the lift-off there drags the pad over the lip (30.5 N): a known limit of
     # the retract on the cup (issue 21's report), not of the side view this test is about
-    m = run_clean(CleanConfig(object_name="cup", budget_s=25.0, objective="ergodic"), progress=False).metrics
+    # (30 s: 200 exploration steps from the first contact at 9.3 s, some put off while the wall drags the pad
+    # over 15 N, and the 6.3 s trip to the camera, which ends at 26.7 s)
+    m = run_clean(CleanConfig(object_name="cup", budget_s=30.0, objective="ergodic"), progress=False).metrics
     assert m["vision_updates"] >= 1 and m["dirt_removed_fraction"] > 0.9
     assert m["max_contact_force_n"] < 3.0 * 10.0
 
@@ -148,13 +150,15 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path)
 
 
 def test_sparse_spots_are_cleaned_island_by_island() -> None:
-    """Issue 21: three 1 cm spots far apart on the plate. The cooled potential barely reaches the next
-    spot; when the wear model says the one under the sponge is done, the robot lifts off and touches down
-    at the nearest spot left, without a trip to the camera in between."""
-    cfg = CleanConfig(object_name="plate", marking="spots", budget_s=17.0)
+    """Issue 21: three 1 cm spots far apart on the plate. Each spot is smaller than the pad: the robot wipes
+    it with a straight stroke (back and forth until the wear model calls it clean), then lifts off and
+    touches down at the nearest spot left, without a trip to the camera in between."""
+    cfg = CleanConfig(object_name="plate", marking="spots", budget_s=22.0)
     m = run_clean(cfg, progress=False).metrics
     assert m["island_relocations"] >= 1 and m["vision_updates"] == 0
-    assert m["dirt_removed_fraction"] > 0.75  # all three spots touched (two of them: 59 %)
+    assert m["dirt_removed_fraction"] > 0.95  # all three spots wiped (two of them: 69 %)
+    assert m["island_strokes"] >= 3  # one stroke per spot at least, no ergodic dwell
+    assert m["time_to_95pct_s"] is not None
     assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
     bd = m["time_breakdown_s"]
     assert bd["touch_down"] > 2.0 * 0.9  # the first touch-down and at least one more (~1.1 s each)

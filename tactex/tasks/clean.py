@@ -60,6 +60,7 @@ from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
+from tactex.tasks.stroke import IslandStroke, plan_stroke
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
 from tactex.tasks.wear_model import WearModel
@@ -79,6 +80,8 @@ RETRACT_M = 0.05
 CLEARANCE_M = 0.08
 #: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
 WAYPOINT_MAX_JOINT_RAD = 0.5
+#: Most exploration steps in a row the agent waits for a lagging tool (CleanConfig.max_lag_m) [-].
+MAX_HOLD_STEPS = 10
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
 
@@ -150,6 +153,18 @@ class CleanConfig(SimWorldParams):
         0.5, "measured normal force that counts as contact [N]; below the force loop's approach equilibrium "
         "Kp·F_approach/(1 + Kp) = 1 N, so a touch-down is always detected")
     agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
+    touch_down_boost: float = param(
+        0.4, "after a touch-down the force command rises above the set point by up to this fraction of it, a "
+        "smooth pulse peaking --touch-down-boost-s after the touch-down, so that the force loop's integrator "
+        "(K_i = 5/s) charges in a few tenths of a second instead of most of a second; the force is judged "
+        "against the set point; 0 = none [-]")
+    touch_down_boost_s: float = param(0.25, "when the --touch-down-boost pulse peaks after the touch-down [s]")
+    max_lag_m: float = param(
+        0.0, "the agent waits (its step is put off) while the tool lags the commanded point by more than this "
+        "along the surface; 0 = never waits [m]")
+    hold_force_ratio: float = param(
+        1.5, "the agent waits (its step is put off) while the measured contact force exceeds this multiple of "
+        "the set point (the tool dragged against a wall by the line it follows); 0 = never waits [-]")
     max_normal_rate_deg_s: float = param(
         90.0,
         "fastest turn of the commanded normal line while in contact; on a sharp edge (a bowl's rim) the "
@@ -216,6 +231,12 @@ class CleanConfig(SimWorldParams):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if not (np.isfinite(self.touch_down_boost_s) and self.touch_down_boost_s > 0):
+            raise ConfigError(f"touch_down_boost_s must be > 0 s, got {self.touch_down_boost_s!r}")
+        for name in ("max_lag_m", "hold_force_ratio", "touch_down_boost"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
         if not (np.isfinite(self.cooling) and self.cooling >= 0):
             raise ConfigError(f"cooling must be a finite number ≥ 0 [1/step], got {self.cooling!r}")
         if self.model_update_steps < 1 or self.model_stall_steps < 1:
@@ -308,6 +329,44 @@ class _WearTicks:
         if self.ticks >= self.every:
             self.wear.wipe(st.ee_position, self.fv)
             self.fv, self.ticks = 0.0, 0
+
+
+def _lag_m(tcp_m: np.ndarray, cmd: ExplorationCommand) -> float:
+    """How far the tool at ``tcp_m`` (3,) [m] is from the commanded point along the surface (its offset
+    along the normal left out) [m]."""
+    d = np.asarray(tcp_m, dtype=float) - cmd.point
+    d = d - float(d @ cmd.normal) * cmd.normal
+    return float(np.sqrt(d @ d))
+
+
+def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel, cfg: CleanConfig,
+                  cloud: SurfaceCloud, target0: float, islands_tried: list[np.ndarray], legs: _Legs,
+                  step_m: float, transfer_max_m: float,
+                  done_level: float) -> tuple[IslandStroke | None, np.ndarray | None, bool]:
+    """What follows a finished stroke: ``(stroke, relocate_to, covered)`` — a new stroke sliding in contact
+    to the next small island when that is closer than ``transfer_max_m`` [m] (the path the pad slides in the
+    time a lift-off, move and touch-down take), else a lift-off to the next island (``relocate_to``), the
+    camera when the model calls the job done (``covered``), or the explorer (all None/False) when dirt is
+    left here (a stroke that ran out of passes). ``done_level``: the model's remaining fraction of ``target0``
+    at which the camera judges."""
+    legs.path_m += stroke.path.path_length
+    if stroke.transfer_only:
+        return None, None, False
+    if wear.remaining_fraction(target0) <= done_level:
+        return None, None, True
+    if not stroke.clean(wear):
+        return None, None, False
+    island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
+    if island is None or wear.dirt_near(island, 2.0 * cfg.pad_radius_m) < cfg.stop_remaining * target0:
+        return None, None, not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)
+    islands_tried.append(island)
+    if float(np.linalg.norm(island - cmd.point)) < transfer_max_m:
+        nxt = plan_stroke(cloud, wear._tree, wear, island, cmd.point, cfg.pad_radius_m, step_m,
+                          transfer_from_m=cmd.point)
+        if nxt is not None:
+            nxt.path.reset()
+            return nxt, None, False
+    return None, island, False
 
 
 class _Log:
@@ -571,6 +630,18 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     vision_times: list[float] = []  # [s] when each re-measurement was taken
     vision_trip_s = 5.0  # [s] retract, lift, transit and capture (~4.5 s on the plate); measured after the first trip
     legs = _Legs(source)
+    # islands smaller than the pad get a straight stroke instead of the explorer (wear model only; a stroke
+    # knows no keep-out zone)
+    strokes = wear is not None and keep_out is None
+    stroke: IslandStroke | None = None
+    stroke_step_m = cfg.max_velocity * cloud.spacing  # the agent's speed limit
+    hold_force_n = cfg.hold_force_ratio * cfg.force_n if cfg.hold_force_ratio > 0 else np.inf
+    island_move_s = 3.5  # [s] lift-off, move and touch-down at the next island; measured after the first
+    t_move = None  # when the island move in progress started
+    counted: IslandStroke | None = None  # the last stroke counted in n_strokes / n_transfers
+    n_strokes = n_transfers = 0  # strokes through small islands; slides in contact to the next island
+    new_leg = True  # the next touch-down starts a leg (the first, after an island move or a camera view)
+    leg_from = cap_pos  # where the robot comes from to that leg
     remaining_seen = 1.0
     agent_path: list[np.ndarray] = []
     ergodicity: list[tuple[float, float]] = []
@@ -579,6 +650,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     aborted = ""
     try:
         while loop.t < t_end:
+            if new_leg and strokes:
+                stroke = plan_stroke(cloud, wear._tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m)
+                if stroke is not None:
+                    cmd = stroke.path.reset()
+            new_leg = False
             # 3a. hover over the agent and approach along its normal line
             log.activity("move", "transit")
             # Through a waypoint straight above the hover pose: a joint move from the high capture pose
@@ -633,6 +709,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     break
             if t_touch is None and loop.t >= t_end:
                 break  # the time budget ended during the approach
+            if t_move is not None and t_touch is not None:
+                island_move_s, t_move = t_touch - t_move, None
             if t_touch is None:
                 raise ExplorationError(
                     f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
@@ -656,11 +734,39 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             done_level = (cfg.stop_remaining if wear is None
                           else min(cfg.stop_remaining, 0.2 * wear.remaining_fraction(target0)))
             relocate_to = None
+            held = 0  # exploration steps put off in a row while the tool lagged or was dragged
             while loop.t < t_end:
-                if loop.t >= next_step - 1e-9:
+                due = loop.t >= next_step - 1e-9
+                if due and held < MAX_HOLD_STEPS and (
+                        (cfg.max_lag_m > 0 and _lag_m(loop.state.ee_position, cmd) > cfg.max_lag_m)
+                        or float(np.linalg.norm(loop.state.wrench_tool[:3])) > hold_force_n):
+                    # the tool is behind, or dragged against a wall (a bowl's, climbing towards the rim): hold the
+                    # line at the agent's point while it catches up (for a few steps at most: a point it cannot
+                    # reach must not hold the program)
+                    prev, n_prev, next_step = cmd, n_next, next_step + dt_step
+                    held += 1
+                elif due:
+                    held = 0
                     prev = cmd
                     measured = loop.state.ee_position if cfg.agent_feedback else None
-                    cmd = source.step(measured)
+                    if stroke is not None and stroke.path.done:
+                        wear_ticks.settle()
+                        if stroke.clean(wear) or not stroke.next_pass(stroke_step_m):
+                            stroke, relocate_to, covered = _after_stroke(
+                                stroke, cmd, wear, cfg, cloud, target0, islands_tried, legs, stroke_step_m,
+                                island_move_s * cfg.explorer_rate_hz * stroke_step_m, done_level)
+                            if relocate_to is not None:
+                                break
+                            if covered:
+                                break
+                            if stroke is None:  # the explorer takes over here
+                                legs.restart(cmd.point)
+                                predicted_left.clear()
+                    cmd = stroke.path.step() if stroke is not None else source.step(measured)
+                    if stroke is not None and stroke is not counted:
+                        counted = stroke
+                        n_strokes += not stroke.transfer_only
+                        n_transfers += stroke.transfer
                     if isinstance(cmd, RelocationCommand):
                         relocation = cmd  # lift off here, fly, touch down at cmd.point (3a below)
                         break
@@ -672,7 +778,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     if isinstance(source, HedacExplorer) and steps_since_vision % 20 == 0:
                         ergodicity.append((loop.t, source.ergodicity()))
                         covered = given is not None and source.coverage_residual() <= cfg.stop_remaining
-                    if wear is not None and steps_since_vision % cfg.model_update_steps == 0:
+                    if stroke is None and wear is not None and steps_since_vision % cfg.model_update_steps == 0:
                         wear_ticks.settle()
                         predicted = wear.remaining()
                         left = float(predicted.sum()) / target0
@@ -695,8 +801,15 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                                 covered = True
                             else:
                                 islands_tried.append(island)
-                                relocate_to = island
-                                break
+                                transfer_max_m = island_move_s * cfg.explorer_rate_hz * stroke_step_m
+                                if strokes and float(np.linalg.norm(island - cmd.point)) < transfer_max_m:
+                                    stroke = plan_stroke(cloud, wear._tree, wear, island, cmd.point, cfg.pad_radius_m,
+                                                         stroke_step_m, transfer_from_m=cmd.point)
+                                if stroke is not None:
+                                    stroke.path.reset()  # slide there in contact from the next step on
+                                else:
+                                    relocate_to = island
+                                    break
                         elif left <= done_level:
                             covered = True  # the model says the job is done: time for the camera to judge
                         else:
@@ -706,7 +819,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 normal = n_prev + frac * (n_next - n_prev)
                 ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
                 force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
-                log.set_point = force
+                log.set_point = force  # the band is judged against the set point, never the boost below
+                if cfg.touch_down_boost > 0:  # a smooth pulse from zero, peaking touch_down_boost_s after touch-down
+                    x = (loop.t - t_touch) / cfg.touch_down_boost_s
+                    force += cfg.touch_down_boost * cfg.force_n * x * float(np.exp(1.0 - x))
                 if wear_ticks is None:
                     loop.tick(LineForceReference(point, normal, force))
                 else:
@@ -734,6 +850,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 log.activity("retract", "transit")
                 loop.retract(RETRACT_M, duration_s=0.4)
                 island_moves += 1
+                leg_from, new_leg, t_move = cmd.point, True, loop.t
+                if stroke is not None:
+                    legs.path_m += stroke.path.path_length
+                    stroke = None
                 cmd = legs.restart(relocate_to)
                 continue
             if cfg.baseline == "raster" and source.done:
@@ -763,6 +883,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if keep_out is not None and source.clear_points[left].any():
                 left = left[source.clear_points[left]]
             x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
+            leg_from, new_leg = cmd.point, True
+            if stroke is not None:
+                legs.path_m += stroke.path.path_length
+                stroke = None
             cmd = legs.restart(x0)
     except ROBOT_STOPS as exc:
         # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
@@ -797,6 +921,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "time_to_95pct_s": t95,
         "vision_updates": vision_updates,
         "island_relocations": island_moves,
+        "island_strokes": n_strokes,
+        "contact_transfers": n_transfers,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],
         "vision_remaining_fraction": remaining_seen,

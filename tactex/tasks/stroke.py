@@ -47,13 +47,14 @@ def surface_line(cloud: SurfaceCloud, tree: cKDTree, a_m: np.ndarray, b_m: np.nd
 @dataclass
 class IslandStroke:
     """A stroke in progress: ``path`` serves its commands; ``island`` are the cloud indices it wipes, between
-    ``a`` and ``b`` (3,) [m], the ends of one pass."""
+    ``a`` and ``b`` (3,) [m], the ends of one pass (the same point for a transfer only)."""
 
     path: WaypointPath
     island: np.ndarray
     a: np.ndarray
     b: np.ndarray
     passes: int = 1
+    transfer: bool = False  # it starts with a slide in contact from the pad's position
 
     @property
     def transfer_only(self) -> bool:
@@ -119,4 +120,4 @@ def plan_stroke(cloud: SurfaceCloud, tree: cKDTree, wear: WearModel, island_poin
         if gap > MAX_LINE_GAP_M:
             return None
         line = np.concatenate([lead, line[1:]])
-    return IslandStroke(WaypointPath(cloud, line, step_m), island, a, b)
+    return IslandStroke(WaypointPath(cloud, line, step_m), island, a, b, transfer=transfer_from_m is not None)
