@@ -151,14 +151,16 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path)
 
 def test_sparse_spots_are_cleaned_island_by_island() -> None:
     """Issue 21: three 1 cm spots far apart on the plate. Each spot is smaller than the pad: the robot wipes
-    it with a straight stroke (back and forth until the wear model calls it clean), then lifts off and
-    touches down at the nearest spot left, without a trip to the camera in between."""
+    it with a straight stroke (back and forth until the wear model calls it clean) and moves on to the
+    nearest spot left — sliding in contact when that is quicker than a lift-off — without a trip to the
+    camera before the dirt is off."""
     cfg = CleanConfig(object_name="plate", marking="spots", budget_s=22.0)
     m = run_clean(cfg, progress=False).metrics
-    assert m["island_relocations"] >= 1 and m["vision_updates"] == 0
-    assert m["dirt_removed_fraction"] > 0.95  # all three spots wiped (two of them: 69 %)
     assert m["island_strokes"] >= 3  # one stroke per spot at least, no ergodic dwell
-    assert m["time_to_95pct_s"] is not None
+    assert m["contact_transfers"] + m["island_relocations"] >= 2  # from spot to spot
+    assert m["dirt_removed_fraction"] > 0.95
+    t95 = m["time_to_95pct_s"]
+    assert t95 is not None and all(t > t95 for t in m["vision_update_times_s"])
     assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
     bd = m["time_breakdown_s"]
-    assert bd["touch_down"] > 2.0 * 0.9  # the first touch-down and at least one more (~1.1 s each)
+    assert bd["contact_dirt"] + bd["contact_clean"] > 3 * 1.0  # three strokes of a few passes in contact
