@@ -16,7 +16,9 @@ When to return to the camera, and what the agent follows until then, is ``object
 ``vision_every_steps``, ~200 in TEC §VI-B); ``clean`` (the default, issue 21) makes the target the
 captured dirt minus what the robot's own Preston wear model says it has removed
 (:class:`~tactex.tasks.wear_model.WearModel`), so clean points stop attracting, and returns when
-that model says the dirt is gone or stops falling. Each tick is accounted in a time breakdown
+that model says the dirt is gone or stops falling. An island of dirt smaller than the pad gets a
+straight stroke instead of the agent, and the robot slides in contact to the next island when that is
+quicker than a lift-off (:mod:`tactex.tasks.stroke`). Each tick is accounted in a time breakdown
 (:mod:`tactex.tasks.time_breakdown`).
 
 Baselines (same controller, force and robot): ``raster`` — a boustrophedon path over the whole
@@ -76,15 +78,16 @@ PHASES = CLEAN_PHASES
 #: Lift-off distance along the tool axis before vision and at the end [m].
 RETRACT_M = 0.05
 #: Longest single step of a lift-off [m]: each step is one linearised joint move (ControlLoop.retract),
-#: whose error grows with the square of its length; on the cup's wall one 5 cm step lifted the tool
-#: 9 cm up the wall instead of out of it (36.6 N), two steps of 2.5 cm lift it off (20.1 N).
+#: whose error grows with the square of its length; on the cup's wall one 5 cm step moved the tool up
+#: the wall, dragging the pad, instead of out of it.
 RETRACT_STEP_M = 0.025
 #: Height of the waypoints above the hover pose on the way from the capture pose, and above the
 #: retracted tool on the way back to it [m].
 CLEARANCE_M = 0.08
 #: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
 WAYPOINT_MAX_JOINT_RAD = 0.5
-#: Most exploration steps in a row the agent waits for a lagging tool (CleanConfig.max_lag_m) [-].
+#: Most exploration steps in a row the agent waits for a lagging or dragged tool (CleanConfig.max_lag_m,
+#: CleanConfig.hold_force_ratio): a point the tool cannot reach must not hold the program [-].
 MAX_HOLD_STEPS = 10
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
@@ -365,7 +368,7 @@ def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel
         return None, None, not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)
     islands_tried.append(island)
     if float(np.linalg.norm(island - cmd.point)) < transfer_max_m:
-        nxt = plan_stroke(cloud, wear._tree, wear, island, cmd.point, cfg.pad_radius_m, step_m,
+        nxt = plan_stroke(cloud, wear.tree, wear, island, cmd.point, cfg.pad_radius_m, step_m,
                           transfer_from_m=cmd.point)
         if nxt is not None:
             nxt.path.reset()
@@ -663,7 +666,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     try:
         while loop.t < t_end:
             if new_leg and strokes:
-                stroke = plan_stroke(cloud, wear._tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m)
+                stroke = plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m)
                 if stroke is not None:
                     cmd = stroke.path.reset()
             new_leg = False
@@ -815,7 +818,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                                 islands_tried.append(island)
                                 transfer_max_m = island_move_s * cfg.explorer_rate_hz * stroke_step_m
                                 if strokes and float(np.linalg.norm(island - cmd.point)) < transfer_max_m:
-                                    stroke = plan_stroke(cloud, wear._tree, wear, island, cmd.point, cfg.pad_radius_m,
+                                    stroke = plan_stroke(cloud, wear.tree, wear, island, cmd.point, cfg.pad_radius_m,
                                                          stroke_step_m, transfer_from_m=cmd.point)
                                 if stroke is not None:
                                     stroke.path.reset()  # slide there in contact from the next step on

@@ -86,6 +86,11 @@ class WaypointPath:
     def done(self) -> bool:
         return self._k >= len(self.waypoints) - 1
 
+    @property
+    def tree(self) -> cKDTree:
+        """KD-tree of the cloud's points (the normal of each command comes from its nearest point)."""
+        return self._tree
+
     def _command(self, step: int, velocity: np.ndarray) -> ExplorationCommand:
         n = self.cloud.normals[int(self._tree.query(self._x)[1])]
         u = np.cross(n, [0.0, 1.0, 0.0] if abs(n[0]) > 0.9 else [1.0, 0.0, 0.0])

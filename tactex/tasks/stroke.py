@@ -69,7 +69,7 @@ class IslandStroke:
         """Back over the island once more (from the end the pad is at); False after :data:`MAX_PASSES`."""
         if self.passes >= MAX_PASSES:
             return False
-        line, _ = surface_line(self.path.cloud, self.path._tree, self.b, self.a, step_m)
+        line, _ = surface_line(self.path.cloud, self.path.tree, self.b, self.a, step_m)
         self.path.extend(line)
         self.a, self.b = self.b, self.a
         self.passes += 1

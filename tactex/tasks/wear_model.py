@@ -52,6 +52,11 @@ class WearModel:
         self.removed = np.zeros(len(cloud))  # predicted removal per point [dirt level]
         self._target = np.asarray(cloud.target, dtype=float).copy()
 
+    @property
+    def tree(self) -> cKDTree:
+        """KD-tree of the cloud's points (shared with whoever plans paths on the same cloud)."""
+        return self._tree
+
     def reset(self, target: np.ndarray) -> None:
         """A new view of the dirt (target mass (N,) on the cloud's points): the prediction restarts."""
         t = np.asarray(target, dtype=float)
