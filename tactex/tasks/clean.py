@@ -62,6 +62,7 @@ from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
+from tactex.tasks.step_ahead import ERGODICITY_EVERY_STEPS, StepAhead
 from tactex.tasks.stroke import IslandStroke, plan_stroke
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
@@ -750,6 +751,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                           else min(cfg.stop_remaining, 0.2 * wear.remaining_fraction(target0)))
             relocate_to = None
             held = 0  # exploration steps put off in a row while the tool lagged or was dragged
+            ahead = StepAhead(source, backend.dt, wear=wear, settle=wear_ticks.settle if wear_ticks else None,
+                              agent_feedback=cfg.agent_feedback, read_residual=given is not None,
+                              model_update_steps=cfg.model_update_steps, island_radius_m=2.0 * cfg.pad_radius_m)
             while loop.t < t_end:
                 due = loop.t >= next_step - 1e-9
                 if due and held < MAX_HOLD_STEPS and (
@@ -777,7 +781,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                             if stroke is None:  # the explorer takes over here
                                 legs.restart(cmd.point)
                                 predicted_left.clear()
-                    cmd = stroke.path.step() if stroke is not None else source.step(measured)
+                    taken = ahead.take() if stroke is None else None
+                    if taken is not None:
+                        cmd, reads = taken
+                    else:
+                        cmd, reads = stroke.path.step() if stroke is not None else source.step(measured), {}
                     if stroke is not None and stroke is not counted:
                         counted = stroke
                         n_strokes += not stroke.transfer_only
@@ -790,12 +798,18 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     steps_since_vision += 1
                     agent_path.append(cmd.point)
                     log.agent = cmd.point
-                    if isinstance(source, HedacExplorer) and steps_since_vision % 20 == 0:
-                        ergodicity.append((loop.t, source.ergodicity()))
-                        covered = given is not None and source.coverage_residual() <= cfg.stop_remaining
+                    if isinstance(source, HedacExplorer) and steps_since_vision % ERGODICITY_EVERY_STEPS == 0:
+                        erg = reads["ergodicity"] if "ergodicity" in reads else source.ergodicity()
+                        ergodicity.append((loop.t, erg))
+                        residual = reads["residual"] if "residual" in reads else (
+                            source.coverage_residual() if given is not None else None)
+                        covered = residual is not None and residual <= cfg.stop_remaining
                     if stroke is None and wear is not None and steps_since_vision % cfg.model_update_steps == 0:
-                        wear_ticks.settle()
-                        predicted = wear.remaining()
+                        if "predicted" in reads:
+                            predicted = reads["predicted"]
+                        else:
+                            wear_ticks.settle()
+                            predicted = wear.remaining()
                         left = float(predicted.sum()) / target0
                         predicted_left.append(left)
                         back = cfg.model_stall_steps // cfg.model_update_steps
@@ -803,8 +817,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         stalled = len(predicted_left) > back and predicted_left[-1 - back] - left < 0.1 * left
                         # or the island under the agent is done while a far one holds a fair share (the cooled
                         # potential barely reaches it): nothing the model calls dirty within two pad radii
-                        stalled = stalled or (left > 4 * cfg.stop_remaining
-                                              and not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m))
+                        stalled = stalled or (left > 4 * cfg.stop_remaining and not (
+                            reads["island_left"] if "island_left" in reads
+                            else wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)))
                         if left > done_level and stalled:
                             # dirt left, but not where the agent is: lift off and touch down at the nearest
                             # island the model calls dirty, unless there is none it has not tried since the
@@ -828,7 +843,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         elif left <= done_level:
                             covered = True  # the model says the job is done: time for the camera to judge
                         else:
-                            source.update_target(predicted, keep_coverage=True)
+                            ahead.update_target_later(predicted)
                 frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
                 point = prev.point + frac * (cmd.point - prev.point)
                 normal = n_prev + frac * (n_next - n_prev)
@@ -838,19 +853,18 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 if cfg.touch_down_boost > 0:  # a smooth pulse from zero, peaking touch_down_boost_s after touch-down
                     x = (loop.t - t_touch) / cfg.touch_down_boost_s
                     force += cfg.touch_down_boost * cfg.force_n * x * float(np.exp(1.0 - x))
-                if wear_ticks is None:
-                    loop.tick(LineForceReference(point, normal, force))
-                else:
-                    wear_ticks.note(loop.tick(LineForceReference(point, normal, force),
-                                              after_send=wear_ticks.settle), normal)
+                # the phase ends after this tick: the wear model (or, for a given cloud, the coverage) says the
+                # dirt is gone, or the camera is due
+                ending = covered or (cfg.baseline == "" and given is None and steps_since_vision >= vision_steps)
+                # the explorer steps ahead only for a step it will take in this phase
+                ahead.arm(next_step, steps_since_vision + 1, enabled=stroke is None and not ending)
+                state_next = loop.tick(LineForceReference(point, normal, force), after_send=ahead)
+                if wear_ticks is not None:
+                    wear_ticks.note(state_next, normal)
                 if int(loop.t * 1000) % 250 == 0:
                     bar.update(loop.t, dirt=dirt(), vision=vision_updates)
-                if cfg.baseline == "raster" and source.done:
+                if ending or (cfg.baseline == "raster" and source.done and not ahead.pending):
                     break
-                if cfg.baseline == "" and given is None and steps_since_vision >= vision_steps:
-                    break
-                if covered:
-                    break  # the wear model (or, for a given cloud, the coverage) says the dirt is gone
             if wear_ticks is not None:
                 wear_ticks.settle()  # the phase's last tick
             explore_time += loop.t - t_phase
