@@ -98,6 +98,7 @@ def test_model_and_ergodicity_reads_come_with_the_steps_that_use_them() -> None:
     ahead.arm(0.004, 2, True)
     ahead(_state(0.003))
     cmd, reads = ahead.take()
+    assert cmd.point[0] == pytest.approx(0.002)
     assert reads["predicted"].sum() == pytest.approx(1.0) and reads["island_left"] is True  # at x = 2 mm
     assert "ergodicity" not in reads  # only a HedacExplorer has one
 
