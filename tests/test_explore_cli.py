@@ -68,6 +68,27 @@ def test_explore_builtin_plate_end_to_end(tmp_path, capsys: pytest.CaptureFixtur
     assert f"step {STEPS}/{STEPS}" in captured.err and "ergodicity" in captured.out
 
 
+def test_whole_surface_target_sweeps_and_a_marked_one_does_not(tmp_path, capsys) -> None:
+    base = ["explore", "plate", "--steps", "40", "--n-eigen", "60", "--no-html"]
+    assert main([*base, "--marking", "full", "--out", str(tmp_path / "all")]) == 0
+    assert "source: sweep" in capsys.readouterr().err
+    whole = json.loads((tmp_path / "all" / "metrics.json").read_text())
+    assert whole["source_mode"] == "sweep" and whole["n_target"] == whole["n_points"]
+    assert main([*base, "--out", str(tmp_path / "red")]) == 0
+    assert "source: sweep" not in capsys.readouterr().err
+    assert json.loads((tmp_path / "red" / "metrics.json").read_text())["source_mode"] == "ergodic"
+    assert main([*base, "--marking", "full", "--source-mode", "ergodic", "--out", str(tmp_path / "e")]) == 0
+    assert json.loads((tmp_path / "e" / "metrics.json").read_text())["source_mode"] == "ergodic"
+    # a user's own file with --target-channel all
+    g = np.linspace(-0.04, 0.04, 27)
+    x, y = np.meshgrid(g, g)
+    path = save_ply(SurfaceCloud(points=np.column_stack([x.ravel(), y.ravel(), 0.0 * x.ravel()]),
+                                 colors=np.full((x.size, 3), 0.5)), tmp_path / "sheet.ply")
+    file_args = ["explore", str(path), "--target-channel", "all", "--steps", "30", "--n-eigen", "50", "--no-html"]
+    assert main([*file_args, "--out", str(tmp_path / "file")]) == 0
+    assert json.loads((tmp_path / "file" / "metrics.json").read_text())["source_mode"] == "sweep"
+
+
 def test_explore_is_reproducible(tmp_path) -> None:
     args = ["explore", "cup", "--steps", "20", "--n-eigen", "40", "--no-html", "--quiet", "--seed", "5"]
     assert main([*args, "--out", str(tmp_path / "a")]) == 0

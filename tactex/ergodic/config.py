@@ -9,10 +9,12 @@ from dataclasses import dataclass
 from tactex.config import param
 from tactex.errors import ConfigError
 
-__all__ = ["COVERAGE_NORMALIZATIONS", "HedacConfig", "check_coverage_normalization"]
+__all__ = ["COVERAGE_NORMALIZATIONS", "SOURCE_MODES", "HedacConfig", "check_coverage_normalization"]
 
 #: Domains the coverage is normalised over in the source term (see HedacConfig.coverage_normalization).
 COVERAGE_NORMALIZATIONS = ("target", "domain")
+#: Source terms of the explorer (see HedacConfig.source_mode and tactex.ergodic.sweep).
+SOURCE_MODES = ("auto", "ergodic", "sweep")
 
 
 def check_coverage_normalization(value: object, owner: str) -> None:
@@ -121,6 +123,23 @@ class HedacConfig:
     relocation_clearance_m: float = param(
         0.02, "height of a relocation's flight above the lift-off and touch-down points, along their normals [m]"
     )
+    source_mode: str = param(
+        "auto",
+        "source term: 'ergodic' = eq. 1–2 (match the target distribution), 'sweep' = pass over every target point "
+        "once (tactex.ergodic.sweep: open target next to covered ground first, strokes overlapping a little), "
+        "'auto' = sweep when the target is the whole surface at one level (--target-channel all), else ergodic",
+    )
+    sweep_plan_ratio: float = param(
+        0.8, "sweep source: a point counts as done once the agent came within this share of r_a (< 1: strokes "
+        "overlap) [-]"
+    )
+    sweep_frontier_ratio: float = param(
+        1.2, "sweep source: radius of the neighbourhood whose done share weighs an open point, in r_a [-]"
+    )
+    sweep_base: float = param(
+        0.02, "sweep source: weight of an open point with no done neighbour, relative to one surrounded by done "
+        "ground (1 = no preference for the edge of the covered region) [-]"
+    )
     compiled: bool = param(
         True,
         "run the walking step compiled by numba when the optional 'fast' extra is installed (about 5x faster; "
@@ -152,6 +171,13 @@ class HedacConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ConfigError(f"HedacConfig.{name} must be an integer ≥ {low}, got {value!r}")
         check_coverage_normalization(self.coverage_normalization, "HedacConfig")
+        if self.source_mode not in SOURCE_MODES:
+            raise ConfigError(f"HedacConfig.source_mode must be one of {SOURCE_MODES}, got {self.source_mode!r}")
+        for name in ("sweep_plan_ratio", "sweep_frontier_ratio"):
+            _check_number(name, getattr(self, name), strict=True)
+        _check_number("sweep_base", self.sweep_base, strict=True)
+        if self.sweep_base > 1.0:
+            raise ConfigError(f"HedacConfig.sweep_base must be in (0, 1], got {self.sweep_base!r}")
         for name in ("compiled", "edge_braking", "relocate"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"HedacConfig.{name} must be True or False, got {getattr(self, name)!r}")

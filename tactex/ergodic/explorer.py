@@ -36,6 +36,10 @@ running sums over the target rows (:mod:`.source`) that change only where the fo
 step costs O(footprint · K) plus an O(n_target) scalar pass; u is only needed at the n_N
 neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally.
 
+With the whole surface as the target (or ``HedacConfig.source_mode = "sweep"``) the source of step 4
+is the sweep source of :mod:`.sweep` instead of eq. 1–2: every target point not yet passed over,
+weighted up next to covered ground, so that every point is passed over once in passes (numpy step).
+
 When walking makes no progress (the agent's Laplacian part holds no untouched target, it stalls,
 or it touches nothing new for long) the step is a relocation instead (:mod:`.relocation`): the agent
 lifts off, flies and touches down at untouched target elsewhere. Keep-out zones (``keep_out``) hold
@@ -66,6 +70,7 @@ from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
 from tactex.ergodic.source import REBUILD_STEPS, SourceSums, update_source_numpy
+from tactex.ergodic.sweep import SweepSource, uniform_whole_target
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
@@ -251,7 +256,8 @@ class HedacExplorer:
             max_step_m=self._step_max, dt=self._dt, max_off_m=self._off, edge_offset=EDGE_OFFSET,
             normalize_by_target=self._norm_target, order=cfg.order, edge_braking=cfg.edge_braking,
         )
-        self._walk_kernel = self._compile_kernel() if cfg.compiled else None
+        # The compiled step forms eq. 1–2's source itself: the sweep source runs the numpy step.
+        self._walk_kernel = self._compile_kernel() if cfg.compiled and self._sweep is None else None
         self._agents: list[Agent] = []
         self._x = np.zeros((0, 3))
         self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
@@ -355,6 +361,13 @@ class HedacExplorer:
         self._t_part = self._labels[self._tidx]
         self._src = SourceSums(self._tidx.size, self._phi.shape[1])
         self._dcoef = np.zeros(self._phi.shape[1])
+        cfg = self.config
+        sweep = cfg.source_mode == "sweep" or (
+            cfg.source_mode == "auto" and uniform_whole_target(self._target, self._keep_out))
+        self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
+                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
+        if sweep and getattr(self, "_walk_kernel", None) is not None:
+            self._walk_kernel = None  # a new target may switch a running explorer to the sweep source
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
@@ -363,6 +376,8 @@ class HedacExplorer:
         self._coef = self._p_t @ self._phitm_t  # u(x, 0) = p̂ (eq. 5)
         self._s_ext[:] = 0.0
         self._src.clear()
+        if self._sweep is not None:
+            self._sweep.reset()
 
     def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
         """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
@@ -451,6 +466,12 @@ class HedacExplorer:
 
     # ------------------------------------------------------------------ stepping
     @property
+    def source_mode(self) -> str:
+        """The source term in use: 'sweep' (:mod:`.sweep`) or 'ergodic' (eq. 1–2); HedacConfig.source_mode
+        'auto' resolved for the current target."""
+        return "sweep" if self._sweep is not None else "ergodic"
+
+    @property
     def compiled(self) -> bool:
         """Whether the walking steps run compiled (numba, :mod:`.kernel`) rather than in numpy."""
         return self._walk_kernel is not None
@@ -513,6 +534,9 @@ class HedacExplorer:
                 self._pass = _WHOLE
         if before is not None:
             cmds = [c if isinstance(c, RelocationCommand) else self._keep_out_guard(c, before[c.agent]) for c in cmds]
+        if self._sweep is not None:
+            for c in cmds:
+                self._sweep.mark(c.point)
         self.step_count += 1
         return cmds
 
@@ -1046,8 +1070,11 @@ class HedacExplorer:
     def _update_potential(self) -> None:
         """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
         cov = self._cov
-        norm = float(_sum(cov.take(self._tidx))) if self._norm_target else self._cov_sum
-        dcoef = update_source_numpy(cov, self._tidx, self._p_t, norm, self._s_t, self._src, self._phitm_t)
+        if self._sweep is not None:
+            dcoef = self._s_t.dot(self._phitm_t) if self._sweep.source(self._s_t) > 0.0 else np.zeros_like(self._coef)
+        else:
+            norm = float(_sum(cov.take(self._tidx))) if self._norm_target else self._cov_sum
+            dcoef = update_source_numpy(cov, self._tidx, self._p_t, norm, self._s_t, self._src, self._phitm_t)
         # Diffuse after adding the source: the truncated projection of a sharp source rings
         # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
         coef = self._coef

@@ -340,6 +340,9 @@ def run_explore(
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
+    if explorer.source_mode == "sweep":
+        say("source: sweep (the target is the whole surface: every point passed over once, in passes along what "
+            "is covered; --source-mode ergodic for eq. 1–2)")
     labels = basis.component_labels()
     sizes = np.bincount(labels)
     if basis.n_components > 1:
@@ -426,6 +429,7 @@ def run_explore(
         "explorer_setup_time_s": setup_s,
         "preprocess_time_s": preprocess_s,
         "step_kernel": "numba" if explorer.compiled else "numpy",
+        "source_mode": explorer.source_mode,
         "basis_from_cache": basis.from_cache,
         "step_time_median_s": statistics.median(step_s.tolist()),
         "step_time_max_s": float(step_s.max()),

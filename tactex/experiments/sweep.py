@@ -162,7 +162,9 @@ def _run_setting(task: tuple, clouds: dict[str, tuple]) -> dict[str, np.ndarray]
 
     key, n_eigen, alpha, steps, normalization = task
     cloud, basis, starts, radius = clouds[key]
-    hedac = HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius, coverage_normalization=normalization)
+    # The paper's study measures eq. 1–2's HEDAC: no sweep source, even for a whole-surface target.
+    hedac = HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius, coverage_normalization=normalization,
+                        source_mode="ergodic")
     explorer = HedacExplorer(cloud, basis, hedac)
     n = len(starts)
     erg, res, path = np.empty((n, steps)), np.empty((n, steps)), np.empty((n, steps))

@@ -1,0 +1,104 @@
+"""The sweep source: HEDAC's source term for targets where every point must be passed over once.
+
+Eq. 1–2 match a distribution: a point keeps a source until its coverage reaches its share of the
+total. With the whole surface as the target (sanding, polishing, inspection) the goal is different:
+every point inside a footprint once, the shortest way. Two things waste path there with eq. 1–2:
+strokes laid about a footprint width apart leave slivers and single points just beyond r_a between
+them, each costing a later pass; and the potential, smooth over several footprints, pulls the agent
+across the middle of the open region instead of along the edge of what it has covered, cutting the
+rest into islands.
+
+The sweep source instead puts, on every target point not yet *done*,
+
+    s_r = p_r · (base + (1 − base) · f_r),   f_r = share of the target points within ``frontier_radius``
+                                                   of r that are done (or missing: the cloud's edge),
+
+scaled to unit sum, and 0 on done points. "Done" uses a planning footprint narrower than the real
+one (``plan_ratio`` · r_a): a point the footprint only grazed keeps its source, so the next stroke
+overlaps the last a little instead of leaving single points between them. The frontier share f_r
+makes the open target next to covered ground (and to the cloud's edge) weigh most: the agent works
+along the edge of the covered region, and coverage grows in passes, like a spiral, rather than in
+scattered strokes. The sum s is normalised over what is left, so the last specks draw the agent
+as strongly as the first open field did.
+
+The frontier share is kept incrementally: when a point becomes done, the done-counts of the target
+points around it go up by one (a sparse row), so a step costs O(new points · neighbours); the
+spectral image Φᵀ M s is formed in full (O(T K)), since the weights move around every new point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.spatial import cKDTree
+
+__all__ = ["SweepSource", "uniform_whole_target"]
+
+
+def uniform_whole_target(target: np.ndarray, keep_out: np.ndarray | None = None) -> bool:
+    """True when the target puts the same mass on every cloud point outside the keep-out zone (a
+    whole-surface target, ``--target-channel all``): the case ``source_mode = "auto"`` sweeps."""
+    t = np.asarray(target, dtype=np.float64)
+    if keep_out is not None and keep_out.any():
+        t = t[~keep_out]
+    return bool(t.size > 0 and t.min() > 0.0 and t.max() == t.min())
+
+
+class SweepSource:
+    """The sweep source on the target points.
+
+    Args:
+        points: target points (T, 3) [m].
+        p: their normalised target mass (T,).
+        plan_radius_m: radius of the planning footprint [m]: a point is done once an agent point came
+            this close.
+        frontier_radius_m: radius of the neighbourhood of the frontier share [m].
+        base: weight of a target point with no done neighbour, relative to one surrounded by done ones
+            (in (0, 1]: 1 = no frontier preference).
+    """
+
+    def __init__(self, points: np.ndarray, p: np.ndarray, plan_radius_m: float, frontier_radius_m: float,
+                 base: float) -> None:
+        self._tree = cKDTree(points)
+        self._p = np.asarray(p, dtype=np.float64)
+        self.plan_radius_m = float(plan_radius_m)
+        self.base = float(base)
+        balls = self._tree.query_ball_point(points, frontier_radius_m)
+        sizes = np.array([len(b) for b in balls])
+        rows = np.repeat(np.arange(len(points)), sizes)
+        cols = np.concatenate(balls).astype(np.intp) if len(balls) else np.zeros(0, dtype=np.intp)
+        self._near = csr_matrix((np.ones(rows.size), (rows, cols)), shape=(len(points), len(points)))
+        # The full neighbourhood of an inner point: fewer neighbours (the cloud's edge) count as done.
+        self._full = float(sizes.max()) if sizes.size else 1.0
+        self._missing = self._full - sizes
+        self.reset()
+
+    def reset(self) -> None:
+        """Nothing done yet."""
+        self.done = np.zeros(self._p.size, dtype=bool)
+        self._done_near = self._missing.astype(np.float64)
+
+    def mark(self, x: np.ndarray) -> None:
+        """Target points within the planning radius of the agent point x (3,) [m] are done."""
+        idx = np.asarray(self._tree.query_ball_point(x, self.plan_radius_m), dtype=np.intp)
+        if idx.size == 0:
+            return
+        new = idx[~self.done[idx]]
+        if new.size == 0:
+            return
+        self.done[new] = True
+        # the rows of the new points are their neighbourhoods (the relation is symmetric)
+        self._done_near += np.asarray(self._near[new].sum(axis=0)).ravel()
+
+    def source(self, out: np.ndarray) -> float:
+        """The source (T,) into ``out``, scaled to unit sum; returns the sum before scaling (0: all done)."""
+        f = self._done_near * (1.0 / self._full)
+        np.minimum(f, 1.0, out=f)
+        np.multiply(f, 1.0 - self.base, out=out)
+        out += self.base
+        out *= self._p
+        out[self.done] = 0.0
+        tot = float(out.sum())
+        if tot > 0.0:
+            out *= 1.0 / tot
+        return tot
