@@ -127,7 +127,7 @@ class HedacConfig:
         "auto",
         "source term: 'ergodic' = eq. 1–2 (match the target distribution), 'sweep' = pass over every target point "
         "once (tactex.ergodic.sweep: open target next to covered ground first, strokes overlapping a little), "
-        "'auto' = sweep when the target is the whole surface at one level (--target-channel all), else ergodic",
+        "'auto' = sweep when the target is the whole surface at one level (--target all), else ergodic",
     )
     sweep_plan_ratio: float = param(
         0.8, "sweep source: a point counts as done once the agent came within this share of r_a (< 1: strokes "
