@@ -79,6 +79,19 @@ def test_auto_sweeps_a_whole_surface_target_and_keeps_eq_1_2_for_a_marked_one():
     assert _explorer((pts[:, 0] > 0.04).astype(float), pts, source_mode="sweep")._sweep is not None
 
 
+def test_a_target_update_switches_the_source_both_ways():
+    pts = _grid(25, 25)
+    ex = _explorer((pts[:, 0] > 0.04).astype(float), pts)
+    compiled = ex.compiled
+    ex.reset(pts[300])
+    ex.update_target(np.ones(len(pts)))
+    assert ex.source_mode == "sweep" and not ex.compiled
+    ex.step()
+    ex.update_target((pts[:, 0] > 0.04).astype(float))
+    assert ex.source_mode == "ergodic" and ex.compiled == compiled
+    ex.step()
+
+
 def test_sweep_touches_every_point_of_a_patch():
     pts = _grid(25, 25)
     ex = _explorer(np.ones(len(pts)), pts)

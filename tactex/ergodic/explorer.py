@@ -366,8 +366,11 @@ class HedacExplorer:
             cfg.source_mode == "auto" and uniform_whole_target(self._target, self._keep_out))
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
                                   cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
-        if sweep and getattr(self, "_walk_kernel", None) is not None:
-            self._walk_kernel = None  # a new target may switch a running explorer to the sweep source
+        if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
+            if sweep:
+                self._walk_kernel = None
+            elif cfg.compiled and self._walk_kernel is None:
+                self._walk_kernel = self._compile_kernel()
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
