@@ -84,6 +84,14 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
           ("large/sizes/150000/peak_memory_gb", "large/sizes/150000/step_us_median",
            "large/sizes/150000/step_us_median_target_1pct"),
           lambda gb, us, us1: f"{gb:.2f} GB; {us:.0f} µs ({us1:.0f} µs)", lambda gb, us, us1: gb <= 4 and us <= 1000)
+    r.add("explorer on untuned starts and surfaces (robustness study): runs reaching residual ≤ 0.05 within 3 m "
+          "(over the cases 3 m can cover)", "every run",
+          ("robustness/all/reached_share", "robustness/all/reached_share_feasible", "robustness/all/runs"),
+          lambda share, feas, n: f"{share * 100:.1f} % ({feas * 100:.1f} %) of {n} runs",
+          lambda share, feas, n: share >= 1)
+    r.add("robustness study: runs ending with reachable target untouched; keep-out contacts", "0; 0",
+          ("robustness/all/never_touched_runs", "robustness/all/keep_out_contacts"),
+          lambda nt, ko: f"{nt}; {ko}", lambda nt, ko: nt == 0 and ko == 0)
     for key in ("ga_line_force", "ufic", "va_ufic", "cartesian_impedance"):
         r.add(f"controller tick, {key} (median; p99)", "≤ 100 µs",
               (f"control/{key}/tick_us_median", f"control/{key}/tick_us_p99"),
