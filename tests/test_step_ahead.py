@@ -124,7 +124,7 @@ def test_an_explorer_reads_its_ergodicity_ahead_every_few_steps(tmp_path) -> Non
 def test_in_a_clean_the_explorer_steps_while_the_command_executes(monkeypatch) -> None:
     """Almost every contact step of a simulated clean, and every target update from the wear model, runs
     in ``after_send``: on a real robot, not between a state and its command. The in-place steps are the
-    first of each contact phase (no command before it to run behind)."""
+    first of each contact phase (no command before it to run behind) and those after a stroke."""
     from tactex.tasks.clean import CleanConfig, run_clean
 
     where: dict[str, list[bool]] = {"step": [], "target": []}

@@ -141,10 +141,18 @@ def test_raster_lanes_hold_their_spacing_on_a_half_cylinder(monkeypatch) -> None
 
 
 def test_lag_hold_and_boost_options_are_checked() -> None:
-    with pytest.raises(ConfigError, match="touch_down_boost_s"):
+    with pytest.raises(ConfigError, match="--touch-down-boost-s"):
         CleanConfig(touch_down_boost_s=0.0)
     for name in ("max_lag_m", "hold_force_ratio", "touch_down_boost"):
-        with pytest.raises(ConfigError, match=name):
+        option = "--" + name.replace("_", "-")
+        with pytest.raises(ConfigError, match=option):
             CleanConfig(**{name: -1.0})
-        with pytest.raises(ConfigError, match=name):
+        with pytest.raises(ConfigError, match=option):
             CleanConfig(**{name: float("nan")})
+    # a pulse above the set point itself, and a hold at or below the set point (every contact would wait)
+    with pytest.raises(ConfigError, match="--touch-down-boost"):
+        CleanConfig(touch_down_boost=1.5)
+    for ratio in (0.5, 1.0):
+        with pytest.raises(ConfigError, match="--hold-force-ratio"):
+            CleanConfig(hold_force_ratio=ratio)
+    assert CleanConfig(hold_force_ratio=0.0, touch_down_boost=0.0).hold_force_ratio == 0.0  # both off

@@ -164,3 +164,22 @@ def test_sparse_spots_are_cleaned_island_by_island() -> None:
     assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
     bd = m["time_breakdown_s"]
     assert bd["contact_dirt"] + bd["contact_clean"] > 3 * 1.0  # three strokes of a few passes in contact
+
+
+def test_a_fully_marked_surface_is_cleaned_with_the_dirt_source_not_the_sweep(monkeypatch) -> None:
+    """The wear model keeps replacing the explorer's target: on a uniformly marked surface (``--marking
+    full``, which ``explore`` would sweep) the clean still follows the dirt with eq. 1–2 from the start, so no
+    target update switches the step (and compiles it) while torque control runs."""
+    from tactex.ergodic.explorer import HedacExplorer
+
+    configs = []
+    orig = HedacExplorer.__init__
+
+    def init(self, cloud, basis, config=None, *a, **k):
+        configs.append(config)
+        orig(self, cloud, basis, config, *a, **k)
+
+    monkeypatch.setattr(HedacExplorer, "__init__", init)
+    m = run_clean(CleanConfig(object_name="plate", marking="full", budget_s=9.0, n_eigen=40), progress=False).metrics
+    assert configs and all(c.source_mode == "ergodic" for c in configs)
+    assert m["dirt_removed_fraction"] > 0.0

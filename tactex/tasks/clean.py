@@ -240,11 +240,15 @@ class CleanConfig(SimWorldParams):
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
         if not (np.isfinite(self.touch_down_boost_s) and self.touch_down_boost_s > 0):
-            raise ConfigError(f"touch_down_boost_s must be > 0 s, got {self.touch_down_boost_s!r}")
-        for name in ("max_lag_m", "hold_force_ratio", "touch_down_boost"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v >= 0):
-                raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
+            raise ConfigError(f"--touch-down-boost-s must be > 0 s (e.g. 0.25), got {self.touch_down_boost_s!r}")
+        if not (np.isfinite(self.max_lag_m) and self.max_lag_m >= 0):
+            raise ConfigError(f"--max-lag-m must be a distance ≥ 0 m (0: never wait), got {self.max_lag_m!r}")
+        if not (np.isfinite(self.touch_down_boost) and 0 <= self.touch_down_boost <= 1):
+            raise ConfigError(f"--touch-down-boost must be a fraction of the set point in [0, 1] (e.g. 0.4; 0: none), "
+                              f"got {self.touch_down_boost!r}")
+        if not (np.isfinite(self.hold_force_ratio) and (self.hold_force_ratio == 0 or self.hold_force_ratio > 1)):
+            raise ConfigError(f"--hold-force-ratio must be 0 (never wait) or above 1 (e.g. 1.5): at or below 1 the "
+                              f"agent would wait at the set point itself; got {self.hold_force_ratio!r}")
         if not (np.isfinite(self.cooling) and self.cooling >= 0):
             raise ConfigError(f"cooling must be a finite number ≥ 0 [1/step], got {self.cooling!r}")
         if self.model_update_steps < 1 or self.model_stall_steps < 1:
@@ -608,6 +612,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             # sliding 93.5 % and 18.2 N (the plate: 92.9 % and 13.6 N against 93.0 % and 13.4 N).
             edge_braking=False,
             cooling=cfg.cooling,
+            # the dirt is a distribution the wear model keeps updating (eq. 1–2), even on a uniformly marked
+            # surface: the sweep source is explore's, for a whole surface passed over once
+            source_mode="ergodic",
             # with the wear model the task moves between islands itself, from what the model says is left
             # (the explorer's stall rule fired at a 1 cm spot the cooled potential holds the agent on); the
             # explorer's relocation stays for keep-out zones, whose flights it plans around them
@@ -697,6 +704,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach; "
                               f"moving on to the dirt at {np.round(island, 3).tolist()} m", RuntimeWarning,
                               stacklevel=2)
+                # a stroke planned there goes with it: the new island starts a leg of its own
+                stroke, new_leg = None, True
                 cmd = legs.restart(island)
                 continue
             try:
