@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from tactex.errors import ConfigError
+from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks import raster
 from tactex.tasks.clean import CleanConfig
-from tactex.tasks.raster import boustrophedon
+from tactex.tasks.raster import WaypointPath, boustrophedon
 from tactex.tasks.stroke import MAX_LINE_GAP_M, MAX_PASSES, plan_stroke, surface_line
 from tactex.tasks.wear_model import WearModel
 
@@ -59,6 +59,7 @@ def test_a_small_island_gets_a_stroke_through_its_centre_that_cleans_it() -> Non
     wear = WearModel(cloud, K_P, R, margin=1.5)
     stroke = plan_stroke(cloud, tree, wear, np.array([0.02, 0.01, 0.0]), np.array([-0.05, 0.01, 0.0]), R, STEP)
     assert stroke is not None and not stroke.transfer_only and not stroke.transfer
+    assert stroke.path.tree is tree  # planned in contact: the path reads the given tree, builds none
     assert set(stroke.island) == set(np.flatnonzero(cloud.target > 0))
     # along the direction from where the robot comes (x here), a pad radius plus the spot's radius each side
     assert stroke.a[0] < stroke.b[0] and np.allclose([stroke.a[1], stroke.b[1]], 0.01, atol=cloud.spacing)
@@ -156,3 +157,9 @@ def test_lag_hold_and_boost_options_are_checked() -> None:
         with pytest.raises(ConfigError, match="--hold-force-ratio"):
             CleanConfig(hold_force_ratio=ratio)
     assert CleanConfig(hold_force_ratio=0.0, touch_down_boost=0.0).hold_force_ratio == 0.0  # both off
+
+
+def test_a_waypoint_path_refuses_a_tree_of_another_cloud() -> None:
+    cloud = _plane(_spot((0.02, 0.01)))
+    with pytest.raises(InputError, match="KD-tree holds"):
+        WaypointPath(cloud, cloud.points[:3], STEP, tree=cKDTree(cloud.points[:10]))

@@ -64,9 +64,13 @@ def boustrophedon(cloud: SurfaceCloud, lane_spacing_m: float, step_m: float) -> 
 class WaypointPath:
     """Serves a path of waypoints on a cloud as :class:`ExplorationCommand`s, like the explorer does (same
     interface: ``reset(x0)``, ``step()``, ``done``), moving at most ``max_step_m`` per step along them; each
-    command's normal is that of the cloud point nearest to it."""
+    command's normal is that of the cloud point nearest to it.
 
-    def __init__(self, cloud: SurfaceCloud, waypoints: np.ndarray, max_step_m: float) -> None:
+    ``tree``: a KD-tree of ``cloud.points`` built already (the wear model's): a path planned while the
+    robot is in contact (a stroke) must not spend milliseconds building its own."""
+
+    def __init__(self, cloud: SurfaceCloud, waypoints: np.ndarray, max_step_m: float,
+                 tree: cKDTree | None = None) -> None:
         if cloud.normals is None:
             raise InputError("a path on the surface needs a cloud with normals")
         if not max_step_m > 0:
@@ -77,7 +81,10 @@ class WaypointPath:
         self.cloud = cloud
         self.max_step_m = float(max_step_m)
         self.waypoints = waypoints
-        self._tree = cKDTree(cloud.points)
+        if tree is not None and tree.n != len(cloud.points):
+            raise InputError(f"the KD-tree holds {tree.n} points, the cloud {len(cloud.points)}: "
+                             "build it on this cloud's points")
+        self._tree = cKDTree(cloud.points) if tree is None else tree
         self._k = 0
         self.path_length = 0.0
         self._x = self.waypoints[0].copy()

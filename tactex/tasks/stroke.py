@@ -120,4 +120,5 @@ def plan_stroke(cloud: SurfaceCloud, tree: cKDTree, wear: WearModel, island_poin
         if gap > MAX_LINE_GAP_M:
             return None
         line = np.concatenate([lead, line[1:]])
-    return IslandStroke(WaypointPath(cloud, line, step_m), island, a, b, transfer=transfer_from_m is not None)
+    return IslandStroke(WaypointPath(cloud, line, step_m, tree=tree), island, a, b,
+                        transfer=transfer_from_m is not None)
