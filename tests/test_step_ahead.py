@@ -155,3 +155,16 @@ def test_in_a_clean_the_explorer_steps_while_the_command_executes(monkeypatch) -
     steps = np.array(where["step"])
     assert steps.size > 100 and steps.mean() >= 0.95, (steps.size, steps.mean())
     assert where["target"] and all(where["target"])
+
+
+def test_a_hold_lasts_at_most_its_steps_until_the_tool_catches_up() -> None:
+    from tactex.tasks.step_hold import StepHold
+
+    hold = StepHold(3)
+    # a point the tool never reaches: three steps put off, then the agent goes on, step after step
+    assert [hold.hold(True) for _ in range(8)] == [True, True, True] + [False] * 5
+    assert hold.hold(False) is False  # caught up: the count restarts
+    assert [hold.hold(True) for _ in range(4)] == [True, True, True, False]
+    assert [StepHold(0).hold(True) for _ in range(2)] == [False, False]  # 0: never waits
+    with pytest.raises(ValueError):
+        StepHold(-1)

@@ -63,6 +63,7 @@ from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.step_ahead import ERGODICITY_EVERY_STEPS, StepAhead
+from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import IslandStroke, plan_stroke
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
@@ -759,22 +760,20 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             done_level = (cfg.stop_remaining if wear is None
                           else min(cfg.stop_remaining, 0.2 * wear.remaining_fraction(target0)))
             relocate_to = None
-            held = 0  # exploration steps put off in a row while the tool lagged or was dragged
+            hold = StepHold(MAX_HOLD_STEPS)
             ahead = StepAhead(source, backend.dt, wear=wear, settle=wear_ticks.settle if wear_ticks else None,
                               agent_feedback=cfg.agent_feedback, read_residual=given is not None,
                               model_update_steps=cfg.model_update_steps, island_radius_m=2.0 * cfg.pad_radius_m)
             while loop.t < t_end:
                 due = loop.t >= next_step - 1e-9
-                if due and held < MAX_HOLD_STEPS and (
+                if due and hold.hold(
                         (cfg.max_lag_m > 0 and _lag_m(loop.state.ee_position, cmd) > cfg.max_lag_m)
                         or float(np.linalg.norm(loop.state.wrench_tool[:3])) > hold_force_n):
                     # the tool is behind, or dragged against a wall (a bowl's, climbing towards the rim): hold the
                     # line at the agent's point while it catches up (for a few steps at most: a point it cannot
                     # reach must not hold the program)
                     prev, n_prev, next_step = cmd, n_next, next_step + dt_step
-                    held += 1
                 elif due:
-                    held = 0
                     prev = cmd
                     measured = loop.state.ee_position if cfg.agent_feedback else None
                     if stroke is not None and stroke.path.done:
