@@ -36,8 +36,8 @@ __all__ = [
 #: The eigensolver choices (``--eigensolver``): the exact reference, the hierarchical one, or by size.
 EIGENSOLVERS = ("auto", "arpack", "hierarchical")
 #: From this many points on, ``auto`` takes the hierarchical solver. Below, the hierarchy has one coarse
-#: level and gains little (bunny, 3k points, K = 100, Laplacian included: 0.25 s against 0.29 s with ARPACK
-#: in bench_large), so the small clouds of the papers keep the exact basis.
+#: level and gains little over ARPACK (the bench's ``large`` stage measures both on the bunny), so the
+#: small clouds of the papers keep the exact basis.
 HIERARCHICAL_MIN_POINTS = 10_000
 
 #: Below this many points dense LAPACK beats ARPACK and never fails to converge.
@@ -193,8 +193,8 @@ def _canonical(evals: np.ndarray, W: np.ndarray, s: np.ndarray | None) -> tuple[
     """Ascending pairs, φ = s ⊙ w (s None: φ = w), the largest-magnitude entry of each vector positive
     (reproducible output), eigenvalues clipped at 0 (the null space comes out at ±1e-12; L is PSD).
 
-    W is the solver's own array and is scaled in place: at 60k points and K = 200 each (N, K) copy is
-    96 MB, whose first touch is not free.
+    W is the solver's own array and is scaled in place: on large clouds an (N, K) copy is tens of
+    megabytes, whose first touch is not free.
     """
     order = np.argsort(evals, kind="stable")
     evals = evals[order]

@@ -58,15 +58,15 @@ _log = logging.getLogger(__name__)
 #: Default bound on the squared relative residual η² of every wanted pair (≈ relative eigenvalue error).
 DEFAULT_TOL = 5e-3
 #: The coarsest level holds about this many points per subspace vector. Its dense solve is cheap up to
-#: ``COARSE_DENSE_MAX_POINTS``, and a well-resolved coarsest space spares intermediate levels: 60k points,
-#: K = 200: levels 60000/7918/2057 take ~20 % less time than 60000/17090/4499/1164 and halve the error.
+#: ``COARSE_DENSE_MAX_POINTS``, and a well-resolved coarsest space spares intermediate levels, whose
+#: denser Galerkin operators cost almost as much to factor and solve as the finest one.
 COARSE_POINTS_PER_VECTOR = 7
 #: The finest coarse level uses voxels of at least this many point spacings.
 MIN_VOXEL_SPACINGS = 1.5
 #: Neighbours of a fine point in the coarser level that its prolongation weights mix.
 PROLONGATION_NEIGHBORS = 4
-#: The coarsest level goes to dense LAPACK up to this size: p of its ~1000 pairs are wanted, where ARPACK's
-#: Lanczos costs 2.5× the dense solve (1164 points, p = 300).
+#: The coarsest level goes to dense LAPACK up to this size: p of its ~1000 pairs are wanted, a share at
+#: which ARPACK's Lanczos costs more than the dense solve.
 COARSE_DENSE_MAX_POINTS = 2500
 #: Block iterations on the finest level before giving up.
 MAX_ITERATIONS = 8
@@ -155,8 +155,7 @@ def coarse_level_size(p: int, n: int) -> int:
 
     ``COARSE_POINTS_PER_VECTOR`` p while that fits the dense solve, else max(``COARSE_DENSE_MAX_POINTS``, 2p);
     at most n/4 (one halving of the spacing) but at least 2p, since the dense solve's cubic cost outgrows what
-    a coarsest level closer to the cloud saves (bunny, 3k points, K = 100: 753 coarse points take half the
-    time of 1059).
+    a coarsest level closer to the cloud saves.
     """
     wanted = COARSE_POINTS_PER_VECTOR * p
     size = wanted if wanted <= COARSE_DENSE_MAX_POINTS else max(COARSE_DENSE_MAX_POINTS, 2 * p)
@@ -206,8 +205,8 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
 
     Returns (θ, Q, Y, spare): the Ritz values and vectors Y Q of span Y, Y = (L − σM)⁻¹ M X D. X itself is
     overwritten and handed back as ``spare``, an (n, p) buffer for the caller's Y Q; Y goes into ``out``
-    when given. At 60k points each (n, p) block is 144 MB, whose first touch costs as much as a matrix
-    product on this kind of machine, so the iteration lives in two buffers.
+    when given. On large clouds each (n, p) block is a hundred megabytes or more, whose first touch can cost
+    as much as a matrix product, so the iteration lives in two buffers.
 
     The projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is never applied to the block;
     Yᵀ M Y is a symmetric rank-k product (half a matrix product).
@@ -302,8 +301,7 @@ def hierarchical_eigenpairs(
     t0 = time.perf_counter()
     Lc, mc = ops[-1]
     if Lc.shape[0] <= COARSE_DENSE_MAX_POINTS:
-        # Single precision: these vectors only start the refinement, which works in double (half the time
-        # of a double-precision solve at 1164 points).
+        # Single precision: these vectors only start the refinement, which works in double.
         A, scale = _symmetric_form(Lc, mc)
         theta, W = la.eigh(A.toarray().astype(np.float32), subset_by_index=[0, p - 1], check_finite=False)
         theta = theta.astype(np.float64)

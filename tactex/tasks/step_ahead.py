@@ -2,9 +2,9 @@
 
 On a real robot a control tick is: the state arrives, the torque is computed and sent, and the
 robot executes it for a millisecond before the next state. Only the torque may sit between a state
-and its command (libfranka's budget); the explorer's step (HEDAC on the cloud, ~0.1 ms and more on
-large clouds), the wear model's reads and a target update (~0.4 ms) would make the cycle late on the
-ticks they run. :class:`StepAhead` is the contact loop's ``after_send`` (``ControlLoop.tick``): when
+and its command (libfranka's budget); the explorer's step (HEDAC on the cloud, more on large clouds),
+the wear model's reads and a target update (a projection on the eigenbasis) would make the cycle late
+on the ticks they run. :class:`StepAhead` is the contact loop's ``after_send`` (``ControlLoop.tick``): when
 the next tick is a step tick it takes the explorer's step now, with what that step's decisions will
 read, and it applies a target update the last step asked for. The decisions themselves (island
 moves, strokes, when to go to the camera) stay in the loop, at the step tick, on these values.
