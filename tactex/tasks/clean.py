@@ -879,7 +879,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if relocation is not None:
                 # TEC §VI-B: lift off along the normal, then the hover and approach of 3a at the touch-down
                 log.activity("retract", "transit")
-                loop.retract(max(relocation.clearance_m, cfg.hover_height_m), duration_s=0.4)
+                _lift_off(loop, max(relocation.clearance_m, cfg.hover_height_m))
                 bar.note(f"relocating ({relocation.reason}): {relocation.air_length_m:.3f} m through the air")
                 continue
             if relocate_to is not None:
