@@ -62,7 +62,7 @@ from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
-from tactex.tasks.step_ahead import ERGODICITY_EVERY_STEPS, StepAhead
+from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import IslandStroke, plan_stroke
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
@@ -792,8 +792,12 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     taken = ahead.take() if stroke is None else None
                     if taken is not None:
                         cmd, reads = taken
+                    elif stroke is not None:
+                        cmd = stroke.path.step()
+                        reads = ahead.read(cmd, steps_since_vision + 1, model=False)
                     else:
-                        cmd, reads = stroke.path.step() if stroke is not None else source.step(measured), {}
+                        cmd = source.step(measured)
+                        reads = ahead.read(cmd, steps_since_vision + 1)
                     if stroke is not None and stroke is not counted:
                         counted = stroke
                         n_strokes += not stroke.transfer_only
@@ -806,18 +810,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     steps_since_vision += 1
                     agent_path.append(cmd.point)
                     log.agent = cmd.point
-                    if isinstance(source, HedacExplorer) and steps_since_vision % ERGODICITY_EVERY_STEPS == 0:
-                        erg = reads["ergodicity"] if "ergodicity" in reads else source.ergodicity()
-                        ergodicity.append((loop.t, erg))
-                        residual = reads["residual"] if "residual" in reads else (
-                            source.coverage_residual() if given is not None else None)
-                        covered = residual is not None and residual <= cfg.stop_remaining
-                    if stroke is None and wear is not None and steps_since_vision % cfg.model_update_steps == 0:
-                        if "predicted" in reads:
-                            predicted = reads["predicted"]
-                        else:
-                            wear_ticks.settle()
-                            predicted = wear.remaining()
+                    if "ergodicity" in reads:  # every ERGODICITY_EVERY_STEPS steps of the explorer
+                        ergodicity.append((loop.t, reads["ergodicity"]))
+                        covered = reads["residual"] is not None and reads["residual"] <= cfg.stop_remaining
+                    if "predicted" in reads:  # a wear-model update while the explorer drives the agent
+                        predicted = reads["predicted"]
                         left = float(predicted.sum()) / target0
                         predicted_left.append(left)
                         back = cfg.model_stall_steps // cfg.model_update_steps
@@ -825,9 +822,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         stalled = len(predicted_left) > back and predicted_left[-1 - back] - left < 0.1 * left
                         # or the island under the agent is done while a far one holds a fair share (the cooled
                         # potential barely reaches it): nothing the model calls dirty within two pad radii
-                        stalled = stalled or (left > 4 * cfg.stop_remaining and not (
-                            reads["island_left"] if "island_left" in reads
-                            else wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)))
+                        stalled = stalled or (left > 4 * cfg.stop_remaining and not reads["island_left"])
                         if left > done_level and stalled:
                             # dirt left, but not where the agent is: lift off and touch down at the nearest
                             # island the model calls dirty, unless there is none it has not tried since the

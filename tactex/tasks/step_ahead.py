@@ -72,10 +72,30 @@ class StepAhead:
         self._target = target
 
     def take(self) -> tuple[Any, dict[str, Any]] | None:
-        """(command, reads) of the step taken ahead, or None: then the loop steps in place. ``reads``
-        holds ``ergodicity``/``residual`` and ``predicted``/``island_left`` on the steps that read them."""
+        """(command, :meth:`read`) of the step taken ahead, or None: then the loop steps in place and calls
+        :meth:`read` itself."""
         out, self._next = self._next, None
         return out
+
+    def read(self, cmd, step_index: int, model: bool = True) -> dict[str, Any]:
+        """What the decisions of the ``step_index``-th step since the last view read, after its command
+        ``cmd``: ``ergodicity`` and ``residual`` (None unless ``read_residual``) every
+        :data:`ERGODICITY_EVERY_STEPS` steps of a :class:`HedacExplorer`; ``predicted`` (the wear model's
+        remaining dirt, the last tick accounted first) and ``island_left`` at the model-update steps when
+        ``model`` (the explorer drives the agent, not a stroke). Nothing after a relocation."""
+        reads: dict[str, Any] = {}
+        if isinstance(cmd, RelocationCommand):
+            return reads
+        k = step_index
+        if isinstance(self.source, HedacExplorer) and k % ERGODICITY_EVERY_STEPS == 0:
+            reads["ergodicity"] = self.source.ergodicity()
+            reads["residual"] = self.source.coverage_residual() if self.read_residual else None
+        if model and self.wear is not None and k % self.model_update_steps == 0:
+            if self.settle is not None:
+                self.settle()
+            reads["predicted"] = self.wear.remaining()
+            reads["island_left"] = self.wear.island_left(cmd.point, self.island_radius_m)
+        return reads
 
     def __call__(self, state) -> None:
         if self.settle is not None:
@@ -86,13 +106,4 @@ class StepAhead:
         if self._next is not None or not self._enabled or state.t + self.dt_s < self._due_t - 1e-9:
             return
         cmd = self.source.step(state.ee_position if self.agent_feedback else None)
-        reads: dict[str, Any] = {}
-        k = self._step_index
-        if not isinstance(cmd, RelocationCommand):
-            if isinstance(self.source, HedacExplorer) and k % ERGODICITY_EVERY_STEPS == 0:
-                reads["ergodicity"] = self.source.ergodicity()
-                reads["residual"] = self.source.coverage_residual() if self.read_residual else None
-            if self.wear is not None and k % self.model_update_steps == 0:
-                reads["predicted"] = self.wear.remaining()
-                reads["island_left"] = self.wear.island_left(cmd.point, self.island_radius_m)
-        self._next = (cmd, reads)
+        self._next = (cmd, self.read(cmd, self._step_index))
