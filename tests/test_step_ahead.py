@@ -101,6 +101,8 @@ def test_model_and_ergodicity_reads_come_with_the_steps_that_use_them() -> None:
     assert cmd.point[0] == pytest.approx(0.002)
     assert reads["predicted"].sum() == pytest.approx(1.0) and reads["island_left"] is True  # at x = 2 mm
     assert "ergodicity" not in reads  # only a HedacExplorer has one
+    # the same reads for a step taken in place; none of the model's while a stroke drives the agent
+    assert set(ahead.read(cmd, 2)) == {"predicted", "island_left"} and ahead.read(cmd, 2, model=False) == {}
 
 
 def test_an_explorer_reads_its_ergodicity_ahead_every_few_steps(tmp_path) -> None:
