@@ -25,6 +25,7 @@ pytest.importorskip("franky_sim", reason=REASON)
 
 from tactex.cli import main  # noqa: E402
 from tactex.errors import ConfigError, RobotError  # noqa: E402
+from tactex.robots.check import check_robot, link_verdict  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming  # noqa: E402
 from tactex.sim.twin_process import TwinProcess  # noqa: E402
 from tactex.tasks import robot as robot_mod  # noqa: E402
@@ -97,6 +98,32 @@ def test_loop_timing_statistics():
     assert m["min_command_success_rate"] == pytest.approx(0.91)
 
 
+def _link_metrics(ticks=1000, lost=0, success=1.0, compute_p999=150.0):
+    return {"loop_ticks": ticks, "lost_cycles": lost, "min_command_success_rate": success,
+            "loop_compute_us": {"p99.9": compute_p999}}
+
+
+def test_link_verdict_fails_on_lost_cycles_and_success_rate_and_warns_on_compute():
+    assert link_verdict(_link_metrics(lost=1), 1.0) == ([], [])  # 1 of 1001: 0.0999 %
+    problems, _ = link_verdict(_link_metrics(lost=2), 1.0)
+    assert len(problems) == 1 and "2 cycles lost" in problems[0] and "allowed 0.1 %" in problems[0]
+    assert link_verdict(_link_metrics(lost=2), 1.0, max_lost_fraction=0.05) == ([], [])
+    problems, _ = link_verdict(_link_metrics(success=0.9), 1.0)
+    assert len(problems) == 1 and "success rate fell to 0.900" in problems[0]
+    problems, warnings = link_verdict(_link_metrics(compute_p999=400.0), 1.0)
+    assert problems == [] and len(warnings) == 1 and "400 µs" in warnings[0]
+
+
+@pytest.mark.parametrize("value", ["-1", "100", "nan"])
+def test_robot_check_rejects_a_bad_lost_share_before_connecting(value, capsys):
+    # 127.0.0.254 has no robot: the check must refuse the option before it tries to connect
+    code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--max-lost-percent", value])
+    err = capsys.readouterr().err
+    assert code == 2 and "--max-lost-percent must be in [0, 100)" in err and "127.0.0.254" not in err
+    with pytest.raises(ConfigError, match="lost cycles must be in"):
+        check_robot(FrankaConfig(robot_ip="127.0.0.254"), max_lost_fraction=float(value))
+
+
 def test_no_robot_there_is_one_line_and_names_the_address():
     # nothing listens on this loopback address: libfranka's TCP connect is refused at once
     with pytest.raises(RobotError, match=r"127\.0\.0\.254"):
@@ -105,9 +132,11 @@ def test_no_robot_there_is_one_line_and_names_the_address():
 
 # -- nominal runs ------------------------------------------------------------------------------------
 def test_robot_check_passes_on_the_twin(panel, capsys, tmp_path):
+    # whether a shared 2-core CI machine holds 1 kHz is a property of the machine (the franka bench
+    # measures it); here the link may lose up to 5 % so that what is checked is the check itself
     out = tmp_path / "check.json"
     code = main(["robot", "check", "--robot-ip", panel.hostname, "--ft", f"netft:{panel.hostname}:{panel.ft_port}",
-                 "--duration-s", "1", "--out", str(out)])
+                 "--duration-s", "1", "--max-lost-percent", "5", "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 0, text
     assert "check passed" in text
@@ -282,12 +311,15 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
         loop = ControlLoop(backend)
         loop.hold(0.3)
         p, rot = loop.state.ee_position.copy(), loop.state.ee_rotation.copy()
-        q = loop.solve_pose(p + np.array([0.0, 0.0, 0.01]), rot)
-        assert backend._control is None  # paused
-        loop.move_joints(q, duration_s=0.3, settle_s=0.1)
+        for step in range(1, 4):
+            q = loop.solve_pose(p + np.array([0.0, 0.0, 0.005 * step]), rot)
+            assert backend._control is None  # paused
+            loop.move_joints(q, duration_s=0.3, settle_s=0.1)
         m = backend.loop_metrics()
-        assert m["lost_cycles"] == 0 and m["loop_compute_us"]["max"] < 20_000
-        assert abs(loop.state.ee_position[2] - (p[2] + 0.01)) < 3e-3
+        # each solve takes a few ms (hundreds on the first, which compiles): in the cycle, the three
+        # would lose ≥ 6 cycles; one or two lost on a shared CI machine are its load, not the IK
+        assert m["lost_cycles"] <= 2 and m["loop_compute_us"]["max"] < 20_000
+        assert abs(loop.state.ee_position[2] - (p[2] + 0.015)) < 3e-3
     finally:
         backend.close()
 

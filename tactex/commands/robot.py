@@ -15,6 +15,8 @@ def register(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("action", choices=("check",), help="check: connect, report, hold still and count lost cycles")
     parser.add_argument("--duration-s", type=float, default=10.0, help="length of the link test [s] (default: 10)")
+    parser.add_argument("--max-lost-percent", type=float, default=0.1,
+                        help="fail the link test when more than this share of cycles is lost [%%] (default: 0.1)")
     parser.add_argument("--out", metavar="FILE.json", help="also write the findings as JSON")
     add_dataclass_arguments(parser, FrankaConfig)
 
@@ -29,8 +31,11 @@ def run(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.duration_s) and 0 < args.duration_s <= 600):
         raise ConfigError(f"--duration-s must be in (0, 600] s, got {args.duration_s}")
+    if not (math.isfinite(args.max_lost_percent) and 0 <= args.max_lost_percent < 100):
+        raise ConfigError(f"--max-lost-percent must be in [0, 100) %, got {args.max_lost_percent}")
     cfg = dataclass_from_args(FrankaConfig, args)
-    result = check_robot(cfg, args.duration_s, note=lambda m: print(f"tactex robot: {m}", file=sys.stderr))
+    result = check_robot(cfg, args.duration_s, note=lambda m: print(f"tactex robot: {m}", file=sys.stderr),
+                         max_lost_fraction=args.max_lost_percent / 100.0)
     i = result.info
     print(f"robot {i['robot_ip']}: mode {i.get('robot_mode')}, TCP at {[round(x, 4) for x in i['tcp_position_m']]} m, "
           f"load {i['load_mass_kg']:.3f} kg, wrench source {i['wrench_source']}")

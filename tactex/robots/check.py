@@ -15,11 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from tactex.errors import RobotError, SensorFault
+from tactex.errors import ConfigError, RobotError, SensorFault
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, _col_major, flange_T_tcp
 from tactex.sim.tool import ToolGeometry
 
-__all__ = ["LINK_MAX_LOST_FRACTION", "LINK_MIN_SUCCESS_RATE", "CheckResult", "check_robot"]
+__all__ = ["LINK_MAX_LOST_FRACTION", "LINK_MIN_SUCCESS_RATE", "CheckResult", "check_robot", "link_verdict"]
 
 #: The link holds 1 kHz when the robot loses at most this share of cycles ...
 LINK_MAX_LOST_FRACTION = 0.001
@@ -39,9 +39,38 @@ class CheckResult:
     warnings: list[str] = field(default_factory=list)
 
 
+def link_verdict(metrics: dict[str, Any], duration_s: float,
+                 max_lost_fraction: float = LINK_MAX_LOST_FRACTION) -> tuple[list[str], list[str]]:
+    """Problems and warnings from a link test's ``loop_metrics()`` over ``duration_s`` [s].
+
+    A problem fails the check: more than ``max_lost_fraction`` of the cycles lost, or a command
+    success rate below :data:`LINK_MIN_SUCCESS_RATE`. Our compute above :data:`COMPUTE_BUDGET_US`
+    at p99.9 is only a warning: the link may still hold, with less margin.
+    """
+    problems: list[str] = []
+    warnings: list[str] = []
+    lost = metrics["lost_cycles"]
+    lost_fraction = lost / (max(1, metrics["loop_ticks"]) + lost)
+    if lost_fraction > max_lost_fraction:
+        problems.append(f"{lost} cycles lost in {duration_s:g} s ({100 * lost_fraction:.2f} %, "
+                        f"allowed {100 * max_lost_fraction:.2g} %): the link would not hold 1 kHz")
+    if metrics["min_command_success_rate"] < LINK_MIN_SUCCESS_RATE:
+        problems.append(f"command success rate fell to {metrics['min_command_success_rate']:.3f} "
+                        f"(needs ≥ {LINK_MIN_SUCCESS_RATE})")
+    if metrics["loop_compute_us"]["p99.9"] > COMPUTE_BUDGET_US:
+        warnings.append(f"our compute per tick reached {metrics['loop_compute_us']['p99.9']:.0f} µs at p99.9 "
+                        f"(budget {COMPUTE_BUDGET_US:.0f}): a busy or unpinned CPU (docs/real_robot.md)")
+    return problems, warnings
+
+
 def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeometry | None = None,
-                note=None) -> CheckResult:
-    """Connect, report the robot's set-up and state, run the link test for ``duration_s`` [s]."""
+                note=None, max_lost_fraction: float = LINK_MAX_LOST_FRACTION) -> CheckResult:
+    """Connect, report the robot's set-up and state, run the link test for ``duration_s`` [s].
+
+    The link fails when more than ``max_lost_fraction`` of its cycles are lost (see :func:`link_verdict`).
+    """
+    if not 0.0 <= max_lost_fraction < 1.0:
+        raise ConfigError(f"the allowed share of lost cycles must be in [0, 1), got {max_lost_fraction}")
     tool = tool or ToolGeometry()
     t0 = time.perf_counter()
     backend = LibfrankaBackend(config, tool=tool)
@@ -84,18 +113,10 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         info.update(m)
         q_drift = float(np.abs(loop.state.q - state.q).max())
         info["q_drift_rad"] = q_drift
-        ticks = max(1, m["loop_ticks"])
-        lost_fraction = m["lost_cycles"] / (ticks + m["lost_cycles"])
-        info["lost_fraction"] = lost_fraction
-        if lost_fraction > LINK_MAX_LOST_FRACTION:
-            problems.append(f"{m['lost_cycles']} cycles lost in {duration_s:g} s ({100 * lost_fraction:.2f} %, "
-                            f"allowed {100 * LINK_MAX_LOST_FRACTION:.1f} %): the link would not hold 1 kHz")
-        if m["min_command_success_rate"] < LINK_MIN_SUCCESS_RATE:
-            problems.append(f"command success rate fell to {m['min_command_success_rate']:.3f} "
-                            f"(needs ≥ {LINK_MIN_SUCCESS_RATE})")
-        if m["loop_compute_us"]["p99.9"] > COMPUTE_BUDGET_US:
-            warnings.append(f"our compute per tick reached {m['loop_compute_us']['p99.9']:.0f} µs at p99.9 "
-                            f"(budget {COMPUTE_BUDGET_US:.0f}): a busy or unpinned CPU (docs/real_robot.md)")
+        info["lost_fraction"] = m["lost_cycles"] / (max(1, m["loop_ticks"]) + m["lost_cycles"])
+        link_problems, link_warnings = link_verdict(m, duration_s, max_lost_fraction)
+        problems += link_problems
+        warnings += link_warnings
     finally:
         backend.close()
     return CheckResult(ok=not problems, info=info, problems=problems, warnings=warnings)
