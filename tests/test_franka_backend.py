@@ -26,7 +26,7 @@ pytest.importorskip("franky_sim", reason=REASON)
 from tactex.cli import main  # noqa: E402
 from tactex.errors import ConfigError, RobotError  # noqa: E402
 from tactex.robots.check import check_robot, link_verdict  # noqa: E402
-from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming  # noqa: E402
+from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming, franka_model_terms  # noqa: E402
 from tactex.sim.twin_process import TwinProcess  # noqa: E402
 from tactex.tasks import robot as robot_mod  # noqa: E402
 from tactex.tasks.robot import RealRobotParams  # noqa: E402
@@ -320,6 +320,33 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
         # would lose ≥ 6 cycles; one or two lost on a shared CI machine are its load, not the IK
         assert m["lost_cycles"] <= 2 and m["loop_compute_us"]["max"] < 20_000
         assert abs(loop.state.ee_position[2] - (p[2] + 0.015)) < 3e-3
+    finally:
+        backend.close()
+
+
+def test_a_states_model_terms_are_computed_before_it_arrives_from_the_state_answered_last(panel):
+    """libfranka's model calls run while the robot executes a command: the next state carries J, M,
+    C·dq and g of the state answered last (its pose and velocities are its own)."""
+    from tactex.tasks.runner import ControlLoop
+
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        loop = ControlLoop(backend)
+        loop.hold(0.05)
+        answered = backend._franka_state
+        jac, mass, coriolis, gravity = franka_model_terms(answered, backend.model)
+        backend.apply_torque(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3]))  # the wrist turns: q moves
+        state = backend.step()
+        assert not np.array_equal(np.asarray(backend._franka_state.q), np.asarray(answered.q))
+        np.testing.assert_array_equal(state.jacobian, jac)
+        np.testing.assert_array_equal(state.mass_matrix, mass)
+        np.testing.assert_array_equal(state.coriolis, coriolis)
+        np.testing.assert_array_equal(state.gravity, gravity)
+        np.testing.assert_allclose(state.ee_twist, jac @ state.dq)
+        # one cycle apart the model barely moves
+        own = franka_model_terms(backend._franka_state, backend.model)
+        assert not np.array_equal(own[0], jac)
+        assert np.abs(own[0] - jac).max() < 1e-3 and np.abs(own[1] - mass).max() < 1e-3
     finally:
         backend.close()
 

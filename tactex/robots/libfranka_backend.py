@@ -51,6 +51,7 @@ __all__ = [
     "LibfrankaBackend",
     "LoopTiming",
     "flange_T_tcp",
+    "franka_model_terms",
     "franka_state_to_robot_state",
     "pin_control_thread",
 ]
@@ -138,20 +139,37 @@ def _col_major(a: Any, rows: int, cols: int) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(cols, rows).T)
 
 
-def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: WrenchSource) -> RobotState:
-    """libfranka's state and model → our :class:`RobotState` (world = the robot's base frame O), the
-    contact wrench read from ``wrench`` at the pose of this state.
+ModelTerms = tuple  # (jacobian (6, 7), mass matrix (7, 7), Coriolis·dq (7,), gravity (7,))
 
-    libfranka's arrays are column-major; its Coriolis term is C(q, dq)·dq. The gravity vector
-    uses ``O_ddP_O`` (filled by the firmware; a state without it, as franky-sim sends, gets −9.81 z).
+
+def franka_model_terms(state: Any, model: Any) -> ModelTerms:
+    """libfranka's model at ``state``: the TCP's zero Jacobian (6, 7), the mass matrix (7, 7)
+    [kg·m²], the Coriolis torque C(q, dq)·dq (7,) [N·m] and the gravity torque (7,) [N·m].
+
+    libfranka's arrays are column-major. The gravity vector uses ``O_ddP_O`` (filled by the
+    firmware; a state without it, as franky-sim sends, gets −9.81 z).
     """
-    pose = _col_major(state.O_T_EE, 4, 4)
     jac = _col_major(model.zero_jacobian(state), 6, 7)
     mass = _col_major(model.mass(state), 7, 7)
     coriolis = np.asarray(model.coriolis(state), dtype=float)
     if not any(state.O_ddP_O):
         state.O_ddP_O = _GRAVITY
     gravity = np.asarray(model.gravity(state), dtype=float)
+    return jac, mass, coriolis, gravity
+
+
+def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: WrenchSource,
+                                terms: ModelTerms | None = None) -> RobotState:
+    """libfranka's state and model → our :class:`RobotState` (world = the robot's base frame O), the
+    contact wrench read from ``wrench`` at the pose of this state.
+
+    ``terms``: the model terms (:func:`franka_model_terms`) to use instead of evaluating ``model``
+    at ``state``, e.g. those of the previous state, computed while the robot executed the last
+    command (the pose, velocities and wrench are always this state's; the TCP twist is J·dq with
+    the given J).
+    """
+    pose = _col_major(state.O_T_EE, 4, 4)
+    jac, mass, coriolis, gravity = terms if terms is not None else franka_model_terms(state, model)
     q = np.asarray(state.q, dtype=float)
     dq = np.asarray(state.dq, dtype=float)
     return RobotState(
@@ -320,8 +338,8 @@ class LibfrankaBackend:
         return self._ik
 
     # -- RobotBackend ---------------------------------------------------------------------------
-    def _convert(self, franka_state) -> RobotState:
-        return franka_state_to_robot_state(franka_state, self.model, self._t, self.wrench)
+    def _convert(self, franka_state, terms: ModelTerms | None = None) -> RobotState:
+        return franka_state_to_robot_state(franka_state, self.model, self._t, self.wrench, terms)
 
     def reset(self, seed: int | None = None) -> RobotState:
         """The current state (a real robot cannot be reset; ``seed`` is ignored)."""
@@ -369,6 +387,7 @@ class LibfrankaBackend:
         try:
             if self.config.dry_run:
                 self._compute_us = (time.perf_counter() - self._t_read) * 1e6
+                terms = self._model_ahead()
                 self.wrench.prefetch()
                 franka_state, period_ms = self._read_dry()
             else:
@@ -379,6 +398,7 @@ class LibfrankaBackend:
                     self._compute_us = float("nan")  # the first state of a control: nothing to answer yet
                 elif self._pending_write:  # the task stepped without a new torque: the last one again
                     self._send()
+                terms = self._model_ahead()
                 self.wrench.prefetch()
                 franka_state, duration = self._control.readOnce()
                 self._pending_write = True
@@ -397,8 +417,16 @@ class LibfrankaBackend:
         self._t += max(period_ms, 1.0) * 1e-3
         self._t_read = now
         self._franka_state = franka_state
-        self._state = self._convert(franka_state)
+        self._state = self._convert(franka_state, terms)
         return self._state
+
+    def _model_ahead(self) -> ModelTerms:
+        """The model terms for the next state, evaluated at the last one while the robot executes
+        its command: libfranka's four model calls are about half of converting a state, and between
+        a state and its command every microsecond counts (docs/real_robot.md). One cycle apart the
+        joints move by at most dq·1 ms (under 2.6 mrad at the Franka's joint speed limits, far less
+        in contact), which changes J, M, C and g by a fraction of a percent."""
+        return franka_model_terms(self._franka_state, self.model)
 
     def _read_dry(self) -> tuple[Any, float]:
         """One state at the robot's rate without torque control (read_once waits for the next packet)."""

@@ -173,6 +173,43 @@ def _exploration_accuracy(explored: SurfaceCloud, surface, obj_pos: np.ndarray, 
 
 
 
+class _WipeReferences:
+    """The VA-UFIC §III policy as the controller's references, one per tick.
+
+    :meth:`advance` makes :attr:`reference` the one for the tick that answers the next state, from
+    the state just answered: on a real robot it runs while that command executes (``ControlLoop.tick``'s
+    ``after_send``), so only the controller stands between a state and its command. The policy lives
+    in the tool frame; its increments are applied in the tool frame of the state it is given (one
+    tick, about a milliradian, before the state the torque answers).
+    """
+
+    def __init__(self, cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
+                 wrench_d: np.ndarray) -> None:
+        self.cfg, self.vision, self.r_start, self.wrench_d = cfg, vision, r_start, wrench_d
+        self.pos_ref = p_start.copy()
+        self.estimate: SurfaceEstimate | None = None
+        self.estimates_total = self.estimates_valid = 0
+        self.reference: PoseForceReference | None = None
+        self._x_prev, _ = wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+
+    def advance(self, state, tau_t: float) -> None:
+        """:attr:`reference` at policy time ``tau_t`` [s], with the newest surface estimate and
+        ``state``'s tool frame."""
+        cfg = self.cfg
+        new_estimate = self.vision.update(state)
+        if new_estimate is not None:
+            self.estimate = new_estimate
+            self.estimates_total += 1
+            self.estimates_valid += int(new_estimate.valid)
+        x_d, v_d = wiping_policy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+        rot = state.ee_rotation
+        self.pos_ref = self.pos_ref + rot @ (x_d - self._x_prev)
+        self._x_prev = x_d
+        twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
+        rot_ref = self.r_start if cfg.baseline == "cartesian" else rot
+        self.reference = PoseForceReference(self.pos_ref, rot_ref, self.wrench_d, twist_d, self.estimate)
+
+
 class _WipeLog:
     """The wipe's per-tick bookkeeping: force and motion errors, tank energies, contact points, the
     recorded series.
@@ -326,45 +363,28 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         inner = VaUficController(VaUficParams(tanks_enabled=cfg.tanks_enabled), port_feedforward=compensator)
     controller = NullspacePosture(inner, q_posture=q_posture)
     loop.use(controller)
-    # The TCP is the uncompressed pad tip: in contact the surface lies up to the pad's maximum
-    # compression behind it, so the region of interest must start that far back.
-    estimate: SurfaceEstimate | None = None
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
     bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
     t0 = loop.t
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
 
     wrench_d = np.array([0.0, 0.0, cfg.force_n, 0.0, 0.0, 0.0])
-    pos_ref = p_start.copy()
-    x_prev, _ = wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
-    estimates_valid = 0
-    estimates_total = 0
+    policy = _WipeReferences(cfg, vision, p_start, r_start, wrench_d)
 
     def after_send(state_ctrl) -> None:  # while the robot executes the tick's command
         vision.publish(state_ctrl)
         log.sent(state_ctrl)
+        # the next tick's reference, from this state: nothing of it is left between the next state
+        # and its command
+        policy.advance(state_ctrl, state_ctrl.t + backend.dt - t0)
+        log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
 
     aborted = ""
     try:
+        policy.advance(loop.state, loop.t - t0)
+        log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
         while loop.t - t0 < cfg.duration_s - 1e-9:
-            state = loop.state
-            tau_t = loop.t - t0
-            new_estimate = vision.update(state)
-            if new_estimate is not None:
-                estimate = new_estimate
-                estimates_total += 1
-                estimates_valid += int(estimate.valid)
-            x_d, v_d = wiping_policy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
-            rot = state.ee_rotation
-            # the policy lives in the tool frame: apply its increments in the current tool frame
-            pos_ref = pos_ref + rot @ (x_d - x_prev)
-            x_prev = x_d
-            twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
-            rot_ref = r_start if cfg.baseline == "cartesian" else rot
-            reference = PoseForceReference(pos_ref, rot_ref, wrench_d, twist_d, estimate)
-            log.pos_ref = pos_ref
-            log.estimate = estimate
-            loop.tick(reference, after_send=after_send)
+            loop.tick(policy.reference, after_send=after_send)
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
         aborted = stop_reason(exc)
@@ -414,8 +434,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "max_force_n": float(max(forces, default=0.0)),
         "friction_compensation": compensator is not None,
         "friction_compensation_energy_j": log.comp_energy if compensator is not None else float("nan"),
-        "vision_valid_fraction": estimates_valid / max(estimates_total, 1),
-        "vision_estimates": estimates_total,
+        "vision_valid_fraction": policy.estimates_valid / max(policy.estimates_total, 1),
+        "vision_estimates": policy.estimates_total,
         "sim_time_s": t_end,
         "wall_time_s": time.perf_counter() - wall0,
         "controller": inner.name,
