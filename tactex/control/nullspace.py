@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param
+from tactex.control import joint_kernels
 from tactex.control.controller import Controller
 from tactex.control.linalg import solve
 from tactex.control.state import RobotState
@@ -31,13 +32,15 @@ def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarr
     return np.eye(j.shape[1]) - j.T @ j_pinv_t
 
 
-_EYE6_DAMPED = 1e-3**2 * np.eye(6)
+#: δ of the damped pseudo-inverse in the posture's projection [-].
+PINV_DAMPING = 1e-3
+_EYE6_DAMPED = PINV_DAMPING**2 * np.eye(6)
 
 
-def project_nullspace(jacobian: np.ndarray, tau: np.ndarray, damping: float = 1e-3) -> np.ndarray:
+def project_nullspace(jacobian: np.ndarray, tau: np.ndarray, damping: float = PINV_DAMPING) -> np.ndarray:
     """N τ = τ − Jᵀ (J Jᵀ + δ² I)⁻¹ J τ, without forming N (one 6×6 solve with a vector: the 1 kHz path)."""
     j = jacobian
-    reg = _EYE6_DAMPED if damping == 1e-3 and j.shape[0] == 6 else damping**2 * np.eye(j.shape[0])
+    reg = _EYE6_DAMPED if damping == PINV_DAMPING and j.shape[0] == 6 else damping**2 * np.eye(j.shape[0])
     return tau - j.T @ solve(j @ j.T + reg, j @ tau)
 
 
@@ -79,6 +82,7 @@ class NullspacePosture(Controller):
                 raise InputError(f"q_posture must be a finite 1-D array of joint positions [rad], got {q_posture!r}")
         self._fixed = None if q_posture is None else np.asarray(q_posture, dtype=float).copy()
         self.q_posture = self._fixed
+        self._kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
 
     def reset(self, state: RobotState) -> None:
         self.q_posture = state.q.copy() if self._fixed is None else self._fixed
@@ -95,8 +99,14 @@ class NullspacePosture(Controller):
         if self.q_posture.shape != state.q.shape:
             raise ControllerFault(f"q_posture has {self.q_posture.shape[0]} joints, the robot {state.q.shape[0]}")
         p = self.params
-        tau_ns = project_nullspace(state.jacobian, p.stiffness * (self.q_posture - state.q) - p.damping * state.dq)
         h = p.latency_horizon_ticks * p.dt
+        if self._kernels is not None:
+            try:
+                return tau + self._kernels.posture_torque(state.jacobian, state.mass_matrix, self.q_posture, state.q,
+                                                          state.dq, p.stiffness, p.damping, h, PINV_DAMPING)
+            except TypeError:  # arrays the kernel was not compiled for (not C-ordered float64): numpy
+                pass
+        tau_ns = project_nullspace(state.jacobian, p.stiffness * (self.q_posture - state.q) - p.damping * state.dq)
         if h > 0:
             m = state.mass_matrix
             tau_ns = m @ solve(m + (h * p.damping + h * h * p.stiffness) * np.eye(m.shape[0]), tau_ns)

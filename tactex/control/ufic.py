@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactex.config import param
+from tactex.control import joint_kernels
 from tactex.control.controller import Controller
 from tactex.control.damping import latency_shaped_torque
 from tactex.control.references import PoseForceReference
@@ -118,6 +119,7 @@ class UficController(Controller):
         self._last: dict[str, float] = {}
         self._tau_w = 1.0 / (2.0 * np.pi * self.params.wrench_cutoff_hz)
         self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
+        self._kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
 
     def reset(self, state: RobotState) -> None:
         self._integral = [0.0] * 6
@@ -235,8 +237,14 @@ class UficController(Controller):
         ``latency_horizon_ticks`` with this tick's D_C and K_max in the tool frame
         (:func:`tactex.control.damping.latency_shaped_torque`): unchanged on heavy modes."""
         jac = state.jacobian
-        tau = np.dot(f_world, jac)
         h = self.params.latency_horizon_ticks * self.params.dt
+        if h > 0 and self._kernels is not None:
+            try:
+                return self._kernels.task_torque(jac, state.ee_rotation, state.mass_matrix, np.array(f_world),
+                                                 self._d_tool, self._k_max, h)
+            except TypeError:  # arrays the kernel was not compiled for (not C-ordered float64): numpy
+                pass
+        tau = np.dot(f_world, jac)
         if h <= 0:
             return tau
         jac_tool = np.empty_like(jac)

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from tactex.control import joint_kernels
 from tactex.control.controller import Controller
 from tactex.control.joint_impedance import JointImpedanceController, JointTarget
 from tactex.control.safety import SafetyLayer, SafetyLimits
@@ -59,6 +60,9 @@ class ControlLoop:
     def __init__(self, backend: RobotBackend, limits: SafetyLimits | None = None,
                  on_tick: Callable[[RobotState, Any, Controller], None] | None = None) -> None:
         self.backend = backend
+        # the task-space controllers' compiled kernels are built (or loaded) now, before the first tick:
+        # a task builds its controllers between moves, while a real robot's torque control runs
+        joint_kernels.kernels()
         self.joint = JointImpedanceController()
         self.safety = SafetyLayer(self.joint, limits)
         self.state = backend.state()

@@ -1,0 +1,126 @@
+"""The joint-space end of the task-space controllers, compiled with numba (the optional ``fast`` extra).
+
+Two pieces of every contact tick are small dense algebra on the 7 × 7 mass matrix and the 6 × 7
+Jacobian: UFIC's latency-shaped τ = M (M + h·Jₜᵀ(D + h·K)Jₜ)⁻¹ Jᵀf
+(:meth:`tactex.control.ufic.UficController.joint_torque`) and the null-space posture torque
+(:class:`tactex.control.nullspace.NullspacePosture`). As numpy they are a dozen small calls each,
+and the calls' dispatch, not their arithmetic, is their cost; between a robot state and its
+command (docs/real_robot.md) that is most of what the controller spends. Here each is one
+compiled call doing the same operations in the same order. The numpy forms stay the reference:
+the tests check that both give the same torque to round-off.
+
+numba is imported on the first :func:`kernels` call, not with this module, and the machine code is
+made then for the one set of argument types the controllers use (a few seconds, once: numba caches
+it beside this file, or in a per-user folder) — never inside a control loop, since the controllers
+ask for the kernels when they are built. Without numba (or after :func:`disable`) the controllers
+use numpy.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["JointKernels", "available", "disable", "kernels", "latency_shaped_task_torque", "posture_torque"]
+
+
+def latency_shaped_task_torque(jac: np.ndarray, rot: np.ndarray, mass: np.ndarray, f_world: np.ndarray,
+                               d_tool: np.ndarray, k_tool: np.ndarray, horizon_s: float) -> np.ndarray:
+    """M (M + h·Jₜᵀ diag(D + h·K) Jₜ)⁻¹ Jᵀ f [N·m], Jₜ = [RᵀJ_v; RᵀJ_ω] the Jacobian in the tool frame.
+
+    Args:
+        jac: (6, 7) TCP Jacobian, world frame. rot: (3, 3) world_R_tool. mass: (7, 7) [kg·m²].
+        f_world: (6,) world wrench [N, N·m]. d_tool, k_tool: (6,) tool-frame damping [N·s/m, N·m·s/rad]
+        and stiffness [N/m, N·m/rad]. horizon_s: h [s], > 0.
+    """
+    n = jac.shape[1]
+    tau0 = np.zeros(n)
+    for i in range(6):
+        fi = f_world[i]
+        for j in range(n):
+            tau0[j] += fi * jac[i, j]
+    jt = np.zeros((6, n))
+    for a in range(3):
+        for j in range(n):
+            jt[a, j] = rot[0, a] * jac[0, j] + rot[1, a] * jac[1, j] + rot[2, a] * jac[2, j]
+            jt[3 + a, j] = rot[0, a] * jac[3, j] + rot[1, a] * jac[4, j] + rot[2, a] * jac[5, j]
+    a_mat = mass.copy()
+    for i in range(6):
+        g = horizon_s * (d_tool[i] + horizon_s * k_tool[i])
+        for r in range(n):
+            gr = g * jt[i, r]
+            for c in range(n):
+                a_mat[r, c] += gr * jt[i, c]
+    return mass @ np.linalg.solve(a_mat, tau0)
+
+
+def posture_torque(jac: np.ndarray, mass: np.ndarray, q_posture: np.ndarray, q: np.ndarray, dq: np.ndarray,
+                   stiffness: float, damping: float, horizon_s: float, pinv_damping: float) -> np.ndarray:
+    """The null-space posture torque [N·m]: N τ₀ with τ₀ = k (q_d − q) − d q̇ and
+    N τ₀ = τ₀ − Jᵀ(J Jᵀ + δ²I)⁻¹ J τ₀, then M (M + (h·d + h²·k) I)⁻¹ (·) when h > 0.
+
+    Args:
+        jac: (6, 7) TCP Jacobian. mass: (7, 7) [kg·m²]. q_posture, q, dq: (7,) [rad, rad/s].
+        stiffness [N·m/rad], damping [N·m·s/rad], horizon_s h [s] ≥ 0, pinv_damping δ [-].
+    """
+    n = q.shape[0]
+    tau = stiffness * (q_posture - q) - damping * dq
+    jjt = jac @ jac.T
+    for i in range(jjt.shape[0]):
+        jjt[i, i] += pinv_damping * pinv_damping
+    tau = tau - jac.T @ np.linalg.solve(jjt, jac @ tau)
+    if horizon_s > 0.0:
+        a_mat = mass.copy()
+        extra = horizon_s * damping + horizon_s * horizon_s * stiffness
+        for i in range(n):
+            a_mat[i, i] += extra
+        tau = mass @ np.linalg.solve(a_mat, tau)
+    return tau
+
+
+class JointKernels(NamedTuple):
+    """The compiled forms of :func:`latency_shaped_task_torque` and :func:`posture_torque`."""
+
+    task_torque: object
+    posture_torque: object
+
+
+_kernels: JointKernels | None = None
+_failure: str | None = None
+
+
+def available() -> bool:
+    """Whether numba is installed (the ``fast`` extra); does not import it."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def kernels() -> JointKernels | None:
+    """The compiled kernels, built on the first call; None without numba, with ``NUMBA_DISABLE_JIT``
+    set (it would run them as plain Python, slower than numpy), or after :func:`disable`."""
+    global _kernels
+    if _kernels is not None or _failure is not None or not available():
+        return _kernels
+    from numba import config, njit
+
+    if config.DISABLE_JIT:
+        return None
+    f8v, f8m = "float64[::1]", "float64[:, ::1]"
+    sig_task = f"{f8v}({f8m}, {f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64)"
+    sig_posture = f"{f8v}({f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64, float64, float64, float64)"
+    try:
+        task = njit(sig_task, cache=True, nogil=True)(latency_shaped_task_torque)
+        posture = njit(sig_posture, cache=True, nogil=True)(posture_torque)
+    except RuntimeError:  # no writable cache location anywhere: compile in every process
+        task = njit(sig_task, nogil=True)(latency_shaped_task_torque)
+        posture = njit(sig_posture, nogil=True)(posture_torque)
+    _kernels = JointKernels(task, posture)
+    return _kernels
+
+
+def disable(reason: str) -> None:
+    """Stop offering the compiled kernels in this process (``reason``: why); controllers built
+    afterwards use numpy."""
+    global _kernels, _failure
+    _kernels, _failure = None, reason
