@@ -376,3 +376,11 @@ def test_torque_is_sent_before_the_tasks_bookkeeping_runs(panel):
         assert backend.loop_metrics()["loop_ticks"] >= 20
     finally:
         backend.close()
+
+
+def test_robot_check_warns_without_the_compiled_kernels(panel, monkeypatch):
+    from tactex.control import joint_kernels
+
+    monkeypatch.setattr(joint_kernels, "kernels", lambda: None)
+    result = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    assert any("fast extra" in w for w in result.warnings)

@@ -119,4 +119,9 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         warnings += link_warnings
     finally:
         backend.close()
+    from tactex.control import joint_kernels
+
+    if joint_kernels.kernels() is None:
+        warnings.append("the controllers' compiled kernels are not available (install the fast extra: numba): "
+                        "every contact tick then does its joint-space algebra in numpy, slower")
     return CheckResult(ok=not problems, info=info, problems=problems, warnings=warnings)
