@@ -113,3 +113,19 @@ def test_a_control_loop_builds_the_kernels_before_its_first_tick(monkeypatch):
     monkeypatch.setattr(joint_kernels, "kernels", lambda: calls.append("built"))
     ControlLoop(MujocoBackend(SceneConfig()))
     assert calls == ["built"]
+
+
+def test_a_kernel_that_fails_to_build_warns_and_leaves_numpy(monkeypatch):
+    import numba
+
+    monkeypatch.setattr(joint_kernels, "_kernels", None)
+    monkeypatch.setattr(joint_kernels, "_failure", None)
+
+    def broken(*args, **kwargs):
+        raise numba.core.errors.TypingError("no typing for this numba")
+
+    monkeypatch.setattr(numba, "njit", broken)
+    with pytest.warns(RuntimeWarning, match="running numpy.*no typing"):
+        assert joint_kernels.kernels() is None
+    assert joint_kernels.kernels() is None  # not tried again
+    assert UficController()._kernels is None

@@ -19,6 +19,7 @@ use numpy.
 from __future__ import annotations
 
 import importlib.util
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -102,19 +103,26 @@ def kernels() -> JointKernels | None:
     global _kernels
     if _kernels is not None or _failure is not None or not available():
         return _kernels
-    from numba import config, njit
-
-    if config.DISABLE_JIT:
-        return None
-    f8v, f8m = "float64[::1]", "float64[:, ::1]"
-    sig_task = f"{f8v}({f8m}, {f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64)"
-    sig_posture = f"{f8v}({f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64, float64, float64, float64)"
     try:
-        task = njit(sig_task, cache=True, nogil=True)(latency_shaped_task_torque)
-        posture = njit(sig_posture, cache=True, nogil=True)(posture_torque)
-    except RuntimeError:  # no writable cache location anywhere: compile in every process
-        task = njit(sig_task, nogil=True)(latency_shaped_task_torque)
-        posture = njit(sig_posture, nogil=True)(posture_torque)
+        from numba import config, njit
+
+        if config.DISABLE_JIT:
+            return None
+        f8v, f8m = "float64[::1]", "float64[:, ::1]"
+        sig_task = f"{f8v}({f8m}, {f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64)"
+        sig_posture = f"{f8v}({f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64, float64, float64, float64)"
+        try:
+            task = njit(sig_task, cache=True, nogil=True)(latency_shaped_task_torque)
+            posture = njit(sig_posture, cache=True, nogil=True)(posture_torque)
+        except RuntimeError:  # no writable cache location anywhere: compile in every process
+            task = njit(sig_task, nogil=True)(latency_shaped_task_torque)
+            posture = njit(sig_posture, nogil=True)(posture_torque)
+    except Exception as exc:  # numba's import, typing or compilation (e.g. a numba too old for numpy)
+        reason = f"{type(exc).__name__}: {exc}"
+        disable(reason)
+        warnings.warn(f"the controllers' compiled kernels are unavailable, running numpy ({reason})",
+                      RuntimeWarning, stacklevel=2)
+        return None
     _kernels = JointKernels(task, posture)
     return _kernels
 
