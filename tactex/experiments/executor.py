@@ -205,7 +205,9 @@ class LocalExecutor(Executor):
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Cancel the queue and end the workers now (Ctrl-C, or a broken pool)."""
-    procs = list(getattr(pool, "_processes", {}).values())
+    # the executor has no public way to end its workers before Python 3.14 (terminate_workers): its
+    # process table is the only handle
+    procs = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
