@@ -70,12 +70,13 @@ class FrictionCompensator:
 
     def __init__(self, params: FrictionCompensatorParams | None = None) -> None:
         self.params = params or FrictionCompensatorParams()
-        self._filtered = np.zeros(2)
+        self._f = (0.0, 0.0)  # low-passed tangential force, tool frame [N]
+        self._a, self._a_dt = 0.0, float("nan")  # the filter's gain and the period it was made for
         self._started = False
         self.last = np.zeros(6)
 
     def reset(self) -> None:
-        self._filtered = np.zeros(2)
+        self._f = (0.0, 0.0)
         self._started = False
         self.last = np.zeros(6)
 
@@ -84,7 +85,7 @@ class FrictionCompensator:
 
         ``rho_align`` ∈ [0, 1] scales it (eq. 19); ``dt`` [s] is the tick period.
         """
-        fx, fy, fz = (float(v) for v in state.wrench_tool[:3])
+        fx, fy, fz = state.wrench_tool[:3].tolist()
         if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
             raise ControllerFault(f"friction compensation got a non-finite measured force {state.wrench_tool[:3]!r}")
         if not (math.isfinite(rho_align) and 0.0 <= rho_align <= 1.0):
@@ -92,17 +93,20 @@ class FrictionCompensator:
         if not (math.isfinite(dt) and dt > 0):
             raise ControllerFault(f"friction compensation needs a tick period dt > 0 [s], got {dt!r}")
         p = self.params
+        # the filter state as Python floats: at 1 kHz, numpy indexing on a 2-vector costs more than the sums
         if self._started:
-            a = 1.0 - math.exp(-2.0 * math.pi * p.cutoff_hz * dt)
-            self._filtered[0] += a * (fx - self._filtered[0])
-            self._filtered[1] += a * (fy - self._filtered[1])
+            if dt != self._a_dt:
+                self._a, self._a_dt = 1.0 - math.exp(-2.0 * math.pi * p.cutoff_hz * dt), dt
+            a = self._a
+            f0, f1 = self._f
+            f0, f1 = f0 + a * (fx - f0), f1 + a * (fy - f1)
         else:  # start from the first measurement, not from zero (no artificial transient)
-            self._filtered[:] = (fx, fy)
+            f0, f1 = fx, fy
             self._started = True
+        self._f = (f0, f1)
         bound = min(p.max_force_n, p.mu_max * max(fz, 0.0))
-        mag = math.hypot(self._filtered[0], self._filtered[1])
+        mag = math.hypot(f0, f1)
         scale = p.gain * rho_align * (min(1.0, bound / mag) if mag > 0.0 else 0.0)
-        out = np.zeros(6)
-        out[0], out[1] = scale * self._filtered[0], scale * self._filtered[1]
+        out = np.array((scale * f0, scale * f1, 0.0, 0.0, 0.0, 0.0))
         self.last = out
         return out

@@ -303,10 +303,10 @@ class VaUficController(UficController):
             port[3] += d3 * (r00 * qx + r10 * qy + r20 * qz)
             port[4] += d4 * (r01 * qx + r11 * qy + r21 * qz)
             port[5] += d5 * (r02 * qx + r12 * qy + r22 * qz)
-        if self.port_feedforward is not None:
-            w_ff = self.port_feedforward.wrench_tool(state, rho_align, dt).tolist()
-            port = [pi + wi for pi, wi in zip(port, w_ff, strict=True)]
         p0, p1, p2, p3, p4, p5 = port
+        if self.port_feedforward is not None:
+            w0, w1, w2, w3, w4, w5 = self.port_feedforward.wrench_tool(state, rho_align, dt).tolist()
+            p0, p1, p2, p3, p4, p5 = p0 + w0, p1 + w1, p2 + w2, p3 + w3, p4 + w4, p5 + w5
         p_damp = x0 * dx0 + x1 * dx1 + x2 * dx2 + x3 * dx3 + x4 * dx4 + x5 * dx5
         p_force = x0 * f0 + x1 * f1 + x2 * f2 + x3 * f3 + x4 * f4 + x5 * f5
         m_f = self.tank_f.step(p_damp, p_force, dt)  # eq. 38–45: λ + σ_f(1 − λ)
