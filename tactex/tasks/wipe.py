@@ -331,6 +331,8 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
     backend = open_backend(scene_cfg, robot)
     try:
         # the vision process starts before the arm moves: nothing slow may run once torque control is on
+        # the TCP is the uncompressed pad tip: in contact the surface lies up to the pad's maximum
+        # compression behind it, so the region of interest must start that far back
         compression = scene_cfg.tool.max_compression_m
         estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
         vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
