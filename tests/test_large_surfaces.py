@@ -13,11 +13,12 @@ from tactex.errors import ConfigError
 from tactex.pointcloud import SurfaceCloud
 from tactex.pointcloud.markings import marked_cloud
 from tactex.pointcloud.shapes import get_surface
-from tactex.spectral import build_basis, laplace_eigenpairs, load_basis, point_cloud_laplacian, save_basis
+from tactex.spectral import build_basis, hierarchy, laplace_eigenpairs, load_basis, point_cloud_laplacian, save_basis
 from tactex.spectral.eigen import HIERARCHICAL_MIN_POINTS, _canonical, resolve_eigensolver
 from tactex.spectral.hierarchy import (
     HierarchyInfo,
     _relative_residual2,
+    _voxel_representatives,
     fine_subspace_size,
     subspace_size,
     voxel_levels,
@@ -37,23 +38,33 @@ def curved_panel(nx: int = 60, ny: int = 40, h: float = 0.003, seed: int = 0) ->
     return SurfaceCloud(points=np.c_[x, y, z], spacing=h)
 
 
-@pytest.fixture(scope="module")
-def panel_pairs():
-    cloud = curved_panel(80, 50)  # 4000 points: two coarse levels for k = 30
+def hierarchical(L, mass, k, cloud, scheme: str, **kw):
+    """The hierarchical solver on ``cloud`` with the scheme of a small cloud ("small": one coarse level, two solves)
+    or of a large one ("large": nested levels), whatever the cloud's size."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(hierarchy, "SMALL_CLOUD_MAX_POINTS", 10**9 if scheme == "small" else 0)
+        return laplace_eigenpairs(L, mass, k, solver="hierarchical", points=cloud.points, spacing=cloud.spacing, **kw)
+
+
+@pytest.fixture(scope="module", params=["large", "small"])
+def panel_pairs(request):
+    cloud = curved_panel(80, 50)  # 4000 points: two coarse levels for k = 30 in the large clouds' scheme
     L, M = point_cloud_laplacian(cloud.points)
     mass = M.diagonal().copy()
     k = 30
     exact = laplace_eigenpairs(L, mass, k, solver="arpack")
     info = HierarchyInfo()
-    approx = laplace_eigenpairs(L, mass, k, solver="hierarchical", points=cloud.points, spacing=cloud.spacing,
-                                info=info)
-    return cloud, mass, exact, approx, info
+    approx = hierarchical(L, mass, k, cloud, request.param, info=info)
+    return cloud, mass, exact, approx, info, request.param
 
 
 # ---------------------------------------------------------------- hierarchical eigensolver
 def test_hierarchical_eigenvalues_match_arpack(panel_pairs) -> None:
-    _, _, (ev_a, _), (ev_h, _), info = panel_pairs
-    assert len(info.level_points) >= 3  # it really went through coarse levels
+    _, _, (ev_a, _), (ev_h, _), info, scheme = panel_pairs
+    if scheme == "large":
+        assert len(info.level_points) >= 3  # it really went through nested coarse levels
+    else:
+        assert len(info.level_points) == 2 and info.fine_iterations == 1  # one coarse level, one two-solve step
     assert info.max_residual2 <= 5e-3
     assert ev_h[0] == pytest.approx(0.0, abs=1e-6 * ev_h[-1])
     rel = np.abs(ev_h[1:] - ev_a[1:]) / ev_a[1:]
@@ -62,7 +73,7 @@ def test_hierarchical_eigenvalues_match_arpack(panel_pairs) -> None:
 
 
 def test_hierarchical_eigenvectors_are_m_orthonormal_and_span_the_exact_ones(panel_pairs) -> None:
-    _, mass, (_, V_a), (_, V_h), _ = panel_pairs
+    _, mass, (_, V_a), (_, V_h), _, _ = panel_pairs
     np.testing.assert_allclose(V_h.T @ (mass[:, None] * V_h), np.eye(V_h.shape[1]), atol=1e-9)
     cosines = np.linalg.svd(V_a.T @ (mass[:, None] * V_h), compute_uv=False)
     assert np.degrees(np.arccos(min(1.0, cosines.min()))) < 10.0
@@ -70,7 +81,7 @@ def test_hierarchical_eigenvectors_are_m_orthonormal_and_span_the_exact_ones(pan
 
 def test_the_convergence_test_equals_the_residual_it_stands_for(panel_pairs) -> None:
     # η² is computed as ‖Lφ‖²_{M⁻¹} − θ² (valid for M-orthonormal Ritz pairs); check it against the residual.
-    cloud, mass, _, (ev_h, V_h), _ = panel_pairs
+    cloud, mass, _, (ev_h, V_h), _, _ = panel_pairs
     L, _ = point_cloud_laplacian(cloud.points)
     R = L @ V_h - mass[:, None] * V_h * ev_h
     den = np.maximum(ev_h, 1e-3 * ev_h.max()) ** 2
@@ -102,11 +113,10 @@ def test_the_finest_level_keeps_fewer_guard_vectors() -> None:
 
 
 def test_a_tighter_tolerance_gives_more_accurate_eigenvalues(panel_pairs) -> None:
-    cloud, mass, (ev_a, _), (ev_loose, _), _ = panel_pairs
+    cloud, mass, (ev_a, _), (ev_loose, _), _, scheme = panel_pairs
     L, _ = point_cloud_laplacian(cloud.points)
     info = HierarchyInfo()
-    ev_tight, _ = laplace_eigenpairs(L, mass, 30, solver="hierarchical", tol=1e-6, points=cloud.points,
-                                     spacing=cloud.spacing, info=info)
+    ev_tight, _ = hierarchical(L, mass, 30, cloud, scheme, tol=1e-6, info=info)
     assert info.max_residual2 <= 1e-6
     err = lambda ev: np.max(np.abs(ev[1:] - ev_a[1:]) / ev_a[1:])  # noqa: E731
     assert err(ev_tight) < 1e-4 and err(ev_tight) <= err(ev_loose)
@@ -122,6 +132,35 @@ def test_levels_are_nested_subsets_with_interpolating_prolongations() -> None:
         np.testing.assert_allclose(np.asarray(P.sum(axis=1)).ravel(), 1.0)  # constants are kept
         np.testing.assert_allclose(P[idx].toarray(), np.eye(len(idx)), atol=1e-4)  # coarse points keep their value
         current = current[idx]
+
+
+def test_a_small_cloud_gets_a_single_coarse_level() -> None:
+    cloud = curved_panel()
+    (idx, P), = voxel_levels(cloud.points, cloud.spacing, 300, single=True)
+    assert P.shape == (len(cloud), len(idx)) and 200 < len(idx) < 450
+    assert hierarchy.coarse_level_size(150, 3000) == int(hierarchy.SMALL_COARSE_POINTS_PER_VECTOR * 150)
+    assert hierarchy.coarse_level_size(300, 60000) == hierarchy.COARSE_POINTS_PER_VECTOR * 300
+
+
+def test_voxel_representatives_match_a_row_by_row_grouping() -> None:
+    # The voxels are grouped by one integer key each; grouping the rows themselves must pick the same points.
+    def by_rows(points, voxel):
+        key = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+        _, inv = np.unique(key, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        n = int(inv.max()) + 1
+        count = np.bincount(inv, minlength=n).astype(np.float64)
+        centroid = np.stack([np.bincount(inv, points[:, j], n) for j in range(3)], axis=1) / count[:, None]
+        d2 = np.einsum("ij,ij->i", points - centroid[inv], points - centroid[inv])
+        order = np.lexsort((d2, inv))
+        return np.sort(order[np.r_[0, np.flatnonzero(np.diff(inv[order])) + 1]])
+
+    rng = np.random.default_rng(5)
+    points = np.r_[rng.uniform(-0.1, 0.2, (3000, 3)), curved_panel().points]
+    for voxel in (0.004, 0.01, 0.03, 0.1):
+        got = _voxel_representatives(points, voxel)
+        np.testing.assert_array_equal(got, by_rows(points, voxel))
+        assert got.size == np.unique(np.floor((points - points.min(axis=0)) / voxel), axis=0).shape[0]
 
 
 def test_too_small_a_cloud_is_solved_exactly() -> None:

@@ -20,7 +20,12 @@ with a sparse Cholesky factorisation on each level. Here:
 - on the finest level, iterations repeat until every wanted pair has η_k² ≤ ``tol``, with
   η_k = ‖L φ_k − θ_k M φ_k‖_{M⁻¹} / θ_k the relative residual: a Ritz value's relative error is
   about η_k² θ_k/δ_k (δ_k the gap to the unwanted spectrum), so ``tol`` bounds the relative
-  eigenvalue error up to that gap factor (see ``bench/bench_large.py`` for measured errors).
+  eigenvalue error up to that gap factor (see ``bench/bench_large.py`` for measured errors);
+- below ``SMALL_CLOUD_MAX_POINTS`` points (the papers' clouds), a single coarse level of
+  ``SMALL_COARSE_POINTS_PER_VECTOR`` points per vector, solved densely, and a first fine iteration
+  that applies the shift-invert operator twice before its Rayleigh–Ritz step: at that size a solve
+  of p right-hand sides costs less than the dense work around it (the coarse eigensolve, the
+  projections), so a rougher, cheaper coarse space is refined by one more solve instead.
 
 The subspace holds p = k + max(k/2, 20) vectors: the extra ones make the k-th pair converge at
 the rate λ_k / λ_{p+1} ≈ 2/3 per iteration on a surface (λ_k grows about linearly with k).
@@ -45,6 +50,7 @@ __all__ = [
     "COARSE_POINTS_PER_VECTOR",
     "DEFAULT_TOL",
     "MIN_VOXEL_SPACINGS",
+    "SMALL_CLOUD_MAX_POINTS",
     "HierarchyInfo",
     "coarse_level_size",
     "fine_subspace_size",
@@ -70,6 +76,16 @@ PROLONGATION_NEIGHBORS = 4
 COARSE_DENSE_MAX_POINTS = 2500
 #: Block iterations on the finest level before giving up.
 MAX_ITERATIONS = 8
+#: Below this many points the hierarchy is a single coarse level (``SMALL_COARSE_POINTS_PER_VECTOR`` points per
+#: vector) and the cloud's first iteration makes two solves before its Rayleigh–Ritz step: at a few thousand
+#: points the cost is in dense work on p columns (the coarse eigensolve, the projections), not in the solves.
+SMALL_CLOUD_MAX_POINTS = 10_000
+#: Points per subspace vector of the single coarse level of a small cloud.
+SMALL_COARSE_POINTS_PER_VECTOR = 3.3
+#: On a small cloud σ = −``SMALL_SHIFT_FRACTION`` θ_p (θ_p the largest coarse Ritz value): two solves in a row
+#: multiply a column's null-space component by ((θ_p − σ)/(−σ))², which a shift near zero makes overflow the
+#: block's conditioning; a shift far below θ_p hardly changes the convergence of the wanted pairs.
+SMALL_SHIFT_FRACTION = 0.01
 
 
 @dataclass
@@ -95,11 +111,18 @@ def fine_subspace_size(k: int) -> int:
     return k + max(k // 5, 20)
 
 
+def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(N,) one integer per voxel of edge ``voxel`` [m] (row-major, so they sort like the voxels' index rows;
+    np.unique on rows is several times slower)."""
+    key = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+    extent = key.max(axis=0) + 1
+    return (key[:, 0] * extent[1] + key[:, 1]) * extent[2] + key[:, 2]
+
+
 def _voxel_representatives(points: np.ndarray, voxel: float) -> np.ndarray:
     """Sorted indices of one point per occupied voxel of edge ``voxel`` [m]: the one nearest the
     centroid of the voxel's points."""
-    key = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
+    _, inv = np.unique(_voxel_keys(points, voxel), return_inverse=True)
     inv = inv.ravel()
     n = int(inv.max()) + 1
     count = np.bincount(inv, minlength=n).astype(np.float64)
@@ -121,23 +144,27 @@ def _prolongation(fine: np.ndarray, coarse: np.ndarray, voxel: float) -> sp.csr_
     return sp.csr_matrix((w.ravel(), j.ravel(), indptr), shape=(len(fine), len(coarse)))
 
 
-def voxel_levels(points: np.ndarray, spacing: float, coarse_points: int) -> list[tuple[np.ndarray, sp.csr_matrix]]:
+def voxel_levels(points: np.ndarray, spacing: float, coarse_points: int,
+                 single: bool = False) -> list[tuple[np.ndarray, sp.csr_matrix]]:
     """The coarse levels below the cloud: [(indices into the next finer level, prolongation)], fine → coarse.
 
     The coarsest level is the cloud voxelised at the edge v_c that leaves about ``coarse_points`` points
     (v_c ≈ h √(N / coarse_points) on a surface, corrected once by the count it gives); the finer ones use
     v_c/2, v_c/4, … down to ``MIN_VOXEL_SPACINGS`` h, each level choosing among the points of the one above
-    it. An empty list: the cloud is too small for a hierarchy.
+    it. ``single``: only the coarsest level, prolonged straight to the cloud. An empty list: the cloud is too
+    small for a hierarchy.
     """
     n = points.shape[0]
     voxel = spacing * np.sqrt(n / coarse_points)
     if voxel < MIN_VOXEL_SPACINGS * spacing:
         return []
-    voxel *= np.sqrt(_voxel_representatives(points, voxel).size / coarse_points)
+    voxel *= np.sqrt(np.unique(_voxel_keys(points, voxel)).size / coarse_points)
     edges = []
     while voxel >= MIN_VOXEL_SPACINGS * spacing:
         edges.append(voxel)
         voxel /= 2.0
+        if single:
+            break
     out: list[tuple[np.ndarray, sp.csr_matrix]] = []
     current = points
     for edge in reversed(edges):
@@ -155,8 +182,11 @@ def coarse_level_size(p: int, n: int) -> int:
 
     ``COARSE_POINTS_PER_VECTOR`` p while that fits the dense solve, else max(``COARSE_DENSE_MAX_POINTS``, 2p);
     at most n/4 (one halving of the spacing) but at least 2p, since the dense solve's cubic cost outgrows what
-    a coarsest level closer to the cloud saves.
+    a coarsest level closer to the cloud saves. Below ``SMALL_CLOUD_MAX_POINTS`` points:
+    ``SMALL_COARSE_POINTS_PER_VECTOR`` p, with the same bounds.
     """
+    if n < SMALL_CLOUD_MAX_POINTS:
+        return max(min(int(SMALL_COARSE_POINTS_PER_VECTOR * p), n // 4), 2 * p)
     wanted = COARSE_POINTS_PER_VECTOR * p
     size = wanted if wanted <= COARSE_DENSE_MAX_POINTS else max(COARSE_DENSE_MAX_POINTS, 2 * p)
     return max(min(size, n // 4), 2 * p)
@@ -200,8 +230,12 @@ class _Factor:
 
 
 def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray, sigma: float,
-            out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            out: np.ndarray | None = None, solves: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One block shift-invert iteration from X and Rayleigh–Ritz on its image (M = diag(mass)).
+
+    ``solves`` > 1 applies the scaled shift-invert operator that many times before the Rayleigh–Ritz step (the
+    span is that of as many plain iterations; only the conditioning of the block differs, see
+    ``SMALL_SHIFT_FRACTION``).
 
     Returns (θ, Q, Y, spare): the Ritz values and vectors Y Q of span Y, Y = (L − σM)⁻¹ M X D. X itself is
     overwritten and handed back as ``spare``, an (n, p) buffer for the caller's Y Q; Y goes into ``out``
@@ -211,9 +245,14 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
     The projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is never applied to the block;
     Yᵀ M Y is a symmetric rank-k product (half a matrix product).
     """
+    scale = np.maximum(theta - sigma, 1e-300)[None, :]
     X *= mass[:, None]
-    X *= np.maximum(theta - sigma, 1e-300)[None, :]
+    X *= scale
     Y = factor.solve(X, out=out)
+    for _ in range(solves - 1):
+        np.multiply(Y, mass[:, None], out=X)
+        X *= scale
+        factor.solve(X, out=Y)
     A = Y.T @ X
     root = np.multiply(Y, np.sqrt(mass)[:, None], out=X)
     B = dsyrk(1.0, root.T, trans=0, lower=0)  # upper triangle of rootᵀ root (root.T is Fortran-ordered)
@@ -270,7 +309,7 @@ def hierarchical_eigenpairs(
         (evals (k,), evecs (N, k)) M-orthonormal, unsorted signs; or None when the cloud is too small for a
         coarser level (the caller then solves exactly).
     """
-    from tactex.spectral.eigen import _symmetric_form, laplace_eigenpairs
+    from tactex.spectral.eigen import laplace_eigenpairs
 
     if not (isinstance(tol, (float, int)) and 0.0 < float(tol) < 1.0):
         raise ConfigError(f"eigen_tol must be a number in (0, 1), got {tol!r} (e.g. 5e-3)")
@@ -278,9 +317,10 @@ def hierarchical_eigenpairs(
         raise ConfigError(f"the hierarchical eigensolver needs the point spacing h > 0 [m], got {spacing!r}")
     info = info if info is not None else HierarchyInfo()
     n = L.shape[0]
+    small = n < SMALL_CLOUD_MAX_POINTS
     p = subspace_size(k)
     t0 = time.perf_counter()
-    levels = voxel_levels(points, spacing, coarse_level_size(p, L.shape[0]))
+    levels = voxel_levels(points, spacing, coarse_level_size(p, n), single=small)
     while levels and levels[-1][0].size < 2 * p:  # a voxel count below the estimate: too few for p vectors
         levels.pop()
     if not levels:
@@ -302,15 +342,24 @@ def hierarchical_eigenpairs(
     Lc, mc = ops[-1]
     if Lc.shape[0] <= COARSE_DENSE_MAX_POINTS:
         # Single precision: these vectors only start the refinement, which works in double.
-        A, scale = _symmetric_form(Lc, mc)
-        theta, W = la.eigh(A.toarray().astype(np.float32), subset_by_index=[0, p - 1], check_finite=False)
-        theta = theta.astype(np.float64)
+        # S Lc S (S = Mc^{-1/2}), symmetrised, formed densely: the sparse products cost more at this size.
+        scale = 1.0 / np.sqrt(mc)
+        A = Lc.toarray()
+        A *= scale[:, None]
+        A *= scale[None, :]
+        A = (0.5 * (A + A.T)).astype(np.float32)
+        # Divide and conquer computes every pair but beats the subset driver while p is a large share of them.
+        subset = {"subset_by_index": [0, p - 1]} if 4 * p < A.shape[0] else {"driver": "evd"}
+        theta, W = la.eigh(A, check_finite=False, **subset)
+        theta, W = theta[:p].astype(np.float64), W[:, :p]
         X = scale[:, None] * W.astype(np.float64)
     else:
         theta, X = laplace_eigenpairs(Lc, mc, p, seed=seed, solver="arpack")
     info.seconds["coarsest"] = time.perf_counter() - t0
     # A shift below the spectrum keeps L − σM positive definite whatever the null space.
     sigma = -1e-6 * float(np.mean(L.diagonal() / mass))
+    if small:
+        sigma = min(sigma, -SMALL_SHIFT_FRACTION * float(theta[-1]))
     t_factor = t_iter = 0.0
     for level in range(len(levels) - 1, -1, -1):
         if level == 0:
@@ -320,7 +369,7 @@ def hierarchical_eigenpairs(
         t0 = time.perf_counter()
         factor = _Factor(Lf - sigma * sp.diags(mf))
         t1 = time.perf_counter()
-        theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma)
+        theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma, solves=2 if small else 1)
         if level > 0:
             X = np.matmul(Y, Q, out=spare)
         else:
