@@ -35,9 +35,9 @@ __all__ = [
 
 #: The eigensolver choices (``--eigensolver``): the exact reference, the hierarchical one, or by size.
 EIGENSOLVERS = ("auto", "arpack", "hierarchical")
-#: From this many points on, ``auto`` takes the hierarchical solver. Below, the hierarchy has one coarse
-#: level and gains little over ARPACK (the bench's ``large`` stage measures both on the bunny), so the
-#: small clouds of the papers keep the exact basis.
+#: From this many points on, ``auto`` takes the hierarchical solver. Below it is faster too on clouds of a
+#: few thousand points (docs/large_surfaces.md), but approximate: the papers' clouds keep the exact basis,
+#: so their figures stay those of the authors' method.
 HIERARCHICAL_MIN_POINTS = 10_000
 
 #: Below this many points dense LAPACK beats ARPACK and never fails to converge.
