@@ -1,19 +1,39 @@
-"""The compiled joint-space kernels give the numpy reference's torques to round-off."""
+"""The compiled joint-space kernels give the numpy reference's torques to round-off, and the
+controllers run them (and fall back to numpy only when told why)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from tactex.control import joint_kernels
-from tactex.control.nullspace import NullspacePosture
+from tactex.control.nullspace import PINV_DAMPING, NullspacePosture
 from tactex.control.references import PoseForceReference
+from tactex.control.safety import SafetyLayer
 from tactex.control.ufic import UficController
 from tactex.geometry import exp_so3
 from tactex.robots.mujoco_backend import MujocoBackend
 from tactex.sim.scene import SceneConfig
 
 pytestmark = pytest.mark.skipif(not joint_kernels.available(), reason="numba is not installed (the fast extra)")
+
+#: Compiled and numpy torques agree to this relative error (the same LU, other summation orders).
+RTOL = 1e-10
+
+
+class _Zero:
+    name = "zero"
+
+    def reset(self, state):
+        pass
+
+    def resume(self, state):
+        pass
+
+    def torque(self, state, reference):
+        return np.zeros(7)
 
 
 @pytest.fixture(scope="module")
@@ -22,13 +42,41 @@ def states():
     backend = MujocoBackend(SceneConfig())
     rng = np.random.default_rng(3)
     out = []
-    state = backend.reset(seed=0)
-    for _ in range(5):
-        out.append(state)
-        for _ in range(40):  # wander: random torques move the arm to other postures and velocities
-            backend.apply_torque(rng.normal(0.0, 2.0, 7))
-            state = backend.step()
+    try:
+        state = backend.reset(seed=0)
+        for _ in range(5):
+            out.append(state)
+            for _ in range(40):  # wander: random torques move the arm to other postures and velocities
+                backend.apply_torque(rng.normal(0.0, 2.0, 7))
+                state = backend.step()
+    finally:
+        backend.close()
     return out
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """The kernels, counting their calls: a test of equality must see the compiled path run."""
+    k = joint_kernels.kernels()
+    calls = {"task": 0, "posture": 0}
+
+    def task(*args):
+        calls["task"] += 1
+        return k.task_torque(*args)
+
+    def posture(*args):
+        calls["posture"] += 1
+        return k.posture_torque(*args)
+
+    monkeypatch.setattr(joint_kernels, "_kernels", joint_kernels.JointKernels(task, posture))
+    return calls
+
+
+def _numpy(ctrl):
+    ctrl._kernels = None
+    if hasattr(ctrl, "inner"):
+        ctrl.inner._kernels = None
+    return ctrl
 
 
 def test_the_kernels_are_built_with_numba():
@@ -36,83 +84,99 @@ def test_the_kernels_are_built_with_numba():
     assert k is not None and k is joint_kernels.kernels()  # built once per process
 
 
-def test_compiled_task_torque_equals_numpy(states):
+def test_compiled_task_torque_equals_numpy(states, counted):
     rng = np.random.default_rng(0)
-    compiled, numpy_ref = UficController(), UficController()
-    numpy_ref._kernels = None
-    assert compiled._kernels is not None
+    compiled, numpy_ref = UficController(), _numpy(UficController())
+    n = 0
     for state in states:
         for _ in range(5):
             f_world = tuple(rng.normal(0.0, 10.0, 6).tolist())
             a = compiled.joint_torque(state, f_world)
             b = numpy_ref.joint_torque(state, f_world)
-            np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * np.abs(b).max())
+            n += 1
+            np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * np.abs(b).max())
+    assert counted["task"] == n
 
 
-def test_compiled_posture_torque_equals_numpy(states):
-    class Zero:
-        name = "zero"
-
-        def reset(self, state):
-            pass
-
-        def torque(self, state, reference):
-            return np.zeros(7)
-
+def test_compiled_posture_torque_equals_numpy(states, counted):
     rng = np.random.default_rng(1)
     q_post = states[0].q + rng.normal(0.0, 0.2, 7)
-    compiled, numpy_ref = NullspacePosture(Zero(), q_posture=q_post), NullspacePosture(Zero(), q_posture=q_post)
-    numpy_ref._kernels = None
-    assert compiled._kernels is not None
+    compiled = NullspacePosture(_Zero(), q_posture=q_post)
+    numpy_ref = _numpy(NullspacePosture(_Zero(), q_posture=q_post))
     for state in states:
         a, b = compiled.torque(state, None), numpy_ref.torque(state, None)
         assert np.abs(b).max() > 0.1  # a real posture torque, not a trivial zero
-        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * np.abs(b).max())
+        np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * np.abs(b).max())
+    assert counted["posture"] == len(states)
 
 
-def test_arrays_the_kernel_was_not_built_for_fall_back_to_numpy(states):
-    state = states[1]
-    ctrl = UficController()
-    f_world = (1.0, -2.0, 15.0, 0.1, 0.0, -0.2)
-    expected = ctrl.joint_torque(state, f_world)
-    from dataclasses import replace
+def test_the_kernels_called_directly_equal_the_numpy_reference(states):
+    """The kernels' own arithmetic, apart from the controllers' plumbing."""
+    k = joint_kernels.kernels()
+    state = states[3]
+    rng = np.random.default_rng(2)
+    f = rng.normal(0.0, 10.0, 6)
+    d, kk, h = np.array([40.0, 40.0, 60.0, 2.0, 2.0, 2.0]), np.array([800.0, 800.0, 0.0, 40.0, 40.0, 40.0]), 0.003
+    ref = joint_kernels.latency_shaped_task_torque(state.jacobian, state.ee_rotation, state.mass_matrix, f, d, kk, h)
+    got = k.task_torque(state.jacobian, state.ee_rotation, state.mass_matrix, f, d, kk, h)
+    np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
+    q_post = state.q + 0.1
+    ref = joint_kernels.posture_torque(state.jacobian, state.mass_matrix, q_post, state.q, state.dq, 20.0, 9.0, h,
+                                       PINV_DAMPING)
+    got = k.posture_torque(state.jacobian, state.mass_matrix, q_post, state.q, state.dq, 20.0, 9.0, h, PINV_DAMPING)
+    np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
 
-    strided = np.zeros((6, 14))
-    strided[:, ::2] = state.jacobian
-    view = replace(state, jacobian=strided[:, ::2])  # a strided view: not the kernel's C-ordered type
-    np.testing.assert_allclose(ctrl.joint_torque(view, f_world), expected, rtol=1e-10, atol=1e-12)
 
-
-def test_a_ufic_tick_is_the_same_with_and_without_the_kernels(states):
+def test_a_ufic_tick_is_the_same_with_and_without_the_kernels(states, counted):
     state = states[2]
     rot = exp_so3(np.array([0.05, -0.02, 0.01])) @ state.ee_rotation
     ref = PoseForceReference(state.ee_position + np.array([0.01, 0.0, -0.005]), rot,
                              np.array([0.0, 0.0, 15.0, 0.0, 0.0, 0.0]))
-    a_ctrl, b_ctrl = NullspacePosture(UficController()), NullspacePosture(UficController())
-    b_ctrl._kernels = None
-    b_ctrl.inner._kernels = None
+    a_ctrl, b_ctrl = NullspacePosture(UficController()), _numpy(NullspacePosture(UficController()))
     for c in (a_ctrl, b_ctrl):
         c.reset(state)
     a, b = a_ctrl.torque(state, ref), b_ctrl.torque(state, ref)
-    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * np.abs(b).max())
+    np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * np.abs(b).max())
+    assert counted == {"task": 1, "posture": 1}
 
 
-def test_disable_makes_later_controllers_use_numpy(monkeypatch):
+def test_a_non_finite_controller_state_is_held_by_the_safety_layer_as_with_numpy(states):
+    """numba's solve refuses NaN where numpy's returns it: both must end in the safety layer's hold."""
+    state = states[1]
+    ref = PoseForceReference(state.ee_position, state.ee_rotation, np.array([0.0, 0.0, 15.0, 0.0, 0.0, 0.0]))
+    results = []
+    for ctrl in (NullspacePosture(UficController()), _numpy(NullspacePosture(UficController()))):
+        layer = SafetyLayer(ctrl)
+        layer.reset(state)
+        ctrl.inner._integral[2] = float("nan")  # a corrupted integrator
+        tau = layer.torque(state, ref)
+        results.append((tau, dict(layer.counts)))
+    (tau_k, counts_k), (tau_n, counts_n) = results
+    assert np.isfinite(tau_k).all() and counts_k == counts_n == {"nan_torque": 1}
+    np.testing.assert_array_equal(tau_k, tau_n)
+
+
+def test_arrays_the_kernel_was_not_built_for_warn_once_and_leave_numpy(states):
+    state = states[1]
+    ctrl = UficController()
+    f_world = (1.0, -2.0, 15.0, 0.1, 0.0, -0.2)
+    expected = ctrl.joint_torque(state, f_world)
+    strided = np.zeros((6, 14))
+    strided[:, ::2] = state.jacobian
+    view = replace(state, jacobian=strided[:, ::2])  # a strided view: not the kernel's C-ordered type
+    with pytest.warns(RuntimeWarning, match="strided.*runs numpy from now on"):
+        got = ctrl.joint_torque(view, f_world)
+    np.testing.assert_allclose(got, expected, rtol=RTOL, atol=1e-12)
+    assert ctrl._kernels is None  # not tried again at every tick
+
+
+def test_without_numba_the_controllers_use_numpy_and_the_lookup_is_not_repeated(monkeypatch):
     monkeypatch.setattr(joint_kernels, "_kernels", None)
     monkeypatch.setattr(joint_kernels, "_failure", None)
-    joint_kernels.disable("test")
-    assert joint_kernels.kernels() is None and UficController()._kernels is None
-
-
-def test_a_control_loop_builds_the_kernels_before_its_first_tick(monkeypatch):
-    """Tasks build their controllers between moves, while a real robot's torque control runs: the
-    kernels must already be there (building them takes seconds)."""
-    from tactex.tasks.runner import ControlLoop
-
-    calls = []
-    monkeypatch.setattr(joint_kernels, "kernels", lambda: calls.append("built"))
-    ControlLoop(MujocoBackend(SceneConfig()))
-    assert calls == ["built"]
+    looked = []
+    monkeypatch.setattr(joint_kernels, "available", lambda: looked.append(1) or False)
+    assert joint_kernels.kernels() is None and joint_kernels.kernels() is None
+    assert looked == [1] and UficController()._kernels is None
 
 
 def test_a_kernel_that_fails_to_build_warns_and_leaves_numpy(monkeypatch):
@@ -129,3 +193,18 @@ def test_a_kernel_that_fails_to_build_warns_and_leaves_numpy(monkeypatch):
         assert joint_kernels.kernels() is None
     assert joint_kernels.kernels() is None  # not tried again
     assert UficController()._kernels is None
+
+
+def test_a_control_loop_builds_the_kernels_before_its_first_tick(monkeypatch):
+    """Tasks build their controllers between moves, while a real robot's torque control runs: the
+    kernels must already be there (building them takes seconds)."""
+    from tactex.tasks.runner import ControlLoop
+
+    calls = []
+    monkeypatch.setattr(joint_kernels, "kernels", lambda: calls.append("built"))
+    backend = MujocoBackend(SceneConfig())
+    try:
+        ControlLoop(backend)
+    finally:
+        backend.close()
+    assert calls == ["built"]

@@ -10,8 +10,10 @@ import time
 import numpy as np
 import pytest
 
+from tactex.cli import main
 from tactex.control.linalg import solve
 from tactex.errors import ConfigError, SensorFault
+from tactex.robots.check import check_robot, link_verdict
 from tactex.robots.libfranka_backend import FrankaConfig, pin_control_thread
 from tactex.robots.netft import (
     CMD_START_REALTIME,
@@ -199,3 +201,30 @@ def test_control_cpu_option():
         FrankaConfig(robot_ip="1.2.3.4", control_cpu=(os.cpu_count() or 1))
     with pytest.raises(ConfigError, match="control_cpu"):
         FrankaConfig(robot_ip="1.2.3.4", control_cpu=True)
+
+
+# -- the link check's verdict (no robot needed) ---------------------------------------------------
+def _link_metrics(ticks=1000, lost=0, success=1.0, compute_p999=150.0):
+    return {"loop_ticks": ticks, "lost_cycles": lost, "min_command_success_rate": success,
+            "loop_compute_us": {"p99.9": compute_p999}}
+
+
+def test_link_verdict_fails_on_lost_cycles_and_success_rate_and_warns_on_compute():
+    assert link_verdict(_link_metrics(lost=1), 1.0) == ([], [])  # 1 of 1001: 0.0999 %
+    problems, _ = link_verdict(_link_metrics(lost=2), 1.0)
+    assert len(problems) == 1 and "2 cycles lost" in problems[0] and "allowed 0.1 %" in problems[0]
+    assert link_verdict(_link_metrics(lost=2), 1.0, max_lost_fraction=0.05) == ([], [])
+    problems, _ = link_verdict(_link_metrics(success=0.9), 1.0)
+    assert len(problems) == 1 and "success rate fell to 0.900" in problems[0]
+    problems, warnings = link_verdict(_link_metrics(compute_p999=400.0), 1.0)
+    assert problems == [] and len(warnings) == 1 and "400 µs" in warnings[0]
+
+
+@pytest.mark.parametrize("value", ["-1", "100", "nan"])
+def test_robot_check_rejects_a_bad_lost_share_before_connecting(value, capsys):
+    # 127.0.0.254 has no robot: the check must refuse the option before it tries to connect
+    code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--max-lost-percent", value])
+    err = capsys.readouterr().err
+    assert code == 2 and "--max-lost-percent must be in [0, 100)" in err and "127.0.0.254" not in err
+    with pytest.raises(ConfigError, match="lost cycles must be in"):
+        check_robot(FrankaConfig(robot_ip="127.0.0.254"), max_lost_fraction=float(value))

@@ -72,3 +72,29 @@ def test_compensation_energy_is_drawn_only_when_on(runs) -> None:
     # sliding against friction the compensation pushes along the motion: it takes energy from the tank
     assert runs[True].metrics["friction_compensation_energy_j"] > 0.5
     assert np.abs(runs[True].series["friction_comp_tool"]).max() > 1.0
+
+
+def test_each_tick_is_logged_against_the_reference_its_torque_tracked(monkeypatch) -> None:
+    """The wipe makes the next tick's reference after the command is sent; the bookkeeping of a tick
+    must still see the reference that tick's controller was given, not the next one."""
+    from tactex.control.va_ufic import VaUficController
+    from tactex.tasks import wipe as wipe_mod
+
+    given, logged = [], []
+    real_torque, real_sent = VaUficController.torque, wipe_mod._WipeLog.sent
+
+    def torque(self, state, reference):
+        given.append(reference.position_world.copy())
+        return real_torque(self, state, reference)
+
+    def sent(self, state_ctrl):
+        logged.append(self.pos_ref.copy())
+        return real_sent(self, state_ctrl)
+
+    monkeypatch.setattr(VaUficController, "torque", torque)
+    monkeypatch.setattr(wipe_mod._WipeLog, "sent", sent)
+    run_wipe(WipeConfig(duration_s=0.3), progress=False)
+    assert len(given) == len(logged) > 250
+    np.testing.assert_array_equal(np.array(given), np.array(logged))
+    # and the references move: a test of equality between constants would not see a swap
+    assert np.abs(np.diff(np.array(given), axis=0)).max() > 1e-6

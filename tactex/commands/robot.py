@@ -15,8 +15,12 @@ def register(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("action", choices=("check",), help="check: connect, report, hold still and count lost cycles")
     parser.add_argument("--duration-s", type=float, default=10.0, help="length of the link test [s] (default: 10)")
-    parser.add_argument("--max-lost-percent", type=float, default=0.1,
-                        help="fail the link test when more than this share of cycles is lost [%%] (default: 0.1)")
+    from tactex.robots.check import LINK_MAX_LOST_FRACTION
+
+    default_pct = 100 * LINK_MAX_LOST_FRACTION
+    parser.add_argument("--max-lost-percent", type=float, default=default_pct,
+                        help=f"fail the link test when more than this share of cycles is lost [%%] "
+                             f"(default: {default_pct:g})")
     parser.add_argument("--out", metavar="FILE.json", help="also write the findings as JSON")
     add_dataclass_arguments(parser, FrankaConfig)
 

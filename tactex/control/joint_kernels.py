@@ -4,27 +4,31 @@ Two pieces of every contact tick are small dense algebra on the 7 × 7 mass matr
 Jacobian: UFIC's latency-shaped τ = M (M + h·Jₜᵀ(D + h·K)Jₜ)⁻¹ Jᵀf
 (:meth:`tactex.control.ufic.UficController.joint_torque`) and the null-space posture torque
 (:class:`tactex.control.nullspace.NullspacePosture`). As numpy they are a dozen small calls each,
-and the calls' dispatch, not their arithmetic, is their cost; between a robot state and its
-command (docs/real_robot.md) that is most of what the controller spends. Here each is one
+and the calls' dispatch, not their arithmetic, is their cost, paid between a robot state and its
+command (docs/real_robot.md). Here each is one
 compiled call doing the same operations in the same order. The numpy forms stay the reference:
 the tests check that both give the same torque to round-off.
 
 numba is imported on the first :func:`kernels` call, not with this module, and the machine code is
-made then for the one set of argument types the controllers use (a few seconds, once: numba caches
-it beside this file, or in a per-user folder) — never inside a control loop, since the controllers
-ask for the kernels when they are built. Without numba (or after :func:`disable`) the controllers
-use numpy.
+made then for the one set of argument types the controllers use (once per machine: numba caches
+it beside this file, or in a per-user folder). A :class:`~tactex.tasks.runner.ControlLoop` asks for
+the kernels when it is made, so that controllers built later, between moves while a real robot's
+torque control runs, find them ready. Without numba (or after :func:`disable`) the controllers use
+numpy.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import logging
 import warnings
 from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["JointKernels", "available", "disable", "kernels", "latency_shaped_task_torque", "posture_torque"]
+_log = logging.getLogger(__name__)
+
+__all__ = ["JointKernels", "available", "disable", "kernels", "latency_shaped_task_torque", "posture_torque", "run"]
 
 
 def latency_shaped_task_torque(jac: np.ndarray, rot: np.ndarray, mass: np.ndarray, f_world: np.ndarray,
@@ -100,9 +104,13 @@ def available() -> bool:
 def kernels() -> JointKernels | None:
     """The compiled kernels, built on the first call; None without numba, with ``NUMBA_DISABLE_JIT``
     set (it would run them as plain Python, slower than numpy), or after :func:`disable`."""
-    global _kernels
-    if _kernels is not None or _failure is not None or not available():
+    global _kernels, _failure
+    if _kernels is not None or _failure is not None:
         return _kernels
+    if not available():
+        _failure = "numba is not installed (the fast extra)"  # asked once: find_spec is not free
+        return None
+    _log.info("preparing the controllers' compiled kernels (numba compiles them once per machine)")
     try:
         from numba import config, njit
 
@@ -125,6 +133,24 @@ def kernels() -> JointKernels | None:
         return None
     _kernels = JointKernels(task, posture)
     return _kernels
+
+
+def run(kernel, *args) -> np.ndarray | None:
+    """``kernel(*args)``'s torque (the first argument is the (6, n) Jacobian); n NaNs when an input
+    is not finite (numba's solve refuses them where numpy's returns NaN: either way the safety layer
+    then holds the last command); None, with a warning, when the arrays are not the types the kernel
+    was compiled for (C-ordered float64): the caller then uses numpy from there on, since every
+    failed dispatch costs about as much as the numpy path."""
+    try:
+        return kernel(*args)
+    except np.linalg.LinAlgError:
+        return np.full(args[0].shape[1], np.nan)
+    except TypeError as exc:
+        types = ", ".join(f"{a.dtype}{'' if a.flags.c_contiguous else ' strided'}" if isinstance(a, np.ndarray)
+                          else type(a).__name__ for a in args)
+        warnings.warn(f"a compiled controller kernel cannot take ({types}): {exc}; this controller runs numpy "
+                      "from now on", RuntimeWarning, stacklevel=3)
+        return None
 
 
 def disable(reason: str) -> None:

@@ -21,10 +21,13 @@ from tactex.control.linalg import solve
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault, InputError
 
-__all__ = ["NullspaceParams", "NullspacePosture", "nullspace_projector", "project_nullspace"]
+__all__ = ["PINV_DAMPING", "NullspaceParams", "NullspacePosture", "nullspace_projector", "project_nullspace"]
+
+#: δ of the damped pseudo-inverse in the posture's projection [-].
+PINV_DAMPING = 1e-3
 
 
-def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarray:
+def nullspace_projector(jacobian: np.ndarray, damping: float = PINV_DAMPING) -> np.ndarray:
     """N = I − Jᵀ J⁺ᵀ (n, n), with J⁺ the damped pseudo-inverse Jᵀ (J Jᵀ + δ² I)⁻¹."""
     j = jacobian
     jjt = j @ j.T + damping**2 * np.eye(j.shape[0])
@@ -32,8 +35,6 @@ def nullspace_projector(jacobian: np.ndarray, damping: float = 1e-3) -> np.ndarr
     return np.eye(j.shape[1]) - j.T @ j_pinv_t
 
 
-#: δ of the damped pseudo-inverse in the posture's projection [-].
-PINV_DAMPING = 1e-3
 _EYE6_DAMPED = PINV_DAMPING**2 * np.eye(6)
 
 
@@ -101,11 +102,11 @@ class NullspacePosture(Controller):
         p = self.params
         h = p.latency_horizon_ticks * p.dt
         if self._kernels is not None:
-            try:
-                return tau + self._kernels.posture_torque(state.jacobian, state.mass_matrix, self.q_posture, state.q,
-                                                          state.dq, p.stiffness, p.damping, h, PINV_DAMPING)
-            except TypeError:  # arrays the kernel was not compiled for (not C-ordered float64): numpy
-                pass
+            tau_ns = joint_kernels.run(self._kernels.posture_torque, state.jacobian, state.mass_matrix, self.q_posture,
+                                       state.q, state.dq, p.stiffness, p.damping, h, PINV_DAMPING)
+            if tau_ns is not None:
+                return tau + tau_ns
+            self._kernels = None
         tau_ns = project_nullspace(state.jacobian, p.stiffness * (self.q_posture - state.q) - p.damping * state.dq)
         if h > 0:
             m = state.mass_matrix

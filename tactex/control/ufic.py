@@ -239,11 +239,11 @@ class UficController(Controller):
         jac = state.jacobian
         h = self.params.latency_horizon_ticks * self.params.dt
         if h > 0 and self._kernels is not None:
-            try:
-                return self._kernels.task_torque(jac, state.ee_rotation, state.mass_matrix, np.array(f_world),
-                                                 self._d_tool, self._k_max, h)
-            except TypeError:  # arrays the kernel was not compiled for (not C-ordered float64): numpy
-                pass
+            tau = joint_kernels.run(self._kernels.task_torque, jac, state.ee_rotation, state.mass_matrix,
+                                    np.array(f_world), self._d_tool, self._k_max, h)
+            if tau is not None:
+                return tau
+            self._kernels = None
         tau = np.dot(f_world, jac)
         if h <= 0:
             return tau

@@ -15,11 +15,13 @@ from typing import Any
 
 import numpy as np
 
+from tactex.control import joint_kernels
 from tactex.errors import ConfigError, RobotError, SensorFault
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, _col_major, flange_T_tcp
 from tactex.sim.tool import ToolGeometry
 
-__all__ = ["LINK_MAX_LOST_FRACTION", "LINK_MIN_SUCCESS_RATE", "CheckResult", "check_robot", "link_verdict"]
+__all__ = ["LINK_MAX_LOST_FRACTION", "LINK_MIN_SUCCESS_RATE", "CheckResult", "check_robot", "link_verdict",
+           "lost_fraction"]
 
 #: The link holds 1 kHz when the robot loses at most this share of cycles ...
 LINK_MAX_LOST_FRACTION = 0.001
@@ -39,6 +41,12 @@ class CheckResult:
     warnings: list[str] = field(default_factory=list)
 
 
+def lost_fraction(metrics: dict[str, Any]) -> float:
+    """The share of the link's cycles that were lost, from ``loop_metrics()``."""
+    lost = metrics["lost_cycles"]
+    return lost / (max(1, metrics["loop_ticks"]) + lost)
+
+
 def link_verdict(metrics: dict[str, Any], duration_s: float,
                  max_lost_fraction: float = LINK_MAX_LOST_FRACTION) -> tuple[list[str], list[str]]:
     """Problems and warnings from a link test's ``loop_metrics()`` over ``duration_s`` [s].
@@ -49,10 +57,9 @@ def link_verdict(metrics: dict[str, Any], duration_s: float,
     """
     problems: list[str] = []
     warnings: list[str] = []
-    lost = metrics["lost_cycles"]
-    lost_fraction = lost / (max(1, metrics["loop_ticks"]) + lost)
-    if lost_fraction > max_lost_fraction:
-        problems.append(f"{lost} cycles lost in {duration_s:g} s ({100 * lost_fraction:.2f} %, "
+    lost, share = metrics["lost_cycles"], lost_fraction(metrics)
+    if share > max_lost_fraction:
+        problems.append(f"{lost} cycles lost in {duration_s:g} s ({100 * share:.2f} %, "
                         f"allowed {100 * max_lost_fraction:.2g} %): the link would not hold 1 kHz")
     if metrics["min_command_success_rate"] < LINK_MIN_SUCCESS_RATE:
         problems.append(f"command success rate fell to {metrics['min_command_success_rate']:.3f} "
@@ -113,14 +120,13 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         info.update(m)
         q_drift = float(np.abs(loop.state.q - state.q).max())
         info["q_drift_rad"] = q_drift
-        info["lost_fraction"] = m["lost_cycles"] / (max(1, m["loop_ticks"]) + m["lost_cycles"])
+        info["lost_fraction"] = lost_fraction(m)
+        info["max_lost_fraction"] = max_lost_fraction
         link_problems, link_warnings = link_verdict(m, duration_s, max_lost_fraction)
         problems += link_problems
         warnings += link_warnings
     finally:
         backend.close()
-    from tactex.control import joint_kernels
-
     if joint_kernels.kernels() is None:
         warnings.append("the controllers' compiled kernels are not available (install the fast extra: numba): "
                         "every contact tick then does its joint-space algebra in numpy, slower")

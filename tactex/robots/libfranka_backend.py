@@ -34,7 +34,7 @@ import math
 import os
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,6 +50,7 @@ __all__ = [
     "FrankaConfig",
     "LibfrankaBackend",
     "LoopTiming",
+    "ModelTerms",
     "flange_T_tcp",
     "franka_model_terms",
     "franka_state_to_robot_state",
@@ -139,7 +140,13 @@ def _col_major(a: Any, rows: int, cols: int) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(cols, rows).T)
 
 
-ModelTerms = tuple  # (jacobian (6, 7), mass matrix (7, 7), Coriolis·dq (7,), gravity (7,))
+class ModelTerms(NamedTuple):
+    """libfranka's model at one state (:func:`franka_model_terms`)."""
+
+    jacobian: np.ndarray  #: (6, 7) the TCP's zero Jacobian, base frame
+    mass_matrix: np.ndarray  #: (7, 7) [kg·m²]
+    coriolis: np.ndarray  #: (7,) C(q, dq)·dq [N·m]
+    gravity: np.ndarray  #: (7,) [N·m]
 
 
 def franka_model_terms(state: Any, model: Any) -> ModelTerms:
@@ -155,7 +162,7 @@ def franka_model_terms(state: Any, model: Any) -> ModelTerms:
     if not any(state.O_ddP_O):
         state.O_ddP_O = _GRAVITY
     gravity = np.asarray(model.gravity(state), dtype=float)
-    return jac, mass, coriolis, gravity
+    return ModelTerms(jac, mass, coriolis, gravity)
 
 
 def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: WrenchSource,
@@ -360,6 +367,8 @@ class LibfrankaBackend:
         self._tau = tau
         if self._pending_write:
             self._send()
+        elif self.config.dry_run and math.isnan(self._compute_us):  # what the send would have cost
+            self._compute_us = (time.perf_counter() - self._t_read) * 1e6
 
     def _send(self) -> None:
         """writeOnce the torque set last, timing our share of the cycle (state read → command sent)."""
@@ -386,7 +395,8 @@ class LibfrankaBackend:
             raise RobotError("the Franka backend is closed")
         try:
             if self.config.dry_run:
-                self._compute_us = (time.perf_counter() - self._t_read) * 1e6
+                if math.isnan(self._compute_us):  # the task stepped without a torque
+                    self._compute_us = (time.perf_counter() - self._t_read) * 1e6
                 terms = self._model_ahead()
                 self.wrench.prefetch()
                 franka_state, period_ms = self._read_dry()
@@ -396,9 +406,11 @@ class LibfrankaBackend:
                     self._pending_write = False
                     self._gc_off()
                     self._compute_us = float("nan")  # the first state of a control: nothing to answer yet
-                elif self._pending_write:  # the task stepped without a new torque: the last one again
-                    self._send()
-                terms = self._model_ahead()
+                    terms = None  # the last state read is from before the pause
+                else:
+                    if self._pending_write:  # the task stepped without a new torque: the last one again
+                        self._send()
+                    terms = self._model_ahead()
                 self.wrench.prefetch()
                 franka_state, duration = self._control.readOnce()
                 self._pending_write = True
@@ -418,14 +430,19 @@ class LibfrankaBackend:
         self._t_read = now
         self._franka_state = franka_state
         self._state = self._convert(franka_state, terms)
+        if self.config.dry_run:
+            self._compute_us = float("nan")  # set by the next apply_torque
         return self._state
 
-    def _model_ahead(self) -> ModelTerms:
+    def _model_ahead(self) -> ModelTerms | None:
         """The model terms for the next state, evaluated at the last one while the robot executes
-        its command: libfranka's four model calls are about half of converting a state, and between
-        a state and its command every microsecond counts (docs/real_robot.md). One cycle apart the
-        joints move by at most dq·1 ms (under 2.6 mrad at the Franka's joint speed limits, far less
-        in contact), which changes J, M, C and g by a fraction of a percent."""
+        its command, so that libfranka's four model calls are not between a state and its command
+        (docs/real_robot.md); None when the last state is older than a cycle (after a pause, or a late
+        tick), and the next state's own terms are evaluated with it. Within a cycle the joints move by
+        at most dq·1 ms (under 2.6 mrad at the Franka's joint speed limits, far less in contact),
+        which changes J, M, C and g by a fraction of a percent."""
+        if time.perf_counter() - self._t_read >= self.dt:
+            return None
         return franka_model_terms(self._franka_state, self.model)
 
     def _read_dry(self) -> tuple[Any, float]:

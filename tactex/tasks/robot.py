@@ -112,7 +112,8 @@ class SurfaceVision(ABC):
 
     @abstractmethod
     def update(self, state) -> SurfaceEstimate | None:
-        """Called once per tick with the current state; a new estimate or None."""
+        """Called once per tick with the latest state (a task may call it after the tick's command is
+        sent, to make the next tick's reference); a new estimate or None."""
 
     def publish(self, state) -> None:  # noqa: B027 (optional hook)
         """Tell the camera where the tool is at ``state`` (to pose its next frame). Called once per
