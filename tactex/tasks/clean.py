@@ -57,6 +57,7 @@ from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
+from tactex.tasks.line_reference import ToolNormal, blend_normals, led_point
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
@@ -171,6 +172,17 @@ class CleanConfig(SimWorldParams):
     max_lag_m: float = param(
         0.0, "the agent waits (its step is put off) while the tool lags the commanded point by more than this "
         "along the surface; 0 = never waits [m]")
+    line_lead_s: float = param(
+        0.2, "the commanded line's point runs this far ahead of the agent along its step (velocity "
+        "feed-forward): the line impedance damps the tool's own speed, so a tool following a moving agent "
+        "trails it by speed × D/K (tool x/y: 150/750 = 0.2 s, 1.2 cm at the agent's 6 cm/s), on a strongly "
+        "curved wall an angle between the surface under the pad and the commanded line; 0 = the agent's "
+        "point itself (TEC eq. 28) [s]")
+    line_normal_feedback: float = param(
+        0.5, "how far the commanded line's direction leans from the agent's normal towards the captured "
+        "surface's normal under the measured tool, 0–1: the tool presses along the surface where it is while "
+        "the line, still through the agent point, pulls it along; no effect on a plane; 0 = the agent's "
+        "normal (TEC eq. 28) [-]")
     hold_force_ratio: float = param(
         1.5, "the agent waits (its step is put off) while the measured contact force exceeds this multiple of "
         "the set point (the tool dragged against a wall by the line it follows); 0 = never waits [-]")
@@ -244,6 +256,12 @@ class CleanConfig(SimWorldParams):
             raise ConfigError(f"--touch-down-boost-s must be > 0 s (e.g. 0.25), got {self.touch_down_boost_s!r}")
         if not (np.isfinite(self.max_lag_m) and self.max_lag_m >= 0):
             raise ConfigError(f"--max-lag-m must be a distance ≥ 0 m (0: never wait), got {self.max_lag_m!r}")
+        if not (np.isfinite(self.line_lead_s) and 0 <= self.line_lead_s <= 1):
+            raise ConfigError(f"--line-lead-s must be a time in [0, 1] s (e.g. 0.2, the line impedance's D/K; 0: no "
+                              f"lead), got {self.line_lead_s!r}")
+        if not (np.isfinite(self.line_normal_feedback) and 0 <= self.line_normal_feedback <= 1):
+            raise ConfigError(f"--line-normal-feedback must be a weight in [0, 1] (e.g. 0.5; 0: the agent's normal), "
+                              f"got {self.line_normal_feedback!r}")
         if not (np.isfinite(self.touch_down_boost) and 0 <= self.touch_down_boost <= 1):
             raise ConfigError(f"--touch-down-boost must be a fraction of the set point in [0, 1] (e.g. 0.4; 0: none), "
                               f"got {self.touch_down_boost!r}")
@@ -641,6 +659,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     wear = (WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m, PrestonParams().force_threshold_n,
                       cfg.wear_margin) if cfg.baseline == "" and cfg.objective == "clean" else None)
     target0 = float(cloud.target.sum())
+    tool_normal = (ToolNormal(cloud, tree=wear.tree if wear is not None else None)
+                   if cfg.line_normal_feedback > 0 else None)
     vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
     islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
     island_moves = 0  # those relocations
@@ -805,7 +825,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                     if isinstance(cmd, RelocationCommand):
                         relocation = cmd  # lift off here, fly, touch down at cmd.point (3a below)
                         break
-                    n_prev, n_next = n_next, rotate_towards(n_next, cmd.normal, max_turn)
+                    n_goal = cmd.normal
+                    if tool_normal is not None:  # the line leans towards the surface the tool presses on
+                        n_goal = blend_normals(cmd.normal, tool_normal.at(loop.state.ee_position),
+                                               cfg.line_normal_feedback)
+                    n_prev, n_next = n_next, rotate_towards(n_next, n_goal, max_turn)
                     next_step += dt_step
                     steps_since_vision += 1
                     agent_path.append(cmd.point)
@@ -848,7 +872,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         else:
                             ahead.update_target_later(predicted)
                 frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
-                point = prev.point + frac * (cmd.point - prev.point)
+                # velocity feed-forward: the line's point where the agent will be line_lead_s later
+                point = led_point(prev.point, cmd.point, frac, cfg.line_lead_s / dt_step)
                 normal = n_prev + frac * (n_next - n_prev)
                 ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
                 force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
