@@ -57,7 +57,7 @@ from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
-from tactex.tasks.line_reference import ToolNormal, blend_normals, led_point
+from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.recorder import Recorder
@@ -659,6 +659,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     wear = (WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m, PrestonParams().force_threshold_n,
                       cfg.wear_margin) if cfg.baseline == "" and cfg.objective == "clean" else None)
     target0 = float(cloud.target.sum())
+    lead = LineLead(cfg.line_lead_s, dt_step)
     tool_normal = (ToolNormal(cloud, tree=wear.tree if wear is not None else None)
                    if cfg.line_normal_feedback > 0 else None)
     vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
@@ -781,6 +782,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                           else min(cfg.stop_remaining, 0.2 * wear.remaining_fraction(target0)))
             relocate_to = None
             hold = StepHold(MAX_HOLD_STEPS)
+            lead.reset()
             ahead = StepAhead(source, backend.dt, wear=wear, settle=wear_ticks.settle if wear_ticks else None,
                               agent_feedback=cfg.agent_feedback, read_residual=given is not None,
                               model_update_steps=cfg.model_update_steps, island_radius_m=2.0 * cfg.pad_radius_m)
@@ -873,7 +875,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                             ahead.update_target_later(predicted)
                 frac = min(max(1.0 - (next_step - loop.t) / dt_step, 0.0), 1.0)
                 # velocity feed-forward: the line's point where the agent will be line_lead_s later
-                point = led_point(prev.point, cmd.point, frac, cfg.line_lead_s / dt_step)
+                point = prev.point + frac * (cmd.point - prev.point) + lead.offset(prev.point, cmd.point, backend.dt)
                 normal = n_prev + frac * (n_next - n_prev)
                 ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
                 force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)

@@ -11,10 +11,10 @@ along the tool axis leaves its band and the line's pull around the wall fights t
 
 Two general remedies, both zero-effect on a plane:
 
-- **Lead** (:func:`led_point`): the line's point runs ``lead_s`` ahead along the agent's step, a
-  velocity feed-forward: K·(x_a(t + τ) − x) − D·ẋ ≈ K·(x_a − x) − D·(ẋ − ẋ_a) for τ = D/K. The point
-  is extrapolated on the step's chord (off the surface by s²/2R, along the line, where the line
-  impedance does not act).
+- **Lead** (:class:`LineLead`): the line's point runs ``lead_s`` times the agent's velocity ahead, a
+  velocity feed-forward: K·(x_a + τ·ẋ_a − x) − D·ẋ = K·(x_a − x) − D·(ẋ − ẋ_a) for τ = D/K. The point
+  leaves the surface along the tangent (by s²/2R, about along the line, where the line impedance
+  does not act).
 - **Normal feedback** (:class:`ToolNormal`, :func:`blend_normals`): the line's direction leans from
   the agent's normal towards the captured surface's normal under the measured tool, so the tool
   presses where it is while the line, still through the agent point, pulls it along the surface.
@@ -28,15 +28,46 @@ from scipy.spatial import cKDTree
 from tactex.errors import InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 
-__all__ = ["ToolNormal", "blend_normals", "led_point"]
+__all__ = ["LEAD_SMOOTHING_S", "LineLead", "ToolNormal", "blend_normals"]
+
+#: [s] time constant of the lead's low-pass, as long as the default lead: the offset follows a change of the
+#: agent's velocity over about the time it leads by (0.1 s still left torque-rate clips on the cup's wall)
+LEAD_SMOOTHING_S = 0.2
 
 
-def led_point(p_prev: np.ndarray, p_next: np.ndarray, frac: float, lead_steps: float) -> np.ndarray:
-    """The agent's point ``frac`` of the way along its step ``p_prev`` → ``p_next`` [m] (3,), led by
-    ``lead_steps`` more steps on the same chord (``lead_s / dt_step``; a held agent, whose step has no
-    length, has no lead)."""
-    p_prev = np.asarray(p_prev, dtype=float)
-    return p_prev + (frac + lead_steps) * (np.asarray(p_next, dtype=float) - p_prev)
+class LineLead:
+    """The lead of the line's point ahead of the agent [m]: ``lead_s`` times the agent's velocity (its
+    last step over the step's duration), through a first-order low-pass of ``smoothing_s``.
+
+    The agent moves in steps, so its velocity jumps at every step boundary (a turn, a reversal at a
+    stroke's end, a held step); the unfiltered lead jumped with it, by up to ``lead_s`` × the speed
+    change (1.2 cm at a hold), a step in the reference the line stiffness turns into a torque step.
+
+    Args:
+        lead_s: how far ahead [s], ≥ 0 (the line impedance's D/K: 0.2 s).
+        step_s: the agent's step duration [s], > 0.
+        smoothing_s: time constant of the low-pass [s], > 0.
+    """
+
+    def __init__(self, lead_s: float, step_s: float, smoothing_s: float = LEAD_SMOOTHING_S) -> None:
+        if not (np.isfinite(lead_s) and lead_s >= 0):
+            raise InputError(f"LineLead: lead_s must be a time ≥ 0 s, got {lead_s!r}")
+        if not (np.isfinite(step_s) and step_s > 0 and np.isfinite(smoothing_s) and smoothing_s > 0):
+            raise InputError(f"LineLead: step_s and smoothing_s must be > 0 s, got {step_s!r} and {smoothing_s!r}")
+        self.lead_steps = lead_s / step_s
+        self.smoothing_s = float(smoothing_s)
+        self._offset = np.zeros(3)
+
+    def reset(self) -> None:
+        """No lead (a new contact leg: the agent starts from rest)."""
+        self._offset = np.zeros(3)
+
+    def offset(self, step_start: np.ndarray, step_end: np.ndarray, dt_s: float) -> np.ndarray:
+        """Advance the low-pass by ``dt_s`` [s] towards the lead of the current step ``step_start`` →
+        ``step_end`` [m] and return the offset (3,) [m] to add to the agent's interpolated point."""
+        target = self.lead_steps * (np.asarray(step_end, dtype=float) - np.asarray(step_start, dtype=float))
+        self._offset = self._offset + (1.0 - float(np.exp(-dt_s / self.smoothing_s))) * (target - self._offset)
+        return self._offset.copy()
 
 
 class ToolNormal:
