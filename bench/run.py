@@ -84,7 +84,8 @@ def main() -> int:
     parser.add_argument("--only", nargs="*", default=None, help="bench module names (e.g. spectral)")
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
     parser.add_argument("--cases", nargs="*", default=None,
-                        help="stages with named cases (robustness, clean_time): run only those starting with these prefixes")
+                        help="stages with named cases (robustness, clean_time): run only those starting with these "
+                             "prefixes")
     args = parser.parse_args()
 
     out_path = Path(args.out)
