@@ -22,6 +22,8 @@ Two general remedies, both zero-effect on a plane:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -56,18 +58,28 @@ class LineLead:
             raise InputError(f"LineLead: step_s and smoothing_s must be > 0 s, got {step_s!r} and {smoothing_s!r}")
         self.lead_steps = lead_s / step_s
         self.smoothing_s = float(smoothing_s)
-        self._offset = np.zeros(3)
+        self._offset = (0.0, 0.0, 0.0)
+        self._gain, self._gain_dt = 0.0, float("nan")  # the low-pass's gain and the period it was made for
 
     def reset(self) -> None:
         """No lead (a new contact leg: the agent starts from rest)."""
-        self._offset = np.zeros(3)
+        self._offset = (0.0, 0.0, 0.0)
 
     def offset(self, step_start: np.ndarray, step_end: np.ndarray, dt_s: float) -> np.ndarray:
         """Advance the low-pass by ``dt_s`` [s] towards the lead of the current step ``step_start`` →
         ``step_end`` [m] and return the offset (3,) [m] to add to the agent's interpolated point."""
-        target = self.lead_steps * (np.asarray(step_end, dtype=float) - np.asarray(step_start, dtype=float))
-        self._offset = self._offset + (1.0 - float(np.exp(-dt_s / self.smoothing_s))) * (target - self._offset)
-        return self._offset.copy()
+        # on Python floats: called every control tick, between a robot state and its command
+        if dt_s != self._gain_dt:
+            self._gain, self._gain_dt = 1.0 - math.exp(-dt_s / self.smoothing_s), dt_s
+        a, k = self._gain, self.lead_steps
+        s0, s1, s2 = np.asarray(step_start, dtype=float).tolist()
+        e0, e1, e2 = np.asarray(step_end, dtype=float).tolist()
+        o0, o1, o2 = self._offset
+        o0 += a * (k * (e0 - s0) - o0)
+        o1 += a * (k * (e1 - s1) - o1)
+        o2 += a * (k * (e2 - s2) - o2)
+        self._offset = (o0, o1, o2)
+        return np.array(self._offset)
 
 
 class ToolNormal:
