@@ -140,6 +140,11 @@ class HedacConfig:
         0.02, "sweep source: weight of an open point with no done neighbour, relative to one surrounded by done "
         "ground (1 = no preference for the edge of the covered region) [-]"
     )
+    sweep_pass_spacing: float = param(
+        1.8, "sweep: distance between the planned passes along rings of surface distance from the start, in r_a "
+        "(tactex.ergodic.passes; < 2 leaves an overlap for the tracking error); 0 = no passes, the sweep "
+        "source's potential alone [-]"
+    )
     compiled: bool = param(
         True,
         "run the walking step compiled by numba when the optional 'fast' extra is installed (about 5x faster; "
@@ -176,6 +181,12 @@ class HedacConfig:
         for name in ("sweep_plan_ratio", "sweep_frontier_ratio"):
             _check_number(name, getattr(self, name), strict=True)
         _check_number("sweep_base", self.sweep_base, strict=True)
+        _check_number("sweep_pass_spacing", self.sweep_pass_spacing, strict=False)
+        if self.sweep_pass_spacing > 2.0:
+            raise ConfigError(
+                f"HedacConfig.sweep_pass_spacing must be 0 (no passes) or at most 2 (footprint widths touch), got "
+                f"{self.sweep_pass_spacing!r}; passes farther apart than 2 r_a leave a strip between them uncovered"
+            )
         if self.sweep_base > 1.0:
             raise ConfigError(f"HedacConfig.sweep_base must be in (0, 1], got {self.sweep_base!r}")
         for name in ("compiled", "edge_braking", "relocate"):

@@ -39,6 +39,10 @@ neighbours (Φ[nbrs] @ a). The coverage sum and its total are kept incrementally
 With the whole surface as the target (or ``HedacConfig.source_mode = "sweep"``) the source of step 4
 is the sweep source of :mod:`.sweep` instead of eq. 1–2: every target point not yet passed over,
 weighted up next to covered ground, so that every point is passed over once in passes (numpy step).
+With one agent and ``HedacConfig.sweep_pass_spacing`` > 0 the sweep also plans its passes
+(:mod:`.passes`): the agent steers along rings of surface distance from where it starts, laid side by
+side, instead of up the potential's slope, and the sweep source's potential leads it over whatever the
+passes missed once its part has no pass left.
 
 When walking makes no progress (the agent's Laplacian part holds no untouched target, it stalls,
 or it touches nothing new for long) the step is a relocation instead (:mod:`.relocation`): the agent
@@ -68,6 +72,7 @@ from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTOL
 from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
+from tactex.ergodic.passes import RingPasses
 from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
 from tactex.ergodic.source import REBUILD_STEPS, SourceSums, update_source_numpy
 from tactex.ergodic.sweep import SweepSource, uniform_whole_target
@@ -101,6 +106,10 @@ RELOCATION_CHECK_EVERY = 10
 #: A keep-out zone's clearance beyond the footprint radius [voxels]: the footprint is laid around the
 #: agent projected on its fitted patch, a fraction of a voxel from the agent point the guard checks.
 KEEP_OUT_MARGIN = 0.5
+#: A planned pass's waypoint is given up when the scan edge leaves less than this share of the way to it [-].
+EDGE_BLOCKED = 0.2
+#: A planned pass's waypoint is done once the agent came this close [voxels] (see :mod:`.passes`).
+PASS_REACH = 1.0
 #: Passes of a step (see step_all): one agent does all of it; several agents lay their footprints
 #: first, then (after one diffusion) move.
 _WHOLE, _FOOTPRINT, _MOVE = 0, 1, 2
@@ -366,6 +375,12 @@ class HedacExplorer:
             cfg.source_mode == "auto" and uniform_whole_target(self._target, self._keep_out))
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
                                   cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
+        self._passes = None
+        if sweep and cfg.sweep_pass_spacing > 0.0:
+            laplacian = getattr(self.basis, "L", None)
+            links = None if laplacian is None else laplacian.tocsr()[self._tidx][:, self._tidx]
+            self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
+                                      PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe)
         if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
             if sweep:
                 self._walk_kernel = None
@@ -381,6 +396,9 @@ class HedacExplorer:
         self._src.clear()
         if self._sweep is not None:
             self._sweep.reset()
+        if self._passes is not None:
+            self._passes.reset()
+        self._leftover_goal = -1
 
     def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
         """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
@@ -540,6 +558,8 @@ class HedacExplorer:
         if self._sweep is not None:
             for c in cmds:
                 self._sweep.mark(c.point)
+                if self._passes is not None:
+                    self._passes.mark(c.point)
         self.step_count += 1
         return cmds
 
@@ -615,6 +635,9 @@ class HedacExplorer:
         self._near[i] = j
         self._agents[i].velocity = np.zeros(3)
         self.air_path_lengths[i] += air
+        if self._passes is not None:
+            self._passes.drop_goal(abandon=reason == "stall")
+            self._leftover_goal = -1
         mon.restart(end, self.step_count, None)
         t1, t2 = _tangent_basis(n_end)
         cmd = RelocationCommand(end.copy(), np.zeros(3), n_end, t1, t2, self.step_count, i, x, n_start, c, air, reason)
@@ -799,13 +822,19 @@ class HedacExplorer:
             g = tb.dot(slope_uv)
         else:
             g = np.zeros(3)
+        guide = None
+        if self._passes is not None and self._pass == _WHOLE and self.n_agents == 1:
+            guide = self._pass_direction(x, sf, nrm)
+            if guide is not None:
+                g = guide
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
         # outward flux: drop the outward part of the gradient so the agent follows the edge.
         cu, cv = _sum(uv, 0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
         cn = (cu * cu + cv * cv) ** 0.5
         inward = None
         if cn > EDGE_OFFSET * n_n:
-            if self._gaps.n_links and self._gaps.has.take(nbr).any():
+            # A hop follows the potential; an agent on a planned pass follows its waypoints and does not hop.
+            if guide is None and self._gaps.n_links and self._gaps.has.take(nbr).any():
                 here = np.array((x.item(0) + sf[0], x.item(1) + sf[1], x.item(2) + sf[2]))
                 bridge = self._plan_bridge(nbr, u, u0, here, nrm)
                 if bridge is not None:
@@ -815,6 +844,9 @@ class HedacExplorer:
             go = float(g.dot(inward))
             if go < 0.0:
                 g = g - go * inward
+                if guide is not None and float(g.dot(g)) < EDGE_BLOCKED**2 * float(guide.dot(guide)):
+                    # the pass leads off the edge (across a hole the agent cannot cross): give its waypoint up
+                    self._passes.drop_goal(abandon=True)
         g0, g1, g2 = g.tolist()
         gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5  # np.dot's order for three numbers
         if gn > 0.0 and gn < np.inf:
@@ -880,6 +912,36 @@ class HedacExplorer:
         self._x[i] = x_new
         return ExplorationCommand(x_new, np.array(v_t), n_new, np.array((u0, u1, u2)), np.array((w0, w1, w2)),
                                   self.step_count, i)
+
+    def _pass_direction(self, x: np.ndarray, shift: tuple, nrm: np.ndarray) -> np.ndarray | None:
+        """Towards the next waypoint of the planned passes, on the tangent plane (3,), or None: no pass left
+        on the agent's part (the potential leads)."""
+        here = np.array((x.item(0) + shift[0], x.item(1) + shift[1], x.item(2) + shift[2]))
+        passes = self._passes
+        j = self._tpos.item(self._near[0])
+        wp = passes.waypoint(here, j if j >= 0 else passes.nearest(here))
+        if wp is None:
+            wp = self._leftover(here)
+            if wp is None:
+                return None
+        to = wp - here
+        to -= float(to.dot(nrm)) * nrm
+        return to if float(to.dot(to)) > 0.0 else None
+
+    def _leftover(self, here: np.ndarray) -> np.ndarray | None:
+        """After the passes: the nearest untouched target point [m] (3,) on the agent's part, kept as the goal
+        until a footprint touches it; None when the part has none left."""
+        g = self._leftover_goal
+        if g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g):
+            return self._points[self._tidx.item(g)]
+        part = self._labels.item(int(self._near[0]))
+        cand = np.flatnonzero(self._untouched() & (self._t_part == part))
+        if cand.size == 0:
+            self._leftover_goal = -1
+            return None
+        d = self._points.take(self._tidx.take(cand), 0) - here
+        self._leftover_goal = int(cand[int(np.einsum("ij,ij->i", d, d).argmin())])
+        return self._points[self._tidx.item(self._leftover_goal)]
 
     def _compile_kernel(self):
         """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.

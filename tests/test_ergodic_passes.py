@@ -1,0 +1,111 @@
+"""Ring passes of the sweep (tactex.ergodic.passes) and the explorer walking them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactex.ergodic import HedacConfig, HedacExplorer
+from tactex.ergodic.passes import RingPasses
+from tactex.errors import ConfigError
+from tactex.pointcloud import SurfaceCloud
+from tactex.spectral import build_basis
+
+H = 0.003
+
+
+def _grid(nx: int, ny: int) -> np.ndarray:
+    u, v = np.meshgrid(np.arange(nx) * H, np.arange(ny) * H)
+    return np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+
+
+def test_waypoints_lie_on_the_middle_lines_of_rings_of_surface_distance_from_the_start():
+    pts = _grid(41, 41)
+    w = 4.5 * H
+    passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H)
+    start = 20 * 41 + 20  # the centre
+    passes.lay(start)
+    way = np.flatnonzero(passes.ring >= 0)
+    assert way.size > 0 and passes.pending[way].all()
+    r = np.linalg.norm(pts[way] - pts[start], axis=1)
+    k = passes.ring[way]
+    # On a plane the surface distance is the Euclidean one; the graph distance overestimates it by < 9 % on a
+    # grid with diagonal links (the smoothing pulls it back a little), and the waypoints lie on d = (k + ½) w
+    # within half a voxel. Away from the edges and the start (where the smoothing rounds the distance's cone tip
+    # off: ring 0 is a disc):
+    inner = (r < 0.045) & (k >= 1)
+    assert inner.sum() > 20
+    r, k = r[inner], k[inner]
+    assert np.all(r <= (k + 0.5) * w + 0.5 * H + 1e-9)
+    assert np.all(r >= 0.85 * (k + 0.5) * w - 0.5 * H)
+    assert set(np.unique(k)) == set(range(1, int(k.max()) + 1))  # no ring skipped
+    passes.reset()
+    assert not passes.pending.any() and (passes.ring < 0).all()
+
+
+def test_the_next_goal_is_on_the_lowest_pending_ring_and_a_given_up_goal_is_done():
+    pts = _grid(41, 41)
+    w = 4.5 * H
+    passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H)
+    start = 20 * 41 + 20
+    goal = passes.waypoint(pts[start], start)
+    j = passes.nearest(goal)
+    assert passes.ring[j] == 0
+    for _ in range(400):  # walk the goals, marking each: ring 0 is done before any waypoint of ring 2 is taken
+        g = passes.waypoint(pts[j], j)
+        if g is None:
+            break
+        j = passes.nearest(g)
+        if passes.ring[j] == 2:
+            assert not (passes.pending & (passes.ring == 0)).any()
+        passes.mark(g)
+    assert not passes.pending.any()
+    passes.reset()
+    g = passes.waypoint(pts[start], start)
+    jg = passes.nearest(g)
+    passes.drop_goal(abandon=True)
+    assert not passes.pending[jg]
+    assert passes.pending.any()
+
+
+def test_links_longer_than_two_voxels_are_not_walked():
+    a = _grid(10, 10)
+    b = _grid(10, 10) + np.array([10 * H + 3 * H, 0.0, 0.0])  # a 4-voxel gap between the two patches
+    pts = np.vstack([a, b])
+    passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
+    assert passes.n_parts == 2
+    passes.lay(0)
+    assert (passes.ring[:100] >= 0).any() and (passes.ring[100:] < 0).all()  # rings are laid per part
+
+
+def test_sweep_pass_spacing_is_checked():
+    with pytest.raises(ConfigError, match="sweep_pass_spacing"):
+        HedacConfig(sweep_pass_spacing=2.5)
+    with pytest.raises(ConfigError, match="sweep_pass_spacing"):
+        HedacConfig(sweep_pass_spacing=-1.0)
+    HedacConfig(sweep_pass_spacing=0.0)
+
+
+def _path_to_goal(ex: HedacExplorer, x0: np.ndarray, goal: float = 0.05, limit_m: float = 4.0) -> float:
+    ex.reset(x0)
+    while ex.total_path_length < limit_m:
+        ex.step()
+        if ex.step_count % 10 == 0 and ex.coverage_residual() <= goal:
+            return ex.total_path_length
+    return np.inf
+
+
+def test_the_passes_cover_a_square_close_to_the_ideal_path_and_sooner_than_the_potential_alone():
+    pts = _grid(40, 40)
+    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    basis = build_basis(cloud, n_eigen=60, n_neighbors=30, cache=False)
+    planned = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
+    alone = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, sweep_pass_spacing=0.0))
+    assert planned._passes is not None and alone._passes is None
+    ideal = len(pts) * H**2 / (2.0 * planned.config.agent_radius_m)
+    x0 = pts[15 * 40 + 22]
+    with_passes = _path_to_goal(planned, x0)
+    without = _path_to_goal(alone, x0)
+    # a 12 cm square at r_a = 7.5 mm: its edges and corners (a quarter of the path) cost a lot against the ideal
+    assert with_passes <= 1.9 * ideal
+    assert with_passes < 0.9 * without
