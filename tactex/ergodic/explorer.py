@@ -399,6 +399,7 @@ class HedacExplorer:
         if self._passes is not None:
             self._passes.reset()
         self._leftover_goal = -1
+        self._given_up = np.zeros(self._tidx.size, dtype=bool)
 
     def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
         """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
@@ -637,6 +638,8 @@ class HedacExplorer:
         self.air_path_lengths[i] += air
         if self._passes is not None:
             self._passes.drop_goal(abandon=reason == "stall")
+            if reason == "stall" and self._leftover_goal >= 0:
+                self._given_up[self._leftover_goal] = True  # it stalled on the way: not a goal again
             self._leftover_goal = -1
         mon.restart(end, self.step_count, None)
         t1, t2 = _tangent_basis(n_end)
@@ -845,8 +848,11 @@ class HedacExplorer:
             if go < 0.0:
                 g = g - go * inward
                 if guide is not None and float(g.dot(g)) < EDGE_BLOCKED**2 * float(guide.dot(guide)):
-                    # the pass leads off the edge (across a hole the agent cannot cross): give its waypoint up
+                    # the way leads off the edge (across a hole the agent cannot cross): give the goal up
                     self._passes.drop_goal(abandon=True)
+                    if self._leftover_goal >= 0:
+                        self._given_up[self._leftover_goal] = True
+                        self._leftover_goal = -1
         g0, g1, g2 = g.tolist()
         gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5  # np.dot's order for three numbers
         if gn > 0.0 and gn < np.inf:
@@ -935,7 +941,7 @@ class HedacExplorer:
         if g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g):
             return self._points[self._tidx.item(g)]
         part = self._labels.item(int(self._near[0]))
-        cand = np.flatnonzero(self._untouched() & (self._t_part == part))
+        cand = np.flatnonzero(self._untouched() & (self._t_part == part) & ~self._given_up)
         if cand.size == 0:
             self._leftover_goal = -1
             return None

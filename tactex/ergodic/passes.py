@@ -60,7 +60,7 @@ class RingPasses:
     """
 
     def __init__(self, points: np.ndarray, links, pass_spacing_m: float, reach_m: float, voxel_m: float,
-                 ring_cost: float = 2.0, allowed: np.ndarray | None = None) -> None:
+                 ring_cost: float = 1.0, allowed: np.ndarray | None = None) -> None:
         self._points = np.asarray(points, dtype=np.float64)
         n = len(self._points)
         self.pass_spacing_m = float(pass_spacing_m)
