@@ -8,7 +8,7 @@ import pytest
 from tactex.ergodic import HedacConfig, HedacExplorer
 from tactex.ergodic.passes import RingPasses
 from tactex.errors import ConfigError
-from tactex.pointcloud import SurfaceCloud
+from tactex.pointcloud import SurfaceCloud, voxel_down_sample
 from tactex.spectral import build_basis
 
 H = 0.003
@@ -22,7 +22,7 @@ def _grid(nx: int, ny: int) -> np.ndarray:
 def test_waypoints_lie_on_the_middle_lines_of_rings_of_surface_distance_from_the_start():
     pts = _grid(41, 41)
     w = 4.5 * H
-    passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H)
+    passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="start")
     start = 20 * 41 + 20  # the centre
     passes.lay(start)
     way = np.flatnonzero(passes.ring >= 0)
@@ -43,10 +43,38 @@ def test_waypoints_lie_on_the_middle_lines_of_rings_of_surface_distance_from_the
     assert not passes.pending.any() and (passes.ring < 0).all()
 
 
-def test_the_next_goal_is_on_the_lowest_pending_ring_and_a_given_up_goal_is_done():
+def test_rings_from_the_edge_run_parallel_to_it_and_a_closed_surface_falls_back_to_the_start():
     pts = _grid(41, 41)
     w = 4.5 * H
     passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H)
+    assert passes.origin == "edge"
+    passes.lay(0)
+    way = np.flatnonzero(passes.ring >= 0)
+    to_edge = np.min(np.c_[pts[way, :2], 40 * H - pts[way, :2]], axis=1)  # distance to the square's edge
+    k = passes.ring[way]
+    inner = (k >= 1) & (to_edge < 0.045)
+    # the first pass runs half a spacing in from the edge (its footprint reaches the edge), the next ones a spacing
+    # further each (the smoothing bends them a little near the corners)
+    assert np.median(np.abs(to_edge[k == 0] - 0.5 * w)) <= H
+    assert np.median(np.abs(to_edge[inner] - (k[inner] + 0.5) * w)) <= H
+    # a sphere has no edge: its rings start from the start
+    rng = np.random.default_rng(0)
+    dense = rng.normal(size=(200_000, 3))
+    dense *= 0.05 / np.linalg.norm(dense, axis=1)[:, None]
+    ball = voxel_down_sample(SurfaceCloud(dense), H).points
+    closed = RingPasses(ball, None, pass_spacing_m=w, reach_m=H, voxel_m=H)
+    assert closed._outer_edge(np.arange(len(ball))).size == 0  # a few scattered edge-like points are no edge
+    closed.lay(0)
+    d0 = np.linalg.norm(ball[closed.ring >= 0] - ball[0], axis=1)
+    assert np.all(d0[closed.ring[closed.ring >= 0] == 0] < 1.5 * w)
+    with pytest.raises(ValueError, match="origin"):
+        RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="middle")
+
+
+def test_the_next_goal_is_on_the_lowest_pending_ring_and_a_given_up_goal_is_done():
+    pts = _grid(41, 41)
+    w = 4.5 * H
+    passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="start")
     start = 20 * 41 + 20
     goal = passes.waypoint(pts[start], start)
     j = passes.nearest(goal)
@@ -84,6 +112,8 @@ def test_sweep_pass_spacing_is_checked():
     with pytest.raises(ConfigError, match="sweep_pass_spacing"):
         HedacConfig(sweep_pass_spacing=-1.0)
     HedacConfig(sweep_pass_spacing=0.0)
+    with pytest.raises(ConfigError, match="sweep_pass_origin"):
+        HedacConfig(sweep_pass_origin="centre")
 
 
 def _path_to_goal(ex: HedacExplorer, x0: np.ndarray, goal: float = 0.05, limit_m: float = 4.0) -> float:

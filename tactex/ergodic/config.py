@@ -15,6 +15,8 @@ __all__ = ["COVERAGE_NORMALIZATIONS", "SOURCE_MODES", "HedacConfig", "check_cove
 COVERAGE_NORMALIZATIONS = ("target", "domain")
 #: Source terms of the explorer (see HedacConfig.source_mode and tactex.ergodic.sweep).
 SOURCE_MODES = ("auto", "ergodic", "sweep")
+#: Where the sweep's planned passes start (see HedacConfig.sweep_pass_origin and tactex.ergodic.passes).
+PASS_ORIGINS = ("edge", "start")
 
 
 def check_coverage_normalization(value: object, owner: str) -> None:
@@ -145,6 +147,10 @@ class HedacConfig:
         "(tactex.ergodic.passes; < 2 leaves an overlap for the tracking error); 0 = no passes, the sweep "
         "source's potential alone [-]"
     )
+    sweep_pass_origin: str = param(
+        "edge", "sweep: where the planned passes' rings start: 'edge' = from the target's outer edge inwards "
+        "(contour-parallel; from the start on a surface without an edge), 'start' = from the agent's start outwards"
+    )
     compiled: bool = param(
         True,
         "run the walking step compiled by numba when the optional 'fast' extra is installed (about 5x faster; "
@@ -182,6 +188,9 @@ class HedacConfig:
             _check_number(name, getattr(self, name), strict=True)
         _check_number("sweep_base", self.sweep_base, strict=True)
         _check_number("sweep_pass_spacing", self.sweep_pass_spacing, strict=False)
+        if self.sweep_pass_origin not in PASS_ORIGINS:
+            raise ConfigError(
+                f"HedacConfig.sweep_pass_origin must be one of {PASS_ORIGINS}, got {self.sweep_pass_origin!r}")
         if self.sweep_pass_spacing > 2.0:
             raise ConfigError(
                 f"HedacConfig.sweep_pass_spacing must be 0 (no passes) or at most 2 (footprint widths touch), got "

@@ -380,7 +380,8 @@ class HedacExplorer:
             laplacian = getattr(self.basis, "L", None)
             links = None if laplacian is None else laplacian.tocsr()[self._tidx][:, self._tidx]
             self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
-                                      PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe)
+                                      PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe,
+                                      origin=cfg.sweep_pass_origin)
         if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
             if sweep:
                 self._walk_kernel = None

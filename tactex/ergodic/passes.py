@@ -1,10 +1,13 @@
-"""Ring passes: the walking plan of a sweep, passes along rings of surface distance from where it starts.
+"""Ring passes: the walking plan of a sweep, passes along rings of surface distance from the target's edge.
 
 Whatever a coverage path does, it covers at most a band of width 2 r_a per metre, so a target of
 area A needs at least A / (2 r_a) of path. HEDAC's strokes, even with the sweep source, lay passes
 as the potential happens to curve and leave slivers and single points between them, each costing a
 later pass. A planned sweep lays its passes side by side instead: along the level sets of the
-geodesic distance d from the agent's start (its rings), ``pass_spacing`` apart. The ring k holds
+geodesic distance d (its rings), ``pass_spacing`` apart, from the target's outer edge (origin
+"edge": contour-parallel passes, as a pocket is milled; the first pass's footprint reaches the
+edge, and a disc is covered in closed loops) or, on a surface without an edge or with origin
+"start", from the agent's start. The ring k holds
 the target points with k·w ≤ d < (k+1)·w, w = ``pass_spacing``; its pass runs along d = (k+½)·w,
 so a footprint of radius r_a ≥ w/2 centred on it covers the ring, and w a little under 2 r_a leaves
 an overlap for the agent's tracking error. On a closed or holed surface a ring breaks into several
@@ -17,13 +20,14 @@ The plan is a set of waypoints, the target points on the middle line of their ri
     cost_j = |x_j − x| + ``ring_cost`` · w · (k_j − k_low),  k_low = the lowest ring with a pending waypoint,
 
 and a waypoint is done once the agent came within ``reach_m`` of it (the same voxel, about). When no
-waypoint of the agent's part is left the plan has nothing more to say there: the sweep source's
-potential leads the agent over whatever the passes missed, and the relocation rules take it to other
-parts, where a new set of rings is laid from where it touches down.
+waypoint of the agent's part is left the explorer takes it to the nearest untouched point of the
+part, one after the other, and then the sweep source's potential and the relocation rules take over
+(other parts get their rings when the agent touches down there).
 
 d is Dijkstra's distance (scipy.sparse.csgraph) over the links of the cloud's Laplacian between
 target points, each as long as its chord: the same neighbourhoods the heat diffuses over, and the
-same parts.
+same parts, except links longer than ``MAX_LINK`` voxels (a hole the agent cannot walk across). A
+graph distance zigzags along the links, so it is smoothed before its level sets are taken.
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from tactex.ergodic.config import PASS_ORIGINS
+
 __all__ = ["RingPasses"]
 
 #: Rounds of averaging of the distance over the links before its level sets are taken (see RingPasses._smooth).
@@ -40,6 +46,11 @@ SMOOTHING = 10
 #: Longest link of the distance graph [voxels]: the agent walks up to a voxel off the cloud (max_off_cloud), so it
 #: crosses a gap of two voxels between cloud points, not more.
 MAX_LINK = 2.0
+#: Edge points: centroid offset of EDGE_NEIGHBOURS nearest neighbours over their radius above EDGE_OFFSET; a part
+#: whose longest connected run of them is shorter than MIN_EDGE_POINTS has no edge (a closed surface).
+EDGE_NEIGHBOURS = 12
+EDGE_OFFSET = 0.25
+MIN_EDGE_POINTS = 10
 #: On the way to a far goal the agent steers at the point within this many half-voxels nearest to it by surface
 #: distance (a carrot a few voxels ahead on the shortest path).
 CARROT = 6.0
@@ -57,10 +68,12 @@ class RingPasses:
         voxel_m: the cloud's spacing h [m]: the middle line of a ring is h thick.
         ring_cost: cost of one ring beyond the lowest pending one, in pass spacings [-].
         allowed: target points (T,) (bool) a waypoint may be on (e.g. clear of keep-out zones), or None: all.
+        origin: where the rings start, one of ``PASS_ORIGINS``: "edge" (the part's longest run of edge points;
+            from the start on a part without one) or "start".
     """
 
     def __init__(self, points: np.ndarray, links, pass_spacing_m: float, reach_m: float, voxel_m: float,
-                 ring_cost: float = 1.0, allowed: np.ndarray | None = None) -> None:
+                 ring_cost: float = 1.0, allowed: np.ndarray | None = None, origin: str = "edge") -> None:
         self._points = np.asarray(points, dtype=np.float64)
         n = len(self._points)
         self.pass_spacing_m = float(pass_spacing_m)
@@ -82,6 +95,10 @@ class RingPasses:
         self._graph = self._graph.maximum(self._graph.T)
         self.n_parts, self._part = connected_components(self._graph, directed=False)
         self._tree = cKDTree(self._points)
+        if origin not in PASS_ORIGINS:
+            raise ValueError(f"origin must be one of {PASS_ORIGINS}, got {origin!r}")
+        self.origin = origin
+        self._edge = self._edge_points() if origin == "edge" else np.zeros(n, dtype=bool)
         self.reset()
 
     def reset(self) -> None:
@@ -107,7 +124,11 @@ class RingPasses:
         self._laid[part] = True
         members = np.flatnonzero(self._part == part)
         sub = self._graph[members][:, members]
-        d = dijkstra(sub, directed=False, indices=int(np.searchsorted(members, start)))
+        edge = self._outer_edge(members) if self.origin == "edge" else np.zeros(0, dtype=np.intp)
+        if edge.size >= MIN_EDGE_POINTS:
+            d = dijkstra(sub, directed=False, indices=edge, min_only=True)
+        else:  # no edge (a closed surface) or rings from the start asked for
+            d = dijkstra(sub, directed=False, indices=int(np.searchsorted(members, start)))
         d = self._smooth(sub, d)
         w = self.pass_spacing_m
         k = np.floor(d / w)
@@ -115,6 +136,29 @@ class RingPasses:
         way = members[on_line & self._allowed[members]]
         self.ring[way] = k[on_line & self._allowed[members]].astype(np.intp)
         self.pending[way] = True
+
+    def _edge_points(self) -> np.ndarray:
+        """Target points (T,) (bool) on the edge of the target: their nearest neighbours' centroid lies more than
+        ``EDGE_OFFSET`` of the neighbourhood's radius away from them (≈ 0 inside, ≈ 0.42 on a straight edge)."""
+        k = min(EDGE_NEIGHBOURS, len(self._points))
+        dist, idx = self._tree.query(self._points, k=k)
+        offset = np.linalg.norm(self._points[idx].mean(axis=1) - self._points, axis=1)
+        return offset > EDGE_OFFSET * np.maximum(dist[:, -1], 1e-12)
+
+    def _outer_edge(self, members: np.ndarray) -> np.ndarray:
+        """Positions in ``members`` of the longest connected run of edge points of that part (its outer edge; a scan's
+        holes and dropouts inside have edges too, and rings from all of them would cut the part into pieces)."""
+        edge = np.flatnonzero(self._edge[members])
+        if edge.size < MIN_EDGE_POINTS:
+            return edge
+        tree = cKDTree(self._points[members[edge]])
+        pairs = tree.query_pairs(2.0 * self._half_line * MAX_LINK, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(edge.size, edge.size))
+        _, label = connected_components(graph, directed=False)
+        size = np.bincount(label)
+        if size.max() < MIN_EDGE_POINTS:  # scattered points of a noisy or curved surface, not an edge
+            return np.zeros(0, dtype=np.intp)
+        return edge[label == size.argmax()]
 
     @staticmethod
     def _smooth(links: csr_matrix, d: np.ndarray) -> np.ndarray:
