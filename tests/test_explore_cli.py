@@ -71,9 +71,14 @@ def test_explore_builtin_plate_end_to_end(tmp_path, capsys: pytest.CaptureFixtur
 def test_whole_surface_target_sweeps_and_a_marked_one_does_not(tmp_path, capsys) -> None:
     base = ["explore", "plate", "--steps", "40", "--n-eigen", "60", "--no-html"]
     assert main([*base, "--marking", "full", "--out", str(tmp_path / "all")]) == 0
-    assert "source: sweep" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "source: sweep" in err and "planned passes 1.8 r_a apart from the outer edge" in err
     whole = json.loads((tmp_path / "all" / "metrics.json").read_text())
-    assert whole["source_mode"] == "sweep" and whole["n_target"] == whole["n_points"]
+    assert whole["source_mode"] == "sweep" and whole["n_target"] == whole["n_points"] and whole["planned_passes"]
+    assert main([*base, "--marking", "full", "--sweep-pass-spacing", "0", "--out", str(tmp_path / "alone")]) == 0
+    err = capsys.readouterr().err
+    assert "source: sweep" in err and "planned passes" not in err
+    assert not json.loads((tmp_path / "alone" / "metrics.json").read_text())["planned_passes"]
     assert main([*base, "--out", str(tmp_path / "red")]) == 0
     assert "source: sweep" not in capsys.readouterr().err
     assert json.loads((tmp_path / "red" / "metrics.json").read_text())["source_mode"] == "ergodic"

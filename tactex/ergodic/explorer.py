@@ -495,6 +495,11 @@ class HedacExplorer:
         return "sweep" if self._sweep is not None else "ergodic"
 
     @property
+    def planned_passes(self) -> bool:
+        """Whether the sweep walks planned passes (:mod:`.passes`; HedacConfig.sweep_pass_spacing > 0, one agent)."""
+        return self._passes is not None and self.n_agents <= 1
+
+    @property
     def compiled(self) -> bool:
         """Whether the walking steps run compiled (numba, :mod:`.kernel`) rather than in numpy."""
         return self._walk_kernel is not None

@@ -340,7 +340,13 @@ def run_explore(
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
-    if explorer.source_mode == "sweep":
+    if explorer.source_mode == "sweep" and explorer.planned_passes:
+        origin = "outer edge" if hcfg.sweep_pass_origin == "edge" else "start"
+        say(f"source: sweep (the target is the whole surface: every point passed over once) along planned passes "
+            f"{hcfg.sweep_pass_spacing:g} r_a apart from the {origin}, then the potential over what they missed; "
+            "--sweep-pass-spacing 0 for the potential alone, "
+            "--source-mode ergodic for eq. 1–2")
+    elif explorer.source_mode == "sweep":
         say("source: sweep (the target is the whole surface: every point passed over once, in passes along what "
             "is covered; --source-mode ergodic for eq. 1–2)")
     labels = basis.component_labels()
@@ -430,6 +436,7 @@ def run_explore(
         "preprocess_time_s": preprocess_s,
         "step_kernel": "numba" if explorer.compiled else "numpy",
         "source_mode": explorer.source_mode,
+        "planned_passes": explorer.planned_passes,
         "basis_from_cache": basis.from_cache,
         "step_time_median_s": statistics.median(step_s.tolist()),
         "step_time_max_s": float(step_s.max()),
