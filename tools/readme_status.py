@@ -89,6 +89,10 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
           ("robustness/all/reached_share", "robustness/all/reached_share_feasible", "robustness/all/runs"),
           lambda share, feas, n: f"{share * 100:.1f} % ({feas * 100:.1f} %) of {n} runs",
           lambda share, feas, n: share >= 1)
+    r.add("robustness study, whole-surface cases 3 m cannot cover by area: runs reaching residual ≤ 0.05 within "
+          "1.3× the ideal path (area / footprint width)", "(a restatement, the lead's call)",
+          ("robustness/all/reached_share_ideal_infeasible", "robustness/all/infeasible_cases"),
+          lambda share, cases: f"{share * 100:.0f} % ({len(cases)} cases)")
     r.add("robustness study: runs ending with reachable target untouched; keep-out contacts", "0; 0",
           ("robustness/all/never_touched_runs", "robustness/all/keep_out_contacts"),
           lambda nt, ko: f"{nt}; {ko}", lambda nt, ko: nt == 0 and ko == 0)
