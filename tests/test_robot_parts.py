@@ -165,6 +165,17 @@ def test_vision_process_estimates_the_panel_and_a_dead_worker_is_a_fault():
             time.sleep(0.01)
         assert estimate is not None and estimate.valid
         assert estimate.normal_world[2] > 0.9  # the panel's crest under the tool faces up
+        # the loop's cheaper publish writes what publish_pose writes
+        from tactex.robots.vision_process import _P_SEQ, _P_T, _read
+
+        pose[:3, 3] = [0.51, -0.02, 0.13]
+        vp.publish_pose(1.5, pose)
+        _, by_pose = _read(vp._buf, _P_SEQ, _P_T, 17)
+        vp.publish_tool(2.5, pose[:3, :3], pose[:3, 3])
+        _, by_tool = _read(vp._buf, _P_SEQ, _P_T, 17)
+        assert by_tool[0] == 2.5 and by_pose[0] == 1.5
+        np.testing.assert_array_equal(by_tool[1:], by_pose[1:])
+        np.testing.assert_array_equal(by_tool[1:], pose.reshape(16))
         os.kill(vp.proc.pid, signal.SIGKILL)
         vp.proc.wait(timeout=5)
         with pytest.raises(SensorFault, match="vision process stopped"):

@@ -123,6 +123,8 @@ class VisionProcess:
         self._buf[:] = 0.0
         self._last_seq = 0.0
         self.estimates = 0
+        self._pose_values = np.zeros(17)  # t, then world_T_tool row-major; its last row stays 0 0 0 1
+        self._pose_values[16] = 1.0
         code = ("import sys; from tactex.robots.vision_process import _worker_main; "
                 "_worker_main(sys.argv[1], sys.argv[2])")
         self.proc = subprocess.Popen(
@@ -151,6 +153,16 @@ class VisionProcess:
         values = np.empty(17)
         values[0] = t
         values[1:] = np.asarray(world_T_tool, dtype=float).reshape(16)
+        _write(self._buf, _P_SEQ, _P_T, values)
+
+    def publish_tool(self, t: float, world_R_tool: np.ndarray, position_m: np.ndarray) -> None:
+        """:meth:`publish_pose` from the rotation (3, 3) and the position (3,) [m], without making the
+        4 × 4 pose: the control loop calls it every tick."""
+        values = self._pose_values
+        values[0] = t
+        pose = values[1:].reshape(4, 4)
+        pose[:3, :3] = world_R_tool
+        pose[:3, 3] = position_m
         _write(self._buf, _P_SEQ, _P_T, values)
 
     def latest(self) -> SurfaceEstimate | None:

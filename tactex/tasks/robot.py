@@ -154,7 +154,7 @@ class ProcessVision(SurfaceVision):
         return self.process.latest()
 
     def publish(self, state) -> None:
-        self.process.publish_pose(state.t, state.ee_pose)
+        self.process.publish_tool(state.t, state.ee_rotation, state.ee_position)
 
     def stats(self) -> dict[str, Any]:
         return {"vision_process_estimates": self.process.estimates}

@@ -35,6 +35,7 @@ not the tool's force axis: with the tool tilted up to 18° on the sine panel the
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -190,7 +191,7 @@ class _WipeReferences:
         self.estimate: SurfaceEstimate | None = None
         self.estimates_total = self.estimates_valid = 0
         self.reference: PoseForceReference | None = None
-        self._x_prev, _ = wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+        self._x_prev = tuple(wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)[0].tolist())
 
     def advance(self, state, tau_t: float) -> None:
         """:attr:`reference` at policy time ``tau_t`` [s], with the newest surface estimate and
@@ -201,11 +202,20 @@ class _WipeReferences:
             self.estimate = new_estimate
             self.estimates_total += 1
             self.estimates_valid += int(new_estimate.valid)
-        x_d, v_d = wiping_policy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+        # wiping_policy on Python floats (this runs every tick): x_d and its rate in the tool frame,
+        # applied in the tool frame of ``state``
+        a, w, drift = cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s
+        sn, cs = math.sin(w * tau_t), math.cos(w * tau_t)
+        x0, x1 = a * sn, a * (cs - 1.0) - drift * tau_t
+        v0, v1 = a * w * cs, -a * w * sn - drift
+        p0, p1, _ = self._x_prev
+        d0, d1 = x0 - p0, x1 - p1
+        self._x_prev = (x0, x1, 0.0)
         rot = state.ee_rotation
-        self.pos_ref = self.pos_ref + rot @ (x_d - self._x_prev)
-        self._x_prev = x_d
-        twist_d = np.concatenate([rot @ v_d, np.zeros(3)])
+        (r00, r01, _), (r10, r11, _), (r20, r21, _) = rot.tolist()
+        px, py, pz = self.pos_ref.tolist()
+        self.pos_ref = np.array((px + r00 * d0 + r01 * d1, py + r10 * d0 + r11 * d1, pz + r20 * d0 + r21 * d1))
+        twist_d = np.array((r00 * v0 + r01 * v1, r10 * v0 + r11 * v1, r20 * v0 + r21 * v1, 0.0, 0.0, 0.0))
         rot_ref = self.r_start if cfg.baseline == "cartesian" else rot
         self.reference = PoseForceReference(self.pos_ref, rot_ref, self.wrench_d, twist_d, self.estimate)
 
