@@ -2,7 +2,7 @@
 
 A frame's surface estimate (normal, curvature, θ; VA-UFIC §II-B) costs milliseconds, several
 control periods, so on the real robot it never runs in the control loop. The loop publishes the
-tool pose each tick (:meth:`VisionProcess.publish_pose`, ~2 µs) and picks up the newest estimate
+tool pose each tick (:meth:`VisionProcess.publish_tool`) and picks up the newest estimate
 when there is one (:meth:`VisionProcess.latest`); the worker takes frames at the camera's rate,
 estimates, and publishes.
 
@@ -149,15 +149,13 @@ class VisionProcess:
         return text.splitlines()[-1] if text else f"exit code {self.proc.returncode}"
 
     def publish_pose(self, t: float, world_T_tool: np.ndarray) -> None:
-        """The tool pose (4, 4) at time ``t`` [s], for posing the next frame (cheap: call every tick)."""
-        values = np.empty(17)
-        values[0] = t
-        values[1:] = np.asarray(world_T_tool, dtype=float).reshape(16)
-        _write(self._buf, _P_SEQ, _P_T, values)
+        """The tool pose (4, 4, rigid) at time ``t`` [s], for posing the next frame."""
+        pose = np.asarray(world_T_tool, dtype=float)
+        self.publish_tool(t, pose[:3, :3], pose[:3, 3])
 
     def publish_tool(self, t: float, world_R_tool: np.ndarray, position_m: np.ndarray) -> None:
-        """:meth:`publish_pose` from the rotation (3, 3) and the position (3,) [m], without making the
-        4 × 4 pose: the control loop calls it every tick."""
+        """The tool pose at time ``t`` [s] from its rotation (3, 3) and position (3,) [m], for posing
+        the next frame; cheap enough for every tick (no 4 × 4 is made)."""
         values = self._pose_values
         values[0] = t
         pose = values[1:].reshape(4, 4)

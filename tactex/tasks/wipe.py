@@ -67,13 +67,19 @@ WIPE_BASELINES = ("", "cartesian")
 LIFT_OFF_M = 0.03
 
 
+def _policy_xy(t: float, amplitude_m: float, omega: float, drift_m_s: float) -> tuple[float, float, float, float]:
+    """:func:`wiping_policy`'s non-zero components as Python floats (the wipe evaluates it every tick):
+    x_d's x and y [m], then its rate's x and y [m/s]; both have z = 0."""
+    s, c = math.sin(omega * t), math.cos(omega * t)
+    return (amplitude_m * s, amplitude_m * (c - 1.0) - drift_m_s * t,
+            amplitude_m * omega * c, -amplitude_m * omega * s - drift_m_s)
+
+
 def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift_m_s: float = 0.005) -> tuple[
         np.ndarray, np.ndarray]:
     """VA-UFIC §III-A position policy in the tool frame: x_d(t) [m] and its rate [m/s] (3,) each."""
-    s, c = np.sin(omega * t), np.cos(omega * t)
-    x = np.array([amplitude_m * s, amplitude_m * (c - 1.0) - drift_m_s * t, 0.0])
-    v = np.array([amplitude_m * omega * c, -amplitude_m * omega * s - drift_m_s, 0.0])
-    return x, v
+    x0, x1, v0, v1 = _policy_xy(t, amplitude_m, omega, drift_m_s)
+    return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
 
 
 def _rot_x(deg: float) -> np.ndarray:
@@ -191,7 +197,7 @@ class _WipeReferences:
         self.estimate: SurfaceEstimate | None = None
         self.estimates_total = self.estimates_valid = 0
         self.reference: PoseForceReference | None = None
-        self._x_prev = tuple(wiping_policy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)[0].tolist())
+        self._x_prev = _policy_xy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)[:2]
 
     def advance(self, state, tau_t: float) -> None:
         """:attr:`reference` at policy time ``tau_t`` [s], with the newest surface estimate and
@@ -202,15 +208,11 @@ class _WipeReferences:
             self.estimate = new_estimate
             self.estimates_total += 1
             self.estimates_valid += int(new_estimate.valid)
-        # wiping_policy on Python floats (this runs every tick): x_d and its rate in the tool frame,
-        # applied in the tool frame of ``state``
-        a, w, drift = cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s
-        sn, cs = math.sin(w * tau_t), math.cos(w * tau_t)
-        x0, x1 = a * sn, a * (cs - 1.0) - drift * tau_t
-        v0, v1 = a * w * cs, -a * w * sn - drift
-        p0, p1, _ = self._x_prev
+        # the policy's increment and rate (tool frame, z = 0), applied in the tool frame of ``state``
+        x0, x1, v0, v1 = _policy_xy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+        p0, p1 = self._x_prev
         d0, d1 = x0 - p0, x1 - p1
-        self._x_prev = (x0, x1, 0.0)
+        self._x_prev = (x0, x1)
         rot = state.ee_rotation
         (r00, r01, _), (r10, r11, _), (r20, r21, _) = rot.tolist()
         px, py, pz = self.pos_ref.tolist()
