@@ -1,5 +1,6 @@
-"""The compiled joint-space kernels give the numpy reference's torques to round-off, and the
-controllers run them (and fall back to numpy only when told why)."""
+"""The compiled joint-space kernels give the numpy reference's operators to round-off, the controllers
+run them (and fall back to numpy only when told why), and an operator prepared after a command is
+what the next tick applies while the arm stays at its posture."""
 
 from __future__ import annotations
 
@@ -62,11 +63,11 @@ def counted(monkeypatch):
 
     def task(*args):
         calls["task"] += 1
-        return k.task_torque(*args)
+        return k.task_operator(*args)
 
     def posture(*args):
         calls["posture"] += 1
-        return k.posture_torque(*args)
+        return k.posture_operator(*args)
 
     monkeypatch.setattr(joint_kernels, "_kernels", joint_kernels.JointKernels(task, posture))
     return calls
@@ -114,17 +115,69 @@ def test_the_kernels_called_directly_equal_the_numpy_reference(states):
     """The kernels' own arithmetic, apart from the controllers' plumbing."""
     k = joint_kernels.kernels()
     state = states[3]
-    rng = np.random.default_rng(2)
-    f = rng.normal(0.0, 10.0, 6)
     d, kk, h = np.array([40.0, 40.0, 60.0, 2.0, 2.0, 2.0]), np.array([800.0, 800.0, 0.0, 40.0, 40.0, 40.0]), 0.003
-    ref = joint_kernels.latency_shaped_task_torque(state.jacobian, state.ee_rotation, state.mass_matrix, f, d, kk, h)
-    got = k.task_torque(state.jacobian, state.ee_rotation, state.mass_matrix, f, d, kk, h)
+    ref = joint_kernels.latency_shaped_task_operator(state.jacobian, state.ee_rotation, state.mass_matrix, d, kk, h)
+    got = k.task_operator(state.jacobian, state.ee_rotation, state.mass_matrix, d, kk, h)
+    assert got.shape == (7, 6)
     np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
-    q_post = state.q + 0.1
-    ref = joint_kernels.posture_torque(state.jacobian, state.mass_matrix, q_post, state.q, state.dq, 20.0, 9.0, h,
-                                       PINV_DAMPING)
-    got = k.posture_torque(state.jacobian, state.mass_matrix, q_post, state.q, state.dq, 20.0, 9.0, h, PINV_DAMPING)
+    ref = joint_kernels.posture_operator(state.jacobian, state.mass_matrix, 20.0, 9.0, h, PINV_DAMPING)
+    got = k.posture_operator(state.jacobian, state.mass_matrix, 20.0, 9.0, h, PINV_DAMPING)
+    assert got.shape == (7, 7)
     np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
+
+
+def test_the_task_operator_is_the_latency_shaped_torque(states):
+    """τ = B f equals the implicit impedance M (M + h·Jₜᵀ(D + hK)Jₜ)⁻¹ Jᵀ f written out with the
+    library's own latency_shaped_torque, and B → Jᵀ as h → 0."""
+    from tactex.control.damping import latency_shaped_torque
+
+    state = states[4]
+    d, kk = np.array([40.0, 40.0, 60.0, 2.0, 2.0, 2.0]), np.array([800.0, 800.0, 0.0, 40.0, 40.0, 40.0])
+    f = np.random.default_rng(5).normal(0.0, 10.0, 6)
+    jac, rot = state.jacobian, state.ee_rotation
+    jac_tool = np.vstack([rot.T @ jac[:3], rot.T @ jac[3:]])
+    for h in (0.003, 0.0):
+        b = joint_kernels.latency_shaped_task_operator(jac, rot, state.mass_matrix, d, kk, h)
+        expected = latency_shaped_torque(state.mass_matrix, jac.T @ f, jac_tool.T @ ((d + h * kk)[:, None] * jac_tool),
+                                         None, h)
+        np.testing.assert_allclose(b @ f, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+    np.testing.assert_allclose(b, jac.T, rtol=1e-12, atol=1e-12)
+
+
+def test_a_prepared_operator_is_applied_while_the_posture_holds_and_rebuilt_after_a_jump(states, counted):
+    """prepare() builds both operators; the next tick at a posture within tolerance reuses them (no
+    kernel call between the state and its command), a tick far from it builds its own."""
+    from tactex.control.prepared import POSTURE_TOLERANCE_RAD
+    from tactex.control.ufic import UficParams
+
+    state = states[2]
+    ref = PoseForceReference(state.ee_position + np.array([0.01, 0.0, -0.005]), state.ee_rotation,
+                             np.array([0.0, 0.0, 15.0, 0.0, 0.0, 0.0]))
+    near = replace(state, q=state.q + 0.5 * POSTURE_TOLERANCE_RAD / np.sqrt(7))  # J, M and R as at ``state``
+    far = replace(state, q=state.q + 3.0 * POSTURE_TOLERANCE_RAD)
+    # D_C switched at once, so that one tick's damping is the next's (prepare uses the tick's own)
+    params = UficParams(damping_switch_s=0.0)
+    ctrl, fresh = NullspacePosture(UficController(params)), NullspacePosture(UficController(params))
+    for c in (ctrl, fresh):
+        c.reset(state)
+    ctrl.torque(state, ref)
+    ctrl.prepare(state)
+    assert counted == {"task": 2, "posture": 2}  # built in the first tick (nothing prepared), then prepared
+    tau_prepared = ctrl.torque(near, ref)
+    assert counted == {"task": 2, "posture": 2}  # applied, not rebuilt
+    assert np.isfinite(tau_prepared).all() and np.abs(tau_prepared).max() > 0.1
+    # the operators applied are those built at ``state``: the same torque as a controller that builds
+    # them in the tick from ``near``'s (identical) model terms
+    fresh.torque(state, ref)
+    np.testing.assert_allclose(tau_prepared, fresh.torque(near, ref), rtol=1e-12, atol=1e-12)
+    assert counted == {"task": 4, "posture": 4}
+    ctrl.torque(far, ref)
+    assert counted == {"task": 5, "posture": 5}  # too far from the prepared posture: built in the tick
+    ctrl.prepare(far)
+    ctrl.reset(state)  # a reset forgets the prepared operators
+    counted.update(task=0, posture=0)
+    ctrl.torque(far, ref)
+    assert counted == {"task": 1, "posture": 1}
 
 
 def test_a_ufic_tick_is_the_same_with_and_without_the_kernels(states, counted):

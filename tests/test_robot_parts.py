@@ -145,6 +145,16 @@ def test_netft_source_removes_the_tool_weight_at_any_orientation():
     np.testing.assert_allclose(source.wrench_tool(None, side), 0.0, atol=1e-9)
     fake.raw = raw_weight(down) + np.array([0.0, 0.0, 12.0, 0, 0, 0])  # pressing 12 N along tool z
     assert source.wrench_tool(None, down)[2] == pytest.approx(12.0)
+    # prefetched after a command with that state's orientation: the next tick gets that wrench once,
+    # whatever orientation it passes; the tick after computes its own again
+    fake.raw = raw_weight(side)
+    source.prefetch(side)
+    fake.raw = raw_weight(down) + np.array([0.0, 0.0, 5.0, 0, 0, 0])  # a record that came after the prefetch
+    np.testing.assert_allclose(source.wrench_tool(None, down), 0.0, atol=1e-9)
+    assert source.wrench_tool(None, down)[2] == pytest.approx(5.0)
+    fake.raw = np.full(6, np.nan)  # a lost stream is NaN either way, and counted once per tick
+    source.prefetch(down)
+    assert np.isnan(source.wrench_tool(None, down)).all() and source.lost_ticks == 1
 
 
 # -- vision process -----------------------------------------------------------------------------------

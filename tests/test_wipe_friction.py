@@ -69,7 +69,7 @@ def test_step_response_is_the_first_order_low_pass() -> None:
     comp = FrictionCompensator(FrictionCompensatorParams(gain=g, cutoff_hz=fc))
     comp.wrench_tool(_state([0, 0, F_N, 0, 0, 0]), 1.0, DT)  # starts at the first measurement: 0
     step = np.array([3.0, -4.0])
-    out = [comp.wrench_tool(_state([*step, F_N, 0, 0, 0]), 1.0, DT) for _ in range(50)]
+    out = [np.asarray(comp.wrench_tool(_state([*step, F_N, 0, 0, 0]), 1.0, DT)) for _ in range(50)]
     a = 1.0 - math.exp(-2.0 * math.pi * fc * DT)
     for n in (1, 10, 50):
         expected = g * step * (1.0 - (1.0 - a) ** n)
@@ -79,28 +79,29 @@ def test_step_response_is_the_first_order_low_pass() -> None:
 
 def test_first_measurement_passes_without_transient_and_reset_forgets() -> None:
     comp = FrictionCompensator(FrictionCompensatorParams(gain=1.0))
-    w = comp.wrench_tool(_state([2.0, 1.0, F_N, 0, 0, 0]), 1.0, DT)
+    w = np.asarray(comp.wrench_tool(_state([2.0, 1.0, F_N, 0, 0, 0]), 1.0, DT))
     assert w[:2] == pytest.approx([2.0, 1.0], rel=1e-12)
+    np.testing.assert_array_equal(comp.last, w)  # what the wipe logs is what was returned
     comp.reset()
     assert np.all(comp.last == 0.0)
-    w = comp.wrench_tool(_state([-1.0, 0.5, F_N, 0, 0, 0]), 1.0, DT)
+    w = np.asarray(comp.wrench_tool(_state([-1.0, 0.5, F_N, 0, 0, 0]), 1.0, DT))
     assert w[:2] == pytest.approx([-1.0, 0.5], rel=1e-12)
 
 
 def test_coulomb_cone_and_absolute_bounds_keep_the_direction() -> None:
     comp = FrictionCompensator(FrictionCompensatorParams(gain=1.0, mu_max=0.5, max_force_n=4.0))
-    w = comp.wrench_tool(_state([6.0, 8.0, 5.0, 0, 0, 0]), 1.0, DT)  # |f_t| = 10 N > 0.5 · 5 N
+    w = np.asarray(comp.wrench_tool(_state([6.0, 8.0, 5.0, 0, 0, 0]), 1.0, DT))  # |f_t| = 10 N > 0.5 · 5 N
     assert np.linalg.norm(w[:2]) == pytest.approx(2.5, rel=1e-12)
     assert w[:2] / np.linalg.norm(w[:2]) == pytest.approx([0.6, 0.8], rel=1e-12)
     comp.reset()
-    w = comp.wrench_tool(_state([6.0, 8.0, 40.0, 0, 0, 0]), 1.0, DT)  # cone 20 N, absolute cap 4 N
+    w = np.asarray(comp.wrench_tool(_state([6.0, 8.0, 40.0, 0, 0, 0]), 1.0, DT))  # cone 20 N, absolute cap 4 N
     assert np.linalg.norm(w[:2]) == pytest.approx(4.0, rel=1e-12)
 
 
 @pytest.mark.parametrize("f_z", [0.0, -3.0])
 def test_no_pressing_force_no_compensation(f_z) -> None:
     comp = FrictionCompensator()
-    assert np.all(comp.wrench_tool(_state([5.0, -2.0, f_z, 0, 0, 0]), 1.0, DT) == 0.0)
+    assert np.all(np.asarray(comp.wrench_tool(_state([5.0, -2.0, f_z, 0, 0, 0]), 1.0, DT)) == 0.0)
 
 
 @pytest.mark.parametrize("rho", [0.0, 0.25, 1.0])

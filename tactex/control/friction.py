@@ -73,19 +73,24 @@ class FrictionCompensator:
         self._f = (0.0, 0.0)  # low-passed tangential force, tool frame [N]
         self._a, self._a_dt = 0.0, float("nan")  # the filter's gain and the period it was made for
         self._started = False
-        self.last = np.zeros(6)
+        self._last = (0.0,) * 6
 
     def reset(self) -> None:
         self._f = (0.0, 0.0)
         self._started = False
-        self.last = np.zeros(6)
+        self._last = (0.0,) * 6
 
-    def wrench_tool(self, state: RobotState, rho_align: float, dt: float) -> np.ndarray:
-        """(6,) wrench in the tool frame [N, N·m]: ``[f_x, f_y, 0, 0, 0, 0]``.
+    @property
+    def last(self) -> np.ndarray:
+        """(6,) the last compensation wrench [N, N·m] (tool frame)."""
+        return np.array(self._last)
+
+    def wrench_tool(self, state: RobotState, rho_align: float, dt: float) -> tuple[float, ...]:
+        """The wrench in the tool frame [N, N·m], ``(f_x, f_y, 0, 0, 0, 0)`` as six Python floats.
 
         ``rho_align`` ∈ [0, 1] scales it (eq. 19); ``dt`` [s] is the tick period.
         """
-        fx, fy, fz = state.wrench_tool[:3].tolist()
+        fx, fy, fz, _, _, _ = state.wrench_tool.tolist()
         if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
             raise ControllerFault(f"friction compensation got a non-finite measured force {state.wrench_tool[:3]!r}")
         if not (math.isfinite(rho_align) and 0.0 <= rho_align <= 1.0):
@@ -107,6 +112,6 @@ class FrictionCompensator:
         bound = min(p.max_force_n, p.mu_max * max(fz, 0.0))
         mag = math.hypot(f0, f1)
         scale = p.gain * rho_align * (min(1.0, bound / mag) if mag > 0.0 else 0.0)
-        out = np.array((scale * f0, scale * f1, 0.0, 0.0, 0.0, 0.0))
-        self.last = out
+        out = (scale * f0, scale * f1, 0.0, 0.0, 0.0, 0.0)
+        self._last = out
         return out

@@ -164,6 +164,12 @@ class SafetyLayer(Controller):
         self._blend_from = None
         self.inner.reset(state)
 
+    def prepare(self, state: RobotState) -> None:
+        """The inner controller's :meth:`~tactex.control.controller.Controller.prepare`, unless the
+        state is not finite (the tick held; nothing worth preparing)."""
+        if _state_finite(state):
+            self.inner.prepare(state)
+
     @property
     def retreating(self) -> bool:
         return self._retreat_until is not None

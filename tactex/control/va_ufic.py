@@ -40,6 +40,7 @@ n_s is the direction the tool z-axis should take, so r'_z = −normal_world.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -139,11 +140,12 @@ def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarr
 
 class PortFeedforward(Protocol):
     """An extra active tool-frame wrench [N, N·m] that VA-UFIC applies through the impedance tank's
-    port (so the tank pays for it), e.g. :class:`tactex.control.friction.FrictionCompensator`."""
+    port (so the tank pays for it), e.g. :class:`tactex.control.friction.FrictionCompensator`;
+    ``wrench_tool`` returns six numbers (a sequence of floats or a (6,) array)."""
 
     def reset(self) -> None: ...
 
-    def wrench_tool(self, state: RobotState, rho_align: float, dt: float) -> np.ndarray: ...
+    def wrench_tool(self, state: RobotState, rho_align: float, dt: float) -> Sequence[float] | np.ndarray: ...
 
 
 class VaUficController(UficController):
@@ -305,7 +307,8 @@ class VaUficController(UficController):
             port[5] += d5 * (r02 * qx + r12 * qy + r22 * qz)
         p0, p1, p2, p3, p4, p5 = port
         if self.port_feedforward is not None:
-            w0, w1, w2, w3, w4, w5 = self.port_feedforward.wrench_tool(state, rho_align, dt).tolist()
+            w = self.port_feedforward.wrench_tool(state, rho_align, dt)
+            w0, w1, w2, w3, w4, w5 = w.tolist() if isinstance(w, np.ndarray) else w
             p0, p1, p2, p3, p4, p5 = p0 + w0, p1 + w1, p2 + w2, p3 + w3, p4 + w4, p5 + w5
         p_damp = x0 * dx0 + x1 * dx1 + x2 * dx2 + x3 * dx3 + x4 * dx4 + x5 * dx5
         p_force = x0 * f0 + x1 * f1 + x2 * f2 + x3 * f3 + x4 * f4 + x5 * f5

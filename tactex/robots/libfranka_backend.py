@@ -175,14 +175,17 @@ def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: Wrench
     command (the pose, velocities and wrench are always this state's; the TCP twist is J·dq with
     the given J).
     """
-    pose = _col_major(state.O_T_EE, 4, 4)
+    # O_T_EE is 16 floats, column-major: the rotation's rows and the translation picked out as Python
+    # floats make two arrays (each numpy call costs microseconds between a state and its command)
+    o = state.O_T_EE
+    rot = np.array(((o[0], o[4], o[8]), (o[1], o[5], o[9]), (o[2], o[6], o[10])))
     jac, mass, coriolis, gravity = terms if terms is not None else franka_model_terms(state, model)
-    q = np.asarray(state.q, dtype=float)
-    dq = np.asarray(state.dq, dtype=float)
+    dq = np.array(state.dq, dtype=float)
     return RobotState(
-        t=t, q=q, dq=dq, tau_measured=np.asarray(state.tau_J, dtype=float), ee_position=pose[:3, 3].copy(),
-        ee_rotation=pose[:3, :3].copy(), ee_twist=jac @ dq, jacobian=jac, mass_matrix=mass, coriolis=coriolis,
-        gravity=gravity, wrench_tool=np.asarray(wrench.wrench_tool(state, pose[:3, :3]), dtype=float),
+        t=t, q=np.array(state.q, dtype=float), dq=dq, tau_measured=np.array(state.tau_J, dtype=float),
+        ee_position=np.array(o[12:15], dtype=float), ee_rotation=rot, ee_twist=jac @ dq, jacobian=jac,
+        mass_matrix=mass, coriolis=coriolis, gravity=gravity,
+        wrench_tool=np.asarray(wrench.wrench_tool(state, rot), dtype=float),
     )
 
 
@@ -398,7 +401,7 @@ class LibfrankaBackend:
                 if math.isnan(self._compute_us):  # the task stepped without a torque
                     self._compute_us = (time.perf_counter() - self._t_read) * 1e6
                 terms = self._model_ahead()
-                self.wrench.prefetch()
+                self.wrench.prefetch(self._state.ee_rotation)
                 franka_state, period_ms = self._read_dry()
             else:
                 if self._control is None:
@@ -411,7 +414,7 @@ class LibfrankaBackend:
                     if self._pending_write:  # the task stepped without a new torque: the last one again
                         self._send()
                     terms = self._model_ahead()
-                self.wrench.prefetch()
+                self.wrench.prefetch(self._state.ee_rotation)
                 franka_state, duration = self._control.readOnce()
                 self._pending_write = True
                 period_ms = duration.to_sec() * 1e3
