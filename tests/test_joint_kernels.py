@@ -261,3 +261,32 @@ def test_a_control_loop_builds_the_kernels_before_its_first_tick(monkeypatch):
     finally:
         backend.close()
     assert calls == ["built"]
+
+
+def test_the_ga_line_controller_applies_its_prepared_operators_as_it_would_build_them(states):
+    """TEC's line controller: τ = S (Jᵀf − D_q q̇) with the operators prepared after the last command
+    equals the torque with operators built in the tick, and equals the explicit implicit-impedance
+    form written out with latency_shaped_torque."""
+    from tactex.control.damping import latency_shaped_torque
+    from tactex.control.ga_line_force import GaLineForceController
+    from tactex.control.references import LineForceReference
+
+    state = states[3]
+    ref = LineForceReference(state.ee_position + np.array([0.004, -0.002, -0.01]), -state.ee_rotation[:, 2] +
+                             np.array([0.05, 0.0, 0.0]), 10.0)
+    prepared, fresh = GaLineForceController(), GaLineForceController()
+    for c in (prepared, fresh):
+        c.reset(state)
+    prepared.prepare(state)
+    a, b = prepared.torque(state, ref), fresh.torque(state, ref)
+    assert np.abs(b).max() > 0.1
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
+    # the operators against the written-out form, for a wrench f and the state's q̇
+    s_jt, s_d = fresh.joint_operators(state)
+    f = np.random.default_rng(4).normal(0.0, 10.0, 6)
+    jac, rot = state.jacobian, state.ee_rotation
+    jt = np.vstack([rot.T @ jac[:3], rot.T @ jac[3:]])
+    d_q, k_q = jt.T @ (fresh._d[:, None] * jt), jt.T @ (fresh._k[:, None] * jt)
+    h = fresh.params.latency_horizon_ticks * fresh.params.dt
+    expected = latency_shaped_torque(state.mass_matrix, jac.T @ f - d_q @ state.dq, d_q, k_q, h)
+    np.testing.assert_allclose(s_jt @ f - s_d @ state.dq, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())

@@ -11,6 +11,8 @@ a pause) the tick builds its own.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 __all__ = ["POSTURE_TOLERANCE_RAD", "PreparedOperator"]
@@ -23,21 +25,21 @@ _TOL2 = POSTURE_TOLERANCE_RAD * POSTURE_TOLERANCE_RAD
 
 
 class PreparedOperator:
-    """One operator and the joint positions q [rad] it was built at."""
+    """One operator (an array, or a tuple of arrays) and the joint positions q [rad] it was built at."""
 
     __slots__ = ("_op", "_q")
 
     def __init__(self) -> None:
         self._q: np.ndarray | None = None
-        self._op: np.ndarray | None = None
+        self._op: Any = None
 
-    def store(self, q: np.ndarray, op: np.ndarray) -> None:
+    def store(self, q: np.ndarray, op: Any) -> None:
         self._q, self._op = q.copy(), op
 
     def clear(self) -> None:
         self._q = self._op = None
 
-    def get(self, q: np.ndarray) -> np.ndarray | None:
+    def get(self, q: np.ndarray) -> Any:
         """The operator if ``q`` is within :data:`POSTURE_TOLERANCE_RAD` of its posture, else None."""
         q0 = self._q
         if q0 is None or q0.shape != q.shape:
