@@ -216,5 +216,7 @@ def test_a_tiny_cloud_gets_no_impossible_n_eigen_hint() -> None:
 
 
 def test_an_unreachable_capture_pose_names_the_parameter(tmp_path, capsys) -> None:
-    code = main(["clean", "--object-name", "cup", "--side-capture-distance-m", "0.45", "--out", str(tmp_path / "c")])
+    # the level view (0°): 0.45 m out at the wall's mid-height is beyond the arm
+    code = main(["clean", "--object-name", "cup", "--side-capture-distance-m", "0.45", "--side-capture-elevation-deg",
+                 "0", "--out", str(tmp_path / "c")])
     _one_line_error(capsys, code, "out of the arm's reach", "lower --side-capture-distance-m (now 0.45 m)")

@@ -6,6 +6,8 @@ The full-length numbers (≥ 95 % dirt, force bands, MAE/RMSE) come from `make b
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -109,6 +111,33 @@ def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
     m = run_clean(CleanConfig(object_name="cup", budget_s=30.0, objective="ergodic"), progress=False).metrics
     assert m["vision_updates"] >= 1 and m["dirt_removed_fraction"] > 0.9
     assert m["max_contact_force_n"] < 3.0 * 10.0
+
+
+def test_the_cup_view_from_above_sees_the_marking_with_a_shorter_swing_from_home() -> None:
+    """The side capture 45° above the horizontal: the camera still looks at the wall's mid-height, sees as
+    much of the marking as the level view (within a few voxels) and none of the cup's top, and the joint
+    move from home is shorter (the shoulder swings less)."""
+    from tactex.robots.mujoco_backend import FRANKA_HOME_Q, MujocoBackend
+    from tactex.tasks.clean import _acquisition, _capture_pose
+    from tactex.tasks.vision import capture_target_cloud
+
+    seen = {}
+    for el in (0.0, 45.0):
+        cfg = CleanConfig(object_name="cup", marking="X", side_capture_elevation_deg=el)
+        scene = cfg.scene()
+        pos, rot = _capture_pose(scene, cfg)
+        mid = np.array([0.5, -0.04, 0.05])  # the wall facing the robot, at mid-height (default object pose)
+        view = (pos - mid) / np.linalg.norm(pos - mid)
+        assert np.degrees(np.arcsin(view[2])) == pytest.approx(el, abs=1.0)
+        assert rot[:, 2] @ view == pytest.approx(-1.0, abs=1e-9)  # the tool (and camera) axis looks at the wall
+        with MujocoBackend(scene) as be:
+            q = be.solve_ik(pos, rot)
+            be.reset(q0=q)
+            cloud = capture_target_cloud(be.render_depth(), replace(_acquisition(scene), voxel_size_m=cfg.voxel_size_m))
+        assert cloud.points[:, 2].max() < 0.1  # the wall, not the cup's top at z = 0.1 m
+        seen[el] = (cloud.n_target, float(np.max(np.abs(q - FRANKA_HOME_Q))))
+    assert seen[45.0][0] >= 0.95 * seen[0.0][0]
+    assert seen[45.0][1] < 0.6 * seen[0.0][1]
 
 
 def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path) -> None:

@@ -204,6 +204,9 @@ def test_nullspace_posture_validation() -> None:
         ({"model_update_steps": 0}, "model_update_steps"),
         ({"model_stall_steps": 0}, "model_stall_steps"),
         ({"vision_max_steps": 0}, "vision_max_steps"),
+        ({"side_capture_elevation_deg": -5.0}, "side_capture_elevation_deg"),
+        ({"side_capture_elevation_deg": 80.0}, "0–75 deg"),
+        ({"side_capture_elevation_deg": float("nan")}, "side_capture_elevation_deg"),
     ],
 )
 def test_clean_config_validation_more(kwargs, match) -> None:

@@ -156,6 +156,9 @@ class CleanConfig(SimWorldParams):
     side_capture_distance_m: float = param(
         0.2, "TCP distance from a wall at the capture pose beside it (the cup) [m]: the arm cannot hold the "
         "horizontal camera 0.45 m out at the wall's mid-height")
+    side_capture_elevation_deg: float = param(
+        45.0, "elevation of the view onto a wall (the cup) above the horizontal [deg], 0–75: the camera looks down "
+        "at the wall's mid-height from above the side the marking faces (a shorter swing of the shoulder from home)")
     hover_height_m: float = param(0.03, "hover above the surface before contact [m]")
     approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
     force_ramp_s: float = param(0.1, "ramp from the approach force to the set point after touch-down [s]")
@@ -224,6 +227,10 @@ class CleanConfig(SimWorldParams):
                 f"exploration step at explorer_rate_hz = {self.explorer_rate_hz}; keep it below "
                 f"{90.0 * self.explorer_rate_hz:g} deg/s (an about-turn would blend through a zero normal)"
             )
+        el = float(self.side_capture_elevation_deg)
+        if not (np.isfinite(el) and 0.0 <= el <= 75.0):
+            raise ConfigError(f"side_capture_elevation_deg must be within 0–75 deg (above 75 the camera no longer sees "
+                              f"the wall), got {self.side_capture_elevation_deg!r}")
         if self.approach_force_n > self.force_n:
             raise ConfigError(f"approach_force_n ({self.approach_force_n}) must not exceed force_n ({self.force_n})")
         if not (np.isfinite(self.contact_threshold_n) and self.contact_threshold_n > 0):
@@ -468,7 +475,11 @@ def _capture_pose(scene: SceneConfig, cfg: CleanConfig) -> tuple[np.ndarray, np.
     if isinstance(surface, CylinderWallSurface):
         out = rot @ np.array([0.0, -1.0, 0.0])  # the side the cup's marking faces
         centre = pos + rot @ np.array([0.0, 0.0, surface.height_m / 2])
-        return centre + out * (surface.radius_m + cfg.side_capture_distance_m), tool_rotation_for_normal(out)
+        up = rot @ np.array([0.0, 0.0, 1.0])
+        el = np.radians(cfg.side_capture_elevation_deg)
+        view = np.cos(el) * out + np.sin(el) * up  # from the wall's mid-height towards the camera
+        return (centre + out * surface.radius_m + view * cfg.side_capture_distance_m,
+                tool_rotation_for_normal(view))
     top = pos + rot @ np.array([0.0, 0.0, float(surface.bounds_m[1, 2])])
     return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
 
@@ -483,8 +494,14 @@ def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4) -> 
 
 def _acquisition(scene: SceneConfig) -> AcquisitionConfig:
     pos, _ = scene.object_pose()
-    half = float(np.max(np.abs(scene.sim_object.surface.bounds_m[:, :2]))) + 0.01
-    lo, hi = workspace_crop(pos, half)
+    surface = scene.sim_object.surface
+    half = float(np.max(np.abs(surface.bounds_m[:, :2]))) + 0.01
+    if isinstance(surface, CylinderWallSurface):
+        # the wall only: a view from above the wall also sees the cup's top, which is not the surface to clean
+        # (2 mm below it, as the table is cut 2 mm above the table top)
+        lo, hi = workspace_crop(pos, half, height_m=surface.height_m - 0.002)
+    else:
+        lo, hi = workspace_crop(pos, half)
     return AcquisitionConfig(crop_min_m=lo, crop_max_m=hi, voxel_size_m=0.0, sor_mean_k=20, sor_std_mul=2.0)
 
 
