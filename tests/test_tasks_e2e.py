@@ -106,8 +106,8 @@ def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
     # TEC's loop: with the default objective the trip to the camera starts where the wear model calls the
     # cup clean, near the rim, and the lift-off there drags the pad over the lip (30.5 N): a known limit of
     # the retract on the cup (issue 21's report), not of the side view this test is about
-    # (30 s: 200 exploration steps from the first contact at 9.3 s, some put off while the wall drags the pad
-    # over 15 N, and the 6.3 s trip to the camera, which ends at 26.7 s)
+    # (30 s: 200 exploration steps from the first contact at 6.7 s, some put off while the wall drags the pad
+    # over 15 N, and the 3.8 s trip to the camera, which ends at 20.9 s)
     m = run_clean(CleanConfig(object_name="cup", budget_s=30.0, objective="ergodic"), progress=False).metrics
     assert m["vision_updates"] >= 1 and m["dirt_removed_fraction"] > 0.9
     assert m["max_contact_force_n"] < 3.0 * 10.0
