@@ -278,7 +278,12 @@ def test_the_ga_line_controller_applies_its_prepared_operators_as_it_would_build
     for c in (prepared, fresh):
         c.reset(state)
     prepared.prepare(state)
-    a, b = prepared.torque(state, ref), fresh.torque(state, ref)
+    built = []
+    build = prepared.joint_operators
+    prepared.joint_operators = lambda st: built.append(1) or build(st)
+    near = replace(state, q=state.q + 1e-4)  # J, M and R as at ``state``
+    a, b = prepared.torque(near, ref), fresh.torque(near, ref)
+    assert built == []  # the prepared operators were applied
     assert np.abs(b).max() > 0.1
     np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
     # the operators against the written-out form, for a wrench f and the state's q̇
@@ -290,3 +295,45 @@ def test_the_ga_line_controller_applies_its_prepared_operators_as_it_would_build
     h = fresh.params.latency_horizon_ticks * fresh.params.dt
     expected = latency_shaped_torque(state.mass_matrix, jac.T @ f - d_q @ state.dq, d_q, k_q, h)
     np.testing.assert_allclose(s_jt @ f - s_d @ state.dq, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+
+
+def test_a_non_finite_posture_never_leaves_a_prepared_operator(states):
+    """A NaN in the mass matrix gives NaN operators (numba's solve raises, the kernel runner returns
+    NaN); they are not kept, and the safety layer does not prepare from such a state at all."""
+    from tactex.control.prepared import PreparedOperator
+
+    state = states[0]
+    bad = replace(state, mass_matrix=np.full((7, 7), np.nan))
+    ctrl = NullspacePosture(UficController())
+    ctrl.reset(state)
+    assert np.isnan(ctrl.posture_operator(bad)).all() and ctrl.posture_operator(bad).shape == (7, 7)
+    assert np.isnan(ctrl.inner.task_operator(bad)).all() and ctrl.inner.task_operator(bad).shape == (7, 6)
+    ctrl.prepare(state)
+    ctrl.prepare(bad)  # drops what it had: nothing stale either
+    assert ctrl._operator.get(state.q) is None and ctrl.inner._operator.get(state.q) is None
+    op = PreparedOperator()
+    op.store(state.q, (np.eye(7), np.full((7, 7), np.inf)))
+    assert op.get(state.q) is None
+    layer = SafetyLayer(NullspacePosture(UficController()))
+    layer.reset(state)
+    layer.prepare(bad)
+    assert layer.inner._operator.get(state.q) is None
+    layer.prepare(state)
+    assert layer.inner._operator.get(state.q) is not None
+
+
+def test_the_ufic_operator_is_rebuilt_while_the_damping_switches(states, counted):
+    """Prepared with one tool-axis damping, applied only while D_C has moved by ≤ 1 %: at a touch-down
+    the damping moves towards its contact value over damping_switch_s, and those ticks build their own."""
+    state = states[2]
+    ctrl = UficController()
+    ctrl.reset(state)
+    ctrl._d_tool_f = ctrl._d_free_f
+    ctrl.prepare(state)
+    assert counted["task"] == 1
+    f_world = (1.0, -2.0, 15.0, 0.1, 0.0, -0.2)
+    ctrl.joint_torque(state, f_world)
+    assert counted["task"] == 1  # same damping: applied
+    ctrl._d_tool_f = ctrl._d_contact_f
+    ctrl.joint_torque(state, f_world)
+    assert counted["task"] == 2  # the damping moved: built again in the tick

@@ -99,8 +99,10 @@ class NullspacePosture(Controller):
 
     def prepare(self, state: RobotState) -> None:
         """Build the next tick's posture operator at ``state`` (:mod:`tactex.control.prepared`), and the
-        inner controller's."""
-        self.inner.prepare(state)
+        inner controller's (if it has the hook)."""
+        prepare = getattr(self.inner, "prepare", None)
+        if prepare is not None:
+            prepare(state)
         self._operator.store(state.q, self.posture_operator(state))
 
     def posture_operator(self, state: RobotState) -> np.ndarray:

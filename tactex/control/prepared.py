@@ -11,6 +11,7 @@ a pause) the tick builds its own.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,8 @@ __all__ = ["POSTURE_TOLERANCE_RAD", "PreparedOperator"]
 
 #: Largest joint displacement ‖q − q₀‖ [rad] over which a prepared operator is still used: two ticks
 #: at the Franka's joint speed limit (2.6 rad/s), tens of ticks in contact. M(q) and J(q) change by a
-#: fraction of a percent over it, as from one libfranka model evaluation to the next.
+#: fraction of a percent over it. (On a real robot a state's model terms are those of the state
+#: before it, so an operator applied at the next tick is built from terms one cycle older still.)
 POSTURE_TOLERANCE_RAD = 5e-3
 _TOL2 = POSTURE_TOLERANCE_RAD * POSTURE_TOLERANCE_RAD
 
@@ -34,6 +36,12 @@ class PreparedOperator:
         self._op: Any = None
 
     def store(self, q: np.ndarray, op: Any) -> None:
+        """Keep ``op`` (an array or a tuple of arrays) for the posture ``q``; a non-finite operator is
+        not kept (the previous one is dropped too), so a tick never applies one."""
+        parts = op if isinstance(op, tuple) else (op,)
+        if not math.isfinite(sum(float(a.sum()) for a in parts)):
+            self.clear()
+            return
         self._q, self._op = q.copy(), op
 
     def clear(self) -> None:

@@ -121,6 +121,7 @@ class UficController(Controller):
         self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
         self._kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
         self._operator = PreparedOperator()
+        self._operator_d_z = float("nan")  # the tool-axis damping the prepared operator was built with
 
     def reset(self, state: RobotState) -> None:
         self._operator.clear()
@@ -238,6 +239,7 @@ class UficController(Controller):
         on its way (:mod:`tactex.control.prepared`)."""
         if self.params.latency_horizon_ticks > 0:
             self._operator.store(state.q, self.task_operator(state))
+            self._operator_d_z = self._d_tool_f[2]
 
     def task_operator(self, state: RobotState) -> np.ndarray:
         """B (n, 6) with τ = B f for a world wrench f: M (M + h·Jₜᵀ diag(D + h·K_max) Jₜ)⁻¹ Jᵀ, the
@@ -266,7 +268,9 @@ class UficController(Controller):
         if self.params.latency_horizon_ticks <= 0:
             return np.dot(f_world, state.jacobian)
         op = self._operator.get(state.q)
-        if op is None:
+        # D_C's tool-axis damping moves between its free and contact values over damping_switch_s: an
+        # operator built with a value more than 1 % off is built again with this tick's
+        if op is None or abs(self._d_tool_f[2] - self._operator_d_z) > 0.01 * self._operator_d_z:
             op = self.task_operator(state)
         return np.dot(op, f_world)
 
