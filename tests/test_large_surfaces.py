@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 
 from tactex.ergodic import HedacConfig, HedacExplorer
 from tactex.ergodic import kernel as ker
@@ -13,7 +15,15 @@ from tactex.errors import ConfigError
 from tactex.pointcloud import SurfaceCloud
 from tactex.pointcloud.markings import marked_cloud
 from tactex.pointcloud.shapes import get_surface
-from tactex.spectral import build_basis, hierarchy, laplace_eigenpairs, load_basis, point_cloud_laplacian, save_basis
+from tactex.spectral import (
+    block_lu,
+    build_basis,
+    hierarchy,
+    laplace_eigenpairs,
+    load_basis,
+    point_cloud_laplacian,
+    save_basis,
+)
 from tactex.spectral.eigen import HIERARCHICAL_MIN_POINTS, _canonical, resolve_eigensolver
 from tactex.spectral.hierarchy import (
     HierarchyInfo,
@@ -39,14 +49,16 @@ def curved_panel(nx: int = 60, ny: int = 40, h: float = 0.003, seed: int = 0) ->
 
 
 def hierarchical(L, mass, k, cloud, scheme: str, **kw):
-    """The hierarchical solver on ``cloud`` with the scheme of a small cloud ("small": one coarse level, two solves)
-    or of a large one ("large": nested levels), whatever the cloud's size."""
+    """The hierarchical solver on ``cloud`` with the scheme of a small cloud ("small": one coarse level, several
+    solves, the compiled block solve when numba is there; "small-cholmod": the same with cholespy's solves) or of
+    a large one ("large": nested levels), whatever the cloud's size."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(hierarchy, "SMALL_CLOUD_MAX_POINTS", 10**9 if scheme == "small" else 0)
+        mp.setattr(hierarchy, "SMALL_CLOUD_MAX_POINTS", 10**9 if scheme.startswith("small") else 0)
+        mp.setattr(hierarchy, "SMALL_BLOCK_LU", scheme == "small")
         return laplace_eigenpairs(L, mass, k, solver="hierarchical", points=cloud.points, spacing=cloud.spacing, **kw)
 
 
-@pytest.fixture(scope="module", params=["large", "small"])
+@pytest.fixture(scope="module", params=["large", "small", "small-cholmod"])
 def panel_pairs(request):
     cloud = curved_panel(80, 50)  # 4000 points: two coarse levels for k = 30 in the large clouds' scheme
     L, M = point_cloud_laplacian(cloud.points)
@@ -64,7 +76,7 @@ def test_hierarchical_eigenvalues_match_arpack(panel_pairs) -> None:
     if scheme == "large":
         assert len(info.level_points) >= 3  # it really went through nested coarse levels
     else:
-        assert len(info.level_points) == 2 and info.fine_iterations == 1  # one coarse level, one two-solve step
+        assert len(info.level_points) == 2 and info.fine_iterations == 1  # one coarse level, one multi-solve step
     assert info.max_residual2 <= 5e-3
     assert ev_h[0] == pytest.approx(0.0, abs=1e-6 * ev_h[-1])
     rel = np.abs(ev_h[1:] - ev_a[1:]) / ev_a[1:]
@@ -171,6 +183,71 @@ def test_too_small_a_cloud_is_solved_exactly() -> None:
     exact = laplace_eigenpairs(L, mass, 20, solver="arpack")
     fallback = laplace_eigenpairs(L, mass, 20, solver="hierarchical", points=cloud.points, spacing=cloud.spacing)
     np.testing.assert_allclose(fallback[0], exact[0], rtol=1e-9, atol=1e-9)
+
+
+def _spd_laplacian(n_x: int = 30, n_y: int = 20):
+    cloud = curved_panel(n_x, n_y)
+    L, M = point_cloud_laplacian(cloud.points)
+    mass = M.diagonal().copy()
+    return cloud, L, mass, sp.csc_matrix(L + 50.0 * sp.diags(mass))
+
+
+@needs_numba
+def test_block_lu_solves_a_scaled_block_like_scipy() -> None:
+    _, _, mass, A = _spd_laplacian()
+    rng = np.random.default_rng(1)
+    B = rng.standard_normal((A.shape[0], 7))
+    col = rng.uniform(0.5, 2.0, 7)
+    lu = block_lu.BlockLU(A)
+    expected = sla.spsolve(A, (mass[:, None] * B) * col[None, :])
+    tol = {"rtol": 1e-10, "atol": 1e-12 * np.abs(expected).max()}
+    np.testing.assert_allclose(lu.solve(B, row=mass, col=col), expected, **tol)
+    np.testing.assert_allclose(lu.solve(B), sla.spsolve(A, B), rtol=1e-10, atol=1e-10)
+    single = lu.solve(B[:, :1].copy())
+    np.testing.assert_allclose(single[:, 0], sla.spsolve(A, B[:, 0]), rtol=1e-10, atol=1e-10)
+    in_place = B.copy()
+    assert lu.solve(in_place, out=in_place, row=mass, col=col) is in_place  # the block may be its own output
+    np.testing.assert_allclose(in_place, expected, **tol)
+
+
+@needs_numba
+def test_block_lu_refuses_a_matrix_that_needs_pivoting() -> None:
+    A = sp.csc_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 2.0]]))
+    with pytest.raises(RuntimeError, match="positive definite"):
+        block_lu.BlockLU(A)
+
+
+def test_the_factor_uses_cholespy_without_the_compiled_solve(monkeypatch) -> None:
+    _, _, mass, A = _spd_laplacian()
+    B = np.random.default_rng(2).standard_normal((A.shape[0], 5))
+    monkeypatch.setattr(block_lu, "available", lambda: False)
+    factor = hierarchy._Factor(A, block=True)
+    assert factor._block is None
+    np.testing.assert_allclose(factor.solve(B, row=mass), sla.spsolve(A, mass[:, None] * B), rtol=1e-9, atol=1e-12)
+
+
+@needs_numba
+def test_a_failing_compiled_solve_falls_back_to_cholespy(monkeypatch) -> None:
+    _, _, mass, A = _spd_laplacian()
+    B = np.random.default_rng(3).standard_normal((A.shape[0], 5))
+    factor = hierarchy._Factor(A, block=True)
+    assert factor._block is not None
+
+    def broken():
+        raise TypeError("numba could not type the arguments")
+
+    monkeypatch.setattr(block_lu, "_compiled", broken)
+    monkeypatch.setattr(block_lu, "_failure", None)
+    np.testing.assert_allclose(factor.solve(B, row=mass), sla.spsolve(A, mass[:, None] * B), rtol=1e-9, atol=1e-12)
+    assert factor._block is None and not block_lu.available()  # cholespy from now on, in this process
+
+
+def test_the_small_scheme_gives_the_same_pairs_with_either_solve() -> None:
+    cloud, L, mass, _ = _spd_laplacian(60, 40)
+    ev_b, V_b = hierarchical(L, mass, 20, cloud, "small")
+    ev_c, V_c = hierarchical(L, mass, 20, cloud, "small-cholmod")
+    np.testing.assert_allclose(ev_b, ev_c, rtol=1e-8, atol=1e-10 * ev_c[-1])  # the null space's θ ≈ 0 is round-off
+    np.testing.assert_allclose(np.abs(V_b.T @ (mass[:, None] * V_c)), np.eye(20), atol=1e-6)
 
 
 def test_auto_solver_by_size() -> None:

@@ -23,9 +23,11 @@ with a sparse Cholesky factorisation on each level. Here:
   eigenvalue error up to that gap factor (see ``bench/bench_large.py`` for measured errors);
 - below ``SMALL_CLOUD_MAX_POINTS`` points (the papers' clouds), a single coarse level of
   ``SMALL_COARSE_POINTS_PER_VECTOR`` points per vector, solved densely, and a first fine iteration
-  that applies the shift-invert operator twice before its Rayleigh–Ritz step: at that size a solve
-  of p right-hand sides costs less than the dense work around it (the coarse eigensolve, the
-  projections), so a rougher, cheaper coarse space is refined by one more solve instead.
+  that applies the shift-invert operator ``SMALL_FINE_SOLVES`` times before its Rayleigh–Ritz step:
+  at that size a solve of p right-hand sides costs less than the dense work around it (the coarse
+  eigensolve, the projections), so a rougher, cheaper coarse space is refined by more solves
+  instead. The factorisation is SuperLU's and the block solves those of :mod:`tactex.spectral.block_lu`
+  (numba) when available, cholespy otherwise.
 
 The subspace holds p = k + max(k/2, 20) vectors: the extra ones make the k-th pair converge at
 the rate λ_k / λ_{p+1} ≈ 2/3 per iteration on a surface (λ_k grows about linearly with k).
@@ -45,6 +47,7 @@ from scipy.linalg.blas import dsyrk
 from scipy.spatial import cKDTree
 
 from tactex.errors import ConfigError, SpectralError
+from tactex.spectral import block_lu
 
 __all__ = [
     "COARSE_POINTS_PER_VECTOR",
@@ -77,15 +80,21 @@ COARSE_DENSE_MAX_POINTS = 2500
 #: Block iterations on the finest level before giving up.
 MAX_ITERATIONS = 8
 #: Below this many points the hierarchy is a single coarse level (``SMALL_COARSE_POINTS_PER_VECTOR`` points per
-#: vector) and the cloud's first iteration makes two solves before its Rayleigh–Ritz step: at a few thousand
-#: points the cost is in dense work on p columns (the coarse eigensolve, the projections), not in the solves.
+#: vector) and the cloud's first iteration makes ``SMALL_FINE_SOLVES`` solves before its Rayleigh–Ritz step: at a few
+#: thousand points the cost is in dense work on p columns (the coarse eigensolve, the projections), not in the solves.
 SMALL_CLOUD_MAX_POINTS = 10_000
-#: Points per subspace vector of the single coarse level of a small cloud.
-SMALL_COARSE_POINTS_PER_VECTOR = 3.3
-#: On a small cloud σ = −``SMALL_SHIFT_FRACTION`` θ_p (θ_p the largest coarse Ritz value): two solves in a row
-#: multiply a column's null-space component by ((θ_p − σ)/(−σ))², which a shift near zero makes overflow the
+#: Points per subspace vector of the single coarse level of a small cloud. The dense coarse eigensolve grows as its
+#: cube; below 2.5 the coarse space can miss one of the wanted modes, which no later solve brings back.
+SMALL_COARSE_POINTS_PER_VECTOR = 2.5
+#: Shift-invert solves on a small cloud before its first Rayleigh–Ritz step (a solve costs less than refining a
+#: larger coarse level would).
+SMALL_FINE_SOLVES = 3
+#: On a small cloud σ = −``SMALL_SHIFT_FRACTION`` θ_p (θ_p the largest coarse Ritz value): s solves in a row
+#: multiply a column's null-space component by ((θ_p − σ)/(−σ))^s, which a shift near zero makes overflow the
 #: block's conditioning; a shift far below θ_p hardly changes the convergence of the wanted pairs.
 SMALL_SHIFT_FRACTION = 0.01
+#: Small clouds factor with SuperLU and solve blocks with :mod:`tactex.spectral.block_lu` when numba is there.
+SMALL_BLOCK_LU = True
 
 
 @dataclass
@@ -197,13 +206,28 @@ class _Factor:
 
     cholespy (CHOLMOD, supernodal) solves a block of p right-hand sides ~4× faster than SuperLU's
     column-by-column solve on 60k points; SuperLU with a symmetric ordering is the fallback when the
-    wheel is missing on a platform.
+    wheel is missing on a platform. ``block`` (small clouds): SuperLU's factors with the compiled block
+    substitutions of :mod:`tactex.spectral.block_lu` when numba is there, cholespy otherwise; at a few
+    thousand points SuperLU factors faster than CHOLMOD's nested-dissection route and the compiled
+    substitutions solve a block faster than cholespy.
     """
 
-    def __init__(self, A: sp.spmatrix) -> None:
+    def __init__(self, A: sp.spmatrix, block: bool = False) -> None:
         A = sp.csc_matrix(A)
         A.sum_duplicates()
         self.n = A.shape[0]
+        self._block = None
+        self._A = None
+        if block and block_lu.available():
+            try:
+                self._block = block_lu.BlockLU(A)
+                self._A = A  # for cholespy, should the compiled solve fail
+                return
+            except RuntimeError:  # SuperLU left the diagonal: cholespy reports what is wrong with A
+                self._block = None
+        self._init_cholmod(A)
+
+    def _init_cholmod(self, A: sp.csc_matrix) -> None:
         try:
             import cholespy
         except ImportError:  # pragma: no cover - cholespy is a dependency; other platforms may lack a wheel
@@ -215,8 +239,18 @@ class _Factor:
             cholespy.MatrixType.CSC,
         )
 
-    def solve(self, B: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """(L − σM)⁻¹ B for a C-ordered (n, p) block B, written into ``out`` when given (same shape)."""
+    def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
+              col: np.ndarray | None = None) -> np.ndarray:
+        """(L − σM)⁻¹ diag(row) B diag(col) for a C-ordered (n, p) block B (row, col: optional scalings), written
+        into ``out`` when given (same shape; with scalings it may be B itself)."""
+        if self._block is not None:
+            try:
+                return self._block.solve(B, out=out, row=row, col=col)
+            except RuntimeError:  # numba failed (logged once by block_lu): CHOLMOD from now on
+                self._block = None
+                self._init_cholmod(self._A)
+        if row is not None or col is not None:
+            B = B * (1.0 if row is None else row[:, None]) * (1.0 if col is None else col[None, :])
         if self._chol is None:  # pragma: no cover
             X = self._lu.solve(np.asfortranarray(B))
             if out is None:
@@ -246,14 +280,20 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
     Yᵀ M Y is a symmetric rank-k product (half a matrix product).
     """
     scale = np.maximum(theta - sigma, 1e-300)[None, :]
-    X *= mass[:, None]
-    X *= scale
-    Y = factor.solve(X, out=out)
-    for _ in range(solves - 1):
-        np.multiply(Y, mass[:, None], out=X)
+    if solves == 1:
+        X *= mass[:, None]
         X *= scale
-        factor.solve(X, out=Y)
-    A = Y.T @ X
+        Y = factor.solve(X, out=out)
+        A = Y.T @ X
+    else:
+        # The solves scale their right-hand sides themselves; the last two blocks are kept, in the two buffers.
+        prev, Y = X, factor.solve(X, out=out, row=mass, col=scale[0])
+        for _ in range(solves - 2):
+            prev, Y = Y, factor.solve(Y, out=prev, row=mass, col=scale[0])
+        X, Y = Y, factor.solve(Y, out=prev, row=mass, col=scale[0])
+        X *= mass[:, None]
+        A = Y.T @ X  # Yᵀ M Y_prev, the last solve's right-hand side M Y_prev D without D
+        A *= scale
     root = np.multiply(Y, np.sqrt(mass)[:, None], out=X)
     B = dsyrk(1.0, root.T, trans=0, lower=0)  # upper triangle of rootᵀ root (root.T is Fortran-ordered)
     B = np.triu(B) + np.triu(B, 1).T
@@ -367,9 +407,9 @@ def hierarchical_eigenpairs(
         X = levels[level][1] @ X
         Lf, mf = ops[level]
         t0 = time.perf_counter()
-        factor = _Factor(Lf - sigma * sp.diags(mf))
+        factor = _Factor(Lf - sigma * sp.diags(mf), block=small and SMALL_BLOCK_LU)
         t1 = time.perf_counter()
-        theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma, solves=2 if small else 1)
+        theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma, solves=SMALL_FINE_SOLVES if small else 1)
         if level > 0:
             X = np.matmul(Y, Q, out=spare)
         else:
