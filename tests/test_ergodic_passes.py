@@ -139,3 +139,96 @@ def test_the_passes_cover_a_square_close_to_the_ideal_path_and_sooner_than_the_p
     # a 12 cm square at r_a = 7.5 mm: its edges and corners (a quarter of the path) cost a lot against the ideal
     assert with_passes <= 1.9 * ideal
     assert with_passes < without
+
+
+def _holed_square() -> np.ndarray:
+    """A 40 × 40 grid with four 4 × 4 holes: the rings break into arcs."""
+    pts = _grid(40, 40)
+    ij = np.round(pts[:, :2] / H).astype(int)
+    hole = np.zeros(len(pts), dtype=bool)
+    for ci, cj in ((10, 10), (10, 28), (28, 10), (28, 28)):
+        hole |= (np.abs(ij[:, 0] - ci) <= 2) & (np.abs(ij[:, 1] - cj) <= 2)
+    return pts[~hole]
+
+
+def test_each_arc_is_walked_along_itself_and_a_closed_ring_is_one_arc():
+    pts = _grid(41, 41)
+    passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
+    assert passes.order == "tour"
+    passes.lay(0)
+    tour, arc = passes._tour[0], passes._arc[0]
+    assert np.array_equal(np.sort(tour), np.flatnonzero(passes.pending))  # every waypoint once
+    # rings from the square's edge are closed square loops: one arc each, walked round without a jump
+    rings = passes.ring[tour]
+    for a in np.unique(arc):
+        assert np.unique(rings[arc == a]).size == 1
+    assert np.unique(arc).size == np.unique(rings).size
+    step = np.linalg.norm(np.diff(pts[tour], axis=0), axis=1)
+    inside = arc[1:] == arc[:-1]
+    assert step[inside].max() <= 2.0 * H + 1e-9
+    with pytest.raises(ValueError, match="order"):
+        RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H, order="random")
+
+
+def _walk_length(passes: RingPasses, pts: np.ndarray, start: int) -> float:
+    """Path of an agent that jumps to each goal in turn (the passes' own order, no dynamics)."""
+    x, length = pts[start], 0.0
+    for _ in range(5000):
+        g = passes.waypoint(x, passes.nearest(x))
+        if g is None:
+            return length
+        length += float(np.linalg.norm(g - x))
+        x = g
+        passes.mark(x)
+    raise AssertionError("the goals did not run out")
+
+
+def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order():
+    pts = _holed_square()
+    start = int(np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+    lengths = {}
+    for order in ("tour", "greedy"):
+        passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H, order=order, origin="start")
+        lengths[order] = _walk_length(passes, pts, start)
+        assert not passes.pending.any()
+    # the holes cut the rings into arcs: greedy nearest goes back over covered ground between them
+    assert lengths["tour"] < 0.9 * lengths["greedy"]
+
+
+def test_a_guided_agent_that_stalls_hops_to_the_next_waypoint_of_its_tour():
+    pts = _grid(40, 40)
+    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+    ex.reset(pts[15 * 40 + 22])
+    for _ in range(30):
+        ex.step()
+    passes = ex._passes
+    stalled_on = passes._goal
+    assert stalled_on >= 0
+    cmd = ex._relocate(0, "stall")
+    assert cmd is not None and cmd.reason == "stall"
+    assert not passes.pending[stalled_on]  # given up
+    nxt = passes.next_pending(ex._tpos[ex._near[0]])
+    assert passes.pending[nxt] and np.allclose(cmd.point, pts[ex._tidx[nxt]])  # the plan goes on from there
+    assert not passes._replan
+
+
+def test_a_speck_across_a_gap_the_agent_may_not_walk_is_reached_by_relocating():
+    """A few scan points 5 voxels off a plate's edge: one Laplacian part with the plate (their neighbours are plate
+    points), but a gap no walk crosses, and beyond the footprint from the edge. Once the rest is done the agent
+    lifts off and touches down there."""
+    plate = _grid(25, 25)
+    speck = np.array([[-6 * H, 12 * H, 0.0], [-6 * H, 13 * H, 0.0], [-7 * H, 12 * H, 0.0]])
+    pts = np.vstack([plate, speck])
+    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
+    assert basis.n_components == 1
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+    assert ex._passes.n_parts == 2
+    ex.reset(pts[12 * 25 + 12])
+    while ex.untouched_count() > 0 and ex.total_path_length < 3.0:
+        ex.step()
+    assert ex.untouched_count() == 0
+    landed = [np.linalg.norm(speck - r.point, axis=1).min() for r in ex.relocations]
+    assert ex.relocations and min(landed) < H

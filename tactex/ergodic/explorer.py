@@ -597,9 +597,22 @@ class HedacExplorer:
         part = self._labels.item(int(self._near[i]))
         if not (untouched & (self._t_part == part)).any():
             return "part_done"
+        if self.planned_passes and not self._walkable_left(untouched):
+            return "part_done"  # what is left of the part lies across a gap the agent may not walk
         if mon.no_progress(count, k):
             return "no_progress"
         return None
+
+    def _walkable_left(self, untouched: np.ndarray) -> bool:
+        """Whether untouched target (T,) (bool) is left that the agent may walk to: on its part of the passes'
+        graph (links ≤ 2 voxels, see :mod:`.passes`) and not given up (it stalled on the way, or the way led off
+        a scan edge). A speck across a wider gap, e.g. a few scan points hanging below a rim, is reached by
+        relocating."""
+        j = self._tpos.item(self._near[0])
+        if j < 0:
+            return True  # off the target: the potential leads there
+        walk = self._passes.parts
+        return bool((untouched & (walk == walk.item(j)) & ~self._given_up).any())
 
     def _step_with_relocations(self, moves: list[str | None], exact: bool) -> list:
         """One step in which some agents relocate; the others (and those with nowhere to go) walk."""
@@ -627,7 +640,10 @@ class HedacExplorer:
         untouched = self._untouched()
         cand = self._tidx[untouched]
         x = self._x[i].copy()
-        j = choose_touch_down(self._points, cand, self._p_t[untouched], x, self._r_a)
+        j = self._next_on_tour(i) if reason == "stall" else None
+        on_tour = j is not None
+        if j is None:
+            j = choose_touch_down(self._points, cand, self._p_t[untouched], x, self._r_a)
         mon = self._monitors[i]
         if j is None:
             mon.restart(x, self.step_count, 0)
@@ -643,7 +659,7 @@ class HedacExplorer:
         self._agents[i].velocity = np.zeros(3)
         self.air_path_lengths[i] += air
         if self._passes is not None:
-            self._passes.drop_goal(abandon=reason == "stall")
+            self._passes.drop_goal(abandon=reason == "stall", replan=not on_tour)
             if reason == "stall" and self._leftover_goal >= 0:
                 self._given_up[self._leftover_goal] = True  # it stalled on the way: not a goal again
             self._leftover_goal = -1
@@ -654,6 +670,22 @@ class HedacExplorer:
         _log.info("agent %d relocates (%s) from %s to %s m, %.3f m through the air", i, reason,
                   np.round(x, 4).tolist(), np.round(end, 4).tolist(), air)
         return cmd
+
+    def _next_on_tour(self, i: int) -> int | None:
+        """Where a guided agent that stalled touches down: its tour's next waypoint past the one it stalled on
+        (cloud index), if that is untouched (it hops the obstacle and goes on with the plan); else None."""
+        if not self.planned_passes:
+            return None
+        t = self._tpos.item(self._near[i])
+        if t < 0:
+            return None
+        passes = self._passes
+        passes.drop_goal(abandon=True)
+        g = passes.next_pending(t)
+        while g >= 0 and self._cov.item(self._tidx.item(g)) >= self._p_t.item(g):
+            passes.pending[g] = False  # touched already: a footprint passed over it
+            g = passes.next_pending(t)
+        return None if g < 0 else int(self._tidx.item(g))
 
     def _touch_down_normal(self, j: int, current: np.ndarray) -> np.ndarray:
         """Unit outward normal at cloud point j: the fitted patch's, oriented along the cloud's own normal
@@ -931,7 +963,8 @@ class HedacExplorer:
         here = np.array((x.item(0) + shift[0], x.item(1) + shift[1], x.item(2) + shift[2]))
         passes = self._passes
         j = self._tpos.item(self._near[0])
-        wp = passes.waypoint(here, j if j >= 0 else passes.nearest(here))
+        near = j if j >= 0 else passes.nearest(here)
+        wp = passes.waypoint(here, near)
         if wp is None:
             wp = self._leftover(here)
             if wp is None:

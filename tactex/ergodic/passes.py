@@ -51,9 +51,27 @@ MAX_LINK = 2.0
 EDGE_NEIGHBOURS = 12
 EDGE_OFFSET = 0.25
 MIN_EDGE_POINTS = 10
+#: Edge points this close [voxels] are one run of the edge, tried in turn (a rim where the surface turns steep is
+#: sampled sparsely and its edge points lie a few voxels apart; a scan's dropouts lie a few voxels inside its rim).
+EDGE_LINKS = (2.0, 4.0)
 #: On the way to a far goal the agent steers at the point within this many half-voxels nearest to it by surface
 #: distance (a carrot a few voxels ahead on the shortest path).
 CARROT = 6.0
+#: Walking an arc, the agent steers at the farthest of its next waypoints still within AHEAD voxels of it (a
+#: carrot on the line: it tracks the pass, not each point, and does not wiggle around them).
+AHEAD = 3.0
+#: Waypoints of an arc looked at for the agent's place on it and for the carrot [-].
+WINDOW = 16
+#: A tour of rings from the start counts this many times its length against one from the edge: the edge's own
+#: points are then left for the end, each a trip, where the first ring from the edge covers them [-].
+START_PENALTY = 1.1
+#: Waypoints of an arc between two along which its length is measured [-] (see RingPasses._tour_length).
+SUBSAMPLE = 3
+#: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
+TWO_OPT_PASSES = 20
+#: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
+#: "greedy": the pending waypoint of least cost (distance plus ring), the earlier rule.
+ORDERS = ("tour", "greedy")
 
 
 class RingPasses:
@@ -73,7 +91,8 @@ class RingPasses:
     """
 
     def __init__(self, points: np.ndarray, links, pass_spacing_m: float, reach_m: float, voxel_m: float,
-                 ring_cost: float = 1.0, allowed: np.ndarray | None = None, origin: str = "edge") -> None:
+                 ring_cost: float = 1.0, allowed: np.ndarray | None = None, origin: str = "edge",
+                 order: str = "tour") -> None:
         self._points = np.asarray(points, dtype=np.float64)
         n = len(self._points)
         self.pass_spacing_m = float(pass_spacing_m)
@@ -98,8 +117,16 @@ class RingPasses:
         if origin not in PASS_ORIGINS:
             raise ValueError(f"origin must be one of {PASS_ORIGINS}, got {origin!r}")
         self.origin = origin
+        if order not in ORDERS:
+            raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
+        self.order = order
         self._edge = self._edge_points() if origin == "edge" else np.zeros(n, dtype=bool)
         self.reset()
+
+    @property
+    def parts(self) -> np.ndarray:
+        """Connected part of each target point (T,) over the links the agent may walk (≤ ``MAX_LINK`` voxels)."""
+        return self._part
 
     def reset(self) -> None:
         """No rings laid, nothing done."""
@@ -108,34 +135,235 @@ class RingPasses:
         self._laid = np.zeros(self.n_parts, dtype=bool)
         self._goal = -1
         self._to_goal = None  # surface distance to a far goal [m] (T,), or None: steer straight at it
+        self._tour: dict[int, np.ndarray] = {}  # per part: its waypoints in walking order
+        self._arc: dict[int, np.ndarray] = {}  # per part: the arc of each entry of the tour (a new arc: a jump)
+        self._at: dict[int, int] = {}  # per part: the first entry of the tour not walked yet
+        self._replan = False
 
-    def drop_goal(self, abandon: bool) -> None:
-        """Forget the current goal (the agent relocated); ``abandon``: it could not reach it, mark it done."""
+    def drop_goal(self, abandon: bool, replan: bool = False) -> None:
+        """Forget the current goal; ``abandon``: the agent could not reach it, mark it done; ``replan``: the agent
+        moved (it relocated), the tour of the part it is on is planned again from there."""
         if abandon and self._goal >= 0:
             self.pending[self._goal] = False
         self._goal = -1
         self._to_goal = None
+        self._replan = self._replan or replan
 
     def lay(self, start: int) -> None:
-        """Lay the rings of target point ``start``'s part from it (once per part)."""
+        """Lay the rings of target point ``start``'s part (once per part). With origin "edge" and the tour, the
+        rings from the outer edge found with each of ``EDGE_LINKS`` and from the start are all planned, and the
+        shortest tour is kept (a scan's rim may be sampled sparsely, a closed surface has only the edges of its
+        holes; no single rule suits every part)."""
         part = int(self._part[start])
         if self._laid[part]:
             return
         self._laid[part] = True
         members = np.flatnonzero(self._part == part)
         sub = self._graph[members][:, members]
-        edge = self._outer_edge(members) if self.origin == "edge" else np.zeros(0, dtype=np.intp)
-        if edge.size >= MIN_EDGE_POINTS:
-            d = dijkstra(sub, directed=False, indices=edge, min_only=True)
-        else:  # no edge (a closed surface) or rings from the start asked for
-            d = dijkstra(sub, directed=False, indices=int(np.searchsorted(members, start)))
-        d = self._smooth(sub, d)
-        w = self.pass_spacing_m
-        k = np.floor(d / w)
-        on_line = np.abs(d - (k + 0.5) * w) <= self._half_line
-        way = members[on_line & self._allowed[members]]
-        self.ring[way] = k[on_line & self._allowed[members]].astype(np.intp)
+        s = int(np.searchsorted(members, start))
+        seeds: list[np.ndarray] = []
+        if self.origin == "edge":
+            for link in EDGE_LINKS if self.order == "tour" else EDGE_LINKS[:1]:
+                edge = self._outer_edge(members, link)
+                if edge.size >= MIN_EDGE_POINTS and not any(np.array_equal(edge, e) for e in seeds):
+                    seeds.append(edge)
+        if not seeds or self.order == "tour":  # no edge (closed), rings from the start asked for, or a candidate
+            seeds.append(np.array([s]))
+        best = None
+        for seed in seeds:
+            d = dijkstra(sub, directed=False, indices=seed, min_only=True)
+            d = self._smooth(sub, d)
+            w = self.pass_spacing_m
+            k = np.floor(d / w)
+            on_line = (np.abs(d - (k + 0.5) * w) <= self._half_line) & self._allowed[members]
+            way = members[on_line]
+            self.ring[way] = k[on_line].astype(np.intp)
+            self.pending[way] = True
+            if self.order != "tour":
+                return
+            self._plan(part, self._points[start])
+            length = self._tour_length(part)
+            if seed.size == 1 and len(seeds) > 1:
+                length *= START_PENALTY
+            if best is None or length < best[0]:
+                best = (length, way, self.ring[way].copy(), self._tour[part], self._arc[part])
+            self.ring[way] = -1
+            self.pending[way] = False
+        _, way, ring, self._tour[part], self._arc[part] = best
+        self.ring[way] = ring
         self.pending[way] = True
+        self._at[part] = 0
+
+    # ------------------------------------------------------------------ the tour over the arcs
+    def _plan(self, part: int, x: np.ndarray) -> None:
+        """The part's pending waypoints as arcs (connected runs of one ring's middle line, each in order along it),
+        and the arcs in the order of a short open tour from x (3,) [m]: nearest neighbour over the arcs' ends
+        (a closed arc is entered at its point nearest to where the tour is), then 2-opt."""
+        idx = np.flatnonzero(self.pending & (self._part == part))
+        arcs = self._arcs(idx)
+        self._at[part] = 0
+        if not arcs:
+            self._tour[part] = np.zeros(0, dtype=np.intp)
+            self._arc[part] = np.zeros(0, dtype=np.intp)
+            return
+        walk = self._tour_of(arcs, np.asarray(x, dtype=np.float64))
+        self._tour[part] = np.concatenate(walk)
+        self._arc[part] = np.repeat(np.arange(len(walk)), [len(a) for a in walk])
+
+    def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
+        """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
+        neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt."""
+        p = self._points
+        closed = [self._closed(a) for a in arcs]
+        left = list(range(len(arcs)))
+        here = x
+        walk: list[np.ndarray] = []
+        while left:  # nearest neighbour
+            best, best_d, best_seq = -1, np.inf, None
+            for i in left:
+                a = arcs[i]
+                if closed[i]:
+                    d = np.linalg.norm(p[a] - here, axis=1)
+                    j = int(d.argmin())
+                    cand, dist = np.roll(a, -j), float(d[j])
+                else:
+                    d0, d1 = np.linalg.norm(p[a[0]] - here), np.linalg.norm(p[a[-1]] - here)
+                    cand, dist = (a, d0) if d0 <= d1 else (a[::-1], d1)
+                if dist < best_d:
+                    best, best_d, best_seq = i, dist, cand
+            left.remove(best)
+            walk.append(best_seq)
+            here = p[best_seq[-1]]
+        return self._two_opt(walk, x)
+
+    def _tour_length(self, part: int) -> float:
+        """Length [m] of the part's tour: along each arc through every third waypoint (the middle line is a voxel
+        thick, and a polyline through each of its points zigzags across it), and the jumps between arcs."""
+        tour, arc = self._tour[part], self._arc[part]
+        if tour.size < 2:
+            return 0.0
+        starts = np.flatnonzero(np.r_[True, arc[1:] != arc[:-1]])
+        ends = np.r_[starts[1:], tour.size] - 1
+        keep = np.zeros(tour.size, dtype=bool)
+        keep[::SUBSAMPLE] = True
+        keep[starts] = keep[ends] = True
+        return float(np.linalg.norm(np.diff(self._points[tour[keep]], axis=0), axis=1).sum())
+
+    def _two_opt(self, walk: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
+        """2-opt on an open tour of arcs from x: reversing a run of arcs reverses each of them too."""
+        n = len(walk)
+        if n < 3:
+            return walk
+        p = self._points
+        for _ in range(TWO_OPT_PASSES):
+            entry = np.array([p[a[0]] for a in walk])
+            out = np.array([p[a[-1]] for a in walk])
+            before = np.vstack([x[None], out[:-1]])  # where the tour is before arc i
+            improved = False
+            for i in range(n - 1):
+                # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
+                # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
+                j = np.arange(i + 1, n)
+                old = np.linalg.norm(entry[i] - before[i])
+                new = np.linalg.norm(out[j] - before[i], axis=1)
+                nxt = np.vstack([entry[j[:-1] + 1], np.full((1, 3), np.nan)])
+                old_after = np.linalg.norm(nxt - out[j], axis=1)
+                new_after = np.linalg.norm(nxt - entry[i], axis=1)
+                old_after[-1] = new_after[-1] = 0.0
+                gain = old + old_after - new - new_after
+                k = int(gain.argmax())
+                if gain[k] > 1e-9:
+                    jj = int(j[k])
+                    walk[i:jj + 1] = [a[::-1] for a in walk[i:jj + 1][::-1]]
+                    improved = True
+                    break
+            if not improved:
+                break
+        return walk
+
+    def _arcs(self, idx: np.ndarray) -> list[np.ndarray]:
+        """Waypoints idx split into arcs: per ring, the connected runs of its middle line (links ≤ MAX_LINK
+        voxels), each ordered along itself."""
+        link = MAX_LINK * 2.0 * self._half_line
+        arcs: list[np.ndarray] = []
+        for k in np.unique(self.ring[idx]):
+            ring = idx[self.ring[idx] == k]
+            if ring.size <= 2:
+                arcs.extend(ring[i:i + 1] for i in range(ring.size))
+                continue
+            q = self._points[ring]
+            pairs = cKDTree(q).query_pairs(link, output_type="ndarray")
+            length = np.maximum(np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1), 1e-12)
+            g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size)).tocsr()
+            g = g.maximum(g.T)
+            n, label = connected_components(g, directed=False)
+            for c in range(n):
+                m = np.flatnonzero(label == c)
+                arcs.append(ring[m[self._along(g[m][:, m], q[m])]])
+        return arcs
+
+    def _along(self, g: csr_matrix, q: np.ndarray) -> np.ndarray:
+        """The order along a connected run of a middle line (its graph g, points q): from one end by surface
+        distance; a closed run is cut next to that end and walked round from one side of the cut to the other."""
+        if len(q) <= 2:
+            return np.arange(len(q))
+        a = int(np.nan_to_num(dijkstra(g, indices=0), posinf=-1.0).argmax())  # an end (the farthest from any point)
+        da = dijkstra(g, indices=a)
+        voxel = 2.0 * self._half_line
+        cut = np.linalg.norm(q - q[a], axis=1) <= MAX_LINK * voxel
+        rest = np.flatnonzero(~cut)
+        if rest.size > 2:
+            sub = g[rest][:, rest]
+            n, _ = connected_components(sub, directed=False)
+            if n == 1:
+                e0 = int(np.nan_to_num(dijkstra(sub, indices=0), posinf=-1.0).argmax())
+                d0 = dijkstra(sub, indices=e0)
+                e1 = int(np.nan_to_num(d0, posinf=-1.0).argmax())
+                near_a = np.linalg.norm(q[rest[[e0, e1]]] - q[a], axis=1) <= (MAX_LINK + 1.5) * voxel
+                if near_a.all() and d0[e1] > 2.0 * (MAX_LINK + 1.5) * voxel:  # a loop: both ends of the rest by a
+                    head = rest[np.argsort(d0, kind="stable")]
+                    tail = np.flatnonzero(cut)
+                    tail = tail[np.argsort(np.linalg.norm(q[tail] - q[head[-1]], axis=1), kind="stable")]
+                    return np.concatenate([head, tail])
+        return np.argsort(np.nan_to_num(da, posinf=np.inf), kind="stable")
+
+    def _closed(self, arc: np.ndarray) -> bool:
+        """Whether the arc (in order) ends next to where it starts (a loop, entered anywhere)."""
+        return arc.size > 2 * WINDOW and bool(
+            np.linalg.norm(self._points[arc[0]] - self._points[arc[-1]]) <= (MAX_LINK + 1.5) * 2.0 * self._half_line)
+
+    def _follow(self, x: np.ndarray, part: int) -> int:
+        """The waypoint the agent at x (3,) [m] on the part steers at along the tour, or −1 when none is left.
+        Entries of the tour behind the agent's place on its arc are done; far from the tour's next entry (the
+        start of another arc) the entry itself is the goal."""
+        tour, arc = self._tour[part], self._arc[part]
+        i = self._at[part]
+        p = self._points
+        while True:
+            while i < tour.size and not self.pending[tour[i]]:
+                i += 1
+            if i >= tour.size:
+                self._at[part] = i
+                return -1
+            if np.linalg.norm(p[tour[i]] - x) > self.pass_spacing_m:
+                self._at[part] = i
+                return int(tour[i])
+            end = min(tour.size, i + WINDOW)
+            same = (arc[i:end] == arc[i]) & self.pending[tour[i:end]]  # a given-up waypoint is no carrot
+            win = tour[i:end][same]
+            d = np.linalg.norm(p[win] - x, axis=1)
+            m = int(d.argmin())
+            self.pending[win[:m]] = False  # the agent's place on the arc: what lies behind it is walked
+            i += m
+            d = d[m:]
+            beyond = np.flatnonzero(d > AHEAD * 2.0 * self._half_line)
+            c = (int(beyond[0]) - 1 if beyond.size else d.size - 1)
+            if c <= 0 and d[0] <= self.reach_m:
+                self.pending[tour[i]] = False
+                i += 1
+                continue
+            self._at[part] = i
+            return int(win[m + max(c, 0)])
 
     def _edge_points(self) -> np.ndarray:
         """Target points (T,) (bool) on the edge of the target: their nearest neighbours' centroid lies more than
@@ -145,14 +373,14 @@ class RingPasses:
         offset = np.linalg.norm(self._points[idx].mean(axis=1) - self._points, axis=1)
         return offset > EDGE_OFFSET * np.maximum(dist[:, -1], 1e-12)
 
-    def _outer_edge(self, members: np.ndarray) -> np.ndarray:
+    def _outer_edge(self, members: np.ndarray, link: float = EDGE_LINKS[0]) -> np.ndarray:
         """Positions in ``members`` of the longest connected run of edge points of that part (its outer edge; a scan's
         holes and dropouts inside have edges too, and rings from all of them would cut the part into pieces)."""
         edge = np.flatnonzero(self._edge[members])
         if edge.size < MIN_EDGE_POINTS:
             return edge
         tree = cKDTree(self._points[members[edge]])
-        pairs = tree.query_pairs(2.0 * self._half_line * MAX_LINK, output_type="ndarray")
+        pairs = tree.query_pairs(2.0 * self._half_line * link, output_type="ndarray")
         graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(edge.size, edge.size))
         _, label = connected_components(graph, directed=False)
         size = np.bincount(label)
@@ -188,6 +416,8 @@ class RingPasses:
         """The waypoint [m] (3,) the agent at x (3,) [m], nearest target point ``near``, steers at; None
         when its part has no pending waypoint (lays the part's rings first if they are not)."""
         self.lay(near)
+        if self.order == "tour":
+            return self._tour_waypoint(x, near)
         g = self._goal
         if not (g >= 0 and self.pending[g] and self._part[g] == self._part[near]):
             cand = np.flatnonzero(self.pending & (self._part == self._part[near]))
@@ -204,6 +434,49 @@ class RingPasses:
                 # Far (the start of another arc): a straight line across a curved surface may lead into a fold
                 # or off an edge; walk down the surface distance to the goal instead.
                 self._to_goal = dijkstra(self._graph, directed=False, indices=g, limit=4.0 * float(dist[k]))
+        if self._to_goal is None:
+            return self._points[g]
+        around = np.asarray(self._tree.query_ball_point(x, CARROT * self._half_line), dtype=np.intp)
+        if around.size == 0:
+            return self._points[g]
+        to = self._to_goal[around]
+        k = int(to.argmin())
+        if not np.isfinite(to[k]) or to[k] <= self.reach_m:
+            self._to_goal = None
+            return self._points[g]
+        return self._points[around[k]]
+
+    def next_pending(self, near: int) -> int:
+        """The next pending waypoint on the tour of target point ``near``'s part (target index), or −1."""
+        part = int(self._part[near])
+        tour = self._tour.get(part)
+        if tour is None:
+            return -1
+        i = self._at[part]
+        while i < tour.size and not self.pending[tour[i]]:
+            i += 1
+        self._at[part] = i
+        return int(tour[i]) if i < tour.size else -1
+
+    def _tour_waypoint(self, x: np.ndarray, near: int) -> np.ndarray | None:
+        part = int(self._part[near])
+        if self._replan:
+            self._replan = False
+            self._goal, self._to_goal = -1, None
+            self._plan(part, x)
+        g = self._follow(x, part)
+        if g < 0:
+            self._goal, self._to_goal = -1, None
+            return None
+        if g != self._goal:
+            self._goal, self._to_goal = g, None
+            dist = float(np.linalg.norm(self._points[g] - x))
+            if dist > self.pass_spacing_m:
+                self._to_goal = dijkstra(self._graph, directed=False, indices=g, limit=4.0 * dist)
+        return self._descend(x, g)
+
+    def _descend(self, x: np.ndarray, g: int) -> np.ndarray:
+        """Goal g, or on the way to a far one the carrot a few voxels ahead down the surface distance to it."""
         if self._to_goal is None:
             return self._points[g]
         around = np.asarray(self._tree.query_ball_point(x, CARROT * self._half_line), dtype=np.intp)
