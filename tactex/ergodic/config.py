@@ -149,7 +149,8 @@ class HedacConfig:
     )
     sweep_pass_origin: str = param(
         "edge", "sweep: where the planned passes' rings start: 'edge' = from the target's outer edge inwards "
-        "(contour-parallel; from the start on a surface without an edge), 'start' = from the agent's start outwards"
+        "(contour-parallel) or from the start, whichever plan walks shorter (from the start on a surface without an "
+        "edge), 'start' = from the agent's start outwards"
     )
     compiled: bool = param(
         True,

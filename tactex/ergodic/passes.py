@@ -6,23 +6,24 @@ as the potential happens to curve and leave slivers and single points between th
 later pass. A planned sweep lays its passes side by side instead: along the level sets of the
 geodesic distance d (its rings), ``pass_spacing`` apart, from the target's outer edge (origin
 "edge": contour-parallel passes, as a pocket is milled; the first pass's footprint reaches the
-edge, and a disc is covered in closed loops) or, on a surface without an edge or with origin
-"start", from the agent's start. The ring k holds
-the target points with k·w ≤ d < (k+1)·w, w = ``pass_spacing``; its pass runs along d = (k+½)·w,
-so a footprint of radius r_a ≥ w/2 centred on it covers the ring, and w a little under 2 r_a leaves
-an overlap for the agent's tracking error. On a closed or holed surface a ring breaks into several
-arcs; at the end of an arc the agent goes on with the next ring when that is near (one pass back
-along it, a boustrophedon) and comes back for the rest of the ring later.
+edge, and a disc is covered in closed loops) or from the agent's start, whichever tour (below) is
+shorter; origin "start" always from the start. The ring k holds the target points with
+k·w ≤ d < (k+1)·w, w = ``pass_spacing``; its pass runs along d = (k+½)·w, so a footprint of radius
+r_a ≥ w/2 centred on it covers the ring, and w a little under 2 r_a leaves an overlap for the agent's
+tracking error.
 
 The plan is a set of waypoints, the target points on the middle line of their ring
-(|d − (k+½)·w| ≤ ½ voxel). The agent steers at the pending waypoint of least
-
-    cost_j = |x_j − x| + ``ring_cost`` · w · (k_j − k_low),  k_low = the lowest ring with a pending waypoint,
-
-and a waypoint is done once the agent came within ``reach_m`` of it (the same voxel, about). When no
-waypoint of the agent's part is left the explorer takes it to the nearest untouched point of the
-part, one after the other, and then the sweep source's potential and the relocation rules take over
-(other parts get their rings when the agent touches down there).
+(|d − (k+½)·w| ≤ ½ voxel). On a closed or holed surface a ring's middle line breaks into several
+arcs (its connected runs); each arc is ordered along itself, and the arcs are walked as an open tour
+from the agent: nearest neighbour over their ends (a closed arc is entered anywhere), then 2-opt.
+Along an arc the agent steers at a carrot, the farthest of its next waypoints within ``AHEAD``
+voxels; the waypoints behind its place on the arc are done. The start of the next arc, when farther
+than a pass spacing, is reached down the surface distance to it. (Order "greedy", the earlier rule:
+the pending waypoint of least cost_j = |x_j − x| + ``ring_cost`` · w · (k_j − k_low).) A waypoint is
+also done once the agent came within ``reach_m`` of it. When no waypoint of the agent's part is left
+the explorer takes it to the nearest untouched point of the part, one after the other, and then the
+sweep source's potential and the relocation rules take over (other parts get their rings when the
+agent touches down there; a relocation plans the tour again from where it lands).
 
 d is Dijkstra's distance (scipy.sparse.csgraph) over the links of the cloud's Laplacian between
 target points, each as long as its chord: the same neighbourhoods the heat diffuses over, and the
@@ -87,7 +88,10 @@ class RingPasses:
         ring_cost: cost of one ring beyond the lowest pending one, in pass spacings [-].
         allowed: target points (T,) (bool) a waypoint may be on (e.g. clear of keep-out zones), or None: all.
         origin: where the rings start, one of ``PASS_ORIGINS``: "edge" (the part's longest run of edge points;
-            from the start on a part without one) or "start".
+            from the start on a part without one; with order "tour", also from the start, and the shorter tour is
+            kept) or "start".
+        order: the walking order, one of ``ORDERS``: "tour" (the arcs as a tour, a carrot along each) or "greedy"
+            (the pending waypoint of least cost).
     """
 
     def __init__(self, points: np.ndarray, links, pass_spacing_m: float, reach_m: float, voxel_m: float,
