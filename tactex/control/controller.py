@@ -34,12 +34,6 @@ class Controller(ABC):
         same as :meth:`reset` (a controller without tanks has nothing to keep)."""
         self.reset(state)
 
-    def prepare(self, state: RobotState) -> None:  # noqa: B027 - optional hook
-        """Called once the torque for ``state`` is sent, before the next state is read (on a real
-        robot: while the robot executes it): work that depends on the posture but not on the next
-        tick's errors, e.g. joint-space operators (:mod:`tactex.control.prepared`), belongs here,
-        out of the window between a state and its command. Nothing by default."""
-
     @abstractmethod
     def torque(self, state: RobotState, reference: Any) -> np.ndarray:
         """Joint torques (n,) [N·m] for this tick, gravity NOT included (the robot compensates it)."""

@@ -35,8 +35,7 @@ import numpy as np
 
 from tactex.config import param
 from tactex.control.controller import Controller
-from tactex.control.linalg import solve
-from tactex.control.prepared import PreparedOperator
+from tactex.control.damping import latency_shaped_torque
 from tactex.control.references import LineForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
@@ -161,10 +160,8 @@ class GaLineForceController(Controller):
         self._w_c2 = 0.0
         self._w_hist: list[list[float]] = []  # the last wrench_median_ticks raw wrenches, oldest first
         self._err2 = 0.0
-        self._operator = PreparedOperator()
 
     def reset(self, state: RobotState) -> None:
-        self._operator.clear()
         self._integral = [0.0] * 6
         self._err_prev = [0.0] * 6
         self._derr = [0.0] * 6
@@ -265,43 +262,25 @@ class GaLineForceController(Controller):
         if excess > 0.0 and w_meas[2] < p.approach_below * force_n:
             w_tool[2] -= p.approach_damping_z * excess  # speed cap while approaching (not in eq. 47)
         self._w_line = w_line
-        # the wrench [R f; R m] in the world, on floats
+        # τ = Jᵀ [R f; R m]: the rotation on floats, one (6,) · (6, 7) product
         f0, f1, f2, m0, m1, m2 = w_tool
         f_world = (r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2, r20 * f0 + r21 * f1 + r22 * f2,
                    r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2, r20 * m0 + r21 * m1 + r22 * m2)
-        # eq. 46–47's −Jᵀ D J^ee q̇ as joint damping, the whole impedance applied implicitly over
-        # latency_horizon_ticks (:meth:`joint_operators`), with the operators prepared after the last command
-        op = self._operator.get(state.q)
-        s_jt, s_d = op if op is not None else self.joint_operators(state)
-        return np.dot(s_jt, f_world) - s_d @ state.dq
-
-    def prepare(self, state: RobotState) -> None:
-        """Build the next tick's joint operators (:meth:`joint_operators`) at ``state``, whose command
-        is on its way (:mod:`tactex.control.prepared`)."""
-        self._operator.store(state.q, self.joint_operators(state))
-
-    def joint_operators(self, state: RobotState) -> tuple[np.ndarray, np.ndarray]:
-        """(S Jᵀ (n, 6), S D_q (n, n)) with τ = S (Jᵀ f − D_q q̇) for a world wrench f: the line
-        impedance's damping D and stiffness K in the tool frame as joint matrices D_q = Jₜᵀ D Jₜ,
-        K_q = Jₜᵀ K Jₜ, and S = M (M + h·D_q + h²·K_q)⁻¹ over h = ``latency_horizon_ticks``·dt
-        (:func:`tactex.control.damping.latency_shaped_torque`; S = I when h = 0). The explicit form rings
-        at 500 Hz on the wrist, whose rotation about the flange axis is too light for 10 N·m·s/rad at
-        1 kHz, and at 60 Hz behind a one-tick command delay; on heavy modes the two are the same."""
-        p = self.params
         jac = state.jacobian
+        # eq. 46–47's −Jᵀ D J^ee q̇ as joint damping, and the whole impedance applied implicitly over
+        # latency_horizon_ticks (tactex.control.damping): the explicit form rings at 500 Hz on the wrist,
+        # whose rotation about the flange axis is too light for 10 N·m·s/rad at 1 kHz, and at 60 Hz behind
+        # a one-tick command delay; on heavy modes the two are the same
         jac_tool = np.empty_like(jac)
         rt = state.ee_rotation.T
         np.dot(rt, jac[:3], out=jac_tool[:3])
         np.dot(rt, jac[3:], out=jac_tool[3:])
         damping = jac_tool.T @ (self._d[:, None] * jac_tool)
-        jac_t = np.ascontiguousarray(jac.T)
-        h = p.latency_horizon_ticks * p.dt
-        if h <= 0:
-            return jac_t, damping
         stiffness = jac_tool.T @ (self._k[:, None] * jac_tool)
-        mass = state.mass_matrix
-        both = mass @ solve(mass + h * damping + (h * h) * stiffness, np.hstack([jac_t, damping]))
-        return np.ascontiguousarray(both[:, :6]), np.ascontiguousarray(both[:, 6:])
+        tau = np.dot(f_world, jac) - damping @ state.dq
+        if p.latency_horizon_ticks <= 0:
+            return tau
+        return latency_shaped_torque(state.mass_matrix, tau, damping, stiffness, p.latency_horizon_ticks * p.dt)
 
     def _alpha(self, dt: float) -> float:
         return dt / (dt + self._tau_d)

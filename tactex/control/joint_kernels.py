@@ -1,15 +1,13 @@
 """The joint-space end of the task-space controllers, compiled with numba (the optional ``fast`` extra).
 
 Two pieces of every contact tick are small dense algebra on the 7 × 7 mass matrix and the 6 × 7
-Jacobian: UFIC's latency-shaped operator B = M (M + h·Jₜᵀ(D + h·K)Jₜ)⁻¹ Jᵀ, τ = B f
-(:meth:`tactex.control.ufic.UficController.joint_torque`), and the null-space posture operator P,
-τ = P τ₀ (:class:`tactex.control.nullspace.NullspacePosture`). Both depend on the posture (and B
-on the slowly switched D_C), not on the tick's errors, so the controllers build them in
-``prepare`` from the state just answered, after its command is sent, and the next tick applies
-them with one matrix–vector product (docs/real_robot.md: the window between a state and its
-command). As numpy they are a dozen small calls each, whose dispatch, not their arithmetic, is the
-cost; here each is one compiled call doing the same operations in the same order. The numpy forms
-stay the reference: the tests check that both give the same operators to round-off.
+Jacobian: UFIC's latency-shaped τ = M (M + h·Jₜᵀ(D + h·K)Jₜ)⁻¹ Jᵀf
+(:meth:`tactex.control.ufic.UficController.joint_torque`) and the null-space posture torque
+(:class:`tactex.control.nullspace.NullspacePosture`). As numpy they are a dozen small calls each,
+and the calls' dispatch, not their arithmetic, is their cost, paid between a robot state and its
+command (docs/real_robot.md). Here each is one
+compiled call doing the same operations in the same order. The numpy forms stay the reference:
+the tests check that both give the same torque to round-off.
 
 numba is imported on the first :func:`kernels` call, not with this module, and the machine code is
 made then for the one set of argument types the controllers use (once per machine: numba caches
@@ -30,20 +28,24 @@ import numpy as np
 
 _log = logging.getLogger(__name__)
 
-__all__ = ["JointKernels", "available", "disable", "kernels", "latency_shaped_task_operator", "posture_operator", "run"]
+__all__ = ["JointKernels", "available", "disable", "kernels", "latency_shaped_task_torque", "posture_torque", "run"]
 
 
-def latency_shaped_task_operator(jac: np.ndarray, rot: np.ndarray, mass: np.ndarray, d_tool: np.ndarray,
-                                 k_tool: np.ndarray, horizon_s: float) -> np.ndarray:
-    """B = M (M + h·Jₜᵀ diag(D + h·K) Jₜ)⁻¹ Jᵀ (n, 6), so that τ = B f [N·m] for a world wrench f;
-    Jₜ = [RᵀJ_v; RᵀJ_ω] is the Jacobian in the tool frame.
+def latency_shaped_task_torque(jac: np.ndarray, rot: np.ndarray, mass: np.ndarray, f_world: np.ndarray,
+                               d_tool: np.ndarray, k_tool: np.ndarray, horizon_s: float) -> np.ndarray:
+    """M (M + h·Jₜᵀ diag(D + h·K) Jₜ)⁻¹ Jᵀ f [N·m], Jₜ = [RᵀJ_v; RᵀJ_ω] the Jacobian in the tool frame.
 
     Args:
-        jac: (6, n) TCP Jacobian, world frame. rot: (3, 3) world_R_tool. mass: (n, n) [kg·m²].
-        d_tool, k_tool: (6,) tool-frame damping [N·s/m, N·m·s/rad] and stiffness [N/m, N·m/rad].
-        horizon_s: h [s], > 0.
+        jac: (6, 7) TCP Jacobian, world frame. rot: (3, 3) world_R_tool. mass: (7, 7) [kg·m²].
+        f_world: (6,) world wrench [N, N·m]. d_tool, k_tool: (6,) tool-frame damping [N·s/m, N·m·s/rad]
+        and stiffness [N/m, N·m/rad]. horizon_s: h [s], > 0.
     """
     n = jac.shape[1]
+    tau0 = np.zeros(n)
+    for i in range(6):
+        fi = f_world[i]
+        for j in range(n):
+            tau0[j] += fi * jac[i, j]
     jt = np.zeros((6, n))
     for a in range(3):
         for j in range(n):
@@ -56,37 +58,38 @@ def latency_shaped_task_operator(jac: np.ndarray, rot: np.ndarray, mass: np.ndar
             gr = g * jt[i, r]
             for c in range(n):
                 a_mat[r, c] += gr * jt[i, c]
-    return mass @ np.linalg.solve(a_mat, np.ascontiguousarray(jac.T))
+    return mass @ np.linalg.solve(a_mat, tau0)
 
 
-def posture_operator(jac: np.ndarray, mass: np.ndarray, stiffness: float, damping: float, horizon_s: float,
-                     pinv_damping: float) -> np.ndarray:
-    """P (n, n) such that the null-space posture torque is P τ₀ [N·m], τ₀ = k (q_d − q) − d q̇:
-    P = M (M + (h·d + h²·k) I)⁻¹ N with N = I − Jᵀ(J Jᵀ + δ²I)⁻¹ J (the first factor only when h > 0).
+def posture_torque(jac: np.ndarray, mass: np.ndarray, q_posture: np.ndarray, q: np.ndarray, dq: np.ndarray,
+                   stiffness: float, damping: float, horizon_s: float, pinv_damping: float) -> np.ndarray:
+    """The null-space posture torque [N·m]: N τ₀ with τ₀ = k (q_d − q) − d q̇ and
+    N τ₀ = τ₀ − Jᵀ(J Jᵀ + δ²I)⁻¹ J τ₀, then M (M + (h·d + h²·k) I)⁻¹ (·) when h > 0.
 
     Args:
-        jac: (6, n) TCP Jacobian. mass: (n, n) [kg·m²]. stiffness k [N·m/rad], damping d [N·m·s/rad],
-        horizon_s h [s] ≥ 0, pinv_damping δ [-].
+        jac: (6, 7) TCP Jacobian. mass: (7, 7) [kg·m²]. q_posture, q, dq: (7,) [rad, rad/s].
+        stiffness [N·m/rad], damping [N·m·s/rad], horizon_s h [s] ≥ 0, pinv_damping δ [-].
     """
-    n = jac.shape[1]
+    n = q.shape[0]
+    tau = stiffness * (q_posture - q) - damping * dq
     jjt = jac @ jac.T
     for i in range(jjt.shape[0]):
         jjt[i, i] += pinv_damping * pinv_damping
-    proj = np.eye(n) - jac.T @ np.linalg.solve(jjt, jac)
+    tau = tau - jac.T @ np.linalg.solve(jjt, jac @ tau)
     if horizon_s > 0.0:
         a_mat = mass.copy()
         extra = horizon_s * damping + horizon_s * horizon_s * stiffness
         for i in range(n):
             a_mat[i, i] += extra
-        proj = mass @ np.linalg.solve(a_mat, proj)
-    return proj
+        tau = mass @ np.linalg.solve(a_mat, tau)
+    return tau
 
 
 class JointKernels(NamedTuple):
-    """The compiled forms of :func:`latency_shaped_task_operator` and :func:`posture_operator`."""
+    """The compiled forms of :func:`latency_shaped_task_torque` and :func:`posture_torque`."""
 
-    task_operator: object
-    posture_operator: object
+    task_torque: object
+    posture_torque: object
 
 
 _kernels: JointKernels | None = None
@@ -114,14 +117,14 @@ def kernels() -> JointKernels | None:
         if config.DISABLE_JIT:
             return None
         f8v, f8m = "float64[::1]", "float64[:, ::1]"
-        sig_task = f"{f8m}({f8m}, {f8m}, {f8m}, {f8v}, {f8v}, float64)"
-        sig_posture = f"{f8m}({f8m}, {f8m}, float64, float64, float64, float64)"
+        sig_task = f"{f8v}({f8m}, {f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64)"
+        sig_posture = f"{f8v}({f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64, float64, float64, float64)"
         try:
-            task = njit(sig_task, cache=True, nogil=True)(latency_shaped_task_operator)
-            posture = njit(sig_posture, cache=True, nogil=True)(posture_operator)
+            task = njit(sig_task, cache=True, nogil=True)(latency_shaped_task_torque)
+            posture = njit(sig_posture, cache=True, nogil=True)(posture_torque)
         except RuntimeError:  # no writable cache location anywhere: compile in every process
-            task = njit(sig_task, nogil=True)(latency_shaped_task_operator)
-            posture = njit(sig_posture, nogil=True)(posture_operator)
+            task = njit(sig_task, nogil=True)(latency_shaped_task_torque)
+            posture = njit(sig_posture, nogil=True)(posture_torque)
     except Exception as exc:  # numba's import, typing or compilation (e.g. a numba too old for numpy)
         reason = f"{type(exc).__name__}: {exc}"
         disable(reason)
@@ -132,16 +135,16 @@ def kernels() -> JointKernels | None:
     return _kernels
 
 
-def run(kernel, shape: tuple[int, int], *args) -> np.ndarray | None:
-    """``kernel(*args)``'s operator of ``shape``; NaNs when an input is not finite (numba's solve
-    refuses them where numpy's returns NaN: either way the torque is then NaN and the safety layer
-    holds the last command); None, with a warning, when the arrays are not the types the kernel was
-    compiled for (C-ordered float64): the caller then uses numpy from there on, since every failed
-    dispatch costs about as much as the numpy path."""
+def run(kernel, *args) -> np.ndarray | None:
+    """``kernel(*args)``'s torque (the first argument is the (6, n) Jacobian); n NaNs when an input
+    is not finite (numba's solve refuses them where numpy's returns NaN: either way the safety layer
+    then holds the last command); None, with a warning, when the arrays are not the types the kernel
+    was compiled for (C-ordered float64): the caller then uses numpy from there on, since every
+    failed dispatch costs about as much as the numpy path."""
     try:
         return kernel(*args)
     except np.linalg.LinAlgError:
-        return np.full(shape, np.nan)
+        return np.full(args[0].shape[1], np.nan)
     except TypeError as exc:
         types = ", ".join(f"{a.dtype}{'' if a.flags.c_contiguous else ' strided'}" if isinstance(a, np.ndarray)
                           else type(a).__name__ for a in args)

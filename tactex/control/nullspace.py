@@ -18,7 +18,6 @@ from tactex.config import param
 from tactex.control import joint_kernels
 from tactex.control.controller import Controller
 from tactex.control.linalg import solve
-from tactex.control.prepared import PreparedOperator
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault, InputError
 
@@ -85,43 +84,14 @@ class NullspacePosture(Controller):
         self._fixed = None if q_posture is None else np.asarray(q_posture, dtype=float).copy()
         self.q_posture = self._fixed
         self._kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
-        self._operator = PreparedOperator()
 
     def reset(self, state: RobotState) -> None:
         self.q_posture = state.q.copy() if self._fixed is None else self._fixed
-        self._operator.clear()
         self.inner.reset(state)
 
     def resume(self, state: RobotState) -> None:
         self.q_posture = state.q.copy() if self._fixed is None else self._fixed
-        self._operator.clear()
         self.inner.resume(state)
-
-    def prepare(self, state: RobotState) -> None:
-        """Build the next tick's posture operator at ``state`` (:mod:`tactex.control.prepared`), and the
-        inner controller's (if it has the hook)."""
-        prepare = getattr(self.inner, "prepare", None)
-        if prepare is not None:
-            prepare(state)
-        self._operator.store(state.q, self.posture_operator(state))
-
-    def posture_operator(self, state: RobotState) -> np.ndarray:
-        """P (n, n) with the posture torque P τ₀, τ₀ = k (q_d − q) − d q̇: the projection into the
-        null space of J, then, with a horizon h > 0, the implicit form M (M + (h·d + h²·k) I)⁻¹."""
-        p = self.params
-        h = p.latency_horizon_ticks * p.dt
-        jac, mass = state.jacobian, state.mass_matrix
-        n = jac.shape[1]
-        if self._kernels is not None:
-            op = joint_kernels.run(self._kernels.posture_operator, (n, n), jac, mass, p.stiffness, p.damping, h,
-                                   PINV_DAMPING)
-            if op is not None:
-                return op
-            self._kernels = None
-        proj = nullspace_projector(jac)
-        if h > 0:
-            proj = mass @ solve(mass + (h * p.damping + h * h * p.stiffness) * np.eye(n), proj)
-        return proj
 
     def torque(self, state: RobotState, reference: Any) -> np.ndarray:
         tau = self.inner.torque(state, reference)
@@ -129,11 +99,19 @@ class NullspacePosture(Controller):
             self.q_posture = state.q.copy()
         if self.q_posture.shape != state.q.shape:
             raise ControllerFault(f"q_posture has {self.q_posture.shape[0]} joints, the robot {state.q.shape[0]}")
-        op = self._operator.get(state.q)
-        if op is None:
-            op = self.posture_operator(state)
         p = self.params
-        return tau + op @ (p.stiffness * (self.q_posture - state.q) - p.damping * state.dq)
+        h = p.latency_horizon_ticks * p.dt
+        if self._kernels is not None:
+            tau_ns = joint_kernels.run(self._kernels.posture_torque, state.jacobian, state.mass_matrix, self.q_posture,
+                                       state.q, state.dq, p.stiffness, p.damping, h, PINV_DAMPING)
+            if tau_ns is not None:
+                return tau + tau_ns
+            self._kernels = None
+        tau_ns = project_nullspace(state.jacobian, p.stiffness * (self.q_posture - state.q) - p.damping * state.dq)
+        if h > 0:
+            m = state.mass_matrix
+            tau_ns = m @ solve(m + (h * p.damping + h * h * p.stiffness) * np.eye(m.shape[0]), tau_ns)
+        return tau + tau_ns
 
     def telemetry(self) -> dict[str, float]:
         return self.inner.telemetry()

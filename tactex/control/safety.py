@@ -164,19 +164,6 @@ class SafetyLayer(Controller):
         self._blend_from = None
         self.inner.reset(state)
 
-    def prepare(self, state: RobotState) -> None:
-        """The inner controller's :meth:`~tactex.control.controller.Controller.prepare`, unless the
-        arm is retreating (the controller is reset when it resumes) or the posture terms the operators
-        are built from are not finite. A controller error here is counted, not raised: the next tick
-        then builds what it needs itself."""
-        prepare = getattr(self.inner, "prepare", None)
-        if prepare is None or self._retreat_until is not None or not _posture_finite(state):
-            return
-        try:
-            prepare(state)
-        except TactexError:
-            self.counts["prepare_fault"] = self.counts.get("prepare_fault", 0) + 1
-
     @property
     def retreating(self) -> bool:
         return self._retreat_until is not None
@@ -379,13 +366,6 @@ def _state_finite(state: RobotState) -> bool:
         state.jacobian.ravel(), state.mass_matrix.ravel(), state.coriolis, state.gravity, state.wrench_tool,
     ))
     return math.isfinite(float(_add(flat)) + state.t)
-
-
-def _posture_finite(state: RobotState) -> bool:
-    """q, the Jacobian, the mass matrix and the tool rotation are finite (what the controllers'
-    prepared operators are built from)."""
-    return math.isfinite(float(state.q.sum()) + float(state.jacobian.sum()) + float(state.mass_matrix.sum())
-                         + float(state.ee_rotation.sum()))
 
 
 def _replace_wrench(state: RobotState, wrench: np.ndarray) -> RobotState:

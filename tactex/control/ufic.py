@@ -18,8 +18,7 @@ import numpy as np
 from tactex.config import param
 from tactex.control import joint_kernels
 from tactex.control.controller import Controller
-from tactex.control.linalg import solve
-from tactex.control.prepared import PreparedOperator
+from tactex.control.damping import latency_shaped_torque
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
@@ -106,6 +105,7 @@ class UficController(Controller):
         self._axes_f = tuple(float(a) for a in self.params.force_axes)
         self._d_contact = self.params.damping_tool(True)
         self._d_free = self.params.damping_tool(False)
+        self._d_tool = self._d_contact
         self._d_contact_f = tuple(self._d_contact.tolist())  # the same diagonals as Python floats (hot path)
         self._d_free_f = tuple(self._d_free.tolist())
         self._d_tool_f = self._d_contact_f
@@ -120,15 +120,12 @@ class UficController(Controller):
         self._tau_w = 1.0 / (2.0 * np.pi * self.params.wrench_cutoff_hz)
         self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
         self._kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
-        self._operator = PreparedOperator()
-        self._operator_d_z = float("nan")  # the tool-axis damping the prepared operator was built with
 
     def reset(self, state: RobotState) -> None:
-        self._operator.clear()
         self._integral = [0.0] * 6
         self._t_prev = None
         self._w_filt = None
-        self._d_tool_f = self._d_contact_f
+        self._d_tool, self._d_tool_f = self._d_contact, self._d_contact_f
         self.stiffness_scale = self.params.stiffness_scale
         self._last = {}
 
@@ -162,6 +159,7 @@ class UficController(Controller):
             d = self._d_tool_f
             dz = d[2] + dt / (dt + tau) * (target[2] - d[2])
             self._d_tool_f = (target[0], target[1], dz, target[3], target[4], target[5])
+        self._d_tool = np.array(self._d_tool_f)
 
     @staticmethod
     def pose_error_world(state: RobotState, position_d: np.ndarray, rotation_d: np.ndarray) -> np.ndarray:
@@ -234,45 +232,27 @@ class UficController(Controller):
                    r00 * g3 + r01 * g4 + r02 * g5, r10 * g3 + r11 * g4 + r12 * g5, r20 * g3 + r21 * g4 + r22 * g5)
         return self.joint_torque(state, f_world)
 
-    def prepare(self, state: RobotState) -> None:
-        """Build the next tick's task operator B (:meth:`task_operator`) at ``state``, whose command is
-        on its way (:mod:`tactex.control.prepared`)."""
-        if self.params.latency_horizon_ticks > 0:
-            self._operator.store(state.q, self.task_operator(state))
-            self._operator_d_z = self._d_tool_f[2]
-
-    def task_operator(self, state: RobotState) -> np.ndarray:
-        """B (n, 6) with τ = B f for a world wrench f: M (M + h·Jₜᵀ diag(D + h·K_max) Jₜ)⁻¹ Jᵀ, the
-        implicit impedance over the horizon h = ``latency_horizon_ticks``·dt with this tick's D_C and
-        K_max in the tool frame (:func:`tactex.control.damping.latency_shaped_torque`)."""
-        jac, rot, mass = state.jacobian, state.ee_rotation, state.mass_matrix
-        h = self.params.latency_horizon_ticks * self.params.dt
-        d_tool = np.array(self._d_tool_f)
-        if self._kernels is not None:
-            op = joint_kernels.run(self._kernels.task_operator, (jac.shape[1], 6), jac, rot, mass, d_tool,
-                                   self._k_max, h)
-            if op is not None:
-                return op
-            self._kernels = None
-        jac_tool = np.empty_like(jac)
-        rt = rot.T
-        np.dot(rt, jac[:3], out=jac_tool[:3])
-        np.dot(rt, jac[3:], out=jac_tool[3:])
-        gains = d_tool + h * self._k_max
-        return mass @ solve(mass + h * (jac_tool.T @ (gains[:, None] * jac_tool)), np.ascontiguousarray(jac.T))
-
     def joint_torque(self, state: RobotState, f_world: tuple[float, ...]) -> np.ndarray:
         """τ = Jᵀ f (eq. 13) for the world wrench ``f_world`` [N, N·m], applied implicitly over
-        ``latency_horizon_ticks`` (:meth:`task_operator`; unchanged on heavy modes), with the operator
-        prepared after the last command when the arm is still at its posture."""
-        if self.params.latency_horizon_ticks <= 0:
-            return np.dot(f_world, state.jacobian)
-        op = self._operator.get(state.q)
-        # D_C's tool-axis damping moves between its free and contact values over damping_switch_s: an
-        # operator built with a value more than 1 % off is built again with this tick's
-        if op is None or abs(self._d_tool_f[2] - self._operator_d_z) > 0.01 * self._operator_d_z:
-            op = self.task_operator(state)
-        return np.dot(op, f_world)
+        ``latency_horizon_ticks`` with this tick's D_C and K_max in the tool frame
+        (:func:`tactex.control.damping.latency_shaped_torque`): unchanged on heavy modes."""
+        jac = state.jacobian
+        h = self.params.latency_horizon_ticks * self.params.dt
+        if h > 0 and self._kernels is not None:
+            tau = joint_kernels.run(self._kernels.task_torque, jac, state.ee_rotation, state.mass_matrix,
+                                    np.array(f_world), self._d_tool, self._k_max, h)
+            if tau is not None:
+                return tau
+            self._kernels = None
+        tau = np.dot(f_world, jac)
+        if h <= 0:
+            return tau
+        jac_tool = np.empty_like(jac)
+        rt = state.ee_rotation.T
+        np.dot(rt, jac[:3], out=jac_tool[:3])
+        np.dot(rt, jac[3:], out=jac_tool[3:])
+        gains = self._d_tool + h * self._k_max
+        return latency_shaped_torque(state.mass_matrix, tau, jac_tool.T @ (gains[:, None] * jac_tool), None, h)
 
     def telemetry(self) -> dict[str, float]:
         return dict(self._last)

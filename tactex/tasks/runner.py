@@ -98,7 +98,6 @@ class ControlLoop:
         state = self.state
         tau = self.safety.torque(state, reference)
         self.backend.apply_torque(tau)
-        self.safety.prepare(state)
         if after_send is not None:
             after_send(state)
         self.state = self.backend.step()
