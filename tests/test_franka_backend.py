@@ -293,9 +293,10 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
             assert backend._control is None  # paused
             loop.move_joints(q, duration_s=0.3, settle_s=0.1)
         m = backend.loop_metrics()
-        # each solve takes a few ms (hundreds on the first, which compiles): in the cycle, the three
-        # would lose ≥ 6 cycles; one or two lost on a shared CI machine are its load, not the IK
-        assert m["lost_cycles"] <= 2 and m["loop_compute_us"]["max"] < 20_000
+        # each solve takes a few ms (hundreds on the first, which compiles): in the cycle, the first
+        # alone would lose hundreds and show as a window of that length; a few lost cycles on a loaded
+        # 2-core machine are its load (7 seen with benchmarks running beside), not the IK
+        assert m["lost_cycles"] <= 10 and m["loop_compute_us"]["max"] < 20_000
         assert abs(loop.state.ee_position[2] - (p[2] + 0.015)) < 3e-3
     finally:
         backend.close()
