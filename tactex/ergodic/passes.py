@@ -438,17 +438,7 @@ class RingPasses:
                 # Far (the start of another arc): a straight line across a curved surface may lead into a fold
                 # or off an edge; walk down the surface distance to the goal instead.
                 self._to_goal = dijkstra(self._graph, directed=False, indices=g, limit=4.0 * float(dist[k]))
-        if self._to_goal is None:
-            return self._points[g]
-        around = np.asarray(self._tree.query_ball_point(x, CARROT * self._half_line), dtype=np.intp)
-        if around.size == 0:
-            return self._points[g]
-        to = self._to_goal[around]
-        k = int(to.argmin())
-        if not np.isfinite(to[k]) or to[k] <= self.reach_m:
-            self._to_goal = None
-            return self._points[g]
-        return self._points[around[k]]
+        return self._descend(x, g)
 
     def next_pending(self, near: int) -> int:
         """The next pending waypoint on the tour of target point ``near``'s part (target index), or −1."""
