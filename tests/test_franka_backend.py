@@ -293,10 +293,11 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
             assert backend._control is None  # paused
             loop.move_joints(q, duration_s=0.3, settle_s=0.1)
         m = backend.loop_metrics()
-        # each solve takes a few ms (hundreds on the first, which compiles): in the cycle, the first
-        # alone would lose hundreds and show as a window of that length; a few lost cycles on a loaded
-        # 2-core machine are its load (7 seen with benchmarks running beside), not the IK
-        assert m["lost_cycles"] <= 10 and m["loop_compute_us"]["max"] < 20_000
+        # the first solve builds the kinematic model (~0.4 s): run in the cycle, it alone would lose
+        # ~400 cycles and show as a window that long. The twin's own lost cycles (two states less than
+        # 1 ms apart when its step time varies; docs/twin.md) come and go with the machine: 0 to 77 in
+        # this test's 1.5 s on this 2-core machine, so the bound is on the IK's signature, not on them
+        assert m["lost_cycles"] < 200 and m["loop_compute_us"]["max"] < 20_000
         assert abs(loop.state.ee_position[2] - (p[2] + 0.015)) < 3e-3
     finally:
         backend.close()
@@ -311,11 +312,15 @@ def test_a_states_model_terms_are_computed_before_it_arrives_from_the_state_answ
     try:
         loop = ControlLoop(backend)
         loop.hold(0.05)
-        answered = backend._franka_state
-        jac, mass, coriolis, gravity = franka_model_terms(answered, backend.model)
-        backend.apply_torque(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3]))  # the wrist turns: q moves
-        state = backend.step()
-        assert not np.array_equal(np.asarray(backend._franka_state.q), np.asarray(answered.q))
+        for _ in range(5):  # a command the twin takes a tick late leaves the resting arm where it was
+            answered = backend._franka_state
+            jac, mass, coriolis, gravity = franka_model_terms(answered, backend.model)
+            backend.apply_torque(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3]))  # the wrist turns: q moves
+            state = backend.step()
+            if not np.array_equal(np.asarray(backend._franka_state.q), np.asarray(answered.q)):
+                break
+        else:
+            raise AssertionError("the wrist did not move in 5 cycles under a 0.3 N·m torque")
         np.testing.assert_array_equal(state.jacobian, jac)
         np.testing.assert_array_equal(state.mass_matrix, mass)
         np.testing.assert_array_equal(state.coriolis, coriolis)
