@@ -292,12 +292,12 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
             q = loop.solve_pose(p + np.array([0.0, 0.0, 0.005 * step]), rot)
             assert backend._control is None  # paused
             loop.move_joints(q, duration_s=0.3, settle_s=0.1)
-        m = backend.loop_metrics()
-        # the first solve builds the kinematic model (~0.4 s): run in the cycle, it alone would lose
-        # ~400 cycles and show as a window that long. The twin's own lost cycles (two states less than
-        # 1 ms apart when its step time varies; docs/twin.md) come and go with the machine: 0 to 77 in
-        # this test's 1.5 s on this 2-core machine, so the bound is on the IK's signature, not on them
-        assert m["lost_cycles"] < 200 and m["loop_compute_us"]["max"] < 20_000
+        # Run in the cycle, the first solve (it builds the kinematic model, ~0.4 s) would answer a state
+        # that late and the backend would end the run (RobotError: a command more than 20 ms late; the
+        # test fails with it, checked by disabling the pause). Lost cycles are not counted here: the
+        # twin's own (two states less than 1 ms apart, docs/twin.md) ran 0 to 219 in these 1.5 s as the
+        # host's load came and went.
+        assert backend.timing.n > 1000  # the three moves ran under torque control, tick by tick
         assert abs(loop.state.ee_position[2] - (p[2] + 0.015)) < 3e-3
     finally:
         backend.close()
