@@ -264,13 +264,13 @@ class _WipeLog:
         if self._pending is not None:
             self._complete(state_ctrl)
         tel = self.inner.tick_telemetry() if self.cfg.baseline == "" else {}
-        comp = self.compensator
-        if comp is not None and "tank_i_valve" in tel:
+        comp_last = self.compensator.last if self.compensator is not None else None  # (6,), made on each read
+        if comp_last is not None and "tank_i_valve" in tel:
             # power the compensation delivered through the impedance tank's port (σ_i scales it)
             self.comp_energy += self.dt * tel["tank_i_valve"] * float(
-                (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ comp.last[:3])
+                (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ comp_last[:3])
         offset = self.inner.position_offset if self.va else np.zeros(3)
-        friction = comp.last[:2] if comp is not None else np.zeros(2)
+        friction = comp_last[:2] if comp_last is not None else np.zeros(2)
         self._pending = (state_ctrl, self.pos_ref + offset, tel, friction, self.estimate)
 
     def finish(self, state) -> None:
