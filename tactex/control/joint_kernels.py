@@ -28,7 +28,52 @@ import numpy as np
 
 _log = logging.getLogger(__name__)
 
-__all__ = ["JointKernels", "available", "disable", "kernels", "latency_shaped_task_torque", "posture_torque", "run"]
+__all__ = ["JointKernels", "available", "compile_kernel", "disable", "kernels", "latency_shaped_task_torque",
+           "posture_torque", "run"]
+
+
+def _cholesky_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x with a·x = b for a symmetric positive definite (n, n) ``a`` (overwritten by its Cholesky
+    factor) and (n,) ``b``. Written out rather than LAPACK: for n ≤ 7 the call, the copies into
+    Fortran order and the pivoting cost more than the arithmetic. A matrix that is not positive
+    definite or not finite gives NaN (the safety layer then holds the last command)."""
+    n = b.shape[0]
+    for j in range(n):
+        s = a[j, j]
+        for k in range(j):
+            s -= a[j, k] * a[j, k]
+        if not s > 0.0:
+            return np.full(n, np.nan)
+        ljj = np.sqrt(s)
+        a[j, j] = ljj
+        for i in range(j + 1, n):
+            s = a[i, j]
+            for k in range(j):
+                s -= a[i, k] * a[j, k]
+            a[i, j] = s / ljj
+    x = b.copy()
+    for i in range(n):  # L y = b
+        s = x[i]
+        for k in range(i):
+            s -= a[i, k] * x[k]
+        x[i] = s / a[i, i]
+    for i in range(n - 1, -1, -1):  # Lᵀ x = y
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= a[k, i] * x[k]
+        x[i] = s / a[i, i]
+    return x
+
+
+def _matvec(a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """a·x for a small (m, n) matrix, written out (see :func:`_cholesky_solve`)."""
+    out = np.zeros(a.shape[0])
+    for i in range(a.shape[0]):
+        s = 0.0
+        for j in range(a.shape[1]):
+            s += a[i, j] * x[j]
+        out[i] = s
+    return out
 
 
 def latency_shaped_task_torque(jac: np.ndarray, rot: np.ndarray, mass: np.ndarray, f_world: np.ndarray,
@@ -58,7 +103,7 @@ def latency_shaped_task_torque(jac: np.ndarray, rot: np.ndarray, mass: np.ndarra
             gr = g * jt[i, r]
             for c in range(n):
                 a_mat[r, c] += gr * jt[i, c]
-    return mass @ np.linalg.solve(a_mat, tau0)
+    return _matvec(mass, _cholesky_solve(a_mat, tau0))
 
 
 def posture_torque(jac: np.ndarray, mass: np.ndarray, q_posture: np.ndarray, q: np.ndarray, dq: np.ndarray,
@@ -71,25 +116,38 @@ def posture_torque(jac: np.ndarray, mass: np.ndarray, q_posture: np.ndarray, q: 
         stiffness [N·m/rad], damping [N·m·s/rad], horizon_s h [s] ≥ 0, pinv_damping δ [-].
     """
     n = q.shape[0]
+    m = jac.shape[0]
     tau = stiffness * (q_posture - q) - damping * dq
-    jjt = jac @ jac.T
-    for i in range(jjt.shape[0]):
+    jjt = np.zeros((m, m))
+    for i in range(m):
+        for k in range(m):
+            s = 0.0
+            for j in range(n):
+                s += jac[i, j] * jac[k, j]
+            jjt[i, k] = s
         jjt[i, i] += pinv_damping * pinv_damping
-    tau = tau - jac.T @ np.linalg.solve(jjt, jac @ tau)
+    y = _cholesky_solve(jjt, _matvec(jac, tau))
+    for j in range(n):  # τ − Jᵀ y
+        s = 0.0
+        for i in range(m):
+            s += jac[i, j] * y[i]
+        tau[j] -= s
     if horizon_s > 0.0:
         a_mat = mass.copy()
         extra = horizon_s * damping + horizon_s * horizon_s * stiffness
         for i in range(n):
             a_mat[i, i] += extra
-        tau = mass @ np.linalg.solve(a_mat, tau)
+        tau = _matvec(mass, _cholesky_solve(a_mat, tau))
     return tau
 
 
 class JointKernels(NamedTuple):
-    """The compiled forms of :func:`latency_shaped_task_torque` and :func:`posture_torque`."""
+    """The compiled forms of :func:`latency_shaped_task_torque`, :func:`posture_torque` and
+    :func:`tactex.control.va_ufic_tick.va_ufic_tick` (VA-UFIC's tick up to the world wrench)."""
 
     task_torque: object
     posture_torque: object
+    va_ufic_tick: object = None
 
 
 _kernels: JointKernels | None = None
@@ -112,27 +170,45 @@ def kernels() -> JointKernels | None:
         return None
     _log.info("preparing the controllers' compiled kernels (numba compiles them once per machine)")
     try:
-        from numba import config, njit
+        from numba import config
 
         if config.DISABLE_JIT:
             return None
         f8v, f8m = "float64[::1]", "float64[:, ::1]"
         sig_task = f"{f8v}({f8m}, {f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64)"
         sig_posture = f"{f8v}({f8m}, {f8m}, {f8v}, {f8v}, {f8v}, float64, float64, float64, float64)"
-        try:
-            task = njit(sig_task, cache=True, nogil=True)(latency_shaped_task_torque)
-            posture = njit(sig_posture, cache=True, nogil=True)(posture_torque)
-        except RuntimeError:  # no writable cache location anywhere: compile in every process
-            task = njit(sig_task, nogil=True)(latency_shaped_task_torque)
-            posture = njit(sig_posture, nogil=True)(posture_torque)
+        # the tick reads its inputs in any layout (a reference's rotation may be a transposed view)
+        va, vm = "float64[:]", "float64[:, :]"
+        sig_tick = (f"int64({f8v}, {f8v}, float64, {vm}, {va}, {va}, {va}, {va}, {vm}, {va}, {va}, float64, {va}, "
+                    f"float64, {f8v})")
+        global _cholesky_solve, _matvec
+        # the kernels call these helpers by name: their compiled forms take the Python ones' place here
+        _cholesky_solve, _matvec = compile_kernel(_cholesky_solve), compile_kernel(_matvec)
+        task = compile_kernel(latency_shaped_task_torque, sig_task)
+        posture = compile_kernel(posture_torque, sig_posture)
+        from tactex.control.va_ufic_tick import va_ufic_tick
+
+        tick = compile_kernel(va_ufic_tick, sig_tick)
     except Exception as exc:  # numba's import, typing or compilation (e.g. a numba too old for numpy)
         reason = f"{type(exc).__name__}: {exc}"
         disable(reason)
         warnings.warn(f"the controllers' compiled kernels are unavailable, running numpy ({reason})",
                       RuntimeWarning, stacklevel=2)
         return None
-    _kernels = JointKernels(task, posture)
+    _kernels = JointKernels(task, posture, tick)
     return _kernels
+
+
+def compile_kernel(func, signature: str | None = None):
+    """``func`` compiled by numba (for ``signature`` now, else at its first call), its machine code
+    cached beside its module when that folder (or numba's per-user one) is writable."""
+    from numba import njit
+
+    args = (signature,) if signature else ()
+    try:
+        return njit(*args, cache=True, nogil=True)(func)
+    except RuntimeError:  # no writable cache location anywhere: compile in every process
+        return njit(*args, nogil=True)(func)
 
 
 def run(kernel, *args) -> np.ndarray | None:

@@ -52,6 +52,7 @@ from tactex.control.energy_tank import ForceTank, ImpedanceTank
 from tactex.control.references import PoseForceReference
 from tactex.control.state import RobotState
 from tactex.control.ufic import UficController, UficParams
+from tactex.control.va_ufic_compiled import CompiledTick
 from tactex.errors import ConfigError, ControllerFault, InputError
 from tactex.geometry.so3 import exp_so3_rows, log_so3, log_so3_rows, matmul3_rows, matmul3_tn_rows
 from tactex.perception.estimate import SurfaceEstimate
@@ -158,9 +159,9 @@ class VaUficController(UficController):
         self.va = params or VaUficParams()
         super().__init__(self.va.ufic)
         v = self.va
-        self.shaper = AlignmentShaper(v.rho_min, v.rho_align_initial)
-        self.tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
-        self.tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
+        self._shaper = AlignmentShaper(v.rho_min, v.rho_align_initial)
+        self._tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
+        self._tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
         self._k_const = np.asarray(v.stiffness_const, dtype=float)
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
         self._neg_k_const_f = tuple((-self._k_const).tolist())  # the same gains as Python floats (hot path)
@@ -171,12 +172,41 @@ class VaUficController(UficController):
         self._rot_d: list[list[float]] | None = None
         self._realign: tuple[float, list, tuple[float, float, float]] | None = None  # (t0, R_init, log(R_d R_initᵀ))
         self._raw: tuple | None = None
-        self.port_feedforward = port_feedforward
+        self._port_feedforward = port_feedforward
+        self._compiled = CompiledTick.make(self)  # None: the Python tick below
+
+    # The objects holding the tick's state (tanks, ρ_align's integrator, the friction feed-forward).
+    # With the compiled tick their values live in its state vector between ticks: reading one of
+    # these properties brings them back first (tests and set-up code read them; the loop does not).
+    @property
+    def tank_i(self) -> ImpedanceTank:
+        self._objects()
+        return self._tank_i
+
+    @property
+    def tank_f(self) -> ForceTank:
+        self._objects()
+        return self._tank_f
+
+    @property
+    def shaper(self) -> AlignmentShaper:
+        self._objects()
+        return self._shaper
+
+    @property
+    def port_feedforward(self) -> PortFeedforward | None:
+        self._objects()
+        return self._port_feedforward
+
+    def _objects(self) -> None:
+        """The compiled tick's state back into the Python objects (a no-op when they hold it)."""
+        if self._compiled is not None and self._compiled.live:
+            self._compiled.unpack()
 
     def reset(self, state: RobotState) -> None:
         self.resume(state)
-        self.tank_i.reset()
-        self.tank_f.reset()
+        self._tank_i.reset()
+        self._tank_f.reset()
         self._rot_d = None  # taken from the reference at the next tick
 
     def resume(self, state: RobotState) -> None:
@@ -184,10 +214,11 @@ class VaUficController(UficController):
         orientation R_d the vision moved the constant rotational spring to (re-reading the reference
         would swing that spring by the whole re-orientation, unpaid). A re-orientation under way stops
         where it is."""
+        self._objects()
         super().reset(state)
-        if self.port_feedforward is not None:
-            self.port_feedforward.reset()
-        self.shaper.reset()
+        if self._port_feedforward is not None:
+            self._port_feedforward.reset()
+        self._shaper.reset()
         self._offset = (0.0, 0.0, 0.0)
         self._realign = None
         self._raw = None
@@ -228,7 +259,7 @@ class VaUficController(UficController):
         zeta = zeta if zeta < 1.0 else 1.0  # min(1, ·)
         rot_new = matmul3_rows(exp_so3_rows(zeta * lx, zeta * ly, zeta * lz), r_init)
         cost = self._rotational_spring_energy(rot_new, rl) - self._rotational_spring_energy(self._rot_d, rl)
-        if cost > 0.0 and not self.tank_i.withdraw(cost):
+        if cost > 0.0 and not self._tank_i.withdraw(cost):
             self._realign = (t0 + dt, r_init, (lx, ly, lz))
             return
         self._rot_d = rot_new
@@ -238,6 +269,11 @@ class VaUficController(UficController):
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
         if not isinstance(reference, PoseForceReference):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
+        if self._compiled is not None:
+            tau = self._compiled.torque(state, reference)
+            if tau is not None:
+                return tau
+            self._compiled = None  # it could not take these arrays: Python from now on (warned)
         # The whole tick runs on Python floats, 6-vectors unpacked into locals: at 1 kHz a numpy call on
         # a 3- or 6-vector, a list comprehension or a zip costs more than the float operations it replaces.
         v = self.va
@@ -262,7 +298,7 @@ class VaUficController(UficController):
         wm = self._wrench_filtered(state, dt)
         c = contact_alignment(wm, (e0, e1, e2, e3, e4, e5), theta, ls, v.alpha, v.xi, v.gamma)  # eq. 17
         h = alignment_coefficient(c, v.c_margin)  # eq. 18
-        rho_align = self.shaper.step(h, dt)  # eq. 20–21
+        rho_align = self._shaper.step(h, dt)  # eq. 20–21
 
         if rho_align <= v.compliant_below:  # fully compliant: feed the actual translation back as desired
             self._offset = (px - dx, py - dy, pz - dz)
@@ -306,16 +342,16 @@ class VaUficController(UficController):
             port[4] += d4 * (r01 * qx + r11 * qy + r21 * qz)
             port[5] += d5 * (r02 * qx + r12 * qy + r22 * qz)
         p0, p1, p2, p3, p4, p5 = port
-        if self.port_feedforward is not None:
-            w = self.port_feedforward.wrench_tool(state, rho_align, dt)
+        if self._port_feedforward is not None:
+            w = self._port_feedforward.wrench_tool(state, rho_align, dt)
             w0, w1, w2, w3, w4, w5 = w.tolist() if isinstance(w, np.ndarray) else w
             p0, p1, p2, p3, p4, p5 = p0 + w0, p1 + w1, p2 + w2, p3 + w3, p4 + w4, p5 + w5
         p_damp = x0 * dx0 + x1 * dx1 + x2 * dx2 + x3 * dx3 + x4 * dx4 + x5 * dx5
         p_force = x0 * f0 + x1 * f1 + x2 * f2 + x3 * f3 + x4 * f4 + x5 * f5
-        m_f = self.tank_f.step(p_damp, p_force, dt)  # eq. 38–45: λ + σ_f(1 − λ)
+        m_f = self._tank_f.step(p_damp, p_force, dt)  # eq. 38–45: λ + σ_f(1 − λ)
         # the impedance tank harvests only the dissipation the force tank did not store (no double count)
         p_port = x0 * p0 + x1 * p1 + x2 * p2 + x3 * p3 + x4 * p4 + x5 * p5
-        sigma_i = self.tank_i.step(p_damp - self.tank_f.damping_harvested_w, -p_port, dt)  # eq. 57–63
+        sigma_i = self._tank_i.step(p_damp - self._tank_f.damping_harvested_w, -p_port, dt)  # eq. 57–63
         nk0, nk1, nk2, nk3, nk4, nk5 = self._neg_k_const_f
         # eq. 72–73, tool frame
         g0 = nk0 * e0 - dx0 + sigma_i * p0 + m_f * f0
@@ -336,6 +372,8 @@ class VaUficController(UficController):
     def rotation_desired(self) -> np.ndarray | None:
         """The desired orientation R_d (world_R_tool) the controller tracks now: the reference's at the
         first tick, then moved by the re-orientations (eq. 22–29); None before the first tick."""
+        if self._compiled is not None and self._compiled.live:
+            return self._compiled.rotation_desired()
         return None if self._rot_d is None else np.array(self._rot_d)
 
     @property
@@ -343,24 +381,37 @@ class VaUficController(UficController):
         """Offset [m] (world) added to the reference position: the actual translation fed back while
         fully compliant (eq. 20–21 with ρ_align ≈ 0). The effective desired position is
         ``reference.position_world + position_offset``."""
+        if self._compiled is not None and self._compiled.live:
+            return self._compiled.position_offset()
         return np.array(self._offset)
 
     def tick_telemetry(self) -> dict[str, float]:
         """What a task reads every tick, cheaply: ρ_align, ρ_frc, the tank energies and the impedance
         tank's valve σ_i (the full :meth:`telemetry` costs ~10× more: read it at the recording rate)."""
+        if self._compiled is not None and self._compiled.live:
+            return self._compiled.tick_telemetry()
         if self._raw is None:
             return {}
         raw = self._raw
-        return {"rho_align": raw[0], "rho_frc": raw[1], "tank_i_valve": raw[7], "tank_i_energy_j": self.tank_i.energy,
-                "tank_f_energy_j": self.tank_f.energy}
+        return {"rho_align": raw[0], "rho_frc": raw[1], "tank_i_valve": raw[7], "tank_i_energy_j": self._tank_i.energy,
+                "tank_f_energy_j": self._tank_f.energy}
+
+    def port_wrench_last(self) -> np.ndarray | None:
+        """(6,) the port feed-forward's last wrench [N, N·m] (tool frame), None without one."""
+        if self._compiled is not None and self._compiled.live:
+            return self._compiled.port_wrench_last()
+        return None if self._port_feedforward is None else np.asarray(self._port_feedforward.last, dtype=float)
 
     def telemetry(self) -> dict[str, float]:
         """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""
-        if self._raw is None:
+        if self._compiled is not None and self._compiled.live:  # read from the compiled tick's vector as it is
+            raw, ti, tf, realigning = self._compiled.snapshot()
+        else:
+            raw, ti, tf, realigning = self._raw, self._tank_i, self._tank_f, self._realign is not None
+        if raw is None:
             return {}
-        rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, f_err, x_err, state = self._raw
+        rho_align, rho_frc, c, h, theta, ls, usable, sigma_i, m_f, f_err, x_err, state = raw
         x_err = np.array(x_err)
-        ti, tf = self.tank_i, self.tank_f
         kinetic = 0.5 * float(state.dq @ state.mass_matrix @ state.dq)  # S_r, eq. 32
         spring_const = 0.5 * float(x_err @ (self._k_const * x_err))  # ½x̃ᵀK_const x̃, eq. 64
         spring_var = 0.5 * rho_align * float(x_err @ (self._k_max_t * x_err))  # ½x̃ᵀK_var x̃
@@ -373,7 +424,7 @@ class VaUficController(UficController):
             "theta_rad": theta,
             "curvature": ls,
             "surface_usable": float(usable),
-            "realigning": float(self._realign is not None),
+            "realigning": float(realigning),
             "tank_i_energy_j": ti.energy,
             "tank_f_energy_j": tf.energy,
             "tank_i_state": ti.state,
