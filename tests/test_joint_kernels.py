@@ -207,4 +207,29 @@ def test_a_control_loop_builds_the_kernels_before_its_first_tick(monkeypatch):
         ControlLoop(backend)
     finally:
         backend.close()
-    assert calls == ["built"]
+    assert calls  # asked for (by the loop and its safety layer) before any tick
+
+
+@pytest.mark.parametrize("field", ["q", "dq", "tau_measured", "ee_position", "ee_rotation", "ee_twist", "jacobian",
+                                   "mass_matrix", "coriolis", "gravity", "wrench_tool", "t"])
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_the_compiled_state_check_finds_a_non_finite_number_in_every_field(states, field, bad):
+    from tactex.control.safety import _state_finite
+
+    layer = SafetyLayer(_Zero())
+    assert layer._finite_kernel is not None and layer._state_finite(states[0])
+    if field == "t":
+        state = replace(states[0], t=bad)
+    else:
+        a = getattr(states[0], field).copy()
+        a.flat[a.size // 2] = bad
+        state = replace(states[0], **{field: a})
+    assert not layer._state_finite(state) and not _state_finite(state)
+
+
+def test_a_state_the_compiled_check_was_not_built_for_warns_and_uses_numpy(states):
+    layer = SafetyLayer(_Zero())
+    state = replace(states[0], wrench_tool=states[0].wrench_tool.astype(np.float32))
+    with pytest.warns(RuntimeWarning, match="checks with numpy from now on"):
+        assert layer._state_finite(state)
+    assert layer._finite_kernel is None

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import math
 import warnings
 from typing import NamedTuple
 
@@ -29,7 +30,7 @@ import numpy as np
 _log = logging.getLogger(__name__)
 
 __all__ = ["JointKernels", "available", "compile_kernel", "disable", "kernels", "latency_shaped_task_torque",
-           "posture_torque", "run"]
+           "posture_torque", "run", "state_finite"]
 
 
 def _cholesky_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -141,13 +142,34 @@ def posture_torque(jac: np.ndarray, mass: np.ndarray, q_posture: np.ndarray, q: 
     return tau
 
 
+def state_finite(t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, pos: np.ndarray, rot: np.ndarray,
+                 twist: np.ndarray, jac: np.ndarray, mass: np.ndarray, coriolis: np.ndarray, gravity: np.ndarray,
+                 wrench: np.ndarray) -> bool:
+    """Whether every number of a :class:`~tactex.control.state.RobotState` (its fields in order) is
+    finite: the safety layer's first check, one call instead of a concatenation of twelve arrays."""
+    if not math.isfinite(t):
+        return False
+    for a in (q, dq, tau, pos, twist, coriolis, gravity, wrench):
+        for x in a:
+            if not math.isfinite(x):
+                return False
+    for m in (rot, jac, mass):
+        for i in range(m.shape[0]):
+            for j in range(m.shape[1]):
+                if not math.isfinite(m[i, j]):
+                    return False
+    return True
+
+
 class JointKernels(NamedTuple):
-    """The compiled forms of :func:`latency_shaped_task_torque`, :func:`posture_torque` and
-    :func:`tactex.control.va_ufic_tick.va_ufic_tick` (VA-UFIC's tick up to the world wrench)."""
+    """The compiled forms of :func:`latency_shaped_task_torque`, :func:`posture_torque`,
+    :func:`tactex.control.va_ufic_tick.va_ufic_tick` (VA-UFIC's tick up to the world wrench) and
+    :func:`state_finite`."""
 
     task_torque: object
     posture_torque: object
     va_ufic_tick: object = None
+    state_finite: object = None
 
 
 _kernels: JointKernels | None = None
@@ -189,13 +211,15 @@ def kernels() -> JointKernels | None:
         from tactex.control.va_ufic_tick import va_ufic_tick
 
         tick = compile_kernel(va_ufic_tick, sig_tick)
+        sig_finite = f"boolean(float64, {va}, {va}, {va}, {va}, {vm}, {va}, {vm}, {vm}, {va}, {va}, {va})"
+        finite = compile_kernel(state_finite, sig_finite)
     except Exception as exc:  # numba's import, typing or compilation (e.g. a numba too old for numpy)
         reason = f"{type(exc).__name__}: {exc}"
         disable(reason)
         warnings.warn(f"the controllers' compiled kernels are unavailable, running numpy ({reason})",
                       RuntimeWarning, stacklevel=2)
         return None
-    _kernels = JointKernels(task, posture, tick)
+    _kernels = JointKernels(task, posture, tick, finite)
     return _kernels
 
 

@@ -26,12 +26,14 @@ Events are small frozen dataclasses in :attr:`SafetyLayer.events`; nothing non-f
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tactex.config import param
+from tactex.control import joint_kernels
 from tactex.control.controller import Controller
 from tactex.control.joint_impedance import min_jerk
 from tactex.control.state import RobotState
@@ -143,6 +145,8 @@ class SafetyLayer(Controller):
         self._last_inner: Controller = inner
         self._blend_from: list[float] | None = None  # the command a hand-over blends from
         self._blend_t0 = 0.0  # when the hand-over started [s]
+        kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
+        self._finite_kernel = None if kernels is None else kernels.state_finite
 
     # -- bookkeeping ----------------------------------------------------------------------
     def _event(self, t: float, kind: str, detail: str) -> None:
@@ -163,6 +167,20 @@ class SafetyLayer(Controller):
         self._last_inner = self.inner
         self._blend_from = None
         self.inner.reset(state)
+
+    def _state_finite(self, state: RobotState) -> bool:
+        """Every number of the state is finite: the compiled check when there is one (a state of
+        other array types warns once and uses numpy from then on)."""
+        if self._finite_kernel is not None:
+            try:
+                return self._finite_kernel(state.t, state.q, state.dq, state.tau_measured, state.ee_position,
+                                           state.ee_rotation, state.ee_twist, state.jacobian, state.mass_matrix,
+                                           state.coriolis, state.gravity, state.wrench_tool)
+            except TypeError as exc:
+                warnings.warn(f"the compiled state check cannot take this state's arrays ({exc}); the safety "
+                              "layer checks with numpy from now on", RuntimeWarning, stacklevel=3)
+                self._finite_kernel = None
+        return _state_finite(state)
 
     @property
     def retreating(self) -> bool:
@@ -206,7 +224,7 @@ class SafetyLayer(Controller):
         else:
             self._wrench_bad = 0
             self._lost_at = None
-        if not _state_finite(state):
+        if not self._state_finite(state):
             self._event(state.t, "nan_state", "non-finite robot state; holding the last safe command")
             return self._finish(state, self._hold(), finite_state=False)
         self._wrench_last_l = wrench
