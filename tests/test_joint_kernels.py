@@ -233,3 +233,51 @@ def test_a_state_the_compiled_check_was_not_built_for_warns_and_uses_numpy(state
     with pytest.warns(RuntimeWarning, match="checks with numpy from now on"):
         assert layer._state_finite(state)
     assert layer._finite_kernel is None
+
+
+class _Script:
+    """Inner controller returning scripted torques."""
+
+    name = "script"
+
+    def __init__(self, taus):
+        self.taus, self.i = taus, 0
+
+    def reset(self, state):
+        pass
+
+    def resume(self, state):
+        pass
+
+    def torque(self, state, reference):
+        self.i += 1
+        return self.taus[self.i - 1]
+
+    def telemetry(self):
+        return {}
+
+
+def test_the_compiled_limits_equal_the_python_ones_with_the_same_events(states):
+    """Torques beyond the limits, jumps beyond the rate limit, joints past the margins, a NaN."""
+    rng = np.random.default_rng(5)
+    taus = [rng.normal(0.0, 40.0, 7) for _ in range(300)]
+    taus[150] = np.full(7, np.nan)
+    base = states[0]
+    q_lo = SafetyLayer(_Zero())._q_lo_margin
+    results = []
+    for compiled in (True, False):
+        layer = SafetyLayer(_Script(taus))
+        if not compiled:
+            layer._limit_kernel = None
+        layer.reset(base)
+        out = []
+        for i in range(300):
+            q = base.q.copy()
+            if 100 <= i < 140:  # joint 3 past its lower margin
+                q[3] = q_lo[3] - 0.01 * (i - 99)
+            out.append(layer.torque(replace(base, t=i * 1e-3, q=q), None))
+        results.append((np.array(out), [(e.kind, e.detail) for e in layer.events], dict(layer.counts)))
+    (a, ev_a, counts_a), (b, ev_b, counts_b) = results
+    np.testing.assert_array_equal(a, b)
+    assert ev_a == ev_b and counts_a == counts_b
+    assert {"torque_limit", "torque_rate_limit", "joint_limit", "nan_torque"} <= set(counts_a)

@@ -30,7 +30,7 @@ import numpy as np
 _log = logging.getLogger(__name__)
 
 __all__ = ["JointKernels", "available", "compile_kernel", "disable", "kernels", "latency_shaped_task_torque",
-           "posture_torque", "run", "state_finite"]
+           "limit_torque", "posture_torque", "run", "state_finite"]
 
 
 def _cholesky_solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -161,15 +161,66 @@ def state_finite(t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, pos: 
     return True
 
 
+#: :func:`limit_torque`'s flags: the command was not finite (nothing changed), the torque limit,
+#: the rate limit acted; bit ``LIMIT_NEAR_SHIFT + j``: joint j within the margin of a limit.
+LIMIT_NOT_FINITE, LIMIT_TORQUE, LIMIT_RATE, LIMIT_NEAR_SHIFT = 1, 2, 4, 3
+
+
+def limit_torque(tau: np.ndarray, prev: np.ndarray, tau_max: np.ndarray, q: np.ndarray, dq: np.ndarray,
+                 lo_margin: np.ndarray, hi_margin: np.ndarray, stiffness: float, damping: float,
+                 rate_step: float) -> int:
+    """The safety layer's last step (:meth:`tactex.control.safety.SafetyLayer._finish`) on the
+    controller's command ``tau`` [N·m]: the joint-limit repulsion (``stiffness`` [N·m/rad],
+    ``damping`` [N·m·s/rad] beyond ``lo_margin``/``hi_margin`` [rad]), then the torque (``tau_max``)
+    and torque-rate (``rate_step`` [N·m] per tick from ``prev``) saturation. The result replaces
+    ``prev`` in place. Returns the flags above; with a non-finite ``tau`` (or one whose sum
+    overflows) nothing is changed."""
+    n = tau.shape[0]
+    total = 0.0  # finite iff its sum is, as the safety layer's Python check decides (an overflow holds too)
+    for j in range(n):
+        total += tau[j]
+    if not math.isfinite(total):
+        return LIMIT_NOT_FINITE
+    flags = 0
+    for j in range(n):
+        x, p, m = tau[j], prev[j], tau_max[j]
+        if q[j] < lo_margin[j] or q[j] > hi_margin[j]:
+            flags |= 1 << (LIMIT_NEAR_SHIFT + j)
+            if q[j] < lo_margin[j]:
+                x += stiffness * (lo_margin[j] - q[j]) - damping * dq[j]
+            if q[j] > hi_margin[j]:
+                x += -(stiffness * (q[j] - hi_margin[j]) + damping * dq[j])
+        if not math.isfinite(x):
+            x = 0.0
+        lo = p - rate_step
+        hi = p + rate_step
+        if lo < -m:
+            lo = -m
+        if hi > m:
+            hi = m
+        y = lo if x < lo else x
+        y = hi if y > hi else y
+        if y != x:
+            if x > m or x < -m:
+                flags |= LIMIT_TORQUE
+                if y != (m if x > m else -m):
+                    flags |= LIMIT_RATE
+            else:
+                flags |= LIMIT_RATE
+        prev[j] = y
+    return flags
+
+
 class JointKernels(NamedTuple):
     """The compiled forms of :func:`latency_shaped_task_torque`, :func:`posture_torque`,
-    :func:`tactex.control.va_ufic_tick.va_ufic_tick` (VA-UFIC's tick up to the world wrench) and
-    :func:`state_finite`."""
+    :func:`tactex.control.va_ufic_tick.va_ufic_tick` (VA-UFIC's tick up to the world wrench),
+    :func:`state_finite` and :func:`limit_torque`."""
 
     task_torque: object
     posture_torque: object
     va_ufic_tick: object = None
     state_finite: object = None
+    limit_torque: object = None
 
 
 _kernels: JointKernels | None = None
@@ -213,13 +264,15 @@ def kernels() -> JointKernels | None:
         tick = compile_kernel(va_ufic_tick, sig_tick)
         sig_finite = f"boolean(float64, {va}, {va}, {va}, {va}, {vm}, {va}, {vm}, {vm}, {va}, {va}, {va})"
         finite = compile_kernel(state_finite, sig_finite)
+        sig_limit = f"int64({va}, {f8v}, {va}, {va}, {va}, {va}, {va}, float64, float64, float64)"
+        limit = compile_kernel(limit_torque, sig_limit)
     except Exception as exc:  # numba's import, typing or compilation (e.g. a numba too old for numpy)
         reason = f"{type(exc).__name__}: {exc}"
         disable(reason)
         warnings.warn(f"the controllers' compiled kernels are unavailable, running numpy ({reason})",
                       RuntimeWarning, stacklevel=2)
         return None
-    _kernels = JointKernels(task, posture, tick, finite)
+    _kernels = JointKernels(task, posture, tick, finite, limit)
     return _kernels
 
 

@@ -132,7 +132,7 @@ class SafetyLayer(Controller):
         self._q_hi_margin_l = self._q_hi_margin.tolist()
         self.events: list[SafetyEvent] = []
         self.counts: dict[str, int] = {}
-        self._tau_prev_l = [0.0] * len(self._tau_max_l)  # last command, Python floats
+        self._tau_prev = np.zeros(len(self._tau_max_l))  # the last command [N·m]
         self._wrench_last_l = [0.0] * 6  # last finite F/T wrench, Python floats
         self._wrench_bad = 0  # consecutive non-finite F/T readings
         self._lost_at: float | None = None  # when the sensor was declared lost [s]
@@ -147,6 +147,7 @@ class SafetyLayer(Controller):
         self._blend_t0 = 0.0  # when the hand-over started [s]
         kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
         self._finite_kernel = None if kernels is None else kernels.state_finite
+        self._limit_kernel = None if kernels is None else kernels.limit_torque
 
     # -- bookkeeping ----------------------------------------------------------------------
     def _event(self, t: float, kind: str, detail: str) -> None:
@@ -156,7 +157,7 @@ class SafetyLayer(Controller):
     def reset(self, state: RobotState) -> None:
         self.events.clear()
         self.counts.clear()
-        self._tau_prev_l = [0.0] * len(self._tau_max_l)
+        self._tau_prev[:] = 0.0
         self._wrench_last_l = [0.0] * 6
         self._wrench_bad = 0
         self._lost_at = None
@@ -190,7 +191,7 @@ class SafetyLayer(Controller):
     def _hold(self) -> list[float]:
         """The last command, decayed by one tick of ``hold_decay_time``."""
         decay = self._hold_decay
-        return [x * decay for x in self._tau_prev_l]
+        return [x * decay for x in self._tau_prev.tolist()]
 
     def torque(self, state: RobotState, reference: Any) -> np.ndarray:
         # Vectors as Python floats (one tolist each): for 6- and 7-vectors at 1 kHz, float arithmetic
@@ -259,6 +260,10 @@ class SafetyLayer(Controller):
         except TactexError as exc:
             self._event(state.t, "controller_fault", f"{type(exc).__name__}: {exc}")
             return self._finish(state, self._hold())
+        if self._limit_kernel is not None and self._blend_from is None and tau.shape == self._tau_max.shape:
+            out = self._finish_compiled(state, tau)
+            if out is not None:
+                return out
         tau_l = tau.tolist() if tau.shape == self._tau_max.shape else None
         if tau_l is None or not math.isfinite(sum(tau_l)):
             self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
@@ -269,7 +274,7 @@ class SafetyLayer(Controller):
 
     def _start_blend(self, t: float) -> None:
         if self.limits.handover_blend_s > 0:
-            self._blend_from = list(self._tau_prev_l)
+            self._blend_from = self._tau_prev.tolist()
             self._blend_t0 = float(t)
 
     def _blend(self, t: float, tau_l: list[float]) -> list[float]:
@@ -310,7 +315,7 @@ class SafetyLayer(Controller):
         dq = None
         near = []
         step = self._rate_step
-        prev, tau_max = self._tau_prev_l, self._tau_max_l
+        prev, tau_max = self._tau_prev.tolist(), self._tau_max_l
         out = []
         rate_hit = torque_hit = False
         for j in range(len(tau_max)):  # an index loop: zip(strict=True)'s keyword parsing costs more than the body
@@ -341,19 +346,46 @@ class SafetyLayer(Controller):
                 else:
                     rate_hit = True
             out.append(y)
-        if finite_state:
+        self._tau_prev[:] = out
+        self._account(state.t, near if finite_state else None, torque_hit, rate_hit)
+        return np.array(out)
+
+    def _finish_compiled(self, state: RobotState, tau: np.ndarray) -> np.ndarray | None:
+        """:meth:`_finish` of the inner controller's ``tau`` as one compiled call
+        (:func:`tactex.control.joint_kernels.limit_torque`); a non-finite ``tau`` holds, as in
+        :meth:`torque`. None (warned) when the kernel cannot take the state's arrays."""
+        lim = self.limits
+        try:
+            flags = self._limit_kernel(tau, self._tau_prev, self._tau_max, state.q, state.dq, self._q_lo_margin,
+                                       self._q_hi_margin, lim.joint_limit_stiffness, lim.joint_limit_damping,
+                                       self._rate_step)
+        except TypeError as exc:
+            warnings.warn(f"the compiled torque limits cannot take this state's arrays ({exc}); the safety layer "
+                          "limits with Python from now on", RuntimeWarning, stacklevel=3)
+            self._limit_kernel = None
+            return None
+        if flags & joint_kernels.LIMIT_NOT_FINITE:
+            self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
+            return self._finish(state, self._hold())
+        near_bits = flags >> joint_kernels.LIMIT_NEAR_SHIFT
+        near = [j for j in range(tau.shape[0]) if near_bits >> j & 1] if near_bits else []
+        self._account(state.t, near, bool(flags & joint_kernels.LIMIT_TORQUE), bool(flags & joint_kernels.LIMIT_RATE))
+        return self._tau_prev.copy()
+
+    def _account(self, t: float, near: list[int] | None, torque_hit: bool, rate_hit: bool) -> None:
+        """Events and counts of one command's limits; ``near``: joints near a limit (None when the
+        state was not finite and the joint limits were not checked)."""
+        if near is not None:
             if near and not self._held:
-                self._event(state.t, "joint_limit",
-                            f"joints {near} within {lim.joint_limit_margin} rad of a limit; repelling")
+                self._event(t, "joint_limit", f"joints {near} within {self.limits.joint_limit_margin} rad of a limit; "
+                            "repelling")
             self._held = bool(near)
         if torque_hit or rate_hit:
-            self._flag(state.t, "torque_limit", torque_hit, "torque saturated at the joint limits")
-            self._flag(state.t, "torque_rate_limit", rate_hit, "torque rate saturated")
+            self._flag(t, "torque_limit", torque_hit, "torque saturated at the joint limits")
+            self._flag(t, "torque_rate_limit", rate_hit, "torque rate saturated")
         elif self._saturating["torque_limit"] or self._saturating["torque_rate_limit"]:
-            self._flag(state.t, "torque_limit", False, "")
-            self._flag(state.t, "torque_rate_limit", False, "")
-        self._tau_prev_l = out
-        return np.array(out)
+            self._flag(t, "torque_limit", False, "")
+            self._flag(t, "torque_rate_limit", False, "")
 
     def _flag(self, t: float, kind: str, active: bool, detail: str) -> None:
         if not active and not self._saturating[kind]:
