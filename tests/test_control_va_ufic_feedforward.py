@@ -29,7 +29,7 @@ def _tick(feedforward: bool) -> tuple[np.ndarray, VaUficController, float]:
 def test_feedforward_cancels_the_damping_lag() -> None:
     tau_ff, ctrl, _ = _tick(True)
     tau_plain, _, _ = _tick(False)
-    d_x = float(ctrl._d_tool_f[0])
+    d_x = float(ctrl._d_tool[0])  # D_C of the tick (the compiled tick keeps it in its vector, viewed here)
     assert tau_plain[0] == pytest.approx(-d_x * V, rel=1e-9)  # eq. 8: −D ẋ
     assert tau_ff[0] == pytest.approx(0.0, abs=1e-9)  # −D(ẋ − ẋ_d) with the valve open
 
@@ -37,7 +37,7 @@ def test_feedforward_cancels_the_damping_lag() -> None:
 def test_impedance_tank_pays_for_the_feedforward_energy() -> None:
     _, ctrl, before = _tick(True)
     step = ctrl.tank_i.last
-    d_x = float(ctrl._d_tool_f[0])
+    d_x = float(ctrl._d_tool[0])  # D_C of the tick (the compiled tick keeps it in its vector, viewed here)
     # the feed-forward delivers ẋᵀ(D ẋ_d) to the robot through the tank's port ...
     assert step.port_power == pytest.approx(d_x * V * V, rel=1e-9)
     # ... and the tank balance is exact: ΔS = dt (harvest − port)

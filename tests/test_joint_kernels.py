@@ -110,21 +110,41 @@ def test_compiled_posture_torque_equals_numpy(states, counted):
     assert counted["posture"] == len(states)
 
 
-def test_the_kernels_called_directly_equal_the_numpy_reference(states):
-    """The kernels' own arithmetic, apart from the controllers' plumbing."""
+def test_the_kernels_called_directly_equal_numpys_solves(states):
+    """The kernels' own arithmetic (their written-out Cholesky solves), apart from the controllers'
+    plumbing, against the same formulas with numpy's LU solves."""
     k = joint_kernels.kernels()
     state = states[3]
+    jac, rot, mass = state.jacobian, state.ee_rotation, state.mass_matrix
     rng = np.random.default_rng(2)
     f = rng.normal(0.0, 10.0, 6)
     d, kk, h = np.array([40.0, 40.0, 60.0, 2.0, 2.0, 2.0]), np.array([800.0, 800.0, 0.0, 40.0, 40.0, 40.0]), 0.003
-    ref = joint_kernels.latency_shaped_task_torque(state.jacobian, state.ee_rotation, state.mass_matrix, f, d, kk, h)
-    got = k.task_torque(state.jacobian, state.ee_rotation, state.mass_matrix, f, d, kk, h)
+    jt = np.vstack([rot.T @ jac[:3], rot.T @ jac[3:]])
+    ref = mass @ np.linalg.solve(mass + jt.T @ np.diag(h * (d + h * kk)) @ jt, jac.T @ f)
+    got = k.task_torque(jac, rot, mass, f, d, kk, h)
     np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
     q_post = state.q + 0.1
-    ref = joint_kernels.posture_torque(state.jacobian, state.mass_matrix, q_post, state.q, state.dq, 20.0, 9.0, h,
-                                       PINV_DAMPING)
-    got = k.posture_torque(state.jacobian, state.mass_matrix, q_post, state.q, state.dq, 20.0, 9.0, h, PINV_DAMPING)
+    tau0 = 20.0 * (q_post - state.q) - 9.0 * state.dq
+    tau_ns = tau0 - jac.T @ np.linalg.solve(jac @ jac.T + PINV_DAMPING**2 * np.eye(6), jac @ tau0)
+    ref = mass @ np.linalg.solve(mass + (h * 9.0 + h * h * 20.0) * np.eye(7), tau_ns)
+    got = k.posture_torque(jac, mass, q_post, state.q, state.dq, 20.0, 9.0, h, PINV_DAMPING)
     np.testing.assert_allclose(got, ref, rtol=RTOL, atol=RTOL * np.abs(ref).max())
+
+
+def test_a_matrix_that_is_not_positive_definite_gives_nan_not_an_exception():
+    k = joint_kernels.kernels()
+    jac, rot = np.ones((6, 7)), np.eye(3)
+    tau = k.task_torque(jac, rot, -np.eye(7), np.ones(6), np.ones(6), np.ones(6), 0.003)
+    assert tau.shape == (7,) and np.isnan(tau).all()
+
+
+def test_the_kernels_can_be_built_again_in_one_process(monkeypatch):
+    """A second build (after disable, e.g. in tests) compiles the helpers' Python forms again."""
+    first = joint_kernels.kernels()
+    monkeypatch.setattr(joint_kernels, "_kernels", None)
+    monkeypatch.setattr(joint_kernels, "_failure", None)
+    again = joint_kernels.kernels()
+    assert again is not None and again is not first and again.va_ufic_tick is not None
 
 
 def test_a_ufic_tick_is_the_same_with_and_without_the_kernels(states, counted):
@@ -217,7 +237,8 @@ def test_the_compiled_state_check_finds_a_non_finite_number_in_every_field(state
     from tactex.control.safety import _state_finite
 
     layer = SafetyLayer(_Zero())
-    assert layer._finite_kernel is not None and layer._state_finite(states[0])
+    layer._finite_kernel = counted_kernel = _CountedKernel(layer._finite_kernel)
+    assert layer._state_finite(states[0])
     if field == "t":
         state = replace(states[0], t=bad)
     else:
@@ -225,6 +246,7 @@ def test_the_compiled_state_check_finds_a_non_finite_number_in_every_field(state
         a.flat[a.size // 2] = bad
         state = replace(states[0], **{field: a})
     assert not layer._state_finite(state) and not _state_finite(state)
+    assert counted_kernel.calls == 2
 
 
 def test_a_state_the_compiled_check_was_not_built_for_warns_and_uses_numpy(states):
@@ -233,6 +255,15 @@ def test_a_state_the_compiled_check_was_not_built_for_warns_and_uses_numpy(state
     with pytest.warns(RuntimeWarning, match="checks with numpy from now on"):
         assert layer._state_finite(state)
     assert layer._finite_kernel is None
+
+
+class _CountedKernel:
+    def __init__(self, kernel):
+        self.kernel, self.calls = kernel, 0
+
+    def __call__(self, *args):
+        self.calls += 1
+        return self.kernel(*args)
 
 
 class _Script:
@@ -267,7 +298,9 @@ def test_the_compiled_limits_equal_the_python_ones_with_the_same_events(states):
     results = []
     for compiled in (True, False):
         layer = SafetyLayer(_Script(taus))
-        if not compiled:
+        if compiled:
+            layer._limit_kernel = counted = _CountedKernel(layer._limit_kernel)
+        else:
             layer._limit_kernel = None
         layer.reset(base)
         out = []
@@ -280,4 +313,5 @@ def test_the_compiled_limits_equal_the_python_ones_with_the_same_events(states):
     (a, ev_a, counts_a), (b, ev_b, counts_b) = results
     np.testing.assert_array_equal(a, b)
     assert ev_a == ev_b and counts_a == counts_b
+    assert counted.calls == 300  # every tick, the NaN's too (the kernel finds it, then the layer holds)
     assert {"torque_limit", "torque_rate_limit", "joint_limit", "nan_torque"} <= set(counts_a)

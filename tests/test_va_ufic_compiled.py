@@ -131,7 +131,8 @@ def test_reads_in_the_loop_come_from_the_vector_and_match_python():
         np.testing.assert_allclose(a.rotation_desired, b.rotation_desired, atol=1e-12)
         np.testing.assert_allclose(a.port_wrench_last(), b.port_wrench_last(), atol=1e-9)
         if i % 20 == 0:
-            a.telemetry()
+            ta, tb = a.telemetry(), b.telemetry()
+            assert ta.keys() == tb.keys() and all(ta[k] == pytest.approx(tb[k], abs=1e-9) for k in ta)
         assert a._compiled.live  # none of these reads unpacked the vector
 
 
@@ -193,3 +194,143 @@ def test_the_ticks_rotation_helpers_equal_the_python_ones(angle):
     rows = exp_so3_rows(*(angle * axis))
     np.testing.assert_allclose(k._exp_rows(*(angle * axis)), np.ravel(rows), atol=1e-15)
     np.testing.assert_allclose(k._log_rows(np.ravel(rows)), log_so3_rows(rows), atol=1e-12)
+
+
+def _flat(value) -> list[float]:
+    """Numbers of a nested field, None as NaN (for comparing fields of any shape)."""
+    if value is None:
+        return [math.nan]
+    if isinstance(value, (bool, int, float, np.floating)):
+        return [float(value)]
+    if isinstance(value, np.ndarray):
+        return value.astype(float).ravel().tolist()
+    return [x for v in value for x in _flat(v)]
+
+
+def test_every_field_of_every_object_ends_as_in_python_after_resets_and_resumes():
+    """A field the Python tick changes that the compiled tick does not carry would differ here."""
+    a, b = _controller(True), _controller(False)
+    for i, (state, ref) in enumerate(_ticks(2000)):
+        if i == 0:
+            a.reset(state)
+            b.reset(state)
+        if i in (600, 1300):  # the safety layer's resume after a retreat, mid-run
+            a.resume(state)
+            b.resume(state)
+        if i == 1700:
+            a.reset(state)
+            b.reset(state)
+        a.torque(state, ref)
+        b.torque(state, ref)
+    a._objects()
+    pairs = [(a, b), (a.tank_i, b.tank_i), (a.tank_f, b.tank_f), (a.shaper, b.shaper),
+             (a.port_feedforward, b.port_feedforward)]
+    objects = {"_compiled", "_kernels", "_tank_i", "_tank_f", "_shaper", "_port_feedforward", "params", "va"}
+    for x, y in pairs:
+        vx, vy = vars(x), vars(y)
+        assert vx.keys() == vy.keys()
+        for key in vx.keys() - objects:
+            if key == "_raw":  # its last item is the state object
+                vx_key, vy_key = vx[key][:-1], vy[key][:-1]
+            else:
+                vx_key, vy_key = vx[key], vy[key]
+            np.testing.assert_allclose(_flat(vx_key), _flat(vy_key), rtol=1e-9, atol=1e-12,
+                                       err_msg=f"{type(x).__name__}.{key}")
+
+
+def test_a_degenerate_rotation_is_held_by_the_safety_layer_not_an_exception():
+    """A zero rotation divides by zero on the way to a re-orientation: NaN, as in Python, then the
+    layer's hold; never a ZeroDivisionError out of the control loop."""
+    from tactex.control.safety import SafetyLayer
+
+    results = []
+    for compiled in (True, False):
+        layer = SafetyLayer(_controller(compiled))
+        state, ref = next(_ticks(1))
+        layer.reset(state)
+        bad = RobotState(**{**{f: getattr(state, f) for f in state.__slots__}, "ee_rotation": np.zeros((3, 3))})
+        ticks = [layer.torque(bad, ref) for _ in range(3)]
+        assert all(np.isfinite(t).all() for t in ticks)
+        results.append((np.array(ticks), dict(layer.counts)))
+    np.testing.assert_allclose(results[0][0], results[1][0], atol=1e-9)
+    assert results[0][1] == results[1][1]
+
+
+def test_a_re_orientation_from_a_non_finite_rotation_is_refused_as_in_python():
+    from tactex.errors import InputError
+
+    rds = []
+    for compiled in (True, False):
+        ctrl = _controller(compiled)
+        ticks = list(_ticks(30))
+        ctrl.reset(ticks[0][0])
+        for state, ref in ticks[:21]:  # the estimate turns valid at tick 21 (tilted: a re-orientation is due)
+            ctrl.torque(state, ref)
+        state, ref = ticks[21]
+        nan_rot = state.ee_rotation.copy()
+        nan_rot[0, 0] = np.nan
+        bad = RobotState(**{**{f: getattr(state, f) for f in state.__slots__}, "ee_rotation": nan_rot})
+        ctrl._objects()
+        assert ctrl._realign is None and ctrl.shaper.rho <= ctrl.va.compliant_below  # a re-orientation is due
+        with pytest.raises(InputError, match="finite 3×3 rotation"):
+            ctrl.torque(bad, ref)
+        rds.append(ctrl.rotation_desired)
+    assert np.isfinite(rds[0]).all()
+    np.testing.assert_allclose(rds[0], rds[1], atol=1e-12)
+
+
+def test_settings_changed_through_the_properties_reach_the_compiled_tick():
+    a, b = _controller(True), _controller(False)
+    taus = []
+    for i, (state, ref) in enumerate(_ticks(600)):
+        if i == 0:
+            a.reset(state)
+            b.reset(state)
+        if i == 200:
+            for c in (a, b):
+                c.tank_i.enabled = False
+                c.tank_i.energy = 1.05
+        taus.append((a.torque(state, ref), b.torque(state, ref)))
+    ta, tb = np.array([t[0] for t in taus]), np.array([t[1] for t in taus])
+    np.testing.assert_allclose(ta, tb, rtol=0, atol=RTOL * np.abs(tb).max())
+    assert a.tank_i.energy == pytest.approx(b.tank_i.energy, abs=1e-9)
+
+
+def test_a_tank_held_across_compiled_ticks_warns_when_its_write_would_be_lost():
+    ctrl = _controller(True)
+    ticks = _ticks(20)
+    state, ref = next(ticks)
+    ctrl.reset(state)
+    held = ctrl.tank_i
+    ctrl.torque(state, ref)  # the vector holds the truth from here
+    held.energy = 1.5
+    with pytest.warns(RuntimeWarning, match="that write is lost"):
+        ctrl.tank_i  # noqa: B018 (the read hands the state back)
+
+
+def test_without_a_feed_forward_there_is_no_port_wrench_either_way():
+    for compiled in (True, False):
+        ctrl = _controller(compiled, friction=False)
+        state, ref = next(_ticks(1))
+        ctrl.reset(state)
+        ctrl.torque(state, ref)
+        assert ctrl.port_wrench_last() is None
+
+
+def test_a_controller_with_the_compiled_tick_pickles_and_copies():
+    import copy
+    import pickle
+
+    a = _controller(True)
+    ticks = list(_ticks(200))
+    a.reset(ticks[0][0])
+    for state, ref in ticks[:100]:
+        a.torque(state, ref)
+    copies = [copy.deepcopy(a), pickle.loads(pickle.dumps(a))]
+    for b in copies:
+        assert b._compiled is not None and not b._compiled.live
+    for state, ref in ticks[100:200]:
+        tau = a.torque(state, ref)
+        for b in copies:
+            np.testing.assert_array_equal(b.torque(state, ref), tau)
+    assert all(b.tank_i.energy == a.tank_i.energy for b in copies)

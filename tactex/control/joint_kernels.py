@@ -282,22 +282,22 @@ def compile_kernel(func, signature: str | None = None):
     from numba import njit
 
     args = (signature,) if signature else ()
+    func = getattr(func, "py_func", func)  # a helper compiled by an earlier build
+    # error_model="numpy": a division by zero gives inf/NaN as in the Python reference (the safety
+    # layer then holds) instead of raising ZeroDivisionError out of the control loop
     try:
-        return njit(*args, cache=True, nogil=True)(func)
+        return njit(*args, cache=True, nogil=True, error_model="numpy")(func)
     except RuntimeError:  # no writable cache location anywhere: compile in every process
-        return njit(*args, nogil=True)(func)
+        return njit(*args, nogil=True, error_model="numpy")(func)
 
 
 def run(kernel, *args) -> np.ndarray | None:
-    """``kernel(*args)``'s torque (the first argument is the (6, n) Jacobian); n NaNs when an input
-    is not finite (numba's solve refuses them where numpy's returns NaN: either way the safety layer
+    """``kernel(*args)``'s torque (NaN when an input is not finite, as with numpy: the safety layer
     then holds the last command); None, with a warning, when the arrays are not the types the kernel
     was compiled for (C-ordered float64): the caller then uses numpy from there on, since every
     failed dispatch costs about as much as the numpy path."""
     try:
         return kernel(*args)
-    except np.linalg.LinAlgError:
-        return np.full(args[0].shape[1], np.nan)
     except TypeError as exc:
         types = ", ".join(f"{a.dtype}{'' if a.flags.c_contiguous else ' strided'}" if isinstance(a, np.ndarray)
                           else type(a).__name__ for a in args)

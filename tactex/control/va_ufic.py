@@ -151,7 +151,12 @@ class PortFeedforward(Protocol):
 
 class VaUficController(UficController):
     """VA-UFIC (eq. 1–73). Reference: :class:`PoseForceReference` whose ``surface`` carries the
-    latest :class:`SurfaceEstimate` (or None)."""
+    latest :class:`SurfaceEstimate` (or None).
+
+    With the ``fast`` extra the tick runs compiled (:mod:`tactex.control.va_ufic_tick`, driven by
+    :class:`~tactex.control.va_ufic_compiled.CompiledTick`); the Python tick below is the reference,
+    and runs without numba or with a ``port_feedforward`` other than
+    :class:`~tactex.control.friction.FrictionCompensator`."""
 
     name = "va_ufic"
 
@@ -180,23 +185,42 @@ class VaUficController(UficController):
     # these properties brings them back first (tests and set-up code read them; the loop does not).
     @property
     def tank_i(self) -> ImpedanceTank:
+        """The impedance tank, up to date now; read it through this property each time (a reference
+        kept across ticks of the compiled tick goes stale, and writes to it are lost, with a warning)."""
         self._objects()
         return self._tank_i
 
     @property
     def tank_f(self) -> ForceTank:
+        """The force tank (as :attr:`tank_i`)."""
         self._objects()
         return self._tank_f
 
     @property
     def shaper(self) -> AlignmentShaper:
+        """ρ_align's integrator (as :attr:`tank_i`)."""
         self._objects()
         return self._shaper
 
     @property
     def port_feedforward(self) -> PortFeedforward | None:
+        """The port feed-forward (as :attr:`tank_i`)."""
         self._objects()
         return self._port_feedforward
+
+    def __getstate__(self) -> dict:
+        # the compiled tick holds a view of its vector and the tick module: rebuilt on unpickling
+        self._objects()
+        state = self.__dict__.copy()
+        state["_compiled"] = self._compiled is not None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        compiled = state.pop("_compiled")
+        self.__dict__.update(state)
+        self._compiled = None
+        if compiled:
+            self._compiled = CompiledTick.make(self)
 
     def _objects(self) -> None:
         """The compiled tick's state back into the Python objects (a no-op when they hold it)."""

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactex.control.friction import FrictionCompensator
-from tactex.errors import ControllerFault
+from tactex.errors import ControllerFault, InputError
 
 if TYPE_CHECKING:
     from tactex.control.references import PoseForceReference
@@ -86,7 +86,9 @@ class CompiledTick:
 
     # -- objects ↔ vector ---------------------------------------------------------------------------
     def pack(self) -> None:
-        """The Python objects' state into the vector; the vector holds the truth from now on."""
+        """The Python objects' state (and their settings, which set-up code may have changed) into
+        the vector; the vector holds the truth from now on."""
+        self.kp = self._constants()
         m, c, ks = self.m, self.ctrl, self.ks
         ks[m.S_T_PREV] = math.nan if c._t_prev is None else c._t_prev
         ks[m.S_W_OK] = float(c._w_filt is not None)
@@ -123,10 +125,23 @@ class CompiledTick:
             ks[m.S_RAW + 10:m.S_RAW + 16] = raw[10]
             self.state = raw[11]
         c._d_tool = self.d_view
+        self._packed = self._held_values()
         self.live = True
+
+    def _held_values(self) -> tuple:
+        """What code holding a tank, the shaper or the friction feed-forward could have written."""
+        c = self.ctrl
+        ff = c._port_feedforward
+        return (c._tank_i.energy, c._tank_i.delivered, c._tank_i.harvested, c._tank_f.energy, c._tank_f.delivered,
+                c._tank_f.harvested, c._shaper.rho, None if ff is None else ff._f)
 
     def unpack(self) -> None:
         """The vector back into the Python objects; they hold the truth from now on."""
+        if self._held_values() != self._packed:
+            warnings.warn("a VA-UFIC tank, shaper or friction feed-forward held from before was written while the "
+                          "compiled tick ran: that write is lost. Read them through the controller's properties "
+                          "(ctrl.tank_i, ...) each time, not through a reference kept across ticks",
+                          RuntimeWarning, stacklevel=4)
         m, c = self.m, self.ctrl
         ks = self.ks.tolist()
         c._t_prev = None if math.isnan(ks[m.S_T_PREV]) else ks[m.S_T_PREV]
@@ -180,6 +195,8 @@ class CompiledTick:
                           "Python tick from now on", RuntimeWarning, stacklevel=3)
             self.unpack()
             return None
+        if code == self.m.FAULT_ROTATION:
+            raise InputError(f"rot_current must be a finite 3×3 rotation matrix, got {state.ee_rotation!r}")
         if code:
             raise ControllerFault(self._fault(code, state))
         self.state = state
@@ -209,7 +226,9 @@ class CompiledTick:
     def position_offset(self) -> np.ndarray:
         return self.ks[self.m.S_OFFSET:self.m.S_OFFSET + 3].copy()
 
-    def port_wrench_last(self) -> np.ndarray:
+    def port_wrench_last(self) -> np.ndarray | None:
+        if not self.kp[self.m.P_FR_ON]:
+            return None
         f = self.m.S_FRIC
         return self.ks[f + 5:f + 11].copy()
 

@@ -24,11 +24,13 @@ import numpy as np
 
 from tactex.control.joint_kernels import compile_kernel as _jit  # imported by joint_kernels.kernels(), with numba
 
+__all__ = ["FAULT_FRICTION_DT", "FAULT_FRICTION_FORCE", "FAULT_FRICTION_RHO", "FAULT_ROTATION", "OK", "va_ufic_tick"]
+
 # The state vector ``ks`` (indices; numba reads module-level integers as constants).
 S_T_PREV = 0  # last tick's time [s]; NaN: none yet
 S_W_OK = 1  # 1: the wrench filter holds a value
 S_W = 2  # 6: low-passed measured wrench, tool frame [N, N·m]
-S_INTEG = 8  # 6: force PI integral K_i ∫f̃ / K_i per tool axis
+S_INTEG = 8  # 6: the force PI's integral ∫f̃ per tool axis [N·s, N·m·s]
 S_D = 14  # 6: D_C diagonal, tool frame
 S_RHO = 20  # ρ_align
 S_OFFSET = 21  # 3: position offset fed back while compliant [m]
@@ -65,6 +67,7 @@ OK = 0
 FAULT_FRICTION_FORCE = 1  # the friction feed-forward got a non-finite measured force
 FAULT_FRICTION_RHO = 2  # ... a ρ_align outside [0, 1]
 FAULT_FRICTION_DT = 3  # ... a tick period ≤ 0
+FAULT_ROTATION = 4  # a re-orientation would start from a non-finite tool rotation
 
 
 @_jit
@@ -350,6 +353,9 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
             cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
             cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
             if math.acos(cos_tilt) > kp[P_REALIGN_MIN]:
+                for x in rl:  # desired_rotation_from_normal refuses a non-finite rotation
+                    if not math.isfinite(x):
+                        return FAULT_ROTATION
                 _start_realign(ks, rl, zx, zy, zz, t)
 
     # eq. 30

@@ -264,7 +264,7 @@ class _WipeLog:
         if self._pending is not None:
             self._complete(state_ctrl)
         tel = self.inner.tick_telemetry() if self.cfg.baseline == "" else {}
-        comp_last = self.inner.port_wrench_last() if self.compensator is not None else None  # (6,), made on each read
+        comp_last = self.inner.port_wrench_last() if self.compensator is not None else None  # (6,) or None
         if comp_last is not None and "tank_i_valve" in tel:
             # power the compensation delivered through the impedance tank's port (σ_i scales it)
             self.comp_energy += self.dt * tel["tank_i_valve"] * float(
