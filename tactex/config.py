@@ -95,8 +95,12 @@ def add_dataclass_arguments(
             kw = {"type": float, "nargs": "+" if Ellipsis in args else len(args)}
         elif origin in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
             base = next(a for a in args if a is not type(None))
+            base_args = typing.get_args(base)
             if base in (int, float, str):
                 kw = {"type": base}
+            elif (typing.get_origin(base) is tuple and base_args
+                  and all(a in (int, float) for a in base_args if a is not Ellipsis)):
+                kw = {"type": float, "nargs": "+" if Ellipsis in base_args else len(base_args)}
         if kw is None:
             continue
         parser.add_argument(opt, dest=dest, default=None, help=help_text, **kw)

@@ -69,6 +69,33 @@ def test_cup_wall_radius():
         assert 0.3 - dist == pytest.approx(surf.radius_m, abs=1e-9)
 
 
+def test_objects_are_placed_where_the_registry_puts_them_unless_told():
+    """The cup's marked wall sits well inside the arm's reach (0.42 m out), the others at 0.5 m; an
+    explicit position wins, in the scene, in a task's config and on the command line."""
+    from tactex.config import add_dataclass_arguments, dataclass_from_args
+    from tactex.tasks.clean import CleanConfig
+
+    assert SceneConfig(object_name="cup").object_position == (0.42, 0.0, 0.0)
+    assert SceneConfig(object_name="plate").object_position == (0.5, 0.0, 0.0)
+    pos, _ = MujocoBackend(SceneConfig(object_name="cup", camera_width=8, camera_height=8)).object_pose()
+    np.testing.assert_allclose(pos, [0.42, 0.0, 0.0])
+    assert CleanConfig(object_name="cup").scene().object_position == (0.42, 0.0, 0.0)
+    assert CleanConfig(object_name="cup", object_position=(0.5, 0.1, 0.0)).scene().object_position == (0.5, 0.1, 0.0)
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_arguments(parser, CleanConfig)
+    cfg = dataclass_from_args(CleanConfig, parser.parse_args(["--object", "cup", "--object-position", "0.5", "0", "0"]))
+    assert cfg.scene().object_position == (0.5, 0.0, 0.0)
+    cfg = dataclass_from_args(CleanConfig, parser.parse_args(["--object", "cup"]))
+    assert cfg.scene().object_position == (0.42, 0.0, 0.0)
+    with pytest.raises(ConfigError, match="object_position must be 3 finite numbers"):
+        SceneConfig(object_name="cup", object_position=(0.5, float("nan"), 0.0))
+    with pytest.raises(ConfigError, match="position_m must be 3 finite numbers"):
+        register_object(SimObject("far", get_object("plate").surface, position_m=(0.5, 0.0)))  # type: ignore[arg-type]
+    assert "far" not in object_names()
+
+
 def test_heightfield_from_image_orientation():
     img = np.zeros((20, 30))
     img[:5, 20:] = 1.0  # top-right of the image: +y, +x corner

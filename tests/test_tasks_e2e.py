@@ -126,7 +126,7 @@ def test_the_cup_view_from_above_sees_the_marking_with_a_shorter_swing_from_home
         cfg = CleanConfig(object_name="cup", marking="X", side_capture_elevation_deg=el)
         scene = cfg.scene()
         pos, rot = _capture_pose(scene, cfg)
-        mid = np.array([0.5, -0.04, 0.05])  # the wall facing the robot, at mid-height (default object pose)
+        mid = scene.object_pose()[0] + np.array([0.0, -0.04, 0.05])  # the marked wall's middle, at mid-height
         view = (pos - mid) / np.linalg.norm(pos - mid)
         assert np.degrees(np.arcsin(view[2])) == pytest.approx(el, abs=1.0)
         assert rot[:, 2] @ view == pytest.approx(-1.0, abs=1e-9)  # the tool (and camera) axis looks at the wall

@@ -4,7 +4,8 @@ Each :class:`SimObject` wraps a :class:`tactex.pointcloud.shapes.Surface` (the s
 point-cloud side samples) with what the simulator needs: an intrinsic pose (the tilted plane is
 the plane turned by 15°), a colour, a default marking, and the height-field resolution. Height
 surfaces become MuJoCo height fields sampled from ``Surface.height`` on a grid; flat ones a box;
-the cup wall a cylinder. Adding an object is one :func:`register_object` call.
+the cup wall a cylinder. Each object also has a default placement in front of the robot, where a
+scene puts it unless told otherwise. Adding an object is one :func:`register_object` call.
 """
 
 from __future__ import annotations
@@ -56,6 +57,8 @@ class SimObject:
             cells under the pad, so it is as coarse as the curvature allows: the linear-interpolation
             error h''·s²/8 is 0.07 mm for the sine panel at 1 cm and ≤ 0.1 mm for the others at 5 mm.
         base_thickness_m: solid below z = 0 of the object frame [m].
+        position_m: where a scene places the object frame by default, in the robot base frame [m]: where
+            a user would put the part for a Franka, its surface to clean well inside the arm's reach.
     """
 
     name: str
@@ -66,6 +69,7 @@ class SimObject:
     marking: str = "X"
     hfield_spacing_m: float = 0.005
     base_thickness_m: float = 0.01
+    position_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -137,6 +141,9 @@ def register_object(obj: SimObject, *, replace: bool = False) -> SimObject:
     if obj.name in OBJECTS and not replace:
         raise ConfigError(f"object '{obj.name}' is already registered; pass replace=True to overwrite it")
     obj.kind  # noqa: B018 - validates that the surface has a simulator geometry
+    pos = np.asarray(obj.position_m, dtype=float)
+    if pos.shape != (3,) or not np.isfinite(pos).all():
+        raise ConfigError(f"object '{obj.name}': position_m must be 3 finite numbers [m], got {obj.position_m!r}")
     OBJECTS[obj.name] = obj
     return obj
 
@@ -221,7 +228,9 @@ def _register_builtins() -> None:
                               hfield_spacing_m=0.01))
     register_object(SimObject("plate", SURFACES["plate"], rgb=(0.95, 0.95, 0.92), marking="shapes"))
     register_object(SimObject("bowl", SURFACES["bowl"], rgb=(0.75, 0.82, 0.9), marking="RLI"))
-    register_object(SimObject("cup", SURFACES["cup"], rgb=(0.9, 0.9, 0.95), marking="X"))
+    # The cup 8 cm nearer than the others: at 0.5 m the far side of its marked wall (pressed back towards the
+    # robot's base) is at the edge of the arm's reach, where the wrist sits beyond the cup near j2/j4's limits
+    register_object(SimObject("cup", SURFACES["cup"], rgb=(0.9, 0.9, 0.95), marking="X", position_m=(0.42, 0.0, 0.0)))
     register_object(heightfield_object("bumps", _bumps_height, 0.24, 0.24, marking="blobs"))
     # The large parts: a door (0.4 × 0.6 m, long side across the robot so every corner is within reach at
     # the default 0.5 m) and a hull patch; gently curved, so a 1 cm height field interpolates them to < 0.02 mm.

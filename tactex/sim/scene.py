@@ -31,7 +31,8 @@ class SceneConfig:
     """Everything that defines a simulated scene (units in brackets)."""
 
     object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
-    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object frame origin in the world [m]")
+    object_position: tuple[float, float, float] | None = param(
+        None, "object frame origin in the world [m]; default: the object's own placement (0.5 0 0; the cup 0.42 0 0)")
     object_rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "object orientation roll/pitch/yaw [deg]")
     marking: str = param("", "dirt pattern (X, RLI, blobs, shapes, full); empty = the object's default")
     tool_stiffness_n_per_m: float = param(10000.0, "sponge stiffness along the tool axis [N/m]")
@@ -72,7 +73,9 @@ class SceneConfig:
     def __post_init__(self) -> None:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
-        get_object(self.object_name)
+        obj = get_object(self.object_name)
+        if self.object_position is None:
+            object.__setattr__(self, "object_position", tuple(float(v) for v in obj.position_m))
         if self.marking and self.marking not in MARKINGS:
             raise ConfigError(f"unknown marking '{self.marking}'; valid: {', '.join(sorted(MARKINGS))} or ''")
         if self.camera_preset not in CAMERA_PRESETS:

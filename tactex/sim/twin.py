@@ -65,8 +65,9 @@ class TwinConfig:
     """The twin: object, tool, dirt and network addresses (units in brackets)."""
 
     object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
-    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the robot base "
-                                                        "frame [m]")
+    object_position: tuple[float, float, float] | None = param(
+        None, "object position in the robot base frame [m]; default: the object's own placement (0.5 0 0; the cup "
+        "0.42 0 0), as in tactex clean")
     object_rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "object orientation roll/pitch/yaw [deg]")
     marking: str = param("X", "dirt pattern (X, RLI, blobs, shapes, full; tactex clean's default X); empty = the "
                               "object's default")

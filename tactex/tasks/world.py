@@ -26,7 +26,9 @@ class SimWorldParams:
 
     object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)", option="object",
                              aliases=("--object-name",))
-    object_position: tuple[float, float, float] = param((0.5, 0.0, 0.0), "object position in the world [m]")
+    object_position: tuple[float, float, float] | None = param(
+        None, "object position in the world [m]; default: the object's own placement (0.5 0 0; the cup 0.42 0 0, "
+        "its marked wall well inside the arm's reach)")
     tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness [N/m] (a kitchen sponge: ~2–3 kN/m)")
     tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
     tool_friction: float = param(0.4, "pad–surface Coulomb friction [-]")
