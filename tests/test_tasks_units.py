@@ -471,3 +471,47 @@ def test_move_cartesian_refuses_to_skip_many_waypoints_in_a_row() -> None:
     with pytest.raises(SimulationError, match="missed 3 waypoints in a row"):
         loop.move_cartesian(p0 + np.array([0.0, 0.0, 0.2]), r0, q_goal=q0)
     assert len(calls) == 6  # the single miss was skipped; the run of three stopped it before a long jump
+
+
+
+def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> None:
+    """tactex's first touch-down: of candidates spread over the dirt (at most START_CANDIDATES), the one whose
+    planned moves from the capture posture are the shortest, never longer than those to the dirt nearest the
+    camera (where the raster starts); none without normals."""
+    from dataclasses import replace
+
+    from tactex.robots import MujocoBackend
+    from tactex.tasks import clean
+    from tactex.tasks.runner import ControlLoop
+
+    cfg = CleanConfig(object_name="cup", marking="X")
+    scene = cfg.scene()
+    cap_pos, cap_rot = clean._capture_pose(scene, cfg)
+    backend = MujocoBackend(scene)
+    q_capture = backend.solve_ik(cap_pos, cap_rot)
+    backend.reset(q0=q_capture)
+    loop = ControlLoop(backend)
+    obj = marked_cloud(get_surface("cup"), "X", 0.003)
+    cloud = replace(obj, points=obj.points + scene.object_pose()[0])
+    targets = np.flatnonzero(cloud.target > 0)
+
+    def move_s(p: np.ndarray) -> float:
+        j = targets[int(np.argmin(np.linalg.norm(cloud.points[targets] - p, axis=1)))]
+        return clean._hover_plan(loop, cloud.points[j], cloud.normals[j], q_capture, cfg.hover_height_m,
+                                 q_from=q_capture)[2]
+
+    chosen = clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m)
+    assert chosen is not None and np.min(np.linalg.norm(cloud.points[targets] - chosen, axis=1)) == 0.0
+    nearest_camera = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
+    rng = np.random.default_rng(0)
+    others = [nearest_camera, *cloud.points[rng.choice(targets, 8, replace=False)]]
+    assert all(move_s(chosen) <= move_s(p) + 0.01 for p in others)
+    assert move_s(chosen) < move_s(nearest_camera)  # from 45° above the wall the nearest dirt is its top
+    calls = []
+    plan = clean._hover_plan
+    monkeypatch.setattr(clean, "_hover_plan", lambda *a, **k: calls.append(1) or plan(*a, **k))
+    monkeypatch.setattr(clean, "START_CANDIDATES", 5)
+    assert clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m) is not None
+    assert 1 <= len(calls) <= 5
+    bare = replace(cloud, normals=None)
+    assert clean._quickest_touch_down(loop, bare, targets, q_capture, cap_pos, cfg.hover_height_m) is None

@@ -94,6 +94,11 @@ WAYPOINT_MAX_JOINT_RAD = 0.5
 MAX_HOLD_STEPS = 10
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
+#: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
+#: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
+#: (two IK solves, a few ms each).
+START_SPACING_M = 0.01
+START_CANDIDATES = 64
 
 
 def _approach_too_weak(cfg: CleanConfig) -> bool:
@@ -484,6 +489,60 @@ def _capture_pose(scene: SceneConfig, cfg: CleanConfig) -> tuple[np.ndarray, np.
     return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
 
 
+def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_seed: np.ndarray,
+                hover_height_m: float, q_from: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """The joint moves from ``q_from`` (default: the current posture) to the hover ``hover_height_m`` [m] above
+    ``point_m`` along ``normal``: ``(q_above, q_hover, move_s)``, ``q_above`` the waypoint :data:`CLEARANCE_M`
+    straight above the hover (None when it is not a short step from it) and ``move_s`` [s] the moves'
+    duration. IK is searched from ``q_seed``. Raises SimulationError when the hover is out of the arm's reach."""
+    rot = tool_rotation_for_normal(normal)
+    hover = np.asarray(point_m, dtype=float) + hover_height_m * np.asarray(normal, dtype=float)
+    q_hover = loop.solve_pose(hover, rot, q_seed=q_seed)
+    # Through a waypoint straight above the hover pose: a joint move from the high capture pose down to a
+    # hover inside a bowl can swing the tool through the rim on the way. The waypoint is solved from the hover
+    # (same IK branch) and dropped when it is not a short step from it.
+    try:
+        q_above: np.ndarray | None = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
+    except SimulationError:
+        q_above = None
+    if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
+        q_above = None
+    if q_above is None:
+        return None, q_hover, loop.joint_move_duration(q_hover, q_from=q_from)
+    return q_above, q_hover, (loop.joint_move_duration(q_above, q_from=q_from)
+                              + loop.joint_move_duration(q_hover, q_from=q_above))
+
+
+def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.ndarray, q_capture: np.ndarray,
+                         cap_pos: np.ndarray, hover_height_m: float) -> np.ndarray | None:
+    """tactex's first touch-down [m]: of the dirty points ``targets`` (indices into ``cloud``), one per cell of a
+    grid (:data:`START_SPACING_M`, coarser until at most :data:`START_CANDIDATES` are left), the one whose hover
+    the arm reaches soonest from the capture posture ``q_capture`` (the moves :func:`_hover_plan` plans), and of
+    those equally quick (to 10 ms) the nearest to the camera at ``cap_pos`` [m]. None when the cloud has no
+    normals or no candidate's hover is within reach."""
+    if cloud.normals is None or targets.size == 0:
+        return None
+    pts = cloud.points[targets]
+    spacing = START_SPACING_M
+    while True:
+        _, first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)
+        if first.size <= START_CANDIDATES:
+            break
+        spacing *= 1.5
+    best: tuple[float, float] | None = None
+    chosen = None
+    for j in np.sort(first):
+        try:
+            move_s = _hover_plan(loop, pts[j], cloud.normals[targets[j]], q_capture, hover_height_m,
+                                 q_from=q_capture)[2]
+        except SimulationError:
+            continue
+        key = (round(move_s, 2), float(np.linalg.norm(pts[j] - cap_pos)))
+        if best is None or key < best:
+            best, chosen = key, pts[j].copy()
+    return chosen
+
+
 def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4) -> None:
     """Back along the tool axis by ``distance_m`` [m] in steps of at most :data:`RETRACT_STEP_M`, each
     re-linearised where the last ended, taking ``duration_s`` [s] at least."""
@@ -660,11 +719,15 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s; "
                      "later runs load it)")
         source = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
-    # start at the dirt nearest to the camera that the sponge may touch (clear of any keep-out zone)
+    # where the sponge first touches down, on dirt it may touch (clear of any keep-out zone)
     targets = np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0)
     if isinstance(source, HedacExplorer) and keep_out is not None and source.clear_points[targets].any():
         targets = targets[source.clear_points[targets]]
+    # the raster from its waypoint nearest the dirt nearest the camera; tactex where the arm gets soonest
     x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
+    if isinstance(source, HedacExplorer):
+        quickest = _quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m)
+        x0 = x0 if quickest is None else quickest
     if given is not None:
         source.reset(x0)  # a first step here, not in the loop: numba loads the compiled step on first use
         source.step()
@@ -719,13 +782,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             new_leg = False
             # 3a. hover over the agent and approach along its normal line
             log.activity("move", "transit")
-            # Through a waypoint straight above the hover pose: a joint move from the high capture pose
-            # down to a hover inside a bowl can swing the tool through the rim on the way. The waypoint is
-            # solved from the hover (same IK branch) and dropped when it is not a short step from it.
-            rot = tool_rotation_for_normal(cmd.normal)
-            hover = cmd.point + cfg.hover_height_m * cmd.normal
             try:
-                q_hover = loop.solve_pose(hover, rot, q_seed=q_capture)
+                q_above, q_hover, move_s = _hover_plan(loop, cmd.point, cmd.normal, q_capture, cfg.hover_height_m)
             except SimulationError:
                 # out of the arm's reach (the far side of the cup): the nearest other dirt the wear model
                 # knows of, or the end of the program when there is none (TEC's loop has no other to offer)
@@ -747,16 +805,6 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 stroke, new_leg = None, True
                 cmd = legs.restart(island)
                 continue
-            try:
-                q_above = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
-            except SimulationError:
-                q_above = None
-            if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
-                q_above = None
-            if q_above is None:
-                move_s = loop.joint_move_duration(q_hover)
-            else:
-                move_s = loop.joint_move_duration(q_above) + loop.joint_move_duration(q_hover, q_from=q_above)
             if loop.t + move_s + HOVER_SETTLE_S >= t_end:
                 break  # the move alone would use up the budget
             if q_above is not None:
@@ -968,6 +1016,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
         aborted = stop_reason(exc)
         bar.note(f"stopped early: {aborted}")
+    if stroke is not None:  # the program ended during a stroke: its path so far is part of the agent's
+        legs.path_m += stroke.path.path_length
 
     # lift off at the end so the final state is out of contact (0.4 s, on top of the budget)
     log.activity("retract", "lift_off")
