@@ -4,7 +4,9 @@ The state machine of TEC §V-A3:
 
 1. **capture** — joint move to a capture pose, take an RGB-D frame, pre-process it (crop, voxel
    grid, outlier removal) and segment the dirt by colour: the target distribution;
-2. **hover** — move above the surface while the Laplacian eigenbasis is computed;
+2. **hover** — move above the surface while the Laplacian eigenbasis is computed; the first hover is over
+   the dirt the arm reaches soonest from the capture pose (the raster's: its waypoint nearest the dirt
+   nearest the camera);
 3. **contact exploration** — each tick the GA line-and-force controller tracks the normal line of
    the HEDAC agent and presses with the set force; the agent steps at ``explorer_rate_hz``;
 4. the robot returns to the capture pose, re-measures the remaining dirt and updates the target on
