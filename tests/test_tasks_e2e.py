@@ -48,6 +48,7 @@ def test_short_clean_removes_dirt_with_bounded_force() -> None:
     steps = np.linalg.norm(np.diff(r.agent_path, axis=0), axis=1)
     assert m["agent_path_length_m"] == pytest.approx(steps[steps < 0.004].sum(), rel=0.05)
     assert m["contact_time_s"] > 1.0
+    assert 0.0 < m["start_plan_time_s"] < m["wall_time_s"]  # the first touch-down is planned (wall clock)
     # ticks the torque-rate limiter cut (thousands per run when the GA damping chattered at 500 Hz)
     assert m["torque_rate_clip_ticks"] <= 5
     _finite_series(r.series)
