@@ -46,21 +46,16 @@ def disable(reason: str) -> None:
     _log.warning("compiled block solve disabled: %s", reason)
 
 
-def _substitutions(lp, li, lx, up, ui, ux, order, B, row, col, Z, X):  # pragma: no cover - runs compiled
-    """X[order] ← U⁻¹ L⁻¹ (diag(row) B diag(col))[order], through the work block Z: L unit lower triangular (CSR,
-    diagonal not stored), U upper triangular (CSR). B is read before X is written, so X may be B."""
+def _substitutions(up, ui, ux, lp, li, lx, order, B, row, col, Z, X):  # pragma: no cover - runs compiled
+    """X[order] ← (L U)⁻ᵀ (diag(row) B diag(col))[order], through the work block Z, from SuperLU's CSC factors: the
+    columns of U (upper triangular) are the rows of Uᵀ, those of L (unit lower triangular, diagonal stored) the rows
+    of Lᵀ. B is read before X is written, so X may be B. Any float dtypes: the arithmetic is Z's."""
     n, m = Z.shape
     for i in range(n):
         r = order[i]
         s = row[r]
         for c in range(m):
             Z[i, c] = B[r, c] * s * col[c]
-        for jj in range(lp[i], lp[i + 1]):
-            j = li[jj]
-            v = lx[jj]
-            for c in range(m):
-                Z[i, c] -= v * Z[j, c]
-    for i in range(n - 1, -1, -1):
         d = 1.0
         for jj in range(up[i], up[i + 1]):
             j = ui[jj]
@@ -71,9 +66,17 @@ def _substitutions(lp, li, lx, up, ui, ux, order, B, row, col, Z, X):  # pragma:
                 for c in range(m):
                     Z[i, c] -= v * Z[j, c]
         inv = 1.0 / d
-        r = order[i]
         for c in range(m):
             Z[i, c] *= inv
+    for i in range(n - 1, -1, -1):
+        for jj in range(lp[i], lp[i + 1]):
+            j = li[jj]
+            if j != i:
+                v = lx[jj]
+                for c in range(m):
+                    Z[i, c] -= v * Z[j, c]
+        r = order[i]
+        for c in range(m):
             X[r, c] = Z[i, c]
 
 
@@ -91,40 +94,49 @@ class BlockLU:
     """SuperLU's factorisation of a symmetric positive definite sparse matrix A, solving (n, p) blocks.
 
     The ordering is symmetric (minimum degree on Aᵀ + A) and no pivoting is done: A is positive definite,
-    so the factorisation works like a sparse Cholesky (U = D Lᵀ). Raises ``RuntimeError`` when the compiled
-    loop is unavailable (see :func:`available`).
+    so the factorisation works like a sparse Cholesky. The substitutions run over SuperLU's CSC factors as
+    they come: Pᵀ L U P = A = Aᵀ = Pᵀ Uᵀ Lᵀ P, and the columns of U and L are the rows of Uᵀ and Lᵀ, so no
+    factor is converted or copied. Raises ``RuntimeError`` when the compiled loop is unavailable (see
+    :func:`available`).
     """
 
     def __init__(self, A: sp.spmatrix) -> None:
         if not available():
             raise RuntimeError(_failure or "numba is not installed or its JIT is disabled")
-        lu = sla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                      options={"SymmetricMode": True})
+        lu = sla.splu(A if sp.isspmatrix_csc(A) else sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A",
+                      diag_pivot_thresh=0.0, options={"SymmetricMode": True})
         if not np.array_equal(lu.perm_r, lu.perm_c):  # pivoting happened: A is not positive definite
             raise RuntimeError("SuperLU pivoted off the diagonal; the matrix is not positive definite")
-        lower = sp.csr_matrix(lu.L)
-        lower.setdiag(0.0)  # unit diagonal, implied by the substitution
-        lower.eliminate_zeros()
-        upper = sp.csr_matrix(lu.U)
-        self._lower = (lower.indptr, lower.indices, lower.data)
-        self._upper = (upper.indptr, upper.indices, upper.data)
+        upper, lower = lu.U, lu.L
+        self._factors = {np.dtype(np.float64): (upper.indptr, upper.indices, upper.data,
+                                                lower.indptr, lower.indices, lower.data)}
         # Pr A Pc = L U with Pr = Pc (symmetric mode, no pivoting): row i of the factors is row order[i] of A.
         self._order = np.argsort(lu.perm_r)
-        self._work: np.ndarray | None = None  # the permuted block, kept between solves of the same shape
+        self._work: dict[np.dtype, np.ndarray] = {}  # the permuted block per dtype, kept between solves
         self.n = A.shape[0]
 
+    def _arrays(self, dtype: np.dtype) -> tuple:
+        if dtype not in self._factors:
+            up, ui, ux, lp, li, lx = self._factors[np.dtype(np.float64)]
+            self._factors[dtype] = (up, ui, ux.astype(dtype), lp, li, lx.astype(dtype))
+        return self._factors[dtype]
+
     def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
-              col: np.ndarray | None = None) -> np.ndarray:
+              col: np.ndarray | None = None, dtype: type = np.float64) -> np.ndarray:
         """A⁻¹ diag(row) B diag(col) for a C-ordered (n, p) block B (row, col: scalings, ones when None), written
-        into ``out`` when given (same shape; may be B itself)."""
+        into ``out`` when given (same shape; may be B itself when of ``dtype``). ``dtype``: the precision of the
+        substitutions and of a new ``out`` (float32 halves the memory traffic, for blocks that only have to span
+        the right space)."""
         n, m = B.shape
-        if self._work is None or self._work.shape != B.shape:
-            self._work = np.empty((n, m))
-        X = np.empty((n, m)) if out is None else out
+        dtype = np.dtype(dtype)
+        work = self._work.get(dtype)
+        if work is None or work.shape != B.shape:
+            work = self._work[dtype] = np.empty((n, m), dtype=dtype)
+        X = np.empty((n, m), dtype=dtype) if out is None else out
         row = np.ones(n) if row is None else np.ascontiguousarray(row, dtype=np.float64)
         col = np.ones(m) if col is None else np.ascontiguousarray(col, dtype=np.float64)
         try:
-            _compiled()(*self._lower, *self._upper, self._order, np.ascontiguousarray(B), row, col, self._work, X)
+            _compiled()(*self._arrays(dtype), self._order, np.ascontiguousarray(B), row, col, work, X)
         except Exception as exc:  # numba's import, typing or compilation
             disable(f"{type(exc).__name__}: {exc}")
             raise RuntimeError(f"compiled block solve failed: {exc}") from exc

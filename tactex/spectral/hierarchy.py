@@ -213,7 +213,8 @@ class _Factor:
     """
 
     def __init__(self, A: sp.spmatrix, block: bool = False) -> None:
-        A = sp.csc_matrix(A)
+        if A.format != "csc":
+            A = sp.csc_matrix(A)
         A.sum_duplicates()
         self.n = A.shape[0]
         self._block = None
@@ -240,27 +241,43 @@ class _Factor:
         )
 
     def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
-              col: np.ndarray | None = None) -> np.ndarray:
+              col: np.ndarray | None = None, dtype: type = np.float64) -> np.ndarray:
         """(L − σM)⁻¹ diag(row) B diag(col) for a C-ordered (n, p) block B (row, col: optional scalings), written
-        into ``out`` when given (same shape; with scalings it may be B itself)."""
+        into ``out`` when given (same shape; with scalings it may be B itself). ``dtype``: the precision of the
+        compiled block solve and of a new ``out`` (CHOLMOD solves in double and rounds to it)."""
         if self._block is not None:
             try:
-                return self._block.solve(B, out=out, row=row, col=col)
+                return self._block.solve(B, out=out, row=row, col=col, dtype=dtype)
             except RuntimeError:  # numba failed (logged once by block_lu): CHOLMOD from now on
                 self._block = None
                 self._init_cholmod(self._A)
         if row is not None or col is not None:
             B = B * (1.0 if row is None else row[:, None]) * (1.0 if col is None else col[None, :])
         if self._chol is None:  # pragma: no cover
-            X = self._lu.solve(np.asfortranarray(B))
-            if out is None:
-                return X
+            X = self._lu.solve(np.asfortranarray(B, dtype=np.float64))
+        else:
+            B = np.ascontiguousarray(B, dtype=np.float64)
+            X = np.empty_like(B) if out is None or out.dtype != np.float64 else out
+            self._chol.solve(B, X)
+        if out is None:
+            return X.astype(dtype, copy=False)
+        if X is not out:
             out[...] = X
-            return out
-        B = np.ascontiguousarray(B)
-        X = np.empty_like(B) if out is None else out
-        self._chol.solve(B, X)
-        return X
+        return out
+
+
+def _shifted(Lf: sp.csr_matrix, mf: np.ndarray, sigma: float) -> sp.csc_matrix:
+    """L − σ diag(mf) in the CSC form the factorisations take, made from L's CSR arrays: L is symmetric, so they
+    are its CSC arrays too, and the shift only changes the stored diagonal (one entry per row of a Laplacian or
+    its Galerkin products; else the general sparse sum)."""
+    n = Lf.shape[0]
+    Lf.sum_duplicates()
+    diag = np.flatnonzero(Lf.indices == np.repeat(np.arange(n, dtype=Lf.indices.dtype), np.diff(Lf.indptr)))
+    if diag.size != n:
+        return sp.csc_matrix(Lf - sigma * sp.diags(mf))
+    data = Lf.data.copy()
+    data[diag] -= sigma * mf
+    return sp.csc_matrix((data, Lf.indices, Lf.indptr), shape=Lf.shape)
 
 
 def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray, sigma: float,
@@ -286,12 +303,15 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
         Y = factor.solve(X, out=out)
         A = Y.T @ X
     else:
-        # The solves scale their right-hand sides themselves; the last two blocks are kept, in the two buffers.
-        prev, Y = X, factor.solve(X, out=out, row=mass, col=scale[0])
+        # The solves scale their right-hand sides themselves. All but the last run in single precision: they only
+        # have to bring the block's span towards the wanted space, and the last solve's relation
+        # (L − σM) Y = M Y_prev D, on which the projection below rests, holds in double for whatever Y_prev is.
+        prev = factor.solve(X, row=mass, col=scale[0], dtype=np.float32)
         for _ in range(solves - 2):
-            prev, Y = Y, factor.solve(Y, out=prev, row=mass, col=scale[0])
-        X, Y = Y, factor.solve(Y, out=prev, row=mass, col=scale[0])
-        X *= mass[:, None]
+            prev = factor.solve(prev, out=prev, row=mass, col=scale[0], dtype=np.float32)
+        Y = factor.solve(prev, out=X if out is None else out, row=mass, col=scale[0])
+        X = np.multiply(prev, mass[:, None], out=np.empty(Y.shape))
+        del prev
         A = Y.T @ X  # Yᵀ M Y_prev, the last solve's right-hand side M Y_prev D without D
         A *= scale
     root = np.multiply(Y, np.sqrt(mass)[:, None], out=X)
@@ -407,7 +427,7 @@ def hierarchical_eigenpairs(
         X = levels[level][1] @ X
         Lf, mf = ops[level]
         t0 = time.perf_counter()
-        factor = _Factor(Lf - sigma * sp.diags(mf), block=small and SMALL_BLOCK_LU)
+        factor = _Factor(_shifted(Lf, mf, sigma), block=small and SMALL_BLOCK_LU)
         t1 = time.perf_counter()
         theta, Q, Y, spare = _refine(factor, mf, X, theta, sigma, solves=SMALL_FINE_SOLVES if small else 1)
         if level > 0:
