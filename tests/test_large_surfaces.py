@@ -211,6 +211,26 @@ def test_block_lu_solves_a_scaled_block_like_scipy() -> None:
 
 
 @needs_numba
+def test_block_lu_in_single_precision_and_its_gram_matrix() -> None:
+    _, _, mass, A = _spd_laplacian()
+    rng = np.random.default_rng(4)
+    B = rng.standard_normal((A.shape[0], 6))
+    col = rng.uniform(0.5, 2.0, 6)
+    lu = block_lu.BlockLU(A)
+    expected = sla.spsolve(A, (mass[:, None] * B) * col[None, :])
+    single = lu.solve(B.astype(np.float32), row=mass, col=col, dtype=np.float32)
+    assert single.dtype == np.float32
+    np.testing.assert_allclose(single, expected, rtol=1e-3, atol=1e-5 * np.abs(expected).max())
+    X = lu.solve(single, row=mass, col=col, gram=True)  # a float32 block into a double solve
+    assert X.dtype == np.float64
+    G = lu.forward_gram()  # Xᵀ A X, from the forward half only
+    np.testing.assert_allclose(G, X.T @ (A @ X), rtol=1e-9, atol=1e-12 * np.abs(G).max())
+    np.testing.assert_array_equal(G, G.T)
+    with pytest.raises(RuntimeError, match="gram=True"):
+        lu.forward_gram()  # used up
+
+
+@needs_numba
 def test_block_lu_refuses_a_matrix_that_needs_pivoting() -> None:
     A = sp.csc_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 2.0]]))
     with pytest.raises(RuntimeError, match="positive definite"):

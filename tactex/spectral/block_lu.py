@@ -21,6 +21,7 @@ import logging
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
+from scipy.linalg.blas import dsyrk
 
 __all__ = ["BlockLU", "available", "disable"]
 
@@ -46,10 +47,9 @@ def disable(reason: str) -> None:
     _log.warning("compiled block solve disabled: %s", reason)
 
 
-def _substitutions(up, ui, ux, lp, li, lx, order, B, row, col, Z, X):  # pragma: no cover - runs compiled
-    """X[order] ← (L U)⁻ᵀ (diag(row) B diag(col))[order], through the work block Z, from SuperLU's CSC factors: the
-    columns of U (upper triangular) are the rows of Uᵀ, those of L (unit lower triangular, diagonal stored) the rows
-    of Lᵀ. B is read before X is written, so X may be B. Any float dtypes: the arithmetic is Z's."""
+def _forward(up, ui, ux, order, B, row, col, Z):  # pragma: no cover - runs compiled
+    """Z ← Uᵀ⁻¹ (diag(row) B diag(col))[order] from the CSC arrays of U (upper triangular): its columns are the rows
+    of Uᵀ. Z's dtype sets the arithmetic."""
     n, m = Z.shape
     for i in range(n):
         r = order[i]
@@ -68,6 +68,12 @@ def _substitutions(up, ui, ux, lp, li, lx, order, B, row, col, Z, X):  # pragma:
         inv = 1.0 / d
         for c in range(m):
             Z[i, c] *= inv
+
+
+def _backward(lp, li, lx, order, Z, X):  # pragma: no cover - runs compiled
+    """X[order] ← Lᵀ⁻¹ Z, in place in Z, from the CSC arrays of L (unit lower triangular, its diagonal stored): its
+    columns are the rows of Lᵀ."""
+    n, m = Z.shape
     for i in range(n - 1, -1, -1):
         for jj in range(lp[i], lp[i + 1]):
             j = li[jj]
@@ -86,7 +92,7 @@ def _compiled():
         from numba import njit
 
         _log.info("preparing the compiled block solve (numba compiles it once per machine, about a second)")
-        _kernel = njit(cache=True, boundscheck=False)(_substitutions)
+        _kernel = tuple(njit(cache=True, boundscheck=False)(fn) for fn in (_forward, _backward))
     return _kernel
 
 
@@ -108,11 +114,13 @@ class BlockLU:
         if not np.array_equal(lu.perm_r, lu.perm_c):  # pivoting happened: A is not positive definite
             raise RuntimeError("SuperLU pivoted off the diagonal; the matrix is not positive definite")
         upper, lower = lu.U, lu.L
+        self._pivots = upper.diagonal()  # D of A's permuted LDLᵀ = L U (U = D Lᵀ): positive, A being definite
         self._factors = {np.dtype(np.float64): (upper.indptr, upper.indices, upper.data,
                                                 lower.indptr, lower.indices, lower.data)}
         # Pr A Pc = L U with Pr = Pc (symmetric mode, no pivoting): row i of the factors is row order[i] of A.
         self._order = np.argsort(lu.perm_r)
         self._work: dict[np.dtype, np.ndarray] = {}  # the permuted block per dtype, kept between solves
+        self._gram: np.ndarray | None = None  # √D times the last forward half, when asked for
         self.n = A.shape[0]
 
     def _arrays(self, dtype: np.dtype) -> tuple:
@@ -121,12 +129,22 @@ class BlockLU:
             self._factors[dtype] = (up, ui, ux.astype(dtype), lp, li, lx.astype(dtype))
         return self._factors[dtype]
 
+    def forward_gram(self) -> np.ndarray:
+        """Zᵀ D Z for the forward half Z = Uᵀ⁻¹ b' of the last solve made with ``gram=True`` (b' its scaled,
+        permuted right-hand side): with A = Pᵀ L D Lᵀ P (U = D Lᵀ), that is b'ᵀ A⁻¹ b' = Xᵀ A X for the block X
+        the solve returned, as an exact Gram matrix (a symmetric rank-k product, half a matrix product)."""
+        if self._gram is None:
+            raise RuntimeError("forward_gram needs a solve with gram=True first")
+        G = dsyrk(1.0, self._gram.T, trans=0, lower=0)  # upper triangle; the transpose is Fortran-ordered
+        self._gram = None
+        return np.triu(G) + np.triu(G, 1).T
+
     def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
-              col: np.ndarray | None = None, dtype: type = np.float64) -> np.ndarray:
+              col: np.ndarray | None = None, dtype: type = np.float64, gram: bool = False) -> np.ndarray:
         """A⁻¹ diag(row) B diag(col) for a C-ordered (n, p) block B (row, col: scalings, ones when None), written
         into ``out`` when given (same shape; may be B itself when of ``dtype``). ``dtype``: the precision of the
         substitutions and of a new ``out`` (float32 halves the memory traffic, for blocks that only have to span
-        the right space)."""
+        the right space). ``gram``: keep what :meth:`forward_gram` needs."""
         n, m = B.shape
         dtype = np.dtype(dtype)
         work = self._work.get(dtype)
@@ -135,8 +153,12 @@ class BlockLU:
         X = np.empty((n, m), dtype=dtype) if out is None else out
         row = np.ones(n) if row is None else np.ascontiguousarray(row, dtype=np.float64)
         col = np.ones(m) if col is None else np.ascontiguousarray(col, dtype=np.float64)
+        up, ui, ux, lp, li, lx = self._arrays(dtype)
         try:
-            _compiled()(*self._arrays(dtype), self._order, np.ascontiguousarray(B), row, col, work, X)
+            forward, backward = _compiled()
+            forward(up, ui, ux, self._order, np.ascontiguousarray(B), row, col, work)
+            self._gram = np.multiply(work, np.sqrt(self._pivots)[:, None], dtype=np.float64) if gram else None
+            backward(lp, li, lx, self._order, work, X)
         except Exception as exc:  # numba's import, typing or compilation
             disable(f"{type(exc).__name__}: {exc}")
             raise RuntimeError(f"compiled block solve failed: {exc}") from exc

@@ -240,14 +240,20 @@ class _Factor:
             cholespy.MatrixType.CSC,
         )
 
+    def forward_gram(self) -> np.ndarray | None:
+        """Yᵀ (L − σM) Y for the block Y of the last solve (made with ``gram=True``), as an exact Gram matrix, when
+        the compiled block solve made it (:meth:`block_lu.BlockLU.forward_gram`); None otherwise."""
+        return None if self._block is None else self._block.forward_gram()
+
     def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
-              col: np.ndarray | None = None, dtype: type = np.float64) -> np.ndarray:
+              col: np.ndarray | None = None, dtype: type = np.float64, gram: bool = False) -> np.ndarray:
         """(L − σM)⁻¹ diag(row) B diag(col) for a C-ordered (n, p) block B (row, col: optional scalings), written
         into ``out`` when given (same shape; with scalings it may be B itself). ``dtype``: the precision of the
-        compiled block solve and of a new ``out`` (CHOLMOD solves in double and rounds to it)."""
+        compiled block solve and of a new ``out`` (CHOLMOD solves in double and rounds to it). ``gram``: keep
+        what :meth:`forward_gram` needs."""
         if self._block is not None:
             try:
-                return self._block.solve(B, out=out, row=row, col=col, dtype=dtype)
+                return self._block.solve(B, out=out, row=row, col=col, dtype=dtype, gram=gram)
             except RuntimeError:  # numba failed (logged once by block_lu): CHOLMOD from now on
                 self._block = None
                 self._init_cholmod(self._A)
@@ -294,7 +300,9 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
     as much as a matrix product, so the iteration lives in two buffers.
 
     The projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is never applied to the block;
-    Yᵀ M Y is a symmetric rank-k product (half a matrix product).
+    Yᵀ M Y is a symmetric rank-k product (half a matrix product). With the compiled block solve, Yᵀ (L − σM) Y
+    is one too, from the last solve's forward half (:meth:`_Factor.forward_gram`), and the product with the
+    previous block is not formed.
     """
     scale = np.maximum(theta - sigma, 1e-300)[None, :]
     if solves == 1:
@@ -309,11 +317,15 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
         prev = factor.solve(X, row=mass, col=scale[0], dtype=np.float32)
         for _ in range(solves - 2):
             prev = factor.solve(prev, out=prev, row=mass, col=scale[0], dtype=np.float32)
-        Y = factor.solve(prev, out=X if out is None else out, row=mass, col=scale[0])
-        X = np.multiply(prev, mass[:, None], out=np.empty(Y.shape))
+        Y = factor.solve(prev, out=X if out is None else out, row=mass, col=scale[0], gram=True)
+        A = factor.forward_gram()  # Yᵀ (L − σM) Y from the solve's forward half (block solve only)
+        if A is None:
+            X = np.multiply(prev, mass[:, None], out=np.empty(Y.shape))
+            A = Y.T @ X  # Yᵀ M Y_prev, the last solve's right-hand side M Y_prev D without D
+            A *= scale
+        else:
+            X = np.empty(Y.shape)
         del prev
-        A = Y.T @ X  # Yᵀ M Y_prev, the last solve's right-hand side M Y_prev D without D
-        A *= scale
     root = np.multiply(Y, np.sqrt(mass)[:, None], out=X)
     B = dsyrk(1.0, root.T, trans=0, lower=0)  # upper triangle of rootᵀ root (root.T is Fortran-ordered)
     B = np.triu(B) + np.triu(B, 1).T
