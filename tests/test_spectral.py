@@ -144,6 +144,19 @@ def test_components_follow_the_cloud() -> None:
     assert basis.evals[1] <= 1e-8 * basis.evals[2]  # one zero eigenvalue per part
 
 
+def test_a_stored_zero_weight_joins_no_parts() -> None:
+    from tactex.spectral.basis import _component_labels
+
+    # Two pairs of points, the pairs linked only by a stored zero weight (0-2 and 2-0).
+    rows = np.array([0, 0, 0, 1, 1, 2, 2, 2, 3, 3])
+    cols = np.array([0, 1, 2, 0, 1, 0, 2, 3, 2, 3])
+    vals = np.array([1.0, -1.0, 0.0, -1.0, 1.0, 0.0, 2.0, -2.0, -2.0, 2.0])
+    L = sp.csr_matrix((vals, cols, np.searchsorted(rows, np.arange(5))), shape=(4, 4))
+    n, labels = _component_labels(L)
+    assert n == 2 and labels[0] == labels[1] != labels[2] == labels[3]
+    assert L.nnz == 10  # the matrix itself is left as it was
+
+
 # --- diffusion ---------------------------------------------------------------------------------
 
 

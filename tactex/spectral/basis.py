@@ -102,9 +102,11 @@ def _check_n_eigen(n_eigen: object, n_points: int) -> int:
 
 
 def _component_labels(L: sp.spmatrix) -> tuple[int, np.ndarray]:
-    graph = sp.csr_matrix(L, copy=True)
-    graph.setdiag(0.0)
-    graph.eliminate_zeros()
+    # The diagonal only adds self-loops, which join nothing; stored zeros would count as edges.
+    graph = sp.csr_matrix(L)
+    if not graph.data.all():
+        graph = graph.copy()
+        graph.eliminate_zeros()
     n, labels = connected_components(graph, directed=False)
     return int(n), labels
 
