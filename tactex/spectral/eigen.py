@@ -7,7 +7,7 @@ negative shift (A − σI is then positive definite), with our own sparse LU so 
 factorisation is done once with a symmetric fill-reducing ordering. That is the exact reference
 (``solver="arpack"``, the authors' method). ``solver="hierarchical"`` is the faster hierarchical
 subspace iteration of :mod:`tactex.spectral.hierarchy` for large clouds (it needs the points);
-``"auto"`` picks it from ``HIERARCHICAL_MIN_POINTS`` points on.
+``"auto"`` picks it from ``HIERARCHICAL_MIN_POINTS`` points on (the papers' clouds included).
 """
 
 from __future__ import annotations
@@ -35,10 +35,10 @@ __all__ = [
 
 #: The eigensolver choices (``--eigensolver``): the exact reference, the hierarchical one, or by size.
 EIGENSOLVERS = ("auto", "arpack", "hierarchical")
-#: From this many points on, ``auto`` takes the hierarchical solver. Below it is faster too on clouds of a
-#: few thousand points (docs/large_surfaces.md), but approximate: the papers' clouds keep the exact basis,
-#: so their figures stay those of the authors' method.
-HIERARCHICAL_MIN_POINTS = 10_000
+#: From this many points on, ``auto`` takes the hierarchical solver: from there on it beats the exact path on
+#: every cloud it can coarsen (the papers' clouds included; docs/large_surfaces.md), to within ``eigen_tol``.
+#: On a cloud too small for a coarse level with the subspace asked for, it falls back to the exact path.
+HIERARCHICAL_MIN_POINTS = 1_000
 
 #: Below this many points dense LAPACK beats ARPACK and never fails to converge.
 DENSE_MAX_POINTS = 800
