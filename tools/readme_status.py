@@ -72,9 +72,9 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
           lambda theirs, ours, wall: f"{theirs / ours:.2f}×; {wall:.2f}×")
     r.add("Laplacian of Table I's 18k points", "≤ 0.342 s (TEC Table I)",
           ("spectral/table1_18k_s",), lambda s: f"{s:.2f} s", lambda s: s <= 0.342)
-    r.add("basis at 3k points (bunny, K = 100): ours over the authors' pipeline (hierarchical forced)", "≥ 2×",
-          ("large/speedup_vs_authors_3k", "large/speedup_vs_authors_3k_hierarchical"),
-          lambda a, h: f"{a:.2f}× ({h:.2f}×)", lambda a, h: a >= 2)
+    r.add("basis at 3k points (bunny, K = 100): ours over the authors' pipeline, same run (wall; CPU)", "≥ 2×",
+          ("large/speedup_vs_authors_3k", "large/authors_3k_cpu_s", "large/ours_3k_cpu_s"),
+          lambda a, theirs, ours: f"{a:.2f}×; {theirs / ours:.2f}×", lambda a, theirs, ours: a >= 2)
     r.add("eigenbasis at 60k points, K = 200: hierarchical over ARPACK", "≥ 5×",
           ("large/speedup_vs_arpack_60k", "large/hierarchical_60k_s", "large/arpack_60k_s"),
           lambda x, h, a: f"{x:.2f}× ({h:.1f} s vs {a:.1f} s)", lambda x, h, a: x >= 5)
