@@ -210,6 +210,22 @@ def test_block_lu_solves_a_scaled_block_like_scipy() -> None:
     np.testing.assert_allclose(in_place, expected, **tol)
 
 
+def test_the_shifted_matrix_is_built_in_csc_with_or_without_a_stored_diagonal() -> None:
+    _, L, mass, _ = _spd_laplacian()
+    L = sp.csr_matrix(L)
+    expected = (L - 0.7 * sp.diags(mass)).toarray()
+    A = hierarchy._shifted(L.copy(), mass, 0.7)
+    assert A.format == "csc"
+    np.testing.assert_allclose(A.toarray(), expected, rtol=0, atol=1e-15 * np.abs(expected).max())
+    holed = L.tolil()
+    holed[3, 3] = 0.0
+    holed = sp.csr_matrix(holed)
+    holed.eliminate_zeros()  # row 3 stores no diagonal: the general sparse sum
+    A = hierarchy._shifted(holed, mass, 0.7)
+    tol = 1e-15 * np.abs(expected).max()
+    np.testing.assert_allclose(A.toarray(), (holed - 0.7 * sp.diags(mass)).toarray(), rtol=0, atol=tol)
+
+
 @needs_numba
 def test_block_lu_in_single_precision_and_its_gram_matrix() -> None:
     _, _, mass, A = _spd_laplacian()
