@@ -27,7 +27,7 @@ with a sparse Cholesky factorisation on each level. Here:
   at that size a solve of p right-hand sides costs less than the dense work around it (the coarse
   eigensolve, the projections), so a rougher, cheaper coarse space is refined by more solves
   instead. The factorisation is SuperLU's and the block solves those of :mod:`tactex.spectral.block_lu`
-  (numba) when available, cholespy otherwise.
+  (numba) when available, all but the last in single precision, cholespy otherwise.
 
 The subspace holds p = k + max(k/2, 20) vectors: the extra ones make the k-th pair converge at
 the rate λ_k / λ_{p+1} ≈ 2/3 per iteration on a surface (λ_k grows about linearly with k).
