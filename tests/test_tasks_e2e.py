@@ -157,8 +157,10 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path)
     cloud = local.with_target(dirt.astype(float)).transformed(rot, pos)
     path = save_npz(cloud, tmp_path / "plate.npz")
     np.save(tmp_path / "strip.npy", np.abs(x) <= 0.01)
+    # The exact basis: this checks the explorer's own stall relocation, and whether that or the task's wear-model
+    # island move fires first depends on the trajectory, which the hierarchical basis (auto) changes slightly.
     cfg = CleanConfig(object_name="plate", budget_s=30.0, n_eigen=60, cloud=str(path),
-                      keep_out_mask=str(tmp_path / "strip.npy"))
+                      keep_out_mask=str(tmp_path / "strip.npy"), eigensolver="arpack")
     r = run_clean(cfg, progress=False)
     m = r.metrics
     assert m["relocations"] >= 1 and m["air_path_length_m"] > 0.0
