@@ -290,6 +290,42 @@ def test_ik_reaches_a_pose_and_reports_unreachable(plane_backend):
         plane_backend.solve_ik(target, np.eye(3) * 2)
 
 
+def test_ik_settled_search_agrees_with_the_full_search(plane_backend):
+    """settled_step_rad / max_iter (the quick search that screens many poses) end where the full search would:
+    the same reachable poses (to 1e-3 rad, the pose within REACHED_*), the same unreachable ones refused."""
+    from tactex.sim.ik import REACHED_POS_M, REACHED_ROT_RAD, rotation_error
+
+    rng = np.random.default_rng(3)
+    reached = refused = 0
+    for i in range(24):
+        target = np.array([0.3, -0.35, 0.02]) + rng.random(3) * np.array([0.5, 0.7, 0.5])
+        tilt = rng.normal(size=3) * 0.4
+        rot = DOWN if i % 2 else DOWN @ np.array([[1, 0, 0], [0, np.cos(tilt[0]), -np.sin(tilt[0])],
+                                                  [0, np.sin(tilt[0]), np.cos(tilt[0])]])
+        seed = FRANKA_HOME_Q + rng.normal(size=7) * 0.3
+        try:
+            q_full = plane_backend.solve_ik(target, rot, seed)
+        except SimulationError:
+            q_full = None
+        try:
+            q_quick = plane_backend.solve_ik(target, rot, seed, settled_step_rad=1e-5, max_iter=150)
+        except SimulationError:
+            q_quick = None
+        assert (q_full is None) == (q_quick is None), f"target {i}: one search reached it, the other not"
+        if q_full is None:
+            refused += 1
+            continue
+        reached += 1
+        assert np.max(np.abs(q_quick - q_full)) < 1e-3
+        plane_backend.reset(seed=0, q0=q_quick)
+        s = plane_backend.state()
+        assert np.linalg.norm(s.ee_position - target) < REACHED_POS_M
+        assert np.linalg.norm(rotation_error(rot, s.ee_rotation)) < REACHED_ROT_RAD
+    assert reached >= 8 and refused >= 2  # both kinds were tried
+    with pytest.raises(SimulationError, match="reach"):
+        plane_backend.solve_ik(np.array([2.0, 0.0, 0.5]), DOWN, settled_step_rad=1e-5, max_iter=150)
+
+
 def test_move_object_moves_the_contact_surface(plane_backend):
     plane_backend.reset(seed=0)
     rot = np.eye(3)

@@ -9,7 +9,7 @@ import pytest
 
 from tactex.control.joint_impedance import JointImpedanceParams, JointTarget, min_jerk
 from tactex.control.nullspace import NullspaceParams, nullspace_projector
-from tactex.errors import ConfigError, InputError
+from tactex.errors import ConfigError, InputError, SimulationError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.markings import marked_cloud
 from tactex.pointcloud.shapes import get_surface
@@ -502,6 +502,19 @@ def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> No
 
     chosen = clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m)
     assert chosen is not None and np.min(np.linalg.norm(cloud.points[targets] - chosen, axis=1)) == 0.0
+    # the quick search (settled IK, the waypoint only while the bound can win) picks what planning every
+    # candidate with the full IK picks
+    pts = cloud.points[targets]
+    _, first = np.unique(np.floor(pts / clean.START_SPACING_M).astype(np.int64), axis=0, return_index=True)
+    assert first.size <= clean.START_CANDIDATES  # the cup's X: no coarser grid
+    full = []
+    for j in np.sort(first):
+        try:
+            full.append((round(move_s(pts[j]), 2), float(np.linalg.norm(pts[j] - cap_pos)), int(j)))
+        except SimulationError:
+            pass
+    assert len(full) > 5
+    np.testing.assert_array_equal(chosen, pts[min(full)[2]])
     nearest_camera = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
     rng = np.random.default_rng(0)
     others = [nearest_camera, *cloud.points[rng.choice(targets, 8, replace=False)]]

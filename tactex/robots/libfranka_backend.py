@@ -508,12 +508,15 @@ class LibfrankaBackend:
         return None
 
     def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
-                 q_init: np.ndarray | None = None, q_posture: np.ndarray | None = None) -> np.ndarray:
+                 q_init: np.ndarray | None = None, q_posture: np.ndarray | None = None, *,
+                 settled_step_rad: float | None = None, max_iter: int = 500) -> np.ndarray:
         """Joint positions (7,) [rad] for a TCP pose, on tactex's kinematic model of the arm and tool
-        (the robot does not move); ``q_init`` defaults to the robot's current q."""
+        (the robot does not move); ``q_init`` defaults to the robot's current q. ``settled_step_rad``
+        [rad], ``max_iter``: see :func:`~tactex.sim.ik.solve_site_ik` (the defaults: the full search)."""
         q0 = self._state.q if q_init is None else q_init
         self.pause()  # an IK solve takes milliseconds: more than a control cycle
-        return self._kinematics().solve_ik(position_world, rotation_world, q0, q_posture)
+        return self._kinematics().solve_ik(position_world, rotation_world, q0, q_posture,
+                                           settled_step_rad=settled_step_rad, max_iter=max_iter)
 
     def pause(self) -> None:
         """End torque control until the next :meth:`step` (which starts it again), so that work

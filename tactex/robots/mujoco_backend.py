@@ -295,14 +295,18 @@ class MujocoBackend:
         return self._last_contact
 
     def solve_ik(self, position_world: np.ndarray, rotation_world: np.ndarray | None = None,
-                 q_init: np.ndarray | None = None, q_posture: np.ndarray | None = None) -> np.ndarray:
+                 q_init: np.ndarray | None = None, q_posture: np.ndarray | None = None, *,
+                 settled_step_rad: float | None = None, max_iter: int = 500) -> np.ndarray:
         """Joint positions (7,) putting the TCP at ``position_world`` [m] with tool orientation
         ``rotation_world`` (3×3, optional), by damped least squares from ``q_init`` (default: the
-        current q), preferring postures near ``q_posture`` (default: home). Does not move the robot."""
+        current q), preferring postures near ``q_posture`` (default: home). Does not move the robot.
+        ``settled_step_rad`` [rad], ``max_iter``: see :func:`~tactex.sim.ik.solve_site_ik` (the defaults: the
+        full search)."""
         q_start = self.data.qpos[self._qadr].copy() if q_init is None else self._check_q(q_init, "q_init")
         posture = FRANKA_HOME_Q if q_posture is None else self._check_q(q_posture, "q_posture")
         return solve_site_ik(
             self.model, self._ids["tcp"], self._qadr, self._dadr, position_world, rotation_world, q_start, posture,
+            settled_step_rad=settled_step_rad, max_iter=max_iter,
         )
 
     def render_rgb(self, width: int = 640, height: int = 480, camera: str | int = -1) -> np.ndarray:

@@ -101,6 +101,12 @@ HOVER_SETTLE_S = 0.1
 #: (two IK solves, a few ms each).
 START_SPACING_M = 0.01
 START_CANDIDATES = 64
+#: Their IK stops once its steps are below this [rad]: the planned duration then differs by ~1e-4 s from the
+#: full search's (the steps shrink geometrically to a fixed point), far below the 10 ms the choice compares.
+START_SETTLED_STEP_RAD = 1e-5
+#: ... and gives up after this many steps: a reachable hover settles within ~100 (cup, bowl, plate); one at the
+#: edge of the reach chatters for the full search's 500 (~35 ms each) before it is refused.
+START_IK_STEPS = 150
 
 
 def _approach_too_weak(cfg: CleanConfig) -> bool:
@@ -492,19 +498,26 @@ def _capture_pose(scene: SceneConfig, cfg: CleanConfig) -> tuple[np.ndarray, np.
 
 
 def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_seed: np.ndarray,
-                hover_height_m: float, q_from: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray, float]:
+                hover_height_m: float, q_from: np.ndarray | None = None, q_hover: np.ndarray | None = None,
+                settled_step_rad: float | None = None, max_iter: int | None = None,
+                ) -> tuple[np.ndarray | None, np.ndarray, float]:
     """The joint moves from ``q_from`` (default: the current posture) to the hover ``hover_height_m`` [m] above
     ``point_m`` along ``normal``: ``(q_above, q_hover, move_s)``, ``q_above`` the waypoint :data:`CLEARANCE_M`
     straight above the hover (None when it is not a short step from it) and ``move_s`` [s] the moves'
-    duration. IK is searched from ``q_seed``. Raises SimulationError when the hover is out of the arm's reach."""
+    duration. IK is searched from ``q_seed`` (``q_hover``: the hover's posture when already solved;
+    ``settled_step_rad``: :meth:`ControlLoop.solve_pose`'s, ``max_iter`` its for the hover). Raises
+    SimulationError when the hover is out of the arm's reach."""
     rot = tool_rotation_for_normal(normal)
     hover = np.asarray(point_m, dtype=float) + hover_height_m * np.asarray(normal, dtype=float)
-    q_hover = loop.solve_pose(hover, rot, q_seed=q_seed)
+    if q_hover is None:
+        q_hover = loop.solve_pose(hover, rot, q_seed=q_seed, settled_step_rad=settled_step_rad, max_iter=max_iter)
     # Through a waypoint straight above the hover pose: a joint move from the high capture pose down to a
     # hover inside a bowl can swing the tool through the rim on the way. The waypoint is solved from the hover
     # (same IK branch) and dropped when it is not a short step from it.
     try:
-        q_above: np.ndarray | None = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover)
+        # never cut short by max_iter: a waypoint given up on would make the plan the (quicker) direct move
+        q_above: np.ndarray | None = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover,
+                                                     settled_step_rad=settled_step_rad)
     except SimulationError:
         q_above = None
     if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
@@ -521,7 +534,13 @@ def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.nda
     grid (:data:`START_SPACING_M`, coarser until at most :data:`START_CANDIDATES` are left), the one whose hover
     the arm reaches soonest from the capture posture ``q_capture`` (the moves :func:`_hover_plan` plans), and of
     those equally quick (to 10 ms) the nearest to the camera at ``cap_pos`` [m]. None when the cloud has no
-    normals or no candidate's hover is within reach."""
+    normals or no candidate's hover is within reach.
+
+    It is wall-clock work while the robot holds at the capture pose, so it is kept cheap: each candidate's hover
+    posture is solved once (the IK stops when its steps settle, :data:`START_SETTLED_STEP_RAD`, and gives up
+    after :data:`START_IK_STEPS`), and the direct joint move to it, a lower bound on the planned moves (the
+    min-jerk duration is subadditive), orders the candidates; the waypoint above the hover is solved only while
+    that bound can still beat the best plan."""
     if cloud.normals is None or targets.size == 0:
         return None
     pts = cloud.points[targets]
@@ -531,15 +550,26 @@ def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.nda
         if first.size <= START_CANDIDATES:
             break
         spacing *= 1.5
-    best: tuple[float, float] | None = None
-    chosen = None
+    bounded: list[tuple[tuple[float, float], int, np.ndarray]] = []
     for j in np.sort(first):
+        normal = cloud.normals[targets[j]]
+        hover = pts[j] + hover_height_m * normal
         try:
-            move_s = _hover_plan(loop, pts[j], cloud.normals[targets[j]], q_capture, hover_height_m,
-                                 q_from=q_capture)[2]
+            q_hover = loop.solve_pose(hover, tool_rotation_for_normal(normal), q_seed=q_capture,
+                                      settled_step_rad=START_SETTLED_STEP_RAD, max_iter=START_IK_STEPS)
         except SimulationError:
             continue
-        key = (round(move_s, 2), float(np.linalg.norm(pts[j] - cap_pos)))
+        bound_s = loop.joint_move_duration(q_hover, q_from=q_capture)
+        bounded.append(((round(bound_s, 2), float(np.linalg.norm(pts[j] - cap_pos))), int(j), q_hover))
+    bounded.sort(key=lambda c: (c[0], c[1]))
+    best: tuple[float, float] | None = None
+    chosen = None
+    for bound_key, j, q_hover in bounded:
+        if best is not None and bound_key > best:
+            break  # this and every later candidate takes at least as long as the best plan
+        move_s = _hover_plan(loop, pts[j], cloud.normals[targets[j]], q_capture, hover_height_m, q_from=q_capture,
+                             q_hover=q_hover, settled_step_rad=START_SETTLED_STEP_RAD)[2]
+        key = (round(move_s, 2), bound_key[1])
         if best is None or key < best:
             best, chosen = key, pts[j].copy()
     return chosen

@@ -146,13 +146,20 @@ class ControlLoop:
         return max(min_duration_s, peak)
 
     def solve_pose(self, position_world: np.ndarray, rotation_world: np.ndarray,
-                   q_seed: np.ndarray | None = None, q_posture: np.ndarray | None = None) -> np.ndarray:
+                   q_seed: np.ndarray | None = None, q_posture: np.ndarray | None = None, *,
+                   settled_step_rad: float | None = None, max_iter: int | None = None) -> np.ndarray:
         """Joint angles (7,) [rad] of a TCP pose, searched from ``q_seed`` (default: the current q),
-        preferring postures near ``q_posture`` (default: the backend's home)."""
+        preferring postures near ``q_posture`` (default: the backend's home). A quicker search for screening
+        many poses: ``settled_step_rad`` [rad] stops it once its steps are this small, ``max_iter`` gives up
+        after that many steps (None: the backend's full search; :func:`~tactex.sim.ik.solve_site_ik`)."""
         seed = self.state.q if q_seed is None else q_seed
+        extra: dict = {} if settled_step_rad is None else {"settled_step_rad": settled_step_rad}
+        if max_iter is not None:
+            extra["max_iter"] = max_iter
         if q_posture is None:
-            return self.backend.solve_ik(position_world, rotation_world, seed)  # type: ignore[attr-defined]
-        return self.backend.solve_ik(position_world, rotation_world, seed, q_posture)  # type: ignore[attr-defined]
+            return self.backend.solve_ik(position_world, rotation_world, seed, **extra)  # type: ignore[attr-defined]
+        return self.backend.solve_ik(position_world, rotation_world, seed, q_posture,  # type: ignore[attr-defined]
+                                     **extra)
 
     def move_to_pose(self, position_world: np.ndarray, rotation_world: np.ndarray, duration_s: float | None = None,
                      settle_s: float = 0.2, q_seed: np.ndarray | None = None) -> RobotState:
