@@ -8,8 +8,10 @@ down to 5 % of the marking; a run that never gets there counts its whole simulat
 (``reached_95pct`` < 1 says so). tactex's figure is the mean over three seeds (the explorer's random
 headings). The raster runs once: it never reads the seed (the seed only draws sensor noise, which is
 off here, and the explorer's headings), and the physics is deterministic. The ratio tactex / raster is
-the figure with a target; the tactex runs' force band (share of contact within ±20 %) and peak force
-(2 × the 10 N set point) are recorded beside it, with the time breakdown of one seed.
+the figure with a target (``ratio_with_start_plan`` counts each method's ``start_plan_time_s``, the wall
+clock of choosing the first touch-down, as robot time); the tactex runs' force band (share of contact
+within ±20 %) and peak force (2 × the 10 N set point) are recorded beside it, with the time breakdown of
+one seed.
 
 The sparse case has a budget of ``SPARSE_BUDGET_S`` for both methods, so that the raster ends its path
 over the door (~150 s) rather than the default budget; tactex ends when the camera sees the door clean.
@@ -54,12 +56,12 @@ def _one(obj: str, marking: str, baseline: str, seed: int, budget_s: float) -> d
         print(f"   FAILED: {type(exc).__name__}: {exc}", flush=True)
         nan = float("nan")
         return {"t95": nan, "reached": 0.0, "removed": nan, "within": nan, "max_force": nan, "sim": nan,
-                "vision": nan, "breakdown": {}, "error": f"{type(exc).__name__}: {exc}"}
+                "vision": nan, "breakdown": {}, "start_plan": nan, "error": f"{type(exc).__name__}: {exc}"}
     t95 = m["time_to_95pct_s"]
     return {"t95": m["sim_time_s"] if t95 is None else t95, "reached": float(t95 is not None),
             "removed": m["dirt_removed_fraction"], "within": m["force_within_20pct_fraction"],
             "max_force": m["max_contact_force_n"], "sim": m["sim_time_s"], "vision": m["vision_updates"],
-            "breakdown": m["time_breakdown_s"]}
+            "breakdown": m["time_breakdown_s"], "start_plan": m["start_plan_time_s"]}
 
 
 def _case(obj: str, marking: str, seeds: tuple[int, ...], budget_s: float = CleanConfig().budget_s) -> dict:
@@ -80,11 +82,17 @@ def _case(obj: str, marking: str, seeds: tuple[int, ...], budget_s: float = Clea
             "sim_time_s": float(np.mean([r["sim"] for r in runs])),
             "vision_updates": float(np.mean([r["vision"] for r in runs])),
             "time_breakdown_s": {k: round(v, 2) for k, v in runs[0]["breakdown"].items()},
+            # [s] wall clock before the first move (choosing tactex's first touch-down), which the simulated
+            # clock does not count; on a real robot the arm holds at the capture pose meanwhile
+            "start_plan_time_s": float(np.mean([r["start_plan"] for r in runs])),
             "n_seeds": len(runs),
             "budget_s": budget_s,
             "failed_runs": sum("error" in r for r in runs),
         }
     out["ratio"] = out["tactex"]["time_to_95pct_s"] / out["raster"]["time_to_95pct_s"]
+    # the same with each method's planning wall clock counted as robot time (this machine's, loaded or not)
+    out["ratio_with_start_plan"] = ((out["tactex"]["time_to_95pct_s"] + out["tactex"]["start_plan_time_s"])
+                                    / (out["raster"]["time_to_95pct_s"] + out["raster"]["start_plan_time_s"]))
     return out
 
 
