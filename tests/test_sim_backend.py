@@ -324,6 +324,11 @@ def test_ik_settled_search_agrees_with_the_full_search(plane_backend):
     assert reached >= 8 and refused >= 2  # both kinds were tried
     with pytest.raises(SimulationError, match="reach"):
         plane_backend.solve_ik(np.array([2.0, 0.0, 0.5]), DOWN, settled_step_rad=1e-5, max_iter=150)
+    for bad in (0.0, -1e-5, np.nan):
+        with pytest.raises(InputError, match="settled_step_rad"):
+            plane_backend.solve_ik(np.array([0.45, 0.1, 0.1]), DOWN, settled_step_rad=bad)
+    with pytest.raises(InputError, match="max_iter"):
+        plane_backend.solve_ik(np.array([0.45, 0.1, 0.1]), DOWN, max_iter=0)
 
 
 def test_move_object_moves_the_contact_surface(plane_backend):

@@ -51,6 +51,10 @@ def solve_site_ik(model: mujoco.MjModel, site_id: int, qpos_adr: np.ndarray, dof
         if r_target.shape != (3, 3) or not np.isfinite(r_target).all() or not np.allclose(
                 r_target @ r_target.T, np.eye(3), atol=1e-6):
             raise InputError(f"IK target rotation must be a 3×3 rotation matrix, got {rotation_world!r}")
+    if settled_step_rad is not None and not (np.isfinite(settled_step_rad) and settled_step_rad > 0):
+        raise InputError(f"settled_step_rad must be a finite step > 0 [rad] or None, got {settled_step_rad!r}")
+    if int(max_iter) < 1:
+        raise InputError(f"max_iter must be at least 1 IK step, got {max_iter!r}")
     data = mujoco.MjData(model)
     q = np.asarray(q_init, dtype=float).copy()
     lo = model.jnt_range[[model.dof_jntid[d] for d in dof_adr], 0] + 1e-3
