@@ -381,7 +381,7 @@ class HedacExplorer:
             links = None if laplacian is None else laplacian.tocsr()[self._tidx][:, self._tidx]
             self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
                                       PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe,
-                                      origin=cfg.sweep_pass_origin)
+                                      origin=cfg.sweep_pass_origin, footprint_m=self._r_a)
         if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
             if sweep:
                 self._walk_kernel = None
@@ -611,8 +611,7 @@ class HedacExplorer:
         j = self._tpos.item(self._near[0])
         if j < 0:
             return True  # off the target: the potential leads there
-        walk = self._passes.parts
-        return bool((untouched & (walk == walk.item(j)) & ~self._given_up).any())
+        return self._passes.touchable(j, untouched & ~self._given_up, self._r_a)
 
     def _step_with_relocations(self, moves: list[str | None], exact: bool) -> list:
         """One step in which some agents relocate; the others (and those with nowhere to go) walk."""
@@ -974,19 +973,18 @@ class HedacExplorer:
         return to if float(to.dot(to)) > 0.0 else None
 
     def _leftover(self, here: np.ndarray) -> np.ndarray | None:
-        """After the passes: the nearest untouched target point [m] (3,) on the agent's part, kept as the goal
-        until a footprint touches it; None when the part has none left."""
+        """After the passes: where the agent steers [m] (3,) on its way to the untouched target point nearest by
+        surface distance on its walking part (or a speck within a footprint radius of it), kept as the goal until a
+        footprint touches it; None when none is left."""
         g = self._leftover_goal
+        passes = self._passes
         if g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g):
-            return self._points[self._tidx.item(g)]
-        part = self._labels.item(int(self._near[0]))
-        cand = np.flatnonzero(self._untouched() & (self._t_part == part) & ~self._given_up)
-        if cand.size == 0:
-            self._leftover_goal = -1
-            return None
-        d = self._points.take(self._tidx.take(cand), 0) - here
-        self._leftover_goal = int(cand[int(np.einsum("ij,ij->i", d, d).argmin())])
-        return self._points[self._tidx.item(self._leftover_goal)]
+            return passes.route(here, g)
+        j = self._tpos.item(self._near[0])
+        near = j if j >= 0 else passes.nearest(here)
+        g = passes.closest(near, self._untouched() & ~self._given_up, self._r_a)
+        self._leftover_goal = g
+        return None if g < 0 else passes.route(here, g)
 
     def _compile_kernel(self):
         """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.

@@ -66,6 +66,10 @@ WINDOW = 16
 #: A tour of rings from the start counts this many times its length against one from the edge: the edge's own
 #: points are then left for the end, each a trip, where the first ring from the edge covers them [-].
 START_PENALTY = 1.1
+#: A plan's target points farther than the footprint radius from all its waypoints are left to the hunt after the
+#: passes, which walks about this many times the ideal path over them (A / (2 r_a)); the plans are compared by
+#: tour length plus that estimate [-] (a part narrower than the first ring otherwise wins with no waypoint at all).
+HUNT_FACTOR = 4.0
 #: Waypoints of an arc between two along which its length is measured [-] (see RingPasses._tour_length).
 SUBSAMPLE = 3
 #: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
@@ -96,10 +100,11 @@ class RingPasses:
 
     def __init__(self, points: np.ndarray, links, pass_spacing_m: float, reach_m: float, voxel_m: float,
                  ring_cost: float = 1.0, allowed: np.ndarray | None = None, origin: str = "edge",
-                 order: str = "tour") -> None:
+                 order: str = "tour", footprint_m: float | None = None) -> None:
         self._points = np.asarray(points, dtype=np.float64)
         n = len(self._points)
         self.pass_spacing_m = float(pass_spacing_m)
+        self.footprint_m = 0.5 * self.pass_spacing_m if footprint_m is None else float(footprint_m)
         self.reach_m = float(reach_m)
         self._half_line = 0.5 * float(voxel_m)
         self.ring_cost = float(ring_cost)
@@ -143,6 +148,9 @@ class RingPasses:
         self._arc: dict[int, np.ndarray] = {}  # per part: the arc of each entry of the tour (a new arc: a jump)
         self._at: dict[int, int] = {}  # per part: the first entry of the tour not walked yet
         self._replan = False
+        self._route_goal = -1  # the goal of route() and its surface distance map (T,) [m], or None: straight
+        self._route = None
+        self._via = -1  # the walking-part point route() steers at on its way to a goal across a gap
 
     def drop_goal(self, abandon: bool, replan: bool = False) -> None:
         """Forget the current goal; ``abandon``: the agent could not reach it, mark it done; ``replan``: the agent
@@ -189,6 +197,7 @@ class RingPasses:
             length = self._tour_length(part)
             if seed.size == 1 and len(seeds) > 1:
                 length *= START_PENALTY
+            length += self._hunt_length(members, way)
             if best is None or length < best[0]:
                 best = (length, way, self.ring[way].copy(), self._tour[part], self._arc[part])
             self.ring[way] = -1
@@ -252,6 +261,17 @@ class RingPasses:
         keep[::SUBSAMPLE] = True
         keep[starts] = keep[ends] = True
         return float(np.linalg.norm(np.diff(self._points[tour[keep]], axis=0), axis=1).sum())
+
+    def _hunt_length(self, members: np.ndarray, way: np.ndarray) -> float:
+        """Estimated path [m] of the hunt for the points of ``members`` a plan with waypoints ``way`` leaves: those
+        farther than the footprint radius from every waypoint, HUNT_FACTOR times their ideal path."""
+        if way.size:
+            gap = cKDTree(self._points[way]).query(self._points[members], distance_upper_bound=self.footprint_m)[0]
+            left = int(np.count_nonzero(~np.isfinite(gap)))
+        else:
+            left = members.size
+        voxel = 2.0 * self._half_line
+        return HUNT_FACTOR * left * voxel * voxel / (2.0 * self.footprint_m)
 
     def _two_opt(self, walk: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """2-opt on an open tour of arcs from x: reversing a run of arcs reverses each of them too."""
@@ -469,16 +489,69 @@ class RingPasses:
                 self._to_goal = dijkstra(self._graph, directed=False, indices=g, limit=4.0 * dist)
         return self._descend(x, g)
 
+    def closest(self, near: int, candidates: np.ndarray, touch_m: float = 0.0) -> int:
+        """Among the target points ``candidates`` (T,) (bool), the one nearest to target point ``near`` by surface
+        distance over the walking links (the straight nearest may lie across a fold or a crease), or −1 when none
+        is in reach. A candidate off the walking part but within ``touch_m`` [m] of it (a speck across a gap, a
+        footprint reaches it from the near side) counts at the surface distance to its nearest point there plus
+        the gap, and route() steers at that point first."""
+        d = dijkstra(self._graph, directed=False, indices=near)
+        cost = np.where(candidates, d, np.inf)
+        via = {}
+        off = np.flatnonzero(candidates & ~np.isfinite(d))
+        if touch_m > 0.0 and off.size:
+            walk = np.flatnonzero(np.isfinite(d))
+            gap, q = cKDTree(self._points[walk]).query(self._points[off], distance_upper_bound=touch_m)
+            ok = np.isfinite(gap)
+            cost[off[ok]] = d[walk[q[ok]]] + gap[ok]
+            via = dict(zip(off[ok].tolist(), walk[q[ok]].tolist()))
+        k = int(cost.argmin())
+        if not np.isfinite(cost[k]):
+            return -1
+        self._route_goal, self._via = -1, via.get(k, k)
+        return k
+
+    def touchable(self, near: int, candidates: np.ndarray, touch_m: float) -> bool:
+        """Whether a target point of ``candidates`` (T,) (bool) is on target point ``near``'s walking part or within
+        ``touch_m`` [m] of it (see closest)."""
+        part = self._part == self._part[near]
+        if (candidates & part).any():
+            return True
+        idx = np.flatnonzero(candidates)
+        if idx.size == 0:
+            return False
+        return any(part[b].any() for b in self._tree.query_ball_point(self._points[idx], touch_m) if b)
+
+    def route(self, x: np.ndarray, g: int) -> np.ndarray:
+        """Where the agent at x (3,) [m] steers on its way to target point g (the last closest()): g itself when
+        near, else a carrot down the surface distance to g, or to the point closest() reaches g from."""
+        if g != self._route_goal:
+            self._route_goal = g
+            via = self._via if self._via >= 0 else g
+            dist = float(np.linalg.norm(self._points[via] - x))
+            self._route = (dijkstra(self._graph, directed=False, indices=via, limit=8.0 * dist)
+                           if dist > self.reach_m else None)
+        via = self._via if self._via >= 0 else g
+        if self._route is None:
+            return self._points[g]
+        return self._carrot(x, via, "_route")
+
     def _descend(self, x: np.ndarray, g: int) -> np.ndarray:
         """Goal g, or on the way to a far one the carrot a few voxels ahead down the surface distance to it."""
-        if self._to_goal is None:
+        return self._carrot(x, g, "_to_goal")
+
+    def _carrot(self, x: np.ndarray, g: int, field: str) -> np.ndarray:
+        """Goal g, or the point within CARROT half-voxels of x lowest in the surface distance to g held in
+        attribute ``field`` (cleared once the agent is within reach, or off the map)."""
+        to_goal = getattr(self, field)
+        if to_goal is None:
             return self._points[g]
         around = np.asarray(self._tree.query_ball_point(x, CARROT * self._half_line), dtype=np.intp)
         if around.size == 0:
             return self._points[g]
-        to = self._to_goal[around]
+        to = to_goal[around]
         k = int(to.argmin())
         if not np.isfinite(to[k]) or to[k] <= self.reach_m:
-            self._to_goal = None
+            setattr(self, field, None)
             return self._points[g]
         return self._points[around[k]]
