@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import tactex.ergodic.passes as passes_module
 from tactex.ergodic import HedacConfig, HedacExplorer
-from tactex.ergodic.passes import RingPasses
+from tactex.ergodic.passes import SPACING_SHARES, RingPasses
 from tactex.errors import ConfigError
 from tactex.pointcloud import SurfaceCloud, voxel_down_sample
 from tactex.spectral import build_basis
@@ -25,6 +26,8 @@ def test_waypoints_lie_on_the_middle_lines_of_rings_of_surface_distance_from_the
     passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="start")
     start = 20 * 41 + 20  # the centre
     passes.lay(start)
+    assert passes.spacing_m[0] in {share * w for share in SPACING_SHARES}
+    w = passes.spacing_m[0]  # the spacing the plan chose
     way = np.flatnonzero(passes.ring >= 0)
     assert way.size > 0 and passes.pending[way].all()
     r = np.linalg.norm(pts[way] - pts[start], axis=1)
@@ -49,6 +52,7 @@ def test_rings_from_the_edge_run_parallel_to_it_and_a_closed_surface_falls_back_
     passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H)
     assert passes.origin == "edge"
     passes.lay(0)
+    w = passes.spacing_m[0]
     way = np.flatnonzero(passes.ring >= 0)
     to_edge = np.min(np.c_[pts[way, :2], 40 * H - pts[way, :2]], axis=1)  # distance to the square's edge
     k = passes.ring[way]
@@ -71,7 +75,8 @@ def test_rings_from_the_edge_run_parallel_to_it_and_a_closed_surface_falls_back_
         RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="middle")
 
 
-def test_the_next_goal_is_on_the_lowest_pending_ring_and_a_given_up_goal_is_done():
+def test_the_next_goal_is_on_the_lowest_pending_ring_and_a_given_up_goal_is_done(monkeypatch):
+    monkeypatch.setattr(passes_module, "SPACING_SHARES", (1.0,))  # the rings at w: ring 0 is more than the start
     pts = _grid(41, 41)
     w = 4.5 * H
     passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="start")
@@ -183,7 +188,8 @@ def _walk_length(passes: RingPasses, pts: np.ndarray, start: int) -> float:
     raise AssertionError("the goals did not run out")
 
 
-def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order():
+def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order(monkeypatch):
+    monkeypatch.setattr(passes_module, "SPACING_SHARES", (1.0,))  # the orders compared on the same rings
     pts = _holed_square()
     start = int(np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
     lengths = {}
@@ -232,3 +238,76 @@ def test_a_speck_across_a_gap_the_agent_may_not_walk_is_reached_by_relocating():
     assert ex.untouched_count() == 0
     landed = [np.linalg.norm(speck - r.point, axis=1).min() for r in ex.relocations]
     assert ex.relocations and min(landed) < H
+
+
+def test_a_part_narrower_than_the_first_ring_still_gets_passes():
+    # A strip 3 voxels wide: no point lies half a spacing in from its edge, so the rings from the edge have no
+    # waypoint at all, and an empty plan is the shortest tour. Its hunt estimate (every point left) makes the rings
+    # from the start win.
+    pts = _grid(60, 3)
+    w = 4.5 * H
+    passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, footprint_m=w / 1.8)
+    passes.lay(0)
+    way = np.flatnonzero(passes.ring >= 0)
+    assert way.size > 10
+    gap = np.min(np.linalg.norm(pts[:, None] - pts[way][None], axis=2), axis=1)
+    assert np.mean(gap <= w / 1.8) > 0.95  # the strip within a footprint of its waypoints (its far end aside)
+
+
+def test_the_tighter_spacing_is_kept_where_the_full_one_leaves_islands_at_the_footprints_edge():
+    # On the built-in bowl (steep rim, a middle the innermost ring misses) the full spacing leaves points beyond
+    # AT_RISK footprint radii of every waypoint in many islands, each a detour of the hunt later; the tighter plan
+    # is longer but leaves far fewer. On a flat square the full spacing stays.
+    from tactex.pointcloud.shapes import get_surface
+
+    cloud = get_surface("bowl").sample(H)
+    cloud = cloud.with_target(np.ones(len(cloud)))
+    r_a = 0.0075
+    ex = HedacExplorer(cloud, build_basis(cloud, n_eigen=20, n_neighbors=30, cache=False),
+                       HedacConfig(agent_radius_m=r_a, n_eigen=20))
+    passes = ex._passes
+    part = int(np.bincount(passes.parts).argmax())
+    members = np.flatnonzero(passes.parts == part)
+    passes.lay(int(members[0]))
+    w = HedacConfig().sweep_pass_spacing * r_a
+    assert passes.spacing_m[part] == pytest.approx(SPACING_SHARES[1] * w)
+    kept = np.flatnonzero(passes.ring >= 0)
+    gap_kept = np.min(np.linalg.norm(passes._points[members][:, None] - passes._points[kept][None], axis=2), axis=1)
+    assert np.count_nonzero(gap_kept > passes_module.AT_RISK * r_a) < 40
+    square = RingPasses(_grid(40, 40), None, pass_spacing_m=w, reach_m=H, voxel_m=H, footprint_m=r_a)
+    square.lay(0)
+    assert square.spacing_m[0] == pytest.approx(w)
+
+
+def test_the_hunt_goes_to_the_nearest_untouched_point_along_the_surface_and_reaches_specks_across_a_gap():
+    # A U: two legs 3 voxels wide, 4 voxels apart (no walking link across), joined at x = 30..32 voxels.
+    leg_a = _grid(33, 3)
+    leg_b = leg_a + np.array([0.0, 7 * H, 0.0])
+    bridge = _grid(3, 4) + np.array([30 * H, 3 * H, 0.0])
+    speck = np.array([[5 * H, -4 * H, 0.0]])  # 4 voxels off leg A's edge: its own walking part
+    pts = np.vstack([leg_a, leg_b, bridge, speck])
+    passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
+    here = 0  # leg A at x = 0
+    across = len(leg_a)  # leg B at x = 0: 7 voxels away in a straight line, ~70 along the surface
+    along = 15  # leg A at x = 15 voxels
+    cand = np.zeros(len(pts), dtype=bool)
+    cand[[across, along]] = True
+    assert passes.closest(here, cand) == along
+    only_speck = np.zeros(len(pts), dtype=bool)
+    only_speck[-1] = True
+    assert passes.closest(here, only_speck) == -1  # not on the walking part, no touch allowed
+    assert not passes.touchable(here, only_speck, 2.5 * H)
+    assert passes.touchable(here, only_speck, 5.0 * H)
+    g = passes.closest(here, only_speck, touch_m=5.0 * H)
+    assert g == len(pts) - 1
+    # the agent steers along leg A first, to the point the speck is reached from, then at the speck
+    x = pts[here]
+    for _ in range(200):
+        aim = passes.route(x, g)
+        if np.array_equal(aim, pts[g]):
+            break
+        assert abs(aim[1]) <= 2 * H + 1e-12  # on leg A
+        x = x + (aim - x) * min(1.0, H / max(float(np.linalg.norm(aim - x)), 1e-12))
+    else:
+        raise AssertionError("the route never turned to the speck")
+    assert np.linalg.norm(x - pts[g]) <= 5.0 * H

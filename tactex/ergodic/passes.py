@@ -70,6 +70,16 @@ START_PENALTY = 1.1
 #: passes, which walks about this many times the ideal path over them (A / (2 r_a)); the plans are compared by
 #: tour length plus that estimate [-] (a part narrower than the first ring otherwise wins with no waypoint at all).
 HUNT_FACTOR = 4.0
+#: Pass spacings planned per origin, as shares of ``pass_spacing_m`` [-]: the tighter one leaves fewer points at the
+#: footprint's edge (on a bowl's steep rim, round its middle, at ring changes), each a detour of the hunt later, at
+#: the price of a longer tour (see RingPasses.lay).
+SPACING_SHARES = (1.0, 0.9)
+#: A target point farther than this share of the footprint radius from every waypoint of a plan is at risk: the
+#: agent's tracking error may leave it untouched [-].
+AT_RISK = 0.9
+#: What an island of points at risk (points within a footprint radius joined) costs the hunt, in footprint radii
+#: of path [-]. Measured: the hunts after the passes walk ~1.5-3 cm per island at r_a = 7.5 mm.
+ISLAND_COST = 2.0
 #: Waypoints of an arc between two along which its length is measured [-] (see RingPasses._tour_length).
 SUBSAMPLE = 3
 #: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
@@ -147,6 +157,7 @@ class RingPasses:
         self._tour: dict[int, np.ndarray] = {}  # per part: its waypoints in walking order
         self._arc: dict[int, np.ndarray] = {}  # per part: the arc of each entry of the tour (a new arc: a jump)
         self._at: dict[int, int] = {}  # per part: the first entry of the tour not walked yet
+        self.spacing_m: dict[int, float] = {}  # per laid part: the spacing of its passes [m] (see SPACING_SHARES)
         self._replan = False
         self._route_goal = -1  # the goal of route() and its surface distance map (T,) [m], or None: straight
         self._route = None
@@ -181,28 +192,33 @@ class RingPasses:
                     seeds.append(edge)
         if not seeds or self.order == "tour":  # no edge (closed), rings from the start asked for, or a candidate
             seeds.append(np.array([s]))
-        best = None
-        for seed in seeds:
-            d = dijkstra(sub, directed=False, indices=seed, min_only=True)
-            d = self._smooth(sub, d)
-            w = self.pass_spacing_m
-            k = np.floor(d / w)
-            on_line = (np.abs(d - (k + 0.5) * w) <= self._half_line) & self._allowed[members]
-            way = members[on_line]
-            self.ring[way] = k[on_line].astype(np.intp)
-            self.pending[way] = True
-            if self.order != "tour":
-                return
-            self._plan(part, self._points[start])
-            length = self._tour_length(part)
-            if seed.size == 1 and len(seeds) > 1:
-                length *= START_PENALTY
-            length += self._hunt_length(members, way)
-            if best is None or length < best[0]:
-                best = (length, way, self.ring[way].copy(), self._tour[part], self._arc[part])
-            self.ring[way] = -1
-            self.pending[way] = False
-        _, way, ring, self._tour[part], self._arc[part] = best
+        plans = []  # (seed, share, cost of the origin, cost of the spacing, plan)
+        for n_seed, seed in enumerate(seeds):
+            d = self._smooth(sub, dijkstra(sub, directed=False, indices=seed, min_only=True))
+            for share in SPACING_SHARES if self.order == "tour" else SPACING_SHARES[:1]:
+                w = share * self.pass_spacing_m
+                k = np.floor(d / w)
+                on_line = (np.abs(d - (k + 0.5) * w) <= self._half_line) & self._allowed[members]
+                way = members[on_line]
+                self.ring[way] = k[on_line].astype(np.intp)
+                self.pending[way] = True
+                if self.order != "tour":
+                    self.spacing_m[part] = w
+                    return
+                self._plan(part, self._points[start])
+                length = self._tour_length(part)
+                if seed.size == 1 and len(seeds) > 1:
+                    length *= START_PENALTY
+                length += self._hunt_length(members, way)
+                plans.append((n_seed, share, length, length + self._island_cost(members, way),
+                              (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
+                self.ring[way] = -1
+                self.pending[way] = False
+        # The origin by its plan at the full spacing (tour and the hunt for what it leaves), then its spacing also by
+        # the islands it leaves at risk: compared over origins, the islands chose worse origins on the TEC bunny.
+        origin = min((p for p in plans if p[1] == SPACING_SHARES[0]), key=lambda p: p[2])[0]
+        way, ring, self._tour[part], self._arc[part], self.spacing_m[part] = min(
+            (p for p in plans if p[0] == origin), key=lambda p: p[3])[4]
         self.ring[way] = ring
         self.pending[way] = True
         self._at[part] = 0
@@ -272,6 +288,19 @@ class RingPasses:
             left = members.size
         voxel = 2.0 * self._half_line
         return HUNT_FACTOR * left * voxel * voxel / (2.0 * self.footprint_m)
+
+    def _island_cost(self, members: np.ndarray, way: np.ndarray) -> float:
+        """Estimated detours [m] of the hunt for the islands of points of ``members`` that a plan with waypoints
+        ``way`` leaves at risk (farther than AT_RISK footprint radii from every waypoint): ISLAND_COST radii each."""
+        if way.size == 0:
+            return 0.0  # the hunt estimate already counts the whole part
+        gap = cKDTree(self._points[way]).query(self._points[members])[0]
+        risk = self._points[members[gap > AT_RISK * self.footprint_m]]
+        if len(risk) == 0:
+            return 0.0
+        pairs = cKDTree(risk).query_pairs(self.footprint_m, output_type="ndarray")
+        g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(risk), len(risk)))
+        return ISLAND_COST * self.footprint_m * connected_components(g, directed=False)[0]
 
     def _two_opt(self, walk: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """2-opt on an open tour of arcs from x: reversing a run of arcs reverses each of them too."""
@@ -504,7 +533,7 @@ class RingPasses:
             gap, q = cKDTree(self._points[walk]).query(self._points[off], distance_upper_bound=touch_m)
             ok = np.isfinite(gap)
             cost[off[ok]] = d[walk[q[ok]]] + gap[ok]
-            via = dict(zip(off[ok].tolist(), walk[q[ok]].tolist()))
+            via = dict(zip(off[ok].tolist(), walk[q[ok]].tolist(), strict=True))
         k = int(cost.argmin())
         if not np.isfinite(cost[k]):
             return -1
