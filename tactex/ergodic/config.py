@@ -144,7 +144,8 @@ class HedacConfig:
     )
     sweep_pass_spacing: float = param(
         1.8, "sweep: distance between the planned passes along rings of surface distance from the start, in r_a "
-        "(tactex.ergodic.passes; < 2 leaves an overlap for the tracking error); 0 = no passes, the sweep "
+        "(tactex.ergodic.passes; < 2 leaves an overlap for the tracking error; a part's plan may tighten it to 0.9 "
+        "of this where the full spacing leaves many islands at the footprint's edge); 0 = no passes, the sweep "
         "source's potential alone [-]"
     )
     sweep_pass_origin: str = param(

@@ -6,11 +6,13 @@ as the potential happens to curve and leave slivers and single points between th
 later pass. A planned sweep lays its passes side by side instead: along the level sets of the
 geodesic distance d (its rings), ``pass_spacing`` apart, from the target's outer edge (origin
 "edge": contour-parallel passes, as a pocket is milled; the first pass's footprint reaches the
-edge, and a disc is covered in closed loops) or from the agent's start, whichever tour (below) is
-shorter; origin "start" always from the start. The ring k holds the target points with
-k·w ≤ d < (k+1)·w, w = ``pass_spacing``; its pass runs along d = (k+½)·w, so a footprint of radius
-r_a ≥ w/2 centred on it covers the ring, and w a little under 2 r_a leaves an overlap for the agent's
-tracking error.
+edge, and a disc is covered in closed loops) or from the agent's start, whichever tour (below) plus the
+hunt for what its plan leaves is shorter; origin "start" always from the start. Each origin is planned at
+w and at 0.9 w (``SPACING_SHARES``), and the tighter plan is kept where the islands of points the full
+one leaves at the footprint's edge (``AT_RISK``) cost the hunt more detours than its longer tour.
+The ring k holds the target points with k·w ≤ d < (k+1)·w, w = ``pass_spacing``; its pass runs along
+d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the ring, and w a little under
+2 r_a leaves an overlap for the agent's tracking error.
 
 The plan is a set of waypoints, the target points on the middle line of their ring
 (|d − (k+½)·w| ≤ ½ voxel). On a closed or holed surface a ring's middle line breaks into several
@@ -21,7 +23,9 @@ voxels; the waypoints behind its place on the arc are done. The start of the nex
 than a pass spacing, is reached down the surface distance to it. (Order "greedy", the earlier rule:
 the pending waypoint of least cost_j = |x_j − x| + ``ring_cost`` · w · (k_j − k_low).) A waypoint is
 also done once the agent came within ``reach_m`` of it. When no waypoint of the agent's part is left
-the explorer takes it to the nearest untouched point of the part, one after the other, and then the
+the explorer hunts the untouched points one after the other, each the nearest along the surface
+(``closest``: on the walking part, or a speck within r_a across a gap) and reached down the surface
+distance to it (``route``), and then the
 sweep source's potential and the relocation rules take over (other parts get their rings when the
 agent touches down there; a relocation plans the tour again from where it lands).
 
@@ -199,6 +203,16 @@ class RingPasses:
                 w = share * self.pass_spacing_m
                 k = np.floor(d / w)
                 on_line = (np.abs(d - (k + 0.5) * w) <= self._half_line) & self._allowed[members]
+                thin = False
+                if not on_line.any() and seed.size > 1:
+                    # A part narrower than the first ring (a strip under 2 r_a wide): one pass along its ridge,
+                    # the points farthest from the edge, whose footprint reaches both sides; with no ridge (every
+                    # point on the edge, a strip a few voxels wide) no pass: the hunt walks it nearest first,
+                    # which along a strip is one pass.
+                    ridge = d >= d.max() - 2.0 * self._half_line
+                    thin = 2 * np.count_nonzero(ridge) > ridge.size
+                    on_line = ridge & self._allowed[members] & ~thin
+                    k = np.zeros_like(k)
                 way = members[on_line]
                 self.ring[way] = k[on_line].astype(np.intp)
                 self.pending[way] = True
@@ -209,7 +223,7 @@ class RingPasses:
                 length = self._tour_length(part)
                 if seed.size == 1 and len(seeds) > 1:
                     length *= START_PENALTY
-                length += self._hunt_length(members, way)
+                length += self._hunt_length(members, way) / (HUNT_FACTOR if thin else 1.0)
                 plans.append((n_seed, share, length, length + self._island_cost(members, way),
                               (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
                 self.ring[way] = -1

@@ -343,7 +343,8 @@ def run_explore(
     if explorer.source_mode == "sweep" and explorer.planned_passes:
         origin = "outer edge" if hcfg.sweep_pass_origin == "edge" else "start"
         say(f"source: sweep (the target is the whole surface: every point passed over once) along planned passes "
-            f"{hcfg.sweep_pass_spacing:g} r_a apart from the {origin}, then the potential over what they missed; "
+            f"{hcfg.sweep_pass_spacing:g} r_a apart from the {origin} (0.9 of it where a part's plan leaves fewer "
+            "gaps so), then a hunt along the surface and the potential over what they missed; "
             "--sweep-pass-spacing 0 for the potential alone, "
             "--source-mode ergodic for eq. 1–2")
     elif explorer.source_mode == "sweep":
