@@ -49,6 +49,20 @@ class _Rows:
         self.rows.append((what, target, fmt(*values), verdict))
 
 
+def _robustness_reached(rob: dict) -> str:
+    """The study's reached share over all runs, then split: the cases 3 m can cover and those out of reach by area
+    (they run fewer starts, so the all-runs share weighs their misses less; the split shows them)."""
+    cases = {k: v for k, v in rob.items() if k != "all" and isinstance(v, dict) and "runs" in v}
+    a = rob["all"]
+    out = [v for v in cases.values() if not v.get("feasible", True)]
+    n_out = sum(v["runs"] for v in out)
+    text = f"{a['reached_share'] * 100:.1f} % of {a['runs']} runs"
+    if a.get("reached_share_feasible") is not None:
+        text += f" ({a['reached_share_feasible'] * 100:.1f} % of {a['runs'] - n_out}"
+        text += f"; {sum(v['reached_share'] * v['runs'] for v in out):.0f} of {n_out} on {len(out)} cases)"
+    return text
+
+
 def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
     r = _Rows(data)
     for key, name in CLOUDS:
@@ -86,17 +100,17 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
            "large/sizes/150000/step_us_median_target_1pct"),
           lambda gb, us, us1: f"{gb:.2f} GB; {us:.0f} µs ({us1:.0f} µs)", lambda gb, us, us1: gb <= 4 and us <= 1000)
     r.add("explorer on untuned starts and surfaces (robustness study): runs reaching residual ≤ 0.05 within 3 m "
-          "(over the cases 3 m can cover)", "every run",
-          ("robustness/all/reached_share", "robustness/all/reached_share_feasible", "robustness/all/runs"),
-          lambda share, feas, n: f"{share * 100:.1f} % ({feas * 100:.1f} %) of {n} runs",
-          lambda share, feas, n: share >= 1)
+          "(over the cases 3 m can cover; the runs of the cases out of reach by area, all misses)", "every run",
+          ("robustness",), _robustness_reached, lambda rob: rob["all"]["reached_share"] >= 1)
     r.add("robustness study, whole-surface cases 3 m cannot cover by area: runs reaching residual ≤ 0.05 within "
           "1.3× the ideal path (area / footprint width)", "(a restatement, the lead's call)",
           ("robustness/all/reached_share_ideal_infeasible", "robustness/all/infeasible_cases"),
           lambda share, cases: f"{share * 100:.0f} % ({len(cases)} cases)")
-    r.add("robustness study: runs ending with reachable target untouched; keep-out contacts", "0; 0",
-          ("robustness/all/never_touched_runs", "robustness/all/keep_out_contacts"),
-          lambda nt, ko: f"{nt}; {ko}", lambda nt, ko: nt == 0 and ko == 0)
+    r.add("robustness study: runs ending with reachable target untouched (on the cases 3 m can cover); keep-out "
+          "contacts", "0; 0",
+          ("robustness/all/never_touched_runs", "robustness/all/never_touched_runs_feasible",
+           "robustness/all/keep_out_contacts"),
+          lambda nt, ntf, ko: f"{nt} ({ntf}); {ko}", lambda nt, ntf, ko: nt == 0 and ko == 0)
     for key in ("ga_line_force", "ufic", "va_ufic", "cartesian_impedance"):
         r.add(f"controller tick, {key} (median; p99)", "≤ 100 µs",
               (f"control/{key}/tick_us_median", f"control/{key}/tick_us_p99"),
