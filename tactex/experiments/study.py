@@ -40,7 +40,7 @@ __all__ = ["StudyResult", "run_study", "run_study_task"]
 Say = Callable[[str], None]
 
 #: Metrics measured on the wall clock: in ``runs.jsonl`` and ``study.json``, never in the table.
-WALL_CLOCK_METRICS = ("wall_time_s", "basis_time_s")
+WALL_CLOCK_METRICS = ("wall_time_s", "basis_time_s", "start_plan_time_s")
 #: Metrics the summary and the plots describe, per task.
 MAIN_METRICS = {
     "clean": ("dirt_removed_fraction", "force_within_20pct_fraction", "max_contact_force_n", "sim_time_s",
