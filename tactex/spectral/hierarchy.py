@@ -204,7 +204,7 @@ def coarse_level_size(p: int, n: int) -> int:
 class _Factor:
     """A sparse Cholesky factorisation of an SPD matrix, solving many right-hand sides at once.
 
-    cholespy (CHOLMOD, supernodal) solves a block of p right-hand sides ~4× faster than SuperLU's
+    cholespy (CHOLMOD, simplicial LLᵀ) solves a block of p right-hand sides ~4× faster than SuperLU's
     column-by-column solve on 60k points; SuperLU with a symmetric ordering is the fallback when the
     wheel is missing on a platform. ``block`` (small clouds): SuperLU's factors with the compiled block
     substitutions of :mod:`tactex.spectral.block_lu` when numba is there, cholespy otherwise; at a few
