@@ -291,18 +291,18 @@ def compile_kernel(func, signature: str | None = None):
         return njit(*args, nogil=True, error_model="numpy")(func)
 
 
-def run(kernel, *args) -> np.ndarray | None:
-    """``kernel(*args)``'s torque (NaN when an input is not finite, as with numpy: the safety layer
-    then holds the last command); None, with a warning, when the arrays are not the types the kernel
-    was compiled for (C-ordered float64): the caller then uses numpy from there on, since every
-    failed dispatch costs about as much as the numpy path."""
+def run(kernel, *args, then: str = "this controller runs numpy from now on"):
+    """``kernel(*args)``'s result (a torque is NaN when an input is not finite, as with numpy: the
+    safety layer then holds the last command); None, with a warning ending in ``then``, when the
+    arrays are not the types the kernel was compiled for: the caller then uses its Python form from
+    there on, since every failed dispatch costs about as much as that."""
     try:
         return kernel(*args)
     except TypeError as exc:
         types = ", ".join(f"{a.dtype}{'' if a.flags.c_contiguous else ' strided'}" if isinstance(a, np.ndarray)
                           else type(a).__name__ for a in args)
-        warnings.warn(f"a compiled controller kernel cannot take ({types}): {exc}; this controller runs numpy "
-                      "from now on", RuntimeWarning, stacklevel=3)
+        warnings.warn(f"a compiled controller kernel cannot take ({types}): {exc}; {then}", RuntimeWarning,
+                      stacklevel=3)
         return None
 
 

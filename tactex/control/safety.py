@@ -26,7 +26,6 @@ Events are small frozen dataclasses in :attr:`SafetyLayer.events`; nothing non-f
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -173,14 +172,13 @@ class SafetyLayer(Controller):
         """Every number of the state is finite: the compiled check when there is one (a state of
         other array types warns once and uses numpy from then on)."""
         if self._finite_kernel is not None:
-            try:
-                return self._finite_kernel(state.t, state.q, state.dq, state.tau_measured, state.ee_position,
-                                           state.ee_rotation, state.ee_twist, state.jacobian, state.mass_matrix,
-                                           state.coriolis, state.gravity, state.wrench_tool)
-            except TypeError as exc:
-                warnings.warn(f"the compiled state check cannot take this state's arrays ({exc}); the safety "
-                              "layer checks with numpy from now on", RuntimeWarning, stacklevel=3)
-                self._finite_kernel = None
+            finite = joint_kernels.run(self._finite_kernel, state.t, state.q, state.dq, state.tau_measured,
+                                       state.ee_position, state.ee_rotation, state.ee_twist, state.jacobian,
+                                       state.mass_matrix, state.coriolis, state.gravity, state.wrench_tool,
+                                       then="the safety layer checks with numpy from now on")
+            if finite is not None:
+                return finite
+            self._finite_kernel = None
         return _state_finite(state)
 
     @property
@@ -355,13 +353,11 @@ class SafetyLayer(Controller):
         (:func:`tactex.control.joint_kernels.limit_torque`); a non-finite ``tau`` holds, as in
         :meth:`torque`. None (warned) when the kernel cannot take the state's arrays."""
         lim = self.limits
-        try:
-            flags = self._limit_kernel(tau, self._tau_prev, self._tau_max, state.q, state.dq, self._q_lo_margin,
-                                       self._q_hi_margin, lim.joint_limit_stiffness, lim.joint_limit_damping,
-                                       self._rate_step)
-        except TypeError as exc:
-            warnings.warn(f"the compiled torque limits cannot take this state's arrays ({exc}); the safety layer "
-                          "limits with Python from now on", RuntimeWarning, stacklevel=3)
+        flags = joint_kernels.run(self._limit_kernel, tau, self._tau_prev, self._tau_max, state.q, state.dq,
+                                  self._q_lo_margin, self._q_hi_margin, lim.joint_limit_stiffness,
+                                  lim.joint_limit_damping, self._rate_step,
+                                  then="the safety layer limits with Python from now on")
+        if flags is None:
             self._limit_kernel = None
             return None
         if flags & joint_kernels.LIMIT_NOT_FINITE:

@@ -222,10 +222,16 @@ class VaUficController(UficController):
         if compiled:
             self._compiled = CompiledTick.make(self)
 
+    @property
+    def _live(self) -> CompiledTick | None:
+        """The compiled tick while its vector holds the state, else None."""
+        tick = self._compiled
+        return tick if tick is not None and tick.live else None
+
     def _objects(self) -> None:
         """The compiled tick's state back into the Python objects (a no-op when they hold it)."""
-        if self._compiled is not None and self._compiled.live:
-            self._compiled.unpack()
+        if (tick := self._live) is not None:
+            tick.unpack()
 
     def reset(self, state: RobotState) -> None:
         self.resume(state)
@@ -396,8 +402,8 @@ class VaUficController(UficController):
     def rotation_desired(self) -> np.ndarray | None:
         """The desired orientation R_d (world_R_tool) the controller tracks now: the reference's at the
         first tick, then moved by the re-orientations (eq. 22–29); None before the first tick."""
-        if self._compiled is not None and self._compiled.live:
-            return self._compiled.rotation_desired()
+        if (tick := self._live) is not None:
+            return tick.rotation_desired()
         return None if self._rot_d is None else np.array(self._rot_d)
 
     @property
@@ -405,15 +411,15 @@ class VaUficController(UficController):
         """Offset [m] (world) added to the reference position: the actual translation fed back while
         fully compliant (eq. 20–21 with ρ_align ≈ 0). The effective desired position is
         ``reference.position_world + position_offset``."""
-        if self._compiled is not None and self._compiled.live:
-            return self._compiled.position_offset()
+        if (tick := self._live) is not None:
+            return tick.position_offset()
         return np.array(self._offset)
 
     def tick_telemetry(self) -> dict[str, float]:
         """What a task reads every tick, cheaply: ρ_align, ρ_frc, the tank energies and the impedance
         tank's valve σ_i (the full :meth:`telemetry` costs ~10× more: read it at the recording rate)."""
-        if self._compiled is not None and self._compiled.live:
-            return self._compiled.tick_telemetry()
+        if (tick := self._live) is not None:
+            return tick.tick_telemetry()
         if self._raw is None:
             return {}
         raw = self._raw
@@ -422,14 +428,14 @@ class VaUficController(UficController):
 
     def port_wrench_last(self) -> np.ndarray | None:
         """(6,) the port feed-forward's last wrench [N, N·m] (tool frame), None without one."""
-        if self._compiled is not None and self._compiled.live:
-            return self._compiled.port_wrench_last()
+        if (tick := self._live) is not None:
+            return tick.port_wrench_last()
         return None if self._port_feedforward is None else np.asarray(self._port_feedforward.last, dtype=float)
 
     def telemetry(self) -> dict[str, float]:
         """ρ_align, ρ_frc, C, h, θ, l_s, tank energies/states/valves and their energy ledgers."""
-        if self._compiled is not None and self._compiled.live:  # read from the compiled tick's vector as it is
-            raw, ti, tf, realigning = self._compiled.snapshot()
+        if (tick := self._live) is not None:  # read from the compiled tick's vector as it is
+            raw, ti, tf, realigning = tick.snapshot()
         else:
             raw, ti, tf, realigning = self._raw, self._tank_i, self._tank_f, self._realign is not None
         if raw is None:
