@@ -237,6 +237,7 @@ def test_link_verdict_fails_on_lost_cycles_and_success_rate_and_warns_on_compute
     assert link_verdict(_link_metrics(lost=2), 1.0, max_lost_fraction=0.05) == ([], [])
     problems, _ = link_verdict(_link_metrics(success=0.9), 1.0)
     assert len(problems) == 1 and "success rate fell to 0.900" in problems[0]
+    assert link_verdict(_link_metrics(success=0.9), 1.0, min_success_rate=0.85) == ([], [])
     problems, warnings = link_verdict(_link_metrics(compute_p999=400.0), 1.0)
     assert problems == [] and len(warnings) == 1 and "400 µs" in warnings[0]
 
@@ -249,3 +250,12 @@ def test_robot_check_rejects_a_bad_lost_share_before_connecting(value, capsys):
     assert code == 2 and "--max-lost-percent must be in [0, 100)" in err and "127.0.0.254" not in err
     with pytest.raises(ConfigError, match="lost cycles must be in"):
         check_robot(FrankaConfig(robot_ip="127.0.0.254"), max_lost_fraction=float(value))
+
+
+@pytest.mark.parametrize("value", ["-0.1", "1.5", "nan"])
+def test_robot_check_rejects_a_bad_success_rate_before_connecting(value, capsys):
+    code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--min-success-rate", value])
+    err = capsys.readouterr().err
+    assert code == 2 and "--min-success-rate must be in [0, 1]" in err and "127.0.0.254" not in err
+    with pytest.raises(ConfigError, match="success rate must be in"):
+        check_robot(FrankaConfig(robot_ip="127.0.0.254"), min_success_rate=float(value))

@@ -101,6 +101,9 @@ def test_twin_config_checks():
         TwinConfig(realtime_factor=-1.0)
     with pytest.raises(Exception, match="joint_friction_residual"):
         TwinConfig(joint_friction_residual=1.5)
+    for window in (0.0, 1.0, float("nan")):
+        with pytest.raises(Exception, match="command_window_ms"):
+            TwinConfig(command_window_ms=window)
 
 
 def test_tool_joints_do_not_inherit_frankys_arm_defaults():
@@ -244,3 +247,23 @@ def test_sigterm_stops_the_twin_cleanly():
         assert status["ticks"] > 0
         code = proc.close()
     assert code == 0, proc.stderr()
+
+
+def test_command_success_rate_counts_late_answers(twin, robot):
+    """A client that answers every 10th state 3 ms late: the twin's control_command_success_rate (the
+    share of the last 100 cycles whose command came in time) falls, as a real Franka's would;
+    franky-sim alone reports 1.0 whatever the client does."""
+    ctrl = robot.start_torque_control()
+    rates = []
+    for k in range(400):
+        state, _ = ctrl.readOnce()
+        rates.append(state.control_command_success_rate)
+        if k % 10 == 5:
+            time.sleep(0.003)
+        cmd = plf.Torques([0.0] * 7)  # the arm holds under zero torque (the load is declared)
+        cmd.motion_finished = k == 399
+        ctrl.writeOnce(cmd)
+    rates = np.array(rates)
+    assert 0.0 < rates.min() < 0.95
+    assert rates.max() <= 1.0
+    assert 0.0 < twin.status()["command_success_rate"] <= 1.0

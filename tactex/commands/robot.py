@@ -15,12 +15,16 @@ def register(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("action", choices=("check",), help="check: connect, report, hold still and count lost cycles")
     parser.add_argument("--duration-s", type=float, default=10.0, help="length of the link test [s] (default: 10)")
-    from tactex.robots.check import LINK_MAX_LOST_FRACTION
+    from tactex.robots.check import LINK_MAX_LOST_FRACTION, LINK_MIN_SUCCESS_RATE
 
     default_pct = 100 * LINK_MAX_LOST_FRACTION
     parser.add_argument("--max-lost-percent", type=float, default=default_pct,
                         help=f"fail the link test when more than this share of cycles is lost [%%] "
                              f"(default: {default_pct:g})")
+    parser.add_argument("--min-success-rate", type=float, default=LINK_MIN_SUCCESS_RATE,
+                        help="fail the link test when the robot's control_command_success_rate (its share of "
+                             "the last 100 commands that came in time) falls below this "
+                             f"(default: {LINK_MIN_SUCCESS_RATE:g})")
     parser.add_argument("--out", metavar="FILE.json", help="also write the findings as JSON")
     add_dataclass_arguments(parser, FrankaConfig)
 
@@ -37,9 +41,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration-s must be in (0, 600] s, got {args.duration_s}")
     if not (math.isfinite(args.max_lost_percent) and 0 <= args.max_lost_percent < 100):
         raise ConfigError(f"--max-lost-percent must be in [0, 100) %, got {args.max_lost_percent}")
+    if not (math.isfinite(args.min_success_rate) and 0 <= args.min_success_rate <= 1):
+        raise ConfigError(f"--min-success-rate must be in [0, 1], got {args.min_success_rate}")
     cfg = dataclass_from_args(FrankaConfig, args)
     result = check_robot(cfg, args.duration_s, note=lambda m: print(f"tactex robot: {m}", file=sys.stderr),
-                         max_lost_fraction=args.max_lost_percent / 100.0)
+                         max_lost_fraction=args.max_lost_percent / 100.0, min_success_rate=args.min_success_rate)
     i = result.info
     print(f"robot {i['robot_ip']}: mode {i.get('robot_mode')}, TCP at {[round(x, 4) for x in i['tcp_position_m']]} m, "
           f"load {i['load_mass_kg']:.3f} kg, wrench source {i['wrench_source']}")

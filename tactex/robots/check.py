@@ -47,12 +47,12 @@ def lost_fraction(metrics: dict[str, Any]) -> float:
     return lost / (max(1, metrics["loop_ticks"]) + lost)
 
 
-def link_verdict(metrics: dict[str, Any], duration_s: float,
-                 max_lost_fraction: float = LINK_MAX_LOST_FRACTION) -> tuple[list[str], list[str]]:
+def link_verdict(metrics: dict[str, Any], duration_s: float, max_lost_fraction: float = LINK_MAX_LOST_FRACTION,
+                 min_success_rate: float = LINK_MIN_SUCCESS_RATE) -> tuple[list[str], list[str]]:
     """Problems and warnings from a link test's ``loop_metrics()`` over ``duration_s`` [s].
 
     A problem fails the check: more than ``max_lost_fraction`` of the cycles lost, or a command
-    success rate below :data:`LINK_MIN_SUCCESS_RATE`. Our compute above :data:`COMPUTE_BUDGET_US`
+    success rate below ``min_success_rate``. Our compute above :data:`COMPUTE_BUDGET_US`
     at p99.9 is only a warning: the link may still hold, with less margin.
     """
     problems: list[str] = []
@@ -61,9 +61,9 @@ def link_verdict(metrics: dict[str, Any], duration_s: float,
     if share > max_lost_fraction:
         problems.append(f"{lost} cycles lost in {duration_s:g} s ({100 * share:.2f} %, "
                         f"allowed {100 * max_lost_fraction:.2g} %): the link would not hold 1 kHz")
-    if metrics["min_command_success_rate"] < LINK_MIN_SUCCESS_RATE:
+    if metrics["min_command_success_rate"] < min_success_rate:
         problems.append(f"command success rate fell to {metrics['min_command_success_rate']:.3f} "
-                        f"(needs ≥ {LINK_MIN_SUCCESS_RATE})")
+                        f"(needs ≥ {min_success_rate:g}): commands came late")
     if metrics["loop_compute_us"]["p99.9"] > COMPUTE_BUDGET_US:
         warnings.append(f"our compute per tick reached {metrics['loop_compute_us']['p99.9']:.0f} µs at p99.9 "
                         f"(budget {COMPUTE_BUDGET_US:.0f}): a busy or unpinned CPU (docs/real_robot.md)")
@@ -71,13 +71,17 @@ def link_verdict(metrics: dict[str, Any], duration_s: float,
 
 
 def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeometry | None = None,
-                note=None, max_lost_fraction: float = LINK_MAX_LOST_FRACTION) -> CheckResult:
+                note=None, max_lost_fraction: float = LINK_MAX_LOST_FRACTION,
+                min_success_rate: float = LINK_MIN_SUCCESS_RATE) -> CheckResult:
     """Connect, report the robot's set-up and state, run the link test for ``duration_s`` [s].
 
-    The link fails when more than ``max_lost_fraction`` of its cycles are lost (see :func:`link_verdict`).
+    The link fails when more than ``max_lost_fraction`` of its cycles are lost or the command success
+    rate falls below ``min_success_rate`` (see :func:`link_verdict`).
     """
     if not 0.0 <= max_lost_fraction < 1.0:
         raise ConfigError(f"the allowed share of lost cycles must be in [0, 1), got {max_lost_fraction}")
+    if not 0.0 <= min_success_rate <= 1.0:
+        raise ConfigError(f"the lowest command success rate must be in [0, 1], got {min_success_rate}")
     tool = tool or ToolGeometry()
     t0 = time.perf_counter()
     backend = LibfrankaBackend(config, tool=tool)
@@ -122,7 +126,7 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         info["q_drift_rad"] = q_drift
         info["lost_fraction"] = lost_fraction(m)
         info["max_lost_fraction"] = max_lost_fraction
-        link_problems, link_warnings = link_verdict(m, duration_s, max_lost_fraction)
+        link_problems, link_warnings = link_verdict(m, duration_s, max_lost_fraction, min_success_rate)
         problems += link_problems
         warnings += link_warnings
     finally:

@@ -33,6 +33,7 @@ import errno
 import json
 import math
 import os
+import select
 import signal
 import socket
 import threading
@@ -49,6 +50,7 @@ from tactex.errors import ConfigError, MissingDependencyError, SimulationError, 
 from tactex.robots.netft import NETFT_PORT
 from tactex.sim.scene import SceneConfig
 from tactex.sim.tool import ToolGeometry, tool_xml
+from tactex.sim.twin_clock import CommandRate, TwinClock, fine_timer_slack
 
 __all__ = ["FRANKA_PORTS", "Twin", "TwinConfig", "export_marking_cloud", "run_twin"]
 
@@ -89,6 +91,10 @@ class TwinConfig:
     status_period_s: float = param(0.5, "period of the status file [s]")
     realtime_factor: float = param(1.0, "simulated seconds per wall-clock second the twin aims at (it paces "
                                         "itself with sleeps; 0 = as fast as it can)")
+    command_window_ms: float = param(
+        0.5, "how long after each state the twin waits for the client's command before it steps [ms] (scaled with "
+             "--realtime-factor above 1): the budget Franka's engineers give one FCI iteration (receive, compute, "
+             "send); a later command is used a cycle late and counts against control_command_success_rate")
     joint_friction_residual: float = param(
         0.0, "fraction of franky-sim's dry joint friction (MuJoCo frictionloss 0.25–1.14 N·m) left on the arm: a "
              "real Franka adds gravity and friction to the commanded torques (libfranka's Torques are 'without "
@@ -111,6 +117,9 @@ class TwinConfig:
                 raise ConfigError(f"{name} must be ≥ {lo:g}, got {v!r}")
         if not (math.isfinite(self.joint_friction_residual) and 0.0 <= self.joint_friction_residual <= 1.0):
             raise ConfigError(f"joint_friction_residual must be in [0, 1], got {self.joint_friction_residual!r}")
+        if not (math.isfinite(self.command_window_ms) and 0.0 < self.command_window_ms < 1.0):
+            raise ConfigError(f"command_window_ms must be in (0, 1) ms (the state period is 1 ms), got "
+                              f"{self.command_window_ms!r}")
         if not (math.isfinite(self.realtime_factor) and 0.0 <= self.realtime_factor <= 100.0):
             raise ConfigError(f"realtime_factor must be in [0, 100] (0: unpaced), got {self.realtime_factor!r}")
 
@@ -279,6 +288,7 @@ class Twin:
         self.netft: Any = None
         self._last_status = (0.0, time.monotonic())
         self._rtf = float("nan")
+        self.command_rate = CommandRate()
 
     # -- per-tick work (the simulation thread) -----------------------------------------------------
     def _setup_ids(self) -> None:
@@ -411,6 +421,78 @@ class Twin:
             point_obj = (point - self._object_pos) @ self._object_rot
             self.dirt.apply_wear(point_obj, force * slip * self._dt * self._sample)
 
+    def _serve(self, server: Any, clock: TwinClock) -> None:
+        """franky-sim's loop (commands, step, state) on ``clock``: the commands are taken as soon as
+        the client's answer to the last state is in, or when its window closes; a cycle counts for
+        libfranka's ``control_command_success_rate`` when that answer came within the window."""
+        fine_timer_slack()
+        servers = list(server.robot_servers)
+        robot_server = servers[0]
+        # franky-sim's private members: its UDP command socket (made when a client connects), the next
+        # state's message id, the client's motion (non-zero while e.g. torque control runs); without them
+        # the twin waits out each window
+        def udp() -> Any:
+            return getattr(robot_server, "_FrankaServer__udp_socket", None)
+
+        def next_id() -> int:
+            return int(getattr(robot_server, "_FrankaServer__message_id", 0))
+
+        def in_motion() -> bool:
+            return getattr(robot_server, "_FrankaRobotServer__current_motion_id", 0) != 0
+
+        answered = [-1]  # the newest state a command answered (libfranka sends the state's message id back)
+        handle = robot_server._handle_udp_command
+
+        def handle_command(data: bytes) -> None:
+            answered[0] = max(answered[0], int.from_bytes(data[:8], "little"))
+            handle(data)
+
+        robot_server._handle_udp_command = handle_command  # the hook franky-sim calls per UDP command
+        rate, paced = self.command_rate, clock.period_s > 0.0  # unpaced, no command can be late
+        monotonic, step = time.monotonic, self.sim.step
+        try:
+            while server.running:
+                moving = paced and in_motion()
+                last = next_id() - 1
+                if last < answered[0]:  # a new client: franky-sim numbers its states from 0 again
+                    answered[0] = -1
+                # out of a motion no answer is awaited: step at once, and the state waits for its time
+                self._take_commands(servers, udp() if moving else None,
+                                    clock.process_at() if moving else 0.0, answered, last)
+                rate.cycle(moving, answered[0] >= last)
+                self.robot._twin_success = rate.rate
+                step()
+                clock.wait_until(clock.send_at())
+                t2 = monotonic()
+                for rs in servers:
+                    rs.send_state()
+                t3 = monotonic()
+                clock.sent(t3 - t2, t3)
+        except BaseException as exc:
+            if self._error is None:
+                self._error = exc
+            self._stop.set()
+
+    @staticmethod
+    def _take_commands(servers: list, udp: Any, deadline: float, answered: list[int], last: int) -> None:
+        """Process the client's commands once the answer to state ``last`` is in (``udp`` readable
+        with it), or at ``deadline`` (monotonic s); without ``udp``, at ``deadline``."""
+        if udp is not None:
+            processed = False
+            while answered[0] < last:
+                left = deadline - time.monotonic()
+                if left <= 0.0 or not select.select([udp], [], [], left)[0]:
+                    break
+                for rs in servers:
+                    rs.process_commands()
+                processed = True
+            if processed and answered[0] >= last:
+                return
+        else:
+            TwinClock.wait_until(deadline)
+        for rs in servers:
+            rs.process_commands()
+
     def ft_reading(self) -> np.ndarray:
         """The latest raw wrist reading [N, N·m] (6,): sensor frame, the tool's weight included."""
         with self._lock:
@@ -442,6 +524,7 @@ class Twin:
             "ft_streaming": bool(self.netft is not None and self.netft._client is not None),
             "ft_records_sent": 0 if self.netft is None else self.netft.sent,
             "realtime_factor": self._rtf,
+            "command_success_rate": self.command_rate.rate,
             "object": self.config.object_name,
             "hostname": self.config.hostname,
             "ft_port": 0 if self.netft is None else int(self.netft.address[1]),
@@ -505,8 +588,13 @@ class Twin:
                                       "or pick another port with --port-ft") from None
                 self._ft_every = max(1, round(1.0 / (cfg.ft_rate_hz * self._dt)))
                 self.sim.register_post_step_callback(self._post_step)
-                realtime: bool | float = (1.0 / cfg.realtime_factor) if cfg.realtime_factor > 0 else False
-                server.run_async(realtime=realtime)
+                period_s = 1e-3 / cfg.realtime_factor if cfg.realtime_factor > 0 else 0.0
+                # franky-sim's run_async loop, with the robot's cadence (tactex.sim.twin_clock)
+                server.running = True
+                clock = TwinClock(period_s, cfg.command_window_ms * 1e-3 * min(1.0, period_s / 1e-3))
+                server.async_thread = threading.Thread(target=self._serve, args=(server, clock), name="twin-1khz",
+                                                       daemon=True)
+                server.async_thread.start()
                 if ready is not None:
                     ready(self)
                 while not self._stop.wait(cfg.status_period_s):
@@ -530,6 +618,7 @@ def _contact_aware_class(base: type) -> type:
     class TwinRobot(base):  # type: ignore[misc, valid-type]
         _twin_ext: Any = None
         _twin_on_robot = False
+        _twin_success = 1.0
 
         @property
         def state(self):
@@ -537,7 +626,8 @@ def _contact_aware_class(base: type) -> type:
             ext = self._twin_ext
             if ext is None:
                 zero6 = (0.0,) * 6
-                return st.replace(O_F_ext_hat_K=zero6, K_F_ext_hat_K=zero6, tau_ext_hat_filtered=(0.0,) * 7)
+                return st.replace(O_F_ext_hat_K=zero6, K_F_ext_hat_K=zero6, tau_ext_hat_filtered=(0.0,) * 7,
+                                  control_command_success_rate=self._twin_success)
             f_on, m0_on, tau_on = ext
             o_T_k = np.asarray(st.O_T_EE, dtype=float).reshape(4, 4, order="F") @ \
                 np.asarray(st.EE_T_K, dtype=float).reshape(4, 4, order="F")
@@ -548,7 +638,8 @@ def _contact_aware_class(base: type) -> type:
             o_f = sign * np.concatenate([f, m])
             k_f = np.concatenate([rot.T @ o_f[:3], rot.T @ o_f[3:]])
             return st.replace(O_F_ext_hat_K=tuple(o_f.tolist()), K_F_ext_hat_K=tuple(k_f.tolist()),
-                              tau_ext_hat_filtered=tuple((sign * np.asarray(tau_on)).tolist()))
+                              tau_ext_hat_filtered=tuple((sign * np.asarray(tau_on)).tolist()),
+                              control_command_success_rate=self._twin_success)
 
     return TwinRobot
 
