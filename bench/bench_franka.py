@@ -5,7 +5,7 @@ SCHED_FIFO when allowed), the vision process beside the twin.
 
 Figures: the wipe's force error and tanks (VA-UFIC §III policy, Net F/T and vision), the loop's
 timing (``loop_compute_us``: our share of each 1 ms cycle, target p99.9 ≤ 300 µs), lost cycles,
-torque-rate clips; the clean's share of the twin's marking removed (the twin measures it). Skipped
+the twin's command success rate (commands within its 0.5 ms window), torque-rate clips; the clean's share of the twin's marking removed (the twin measures it). Skipped
 without the ``franka`` extra or with fewer than two cores.
 """
 
@@ -23,6 +23,7 @@ TARGETS = {
     "franka.wipe.force_mae_n": ("<=", 1.0),
     "franka.wipe.lost_cycles": ("<=", 0),
     "franka.wipe.loop_compute_us_p999": ("<=", 300.0),
+    "franka.wipe.min_command_success_rate": (">=", 0.99),
     "franka.wipe.torque_rate_clip_ticks": ("<=", 0),
     "franka.clean.dirt_removed_fraction": (">=", 0.90),
     "franka.clean.lost_cycles": ("<=", 0),

@@ -153,10 +153,12 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
            "tasks/wipe/va_ufic/torque_rate_clip_ticks"),
           lambda a, b, c: f"{a + b + c}", lambda a, b, c: a + b + c == 0)
     for task in ("wipe", "clean"):
-        r.add(f"real-robot loop (twin), {task}: compute p50; p99.9; lost cycles", "≤ 300 µs at p99.9",
+        r.add(f"real-robot loop (twin), {task}: compute p50; p99.9; lost cycles; min command success rate",
+              "≤ 300 µs at p99.9; 0 lost; ≥ 0.99",
               (f"franka/{task}/loop_compute_us_p50", f"franka/{task}/loop_compute_us_p999",
-               f"franka/{task}/lost_cycles"),
-              lambda p50, p999, lost: f"{p50:.0f} µs; {p999:.0f} µs; {lost}", lambda p50, p999, lost: p999 <= 300)
+               f"franka/{task}/lost_cycles", f"franka/{task}/min_command_success_rate"),
+              lambda p50, p999, lost, rate: f"{p50:.0f} µs; {p999:.0f} µs; {lost}; {rate:.2f}",
+              lambda p50, p999, lost, rate: p999 <= 300 and lost == 0 and rate >= 0.99)
     r.add("`--cloud` clean over the protocol (twin): removed", "–",
           ("franka/clean/dirt_removed_fraction",), lambda rem: f"{rem * 100:.1f} %")
     return r.rows
