@@ -259,3 +259,19 @@ def test_robot_check_rejects_a_bad_success_rate_before_connecting(value, capsys)
     assert code == 2 and "--min-success-rate must be in [0, 1]" in err and "127.0.0.254" not in err
     with pytest.raises(ConfigError, match="success rate must be in"):
         check_robot(FrankaConfig(robot_ip="127.0.0.254"), min_success_rate=float(value))
+
+
+def test_robot_check_passes_its_limits_to_the_check(monkeypatch, capsys):
+    import tactex.robots.check as check
+
+    seen = {}
+
+    def fake_check(cfg, duration_s, note=None, max_lost_fraction=None, min_success_rate=None):
+        seen.update(max_lost_fraction=max_lost_fraction, min_success_rate=min_success_rate)
+        raise ConfigError("stop here")
+
+    monkeypatch.setattr(check, "check_robot", fake_check)
+    code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--max-lost-percent", "2", "--min-success-rate",
+                 "0.8"])
+    assert code == 2 and "stop here" in capsys.readouterr().err
+    assert seen == {"max_lost_fraction": pytest.approx(0.02), "min_success_rate": 0.8}

@@ -8,6 +8,7 @@ marked (so any rub removes dirt).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -249,21 +250,43 @@ def test_sigterm_stops_the_twin_cleanly():
     assert code == 0, proc.stderr()
 
 
+def test_a_twin_ends_with_the_process_that_started_it(tmp_path):
+    script = tmp_path / "killed.py"
+    script.write_text("import os, signal\nfrom tactex.sim.twin_process import TwinProcess\n"
+                      "t = TwinProcess('plane').start()\nprint(t.process.pid, flush=True)\n"
+                      "os.kill(os.getpid(), signal.SIGKILL)\n")
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    pid = int(run.stdout.split()[-1])
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.1)
+    os.kill(pid, 9)
+    pytest.fail(f"the twin (pid {pid}) outlived the process that started it by 10 s")
+
+
 def test_command_success_rate_counts_late_answers(twin, robot):
-    """A client that answers every 10th state 3 ms late: the twin's control_command_success_rate (the
-    share of the last 100 cycles whose command came in time) falls, as a real Franka's would;
-    franky-sim alone reports 1.0 whatever the client does."""
+    """A client that answers promptly, then every 10th state 3 ms late, then promptly again: the twin's
+    control_command_success_rate (the share of the last 100 cycles whose answer came within its
+    window) falls while answers are late and recovers once the late ones are over 100 cycles old, as
+    a real Franka's would; franky-sim alone reports 1.0 whatever the client does."""
     ctrl = robot.start_torque_control()
     rates = []
-    for k in range(400):
+    for k in range(600):
         state, _ = ctrl.readOnce()
         rates.append(state.control_command_success_rate)
-        if k % 10 == 5:
+        if 150 <= k < 400 and k % 10 == 5:
             time.sleep(0.003)
         cmd = plf.Torques([0.0] * 7)  # the arm holds under zero torque (the load is declared)
-        cmd.motion_finished = k == 399
+        cmd.motion_finished = k == 599
         ctrl.writeOnce(cmd)
     rates = np.array(rates)
-    assert 0.0 < rates.min() < 0.95
-    assert rates.max() <= 1.0
-    assert 0.0 < twin.status()["command_success_rate"] <= 1.0
+    prompt, late, after = np.median(rates[100:150]), rates[300:400].min(), np.median(rates[550:600])
+    # each late answer costs the twin at least 2 cycles: ≥ 20 of the last 100 in the late phase; a
+    # loaded machine may cost the prompt phases a few too, hence the relative margins
+    assert late < prompt - 0.1 and late < after - 0.1, (prompt, late, after)
+    status = twin.wait_status(lambda s: s.get("command_success_rate_min", 1.0) < 1.0, 3.0)
+    assert status["command_success_rate_min"] <= late + 0.05  # the motion's minimum, kept after it ended

@@ -47,19 +47,22 @@ def test_unpaced_clock_never_waits():
 
 def test_command_rate_counts_from_the_first_command_of_a_motion():
     rate = CommandRate(window=10)
-    rate.cycle(in_motion=False, got_command=False)
-    rate.cycle(in_motion=True, got_command=False)  # the client has not seen its first state yet
+    rate.cycle(in_motion=False, answered=False)
+    rate.cycle(in_motion=True, answered=False)  # the client has not seen its first state yet
     assert rate.rate == 1.0 and not rate.counting
     for k in range(10):
-        rate.cycle(in_motion=True, got_command=k % 5 != 1)  # 2 of the 10 cycles without a command
+        rate.cycle(in_motion=True, answered=k % 5 != 1)  # 2 of the 10 cycles without a command
     assert rate.rate == pytest.approx(0.8)
     for _ in range(10):
-        rate.cycle(in_motion=True, got_command=True)  # only the last 10 count
+        rate.cycle(in_motion=True, answered=True)  # only the last 10 count
     assert rate.rate == 1.0
-    rate.cycle(in_motion=True, got_command=False)
+    rate.cycle(in_motion=True, answered=False)
     assert rate.rate == pytest.approx(0.9)
-    rate.cycle(in_motion=False, got_command=False)  # the motion ends: the next starts full
-    assert rate.rate == 1.0
+    assert rate.lowest == pytest.approx(0.8)
+    rate.cycle(in_motion=False, answered=False)  # the motion ends: the next starts full
+    assert rate.rate == 1.0 and rate.lowest == pytest.approx(0.8)  # the last motion's minimum stays
+    rate.cycle(in_motion=True, answered=True)
+    assert rate.lowest == 1.0  # until the next motion's first answer
 
 
 @pytest.mark.parametrize("kwargs", [{"period_s": -1e-3, "window_s": 0.0}, {"period_s": 1e-3, "window_s": -1e-4},
@@ -75,3 +78,4 @@ def test_clock_checks(kwargs):
 def test_rate_checks(window):
     with pytest.raises(ConfigError, match="window"):
         CommandRate(window)
+

@@ -23,7 +23,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                              f"(default: {default_pct:g})")
     parser.add_argument("--min-success-rate", type=float, default=LINK_MIN_SUCCESS_RATE,
                         help="fail the link test when the robot's control_command_success_rate (its share of "
-                             "the last 100 commands that came in time) falls below this "
+                             "the last 100 commands that came in time) falls below this [0–1] "
                              f"(default: {LINK_MIN_SUCCESS_RATE:g})")
     parser.add_argument("--out", metavar="FILE.json", help="also write the findings as JSON")
     add_dataclass_arguments(parser, FrankaConfig)

@@ -75,8 +75,8 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
                 min_success_rate: float = LINK_MIN_SUCCESS_RATE) -> CheckResult:
     """Connect, report the robot's set-up and state, run the link test for ``duration_s`` [s].
 
-    The link fails when more than ``max_lost_fraction`` of its cycles are lost or the command success
-    rate falls below ``min_success_rate`` (see :func:`link_verdict`).
+    The link fails when more than ``max_lost_fraction`` [0, 1) of its cycles are lost or the command
+    success rate falls below ``min_success_rate`` [0, 1] (see :func:`link_verdict`).
     """
     if not 0.0 <= max_lost_fraction < 1.0:
         raise ConfigError(f"the allowed share of lost cycles must be in [0, 1), got {max_lost_fraction}")

@@ -118,8 +118,8 @@ class TwinConfig:
         if not (math.isfinite(self.joint_friction_residual) and 0.0 <= self.joint_friction_residual <= 1.0):
             raise ConfigError(f"joint_friction_residual must be in [0, 1], got {self.joint_friction_residual!r}")
         if not (math.isfinite(self.command_window_ms) and 0.0 < self.command_window_ms < 1.0):
-            raise ConfigError(f"command_window_ms must be in (0, 1) ms (the state period is 1 ms), got "
-                              f"{self.command_window_ms!r}")
+            raise ConfigError(f"command_window_ms must be in (0, 1) ms (the client's share of the 1 ms state "
+                              f"period at real time), got {self.command_window_ms!r}")
         if not (math.isfinite(self.realtime_factor) and 0.0 <= self.realtime_factor <= 100.0):
             raise ConfigError(f"realtime_factor must be in [0, 100] (0: unpaced), got {self.realtime_factor!r}")
 
@@ -248,6 +248,78 @@ def _check_addresses(config: TwinConfig) -> None:
             sock.close()
 
 
+class _CommandChannel:
+    """The client's commands as the twin's loop sees them, through franky-sim's server: which state
+    the newest command answered (libfranka sends the state's message id back in the first 8 bytes
+    of its UDP command), and a wait for that answer on franky-sim's UDP socket.
+
+    Uses franky-sim's private members (checked by :func:`check_franky_internals`): the UDP socket
+    (made when a client connects, closed when it leaves) and the next state's message id.
+    """
+
+    def __init__(self, robot_server: Any) -> None:
+        self.server = robot_server
+        self.answered = -1  # message id of the newest state a command answered
+        handle = robot_server._handle_udp_command
+
+        def handle_command(data: bytes) -> None:
+            self.answered = max(self.answered, int.from_bytes(data[:8], "little"))
+            handle(data)
+
+        robot_server._handle_udp_command = handle_command  # the hook franky-sim calls per UDP command
+
+    def last_sent(self) -> int:
+        """Message id of the last state sent (−1: none yet); a new client restarts the count."""
+        last = int(self.server._FrankaServer__message_id) - 1
+        if last < self.answered:  # franky-sim numbers a new client's states from 0 again
+            self.answered = -1
+        return last
+
+    def _socket(self) -> Any:
+        sock = getattr(self.server, "_FrankaServer__udp_socket", None)
+        return sock if sock is not None and sock.fileno() >= 0 else None
+
+    def take(self, servers: list, last: int, deadline: float | None) -> None:
+        """Process the commands once the answer to state ``last`` is in, or at ``deadline``
+        (monotonic s); at once when ``deadline`` is None. Commands are processed once a cycle,
+        more often only when a stale answer came first (each pass then has a new command)."""
+        if deadline is not None:
+            processed = False
+            while self.answered < last:
+                left = deadline - time.monotonic()
+                sock = self._socket()  # closed when the client leaves, possibly by the last pass
+                if left <= 0.0:
+                    break
+                if sock is None:
+                    TwinClock.wait_until(deadline)
+                    break
+                try:
+                    if not select.select([sock], [], [], left)[0]:
+                        break
+                except (OSError, ValueError):  # closed meanwhile: the client is gone
+                    break
+                for rs in servers:
+                    rs.process_commands()
+                processed = True
+            if processed:
+                return
+        for rs in servers:
+            rs.process_commands()
+
+
+def check_franky_internals(robot_server: Any) -> None:
+    """Fail early when franky-sim lacks the members the twin's loop reads (tested with 1.0.x)."""
+    needed = ("_FrankaServer__message_id", "_FrankaServer__udp_socket", "_handle_udp_command", "current_motion_id")
+    missing = [name for name in needed if not hasattr(robot_server, name)]
+    if missing:
+        import importlib.metadata
+
+        version = importlib.metadata.version("franky-sim")
+        raise MissingDependencyError("franky-sim", "franka", "tactex twin", fix=(
+            f"franky-sim {version} lacks {', '.join(missing)}, which the twin's loop reads; install the "
+            "version tactex is tested with: pip install 'franky-sim>=1.0,<1.1'"))
+
+
 class Twin:
     """franky-sim with our scene, its Net F/T server and the status; :meth:`run` serves until
     :meth:`stop` (or a signal, from :func:`run_twin`)."""
@@ -289,6 +361,7 @@ class Twin:
         self._last_status = (0.0, time.monotonic())
         self._rtf = float("nan")
         self.command_rate = CommandRate()
+        self._wipe_due = False  # a wear update from the last step's contacts is pending
 
     # -- per-tick work (the simulation thread) -----------------------------------------------------
     def _setup_ids(self) -> None:
@@ -386,7 +459,7 @@ class Twin:
         self.pad_force_n = math.sqrt(pad_fx * pad_fx + pad_fy * pad_fy + pad_fz * pad_fz)
         self.max_contact_force_n = max(self.max_contact_force_n, self.pad_force_n)
         if self.ticks % self._sample == 0:
-            self._wipe()
+            self._wipe_due = True  # done after the state has left (Twin._serve), off the step's time
 
     def _wipe(self) -> None:
         """Preston wear under the pad from its contacts with the object (as MujocoBackend._wipe)."""
@@ -428,38 +501,16 @@ class Twin:
         fine_timer_slack()
         servers = list(server.robot_servers)
         robot_server = servers[0]
-        # franky-sim's private members: its UDP command socket (made when a client connects), the next
-        # state's message id, the client's motion (non-zero while e.g. torque control runs); without them
-        # the twin waits out each window
-        def udp() -> Any:
-            return getattr(robot_server, "_FrankaServer__udp_socket", None)
-
-        def next_id() -> int:
-            return int(getattr(robot_server, "_FrankaServer__message_id", 0))
-
-        def in_motion() -> bool:
-            return getattr(robot_server, "_FrankaRobotServer__current_motion_id", 0) != 0
-
-        answered = [-1]  # the newest state a command answered (libfranka sends the state's message id back)
-        handle = robot_server._handle_udp_command
-
-        def handle_command(data: bytes) -> None:
-            answered[0] = max(answered[0], int.from_bytes(data[:8], "little"))
-            handle(data)
-
-        robot_server._handle_udp_command = handle_command  # the hook franky-sim calls per UDP command
+        commands = _CommandChannel(robot_server)
         rate, paced = self.command_rate, clock.period_s > 0.0  # unpaced, no command can be late
         monotonic, step = time.monotonic, self.sim.step
         try:
             while server.running:
-                moving = paced and in_motion()
-                last = next_id() - 1
-                if last < answered[0]:  # a new client: franky-sim numbers its states from 0 again
-                    answered[0] = -1
+                moving = paced and robot_server.current_motion_id != 0
+                last = commands.last_sent()
                 # out of a motion no answer is awaited: step at once, and the state waits for its time
-                self._take_commands(servers, udp() if moving else None,
-                                    clock.process_at() if moving else 0.0, answered, last)
-                rate.cycle(moving, answered[0] >= last)
+                commands.take(servers, last, clock.process_at() if moving else None)
+                rate.cycle(moving, commands.answered >= last)
                 self.robot._twin_success = rate.rate
                 step()
                 clock.wait_until(clock.send_at())
@@ -468,30 +519,13 @@ class Twin:
                     rs.send_state()
                 t3 = monotonic()
                 clock.sent(t3 - t2, t3)
+                if self._wipe_due:  # the contacts of this step are still in MuJoCo's data
+                    self._wipe_due = False
+                    self._wipe()
         except BaseException as exc:
             if self._error is None:
                 self._error = exc
             self._stop.set()
-
-    @staticmethod
-    def _take_commands(servers: list, udp: Any, deadline: float, answered: list[int], last: int) -> None:
-        """Process the client's commands once the answer to state ``last`` is in (``udp`` readable
-        with it), or at ``deadline`` (monotonic s); without ``udp``, at ``deadline``."""
-        if udp is not None:
-            processed = False
-            while answered[0] < last:
-                left = deadline - time.monotonic()
-                if left <= 0.0 or not select.select([udp], [], [], left)[0]:
-                    break
-                for rs in servers:
-                    rs.process_commands()
-                processed = True
-            if processed and answered[0] >= last:
-                return
-        else:
-            TwinClock.wait_until(deadline)
-        for rs in servers:
-            rs.process_commands()
 
     def ft_reading(self) -> np.ndarray:
         """The latest raw wrist reading [N, N·m] (6,): sensor frame, the tool's weight included."""
@@ -525,6 +559,7 @@ class Twin:
             "ft_records_sent": 0 if self.netft is None else self.netft.sent,
             "realtime_factor": self._rtf,
             "command_success_rate": self.command_rate.rate,
+            "command_success_rate_min": self.command_rate.lowest,
             "object": self.config.object_name,
             "hostname": self.config.hostname,
             "ft_port": 0 if self.netft is None else int(self.netft.address[1]),
@@ -581,6 +616,7 @@ class Twin:
             self.server = server
             try:
                 self._setup_ids()
+                check_franky_internals(server.robot_servers[0])
                 try:
                     self.netft = NetFTServer(self.ft_reading, cfg.hostname, cfg.ft_port, rate_hz=cfg.ft_rate_hz)
                 except OSError as exc:
@@ -612,8 +648,36 @@ class Twin:
             raise SimulationError("the twin's simulation loop stopped unexpectedly (see the log above)")
 
 
+_IDENTITY16 = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+
+
+def wrench_about_k(o_t_ee, ee_t_k, force_on_robot, moment_on_robot, sign: float):
+    """The contact wrench as libfranka reports it: (``O_F_ext_hat_K``, ``K_F_ext_hat_K``), each
+    (force [N], moment [N·m]) as 6 floats, from the force on the robot (world frame) and its moment
+    about the world origin. The moment is taken about the K frame's origin (``O_T_EE · EE_T_K``, both
+    16 floats, column-major); ``sign`` −1 gives the robot's wrench on the environment. Python floats,
+    not numpy: the twin calls it every contact tick, where a dozen small numpy calls cost ~30 µs."""
+    a = o_t_ee if tuple(ee_t_k) == _IDENTITY16 else tuple(
+        (np.asarray(o_t_ee, dtype=float).reshape(4, 4, order="F")
+         @ np.asarray(ee_t_k, dtype=float).reshape(4, 4, order="F")).flatten(order="F").tolist())
+    px, py, pz = a[12], a[13], a[14]
+    fx, fy, fz = force_on_robot
+    mx = moment_on_robot[0] - (py * fz - pz * fy)
+    my = moment_on_robot[1] - (pz * fx - px * fz)
+    mz = moment_on_robot[2] - (px * fy - py * fx)
+    fx, fy, fz, mx, my, mz = sign * fx, sign * fy, sign * fz, sign * mx, sign * my, sign * mz
+    world = (fx, fy, fz, mx, my, mz)
+    k = (a[0] * fx + a[1] * fy + a[2] * fz, a[4] * fx + a[5] * fy + a[6] * fz, a[8] * fx + a[9] * fy + a[10] * fz,
+         a[0] * mx + a[1] * my + a[2] * mz, a[4] * mx + a[5] * my + a[6] * mz, a[8] * mx + a[9] * my + a[10] * mz)
+    return world, k
+
+
+_ZERO6, _ZERO7 = (0.0,) * 6, (0.0,) * 7
+
+
 def _contact_aware_class(base: type) -> type:
-    """franky-sim's MuJoCo robot whose state carries the contact wrench (see the module docstring)."""
+    """franky-sim's MuJoCo robot whose state carries the contact wrench and the command success rate
+    (see the module docstring)."""
 
     class TwinRobot(base):  # type: ignore[misc, valid-type]
         _twin_ext: Any = None
@@ -623,23 +687,23 @@ def _contact_aware_class(base: type) -> type:
         @property
         def state(self):
             st = super().state
+            # franky-sim builds a new frozen snapshot per call, so it is filled in place:
+            # dataclasses.replace would build all of its ~40 fields a second time every tick
+            put = object.__setattr__
+            put(st, "control_command_success_rate", self._twin_success)
             ext = self._twin_ext
             if ext is None:
-                zero6 = (0.0,) * 6
-                return st.replace(O_F_ext_hat_K=zero6, K_F_ext_hat_K=zero6, tau_ext_hat_filtered=(0.0,) * 7,
-                                  control_command_success_rate=self._twin_success)
+                put(st, "O_F_ext_hat_K", _ZERO6)
+                put(st, "K_F_ext_hat_K", _ZERO6)
+                put(st, "tau_ext_hat_filtered", _ZERO7)
+                return st
             f_on, m0_on, tau_on = ext
-            o_T_k = np.asarray(st.O_T_EE, dtype=float).reshape(4, 4, order="F") @ \
-                np.asarray(st.EE_T_K, dtype=float).reshape(4, 4, order="F")
-            p, rot = o_T_k[:3, 3], o_T_k[:3, :3]
-            f = np.asarray(f_on)
-            m = np.asarray(m0_on) - np.cross(p, f)  # moment about the K origin
             sign = 1.0 if self._twin_on_robot else -1.0  # libfranka: the robot's wrench on the environment
-            o_f = sign * np.concatenate([f, m])
-            k_f = np.concatenate([rot.T @ o_f[:3], rot.T @ o_f[3:]])
-            return st.replace(O_F_ext_hat_K=tuple(o_f.tolist()), K_F_ext_hat_K=tuple(k_f.tolist()),
-                              tau_ext_hat_filtered=tuple((sign * np.asarray(tau_on)).tolist()),
-                              control_command_success_rate=self._twin_success)
+            world, k = wrench_about_k(st.O_T_EE, st.EE_T_K, f_on, m0_on, sign)
+            put(st, "O_F_ext_hat_K", world)
+            put(st, "K_F_ext_hat_K", k)
+            put(st, "tau_ext_hat_filtered", tuple((sign * np.asarray(tau_on)).tolist()))
+            return st
 
     return TwinRobot
 

@@ -7,15 +7,15 @@ processing of commands) is whatever the sleep happens to be. A real Franka sends
 clock every millisecond and uses the command that arrived before its next cycle.
 
 :class:`TwinClock` gives the twin that shape. It sends each state on a fixed grid, one period after
-the last, and gives the client a fixed window after each state (by default half the period, the
-budget Franka's engineers give one FCI iteration: receive the state, compute, send the command)
-before it takes the commands and steps. A slow step then delays the next state, not the client's
-window. After a late state the next one still leaves at least :data:`MIN_SPACING` periods later,
-so that two states never arrive together (a client that finds two states waiting counts a lost
-cycle it did not cause).
+the last. After each state the client has a fixed window, by default half the period: the budget
+tactex plans for one FCI iteration of receiving the state, computing and sending the command
+(docs/real_robot.md). Then the twin takes the commands and steps; an answer that comes earlier is
+taken at once. A slow step delays the next state, not the client's window. A state that leaves late
+re-anchors the grid: the next leaves at least :data:`MIN_SPACING` periods later, so that two states
+never arrive together (a client that finds two states waiting counts a lost cycle it did not cause).
 
 :class:`CommandRate` is libfranka's ``control_command_success_rate`` as the robot computes it: the
-share of the last 100 cycles of a motion whose command arrived within the window. Stock franky-sim
+share of the last 100 cycles of a motion whose answer came within the window. Stock franky-sim
 reports 1.0 always.
 """
 
@@ -30,8 +30,8 @@ from tactex.errors import ConfigError
 
 __all__ = ["MIN_SPACING", "CommandRate", "TwinClock", "fine_timer_slack"]
 
-#: The shortest gap between two states, as a fraction of the period [-]: after a late state the
-#: clock catches up by at most a tenth of a period per cycle, instead of sending states back to back.
+#: The shortest gap between two states, as a fraction of the period [-]: a state late by more than a
+#: tenth of a period re-anchors the grid at itself, instead of the next ones following back to back.
 MIN_SPACING = 0.9
 
 
@@ -72,13 +72,20 @@ class TwinClock:
 
     @staticmethod
     def wait_until(t: float) -> None:
+        """Sleep until monotonic time ``t`` [s] (at once when it has passed)."""
         delay = t - time.monotonic()
         if delay > 0.0:
             time.sleep(delay)
 
 
 class CommandRate:
-    """The share of the last ``window`` cycles of a motion whose command arrived in time [0, 1]."""
+    """The share of the last ``window`` cycles of a motion whose answer came within the client's
+    window [0, 1], as libfranka's ``control_command_success_rate``; ``lowest``: its minimum over the
+    current motion, or the last one once it has ended.
+
+    Out of a motion the rate is 1.0 (libfranka's robot reports 0 when no control loop runs; a twin
+    that did so would put a 0 in the first state a new control reads).
+    """
 
     def __init__(self, window: int = 100) -> None:
         if not (isinstance(window, int) and window > 0):
@@ -86,28 +93,31 @@ class CommandRate:
         self._ring = bytearray(b"\x01" * window)
         self._i = 0
         self._hits = window
-        self.counting = False  # from a motion's first command to its end
+        self.counting = False  # from a motion's first answer to its end
+        self.lowest = 1.0
 
     @property
     def rate(self) -> float:
         return self._hits / len(self._ring)
 
-    def cycle(self, in_motion: bool, got_command: bool) -> None:
-        """One cycle: ``got_command`` whether a command arrived since the last one."""
+    def cycle(self, in_motion: bool, answered: bool) -> None:
+        """One cycle: ``answered`` whether the answer to the last state came within the window."""
         if not in_motion:
-            if self.counting:  # a new motion starts full, as the robot's
+            if self.counting:  # the next motion starts full
                 self._ring[:] = b"\x01" * len(self._ring)
                 self._hits = len(self._ring)
             self.counting = False
             return
         if not self.counting:
-            if not got_command:  # the client has not answered its first state yet
+            if not answered:  # the client has not answered its first state yet
                 return
             self.counting = True
-        hit = 1 if got_command else 0
+            self.lowest = 1.0
+        hit = 1 if answered else 0
         self._hits += hit - self._ring[self._i]
         self._ring[self._i] = hit
         self._i = (self._i + 1) % len(self._ring)
+        self.lowest = min(self.lowest, self._hits / len(self._ring))
 
 
 def fine_timer_slack(slack_ns: int = 1000) -> bool:

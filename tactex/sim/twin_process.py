@@ -4,7 +4,8 @@ franky-sim must run in another process than the pylibfranka client (in one proce
 pylibfranka holds the GIL while it waits for the robot). :class:`TwinProcess` starts ``python -m
 tactex.cli twin`` on a loopback address of its own (127.0.0.X, X random in 2..250, so that it does
 not clash with a twin the user runs on 127.0.0.1) and a free UDP port for the Net F/T stream,
-waits for its ready line, and always reaps it.
+waits for its ready line, and always reaps it; on Linux the twin also ends when the process that
+started it dies without closing it (killed, or by a signal it does not handle).
 """
 
 from __future__ import annotations
@@ -40,6 +41,19 @@ def _bindable(host: str, port: int, kind: int) -> bool:
         return False
     finally:
         sock.close()
+
+
+def _die_with_parent() -> None:
+    """In the child, before the twin starts (Linux): SIGTERM when the process that started it dies, even
+    by SIGKILL or a signal that skips :meth:`TwinProcess.close`; a twin left behind keeps a core busy.
+    Linux ties this to the starting thread: start a twin from a thread that outlives it."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
 
 
 def free_loopback_address(rng: random.Random | None = None, attempts: int = 50) -> tuple[str, int]:
@@ -99,7 +113,7 @@ class TwinProcess:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self._stderr = open(self._stderr_path, "w")
         self.process = subprocess.Popen(self.command, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
-                                        env=env, start_new_session=True)
+                                        env=env, start_new_session=True, preexec_fn=_die_with_parent)
         if self.cpus:  # e.g. off the core a pinned control loop uses
             os.sched_setaffinity(self.process.pid, self.cpus)
         threading.Thread(target=self._read_stdout, daemon=True).start()
