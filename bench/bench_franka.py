@@ -5,8 +5,9 @@ SCHED_FIFO when allowed), the vision process beside the twin.
 
 Figures: the wipe's force error and tanks (VA-UFIC §III policy, Net F/T and vision), the loop's
 timing (``loop_compute_us``: our share of each 1 ms cycle, target p99.9 ≤ 300 µs), lost cycles,
-the twin's command success rate (commands within its 0.5 ms window), torque-rate clips; the clean's share of the twin's marking removed (the twin measures it). Skipped
-without the ``franka`` extra or with fewer than two cores.
+the twin's command success rate (commands within its 0.5 ms window), torque-rate clips; the clean's
+share of the twin's marking removed (the twin measures it). Skipped without the ``franka`` extra or
+with fewer than two cores.
 """
 
 from __future__ import annotations
