@@ -36,6 +36,7 @@ from tactex.spectral.hierarchy import (
 from tactex.spectral.modes import MAX_AUTO_EIGEN, MIN_AUTO_EIGEN, auto_n_eigen
 
 needs_numba = pytest.mark.skipif(not ker.available(), reason="numba (the 'fast' extra) is not installed")
+needs_block_lu = pytest.mark.skipif(not block_lu.available(), reason="numba or qdldl ('fast' extra) is not installed")
 
 
 def curved_panel(nx: int = 60, ny: int = 40, h: float = 0.003, seed: int = 0) -> SurfaceCloud:
@@ -192,7 +193,7 @@ def _spd_laplacian(n_x: int = 30, n_y: int = 20):
     return cloud, L, mass, sp.csc_matrix(L + 50.0 * sp.diags(mass))
 
 
-@needs_numba
+@needs_block_lu
 def test_block_lu_solves_a_scaled_block_like_scipy() -> None:
     _, _, mass, A = _spd_laplacian()
     rng = np.random.default_rng(1)
@@ -226,7 +227,7 @@ def test_the_shifted_matrix_is_built_in_csc_with_or_without_a_stored_diagonal() 
     np.testing.assert_allclose(A.toarray(), (holed - 0.7 * sp.diags(mass)).toarray(), rtol=0, atol=tol)
 
 
-@needs_numba
+@needs_block_lu
 def test_block_lu_in_single_precision_and_its_gram_matrix() -> None:
     _, _, mass, A = _spd_laplacian()
     rng = np.random.default_rng(4)
@@ -246,11 +247,30 @@ def test_block_lu_in_single_precision_and_its_gram_matrix() -> None:
         lu.forward_gram()  # used up
 
 
-@needs_numba
+@needs_block_lu
 def test_block_lu_refuses_a_matrix_that_needs_pivoting() -> None:
     A = sp.csc_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 2.0]]))
     with pytest.raises(RuntimeError, match="positive definite"):
         block_lu.BlockLU(A)
+
+
+@needs_block_lu
+def test_block_lu_refuses_an_indefinite_matrix_it_can_factor() -> None:
+    A = sp.csc_matrix(np.array([[2.0, 1.0, 0.0], [1.0, -3.0, 0.0], [0.0, 0.0, 1.0]]))  # LDLᵀ exists, D has a -3.5
+    with pytest.raises(RuntimeError, match="pivot ≤ 0"):
+        block_lu.BlockLU(A)
+
+
+@needs_block_lu
+def test_the_compiled_residual_norms_match_the_sparse_product() -> None:
+    _, L, mass, _ = _spd_laplacian()
+    L = sp.csr_matrix(L)
+    X = np.random.default_rng(5).standard_normal((L.shape[0], 9))
+    expected = np.einsum("ij,ij->j", L @ X, (L @ X) / mass[:, None])
+    np.testing.assert_allclose(block_lu.product_norms2(L, X, 1.0 / mass), expected, rtol=1e-12)
+    theta = np.linspace(0.0, 40.0, 9)
+    np.testing.assert_allclose(_relative_residual2(L, mass, theta, X, compiled=True),
+                               _relative_residual2(L, mass, theta, X), rtol=1e-10)
 
 
 def test_the_factor_uses_cholespy_without_the_compiled_solve(monkeypatch) -> None:
@@ -262,7 +282,7 @@ def test_the_factor_uses_cholespy_without_the_compiled_solve(monkeypatch) -> Non
     np.testing.assert_allclose(factor.solve(B, row=mass), sla.spsolve(A, mass[:, None] * B), rtol=1e-9, atol=1e-12)
 
 
-@needs_numba
+@needs_block_lu
 def test_a_failing_compiled_solve_falls_back_to_cholespy(monkeypatch) -> None:
     _, _, mass, A = _spd_laplacian()
     B = np.random.default_rng(3).standard_normal((A.shape[0], 5))

@@ -1,15 +1,15 @@
-"""Sparse LU solves of a whole block of right-hand sides at once (small clouds' hierarchical eigensolver).
+"""Sparse LDLᵀ solves of a whole block of right-hand sides at once (small clouds' hierarchical eigensolver).
 
 On a cloud of a few thousand points the hierarchical eigensolver factors L − σM once and solves it for
-p ≈ 150 right-hand sides two or three times. SuperLU (scipy) factors such a matrix faster than CHOLMOD
-through cholespy (whose nested-dissection ordering pays off only on large clouds), but SuperLU's own
-solve treats the columns one at a time. Its factors are plain sparse triangles, so the two
-substitutions here sweep them once for the whole (n, p) block, the p values of a row contiguous in
-memory: one compiled loop (numba, the optional ``fast`` extra) that neither scipy nor cholespy offers
-for a CPU block. Without numba, or if it fails, :func:`available` is False and the eigensolver keeps
-cholespy.
+p ≈ 150 right-hand sides two or three times. QDLDL (``qdldl``, the OSQP project's LDLᵀ with SuiteSparse's
+AMD ordering) factors such a matrix about twice as fast as SuperLU with its minimum-degree ordering, and
+much faster than CHOLMOD through cholespy (whose nested-dissection route pays off only on large clouds),
+and it hands its factors over. Neither it nor scipy nor cholespy solves a block of right-hand sides in one
+sweep on a CPU, so the two substitutions here sweep the factor once for the whole (n, p) block, the p values
+of a row contiguous in memory: one compiled loop each (numba). Both come with the optional ``fast`` extra.
+Without them, or if they fail, :func:`available` is False and the eigensolver keeps cholespy.
 
-numba compiles the loop on first use (about a second) and keeps the machine code in its cache (beside
+numba compiles the loops on first use (about a second) and keeps the machine code in its cache (beside
 this file when the folder is writable, else in a per-user folder).
 """
 
@@ -20,10 +20,9 @@ import logging
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 from scipy.linalg.blas import dsyrk
 
-__all__ = ["BlockLU", "available", "disable"]
+__all__ = ["BlockLU", "available", "disable", "product_norms2"]
 
 _log = logging.getLogger(__name__)
 
@@ -32,8 +31,9 @@ _failure: str | None = None  # why they could not be made or run, once that fail
 
 
 def available() -> bool:
-    """Whether the compiled block solve can be used: numba installed, its JIT enabled, nothing failed."""
-    if _failure is not None or importlib.util.find_spec("numba") is None:
+    """Whether the compiled block solve can be used: numba and qdldl installed, numba's JIT enabled, nothing
+    failed."""
+    if _failure is not None or importlib.util.find_spec("numba") is None or importlib.util.find_spec("qdldl") is None:
         return False
     from numba import config
 
@@ -47,43 +47,61 @@ def disable(reason: str) -> None:
     _log.warning("compiled block solve disabled: %s", reason)
 
 
-def _forward(up, ui, ux, order, B, row, col, Z):  # pragma: no cover - runs compiled
-    """Z ← Uᵀ⁻¹ (diag(row) B diag(col))[order] from the CSC arrays of U (upper triangular): its columns are the rows
-    of Uᵀ. Z's dtype sets the arithmetic."""
+def _forward(rp, ri, rx, scale, order, B, row, col, Z):  # pragma: no cover - runs compiled
+    """Z ← diag(scale) (I + L)⁻¹ (diag(row) B diag(col))[order] with L strictly lower triangular, from the CSR
+    arrays of L diag(1/scale) (its rows, each value divided by its column's scale, since Z's rows are stored
+    scaled). Z's dtype sets the arithmetic."""
     n, m = Z.shape
     for i in range(n):
         r = order[i]
         s = row[r]
         for c in range(m):
             Z[i, c] = B[r, c] * s * col[c]
-        d = 1.0
-        for jj in range(up[i], up[i + 1]):
-            j = ui[jj]
-            v = ux[jj]
-            if j == i:
-                d = v
-            else:
-                for c in range(m):
-                    Z[i, c] -= v * Z[j, c]
-        inv = 1.0 / d
+        for jj in range(rp[i], rp[i + 1]):
+            j = ri[jj]
+            v = rx[jj]
+            for c in range(m):
+                Z[i, c] -= v * Z[j, c]
+        t = scale[i]
         for c in range(m):
-            Z[i, c] *= inv
+            Z[i, c] *= t
 
 
-def _backward(lp, li, lx, order, Z, X):  # pragma: no cover - runs compiled
-    """X[order] ← Lᵀ⁻¹ Z, in place in Z, from the CSC arrays of L (unit lower triangular, its diagonal stored): its
-    columns are the rows of Lᵀ."""
+def _backward(cp, ci, cx, scale, order, Z, X):  # pragma: no cover - runs compiled
+    """X[order] ← (I + L)ᵀ⁻¹ diag(scale) Z, in place in Z, from the CSC arrays of L (strictly lower triangular):
+    its columns are the rows of Lᵀ."""
     n, m = Z.shape
     for i in range(n - 1, -1, -1):
-        for jj in range(lp[i], lp[i + 1]):
-            j = li[jj]
-            if j != i:
-                v = lx[jj]
-                for c in range(m):
-                    Z[i, c] -= v * Z[j, c]
+        t = scale[i]
+        for c in range(m):
+            Z[i, c] *= t
+        for jj in range(cp[i], cp[i + 1]):
+            j = ci[jj]
+            v = cx[jj]
+            for c in range(m):
+                Z[i, c] -= v * Z[j, c]
         r = order[i]
         for c in range(m):
             X[r, c] = Z[i, c]
+
+
+def _product_norms2(ap, ai, ax, X, w, out):  # pragma: no cover - runs compiled
+    """out[c] ← Σ_i w_i (A X)_{ic}² from the CSR arrays of A, one row of A X at a time."""
+    n, m = X.shape
+    r = np.zeros(m)
+    for c in range(m):
+        out[c] = 0.0
+    for i in range(n):
+        for c in range(m):
+            r[c] = 0.0
+        for jj in range(ap[i], ap[i + 1]):
+            j = ai[jj]
+            v = ax[jj]
+            for c in range(m):
+                r[c] += v * X[j, c]
+        s = w[i]
+        for c in range(m):
+            out[c] += s * r[c] * r[c]
 
 
 def _compiled():
@@ -92,52 +110,84 @@ def _compiled():
         from numba import njit
 
         _log.info("preparing the compiled block solve (numba compiles it once per machine, about a second)")
-        _kernel = tuple(njit(cache=True, boundscheck=False)(fn) for fn in (_forward, _backward))
+        _kernel = tuple(njit(cache=True, boundscheck=False)(fn) for fn in (_forward, _backward, _product_norms2))
     return _kernel
 
 
-class BlockLU:
-    """SuperLU's factorisation of a symmetric positive definite sparse matrix A, solving (n, p) blocks.
+def product_norms2(A: sp.csr_matrix, X: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(m,) Σ_i w_i (A X)_{ic}² for a CSR matrix A and a C-ordered (n, m) block X, without forming A X (an (n, m)
+    temporary whose first touch costs as much as the product on a small cloud). Raises ``RuntimeError`` when the
+    compiled loops are unavailable or fail (see :func:`available`)."""
+    if not available():
+        raise RuntimeError(_failure or "numba or qdldl is not installed, or numba's JIT is disabled")
+    out = np.empty(X.shape[1])
+    try:
+        _compiled()[2](A.indptr, A.indices, A.data, np.ascontiguousarray(X, dtype=np.float64),
+                       np.ascontiguousarray(w, dtype=np.float64), out)
+    except Exception as exc:  # numba's import, typing or compilation
+        disable(f"{type(exc).__name__}: {exc}")
+        raise RuntimeError(f"compiled block product failed: {exc}") from exc
+    return out
 
-    The ordering is symmetric (minimum degree on Aᵀ + A) and no pivoting is done: A is positive definite,
-    so the factorisation works like a sparse Cholesky. The substitutions run over SuperLU's CSC factors as
-    they come: Pᵀ L U P = A = Aᵀ = Pᵀ Uᵀ Lᵀ P, and the columns of U and L are the rows of Uᵀ and Lᵀ, so no
-    factor is converted or copied. Raises ``RuntimeError`` when the compiled loop is unavailable (see
-    :func:`available`).
+
+def _upper_csc(A: sp.csc_matrix) -> sp.csc_matrix:
+    """The upper triangle (diagonal included) of a CSC matrix, from its arrays (cheaper than ``sp.triu``)."""
+    n = A.shape[0]
+    cols = np.repeat(np.arange(n, dtype=A.indices.dtype), np.diff(A.indptr))
+    keep = A.indices <= cols
+    indptr = np.zeros(n + 1, dtype=A.indptr.dtype)
+    np.cumsum(np.bincount(cols[keep], minlength=n), out=indptr[1:])
+    return sp.csc_matrix((A.data[keep], A.indices[keep], indptr), shape=A.shape)
+
+
+class BlockLU:
+    """The LDLᵀ factorisation of a symmetric positive definite sparse matrix A, solving (n, p) blocks.
+
+    QDLDL factors Pᵀ A P = (I + L) D (I + L)ᵀ after an AMD ordering P. A is positive definite, so D > 0 and the
+    substitutions work on the factor scaled as a Cholesky factor (I + L) D^{1/2}: the forward half Z of a solve
+    is then an exact square root of the projected matrix (:meth:`forward_gram`). Raises ``RuntimeError`` when
+    the compiled loops are unavailable (see :func:`available`) or A is not positive definite.
     """
 
     def __init__(self, A: sp.spmatrix) -> None:
         if not available():
-            raise RuntimeError(_failure or "numba is not installed or its JIT is disabled")
-        lu = sla.splu(A if sp.isspmatrix_csc(A) else sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A",
-                      diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-        if not np.array_equal(lu.perm_r, lu.perm_c):  # pivoting happened: A is not positive definite
-            raise RuntimeError("SuperLU pivoted off the diagonal; the matrix is not positive definite")
-        upper, lower = lu.U, lu.L
-        self._pivots = upper.diagonal()  # D of A's permuted LDLᵀ = L U (U = D Lᵀ): positive, A being definite
-        self._factors = {np.dtype(np.float64): (upper.indptr, upper.indices, upper.data,
-                                                lower.indptr, lower.indices, lower.data)}
-        # Pr A Pc = L U with Pr = Pc (symmetric mode, no pivoting): row i of the factors is row order[i] of A.
-        self._order = np.argsort(lu.perm_r)
+            raise RuntimeError(_failure or "numba or qdldl is not installed, or numba's JIT is disabled")
+        import qdldl
+
+        A = A if sp.isspmatrix_csc(A) else sp.csc_matrix(A)
+        try:
+            lower, d, perm = qdldl.Solver(_upper_csc(A), upper=True).factors()
+        except Exception as exc:  # QDLDL stops at a zero pivot
+            raise RuntimeError(f"the LDLᵀ factorisation failed ({exc}); the matrix is not positive definite") from exc
+        d = np.asarray(d, dtype=np.float64)
+        if not (np.all(d > 0.0) and np.all(np.isfinite(d))):
+            raise RuntimeError("the LDLᵀ factorisation has a pivot ≤ 0; the matrix is not positive definite")
+        lower = sp.csc_matrix(lower)
+        inv_root = 1.0 / np.sqrt(d)
+        rows = lower.tocsr()
+        # Forward over the rows of L (each value times its column's √d, as the rows of Z are stored scaled);
+        # backward over its columns.
+        self._factors = {np.dtype(np.float64): (rows.indptr, rows.indices, rows.data / inv_root[rows.indices],
+                                                lower.indptr, lower.indices, lower.data, inv_root)}
+        self._order = np.asarray(perm, dtype=np.int64)  # row i of the factors is row order[i] of A
         self._work: dict[np.dtype, np.ndarray] = {}  # the permuted block per dtype, kept between solves
-        self._gram: np.ndarray | None = None  # √D times the last forward half, when asked for
+        self._gram: np.ndarray | None = None  # the last forward half's Gram matrix, when asked for
         self.n = A.shape[0]
 
     def _arrays(self, dtype: np.dtype) -> tuple:
         if dtype not in self._factors:
-            up, ui, ux, lp, li, lx = self._factors[np.dtype(np.float64)]
-            self._factors[dtype] = (up, ui, ux.astype(dtype), lp, li, lx.astype(dtype))
+            rp, ri, rx, cp, ci, cx, s = self._factors[np.dtype(np.float64)]
+            self._factors[dtype] = (rp, ri, rx.astype(dtype), cp, ci, cx.astype(dtype), s.astype(dtype))
         return self._factors[dtype]
 
     def forward_gram(self) -> np.ndarray:
-        """Zᵀ D Z for the forward half Z = Uᵀ⁻¹ b' of the last solve made with ``gram=True`` (b' its scaled,
-        permuted right-hand side): with A = Pᵀ L D Lᵀ P (U = D Lᵀ), that is b'ᵀ A⁻¹ b' = Xᵀ A X for the block X
-        the solve returned, as an exact Gram matrix (a symmetric rank-k product, half a matrix product)."""
+        """Zᵀ Z for the forward half Z = D^{-1/2} (I + L)⁻¹ b' of the last solve made with ``gram=True`` (b' its
+        scaled, permuted right-hand side): with Pᵀ A P = (I + L) D (I + L)ᵀ, that is b'ᵀ A⁻¹ b' = Xᵀ A X for the
+        block X the solve returned, as an exact Gram matrix (a symmetric rank-k product, half a matrix product)."""
         if self._gram is None:
             raise RuntimeError("forward_gram needs a solve with gram=True first")
-        G = dsyrk(1.0, self._gram.T, trans=0, lower=0)  # upper triangle; the transpose is Fortran-ordered
-        self._gram = None
-        return np.triu(G) + np.triu(G, 1).T
+        G, self._gram = self._gram, None
+        return G
 
     def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
               col: np.ndarray | None = None, dtype: type = np.float64, gram: bool = False) -> np.ndarray:
@@ -153,12 +203,17 @@ class BlockLU:
         X = np.empty((n, m), dtype=dtype) if out is None else out
         row = np.ones(n) if row is None else np.ascontiguousarray(row, dtype=np.float64)
         col = np.ones(m) if col is None else np.ascontiguousarray(col, dtype=np.float64)
-        up, ui, ux, lp, li, lx = self._arrays(dtype)
+        rp, ri, rx, cp, ci, cx, inv_root = self._arrays(dtype)
         try:
-            forward, backward = _compiled()
-            forward(up, ui, ux, self._order, np.ascontiguousarray(B), row, col, work)
-            self._gram = np.multiply(work, np.sqrt(self._pivots)[:, None], dtype=np.float64) if gram else None
-            backward(lp, li, lx, self._order, work, X)
+            forward, backward, _ = _compiled()
+            forward(rp, ri, rx, inv_root, self._order, np.ascontiguousarray(B), row, col, work)
+            if gram:
+                # The upper triangle of Zᵀ Z (Z.T is Fortran-ordered), mirrored; in double whatever the solve's dtype.
+                G = dsyrk(1.0, work.T if work.dtype == np.float64 else work.T.astype(np.float64), trans=0, lower=0)
+                self._gram = np.triu(G) + np.triu(G, 1).T
+            else:
+                self._gram = None
+            backward(cp, ci, cx, inv_root, self._order, work, X)
         except Exception as exc:  # numba's import, typing or compilation
             disable(f"{type(exc).__name__}: {exc}")
             raise RuntimeError(f"compiled block solve failed: {exc}") from exc

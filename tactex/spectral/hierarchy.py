@@ -26,8 +26,10 @@ with a sparse Cholesky factorisation on each level. Here:
   that applies the shift-invert operator ``SMALL_FINE_SOLVES`` times before its Rayleigh–Ritz step:
   at that size a solve of p right-hand sides costs less than the dense work around it (the coarse
   eigensolve, the projections), so a rougher, cheaper coarse space is refined by more solves
-  instead. The factorisation is SuperLU's and the block solves those of :mod:`tactex.spectral.block_lu`
-  (numba) when available, all but the last in single precision, cholespy otherwise.
+  instead. The factorisation is QDLDL's LDLᵀ and the block solves those of :mod:`tactex.spectral.block_lu`
+  (numba) when available, all but the last in single precision, cholespy otherwise. Every (n, p) block of
+  this route is written into a buffer it already has where it can: at this size a new block's first touch
+  (page faults) costs about as much as the arithmetic on it.
 
 The subspace holds p = k + max(k/2, 20) vectors: the extra ones make the k-th pair converge at
 the rate λ_k / λ_{p+1} ≈ 2/3 per iteration on a surface (λ_k grows about linearly with k).
@@ -93,7 +95,7 @@ SMALL_FINE_SOLVES = 3
 #: multiply a column's null-space component by ((θ_p − σ)/(−σ))^s, which a shift near zero makes overflow the
 #: block's conditioning; a shift far below θ_p hardly changes the convergence of the wanted pairs.
 SMALL_SHIFT_FRACTION = 0.01
-#: Small clouds factor with SuperLU and solve blocks with :mod:`tactex.spectral.block_lu` when numba is there.
+#: Small clouds factor with QDLDL and solve blocks with :mod:`tactex.spectral.block_lu` (the ``fast`` extra) when there.
 SMALL_BLOCK_LU = True
 
 
@@ -206,10 +208,10 @@ class _Factor:
 
     cholespy (CHOLMOD, simplicial LLᵀ) solves a block of p right-hand sides ~4× faster than SuperLU's
     column-by-column solve on 60k points; SuperLU with a symmetric ordering is the fallback when the
-    wheel is missing on a platform. ``block`` (small clouds): SuperLU's factors with the compiled block
-    substitutions of :mod:`tactex.spectral.block_lu` when numba is there, cholespy otherwise; at a few
-    thousand points SuperLU factors faster than CHOLMOD's nested-dissection route and the compiled
-    substitutions solve a block faster than cholespy.
+    wheel is missing on a platform. ``block`` (small clouds): QDLDL's LDLᵀ factors (AMD ordering) with the
+    compiled block substitutions of :mod:`tactex.spectral.block_lu` when the ``fast`` extra is there,
+    cholespy otherwise; at a few thousand points QDLDL factors faster than CHOLMOD's nested-dissection route
+    and the compiled substitutions solve a block faster than cholespy.
     """
 
     def __init__(self, A: sp.spmatrix, block: bool = False) -> None:
@@ -224,7 +226,7 @@ class _Factor:
                 self._block = block_lu.BlockLU(A)
                 self._A = A  # for cholespy, should the compiled solve fail
                 return
-            except RuntimeError:  # SuperLU left the diagonal: cholespy reports what is wrong with A
+            except RuntimeError:  # a pivot ≤ 0: cholespy reports what is wrong with A
                 self._block = None
         self._init_cholmod(A)
 
@@ -295,9 +297,9 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
     ``SMALL_SHIFT_FRACTION``).
 
     Returns (θ, Q, Y, spare): the Ritz values and vectors Y Q of span Y, Y = (L − σM)⁻¹ M X D. X itself is
-    overwritten and handed back as ``spare``, an (n, p) buffer for the caller's Y Q; Y goes into ``out``
-    when given. On large clouds each (n, p) block is a hundred megabytes or more, whose first touch can cost
-    as much as a matrix product, so the iteration lives in two buffers.
+    overwritten and handed back as ``spare``, an (n, p) buffer for the caller's Y Q (None when the last solve
+    wrote Y into X); Y goes into ``out`` when given. On large clouds each (n, p) block is a hundred megabytes
+    or more, whose first touch can cost as much as a matrix product, so the iteration lives in two buffers.
 
     The projected stiffness is Yᵀ L Y = Yᵀ M X D + σ Yᵀ M Y, so L itself is never applied to the block;
     Yᵀ M Y is a symmetric rank-k product (half a matrix product). With the compiled block solve, Yᵀ (L − σM) Y
@@ -324,10 +326,16 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
             A = Y.T @ X  # Yᵀ M Y_prev, the last solve's right-hand side M Y_prev D without D
             A *= scale
         else:
-            X = np.empty(Y.shape)
+            X = None  # no spare block: the caller makes one only if it iterates again
         del prev
-    root = np.multiply(Y, np.sqrt(mass)[:, None], out=X)
+    root_mass = np.sqrt(mass)[:, None]
+    if X is None:  # M^{1/2} Y in place and back (to within an ulp), rather than a new block's first touch
+        root = np.multiply(Y, root_mass, out=Y)
+    else:
+        root = np.multiply(Y, root_mass, out=X)
     B = dsyrk(1.0, root.T, trans=0, lower=0)  # upper triangle of rootᵀ root (root.T is Fortran-ordered)
+    if X is None:
+        np.divide(Y, root_mass, out=Y)
     B = np.triu(B) + np.triu(B, 1).T
     A += sigma * B
     A = 0.5 * (A + A.T)
@@ -340,17 +348,26 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
     return theta, Q, Y, X
 
 
-def _relative_residual2(L: sp.spmatrix, mass: np.ndarray, theta: np.ndarray, X: np.ndarray) -> np.ndarray:
+def _relative_residual2(L: sp.spmatrix, mass: np.ndarray, theta: np.ndarray, X: np.ndarray,
+                        compiled: bool = False) -> np.ndarray:
     """η_k² = ‖L φ_k − θ_k M φ_k‖²_{M⁻¹} / θ_k² for Ritz pairs (θ floored at 1e-3 θ_max: the null space has
     θ ≈ 0).
 
     Ritz vectors are M-orthonormal with φ_kᵀ L φ_k = θ_k, so the numerator is ‖L φ_k‖²_{M⁻¹} − θ_k²: one
-    product with L and no (n, k) temporaries besides it. Its cancellation costs ~1e-16 relative, far below
-    any tolerance in (0, 1).
+    product with L and no (n, k) temporaries besides it (``compiled``, with :func:`block_lu.product_norms2`:
+    none at all). Its cancellation costs ~1e-16 relative, far below any tolerance in (0, 1).
     """
-    R = L @ X
-    R *= (1.0 / np.sqrt(mass))[:, None]
-    num = np.maximum(np.einsum("ij,ij->j", R, R) - theta**2, 0.0)
+    norms2 = None
+    if compiled and block_lu.available() and sp.isspmatrix_csr(L):
+        try:
+            norms2 = block_lu.product_norms2(L, X, 1.0 / mass)
+        except RuntimeError:  # numba failed (logged once by block_lu)
+            norms2 = None
+    if norms2 is None:
+        R = L @ X
+        R *= (1.0 / np.sqrt(mass))[:, None]
+        norms2 = np.einsum("ij,ij->j", R, R)
+    num = np.maximum(norms2 - theta**2, 0.0)
     den = np.maximum(np.abs(theta), 1e-3 * float(np.max(np.abs(theta)))) ** 2
     return num / den
 
@@ -448,7 +465,7 @@ def hierarchical_eigenpairs(
             for it in range(1, MAX_ITERATIONS + 1):
                 # The wanted vectors first: when they have converged the other p − k are never formed.
                 Xk = Y @ Q[:, :k]
-                eta2 = _relative_residual2(L, mass, theta[:k], Xk)
+                eta2 = _relative_residual2(L, mass, theta[:k], Xk, compiled=small and SMALL_BLOCK_LU)
                 info.fine_iterations = it
                 info.max_residual2 = float(eta2.max())
                 _log.debug("hierarchical eigensolver: iteration %d, max η² %.2e", it, info.max_residual2)
