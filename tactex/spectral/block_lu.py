@@ -50,39 +50,46 @@ def disable(reason: str) -> None:
 def _forward(rp, ri, rx, scale, order, B, row, col, Z):  # pragma: no cover - runs compiled
     """Z ← diag(scale) (I + L)⁻¹ (diag(row) B diag(col))[order] with L strictly lower triangular, from the CSR
     arrays of L diag(1/scale) (its rows, each value divided by its column's scale, since Z's rows are stored
-    scaled). Z's dtype sets the arithmetic."""
+    scaled). Z's dtype sets the arithmetic; each row is summed in a separate buffer (no aliasing with the rows
+    it reads, so the loops vectorise without checks)."""
     n, m = Z.shape
+    acc = np.empty(m, dtype=Z.dtype)
     for i in range(n):
         r = order[i]
         s = row[r]
+        b = B[r]
         for c in range(m):
-            Z[i, c] = B[r, c] * s * col[c]
+            acc[c] = b[c] * s * col[c]
         for jj in range(rp[i], rp[i + 1]):
-            j = ri[jj]
             v = rx[jj]
+            z = Z[ri[jj]]
             for c in range(m):
-                Z[i, c] -= v * Z[j, c]
+                acc[c] -= v * z[c]
         t = scale[i]
+        z = Z[i]
         for c in range(m):
-            Z[i, c] *= t
+            z[c] = acc[c] * t
 
 
 def _backward(cp, ci, cx, scale, order, Z, X):  # pragma: no cover - runs compiled
     """X[order] ← (I + L)ᵀ⁻¹ diag(scale) Z, in place in Z, from the CSC arrays of L (strictly lower triangular):
     its columns are the rows of Lᵀ."""
     n, m = Z.shape
+    acc = np.empty(m, dtype=Z.dtype)
     for i in range(n - 1, -1, -1):
         t = scale[i]
+        z = Z[i]
         for c in range(m):
-            Z[i, c] *= t
+            acc[c] = z[c] * t
         for jj in range(cp[i], cp[i + 1]):
-            j = ci[jj]
             v = cx[jj]
+            y = Z[ci[jj]]
             for c in range(m):
-                Z[i, c] -= v * Z[j, c]
-        r = order[i]
+                acc[c] -= v * y[c]
+        x = X[order[i]]
         for c in range(m):
-            X[r, c] = Z[i, c]
+            z[c] = acc[c]
+            x[c] = acc[c]
 
 
 def _product_norms2(ap, ai, ax, X, w, out):  # pragma: no cover - runs compiled

@@ -199,11 +199,11 @@ def _canonical(evals: np.ndarray, W: np.ndarray, s: np.ndarray | None) -> tuple[
     order = np.argsort(evals, kind="stable")
     evals = evals[order]
     W = np.ascontiguousarray(W if np.array_equal(order, np.arange(order.size)) else W[:, order])
-    cols = np.arange(W.shape[1])
-    hi, lo = W.argmax(axis=0), W.argmin(axis=0)
-    top, bottom = W[hi, cols], -W[lo, cols]
-    # The sign of the first entry of largest magnitude (argmax/argmin return first occurrences).
-    flip = np.where(top > bottom, 1.0, np.where(bottom > top, -1.0, np.where(hi <= lo, 1.0, -1.0)))
+    top, bottom = W.max(axis=0), -W.min(axis=0)
+    flip = np.where(top > bottom, 1.0, -1.0)
+    tied = np.flatnonzero(top == bottom)
+    if tied.size:  # the sign of the first entry of largest magnitude (argmax/argmin return first occurrences)
+        flip[tied] = np.where(W[:, tied].argmax(axis=0) <= W[:, tied].argmin(axis=0), 1.0, -1.0)
     W *= flip[None, :]
     if s is not None:
         W *= s[:, None]
