@@ -61,12 +61,16 @@ TARGETS = {
 
 def _timed_each(fns, repeats: int) -> list[dict[str, float]]:
     """Wall-clock median and minimum and process-CPU median [s] of ``repeats`` calls of each function,
-    their calls alternating (a, b, a, b, ...) so that a load swing of the shared machine hits all alike."""
+    their calls interleaved so that a load swing of the shared machine hits all alike: a, b, a, b, … for two;
+    for three, a, b, c, a, c, b, … so that each call follows each of the others equally often (what a call
+    leaves behind, such as a heap the allocator has trimmed, costs the next one page faults)."""
     runs = [([], []) for _ in fns]
-    for _ in range(repeats):
-        for fn, (wall, cpu) in zip(fns, runs, strict=True):
+    order = list(range(len(fns)))
+    for r in range(repeats):
+        for i in order if r % 2 == 0 else order[:1] + order[:0:-1]:
+            wall, cpu = runs[i]
             c, t = time.process_time(), time.perf_counter()
-            fn()
+            fns[i]()
             wall.append(time.perf_counter() - t)
             cpu.append(time.process_time() - c)
     return [{"s": statistics.median(wall), "min_s": min(wall), "cpu_s": statistics.median(cpu)} for wall, cpu in runs]
