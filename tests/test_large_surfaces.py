@@ -245,6 +245,12 @@ def test_block_lu_in_single_precision_and_its_gram_matrix() -> None:
     np.testing.assert_array_equal(G, G.T)
     with pytest.raises(RuntimeError, match="gram=True"):
         lu.forward_gram()  # used up
+    aliased = B.copy()
+    view = hierarchy._single_view(aliased)  # the single-precision result in the first half of its own input
+    assert view is not None and np.shares_memory(view, aliased)
+    lu.solve(aliased, out=view, row=mass, col=col, dtype=np.float32)
+    np.testing.assert_allclose(view, expected, rtol=1e-3, atol=1e-5 * np.abs(expected).max())
+    assert hierarchy._single_view(np.asfortranarray(B)) is None and hierarchy._single_view(single) is None
 
 
 @needs_block_lu
@@ -294,8 +300,10 @@ def test_a_failing_compiled_solve_falls_back_to_cholespy(monkeypatch) -> None:
 
     monkeypatch.setattr(block_lu, "_compiled", broken)
     monkeypatch.setattr(block_lu, "_failure", None)
-    np.testing.assert_allclose(factor.solve(B, row=mass), sla.spsolve(A, mass[:, None] * B), rtol=1e-9, atol=1e-12)
+    Y = factor.solve(B, row=mass, gram=True)
+    np.testing.assert_allclose(Y, sla.spsolve(A, mass[:, None] * B), rtol=1e-9, atol=1e-12)
     assert factor._block is None and not block_lu.available()  # cholespy from now on, in this process
+    np.testing.assert_allclose(factor.forward_gram(Y), Y.T @ (A @ Y), rtol=1e-12)  # from A itself now
 
 
 def test_the_small_scheme_gives_the_same_pairs_with_either_solve() -> None:

@@ -177,7 +177,9 @@ class BlockLU:
         self._factors = {np.dtype(np.float64): (rows.indptr, rows.indices, rows.data / inv_root[rows.indices],
                                                 lower.indptr, lower.indices, lower.data, inv_root)}
         self._order = np.asarray(perm, dtype=np.int64)  # row i of the factors is row order[i] of A
-        self._work: dict[np.dtype, np.ndarray] = {}  # the permuted block per dtype, kept between solves
+        # The permuted block, kept between solves: one buffer sized for double, whose first half a single-precision
+        # solve uses (a new block's first touch costs about as much as a solve at this size).
+        self._work: np.ndarray | None = None
         self._gram: np.ndarray | None = None  # the last forward half's Gram matrix, when asked for
         self.n = A.shape[0]
 
@@ -204,9 +206,9 @@ class BlockLU:
         the right space). ``gram``: keep what :meth:`forward_gram` needs."""
         n, m = B.shape
         dtype = np.dtype(dtype)
-        work = self._work.get(dtype)
-        if work is None or work.shape != B.shape:
-            work = self._work[dtype] = np.empty((n, m), dtype=dtype)
+        if self._work is None or self._work.shape[0] < n * m:
+            self._work = np.empty(n * m)
+        work = self._work.view(dtype)[: n * m].reshape(n, m)
         X = np.empty((n, m), dtype=dtype) if out is None else out
         row = np.ones(n) if row is None else np.ascontiguousarray(row, dtype=np.float64)
         col = np.ones(m) if col is None else np.ascontiguousarray(col, dtype=np.float64)

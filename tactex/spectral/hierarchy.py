@@ -242,10 +242,20 @@ class _Factor:
             cholespy.MatrixType.CSC,
         )
 
-    def forward_gram(self) -> np.ndarray | None:
-        """Yᵀ (L − σM) Y for the block Y of the last solve (made with ``gram=True``), as an exact Gram matrix, when
-        the compiled block solve made it (:meth:`block_lu.BlockLU.forward_gram`); None otherwise."""
-        return None if self._block is None else self._block.forward_gram()
+    @property
+    def block_solve(self) -> bool:
+        """Whether the compiled block solve is in use (it makes :meth:`forward_gram`)."""
+        return self._block is not None
+
+    def forward_gram(self, Y: np.ndarray) -> np.ndarray | None:
+        """Yᵀ (L − σM) Y for the block Y of the last solve (made with ``gram=True``): as an exact Gram matrix when
+        the compiled block solve made it (:meth:`block_lu.BlockLU.forward_gram`); from the matrix itself when that
+        solve failed on the way (its caller may have let the right-hand side go); None for cholespy alone."""
+        if self._block is not None:
+            return self._block.forward_gram()
+        if self._A is not None:
+            return Y.T @ (self._A @ Y)
+        return None
 
     def solve(self, B: np.ndarray, out: np.ndarray | None = None, row: np.ndarray | None = None,
               col: np.ndarray | None = None, dtype: type = np.float64, gram: bool = False) -> np.ndarray:
@@ -288,6 +298,14 @@ def _shifted(Lf: sp.csr_matrix, mf: np.ndarray, sigma: float) -> sp.csc_matrix:
     return sp.csc_matrix((data, Lf.indices, Lf.indptr), shape=Lf.shape)
 
 
+def _single_view(X: np.ndarray) -> np.ndarray | None:
+    """A C-ordered float32 array of X's shape in the first half of the memory of X; None unless X is a C-ordered
+    float64 array."""
+    if X.dtype != np.float64 or not X.flags.c_contiguous:
+        return None
+    return X.reshape(-1).view(np.float32)[: X.size].reshape(X.shape)
+
+
 def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray, sigma: float,
             out: np.ndarray | None = None, solves: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One block shift-invert iteration from X and Rayleigh–Ritz on its image (M = diag(mass)).
@@ -316,11 +334,15 @@ def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray,
         # The solves scale their right-hand sides themselves. All but the last run in single precision: they only
         # have to bring the block's span towards the wanted space, and the last solve's relation
         # (L − σM) Y = M Y_prev D, on which the projection below rests, holds in double for whatever Y_prev is.
-        prev = factor.solve(X, row=mass, col=scale[0], dtype=np.float32)
+        # With the block solve the single-precision block lives in the first half of X's memory: a solve reads its
+        # right-hand side before it writes its result, X is not needed after it, and neither is that block once the
+        # last solve (written into X) has made the projected stiffness from its forward half.
+        prev = factor.solve(X, out=_single_view(X) if factor.block_solve else None, row=mass, col=scale[0],
+                            dtype=np.float32)
         for _ in range(solves - 2):
             prev = factor.solve(prev, out=prev, row=mass, col=scale[0], dtype=np.float32)
         Y = factor.solve(prev, out=X if out is None else out, row=mass, col=scale[0], gram=True)
-        A = factor.forward_gram()  # Yᵀ (L − σM) Y from the solve's forward half (block solve only)
+        A = factor.forward_gram(Y)  # Yᵀ (L − σM) Y from the solve's forward half (block solve only)
         if A is None:
             X = np.multiply(prev, mass[:, None], out=np.empty(Y.shape))
             A = Y.T @ X  # Yᵀ M Y_prev, the last solve's right-hand side M Y_prev D without D
