@@ -307,7 +307,8 @@ def _single_view(X: np.ndarray) -> np.ndarray | None:
 
 
 def _refine(factor: _Factor, mass: np.ndarray, X: np.ndarray, theta: np.ndarray, sigma: float,
-            out: np.ndarray | None = None, solves: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            out: np.ndarray | None = None, solves: int = 1,
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """One block shift-invert iteration from X and Rayleigh–Ritz on its image (M = diag(mass)).
 
     ``solves`` > 1 applies the scaled shift-invert operator that many times before the Rayleigh–Ritz step (the
