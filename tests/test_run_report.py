@@ -150,7 +150,9 @@ def test_clean_report_shows_the_time_breakdown(tmp_path) -> None:
     res = fake_clean()
     res.metrics.update(time_breakdown_s={"contact_dirt": 2.0, "contact_clean": 1.0, "explore_no_contact": 0.0,
                                          "touch_down": 0.5, "transit": 0.8, "vision": 0.6, "lift_off": 0.0},
-                       time_to_95pct_s=3.2)
+                       time_to_95pct_s=3.2,
+                       time_breakdown_to_95pct_s={"contact_dirt": 1.5, "contact_clean": 0.2, "explore_no_contact": 0.0,
+                                                  "touch_down": 0.5, "transit": 0.4, "vision": 0.6, "lift_off": 0.0})
     rep = write_run_report(res, tmp_path / "clean")
     assert "time_breakdown.png" in _pngs_ok(rep)
     assert "time_breakdown_s" in json.loads((tmp_path / "clean" / "metrics.json").read_text())

@@ -37,6 +37,12 @@ def test_short_clean_removes_dirt_with_bounded_force() -> None:
     assert bd["contact_dirt"] + bd["contact_clean"] == pytest.approx(m["contact_time_s"], abs=0.05)
     t95 = m["time_to_95pct_s"]
     assert (t95 is None) == (m["dirt_removed_fraction"] < 0.95 and np.nanmin(r.series["dirt_remaining"]) > 0.05)
+    # the breakdown up to the 95 % mark adds up to the time to 95 % (the ticks up to that reading)
+    to95 = m["time_breakdown_to_95pct_s"]
+    assert (to95 is None) == (t95 is None)
+    if to95 is not None:
+        assert sum(to95.values()) == pytest.approx(t95, abs=0.002)
+        assert all(to95[k] <= bd[k] + 1e-9 for k in to95)
     assert 0.05 < m["dirt_removed_fraction"] <= 1.0  # it cleaned something in a few seconds of contact
     assert 0.0 <= m["force_within_20pct_fraction"] <= 1.0
     assert 0.0 < m["max_contact_force_n"] <= 2.0 * cfg.force_n
@@ -196,6 +202,11 @@ def test_sparse_spots_are_cleaned_island_by_island() -> None:
     assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
     bd = m["time_breakdown_s"]
     assert bd["contact_dirt"] + bd["contact_clean"] > 3 * 1.0  # three strokes of a few passes in contact
+    # up to the 95 % mark: the time to 95 % split; the trips to the camera after it are not in it
+    to95 = m["time_breakdown_to_95pct_s"]
+    assert sum(to95.values()) == pytest.approx(t95, abs=0.002)
+    assert to95["contact_dirt"] > 0 and to95["touch_down"] > 0
+    assert to95["vision"] < bd["vision"] or not m["vision_update_times_s"]
 
 
 def test_a_fully_marked_surface_is_cleaned_with_the_dirt_source_not_the_sweep(monkeypatch) -> None:

@@ -36,6 +36,33 @@ def test_contact_is_split_by_whether_the_dirt_went_down() -> None:
     assert sum(s.values()) == pytest.approx(57 * DT)  # every tick in exactly one bucket
 
 
+def test_breakdown_up_to_the_95pct_mark() -> None:
+    tb = TimeBreakdown(DT, contact_threshold_n=0.5, dirt_known=True)
+    tb.dirt(1.0)
+    for _ in range(20):  # to the camera and back
+        tb.tick(0.0)
+    tb.set_activity("explore")
+    for _ in range(10):
+        tb.tick(10.0)
+    tb.dirt(0.06)  # not yet 95 % removed
+    assert tb.seconds_to_mark() is None
+    for _ in range(5):
+        tb.tick(10.0)
+    tb.dirt(0.05)  # exactly 95 % removed: the mark, with these 5 contact ticks on dirt
+    for _ in range(7):  # after the mark: in the whole run's buckets only
+        tb.tick(10.0)
+    tb.dirt(0.01)
+    to_mark, whole = tb.seconds_to_mark(), tb.seconds()
+    assert to_mark is not None and list(to_mark) == list(whole)
+    assert to_mark["vision"] == pytest.approx(20 * DT) and to_mark["contact_dirt"] == pytest.approx(15 * DT)
+    assert sum(to_mark.values()) == pytest.approx(35 * DT) and whole["contact_dirt"] == pytest.approx(22 * DT)
+    # a real robot knows no dirt: no mark
+    blind = TimeBreakdown(DT, 0.5, dirt_known=False)
+    blind.tick(10.0)
+    blind.dirt(0.0)
+    assert blind.seconds_to_mark() is None
+
+
 def test_without_the_true_dirt_contact_stays_unsplit() -> None:
     tb = TimeBreakdown(DT, contact_threshold_n=0.5, dirt_known=False)
     tb.set_activity("explore")
@@ -54,6 +81,9 @@ def test_breakdown_checks_its_inputs() -> None:
         TimeBreakdown(0.0, 0.5, True)
     with pytest.raises(InputError, match="touch_down"):
         TimeBreakdown(DT, 0.5, True).set_activity("coffee")
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(InputError, match="mark_removed"):
+            TimeBreakdown(DT, 0.5, True, mark_removed=bad)
 
 
 def test_time_to_fraction_removed() -> None:

@@ -256,21 +256,34 @@ TIME_BUCKETS = {
 }
 
 
-def _plot_time_breakdown(breakdown: Mapping[str, Any], t95: Any, path: Path) -> Path:
-    """One horizontal stacked bar of where the run's time went [s], with the time to 95 % removed."""
-    parts = [(k, float(v)) for k, v in breakdown.items() if v is not None and float(v) > 0]
+def _plot_time_breakdown(breakdown: Mapping[str, Any], t95: Any, path: Path,
+                         to_95pct: Mapping[str, Any] | None = None) -> Path:
+    """Horizontal stacked bars of where the time went [s]: the whole run, and (``to_95pct``) the time up to
+    95 % removed, with that time marked."""
+    def positive(b: Mapping[str, Any]) -> list[tuple[str, float]]:
+        return [(k, float(v)) for k, v in b.items() if v is not None and float(v) > 0]
+
+    parts = positive(breakdown)
     if not parts:
         raise InputError("the time breakdown is empty (no tick was accounted)")
-    fig, (ax,) = _figure(height=2.2)
-    left = 0.0
-    for key, v in parts:
-        label, color = TIME_BUCKETS.get(key, (key, "C9"))
-        ax.barh([0], [v], height=0.6, left=left, color=color, label=f"{label}: {v:.1f} s")
-        left += v
+    rows = [("whole run", parts)]
+    if to_95pct:
+        rows.append(("to 95 %", positive(to_95pct)))
+    fig, (ax,) = _figure(height=2.2 + 0.5 * (len(rows) - 1))
+    labelled: set[str] = set()
+    for y, (_, row) in enumerate(rows):
+        left = 0.0
+        for key, v in row:
+            label, color = TIME_BUCKETS.get(key, (key, "C9"))
+            # the legend names each bucket once, with the whole run's duration
+            name = f"{label}: {v:.1f} s" if key not in labelled else None
+            labelled.add(key)
+            ax.barh([-y], [v], height=0.6, left=left, color=color, label=name)
+            left += v
     if t95 is not None:
         ax.axvline(float(t95), color="k", ls="--", lw=1.2, label=f"95 % removed at {float(t95):.1f} s")
-    ax.set_ylim(-0.5, 2.4)  # the legend sits above the bar
-    ax.set_yticks([])
+    ax.set_ylim(-0.5 - (len(rows) - 1), 2.4)  # the legend sits above the bars
+    ax.set_yticks([-y for y in range(len(rows))], [name for name, _ in rows] if len(rows) > 1 else [""])
     ax.set_xlabel("time [s] (bucket durations stacked, not in time order)")
     ax.legend(loc="upper center", fontsize=7, ncol=3, frameon=False)
     ax.set_title("Where the time went")
@@ -396,7 +409,8 @@ def write_clean_report(
     rep.files["phases_png"] = _plot_phases(s, out / "phases.png", ch)
     if metrics.get("time_breakdown_s"):
         _try_plot(rep, "time_breakdown_png", _plot_time_breakdown, metrics["time_breakdown_s"],
-                  metrics.get("time_to_95pct_s"), out / "time_breakdown.png")
+                  metrics.get("time_to_95pct_s"), out / "time_breakdown.png",
+                  to_95pct=metrics.get("time_breakdown_to_95pct_s"))
     named = {"dirt (first capture)": fields.get("target_initial", cloud.target)}
     for key, name in (("target", "dirt (last capture)"), ("coverage", "coverage"), ("potential", "potential")):
         if key in fields:

@@ -1078,6 +1078,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "explore_time_s": explore_time,
         # issue 21: where the time went, and when 95 % of the marking was off (None: never, or no ground truth)
         "time_breakdown_s": log.time.seconds(),
+        # the same up to the 95 % mark (None when it never came or the dirt is not known): the time to 95 % split
+        "time_breakdown_to_95pct_s": log.time.seconds_to_mark(),
         "time_to_95pct_s": t95,
         "vision_updates": vision_updates,
         "island_relocations": island_moves,

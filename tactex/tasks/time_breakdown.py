@@ -5,7 +5,9 @@ The task names what the robot is doing (:data:`ACTIVITIES`); each control tick i
 bucket (:data:`BUCKETS`). Contact ticks of the exploration are split by the ground-truth dirt of a
 simulation: a window of ticks in which the dirt decreased counts as contact on dirt, one in which it
 did not as contact on clean surface. A real robot does not know the dirt; its contact time stays in
-``contact``.
+``contact``. The same buckets are also kept up to the first dirt reading at or below ``1 − mark_removed``
+(:meth:`TimeBreakdown.seconds_to_mark`): where the time before the 95 % mark went, the part of a run that
+its time to 95 % measures.
 """
 
 from __future__ import annotations
@@ -30,11 +32,17 @@ class TimeBreakdown:
         dt_s: control period [s].
         contact_threshold_n: normal force that counts as contact [N].
         dirt_known: the backend reports the true dirt (a simulation); else contact is not split.
+        mark_removed: fraction of the dirt removed at which :meth:`seconds_to_mark` is taken, in (0, 1] [-].
     """
 
-    def __init__(self, dt_s: float, contact_threshold_n: float, dirt_known: bool) -> None:
+    def __init__(self, dt_s: float, contact_threshold_n: float, dirt_known: bool,
+                 mark_removed: float = 0.95) -> None:
         if not (np.isfinite(dt_s) and dt_s > 0):
             raise InputError(f"dt_s must be a positive period [s], got {dt_s!r}")
+        if not (np.isfinite(mark_removed) and 0.0 < mark_removed <= 1.0):
+            raise InputError(f"mark_removed must be a fraction in (0, 1], got {mark_removed!r}")
+        self.mark_removed = float(mark_removed)
+        self._at_mark: dict[str, int] | None = None
         self.dt = float(dt_s)
         self.threshold = float(contact_threshold_n)
         self.dirt_known = bool(dirt_known)
@@ -69,6 +77,9 @@ class TimeBreakdown:
             self._ticks["contact_dirt" if removed else "contact_clean"] += self._pending
             self._pending = 0
         self._dirt = float(remaining_fraction)
+        # the same reading and threshold as time_to_fraction_removed on the recorded series
+        if self._at_mark is None and self._dirt <= 1.0 - self.mark_removed + 1e-12:
+            self._at_mark = dict(self._ticks)
 
     def seconds(self) -> dict[str, float]:
         """Time per bucket [s]; buckets a run cannot have (contact unsplit in simulation, split on a
@@ -76,6 +87,14 @@ class TimeBreakdown:
         ticks = dict(self._ticks)
         if self._pending:  # ticks after the last reading: no evidence of removal
             ticks["contact_clean"] += self._pending
+        return self._seconds(ticks)
+
+    def seconds_to_mark(self) -> dict[str, float] | None:
+        """:meth:`seconds` up to the first dirt reading at or below ``1 − mark_removed`` (the ticks up to and
+        including that reading's), or None when the dirt never got there or is not known."""
+        return None if self._at_mark is None else self._seconds(self._at_mark)
+
+    def _seconds(self, ticks: dict[str, int]) -> dict[str, float]:
         skip = {"contact"} if self.dirt_known else {"contact_dirt", "contact_clean"}
         return {k: ticks[k] * self.dt for k in BUCKETS if k not in skip}
 
