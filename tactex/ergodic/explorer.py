@@ -103,6 +103,12 @@ EDGE_OFFSET = 0.25
 #: target (part done, no progress) of the relocation rules: a few µs each, not paid every step.
 STALL_SAMPLE_EVERY = 5
 RELOCATION_CHECK_EVERY = 10
+#: On a pass, untouched target points within this many footprint radii of the agent that the passes walked past
+#: and none to come covers are touched at once (see HedacExplorer._missed) [-]: nearly all the points the passes
+#: leave lie within 1.0–1.5 r_a of the agent's path (TEC bunny), their neighbouring passes being 1.8 r_a apart.
+REPAIR_RADIUS = 2.0
+#: Steps an agent steers at one such point before it leaves it to the hunt [-].
+REPAIR_STEPS = 6
 #: A keep-out zone's clearance beyond the footprint radius [voxels]: the footprint is laid around the
 #: agent projected on its fitted patch, a fraction of a voxel from the agent point the guard checks.
 KEEP_OUT_MARGIN = 0.5
@@ -401,6 +407,8 @@ class HedacExplorer:
             self._passes.reset()
         self._leftover_goal = -1
         self._given_up = np.zeros(self._tidx.size, dtype=bool)
+        self._repair_failed = np.zeros(self._tidx.size, dtype=bool)  # a pass's step aside to it did not touch it
+        self._repair_steps: dict[int, int] = {}
 
     def reset(self, x0: np.ndarray) -> list[ExplorationCommand]:
         """Start the agents at x0 (3,) or (n_agents, 3) [m]; each is projected onto the surface.
@@ -968,9 +976,34 @@ class HedacExplorer:
             wp = self._leftover(here)
             if wp is None:
                 return None
+        elif not passes.heading_far:
+            miss = self._missed(here, near)
+            if miss is not None:
+                wp = miss
         to = wp - here
         to -= float(to.dot(nrm)) * nrm
         return to if float(to.dot(to)) > 0.0 else None
+
+    def _missed(self, here: np.ndarray, near: int) -> np.ndarray | None:
+        """On a pass: the nearest untouched target point [m] (3,) within ``REPAIR_RADIUS`` footprint radii of the agent
+        at ``here`` that the passes walked past and none to come covers (the agent's tracking error left it
+        at the footprint's edge), or None. The agent steps aside to touch it now, a detour of a fraction of a
+        footprint radius; the hunt after the passes would come back for it from afar. A point it steered at for
+        ``REPAIR_STEPS`` steps without touching it (across a fold, off an edge) is given up here and left to the
+        hunt."""
+        cand = self._untouched() & ~self._given_up & ~self._repair_failed
+        passes = self._passes
+        for g in passes.missed(here, near, cand, REPAIR_RADIUS * self._r_a).tolist():
+            p = passes.point(g)
+            if float(np.linalg.norm(p - here)) < 0.5 * self._r_a:
+                continue  # under the footprint: touched as the agent goes on
+            n = self._repair_steps.get(g, 0) + 1
+            self._repair_steps[g] = n
+            if n > REPAIR_STEPS:
+                self._repair_failed[g] = True
+                continue
+            return p
+        return None
 
     def _leftover(self, here: np.ndarray) -> np.ndarray | None:
         """After the passes: where the agent steers [m] (3,) on its way to the untouched target point nearest by

@@ -14,20 +14,21 @@ The ring k holds the target points with k·w ≤ d < (k+1)·w, w = ``pass_spacin
 d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the ring, and w a little under
 2 r_a leaves an overlap for the agent's tracking error.
 
-The plan is a set of waypoints, the target points on the middle line of their ring
-(|d − (k+½)·w| ≤ ½ voxel). On a closed or holed surface a ring's middle line breaks into several
-arcs (its connected runs); each arc is ordered along itself, and the arcs are walked as an open tour
-from the agent: nearest neighbour over their ends (a closed arc is entered anywhere), then 2-opt.
-Along an arc the agent steers at a carrot, the farthest of its next waypoints within ``AHEAD``
-voxels; the waypoints behind its place on the arc are done. The start of the next arc, when farther
-than a pass spacing, is reached down the surface distance to it. (Order "greedy", the earlier rule:
-the pending waypoint of least cost_j = |x_j − x| + ``ring_cost`` · w · (k_j − k_low).) A waypoint is
-also done once the agent came within ``reach_m`` of it. When no waypoint of the agent's part is left
-the explorer hunts the untouched points one after the other, each the nearest along the surface
-(``closest``: on the walking part, or a speck within r_a across a gap) and reached down the surface
-distance to it (``route``), and then the
-sweep source's potential and the relocation rules take over (other parts get their rings when the
-agent touches down there; a relocation plans the tour again from where it lands).
+The plan is a set of waypoints, the target points on the middle line of their ring (|d − (k+½)·w| ≤ ½ voxel). On
+a closed or holed surface a ring's middle line breaks into several arcs (its connected runs); each arc is
+ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
+(a closed arc is entered anywhere), then 2-opt. Along an arc the agent steers at a carrot, the farthest of its
+next waypoints within ``AHEAD`` voxels; the waypoints behind its place on the arc are done. A target point the
+passes walked past untouched (the agent's tracking error left it at the footprint's edge) and no pending
+waypoint will cover (``missed``) is touched at once when it lies within a couple of footprint radii: the
+explorer steps aside to it. The start of the next arc, when farther than a pass spacing, is reached down the
+surface distance to it. (Order "greedy", the earlier rule: the pending waypoint of least cost_j = |x_j − x| +
+``ring_cost`` · w · (k_j − k_low).) A waypoint is also done once the agent came within ``reach_m`` of it. When
+no waypoint of the agent's part is left the explorer hunts the untouched points one after the other, each the
+nearest along the surface (``closest``: on the walking part, or a speck within r_a across a gap) and reached
+down the surface distance to it (``route``), and then the sweep source's potential and the relocation rules take
+over (other parts get their rings when the agent touches down there; a relocation plans the tour again from
+where it lands).
 
 d is Dijkstra's distance (scipy.sparse.csgraph) over the links of the cloud's Laplacian between
 target points, each as long as its chord: the same neighbourhoods the heat diffuses over, and the
@@ -475,6 +476,10 @@ class RingPasses:
         if idx:
             self.pending[idx] = False
 
+    def point(self, j: int) -> np.ndarray:
+        """Target point j [m] (3,)."""
+        return self._points[j]
+
     def nearest(self, x: np.ndarray) -> int:
         """The target point nearest to x (3,) [m]."""
         return int(self._tree.query(x)[1])
@@ -502,6 +507,23 @@ class RingPasses:
                 # or off an edge; walk down the surface distance to the goal instead.
                 self._to_goal = dijkstra(self._graph, directed=False, indices=g, limit=4.0 * float(dist[k]))
         return self._descend(x, g)
+
+    @property
+    def heading_far(self) -> bool:
+        """Whether the agent is on its way to a far waypoint (the start of another arc), not along a pass."""
+        return self._to_goal is not None
+
+    def missed(self, x: np.ndarray, near: int, candidates: np.ndarray, radius_m: float) -> np.ndarray:
+        """Target points of ``candidates`` (T,) (bool) within ``radius_m`` [m] of the agent at x (3,) [m] on target
+        point ``near``'s part that no pending waypoint lies within a footprint radius of: the passes walked past
+        them and none to come covers them (indices, nearest first)."""
+        idx = np.asarray(self._tree.query_ball_point(x, radius_m), dtype=np.intp)
+        idx = idx[candidates[idx] & (self._part[idx] == self._part[near])]
+        if idx.size == 0:
+            return idx
+        idx = idx[np.argsort(np.linalg.norm(self._points[idx] - x, axis=1), kind="stable")]
+        covered = [self.pending[b].any() for b in self._tree.query_ball_point(self._points[idx], self.footprint_m)]
+        return idx[~np.array(covered, dtype=bool)]
 
     def next_pending(self, near: int) -> int:
         """The next pending waypoint on the tour of target point ``near``'s part (target index), or −1."""
