@@ -147,12 +147,23 @@ def test_the_cup_view_from_above_sees_the_marking_with_a_shorter_swing_from_home
     assert seen[45.0][1] < 0.6 * seen[0.0][1]
 
 
-def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path) -> None:
+def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path, monkeypatch) -> None:
     """Dirt on both sides of a keep-out strip across the plate (a --cloud in the base frame with a
     --keep-out-mask): the agent cleans one side, stalls at the strip, and the robot lifts off, flies
-    and touches down on the other side (issue 18), never pressing on the strip."""
+    and touches down on the other side (issue 18), never pressing on the strip; every touch-down (the first, the
+    task's island moves, the explorer's relocations) is a footprint radius clear of the strip."""
+    from tactex.ergodic.explorer import HedacExplorer
     from tactex.pointcloud import save_npz
     from tactex.pointcloud.markings import marked_cloud
+
+    touch_downs = []  # (explorer, where it was reset: the task's touch-downs)
+    reset = HedacExplorer.reset
+
+    def record(self, x0):
+        touch_downs.append((self, np.array(x0, dtype=float)))
+        return reset(self, x0)
+
+    monkeypatch.setattr(HedacExplorer, "reset", record)
 
     cfg0 = CleanConfig(object_name="plate")
     scene = cfg0.scene()
@@ -185,6 +196,49 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path)
     phases = [p for _, p in m["phase_changes"]]
     first_explore = phases.index(PHASES["explore"])
     assert PHASES["retract"] in phases[first_explore:] and phases[first_explore:].count(PHASES["explore"]) >= 2
+    ex = touch_downs[-1][0]
+    strip = cloud.points[np.abs(x) <= 0.01]
+    at = [p for e, p in touch_downs if e is ex] + [c.point for c in ex.relocations]
+    assert len(at) >= 2
+    for p in at:
+        assert np.min(np.linalg.norm(strip - p, axis=1)) >= cfg.agent_radius_m, p
+
+
+def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeypatch) -> None:
+    """Dirt right up to both sides of a keep-out strip: when the wear model sends the robot to the other side, the
+    touch-down is a footprint radius clear of the strip (the dirty point nearest to the robot lies at the strip's
+    edge, where the sponge would press on it)."""
+    from tactex.pointcloud import save_npz
+    from tactex.pointcloud.markings import marked_cloud
+    from tactex.tasks.wear_model import WearModel
+
+    islands = []  # where the task's island moves would touch down
+    next_island = WearModel.next_island
+
+    def record(self, here_m, tried_m, clearance_m, allowed=None):
+        out = next_island(self, here_m, tried_m, clearance_m, allowed)
+        islands.append(out)
+        return out
+
+    monkeypatch.setattr(WearModel, "next_island", record)
+    cfg0 = CleanConfig(object_name="plate")
+    scene = cfg0.scene()
+    pos, rot = scene.object_pose()
+    local = marked_cloud(scene.sim_object.surface, "full", 0.003)
+    x, y = local.points[:, 0], local.points[:, 1]
+    strip = np.abs(x) <= 0.01
+    dirt = (np.abs(x) <= 0.04) & (np.abs(y) <= 0.02) & ~strip
+    cloud = local.with_target(dirt.astype(float)).transformed(rot, pos)
+    path = save_npz(cloud, tmp_path / "plate.npz")
+    np.save(tmp_path / "strip.npy", strip)
+    cfg = CleanConfig(object_name="plate", budget_s=20.0, n_eigen=60, cloud=str(path),
+                      keep_out_mask=str(tmp_path / "strip.npy"), eigensolver="arpack")
+    m = run_clean(cfg, progress=False).metrics
+    moves = [p for p in islands if p is not None]
+    assert moves, "no island move: the scenario does not test the touch-down"
+    for p in moves:
+        assert np.min(np.linalg.norm(cloud.points[strip] - p, axis=1)) >= cfg.agent_radius_m, p
+    assert m["keep_out_contacts"] == 0
 
 
 def test_sparse_spots_are_cleaned_island_by_island() -> None:

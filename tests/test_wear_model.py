@@ -84,3 +84,21 @@ def test_islands_left_and_the_next_one() -> None:
     assert wear.dirt_near(nxt, 0.01) == pytest.approx(target[np.linalg.norm(cloud.points - nxt, axis=1) <= 0.01].sum())
     assert wear.dirt_near(left_island, 0.01) == 0.0
     assert wear.dirty_fraction(target.sum()) == pytest.approx(0.5, abs=0.02)  # the right strip is left
+
+
+def test_the_next_island_touches_down_only_where_allowed() -> None:
+    """An island move's touch-down keeps clear of a keep-out zone as the agent does: the nearest dirty point it may
+    touch down on, not the nearest dirty point (which lies at the zone's edge)."""
+    cloud = _plane()
+    x = cloud.points[:, 0]
+    target = (np.abs(x - 0.03) < 0.02).astype(float)  # dirt from x = 10 to 50 mm
+    wear = WearModel(cloud, K_P, R)
+    wear.reset(target)
+    here = np.array([-0.05, 0.0, 0.0])
+    assert wear.next_island(here, [], 0.02)[0] < 0.012  # the dirt's near edge
+    allowed = x >= 0.025  # e.g. a keep-out strip at x <= 10 mm and a 15 mm footprint
+    nxt = wear.next_island(here, [], 0.02, allowed)
+    assert nxt is not None and 0.025 <= nxt[0] < 0.028 and abs(nxt[1]) < 0.003
+    assert wear.next_island(here, [], 0.02, np.zeros(len(x), dtype=bool)) is None
+    with pytest.raises(InputError, match="allowed"):
+        wear.next_island(here, [], 0.02, allowed[:-1])

@@ -392,14 +392,15 @@ def _lag_m(tcp_m: np.ndarray, cmd: ExplorationCommand) -> float:
 
 def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel, cfg: CleanConfig,
                   cloud: SurfaceCloud, target0: float, islands_tried: list[np.ndarray], legs: _Legs,
-                  step_m: float, transfer_max_m: float,
-                  done_level: float) -> tuple[IslandStroke | None, np.ndarray | None, bool]:
+                  step_m: float, transfer_max_m: float, done_level: float,
+                  touch_down_ok: np.ndarray | None = None) -> tuple[IslandStroke | None, np.ndarray | None, bool]:
     """What follows a finished stroke: ``(stroke, relocate_to, covered)`` — a new stroke sliding in contact
     to the next small island when that is closer than ``transfer_max_m`` [m] (the path the pad slides in the
     time a lift-off, move and touch-down take), else a lift-off to the next island (``relocate_to``), the
     camera when the model calls the job done (``covered``), or the explorer (all None/False) when dirt is
     left here (a stroke that ran out of passes). ``done_level``: the model's remaining fraction of ``target0``
-    at which the camera judges."""
+    at which the camera judges; ``touch_down_ok``: cloud points (N,) (bool) the next island's touch-down may be at
+    (clear of keep-out zones), or None: all."""
     legs.path_m += stroke.path.path_length
     if stroke.transfer_only:
         return None, None, False
@@ -407,7 +408,7 @@ def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel
         return None, None, True
     if not stroke.clean(wear):
         return None, None, False
-    island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
+    island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m, touch_down_ok)
     if island is None or wear.dirt_near(island, 2.0 * cfg.pad_radius_m) < cfg.stop_remaining * target0:
         return None, None, not wear.island_left(cmd.point, 2.0 * cfg.pad_radius_m)
     islands_tried.append(island)
@@ -778,6 +779,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                    if cfg.line_normal_feedback > 0 else None)
     vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
     islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
+    # an island move touches down where the explorer's own relocations may: a footprint radius (and half a voxel)
+    # clear of every keep-out point
+    touch_down_ok = source.clear_points if keep_out is not None and isinstance(source, HedacExplorer) else None
     island_moves = 0  # those relocations
     # control ticks between wear-model updates (the pad moves well under a millimetre)
     wear_ticks = _WearTicks(wear, backend.dt, every=10) if wear is not None else None
@@ -824,7 +828,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 island = None
                 if wear is not None:
                     islands_tried.append(cmd.point.copy())
-                    island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
+                    island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m, touch_down_ok)
                 if wear is None:
                     raise
                 if island is None:
@@ -902,7 +906,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                         if stroke.clean(wear) or not stroke.next_pass(stroke_step_m):
                             stroke, relocate_to, covered = _after_stroke(
                                 stroke, cmd, wear, cfg, cloud, target0, islands_tried, legs, stroke_step_m,
-                                island_move_s * cfg.explorer_rate_hz * stroke_step_m, done_level)
+                                island_move_s * cfg.explorer_rate_hz * stroke_step_m, done_level, touch_down_ok)
                             if relocate_to is not None:
                                 break
                             if covered:
@@ -953,7 +957,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                             # island the model calls dirty, unless there is none it has not tried since the
                             # last view or it holds less than the camera's stop level (then the camera judges:
                             # each touch-down costs about half a second of force settling and a second of time)
-                            island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m)
+                            island = wear.next_island(cmd.point, islands_tried, 2.0 * cfg.pad_radius_m, touch_down_ok)
                             if (island is None
                                     or wear.dirt_near(island, 2.0 * cfg.pad_radius_m) < cfg.stop_remaining * target0):
                                 covered = True

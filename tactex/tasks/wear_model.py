@@ -93,12 +93,20 @@ class WearModel:
         """Whether dirt (:meth:`dirty`) is left within ``radius_m`` of ``here_m`` (3,) [m]."""
         return self.dirt_near(here_m, radius_m) > 0.0
 
-    def next_island(self, here_m: np.ndarray, tried_m: list[np.ndarray], clearance_m: float) -> np.ndarray | None:
+    def next_island(self, here_m: np.ndarray, tried_m: list[np.ndarray], clearance_m: float,
+                    allowed: np.ndarray | None = None) -> np.ndarray | None:
         """Where to touch down next (3,) [m]: the dirty point (:meth:`dirty`) nearest to ``here_m``, farther
         than ``clearance_m`` from it and from every earlier touch-down in ``tried_m`` (dirt the agent stalled on
-        after touching down next to it is left to the camera). None when there is no such point."""
+        after touching down next to it is left to the camera), among the cloud points ``allowed`` (N,) (bool; e.g.
+        those a footprint centred there keeps clear of a keep-out zone; None: all). None when there is no such
+        point."""
         pts = self.cloud.points
         dirty = self.dirty()
+        if allowed is not None:
+            allowed = np.asarray(allowed, dtype=bool)
+            if allowed.shape != dirty.shape:
+                raise InputError(f"allowed must have shape ({len(dirty)},), got {allowed.shape}")
+            dirty &= allowed
         for p in [here_m, *tried_m]:
             dirty &= np.linalg.norm(pts - np.asarray(p, dtype=float), axis=1) > clearance_m
         idx = np.flatnonzero(dirty)
