@@ -194,6 +194,26 @@ def test_vision_process_estimates_the_panel_and_a_dead_worker_is_a_fault():
         vp.close()
 
 
+def test_vision_process_runs_at_normal_priority_under_a_real_time_loop():
+    """The worker does not inherit a SCHED_FIFO control loop's priority (it would run each frame to
+    its end ahead of everything on its core)."""
+    from tactex.robots.vision_process import VisionProcess
+
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+    except (PermissionError, OSError):
+        pytest.skip("needs permission for SCHED_FIFO (root or an rtprio limit)")
+    try:
+        vp = VisionProcess({"kind": "sim", "scene": {"object_name": "sine_panel"}})
+    finally:
+        os.sched_setscheduler(0, before[0], before[1])
+    try:
+        assert os.sched_getscheduler(vp.proc.pid) == os.SCHED_OTHER
+    finally:
+        vp.close()
+
+
 def test_vision_process_refuses_an_unknown_source():
     from tactex.robots.vision_process import VisionProcess
 

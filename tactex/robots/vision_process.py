@@ -129,7 +129,8 @@ class VisionProcess:
                 "_worker_main(sys.argv[1], sys.argv[2])")
         self.proc = subprocess.Popen(
             [sys.executable, "-c", code, str(fd), json.dumps(source)], pass_fds=(fd,),
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            preexec_fn=_normal_priority)
         deadline = time.monotonic() + start_timeout_s
         while self._buf[_STATUS] == 0.0:
             if self.proc.poll() is not None or time.monotonic() > deadline:
@@ -237,6 +238,19 @@ def _realsense_frames(spec: dict, pose_fn):
         return source.read()
 
     return capture
+
+
+def _normal_priority() -> None:
+    """In the worker, before it starts: the ordinary time-sharing policy. A child inherits its
+    parent's scheduling, and the control loop that starts the worker may hold SCHED_FIFO (libfranka's
+    real-time set-up, :func:`~tactex.robots.libfranka_backend.pin_control_thread`): at that priority
+    each frame (milliseconds of ray cast and estimate) would run to its end ahead of everything else
+    on its core, the robot's network traffic and a protocol twin included."""
+    if hasattr(os, "sched_setscheduler"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except OSError:
+            pass
 
 
 def _worker_main(fd_text: str, spec_text: str) -> None:
