@@ -576,6 +576,14 @@ def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.nda
     return chosen
 
 
+def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndarray:
+    """The cloud points ``indices`` a touch-down may be at (``touch_down_ok`` (N,) bool; None: all), or all of
+    them when none is (the dirt left lies only beside a keep-out zone)."""
+    if touch_down_ok is not None and touch_down_ok[indices].any():
+        return indices[touch_down_ok[indices]]
+    return indices
+
+
 def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4) -> None:
     """Back along the tool axis by ``distance_m`` [m] in steps of at most :data:`RETRACT_STEP_M`, each
     re-linearised where the last ended, taking ``duration_s`` [s] at least."""
@@ -752,10 +760,12 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             bar.note("preparing the compiled exploration step (numba compiles it on a machine's first run, ~10–15 s; "
                      "later runs load it)")
         source = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
-    # where the sponge first touches down, on dirt it may touch (clear of any keep-out zone)
-    targets = np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0)
-    if isinstance(source, HedacExplorer) and keep_out is not None and source.clear_points[targets].any():
-        targets = targets[source.clear_points[targets]]
+    # where the sponge may touch down, as the explorer's own relocations: a footprint radius (and half a voxel)
+    # clear of every keep-out point (None: anywhere; a keep-out zone comes with the explorer, not the raster)
+    touch_down_ok = source.clear_points if keep_out is not None and isinstance(source, HedacExplorer) else None
+    # where the sponge first touches down, on dirt it may touch
+    targets = _touchable(np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0),
+                         touch_down_ok)
     # the raster from its waypoint nearest the dirt nearest the camera; tactex where the arm gets soonest
     x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - cap_pos, axis=1))]]
     t_plan = time.perf_counter()
@@ -779,9 +789,6 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                    if cfg.line_normal_feedback > 0 else None)
     vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
     islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
-    # an island move touches down where the explorer's own relocations may: a footprint radius (and half a voxel)
-    # clear of every keep-out point
-    touch_down_ok = source.clear_points if keep_out is not None and isinstance(source, HedacExplorer) else None
     island_moves = 0  # those relocations
     # control ticks between wear-model updates (the pad moves well under a millimetre)
     wear_ticks = _WearTicks(wear, backend.dt, every=10) if wear is not None else None
@@ -1041,9 +1048,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 wear.reset(mass)  # the camera's view replaces the prediction
                 islands_tried.clear()
             # restart from the dirt nearest to where the robot is
-            left = np.flatnonzero(mass > 0)
-            if keep_out is not None and source.clear_points[left].any():
-                left = left[source.clear_points[left]]
+            left = _touchable(np.flatnonzero(mass > 0), touch_down_ok)
             x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - cmd.point, axis=1))]]
             leg_from, new_leg = cmd.point, True
             if stroke is not None:

@@ -153,11 +153,9 @@ class ControlLoop:
         many poses: ``settled_step_rad`` [rad] stops it once its steps are this small, ``max_iter`` gives up
         after that many steps (None: the backend's full search; :func:`~tactex.sim.ik.solve_site_ik`)."""
         seed = self.state.q if q_seed is None else q_seed
-        extra: dict = {} if settled_step_rad is None else {"settled_step_rad": settled_step_rad}
-        if max_iter is not None:
-            extra["max_iter"] = max_iter
-        if q_posture is None:
-            return self.backend.solve_ik(position_world, rotation_world, seed, **extra)  # type: ignore[attr-defined]
+        # only what was given: the backends' own defaults are the full search (and their home posture)
+        given = {"settled_step_rad": settled_step_rad, "max_iter": max_iter}
+        extra = {k: v for k, v in given.items() if v is not None}
         return self.backend.solve_ik(position_world, rotation_world, seed, q_posture,  # type: ignore[attr-defined]
                                      **extra)
 
