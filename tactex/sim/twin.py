@@ -93,8 +93,9 @@ class TwinConfig:
                                         "itself with sleeps; 0 = as fast as it can)")
     command_window_ms: float = param(
         0.5, "how long after each state the twin waits for the client's command before it steps [ms] (scaled with "
-             "--realtime-factor above 1): the budget Franka's engineers give one FCI iteration (receive, compute, "
-             "send); a later command is used a cycle late and counts against control_command_success_rate")
+             "--realtime-factor above 1): the budget tactex plans for one FCI iteration (receive, compute, send; "
+             "docs/real_robot.md); a later command is used a cycle late and counts against "
+             "control_command_success_rate")
     joint_friction_residual: float = param(
         0.0, "fraction of franky-sim's dry joint friction (MuJoCo frictionloss 0.25–1.14 N·m) left on the arm: a "
              "real Franka adds gravity and friction to the commanded torques (libfranka's Torques are 'without "

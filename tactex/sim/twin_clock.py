@@ -22,13 +22,12 @@ reports 1.0 always.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
 import time
 
 from tactex.errors import ConfigError
 
-__all__ = ["MIN_SPACING", "CommandRate", "TwinClock", "fine_timer_slack"]
+__all__ = ["MIN_SPACING", "CommandRate", "TwinClock", "fine_timer_slack", "linux_prctl"]
 
 #: The shortest gap between two states, as a fraction of the period [-]: a state late by more than a
 #: tenth of a period re-anchors the grid at itself, instead of the next ones following back to back.
@@ -120,13 +119,20 @@ class CommandRate:
         self.lowest = min(self.lowest, self._hits / len(self._ring))
 
 
-def fine_timer_slack(slack_ns: int = 1000) -> bool:
-    """Let this thread's sleeps wake within ``slack_ns`` of their time (Linux's default slack is
-    50 µs, a twentieth of the twin's period). Returns whether it was set."""
+def linux_prctl(option: int, value: int) -> bool:
+    """``prctl(option, value)`` on Linux (the twin's timer slack, its child's parent-death signal); False
+    elsewhere or when the call fails."""
     if not sys.platform.startswith("linux"):
         return False
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        return libc.prctl(29, ctypes.c_ulong(int(slack_ns)), 0, 0, 0) == 0  # PR_SET_TIMERSLACK
+        # the process's own symbols, libc's among them: no library search (it would start ldconfig, which a
+        # child between fork and exec must not do)
+        return ctypes.CDLL(None, use_errno=True).prctl(option, ctypes.c_ulong(int(value)), 0, 0, 0) == 0
     except (OSError, AttributeError):
         return False
+
+
+def fine_timer_slack(slack_ns: int = 1000) -> bool:
+    """Let this thread's sleeps wake within ``slack_ns`` of their time (Linux's default slack is
+    50 µs, a twentieth of the twin's period). Returns whether it was set."""
+    return linux_prctl(29, slack_ns)  # PR_SET_TIMERSLACK

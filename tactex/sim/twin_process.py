@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 from tactex.errors import TactexError
+from tactex.sim.twin_clock import linux_prctl
 
 __all__ = ["TwinProcess", "free_loopback_address"]
 
@@ -47,13 +48,7 @@ def _die_with_parent() -> None:
     """In the child, before the twin starts (Linux): SIGTERM when the process that started it dies, even
     by SIGKILL or a signal that skips :meth:`TwinProcess.close`; a twin left behind keeps a core busy.
     Linux ties this to the starting thread: start a twin from a thread that outlives it."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        try:
-            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            pass
+    linux_prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 def free_loopback_address(rng: random.Random | None = None, attempts: int = 50) -> tuple[str, int]:
