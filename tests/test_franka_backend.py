@@ -368,3 +368,22 @@ def test_robot_check_warns_without_the_compiled_kernels(panel, monkeypatch):
     monkeypatch.setattr(joint_kernels, "kernels", lambda: None)
     result = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
     assert any("fast extra" in w for w in result.warnings)
+
+
+def test_robot_check_reports_the_idle_state_request(panel, monkeypatch, tmp_path):
+    from tactex.robots import cpu_latency
+
+    device = tmp_path / "cpu_dma_latency"
+    device.write_bytes(b"")
+    monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(device))
+    held = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    assert "held at ≤ 0 µs" in held.info["control_scheduling"]
+    assert device.read_bytes() == (0).to_bytes(4, "little", signed=True)
+    assert not any("cpu_dma_latency" in w for w in held.warnings)
+    monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(tmp_path / "absent"))
+    refused = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    assert "not limited" in refused.info["control_scheduling"]
+    assert any("cpu_dma_latency" in w for w in refused.warnings)
+    off = check_robot(FrankaConfig(robot_ip=panel.hostname, cpu_latency_us=-1), duration_s=0.2,
+                      max_lost_fraction=0.5)
+    assert not any("cpu_dma_latency" in w for w in off.warnings)

@@ -14,6 +14,7 @@ from tactex.cli import main
 from tactex.control.linalg import solve
 from tactex.errors import ConfigError, SensorFault
 from tactex.robots.check import check_robot, link_verdict
+from tactex.robots.cpu_latency import CpuLatencyRequest
 from tactex.robots.libfranka_backend import FrankaConfig, pin_control_thread
 from tactex.robots.netft import (
     CMD_START_REALTIME,
@@ -242,6 +243,31 @@ def test_control_cpu_option():
         FrankaConfig(robot_ip="1.2.3.4", control_cpu=(os.cpu_count() or 1))
     with pytest.raises(ConfigError, match="control_cpu"):
         FrankaConfig(robot_ip="1.2.3.4", control_cpu=True)
+
+
+def test_cpu_latency_request_writes_the_bound_and_holds_it_until_released(tmp_path):
+    device = tmp_path / "cpu_dma_latency"
+    device.write_bytes(b"")
+    request = CpuLatencyRequest(0, device=str(device))
+    assert request.held and "≤ 0 µs" in request.description
+    assert device.read_bytes() == (0).to_bytes(4, "little", signed=True)  # PM QoS reads a binary s32
+    request.release()
+    request.release()  # idempotent
+    assert not request.held
+    CpuLatencyRequest(25, device=str(device)).release()
+    assert device.read_bytes() == (25).to_bytes(4, "little", signed=True)
+
+
+def test_cpu_latency_request_goes_on_without_the_device_and_checks_its_value(tmp_path):
+    missing = CpuLatencyRequest(0, device=str(tmp_path / "absent"))
+    assert not missing.held and "not limited" in missing.description and "absent" in missing.description
+    off = CpuLatencyRequest(-1, device=str(tmp_path / "absent"))
+    assert not off.held and off.description == "idle states not limited"
+    with pytest.raises(ConfigError, match="cpu_latency_us"):
+        CpuLatencyRequest(1.5)
+    for bad in (-2, True, 0.5):
+        with pytest.raises(ConfigError, match="cpu_latency_us"):
+            FrankaConfig(robot_ip="1.2.3.4", cpu_latency_us=bad)
 
 
 # -- the link check's verdict (no robot needed) ---------------------------------------------------

@@ -88,6 +88,7 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
     info: dict[str, Any] = {"robot_ip": config.robot_ip, "connect_s": time.perf_counter() - t0}
     problems: list[str] = []
     warnings: list[str] = []
+    latency_held, latency_text = backend.cpu_latency.held, backend.cpu_latency.description  # released by close
     try:
         fs = backend._franka_state
         state = backend.state()
@@ -131,6 +132,9 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         warnings += link_warnings
     finally:
         backend.close()
+    if config.cpu_latency_us >= 0 and not latency_held:
+        warnings.append(f"{latency_text}: each wait for the robot may end with an idle-exit "
+                        "delay; let your user write /dev/cpu_dma_latency (docs/real_robot.md, CPU idle states)")
     if joint_kernels.kernels() is None:
         warnings.append("the controllers' compiled kernels are not available (install the fast extra: numba): "
                         "every contact tick then does its joint-space algebra in numpy, slower")

@@ -42,6 +42,7 @@ from tactex.config import param
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
 from tactex.perception.frame import CameraFrame
+from tactex.robots.cpu_latency import CpuLatencyRequest
 from tactex.robots.netft import NetFTClient, parse_netft_address
 from tactex.robots.wrench import FrankaWrenchSource, NetFTWrenchSource, WrenchSource
 from tactex.sim.tool import ToolGeometry, flange_R_tool
@@ -84,6 +85,8 @@ class FrankaConfig:
     collision_force_n: float = param(60.0, "libfranka's collision reflex: upper Cartesian force threshold [N]")
     control_cpu: int = param(-1, "pin the control loop to this CPU core, run it with real-time priority when "
                                  "allowed, and keep the vision process off it (-1: no pinning)")
+    cpu_latency_us: int = param(0, "while connected, hold the CPUs' idle wake-up latency at or below this "
+                                   "through /dev/cpu_dma_latency (0: idle CPUs poll; -1: no request) [µs]")
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot_ip, str) or not self.robot_ip.strip():
@@ -100,6 +103,10 @@ class FrankaConfig:
                 or not -1 <= self.control_cpu < cpus:
             raise ConfigError(f"control_cpu must be a core number in 0..{cpus - 1} or -1 (no pinning), "
                               f"got {self.control_cpu!r}")
+        if isinstance(self.cpu_latency_us, bool) or not isinstance(self.cpu_latency_us, int) \
+                or self.cpu_latency_us < -1:
+            raise ConfigError(f"cpu_latency_us must be a whole number of microseconds ≥ 0, or -1 (no request), "
+                              f"got {self.cpu_latency_us!r}")
         for name in ("ft_counts_per_force", "ft_counts_per_torque", "ft_timeout_s", "collision_torque_n_m",
                      "collision_force_n"):
             v = float(getattr(self, name))
@@ -319,6 +326,7 @@ class LibfrankaBackend:
             if isinstance(exc, RobotError):
                 raise
             raise RobotError(f"setting up the Franka at {config.robot_ip} failed: {exc}") from exc
+        self.cpu_latency = CpuLatencyRequest(config.cpu_latency_us)
 
     # -- set-up ---------------------------------------------------------------------------------
     def _configure(self) -> None:
@@ -538,7 +546,7 @@ class LibfrankaBackend:
         """The loop's timing figures and the wrench source's counters (metrics.json)."""
         return {**self.timing.metrics(), **self.wrench.stats(), "robot_errors": list(self.events),
                 "dry_run": self.config.dry_run, "wrench_source": self.wrench.name,
-                "control_scheduling": self.scheduling}
+                "control_scheduling": f"{self.scheduling}; {self.cpu_latency.description}"}
 
     def close(self) -> None:
         """End torque control (``motion_finished`` with zero torque) and close the streams; idempotent."""
@@ -553,6 +561,7 @@ class LibfrankaBackend:
         finally:
             self._control = None
             self._gc_on()
+            self.cpu_latency.release()
             self.wrench.close()
             if self._ik is not None:
                 self._ik.close()
