@@ -71,3 +71,12 @@ def gap_strips(gap_m: float, target_beyond_m: float, seed: int) -> SurfaceCloud:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(autouse=True)
+def _no_machine_wide_idle_request(monkeypatch) -> None:
+    """No test makes the CPUs of the machine running the suite poll (a PM QoS request is system-wide);
+    the tests of the request give it a device of their own."""
+    from tactex.robots import cpu_latency
+
+    monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", "/nonexistent/cpu_dma_latency")

@@ -370,20 +370,45 @@ def test_robot_check_warns_without_the_compiled_kernels(panel, monkeypatch):
     assert any("fast extra" in w for w in result.warnings)
 
 
-def test_robot_check_reports_the_idle_state_request(panel, monkeypatch, tmp_path):
+def test_robot_check_reports_the_idle_state_request_and_close_ends_it(panel, monkeypatch, tmp_path):
+    import struct
+
     from tactex.robots import cpu_latency
 
     device = tmp_path / "cpu_dma_latency"
     device.write_bytes(b"")
     monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(device))
+    monkeypatch.setattr(cpu_latency, "_is_pm_qos_device", lambda fd: True)
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        assert backend.cpu_latency.held and device.read_bytes() == struct.pack("=i", 0)
+        fd = backend.cpu_latency._fd
+        os.fstat(fd)
+    finally:
+        backend.close()
+    assert not backend.cpu_latency.held
+    with pytest.raises(OSError):
+        os.fstat(fd)  # the request ended with the connection
     held = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
     assert "held at ≤ 0 µs" in held.info["control_scheduling"]
-    assert device.read_bytes() == (0).to_bytes(4, "little", signed=True)
-    assert not any("cpu_dma_latency" in w for w in held.warnings)
+    assert not any("idle" in w for w in held.warnings)
     monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(tmp_path / "absent"))
-    refused = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
-    assert "not limited" in refused.info["control_scheduling"]
-    assert any("cpu_dma_latency" in w for w in refused.warnings)
+    missing = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    assert "not limited" in missing.info["control_scheduling"]
+    assert any("no PM QoS device" in w for w in missing.warnings)
+    real_open = os.open
+
+    def refuse_the_device(path, flags, *args):
+        if str(path) == str(device):
+            raise PermissionError(13, "Permission denied", path)
+        return real_open(path, flags, *args)
+
+    monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(device))
+    monkeypatch.setattr(os, "open", refuse_the_device)
+    denied = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    monkeypatch.setattr(os, "open", real_open)
+    assert any("let your user write /dev/cpu_dma_latency" in w for w in denied.warnings)
     off = check_robot(FrankaConfig(robot_ip=panel.hostname, cpu_latency_us=-1), duration_s=0.2,
                       max_lost_fraction=0.5)
-    assert not any("cpu_dma_latency" in w for w in off.warnings)
+    assert "idle states not limited" in off.info["control_scheduling"]
+    assert not any("idle" in w for w in off.warnings)

@@ -3,8 +3,10 @@ the vision process, the small LAPACK solve of the 1 kHz path, the control-core o
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
+import struct
 import time
 
 import numpy as np
@@ -245,29 +247,71 @@ def test_control_cpu_option():
         FrankaConfig(robot_ip="1.2.3.4", control_cpu=True)
 
 
-def test_cpu_latency_request_writes_the_bound_and_holds_it_until_released(tmp_path):
+def _s32(value: int) -> bytes:
+    return struct.pack("=i", value)  # what the kernel's PM QoS node reads
+
+
+@pytest.fixture
+def qos_device(tmp_path, monkeypatch):
+    """A regular file standing in for /dev/cpu_dma_latency (accepted as the device)."""
+    from tactex.robots import cpu_latency
+
     device = tmp_path / "cpu_dma_latency"
     device.write_bytes(b"")
-    request = CpuLatencyRequest(0, device=str(device))
+    monkeypatch.setattr(cpu_latency, "_is_pm_qos_device", lambda fd: True)
+    return device
+
+
+def test_cpu_latency_request_writes_the_bound_and_holds_it_until_released(qos_device):
+    request = CpuLatencyRequest(0, device=str(qos_device))
     assert request.held and "≤ 0 µs" in request.description
-    assert device.read_bytes() == (0).to_bytes(4, "little", signed=True)  # PM QoS reads a binary s32
+    fd = request._fd
+    os.fstat(fd)  # open while held
+    assert qos_device.read_bytes() == _s32(0)
     request.release()
     request.release()  # idempotent
     assert not request.held
-    CpuLatencyRequest(25, device=str(device)).release()
-    assert device.read_bytes() == (25).to_bytes(4, "little", signed=True)
+    with pytest.raises(OSError):
+        os.fstat(fd)
+    CpuLatencyRequest(25, device=str(qos_device)).release()
+    assert qos_device.read_bytes() == _s32(25)
 
 
-def test_cpu_latency_request_goes_on_without_the_device_and_checks_its_value(tmp_path):
+def test_cpu_latency_request_goes_on_without_the_device_and_checks_its_value(tmp_path, qos_device):
     missing = CpuLatencyRequest(0, device=str(tmp_path / "absent"))
     assert not missing.held and "not limited" in missing.description and "absent" in missing.description
-    off = CpuLatencyRequest(-1, device=str(tmp_path / "absent"))
+    assert not missing.permission_denied
+    off = CpuLatencyRequest(-1, device=str(qos_device))
     assert not off.held and off.description == "idle states not limited"
-    with pytest.raises(ConfigError, match="cpu_latency_us"):
-        CpuLatencyRequest(1.5)
-    for bad in (-2, True, 0.5):
+    assert qos_device.read_bytes() == b""  # no request made
+    for bad in (1.5, -2, 2**31, True):
+        with pytest.raises(ConfigError, match="cpu_latency_us"):
+            CpuLatencyRequest(bad)
         with pytest.raises(ConfigError, match="cpu_latency_us"):
             FrankaConfig(robot_ip="1.2.3.4", cpu_latency_us=bad)
+
+
+def test_cpu_latency_request_holds_nothing_on_a_plain_file_or_a_fifo(tmp_path):
+    plain = tmp_path / "plain"
+    plain.write_bytes(b"")
+    request = CpuLatencyRequest(0, device=str(plain))
+    assert not request.held and "not a PM QoS device" in request.description
+    assert plain.read_bytes() == b""
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    request = CpuLatencyRequest(0, device=str(fifo))  # no reader: must not block
+    assert not request.held
+
+
+def test_cpu_latency_request_says_when_permission_is_missing(tmp_path, monkeypatch):
+    from tactex.robots import cpu_latency
+
+    def refuse(path, flags):  # what a user without the udev rule gets (root may open any file)
+        raise PermissionError(errno.EACCES, "Permission denied", path)
+
+    monkeypatch.setattr(cpu_latency.os, "open", refuse)
+    request = CpuLatencyRequest(0, device=str(tmp_path / "cpu_dma_latency"))
+    assert not request.held and request.permission_denied and "Permission denied" in request.description
 
 
 # -- the link check's verdict (no robot needed) ---------------------------------------------------

@@ -88,7 +88,8 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
     info: dict[str, Any] = {"robot_ip": config.robot_ip, "connect_s": time.perf_counter() - t0}
     problems: list[str] = []
     warnings: list[str] = []
-    latency_held, latency_text = backend.cpu_latency.held, backend.cpu_latency.description  # released by close
+    latency = backend.cpu_latency  # read before close releases it
+    latency_held, latency_text, latency_denied = latency.held, latency.description, latency.permission_denied
     try:
         fs = backend._franka_state
         state = backend.state()
@@ -133,8 +134,10 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
     finally:
         backend.close()
     if config.cpu_latency_us >= 0 and not latency_held:
-        warnings.append(f"{latency_text}: each wait for the robot may end with an idle-exit "
-                        "delay; let your user write /dev/cpu_dma_latency (docs/real_robot.md, CPU idle states)")
+        fix = ("let your user write /dev/cpu_dma_latency (docs/real_robot.md, CPU idle states)" if latency_denied
+               else "this system offers no PM QoS device; limit idle states in the BIOS or with the kernel's "
+                    "idle= / processor.max_cstate= options instead")
+        warnings.append(f"{latency_text}: each wait for the robot may end with an idle-exit delay; {fix}")
     if joint_kernels.kernels() is None:
         warnings.append("the controllers' compiled kernels are not available (install the fast extra: numba): "
                         "every contact tick then does its joint-space algebra in numpy, slower")

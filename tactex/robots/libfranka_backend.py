@@ -42,7 +42,7 @@ from tactex.config import param
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
 from tactex.perception.frame import CameraFrame
-from tactex.robots.cpu_latency import CpuLatencyRequest
+from tactex.robots.cpu_latency import CpuLatencyRequest, check_latency_us
 from tactex.robots.netft import NetFTClient, parse_netft_address
 from tactex.robots.wrench import FrankaWrenchSource, NetFTWrenchSource, WrenchSource
 from tactex.sim.tool import ToolGeometry, flange_R_tool
@@ -103,10 +103,7 @@ class FrankaConfig:
                 or not -1 <= self.control_cpu < cpus:
             raise ConfigError(f"control_cpu must be a core number in 0..{cpus - 1} or -1 (no pinning), "
                               f"got {self.control_cpu!r}")
-        if isinstance(self.cpu_latency_us, bool) or not isinstance(self.cpu_latency_us, int) \
-                or self.cpu_latency_us < -1:
-            raise ConfigError(f"cpu_latency_us must be a whole number of microseconds ≥ 0, or -1 (no request), "
-                              f"got {self.cpu_latency_us!r}")
+        check_latency_us(self.cpu_latency_us)
         for name in ("ft_counts_per_force", "ft_counts_per_torque", "ft_timeout_s", "collision_torque_n_m",
                      "collision_force_n"):
             v = float(getattr(self, name))
@@ -303,6 +300,7 @@ class LibfrankaBackend:
         self._last_read_wall: float | None = None
         self.wrench = config.wrench_source(self.tool)
         self.scheduling = pin_control_thread(config.control_cpu)
+        self.cpu_latency = CpuLatencyRequest(-1)  # made once the robot is set up
         rt = pylibfranka.RealtimeConfig.kIgnore if config.ignore_realtime else pylibfranka.RealtimeConfig.kEnforce
         try:
             self.robot = pylibfranka.Robot(config.robot_ip, rt)
@@ -321,12 +319,13 @@ class LibfrankaBackend:
             self._franka_state = self.robot.read_once()
             self.wrench.start(world_R_tool=_col_major(self._franka_state.O_T_EE, 4, 4)[:3, :3])
             self._state = self._convert(self._franka_state)
+            self.cpu_latency = CpuLatencyRequest(config.cpu_latency_us)
         except Exception as exc:
+            self.cpu_latency.release()
             self.wrench.close()
             if isinstance(exc, RobotError):
                 raise
             raise RobotError(f"setting up the Franka at {config.robot_ip} failed: {exc}") from exc
-        self.cpu_latency = CpuLatencyRequest(config.cpu_latency_us)
 
     # -- set-up ---------------------------------------------------------------------------------
     def _configure(self) -> None:
@@ -561,7 +560,10 @@ class LibfrankaBackend:
         finally:
             self._control = None
             self._gc_on()
-            self.cpu_latency.release()
+            try:
+                self.cpu_latency.release()
+            except OSError as exc:  # the request ends with the process anyway; the rest must still close
+                self.events.append(f"close: cpu latency request: {exc}")
             self.wrench.close()
             if self._ik is not None:
                 self._ik.close()
