@@ -168,6 +168,12 @@ def test_reference_validation(point, normal, force, match):
         LineForceReference(np.asarray(point, float), np.asarray(normal, float), force)
 
 
+@pytest.mark.parametrize("speed", [-0.1, float("nan"), float("inf")])
+def test_reference_approach_speed_validation(speed):
+    with pytest.raises(InputError, match="approach_speed_m_s"):
+        LineForceReference(np.zeros(3), np.array([0.0, 0.0, 1.0]), 3.0, speed)
+
+
 def test_line_wrench_is_a_descent_direction(rng):
     """Moving the tool a little along the commanded twist (tool frame, [t; ω]) brings its axis
     closer to the target line: the sign conventions of the GA → numpy mapping are right."""
@@ -204,6 +210,32 @@ def test_approach_speed_cap_acts_only_out_of_contact_and_above_the_cap():
     # out of contact and above the cap: the excess speed is damped as well
     expected = d_z * 0.10 + params.approach_damping_z * (0.10 - params.approach_speed_max)
     assert fz_world(0.10, 0.0) == pytest.approx(expected)
+
+
+def test_commanded_approach_speed_is_a_damping_feed_forward_out_of_contact_only():
+    """With ``approach_speed_m_s`` the pressing axis's damping pulls towards that speed instead of rest, the cap
+    rises to it, and in contact the reference's speed is ignored (eq. 47 unchanged)."""
+    params = GaLineForceParams(kp=0.0, ki=0.0, kd=0.0, latency_horizon_ticks=0.0)
+    down = np.diag([1.0, -1.0, -1.0])
+    jac = np.hstack([np.eye(6), np.zeros((6, 1))])
+    d_z = params.damping_linear[2]
+
+    def fz_world(speed_down: float, f_meas: float, v_cmd: float) -> float:
+        ctrl = GaLineForceController(params)
+        ref = LineForceReference(np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), 3.0, v_cmd)
+        state = make_state(position=np.array([0.5, 0.0, 0.1]), rotation=down, jacobian=jac,
+                           twist=np.array([0, 0, -speed_down, 0, 0, 0]), dq=np.array([0, 0, -speed_down, 0, 0, 0, 0]),
+                           wrench_tool=np.array([0, 0, f_meas, 0, 0, 0]))
+        return float(ctrl.torque(state, ref)[2])  # world z; tool z is world −z
+
+    # at rest it pushes towards the surface with D_z·v; at the commanded speed the push and the damping cancel
+    assert fz_world(0.0, 0.0, 0.1) == pytest.approx(-d_z * 0.1)
+    assert fz_world(0.1, 0.0, 0.1) == pytest.approx(0.0, abs=1e-9)
+    # the cap acts above the commanded speed, not above approach_speed_max
+    expected = d_z * 0.05 + params.approach_damping_z * 0.05
+    assert fz_world(0.15, 0.0, 0.1) == pytest.approx(expected)
+    # in contact: as without a commanded speed
+    assert fz_world(0.0, 3.0, 0.1) == pytest.approx(fz_world(0.0, 3.0, 0.0))
 
 
 def test_a_one_tick_wrench_dip_does_not_reach_the_torque():

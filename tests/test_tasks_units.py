@@ -135,6 +135,9 @@ def test_recorder_and_progress() -> None:
         ({"keep_out_channel": "purple"}, "--keep-out-channel"),
         ({"keep_out_channel": "blue", "keep_out_threshold": 1.5}, "--keep-out-threshold"),
         ({"keep_out_channel": "blue", "baseline": "raster"}, "raster baseline has no keep-out"),
+        ({"approach_speed_m_s": -0.1}, "approach_speed_m_s"),
+        ({"approach_slow_m": float("nan")}, "approach_slow_m"),
+        ({"joint_speed_rad_s": 0.0}, "joint_speed_rad_s"),
     ],
 )
 def test_clean_config_validation(kwargs, match) -> None:
@@ -528,3 +531,36 @@ def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> No
     assert 1 <= len(calls) <= 5
     bare = replace(cloud, normals=None)
     assert clean._quickest_touch_down(loop, bare, targets, q_capture, cap_pos, cfg.hover_height_m) is None
+
+
+def test_approach_speed_falls_with_the_height_above_the_captured_surface() -> None:
+    """Full speed high above the surface, proportional below, nothing within approach_slow_m (the force loop's
+    slow approach alone) nor under the surface."""
+    from tactex.ergodic.command import ExplorationCommand
+    from tactex.tasks.clean import APPROACH_GAIN_PER_S, _approach_speed
+
+    cfg = CleanConfig(approach_speed_m_s=0.1, approach_slow_m=0.01)
+    normal = np.array([0.0, -1.0, 0.0])  # a wall facing −y
+    cmd = ExplorationCommand(point=np.array([0.4, 0.0, 0.05]), velocity=np.zeros(3), normal=normal,
+                             tangent_u=np.array([1.0, 0.0, 0.0]), tangent_v=np.array([0.0, 0.0, 1.0]), step=0, agent=0)
+    at = lambda h: _approach_speed(cmd.point + h * normal + np.array([0.003, 0.0, 0.002]), cmd, cfg)  # noqa: E731
+    assert at(0.03) == pytest.approx(0.1)
+    assert at(0.015) == pytest.approx(APPROACH_GAIN_PER_S * 0.005)
+    assert at(0.01) == 0.0 and at(0.005) == 0.0 and at(-0.01) == 0.0
+    assert _approach_speed(cmd.point + 0.03 * normal, cmd, CleanConfig(approach_speed_m_s=0.0)) == 0.0
+
+
+def test_control_loop_joint_speed_sets_the_moves_duration_and_is_checked() -> None:
+    from tactex.robots import MujocoBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+
+    backend = MujocoBackend(SceneConfig(object_name="plane"))
+    slow, fast = ControlLoop(backend), ControlLoop(backend, max_joint_speed=1.6)
+    goal = slow.state.q + 0.8
+    assert slow.joint_move_duration(goal) == pytest.approx(1.875 * 0.8 / 0.8)
+    assert fast.joint_move_duration(goal) == pytest.approx(1.875 * 0.8 / 1.6)
+    assert fast.joint_move_duration(goal, max_joint_speed=0.8) == pytest.approx(slow.joint_move_duration(goal))
+    with pytest.raises(InputError, match="max_joint_speed"):
+        ControlLoop(backend, max_joint_speed=0.0)
+

@@ -144,6 +144,7 @@ class GaLineForceController(Controller):
         self._k = np.concatenate([p.stiffness_linear, p.stiffness_angular]).astype(float)
         self._d = np.concatenate([p.damping_linear, p.damping_angular]).astype(float)
         self._axes = np.asarray(p.force_axes, dtype=float)
+        self._d_z = float(p.damping_linear[2])
         # The tick runs on Python floats (gains as tuples, PID states as lists): at 1 kHz a numpy call on
         # a 6-vector costs more than the float operations it replaces, and the tick had ~30 of them.
         self._k_f = tuple(self._k.tolist())
@@ -258,7 +259,12 @@ class GaLineForceController(Controller):
         self._err_prev = err
         self._err2 = err[2]
 
-        excess = v_tool[2] - p.approach_speed_max
+        # a commanded approach speed (far above the surface): the damping D_z pulls towards it, not to rest,
+        # without a step in the force set point (which K_d would pass on as a kick)
+        v_approach = reference.approach_speed_m_s if not in_contact else 0.0
+        if v_approach > 0.0:
+            w_tool[2] += self._d_z * v_approach
+        excess = v_tool[2] - max(p.approach_speed_max, v_approach)
         if excess > 0.0 and w_meas[2] < p.approach_below * force_n:
             w_tool[2] -= p.approach_damping_z * excess  # speed cap while approaching (not in eq. 47)
         self._w_line = w_line

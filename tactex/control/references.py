@@ -30,11 +30,15 @@ class LineForceReference:
             The target line L_a,⊥ (TEC eq. 28) runs through ``point_world`` along
             ``-normal_world``, i.e. along the tool z-axis when the tool presses on the surface.
         force_n: pressing force along the tool z-axis [N], ≥ 0.
+        approach_speed_m_s: out of contact, the speed along the tool z-axis (towards the surface) the
+            line's damping lets the tool move at instead of holding it still [m/s], ≥ 0 (a feed-forward
+            D_z·v; 0: the force loop alone drives the approach).
     """
 
     point_world: np.ndarray
     normal_world: np.ndarray
     force_n: float = 10.0
+    approach_speed_m_s: float = 0.0
 
     def __post_init__(self) -> None:
         p = _finite("LineForceReference.point_world", self.point_world, (3,))
@@ -45,9 +49,14 @@ class LineForceReference:
         f = float(self.force_n)
         if not np.isfinite(f) or f < 0.0:
             raise InputError(f"LineForceReference.force_n must be a finite force ≥ 0 N, got {self.force_n!r}")
+        v = float(self.approach_speed_m_s)
+        if not np.isfinite(v) or v < 0.0:
+            raise InputError(f"LineForceReference.approach_speed_m_s must be a finite speed ≥ 0 m/s, got "
+                             f"{self.approach_speed_m_s!r}")
         object.__setattr__(self, "point_world", p)
         object.__setattr__(self, "normal_world", n / norm)
         object.__setattr__(self, "force_n", f)
+        object.__setattr__(self, "approach_speed_m_s", v)
 
 
 @dataclass(frozen=True, slots=True)

@@ -96,6 +96,13 @@ WAYPOINT_MAX_JOINT_RAD = 0.5
 MAX_HOLD_STEPS = 10
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
+#: How fast the commanded approach speed falls with the height above the captured surface [1/s]: it reaches
+#: zero at CleanConfig.approach_slow_m over about 1 / APPROACH_GAIN_PER_S, time enough for the line's damping
+#: (D_z = 50 N·s/m on a few kg of tool) to brake.
+APPROACH_GAIN_PER_S = 10.0
+#: ... and rises from rest no faster than this [m/s²]: a step of D_z·v in the push shakes the tool, whose inertia
+#: the F/T reads as a force (~2 N), above the touch-down threshold at 0.2 m/s.
+APPROACH_ACCEL_M_S2 = 1.0
 #: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
 #: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
 #: (two IK solves, a few ms each).
@@ -173,6 +180,16 @@ class CleanConfig(SimWorldParams):
         45.0, "elevation of the view onto a wall (the cup) above the horizontal [deg], 0–75: the camera looks down "
         "at the wall's mid-height from above the side the marking faces (a shorter swing of the shoulder from home)")
     hover_height_m: float = param(0.03, "hover above the surface before contact [m]")
+    approach_speed_m_s: float = param(
+        0.1, "speed of the approach along the normal while the tool is well above the captured surface (falling "
+        "to zero at --approach-slow-m); 0 = the force loop's own slow approach (~3 cm/s at --approach-force-n 3) "
+        "all the way down [m/s]")
+    approach_slow_m: float = param(
+        0.01, "height above the captured surface under which only the force loop's slow approach moves the tool "
+        "(a margin for the capture's error) [m]")
+    joint_speed_rad_s: float = param(
+        0.8, "peak joint speed of the joint moves out of contact (to the camera, to a hover, between islands) "
+        "[rad/s]; the Franka allows 2.2–2.6")
     approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
     force_ramp_s: float = param(0.1, "ramp from the approach force to the set point after touch-down [s]")
     contact_threshold_n: float = param(
@@ -227,9 +244,13 @@ class CleanConfig(SimWorldParams):
         object.__setattr__(self, "marking", resolve_marking(self.marking))  # 'x' is X
         if self.baseline not in CLEAN_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
+        for name in ("approach_speed_m_s", "approach_slow_m"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be a number ≥ 0, got {getattr(self, name)!r}")
         positive = ("force_n", "alpha", "agent_radius_m", "voxel_size_m", "max_velocity", "explorer_rate_hz",
                     "budget_s", "capture_distance_m", "side_capture_distance_m", "hover_height_m", "approach_force_n",
-                    "max_normal_rate_deg_s")
+                    "max_normal_rate_deg_s", "joint_speed_rad_s")
         for name in positive:
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -576,6 +597,15 @@ def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.nda
     return chosen
 
 
+def _approach_speed(tcp_m: np.ndarray, cmd: ExplorationCommand, cfg: CleanConfig) -> float:
+    """The approach speed [m/s] commanded with the tool at ``tcp_m`` (3,) [m] over ``cmd``'s point: falling
+    in proportion to the height above the captured surface (:data:`APPROACH_GAIN_PER_S`) from
+    ``cfg.approach_speed_m_s`` to zero at ``cfg.approach_slow_m``, below which the force loop's own slow
+    approach touches down."""
+    height_m = float((np.asarray(tcp_m, dtype=float) - cmd.point) @ cmd.normal)
+    return float(np.clip(APPROACH_GAIN_PER_S * (height_m - cfg.approach_slow_m), 0.0, cfg.approach_speed_m_s))
+
+
 def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndarray:
     """The cloud points ``indices`` a touch-down may be at (``touch_down_ok`` (N,) bool; None: all), or all of
     them when none is (the dirt left lies only beside a keep-out zone)."""
@@ -667,7 +697,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                progress: bool) -> CleanResult:
     wall0 = time.perf_counter()
     log = _Log(backend, cfg)
-    loop = ControlLoop(backend, on_tick=log)
+    loop = ControlLoop(backend, on_tick=log, max_joint_speed=cfg.joint_speed_rad_s)
     bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
     given, keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
                                                   cfg.keep_out_threshold, cfg.keep_out_mask)
@@ -858,9 +888,12 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             log.activity("approach", "touch_down")
             loop.use(ga)
             t_touch = None
+            t_approach_start = loop.t
             t_approach_end = loop.t + 6.0
             while loop.t < min(t_approach_end, t_end):
-                s = loop.tick(LineForceReference(cmd.point, cmd.normal, cfg.approach_force_n))
+                v_approach = min(_approach_speed(loop.state.ee_position, cmd, cfg),
+                                 APPROACH_ACCEL_M_S2 * (loop.t - t_approach_start))
+                s = loop.tick(LineForceReference(cmd.point, cmd.normal, cfg.approach_force_n, v_approach))
                 if s.wrench_tool[2] >= cfg.contact_threshold_n:
                     t_touch = loop.t
                     break

@@ -58,8 +58,12 @@ class ControlLoop:
     """
 
     def __init__(self, backend: RobotBackend, limits: SafetyLimits | None = None,
-                 on_tick: Callable[[RobotState, Any, Controller], None] | None = None) -> None:
+                 on_tick: Callable[[RobotState, Any, Controller], None] | None = None,
+                 max_joint_speed: float = 0.8) -> None:
+        if not (np.isfinite(max_joint_speed) and max_joint_speed > 0):
+            raise InputError(f"max_joint_speed must be a positive speed [rad/s], got {max_joint_speed!r}")
         self.backend = backend
+        self.max_joint_speed = float(max_joint_speed)  # [rad/s] the joint moves' default peak speed
         # the task-space controllers' compiled kernels are built (or loaded) now, before the first tick:
         # a task builds its controllers between moves, while a real robot's torque control runs
         joint_kernels.kernels()
@@ -106,11 +110,11 @@ class ControlLoop:
         return self.state
 
     def move_joints(self, q_goal: np.ndarray, duration_s: float | None = None, settle_s: float = 0.2,
-                    max_joint_speed: float = 0.8) -> RobotState:
+                    max_joint_speed: float | None = None) -> RobotState:
         """Minimum-jerk joint move with joint impedance (TEC's capture/hover transitions).
 
-        ``duration_s`` defaults to what keeps every joint under ``max_joint_speed`` [rad/s] (the
-        min-jerk peak speed is 1.875 × the mean speed), at least 0.5 s.
+        ``duration_s`` defaults to what keeps every joint under ``max_joint_speed`` [rad/s] (default: the
+        loop's; the min-jerk peak speed is 1.875 × the mean speed), at least 0.5 s.
         """
         self.use(self.joint)
         q_goal = np.asarray(q_goal, dtype=float)
@@ -136,11 +140,12 @@ class ControlLoop:
             self.tick(target)
         return self.state
 
-    def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float = 0.8,
+    def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float | None = None,
                             q_from: np.ndarray | None = None, min_duration_s: float = 0.5) -> float:
         """Duration [s] of :meth:`move_joints` from ``q_from`` (default: the current q) to
         ``q_goal`` (no settling): every joint under ``max_joint_speed`` [rad/s] (the min-jerk peak
-        speed is 1.875 × the mean speed), at least ``min_duration_s``."""
+        speed is 1.875 × the mean speed; default: the loop's), at least ``min_duration_s``."""
+        max_joint_speed = self.max_joint_speed if max_joint_speed is None else max_joint_speed
         start = self.state.q if q_from is None else np.asarray(q_from, dtype=float)
         peak = 1.875 * float(np.max(np.abs(np.asarray(q_goal, dtype=float) - start))) / max_joint_speed
         return max(min_duration_s, peak)
@@ -167,7 +172,7 @@ class ControlLoop:
         return self.move_joints(self.solve_pose(position_world, rotation_world, q_seed), duration_s, settle_s)
 
     def move_cartesian(self, position_world: np.ndarray, rotation_world: np.ndarray, *, step_m: float = 0.02,
-                       step_rad: float = 0.15, settle_s: float = 0.2, max_joint_speed: float = 0.8,
+                       step_rad: float = 0.15, settle_s: float = 0.2, max_joint_speed: float | None = None,
                        q_goal: np.ndarray | None = None, max_skipped: int = 2) -> RobotState:
         """Move the TCP along the straight line to ``position_world`` [m] (the orientation along the
         geodesic to ``rotation_world``), as one joint move through IK waypoints at most ``step_m`` [m]
@@ -213,6 +218,7 @@ class ControlLoop:
             # through both swings far past them; join it with its own joint move, as a stop
             last_leg = path.pop()
         target = JointTarget(self._q_from(), path[-1], self.t, 0.0, via=np.array(path[:-1]) if len(path) > 1 else None)
+        max_joint_speed = self.max_joint_speed if max_joint_speed is None else max_joint_speed
         duration_s = max(0.1, 1.875 * target.path_rate() / max_joint_speed)
         if last_leg is None:
             return self._run_joint_target(replace(target, duration_s=duration_s), settle_s)
