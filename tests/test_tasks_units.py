@@ -564,3 +564,18 @@ def test_control_loop_joint_speed_sets_the_moves_duration_and_is_checked() -> No
     with pytest.raises(InputError, match="max_joint_speed"):
         ControlLoop(backend, max_joint_speed=0.0)
 
+
+def test_the_commanded_point_keeps_the_pad_above_the_table() -> None:
+    """At a wall's foot the line's point rises until the pad's disc (⟂ the normal) clears the support plane; on a
+    surface facing up (a plate) and higher on the wall it is left alone."""
+    from tactex.tasks.clean import _pad_over_support
+
+    wall = np.array([0.0, -1.0, 0.0])
+    low = np.array([0.4, -0.04, 0.005])
+    np.testing.assert_allclose(_pad_over_support(low, wall, 0.0, 0.025), [0.4, -0.04, 0.025])
+    high = np.array([0.4, -0.04, 0.06])
+    assert _pad_over_support(high, wall, 0.0, 0.025) is high
+    plate = np.array([0.4, 0.0, 0.001])
+    assert _pad_over_support(plate, np.array([0.0, 0.0, 1.0]), 0.0, 0.025) is plate
+    tilted = np.array([0.0, -np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])  # a rim at 30° from level
+    np.testing.assert_allclose(_pad_over_support(plate, tilted * 2.0, 0.0, 0.025)[2], 0.025 * 0.5)

@@ -103,6 +103,8 @@ APPROACH_GAIN_PER_S = 10.0
 #: ... and rises from rest no faster than this [m/s²]: a step of D_z·v in the push shakes the tool, whose inertia
 #: the F/T reads as a force (~2 N), above the touch-down threshold at 0.2 m/s.
 APPROACH_ACCEL_M_S2 = 1.0
+#: Height of the table top the simulated objects stand on [m] (tactex.sim.scene; the capture's crop assumes it).
+SUPPORT_Z_M = 0.0
 #: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
 #: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
 #: (two IK solves, a few ms each).
@@ -606,6 +608,22 @@ def _approach_speed(tcp_m: np.ndarray, cmd: ExplorationCommand, cfg: CleanConfig
     return float(np.clip(APPROACH_GAIN_PER_S * (height_m - cfg.approach_slow_m), 0.0, cfg.approach_speed_m_s))
 
 
+def _pad_over_support(point_m: np.ndarray, normal: np.ndarray, support_z_m: float, pad_radius_m: float) -> np.ndarray:
+    """The commanded line's point ``point_m`` (3,) [m], raised along world z where needed so that the pad, a disc
+    of ``pad_radius_m`` [m] centred there and ⟂ ``normal`` (3,), stays above the support plane z = ``support_z_m``
+    [m]: at the foot of a wall (the cup's) the line through the lowest captured ring pressed the pad's rim into the
+    table, the tool held 2.5 cm up by it and dragged sideways by the line (tangential forces past 2× the set
+    point)."""
+    n = np.asarray(normal, dtype=float)
+    n_z2 = float(n[2] * n[2]) / max(float(n @ n), 1e-12)
+    low = support_z_m + pad_radius_m * float(np.sqrt(max(1.0 - n_z2, 0.0)))
+    if point_m[2] >= low:
+        return point_m
+    out = np.array(point_m, dtype=float)
+    out[2] = low
+    return out
+
+
 def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndarray:
     """The cloud points ``indices`` a touch-down may be at (``touch_down_ok`` (N,) bool; None: all), or all of
     them when none is (the dirt left lies only beside a keep-out zone)."""
@@ -712,6 +730,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         raise ConfigError(f"the capture pose at {np.round(cap_pos, 3).tolist()} m is out of the arm's reach ({exc}); "
                           f"lower {which} (now {getattr(cfg, which)} m)") from exc
     dirt = backend.dirt_remaining if log.truth else (lambda: float("nan"))
+    # [m] the table top the captured object stands on (the capture's crop, workspace_crop, assumes it); a given
+    # cloud's support is not known
+    support_z = SUPPORT_Z_M if given is None else None
 
     def capture(lift: bool = False) -> SurfaceCloud:
         log.activity("move", "vision")
@@ -1020,6 +1041,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                 # velocity feed-forward: the line's point where the agent will be line_lead_s later
                 point = prev.point + frac * (cmd.point - prev.point) + lead.offset(prev.point, cmd.point, backend.dt)
                 normal = n_prev + frac * (n_next - n_prev)
+                if support_z is not None:
+                    point = _pad_over_support(point, normal, support_z, cfg.pad_radius_m)
                 ramp = min((loop.t - t_touch) / cfg.force_ramp_s, 1.0)
                 force = cfg.approach_force_n + ramp * (cfg.force_n - cfg.approach_force_n)
                 log.set_point = force  # the band is judged against the set point, never the boost below
