@@ -189,8 +189,9 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path,
     # within the force limits over the whole run, lift-off and touch-down included
     assert 0.0 < m["max_contact_force_n"] <= 2.0 * cfg.force_n
     assert m["force_over_2x_ticks"] == 0
-    # the sponge's centre never pressed within an agent radius of the strip (a few mm of tracking error allowed)
-    pressing = r.series["force_z_n"] >= cfg.contact_threshold_n
+    # the sponge's centre never pressed within an agent radius of the strip (a few mm of tracking error allowed):
+    # the simulator's pad contact, not the F/T, which reads the tool's inertia (~1 N) while it lifts off
+    pressing = r.series["pad_force_n"] >= cfg.contact_threshold_n
     assert pressing.any()
     assert np.min(np.abs(r.series["tcp"][pressing, 0] - pos[0])) >= 0.01 + cfg.agent_radius_m - 0.005
     phases = [p for _, p in m["phase_changes"]]
