@@ -379,7 +379,9 @@ def test_robot_check_reports_the_idle_state_request_and_close_ends_it(panel, mon
     device.write_bytes(b"")
     monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(device))
     monkeypatch.setattr(cpu_latency, "_is_pm_qos_device", lambda fd: True)
-    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    held_config = FrankaConfig(robot_ip=panel.hostname, cpu_latency_us=0)
+    assert FrankaConfig(robot_ip=panel.hostname).cpu_latency_us == -1  # opt-in
+    backend = LibfrankaBackend(held_config)
     try:
         assert backend.cpu_latency.held and device.read_bytes() == struct.pack("=i", 0)
         fd = backend.cpu_latency._fd
@@ -389,11 +391,11 @@ def test_robot_check_reports_the_idle_state_request_and_close_ends_it(panel, mon
     assert not backend.cpu_latency.held
     with pytest.raises(OSError):
         os.fstat(fd)  # the request ended with the connection
-    held = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    held = check_robot(held_config, duration_s=0.2, max_lost_fraction=0.5)
     assert "held at ≤ 0 µs" in held.info["control_scheduling"]
     assert not any("idle" in w for w in held.warnings)
     monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(tmp_path / "absent"))
-    missing = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    missing = check_robot(held_config, duration_s=0.2, max_lost_fraction=0.5)
     assert "not limited" in missing.info["control_scheduling"]
     assert any("no PM QoS device" in w for w in missing.warnings)
     real_open = os.open
@@ -405,7 +407,7 @@ def test_robot_check_reports_the_idle_state_request_and_close_ends_it(panel, mon
 
     monkeypatch.setattr(cpu_latency, "PM_QOS_DEVICE", str(device))
     monkeypatch.setattr(os, "open", refuse_the_device)
-    denied = check_robot(FrankaConfig(robot_ip=panel.hostname), duration_s=0.2, max_lost_fraction=0.5)
+    denied = check_robot(held_config, duration_s=0.2, max_lost_fraction=0.5)
     monkeypatch.setattr(os, "open", real_open)
     assert any("let your user write /dev/cpu_dma_latency" in w for w in denied.warnings)
     off = check_robot(FrankaConfig(robot_ip=panel.hostname, cpu_latency_us=-1), duration_s=0.2,

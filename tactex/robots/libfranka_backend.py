@@ -85,8 +85,8 @@ class FrankaConfig:
     collision_force_n: float = param(60.0, "libfranka's collision reflex: upper Cartesian force threshold [N]")
     control_cpu: int = param(-1, "pin the control loop to this CPU core, run it with real-time priority when "
                                  "allowed, and keep the vision process off it (-1: no pinning)")
-    cpu_latency_us: int = param(0, "while connected, hold the CPUs' idle wake-up latency at or below this "
-                                   "through /dev/cpu_dma_latency (0: idle CPUs poll; -1: no request) [µs]")
+    cpu_latency_us: int = param(-1, "while connected, hold the CPUs' idle wake-up latency at or below this "
+                                    "through /dev/cpu_dma_latency (0: idle CPUs poll; -1: no request) [µs]")
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot_ip, str) or not self.robot_ip.strip():
