@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.sparse import coo_matrix
 
 import tactex.ergodic.explorer as explorer_module
 import tactex.ergodic.passes as passes_module
@@ -221,17 +222,21 @@ def test_a_guided_agent_that_stalls_hops_to_the_next_waypoint_of_its_tour():
     assert not passes._replan
 
 
-def test_a_speck_across_a_gap_the_agent_may_not_walk_is_reached_by_relocating():
-    """A few scan points 5 voxels off a plate's edge: one Laplacian part with the plate (their neighbours are plate
-    points), but a gap no walk crosses, and beyond the footprint from the edge. Once the rest is done the agent
-    lifts off and touches down there."""
+def _plate_and_speck():
     plate = _grid(25, 25)
     speck = np.array([[-6 * H, 12 * H, 0.0], [-6 * H, 13 * H, 0.0], [-7 * H, 12 * H, 0.0]])
     pts = np.vstack([plate, speck])
     cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
-    basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
+    return pts, speck, cloud, build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
+
+
+def test_a_speck_across_a_gap_the_agent_may_not_walk_or_hop_is_reached_by_relocating():
+    """A few scan points 6 voxels off a plate's edge: one Laplacian part with the plate (their neighbours are plate
+    points), but a gap no walk crosses, and beyond the footprint from the edge. With hops switched off, once the rest
+    is done the agent lifts off and touches down there."""
+    pts, speck, cloud, basis = _plate_and_speck()
     assert basis.n_components == 1
-    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40, max_bridge=0.0))
     assert ex._passes.n_parts == 2
     ex.reset(pts[12 * 25 + 12])
     while ex.untouched_count() > 0 and ex.total_path_length < 3.0:
@@ -239,6 +244,27 @@ def test_a_speck_across_a_gap_the_agent_may_not_walk_is_reached_by_relocating():
     assert ex.untouched_count() == 0
     landed = [np.linalg.norm(speck - r.point, axis=1).min() for r in ex.relocations]
     assert ex.relocations and min(landed) < H
+
+
+def test_the_hunt_hops_to_a_speck_across_a_gap_the_laplacian_spans_instead_of_lifting_off():
+    """The same speck with hops (max_bridge 6 voxels, the default): the Laplacian's links across the gap are hops,
+    and the hunt walks to the plate's edge, slides across in contact and touches the speck: no relocation."""
+    pts, speck, cloud, basis = _plate_and_speck()
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+    assert ex._gaps.n_links > 0
+    ex.reset(pts[12 * 25 + 12])
+    hops = []
+    while ex.untouched_count() > 0 and ex.total_path_length < 3.0:
+        ex.step()
+        if ex.hopping():
+            hops.append(ex._bridges[0])
+    assert ex.untouched_count() == 0
+    assert not ex.relocations
+    assert hops and ex.bridges_taken >= 1
+    ends = np.array([b.end for b in hops])
+    assert np.linalg.norm(ends[:, None] - speck[None], axis=2).min() < 1e-12  # it landed on a speck point
+    starts = np.array([b.start for b in hops])
+    assert np.all(starts[:, 0] >= -1.5 * H)  # from the plate's edge (x = 0), not from the middle of the gap
 
 
 def test_a_strip_narrower_than_the_first_ring_is_walked_in_one_pass():
@@ -317,6 +343,39 @@ def test_the_hunt_goes_to_the_nearest_untouched_point_along_the_surface_and_reac
     else:
         raise AssertionError("the route never turned to the speck")
     assert np.linalg.norm(x - pts[g]) <= 5.0 * H
+
+
+def test_the_hunt_reaches_points_over_hops_and_hops_at_the_near_end_of_the_first_one():
+    # Three squares in a row, 5 voxels apart (no walking link across): A - B - C, hops A4-B0 and B4-C0 only.
+    a, b, c = _grid(5, 5), _grid(5, 5) + np.array([9 * H, 0.0, 0.0]), _grid(5, 5) + np.array([18 * H, 0.0, 0.0])
+    pts = np.vstack([a, b, c])
+    hop_pairs = [(2 * 5 + 4, 25 + 2 * 5 + 0), (25 + 2 * 5 + 4, 50 + 2 * 5 + 0)]  # middle rows, facing edges
+    rows, cols = zip(*hop_pairs, strict=True)
+    hops = coo_matrix((np.ones(2), (rows, cols)), shape=(len(pts), len(pts)))
+    without = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
+    passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H, hops=hops)
+    assert passes.n_parts == 3  # hops join parts for the hunt, not for the passes
+    in_c = np.zeros(len(pts), dtype=bool)
+    in_c[50:] = True
+    assert without.closest(0, in_c) == -1 and not without.touchable(0, in_c, 0.0)
+    assert passes.touchable(0, in_c, 0.0)
+    g = passes.closest(0, in_c)
+    assert g == 50 + 2 * 5 + 0  # C's point nearest over A, the hop, B and the second hop
+    # on the way: first to the near end of the first hop (A's edge), and only there the hop is due, to B
+    x = pts[0]
+    assert passes.hop_due(x) == -1
+    for _ in range(50):
+        aim = passes.route(x, g)
+        hop = passes.hop_due(x)
+        if hop >= 0:
+            break
+        x = x + (aim - x) * min(1.0, H / max(float(np.linalg.norm(aim - x)), 1e-12))
+    else:
+        raise AssertionError("the hop never came due")
+    assert hop == hop_pairs[0][1]
+    assert np.linalg.norm(x - pts[hop_pairs[0][0]]) <= passes_module.HOP_REACH * H
+    # from B's side the next closest() leads to the second hop
+    assert passes.closest(hop, in_c) == g and passes.hop_due(pts[hop_pairs[1][0]]) == hop_pairs[1][1]
 
 
 def test_missed_points_are_those_no_pending_waypoint_covers_on_the_agents_part():

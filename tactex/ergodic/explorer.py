@@ -62,6 +62,7 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.linalg.lapack import dposv as _dposv
+from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
 from tactex.ergodic import kernel as _kernel
@@ -387,12 +388,29 @@ class HedacExplorer:
             links = None if laplacian is None else laplacian.tocsr()[self._tidx][:, self._tidx]
             self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
                                       PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe,
-                                      origin=cfg.sweep_pass_origin, footprint_m=self._r_a)
+                                      origin=cfg.sweep_pass_origin, footprint_m=self._r_a, hops=self._target_hops())
         if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
             if sweep:
                 self._walk_kernel = None
             elif cfg.compiled and self._walk_kernel is None:
                 self._walk_kernel = self._compile_kernel()
+
+    def _target_hops(self) -> coo_matrix | None:
+        """The gap links (hops, :mod:`.bridges`) between target points clear of the keep-out zones, as a (T, T) matrix
+        of target positions, or None without any."""
+        g = self._gaps
+        if not g.n_links:
+            return None
+        src = np.repeat(np.arange(len(self._points)), np.diff(g.ptr))
+        a, b = self._tpos[src], self._tpos[g.far]
+        ok = (a >= 0) & (b >= 0)
+        a, b = a[ok], b[ok]
+        ok = self._t_safe[a] & self._t_safe[b]
+        a, b = a[ok], b[ok]
+        if a.size == 0:
+            return None
+        t = self._tidx.size
+        return coo_matrix((np.ones(a.size), (a, b)), shape=(t, t))
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
@@ -406,6 +424,8 @@ class HedacExplorer:
         if self._passes is not None:
             self._passes.reset()
         self._leftover_goal = -1
+        self._hop_to = -1  # cloud index the hunt hops to this step (see _leftover), or −1
+        self._hop_goal = -1  # the hunt's goal (target index) that hop is on the way to
         self._given_up = np.zeros(self._tidx.size, dtype=bool)
         self._repair_failed = np.zeros(self._tidx.size, dtype=bool)  # a pass's step aside to it did not touch it
         self._repair_steps: dict[int, int] = {}
@@ -873,6 +893,15 @@ class HedacExplorer:
         guide = None
         if self._passes is not None and self._pass == _WHOLE and self.n_agents == 1:
             guide = self._pass_direction(x, sf, nrm)
+            if self._hop_to >= 0:
+                here = np.array((x.item(0) + sf[0], x.item(1) + sf[1], x.item(2) + sf[2]))
+                bridge = self._hop_bridge(self._hop_to, here, nrm)
+                self._hop_to = -1
+                if bridge is not None:
+                    self._bridges[i] = bridge
+                    return self._bridge_move(i, x, bridge)
+                self._given_up[self._hop_goal] = True  # the hop's far side faces away: not a goal again
+                guide = None
             if guide is not None:
                 g = guide
         # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
@@ -1007,17 +1036,25 @@ class HedacExplorer:
 
     def _leftover(self, here: np.ndarray) -> np.ndarray | None:
         """After the passes: where the agent steers [m] (3,) on its way to the untouched target point nearest by
-        surface distance on its walking part (or a speck within a footprint radius of it), kept as the goal until a
-        footprint touches it; None when none is left."""
+        surface distance over its walking part and the hops from it (or a speck within a footprint radius of them),
+        kept as the goal until a footprint touches it; None when none is left. At the near end of a hop on the way
+        it sets ``_hop_to`` (the far end's cloud index): the step hops there along the chord."""
         g = self._leftover_goal
         passes = self._passes
-        if g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g):
-            return passes.route(here, g)
-        j = self._tpos.item(self._near[0])
-        near = j if j >= 0 else passes.nearest(here)
-        g = passes.closest(near, self._untouched() & ~self._given_up, self._r_a)
-        self._leftover_goal = g
-        return None if g < 0 else passes.route(here, g)
+        if not (g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g)):
+            j = self._tpos.item(self._near[0])
+            near = j if j >= 0 else passes.nearest(here)
+            g = passes.closest(near, self._untouched() & ~self._given_up, self._r_a)
+            self._leftover_goal = g
+            if g < 0:
+                return None
+        aim = passes.route(here, g)
+        hop = passes.hop_due(here)
+        if hop >= 0:
+            self._hop_to = int(self._tidx.item(hop))
+            self._hop_goal = g
+            self._leftover_goal = -1  # planned again from the far side
+        return aim
 
     def _compile_kernel(self):
         """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.
@@ -1125,14 +1162,18 @@ class HedacExplorer:
         k = int(u_far.argmax())
         if float(u_far[k]) <= float(local.max()) + u0:
             return None
-        j = int(far[k])
+        return self._hop_bridge(int(far[k]), here, nrm)
+
+    def _hop_bridge(self, j: int, here: np.ndarray, nrm: np.ndarray) -> Bridge | None:
+        """A hop from ``here`` [m] (normal ``nrm``) to cloud point j across a gap link, or None when j's side faces the
+        other way (the back of a part, not across a hole)."""
         end = self._points[j]
         nb = self._tree.query(end, k=self._n_n)[1]
         normals = self.cloud.normals
         ref = nrm if normals is None else normals[j]  # the cloud's own outward side when it has one
         _, end_normal = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, ref)
         if float(end_normal @ nrm) < 0.0:
-            return None  # the far side faces the other way: the back of a part, not across a hole
+            return None
         self.bridges_taken += 1
         return Bridge(j, here.copy(), end.copy(), nrm.copy(), end_normal)
 

@@ -89,6 +89,8 @@ ISLAND_COST = 2.0
 SUBSAMPLE = 3
 #: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
 TWO_OPT_PASSES = 20
+#: The hunt hops once the agent is within this many ``reach_m`` of the hop's near end [-] (see RingPasses.hop_due).
+HOP_REACH = 2.0
 #: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
 #: "greedy": the pending waypoint of least cost (distance plus ring), the earlier rule.
 ORDERS = ("tour", "greedy")
@@ -111,11 +113,15 @@ class RingPasses:
             kept) or "start".
         order: the walking order, one of ``ORDERS``: "tour" (the arcs as a tour, a carrot along each) or "greedy"
             (the pending waypoint of least cost).
+        footprint_m: the footprint radius r_a [m] (default half the spacing).
+        hops: symmetric sparse (T, T) matrix whose nonzeros join target points across a gap the agent may hop in
+            contact (a scan hole the Laplacian spans, see :mod:`.bridges`), or None: none. The hunt after the
+            passes reaches untouched points over walking links and hops (see closest and hop_due).
     """
 
     def __init__(self, points: np.ndarray, links, pass_spacing_m: float, reach_m: float, voxel_m: float,
                  ring_cost: float = 1.0, allowed: np.ndarray | None = None, origin: str = "edge",
-                 order: str = "tour", footprint_m: float | None = None) -> None:
+                 order: str = "tour", footprint_m: float | None = None, hops=None) -> None:
         self._points = np.asarray(points, dtype=np.float64)
         n = len(self._points)
         self.pass_spacing_m = float(pass_spacing_m)
@@ -137,6 +143,17 @@ class RingPasses:
         self._graph = csr_matrix((length, (r, c)), shape=(n, n))
         self._graph = self._graph.maximum(self._graph.T)
         self.n_parts, self._part = connected_components(self._graph, directed=False)
+        # The hunt's graph: the walking links and the hops between parts, each as long as its chord.
+        self._reach = self._graph
+        if hops is not None:
+            h = coo_matrix(hops)
+            keep = (h.row != h.col) & (self._part[h.row] != self._part[h.col])
+            hr, hc = h.row[keep], h.col[keep]
+            if hr.size:
+                hl = np.maximum(np.linalg.norm(self._points[hr] - self._points[hc], axis=1), 1e-12)
+                hop = csr_matrix((hl, (hr, hc)), shape=(n, n))
+                self._reach = self._graph.maximum(hop.maximum(hop.T))
+        _, self._reach_part = connected_components(self._reach, directed=False)
         self._tree = cKDTree(self._points)
         if origin not in PASS_ORIGINS:
             raise ValueError(f"origin must be one of {PASS_ORIGINS}, got {origin!r}")
@@ -167,6 +184,7 @@ class RingPasses:
         self._route_goal = -1  # the goal of route() and its surface distance map (T,) [m], or None: straight
         self._route = None
         self._via = -1  # the walking-part point route() steers at on its way to a goal across a gap
+        self._hop = -1  # the far end of the hop route() takes at ``_via``, or −1: none (a walk or a speck's touch)
 
     def drop_goal(self, abandon: bool, replan: bool = False) -> None:
         """Forget the current goal; ``abandon``: the agent could not reach it, mark it done; ``replan``: the agent
@@ -556,11 +574,12 @@ class RingPasses:
 
     def closest(self, near: int, candidates: np.ndarray, touch_m: float = 0.0) -> int:
         """Among the target points ``candidates`` (T,) (bool), the one nearest to target point ``near`` by surface
-        distance over the walking links (the straight nearest may lie across a fold or a crease), or −1 when none
-        is in reach. A candidate off the walking part but within ``touch_m`` [m] of it (a speck across a gap, a
-        footprint reaches it from the near side) counts at the surface distance to its nearest point there plus
-        the gap, and route() steers at that point first."""
-        d = dijkstra(self._graph, directed=False, indices=near)
+        distance over the walking links and the hops (the straight nearest may lie across a fold or a crease), or −1
+        when none is in reach. A candidate off the reachable parts but within ``touch_m`` [m] of them (a speck
+        across a gap, a footprint reaches it from the near side) counts at the surface distance to its nearest
+        point there plus the gap, and route() steers at that point first. On a way with hops, route() steers at the
+        first hop's near end and hop_due() then names its far end."""
+        d, pred = dijkstra(self._reach, directed=False, indices=near, return_predecessors=True)
         cost = np.where(candidates, d, np.inf)
         via = {}
         off = np.flatnonzero(candidates & ~np.isfinite(d))
@@ -573,13 +592,29 @@ class RingPasses:
         k = int(cost.argmin())
         if not np.isfinite(cost[k]):
             return -1
-        self._route_goal, self._via = -1, via.get(k, k)
+        self._route_goal, self._via, self._hop = -1, via.get(k, k), -1
+        if self._reach is not self._graph:
+            b = self._via  # the first hop on the way back from there: the last one found walking back
+            while b != near and b >= 0:
+                a = int(pred[b])
+                if self._part[a] != self._part[b]:
+                    self._via, self._hop = a, b
+                b = a
         return k
 
+    def hop_due(self, x: np.ndarray) -> int:
+        """The far end (target index) of the hop the agent at x (3,) [m] takes now on its way to the last closest()
+        goal: it is at the hop's near end (within ``HOP_REACH`` times ``reach_m``: the near end lies on a scan's rim,
+        where the step may not bring the agent any closer); else −1."""
+        if self._hop < 0 or np.linalg.norm(self._points[self._via] - x) > HOP_REACH * self.reach_m:
+            return -1
+        hop, self._hop, self._via, self._route_goal = self._hop, -1, -1, -1
+        return hop
+
     def touchable(self, near: int, candidates: np.ndarray, touch_m: float) -> bool:
-        """Whether a target point of ``candidates`` (T,) (bool) is on target point ``near``'s walking part or within
-        ``touch_m`` [m] of it (see closest)."""
-        part = self._part == self._part[near]
+        """Whether a target point of ``candidates`` (T,) (bool) is reachable from target point ``near`` over the
+        walking links and the hops, or within ``touch_m`` [m] of such a point (see closest)."""
+        part = self._reach_part == self._reach_part[near]
         if (candidates & part).any():
             return True
         idx = np.flatnonzero(candidates)
@@ -589,7 +624,8 @@ class RingPasses:
 
     def route(self, x: np.ndarray, g: int) -> np.ndarray:
         """Where the agent at x (3,) [m] steers on its way to target point g (the last closest()): g itself when
-        near, else a carrot down the surface distance to g, or to the point closest() reaches g from."""
+        near, else a carrot down the surface distance to g, or to the point closest() reaches g from, or to the near
+        end of the first hop on the way."""
         if g != self._route_goal:
             self._route_goal = g
             via = self._via if self._via >= 0 else g
@@ -598,7 +634,7 @@ class RingPasses:
                            if dist > self.reach_m else None)
         via = self._via if self._via >= 0 else g
         if self._route is None:
-            return self._points[g]
+            return self._points[via if self._hop >= 0 else g]
         return self._carrot(x, via, "_route")
 
     def _descend(self, x: np.ndarray, g: int) -> np.ndarray:
