@@ -115,8 +115,10 @@ REPAIR_STEPS = 6
 KEEP_OUT_MARGIN = 0.5
 #: A planned pass's waypoint is given up when the scan edge leaves less than this share of the way to it [-].
 EDGE_BLOCKED = 0.2
-#: A planned pass's waypoint is done once the agent came this close [voxels] (see :mod:`.passes`).
-PASS_REACH = 1.0
+#: A planned pass's waypoint is done once the agent came this close [voxels] (see :mod:`.passes`): the agent goes on
+#: along its pass instead of working its way onto each waypoint (at the scan's rim, where it dithers at the off-cloud
+#: limit, it cannot); what the footprint then leaves beside the pass it steps aside to.
+PASS_REACH = 2.5
 #: Passes of a step (see step_all): one agent does all of it; several agents lay their footprints
 #: first, then (after one diffusion) move.
 _WHOLE, _FOOTPRINT, _MOVE = 0, 1, 2

@@ -89,7 +89,7 @@ ISLAND_COST = 2.0
 SUBSAMPLE = 3
 #: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
 TWO_OPT_PASSES = 20
-#: The hunt hops once the agent is within this many ``reach_m`` of the hop's near end [-] (see RingPasses.hop_due).
+#: The hunt hops once the agent is within this many voxels of the hop's near end (see RingPasses.hop_due).
 HOP_REACH = 2.0
 #: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
 #: "greedy": the pending waypoint of least cost (distance plus ring), the earlier rule.
@@ -604,9 +604,9 @@ class RingPasses:
 
     def hop_due(self, x: np.ndarray) -> int:
         """The far end (target index) of the hop the agent at x (3,) [m] takes now on its way to the last closest()
-        goal: it is at the hop's near end (within ``HOP_REACH`` times ``reach_m``: the near end lies on a scan's rim,
-        where the step may not bring the agent any closer); else −1."""
-        if self._hop < 0 or np.linalg.norm(self._points[self._via] - x) > HOP_REACH * self.reach_m:
+        goal: it is at the hop's near end (within ``HOP_REACH`` voxels: the near end lies on a scan's rim, where the
+        step may not bring the agent any closer); else −1."""
+        if self._hop < 0 or np.linalg.norm(self._points[self._via] - x) > HOP_REACH * 2.0 * self._half_line:
             return -1
         hop, self._hop, self._via, self._route_goal = self._hop, -1, -1, -1
         return hop
@@ -631,19 +631,19 @@ class RingPasses:
             via = self._via if self._via >= 0 else g
             dist = float(np.linalg.norm(self._points[via] - x))
             self._route = (dijkstra(self._graph, directed=False, indices=via, limit=8.0 * dist)
-                           if dist > self.reach_m else None)
+                           if dist > 2.0 * self._half_line else None)
         via = self._via if self._via >= 0 else g
         if self._route is None:
             return self._points[via if self._hop >= 0 else g]
-        return self._carrot(x, via, "_route")
+        return self._carrot(x, via, "_route", 2.0 * self._half_line)  # the hunt's goals are points: a voxel
 
     def _descend(self, x: np.ndarray, g: int) -> np.ndarray:
         """Goal g, or on the way to a far one the carrot a few voxels ahead down the surface distance to it."""
-        return self._carrot(x, g, "_to_goal")
+        return self._carrot(x, g, "_to_goal", self.reach_m)
 
-    def _carrot(self, x: np.ndarray, g: int, field: str) -> np.ndarray:
+    def _carrot(self, x: np.ndarray, g: int, field: str, reach_m: float) -> np.ndarray:
         """Goal g, or the point within CARROT half-voxels of x lowest in the surface distance to g held in
-        attribute ``field`` (cleared once the agent is within reach, or off the map)."""
+        attribute ``field`` (cleared once the agent is within ``reach_m`` [m] of g, or off the map)."""
         to_goal = getattr(self, field)
         if to_goal is None:
             return self._points[g]
@@ -652,7 +652,7 @@ class RingPasses:
             return self._points[g]
         to = to_goal[around]
         k = int(to.argmin())
-        if not np.isfinite(to[k]) or to[k] <= self.reach_m:
+        if not np.isfinite(to[k]) or to[k] <= reach_m:
             setattr(self, field, None)
             return self._points[g]
         return self._points[around[k]]
