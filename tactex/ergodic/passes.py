@@ -25,8 +25,9 @@ explorer steps aside to it. The start of the next arc, when farther than a pass 
 surface distance to it. (Order "greedy", the earlier rule: the pending waypoint of least cost_j = |x_j − x| +
 ``ring_cost`` · w · (k_j − k_low).) A waypoint is also done once the agent came within ``reach_m`` of it. When
 no waypoint of the agent's part is left the explorer hunts the untouched points one after the other, each the
-nearest along the surface (``closest``: on the walking part, or a speck within r_a across a gap) and reached
-down the surface distance to it (``route``), and then the sweep source's potential and the relocation rules take
+nearest along the surface (``closest``: on the walking part and the parts the hops join it to, or a speck within
+r_a across a gap) and reached down the surface distance to it (``route``; across a hop in contact, ``hop_due``),
+and then the sweep source's potential and the relocation rules take
 over (other parts get their rings when the agent touches down there; a relocation plans the tour again from
 where it lands).
 
