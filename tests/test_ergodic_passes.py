@@ -465,3 +465,34 @@ def test_the_steps_aside_cover_a_square_on_a_shorter_path_than_the_hunt_alone():
     # the steps aside cost a fraction of a footprint each; the hunt comes back for each point from afar (measured
     # 1.23 m with them, 1.53 m without)
     assert on[0] < 0.9 * off[0]
+
+
+def test_a_stall_in_the_hunt_touches_down_where_the_hops_reach_before_a_part_they_do_not():
+    """Plate A between square B (3 voxels off its right edge: hops) and square C (10 voxels off its left edge: no
+    link). With A done and the agent stalled at A's left edge, C is the nearer untouched target, but the stall
+    lands on B: the hops' side is finished before a flight to a part they do not reach (the one flight left)."""
+    a = _grid(20, 20)
+    b = _grid(6, 6) + np.array([22 * H, 7 * H, 0.0])
+    c = _grid(6, 6) + np.array([-15 * H, 7 * H, 0.0])
+    pts = np.vstack([a, b, c])
+    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    ex = HedacExplorer(cloud, build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False), HedacConfig(n_eigen=40))
+    ex.reset(pts[10 * 20])  # A's left edge
+    passes = ex._passes
+    t_a = np.arange(400)
+    t_b, t_c = np.arange(400, 436), np.arange(436, 472)
+    every = np.ones(len(pts), dtype=bool)
+    side = passes.reach_mask(int(t_a[0]), every)
+    assert side[t_b].all() and not side[t_c].any()
+    ex._cov[ex._tidx[t_a]] = 2.0 * ex._p_t[t_a]  # A covered
+    passes.pending[:] = False
+    cmd = ex._relocate(0, "stall")
+    assert cmd is not None and cmd.reason == "stall"
+    lands = int(np.argmin(np.linalg.norm(pts - cmd.point, axis=1)))
+    assert lands in set(ex._tidx[t_b].tolist())
+    # with nothing left on the hops' side the stall flies to C
+    ex._cov[ex._tidx[t_b]] = 2.0 * ex._p_t[t_b]
+    ex._x[0] = pts[10 * 20]
+    ex._near[0] = 10 * 20
+    cmd = ex._relocate(0, "stall")
+    assert int(np.argmin(np.linalg.norm(pts - cmd.point, axis=1))) in set(ex._tidx[t_c].tolist())

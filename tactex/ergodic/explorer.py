@@ -671,6 +671,13 @@ class HedacExplorer:
         x = self._x[i].copy()
         j = self._next_on_tour(i) if reason == "stall" else None
         on_tour = j is not None
+        if j is None and reason == "stall" and self.planned_passes:
+            # A stall in the hunt touches down where the walks and hops from here still reach target: that side is
+            # finished before the flight to a part they do not reach, which is then the only one left (else the
+            # flight lands there, and another brings the agent back for the rest).
+            same = self._passes.reach_mask(self._tpos.item(self._near[i]), untouched & ~self._given_up)
+            if same.any():
+                j = choose_touch_down(self._points, self._tidx[same], self._p_t[same], x, self._r_a)
         if j is None:
             j = choose_touch_down(self._points, cand, self._p_t[untouched], x, self._r_a)
         mon = self._monitors[i]

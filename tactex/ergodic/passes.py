@@ -612,6 +612,13 @@ class RingPasses:
         hop, self._hop, self._via, self._route_goal = self._hop, -1, -1, -1
         return hop
 
+    def reach_mask(self, near: int, candidates: np.ndarray) -> np.ndarray:
+        """The target points of ``candidates`` (T,) (bool) on target point ``near``'s side of the walking links and
+        the hops (T,) (bool); none when ``near`` is off the target (−1)."""
+        if near < 0:
+            return np.zeros_like(candidates)
+        return candidates & (self._reach_part == self._reach_part[near])
+
     def touchable(self, near: int, candidates: np.ndarray, touch_m: float) -> bool:
         """Whether a target point of ``candidates`` (T,) (bool) is reachable from target point ``near`` over the
         walking links and the hops, or within ``touch_m`` [m] of such a point (see closest)."""
