@@ -22,6 +22,11 @@ def _grid(nx: int, ny: int) -> np.ndarray:
     return np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
 
 
+def _flat_target(pts: np.ndarray) -> SurfaceCloud:
+    """``pts`` (N, 3) on z = 0 as a cloud facing +z, every point target, spaced H."""
+    return SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+
+
 def test_waypoints_lie_on_the_middle_lines_of_rings_of_surface_distance_from_the_start():
     pts = _grid(41, 41)
     w = 4.5 * H
@@ -134,7 +139,7 @@ def _path_to_goal(ex: HedacExplorer, x0: np.ndarray, goal: float = 0.05, limit_m
 
 def test_the_passes_cover_a_square_close_to_the_ideal_path_and_sooner_than_the_potential_alone():
     pts = _grid(40, 40)
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     basis = build_basis(cloud, n_eigen=60, n_neighbors=30, cache=False)
     planned = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
     alone = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, sweep_pass_spacing=0.0))
@@ -205,7 +210,7 @@ def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order(monkeypatch):
 
 def test_a_guided_agent_that_stalls_hops_to_the_next_waypoint_of_its_tour():
     pts = _grid(40, 40)
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
     ex.reset(pts[15 * 40 + 22])
@@ -226,7 +231,7 @@ def _plate_and_speck():
     plate = _grid(25, 25)
     speck = np.array([[-6 * H, 12 * H, 0.0], [-6 * H, 13 * H, 0.0], [-7 * H, 12 * H, 0.0]])
     pts = np.vstack([plate, speck])
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     return pts, speck, cloud, build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
 
 
@@ -272,7 +277,7 @@ def test_a_strip_narrower_than_the_first_ring_is_walked_in_one_pass():
     # and the hunt walks it nearest first, which along a strip is one pass. (Rings from the start would cross it
     # back and forth: 0.73 m against 0.50 m to residual 0.05 on the bench's 12 x 300 mm strip.)
     pts = _grid(100, 4)
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     r_a = 0.0075
     ex = HedacExplorer(cloud, build_basis(cloud, n_eigen=20, n_neighbors=30, cache=False),
                        HedacConfig(agent_radius_m=r_a, n_eigen=20))
@@ -407,7 +412,7 @@ def test_missed_points_are_those_no_pending_waypoint_covers_on_the_agents_part()
 
 def test_on_a_pass_the_agent_steps_aside_to_a_point_the_passes_missed_and_gives_up_one_it_cannot_touch():
     pts = _grid(40, 40)
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
     ex.reset(pts[20 * 40 + 20])
@@ -445,7 +450,7 @@ def test_on_a_pass_the_agent_steps_aside_to_a_point_the_passes_missed_and_gives_
 
 def test_the_steps_aside_cover_a_square_on_a_shorter_path_than_the_hunt_alone():
     pts = _grid(40, 40)
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
 
     def run(radius: float) -> tuple[float, int]:
@@ -475,7 +480,7 @@ def test_a_stall_in_the_hunt_touches_down_where_the_hops_reach_before_a_part_the
     b = _grid(6, 6) + np.array([22 * H, 7 * H, 0.0])
     c = _grid(6, 6) + np.array([-15 * H, 7 * H, 0.0])
     pts = np.vstack([a, b, c])
-    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    cloud = _flat_target(pts)
     ex = HedacExplorer(cloud, build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False), HedacConfig(n_eigen=40))
     ex.reset(pts[10 * 20])  # A's left edge
     passes = ex._passes

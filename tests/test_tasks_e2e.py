@@ -147,14 +147,30 @@ def test_the_cup_view_from_above_sees_the_marking_with_a_shorter_swing_from_home
     assert seen[45.0][1] < 0.6 * seen[0.0][1]
 
 
+def _plate_with_keep_out(tmp_path, dirt_of, keep_out_of):
+    """The plate's surface (3 mm voxels) in the robot base frame as a ``--cloud`` file, dirty where
+    ``dirt_of(x, y)`` and kept out where ``keep_out_of(x, y)`` (a ``--keep-out-mask`` file), both of the
+    plate's own x, y [m]. Returns (cloud, cloud file, mask file, plate-frame x (N,), plate position (3,))."""
+    from tactex.pointcloud import save_npz
+    from tactex.pointcloud.markings import marked_cloud
+
+    scene = CleanConfig(object_name="plate").scene()
+    pos, rot = scene.object_pose()
+    local = marked_cloud(scene.sim_object.surface, "full", 0.003)
+    x, y = local.points[:, 0], local.points[:, 1]
+    cloud = local.with_target(dirt_of(x, y).astype(float)).transformed(rot, pos)
+    path = save_npz(cloud, tmp_path / "plate.npz")
+    mask = tmp_path / "keep_out.npy"
+    np.save(mask, keep_out_of(x, y))
+    return cloud, path, mask, x, pos
+
+
 def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path, monkeypatch) -> None:
     """Dirt on both sides of a keep-out strip across the plate (a --cloud in the base frame with a
     --keep-out-mask): the agent cleans one side, stalls at the strip, and the robot lifts off, flies
     and touches down on the other side (issue 18), never pressing on the strip; every touch-down (the first, the
     task's island moves, the explorer's relocations) is a footprint radius clear of the strip."""
     from tactex.ergodic.explorer import HedacExplorer
-    from tactex.pointcloud import save_npz
-    from tactex.pointcloud.markings import marked_cloud
 
     touch_downs = []  # (explorer, where it was reset: the task's touch-downs)
     reset = HedacExplorer.reset
@@ -165,19 +181,13 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path,
 
     monkeypatch.setattr(HedacExplorer, "reset", record)
 
-    cfg0 = CleanConfig(object_name="plate")
-    scene = cfg0.scene()
-    pos, rot = scene.object_pose()
-    local = marked_cloud(scene.sim_object.surface, "full", 0.003)
-    x, y = local.points[:, 0], local.points[:, 1]
-    dirt = (np.hypot(x + 0.06, y) <= 0.025) | (np.hypot(x - 0.06, y) <= 0.025)
-    cloud = local.with_target(dirt.astype(float)).transformed(rot, pos)
-    path = save_npz(cloud, tmp_path / "plate.npz")
-    np.save(tmp_path / "strip.npy", np.abs(x) <= 0.01)
+    cloud, path, mask, x, pos = _plate_with_keep_out(
+        tmp_path, lambda x, y: (np.hypot(x + 0.06, y) <= 0.025) | (np.hypot(x - 0.06, y) <= 0.025),
+        lambda x, y: np.abs(x) <= 0.01)
     # The exact basis: this checks the explorer's own stall relocation, and whether that or the task's wear-model
     # island move fires first depends on the trajectory, which the hierarchical basis (auto) changes slightly.
     cfg = CleanConfig(object_name="plate", budget_s=30.0, n_eigen=60, cloud=str(path),
-                      keep_out_mask=str(tmp_path / "strip.npy"), eigensolver="arpack")
+                      keep_out_mask=str(mask), eigensolver="arpack")
     r = run_clean(cfg, progress=False)
     m = r.metrics
     assert m["relocations"] >= 1 and m["air_path_length_m"] > 0.0
@@ -209,8 +219,6 @@ def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeyp
     """Dirt right up to both sides of a keep-out strip: when the wear model sends the robot to the other side, the
     touch-down is a footprint radius clear of the strip (the dirty point nearest to the robot lies at the strip's
     edge, where the sponge would press on it)."""
-    from tactex.pointcloud import save_npz
-    from tactex.pointcloud.markings import marked_cloud
     from tactex.tasks.wear_model import WearModel
 
     islands = []  # where the task's island moves would touch down
@@ -222,18 +230,12 @@ def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeyp
         return out
 
     monkeypatch.setattr(WearModel, "next_island", record)
-    cfg0 = CleanConfig(object_name="plate")
-    scene = cfg0.scene()
-    pos, rot = scene.object_pose()
-    local = marked_cloud(scene.sim_object.surface, "full", 0.003)
-    x, y = local.points[:, 0], local.points[:, 1]
+    cloud, path, mask, x, _ = _plate_with_keep_out(
+        tmp_path, lambda x, y: (np.abs(x) <= 0.04) & (np.abs(y) <= 0.02) & (np.abs(x) > 0.01),
+        lambda x, y: np.abs(x) <= 0.01)
     strip = np.abs(x) <= 0.01
-    dirt = (np.abs(x) <= 0.04) & (np.abs(y) <= 0.02) & ~strip
-    cloud = local.with_target(dirt.astype(float)).transformed(rot, pos)
-    path = save_npz(cloud, tmp_path / "plate.npz")
-    np.save(tmp_path / "strip.npy", strip)
     cfg = CleanConfig(object_name="plate", budget_s=20.0, n_eigen=60, cloud=str(path),
-                      keep_out_mask=str(tmp_path / "strip.npy"), eigensolver="arpack")
+                      keep_out_mask=str(mask), eigensolver="arpack")
     m = run_clean(cfg, progress=False).metrics
     moves = [p for p in islands if p is not None]
     assert moves, "no island move: the scenario does not test the touch-down"
