@@ -103,7 +103,8 @@ APPROACH_GAIN_PER_S = 10.0
 #: ... and rises from rest no faster than this [m/s²]: a step of D_z·v in the push shakes the tool, whose inertia
 #: the F/T reads as a force (~2 N), above the touch-down threshold at 0.2 m/s.
 APPROACH_ACCEL_M_S2 = 1.0
-#: Height of the table top the simulated objects stand on [m] (tactex.sim.scene; the capture's crop assumes it).
+#: Height of the table top the simulated objects stand on [m] (tactex.sim.scene): the capture's crop cuts the
+#: table above it and the pad is kept above it.
 SUPPORT_Z_M = 0.0
 #: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
 #: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
@@ -647,9 +648,9 @@ def _acquisition(scene: SceneConfig) -> AcquisitionConfig:
     if isinstance(surface, CylinderWallSurface):
         # the wall only: a view from above the wall also sees the cup's top, which is not the surface to clean
         # (2 mm below it, as the table is cut 2 mm above the table top)
-        lo, hi = workspace_crop(pos, half, height_m=surface.height_m - 0.002)
+        lo, hi = workspace_crop(pos, half, table_z_m=SUPPORT_Z_M, height_m=surface.height_m - 0.002)
     else:
-        lo, hi = workspace_crop(pos, half)
+        lo, hi = workspace_crop(pos, half, table_z_m=SUPPORT_Z_M)
     return AcquisitionConfig(crop_min_m=lo, crop_max_m=hi, voxel_size_m=0.0, sor_mean_k=20, sor_std_mul=2.0)
 
 
@@ -730,7 +731,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         raise ConfigError(f"the capture pose at {np.round(cap_pos, 3).tolist()} m is out of the arm's reach ({exc}); "
                           f"lower {which} (now {getattr(cfg, which)} m)") from exc
     dirt = backend.dirt_remaining if log.truth else (lambda: float("nan"))
-    # [m] the table top the captured object stands on (the capture's crop, workspace_crop, assumes it); a given
+    # [m] the table top the captured object stands on (the capture's crop cuts the table above it); a given
     # cloud's support is not known
     support_z = SUPPORT_Z_M if given is None else None
 
