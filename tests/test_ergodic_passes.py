@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 
 import tactex.ergodic.explorer as explorer_module
 import tactex.ergodic.passes as passes_module
@@ -206,6 +207,53 @@ def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order(monkeypatch):
         assert not passes.pending.any()
     # the holes cut the rings into arcs: greedy nearest goes back over covered ground between them
     assert lengths["tour"] < 0.9 * lengths["greedy"]
+
+
+def _hairpin() -> tuple[np.ndarray, list[np.ndarray]]:
+    """A 40 × 20 sheet folded back over itself (the upper sheet 4 voxels above the lower, joined by a half
+    cylinder at x = 39 H: 12 mm apart in the air, ~25 cm apart along the surface at x = 3 H), and as arcs the
+    columns x = 3, 13, 23, 33 (× H) of each sheet, each ordered along y."""
+    sheet = _grid(40, 20)
+    gap = 4 * H
+    theta = np.deg2rad(np.arange(-60, 61, 30))
+    y = np.arange(20) * H
+    fold = np.array([(39 * H + 0.5 * gap * np.cos(t), yy, 0.5 * gap * (1.0 + np.sin(t))) for t in theta for yy in y])
+    pts = np.vstack([sheet, sheet + np.array([0.0, 0.0, gap]), fold])
+    arcs = []
+    for z in (0.0, gap):
+        for i in (3, 13, 23, 33):
+            col = np.flatnonzero(np.isclose(pts[:, 0], i * H) & np.isclose(pts[:, 2], z))
+            arcs.append(col[np.argsort(pts[col, 1])])
+    return pts, arcs
+
+
+def test_the_tour_over_the_arcs_goes_by_surface_distance_not_across_a_fold():
+    pts, arcs = _hairpin()
+    passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
+    assert passes.n_parts == 1  # the sheets are joined round the fold only (12 mm apart: no link across)
+    x0 = pts[arcs[0][0]]
+    walk = passes._tour_of([a.copy() for a in arcs], x0)
+    # every arc once, whole, along itself
+    assert np.array_equal(np.sort(np.concatenate(walk)), np.sort(np.concatenate(arcs)))
+    for a in walk:
+        assert any(np.array_equal(a, b) or np.array_equal(a, b[::-1]) for b in arcs)
+    # the lower sheet's arcs first, then round the fold and the upper sheet's, instead of across the gap and back
+
+    def surface_jumps(seq: list[np.ndarray]) -> float:
+        d = dijkstra(passes._graph, directed=False, indices=[a[-1] for a in seq[:-1]])
+        return float(sum(d[k, b[0]] for k, b in enumerate(seq[1:])))
+
+    assert [bool(pts[a[0], 2] > 0) for a in walk] == [False] * 4 + [True] * 4
+    # nearest neighbour by the chord between the arcs' ends goes up across the gap first, a walk round the fold
+    here, left, chord = x0, list(range(len(arcs))), []
+    while left:
+        k, rev = min(((i, r) for i in left for r in (False, True)),
+                     key=lambda c: np.linalg.norm(pts[arcs[c[0]][-1 if c[1] else 0]] - here))
+        chord.append(arcs[k][::-1] if rev else arcs[k])
+        left.remove(k)
+        here = pts[chord[-1][-1]]
+    assert pts[chord[1][0], 2] > 0
+    assert surface_jumps(walk) < 0.5 * surface_jumps(chord)
 
 
 def test_a_guided_agent_that_stalls_hops_to_the_next_waypoint_of_its_tour():

@@ -17,7 +17,9 @@ d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the rin
 The plan is a set of waypoints, the target points on the middle line of their ring (|d − (k+½)·w| ≤ ½ voxel). On
 a closed or holed surface a ring's middle line breaks into several arcs (its connected runs); each arc is
 ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
-(a closed arc is entered anywhere), then 2-opt. Along an arc the agent steers at a carrot, the farthest of its
+(a closed arc is entered anywhere), then 2-opt, by the chords and by the surface distances between the ends, and the
+tour whose moves are shorter along the surface is kept (the agent walks them on the surface: round a fold or an
+ear's base the chord is a fraction of the walk). Along an arc the agent steers at a carrot, the farthest of its
 next waypoints within ``AHEAD`` voxels; the waypoints behind its place on the arc are done. A target point the
 passes walked past untouched (the agent's tracking error left it at the footprint's edge) and no pending
 waypoint will cover (``missed``) is touched at once when it lies within a couple of footprint radii: the
@@ -38,6 +40,8 @@ graph distance zigzags along the links, so it is smoothed before its level sets 
 """
 
 from __future__ import annotations
+
+from itertools import pairwise
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -260,8 +264,7 @@ class RingPasses:
     # ------------------------------------------------------------------ the tour over the arcs
     def _plan(self, part: int, x: np.ndarray) -> None:
         """The part's pending waypoints as arcs (connected runs of one ring's middle line, each in order along it),
-        and the arcs in the order of a short open tour from x (3,) [m]: nearest neighbour over the arcs' ends
-        (a closed arc is entered at its point nearest to where the tour is), then 2-opt."""
+        and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
         idx = np.flatnonzero(self.pending & (self._part == part))
         arcs = self._arcs(idx)
         self._at[part] = 0
@@ -275,29 +278,64 @@ class RingPasses:
 
     def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
-        neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt."""
+        neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt,
+        once by the chords between the ends and once by the surface distances; the tour whose moves between arcs
+        are shorter along the surface is kept (the agent walks them down the surface distance: on a curved part,
+        or across a fold, the chord ranks them wrongly; on a flat one the graph distance zigzags along the links
+        and ranks straight moves wrongly)."""
         p = self._points
         closed = [self._closed(a) for a in arcs]
+        start = self._on_arcs(arcs, x)
+        ends = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in arcs]))
+        rows = dict(zip(ends.tolist(), dijkstra(self._graph, directed=False, indices=ends), strict=True))
+
+        def surface(v: int) -> np.ndarray:
+            if v not in rows:
+                rows[v] = dijkstra(self._graph, directed=False, indices=v)
+            return rows[v]
+
+        def chord(v: int) -> np.ndarray:
+            return np.linalg.norm(p - p[v], axis=1)
+
+        best, best_length = None, np.inf
+        for way in (chord, surface):
+            walk = self._two_opt(self._nearest_arcs(arcs, closed, start, way), start, way)
+            moves = [(start, walk[0][0])] + [(a[-1], b[0]) for a, b in pairwise(walk)]
+            length = sum(float(surface(int(u))[v]) for u, v in moves)
+            if length < best_length:
+                best, best_length = walk, length
+        return best
+
+    @staticmethod
+    def _nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way) -> list[np.ndarray]:
+        """The arcs in nearest-neighbour order from target point ``start`` by the distances ``way(v)`` (T,) [m]
+        from target point v, each entered at its nearer end (a closed one at its nearest point)."""
         left = list(range(len(arcs)))
-        here = x
+        here = start
         walk: list[np.ndarray] = []
-        while left:  # nearest neighbour
+        while left:
             best, best_d, best_seq = -1, np.inf, None
+            r = way(here)
             for i in left:
                 a = arcs[i]
                 if closed[i]:
-                    d = np.linalg.norm(p[a] - here, axis=1)
+                    d = r[a]
                     j = int(d.argmin())
                     cand, dist = np.roll(a, -j), float(d[j])
                 else:
-                    d0, d1 = np.linalg.norm(p[a[0]] - here), np.linalg.norm(p[a[-1]] - here)
+                    d0, d1 = float(r[a[0]]), float(r[a[-1]])
                     cand, dist = (a, d0) if d0 <= d1 else (a[::-1], d1)
-                if dist < best_d:
+                if dist < best_d or best < 0:
                     best, best_d, best_seq = i, dist, cand
             left.remove(best)
             walk.append(best_seq)
-            here = p[best_seq[-1]]
-        return self._two_opt(walk, x)
+            here = int(best_seq[-1])
+        return walk
+
+    def _on_arcs(self, arcs: list[np.ndarray], x: np.ndarray) -> int:
+        """The target point of the arcs' part nearest to x (3,) [m] (where the tour starts)."""
+        members = np.flatnonzero(self._part == self._part[arcs[0][0]])
+        return int(members[np.linalg.norm(self._points[members] - x, axis=1).argmin()])
 
     def _tour_length(self, part: int) -> float:
         """Length [m] of the part's tour: along each arc through every third waypoint (the middle line is a voxel
@@ -336,26 +374,29 @@ class RingPasses:
         g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(risk), len(risk)))
         return ISLAND_COST * self.footprint_m * connected_components(g, directed=False)[0]
 
-    def _two_opt(self, walk: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
-        """2-opt on an open tour of arcs from x: reversing a run of arcs reverses each of them too."""
+    def _two_opt(self, walk: list[np.ndarray], start: int, row) -> list[np.ndarray]:
+        """2-opt on an open tour of arcs from target point ``start``, by the distances ``row(v)`` (T,) [m] from
+        target point v: reversing a run of arcs reverses each of them too."""
         n = len(walk)
         if n < 3:
             return walk
-        p = self._points
+        nodes = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in walk]))
+        dist = np.array([row(int(v))[nodes] for v in nodes])  # between the ends (both ways: an arc may turn)
+        at = {int(v): k for k, v in enumerate(nodes)}
         for _ in range(TWO_OPT_PASSES):
-            entry = np.array([p[a[0]] for a in walk])
-            out = np.array([p[a[-1]] for a in walk])
-            before = np.vstack([x[None], out[:-1]])  # where the tour is before arc i
+            entry = np.array([at[int(a[0])] for a in walk])
+            out = np.array([at[int(a[-1])] for a in walk])
+            before = np.r_[at[start], out[:-1]]  # where the tour is before arc i
             improved = False
             for i in range(n - 1):
                 # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
                 # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
                 j = np.arange(i + 1, n)
-                old = np.linalg.norm(entry[i] - before[i])
-                new = np.linalg.norm(out[j] - before[i], axis=1)
-                nxt = np.vstack([entry[j[:-1] + 1], np.full((1, 3), np.nan)])
-                old_after = np.linalg.norm(nxt - out[j], axis=1)
-                new_after = np.linalg.norm(nxt - entry[i], axis=1)
+                old = dist[before[i], entry[i]]
+                new = dist[before[i], out[j]]
+                nxt = np.r_[entry[j[:-1] + 1], 0]
+                old_after = dist[out[j], nxt]
+                new_after = dist[entry[i], nxt]
                 old_after[-1] = new_after[-1] = 0.0
                 gain = old + old_after - new - new_after
                 k = int(gain.argmax())
