@@ -17,11 +17,11 @@ d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the rin
 The plan is a set of waypoints, the target points on the middle line of their ring (|d − (k+½)·w| ≤ ½ voxel). On
 a closed or holed surface a ring's middle line breaks into several arcs (its connected runs); each arc is
 ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
-(a closed arc is entered anywhere), then 2-opt, by the chords and by the surface distances between the ends, and the
-tour whose moves are shorter along the surface is kept (the agent walks them on the surface: round a fold or an
-ear's base the chord is a fraction of the walk). Along an arc the agent steers at a carrot, the farthest of its
-next waypoints within ``AHEAD`` voxels; the waypoints behind its place on the arc are done. A target point the
-passes walked past untouched (the agent's tracking error left it at the footprint's edge) and no pending
+(a closed arc is entered anywhere), then 2-opt, by the chords and by the surface distances between the ends; the
+surface's tour is kept when its moves are clearly shorter along the surface (the agent walks them on the surface:
+round a fold or an ear's base the chord is a fraction of the walk). Along an arc the agent steers at a carrot, the
+farthest of its next waypoints within ``AHEAD`` voxels; the waypoints behind its place on the arc are done. A target
+point the passes walked past untouched (the agent's tracking error left it at the footprint's edge) and no pending
 waypoint will cover (``missed``) is touched at once when it lies within a couple of footprint radii: the
 explorer steps aside to it. The start of the next arc, when farther than a pass spacing, is reached down the
 surface distance to it. (Order "greedy", the earlier rule: the pending waypoint of least cost_j = |x_j − x| +
@@ -94,6 +94,10 @@ ISLAND_COST = 2.0
 SUBSAMPLE = 3
 #: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
 TWO_OPT_PASSES = 20
+#: The tour over the arcs planned by surface distance replaces the one planned by chord when its moves between arcs
+#: are shorter along the surface than this share of the chord tour's [-]: on a flat or gently curved part the two
+#: differ by the graph distance's zigzag, and the chord's tour is kept (see RingPasses._tour_of).
+SURFACE_GAIN = 0.9
 #: The hunt hops once the agent is within this many voxels of the hop's near end (see RingPasses.hop_due).
 HOP_REACH = 2.0
 #: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
@@ -279,10 +283,10 @@ class RingPasses:
     def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
         neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt,
-        once by the chords between the ends and once by the surface distances; the tour whose moves between arcs
-        are shorter along the surface is kept (the agent walks them down the surface distance: on a curved part,
-        or across a fold, the chord ranks them wrongly; on a flat one the graph distance zigzags along the links
-        and ranks straight moves wrongly)."""
+        once by the chords between the ends and once by the surface distances. The agent walks the moves down the
+        surface distance: round a fold or an ear's base the chord ranks them wrongly, so the surface's tour is kept
+        when its moves are shorter along the surface than ``SURFACE_GAIN`` times the chord's; on a flat part the
+        graph distance zigzags along the links and ranks straight moves wrongly, and the chord's tour is kept."""
         p = self._points
         closed = [self._closed(a) for a in arcs]
         start = self._on_arcs(arcs, x)
@@ -297,14 +301,13 @@ class RingPasses:
         def chord(v: int) -> np.ndarray:
             return np.linalg.norm(p - p[v], axis=1)
 
-        best, best_length = None, np.inf
+        tours = []
         for way in (chord, surface):
             walk = self._two_opt(self._nearest_arcs(arcs, closed, start, way), start, way)
             moves = [(start, walk[0][0])] + [(a[-1], b[0]) for a, b in pairwise(walk)]
-            length = sum(float(surface(int(u))[v]) for u, v in moves)
-            if length < best_length:
-                best, best_length = walk, length
-        return best
+            tours.append((walk, sum(float(surface(int(u))[v]) for u, v in moves)))
+        (by_chord, chord_m), (by_surface, surface_m) = tours
+        return by_surface if surface_m < SURFACE_GAIN * chord_m else by_chord
 
     @staticmethod
     def _nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way) -> list[np.ndarray]:
