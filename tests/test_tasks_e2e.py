@@ -244,6 +244,22 @@ def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeyp
     assert m["keep_out_contacts"] == 0
 
 
+def test_the_cup_starts_with_a_planned_sweep_of_its_marking() -> None:
+    """Issue 21: on the cup's wall the first stretch in contact is a planned sweep of a few long passes over
+    the blobs (the wear model's shortest slide to 97 % of them), then the explorer; the marking is 95 % off
+    within the first contact, with the force in its band."""
+    cfg = CleanConfig(object_name="cup", marking="blobs", budget_s=9.0)
+    m = run_clean(cfg, progress=False).metrics
+    assert 0.05 < m["first_sweep_m"] < 0.25  # planned, and shorter than the explorer's 0.23 m to the 95 % mark
+    assert m["island_strokes"] == 0  # the sweep is not counted as a stroke through a small island
+    t95 = m["time_to_95pct_s"]
+    assert t95 is not None and not m["vision_update_times_s"]
+    to95 = m["time_breakdown_to_95pct_s"]
+    assert to95["contact_clean"] < 0.1  # the sweep stays on the blobs
+    assert to95["contact_dirt"] < 2.9  # the explorer alone took 3.3 s of contact (and 0.6 s on clean wall)
+    assert m["force_within_20pct_fraction"] >= 0.9 and m["max_contact_force_n"] <= 2.0 * cfg.force_n
+
+
 def test_sparse_spots_are_cleaned_island_by_island() -> None:
     """Issue 21: three 1 cm spots far apart on the plate. Each spot is smaller than the pad: the robot wipes
     it with a straight stroke (back and forth until the wear model calls it clean) and moves on to the

@@ -61,13 +61,14 @@ from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
 from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.progress import Progress
-from tactex.tasks.raster import RasterPath
+from tactex.tasks.raster import RasterPath, WaypointPath
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
-from tactex.tasks.stroke import IslandStroke, plan_stroke
+from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
+from tactex.tasks.sweep_plan import dirt_island, plan_sweep
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
 from tactex.tasks.wear_model import WearModel
@@ -106,6 +107,10 @@ APPROACH_ACCEL_M_S2 = 1.0
 #: Height of the table top the simulated objects stand on [m] (tactex.sim.scene): the capture's crop cuts the
 #: table above it and the pad is kept above it.
 SUPPORT_Z_M = 0.0
+#: Share of the first island's dirt the wear model must predict off by the end of the planned sweep
+#: (CleanConfig.sweep_corners) [-]: above the 95 % mark, because the tool rounds the sweep's corners and turns
+#: (±1–2 cm at a turn on the cup) and wipes a little less than the plan.
+SWEEP_GOAL = 0.97
 #: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
 #: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
 #: (two IK solves, a few ms each).
@@ -165,6 +170,10 @@ class CleanConfig(SimWorldParams):
         "tolerates a miscalibrated k_p or tracking error) [-]")
     model_update_steps: int = param(10, "exploration steps between updates of the explorer's target from the "
                                         "wear model [-]")
+    sweep_corners: int = param(
+        5, "with --objective clean, the first stretch in contact is a planned sweep: a polyline of at most this "
+        "many straight legs from the touch-down that the wear model predicts takes 95 % of the view's dirt off in "
+        "the shortest slide (then the explorer goes on); 0 = none, the explorer from the touch-down [-]")
     model_stall_steps: int = param(
         60, "with --objective clean, back to the camera (or on to the next island of dirt) when the wear model "
         "predicts less than a tenth of what is left removed over this many exploration steps [-]")
@@ -264,6 +273,9 @@ class CleanConfig(SimWorldParams):
                 f"exploration step at explorer_rate_hz = {self.explorer_rate_hz}; keep it below "
                 f"{90.0 * self.explorer_rate_hz:g} deg/s (an about-turn would blend through a zero normal)"
             )
+        if not (isinstance(self.sweep_corners, (int, np.integer)) and self.sweep_corners >= 0):
+            raise ConfigError(f"sweep_corners must be a whole number ≥ 0 (0 = no planned sweep), got "
+                              f"{self.sweep_corners!r}")
         el = float(self.side_capture_elevation_deg)
         if not (np.isfinite(el) and 0.0 <= el <= 75.0):
             raise ConfigError(f"side_capture_elevation_deg must be within 0–75 deg (above 75 the camera no longer sees "
@@ -869,11 +881,36 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     ergodicity: list[tuple[float, float]] = []
     explore_time = 0.0
 
+    # the first stretch in contact, planned while the robot still holds at the capture pose (wall clock,
+    # counted with the choice of the touch-down)
+    sweep: IslandStroke | None = None
+    sweep_m = 0.0
+    if strokes and cfg.sweep_corners > 0:
+        t_plan = time.perf_counter()
+        first_island = dirt_island(cloud.points, wear.remaining(), cmd.point, 2.0 * cfg.pad_radius_m)
+        # an island smaller than the pad gets its straight stroke instead
+        plan = (None if plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m)
+                else plan_sweep(cloud, wear.tree, wear.remaining() * first_island, cmd.point, cfg.pad_radius_m,
+                                cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), stroke_step_m,
+                                goal=SWEEP_GOAL, max_corners=cfg.sweep_corners, support_z_m=support_z,
+                                max_length_m=cfg.vision_max_steps * stroke_step_m, seed=cfg.seed))
+        start_plan_s += time.perf_counter() - t_plan
+        if plan is not None:
+            sweep_m = plan.length_m
+            # the whole view's dirt is its island: not clean when the sweep ends, so the explorer goes on from there
+            sweep = IslandStroke(WaypointPath(cloud, plan.waypoints, stroke_step_m, tree=wear.tree),
+                                 np.flatnonzero(wear.dirty()), plan.waypoints[0], plan.waypoints[-1],
+                                 passes=MAX_PASSES)
+
     aborted = ""
     try:
         while loop.t < t_end:
             if new_leg and strokes:
-                stroke = plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m)
+                if sweep is not None:
+                    stroke, counted, sweep = sweep, sweep, None  # counted: not an island stroke
+                else:
+                    stroke = plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m,
+                                         stroke_step_m)
                 if stroke is not None:
                     cmd = stroke.path.reset()
             new_leg = False
@@ -1150,6 +1187,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "vision_updates": vision_updates,
         "island_relocations": island_moves,
         "island_strokes": n_strokes,
+        "first_sweep_m": sweep_m,  # [m] the planned sweep's slide to 95 % predicted (0: none planned)
         "contact_transfers": n_transfers,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],

@@ -1,0 +1,238 @@
+"""A planned first sweep over the captured dirt (issue 21).
+
+At the first touch-down the robot knows the whole view's dirt and nothing has been wiped yet, so the
+first stretch in contact can be planned instead of followed step by step: a polyline of a few straight
+legs on the captured surface, from the touch-down point, that the robot's own Preston wear model
+(the same prediction as :class:`~tactex.tasks.wear_model.WearModel`: k_p·F/(π r²) of dirt level per
+metre slid under the pad's disc) says wipes most of the view's dirt in the shortest slide. A handful of
+long passes is what a person does on a mug's side; HEDAC's step-by-step gradient, started on the middle
+of the marking, first loops around it. After the sweep the explorer takes over with the wear model's
+view of what is left.
+
+The polyline's corners are searched among the cloud points within a pad radius of the dirt (random
+polylines, then each corner moved at random while the slide gets no longer). A leg is the chord between
+two corners brought onto the surface along the nearest cloud point's normal (on a convex wall: the arc),
+raised where the pad's disc would touch the support the object stands on. A leg whose chord runs above
+the surface or beside it (across a bowl's hollow or a hole in the capture) by more than
+:data:`~tactex.tasks.stroke.MAX_LINE_GAP_M` is not used; under the surface (a convex wall) is fine. None
+when no polyline of at most ``max_corners`` legs reaches the goal: the explorer then starts as before.
+
+The sweep is planned for the island of dirt the touch-down is on (dirt joined within two pad radii), not
+for islands far apart, between which a lift-off and a flight are quicker than a slide.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from tactex.errors import ConfigError, InputError
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.tasks.stroke import MAX_LINE_GAP_M
+
+__all__ = ["SweepPlan", "dirt_island", "plan_sweep"]
+
+#: Random polylines tried before refining the best [-].
+N_RANDOM = 300
+#: Refinement trials (one corner moved at a time), shared by the climbs [-].
+N_REFINE = 1500
+#: Hill climbs, from the best random polylines [-].
+N_CLIMBS = 3
+#: Most candidate corners (cloud points near the dirt, thinned evenly) [-].
+MAX_CANDIDATES = 400
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """A planned sweep: ``waypoints`` (M, 3) [m] on the cloud from the touch-down, ``corners`` (K, 3) [m]
+    the polyline's corners (the touch-down first), ``length_m`` [m] the slide until the wear model predicts
+    ``goal`` of the dirt off (the waypoints go to the last corner, a little beyond)."""
+
+    waypoints: np.ndarray
+    corners: np.ndarray
+    length_m: float
+    goal: float
+
+
+class _Predictor:
+    """Removal along a polyline, as the wear model would predict it (no margin: the dirt level removed)."""
+
+    def __init__(self, cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, pad_radius_m: float,
+                 removal_per_m: float, step_m: float, support_z_m: float | None) -> None:
+        self.cloud, self.tree, self.step = cloud, tree, float(step_m)
+        self.dirty = np.flatnonzero(target > 0)
+        self.mass = target[self.dirty]
+        self.total = float(self.mass.sum())
+        self.dirt_tree = cKDTree(cloud.points[self.dirty])
+        self.radius = float(pad_radius_m)
+        self.per_m = float(removal_per_m)
+        self.support_z = support_z_m
+        self._legs: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None] = {}
+
+    def lowest_z(self, normals: np.ndarray) -> np.ndarray:
+        """Lowest height [m] of a pad centre over points with ``normals`` (S, 3): its disc ⟂ the normal stays above
+        the support plane (as the commanded line's point is raised in ``tactex clean``); -inf without a support."""
+        if self.support_z is None:
+            return np.full(len(normals), -np.inf)
+        return self.support_z + self.radius * np.sqrt(np.clip(1.0 - normals[:, 2] ** 2, 0.0, 1.0))
+
+    def leg(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The leg from cloud point ``i`` to ``j``: its samples (S, 3) [m] on the surface, each sample's slide
+        from the one before (S,) [m], and the (sample, dirty point) pairs under the pad as two index arrays;
+        None when its chord leaves the surface."""
+        key = (i, j)
+        if key not in self._legs:
+            pts, nrm = self.cloud.points, self.cloud.normals
+            a, b = pts[i], pts[j]
+            n = max(int(np.ceil(np.linalg.norm(b - a) / self.step)), 1)
+            chord = a + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a)
+            _, idx = self.tree.query(chord)
+            off = chord - pts[idx]
+            out = np.einsum("ij,ij->i", off, nrm[idx])  # > 0: above the surface (air)
+            side = np.linalg.norm(off - out[:, None] * nrm[idx], axis=1)
+            if np.any(np.maximum(out, 0.0) > MAX_LINE_GAP_M) or np.any(side > MAX_LINE_GAP_M):
+                self._legs[key] = None
+            else:
+                # onto the surface along each nearest point's normal: a smooth line on it (the snapped points
+                # themselves zigzag over the voxel grid, a longer slide for the same sweep)
+                samples = chord - out[:, None] * nrm[idx]
+                samples[:, 2] = np.maximum(samples[:, 2], self.lowest_z(nrm[idx]))
+                ds = np.linalg.norm(np.diff(np.vstack([a, samples]), axis=0), axis=1)
+                under = self.dirt_tree.query_ball_point(samples, self.radius)
+                counts = np.fromiter((len(u) for u in under), dtype=np.int64, count=len(under))
+                s_idx = np.repeat(np.arange(len(samples)), counts)
+                d_idx = np.fromiter((k for u in under for k in u), dtype=np.int64, count=int(counts.sum()))
+                self._legs[key] = (samples, ds, s_idx, d_idx)
+        return self._legs[key]
+
+    def length_to_goal(self, corners: list[int], goal: float) -> float:
+        """Slide [m] along the polyline through the cloud points ``corners`` until ``goal`` of the dirt mass
+        is predicted off; inf when it never is or a leg leaves the surface."""
+        ds_all, s_all, d_all = [], [], []
+        offset = 0
+        for i, j in itertools.pairwise(corners):
+            leg = self.leg(i, j)
+            if leg is None:
+                return np.inf
+            _, ds, s_idx, d_idx = leg
+            ds_all.append(ds)
+            s_all.append(s_idx + offset)
+            d_all.append(d_idx)
+            offset += len(ds)
+        ds = np.concatenate(ds_all)
+        s_idx, d_idx = np.concatenate(s_all), np.concatenate(d_all)
+        if s_idx.size == 0:
+            return np.inf
+        # each dirty point's exposure (metres slid over it) in path order; its level falls by per_m per metre
+        # down to zero, so the mass it gives up by each sample is mass·(min(1, per_m·E) − min(1, per_m·E_before))
+        order = np.lexsort((s_idx, d_idx))
+        s_o, d_o = s_idx[order], d_idx[order]
+        e = np.cumsum(ds[s_o])
+        first = np.concatenate([[True], d_o[1:] != d_o[:-1]])
+        base = np.maximum.accumulate(np.where(first, np.concatenate([[0.0], e[:-1]]), -np.inf))
+        exposure = e - base
+        lost = np.minimum(self.per_m * exposure, 1.0)
+        gained = lost - np.where(first, 0.0, np.concatenate([[0.0], lost[:-1]]))
+        removed = np.cumsum(np.bincount(s_o, weights=self.mass[d_o] * gained, minlength=len(ds)))
+        hit = np.flatnonzero(removed >= goal * self.total)
+        if hit.size == 0:
+            return np.inf
+        return float(np.cumsum(ds)[hit[0]])
+
+
+def dirt_island(points_m: np.ndarray, target: np.ndarray, here_m: np.ndarray, link_m: float) -> np.ndarray:
+    """The island of dirt at ``here_m`` (3,) [m]: a mask (N,) of the points ``points_m`` (N, 3) [m] with dirt
+    (``target`` > 0) joined to the dirty point nearest ``here_m`` through dirty points less than ``link_m`` [m]
+    apart (all False when there is no dirt)."""
+    pts = np.asarray(points_m, dtype=float)
+    dirty = np.flatnonzero(np.asarray(target) > 0)
+    mask = np.zeros(len(pts), dtype=bool)
+    if dirty.size == 0:
+        return mask
+    tree = cKDTree(pts[dirty])
+    pairs = tree.query_pairs(float(link_m), output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(dirty.size, dirty.size))
+    _, label = connected_components(graph, directed=False)
+    seed = int(tree.query(np.asarray(here_m, dtype=float))[1])
+    mask[dirty[label == label[seed]]] = True
+    return mask
+
+
+def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: np.ndarray,
+               pad_radius_m: float, removal_per_m: float, step_m: float, goal: float = 0.95,
+               max_corners: int = 5, max_length_m: float = np.inf, support_z_m: float | None = None,
+               seed: int = 0) -> SweepPlan | None:
+    """The shortest sweep found from ``start_m`` (3,) [m] that the wear model predicts takes ``goal`` (0–1) of
+    the dirt ``target`` (N,) (mass per cloud point) off, with at most ``max_corners`` corners after the start
+    and no longer than ``max_length_m`` [m]; None when none does.
+
+    ``removal_per_m`` [dirt level/m]: the level a point under the pad loses per metre slid (k_p·F/(π r²));
+    ``step_m`` [m]: the spacing of the path's samples (the agent's step); ``support_z_m`` [m]: the height of the
+    plane the object stands on (the pad's centre is kept high enough for its disc to clear it, as ``tactex clean``
+    raises its commanded point; None: no support); ``seed``: the search's draws."""
+    target = np.asarray(target, dtype=float)
+    if target.shape != (len(cloud),):
+        raise InputError(f"target must have shape ({len(cloud)},), got {target.shape}")
+    if cloud.normals is None:
+        raise InputError("a sweep is planned on a cloud with normals")
+    if not (0.0 < goal < 1.0):
+        raise ConfigError(f"the sweep's goal must be within (0, 1), got {goal!r}")
+    if int(max_corners) < 1:
+        raise ConfigError(f"a sweep needs at least one corner after the start, got {max_corners!r}")
+    for name, v in (("pad_radius_m", pad_radius_m), ("removal_per_m", removal_per_m), ("step_m", step_m)):
+        if not (np.isfinite(v) and v > 0):
+            raise ConfigError(f"{name} must be a positive number, got {v!r}")
+    if not np.any(target > 0):
+        return None
+    pred = _Predictor(cloud, tree, target, pad_radius_m, removal_per_m, step_m, support_z_m)
+    start = int(tree.query(np.asarray(start_m, dtype=float))[1])
+    # candidate corners: the cloud points within a pad radius of the dirt (the pad's centre may pass beside
+    # a stroke of dirt) where the pad clears the support, at most MAX_CANDIDATES of them drawn at random
+    dist, _ = pred.dirt_tree.query(cloud.points, distance_upper_bound=pad_radius_m)
+    near = np.flatnonzero((dist <= pad_radius_m) & (cloud.points[:, 2] >= pred.lowest_z(cloud.normals)))
+    if near.size == 0:
+        return None
+    rng = np.random.default_rng(seed)
+    if near.size > MAX_CANDIDATES:
+        near = np.sort(rng.choice(near, MAX_CANDIDATES, replace=False))
+    cand_tree = cKDTree(cloud.points[near])
+    n_corners = int(max_corners)
+    drawn: list[tuple[float, list[int]]] = []
+    for _ in range(N_RANDOM):
+        corners = [start, *rng.choice(near, n_corners).tolist()]
+        length = pred.length_to_goal(corners, goal)
+        if length < np.inf:
+            drawn.append((length, corners))
+    if not drawn:
+        return None
+    drawn.sort(key=lambda d: d[0])
+    scale = 2.0 * pad_radius_m  # how far a corner moves in one refinement trial (about one pad width)
+    best_len, best = np.inf, drawn[0][1]
+    for length0, corners0 in drawn[:N_CLIMBS]:  # a few climbs: the slide's length has many local minima
+        climb, climb_len = corners0, length0
+        for _ in range(N_REFINE // N_CLIMBS):
+            k = int(rng.integers(1, len(climb)))
+            trial = list(climb)
+            trial[k] = int(near[cand_tree.query(cloud.points[climb[k]] + rng.normal(0.0, scale, 3))[1]])
+            length = pred.length_to_goal(trial, goal)
+            if length <= climb_len:
+                climb, climb_len = trial, length
+        if climb_len < best_len:
+            best, best_len = climb, climb_len
+    if not best_len <= max_length_m:
+        return None
+    # the corners the goal needs (the rest of the polyline is not driven)
+    used = [best[0]]
+    for k in range(1, len(best)):
+        used.append(best[k])
+        if pred.length_to_goal(used, goal) < np.inf:
+            break
+    waypoints = [cloud.points[used[0]][None]]
+    for i, j in itertools.pairwise(used):
+        waypoints.append(pred.leg(i, j)[0])
+    return SweepPlan(np.concatenate(waypoints), cloud.points[used], float(best_len), float(goal))

@@ -1,0 +1,135 @@
+"""The planned first sweep over the captured dirt (issue 21): its prediction agrees with the wear model's,
+it is short where a short sweep exists, it keeps to the surface and above the support, and its island."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from tactex.errors import ConfigError, InputError
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.tasks.clean import CleanConfig
+from tactex.tasks.stroke import MAX_LINE_GAP_M
+from tactex.tasks.sweep_plan import dirt_island, plan_sweep
+from tactex.tasks.wear_model import WearModel
+
+K_P, R, STEP, FORCE = 5e-3, 0.025, 0.003, 10.0
+PER_M = K_P * FORCE / (np.pi * R**2)  # dirt level per metre slid under the pad
+
+
+def _plane(target, spacing: float = 0.003, half: float = 0.12, trench: float = 0.0) -> SurfaceCloud:
+    g = np.arange(-half, half + 1e-9, spacing)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    if trench > 0:
+        pts[:, 2] = np.where(np.abs(pts[:, 0]) < 0.03, -trench, 0.0)
+    return SurfaceCloud(points=pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=target(pts),
+                        spacing=spacing)
+
+
+def _strip(p: np.ndarray) -> np.ndarray:
+    """A 16 cm × 1.2 cm strip along x: one pass along it wipes it, from one end to the other."""
+    return ((np.abs(p[:, 0]) <= 0.08) & (np.abs(p[:, 1]) <= 0.006)).astype(float)
+
+
+def _wiped_share(cloud: SurfaceCloud, waypoints: np.ndarray) -> float:
+    """The share of the cloud's dirt the wear model (margin 1) predicts off after a slide along ``waypoints``."""
+    wear = WearModel(cloud, K_P, R)
+    for a, b in itertools.pairwise(waypoints):
+        wear.wipe(0.5 * (a + b), FORCE * float(np.linalg.norm(b - a)))
+    return 1.0 - float(wear.remaining().sum()) / float(cloud.target.sum())
+
+
+def test_the_sweep_of_a_strip_from_its_middle_is_one_turn_and_wipes_what_it_predicts() -> None:
+    cloud = _plane(_strip)
+    start = np.array([0.0, 0.0, 0.0])
+    plan = plan_sweep(cloud, cKDTree(cloud.points), cloud.target, start, R, PER_M, STEP, goal=0.95, seed=1)
+    assert plan is not None
+    assert np.allclose(plan.waypoints[0], start, atol=cloud.spacing)
+    # the wear model, fed the slide along the plan, predicts the goal reached (the planner's own prediction)
+    assert _wiped_share(cloud, plan.waypoints) >= 0.95 - 0.01
+    # out to one end and back along the whole strip: at most 8 + 16 cm, less where the pad's reach saves its
+    # ends; a loop or a second turn would be longer
+    assert plan.length_m <= 0.24
+    assert plan.length_m >= 0.10  # the strip is 16 cm long; the pad reaches 2.5 cm beyond each end of a pass
+    # the path keeps to the strip's line (y within the strip's half width)
+    assert np.all(np.abs(plan.waypoints[:, 1]) <= 0.006 + R)
+
+
+def test_no_sweep_when_the_goal_is_out_of_reach() -> None:
+    cloud = _plane(_strip)
+    tree = cKDTree(cloud.points)
+    start = np.array([0.0, 0.0, 0.0])
+    assert plan_sweep(cloud, tree, cloud.target, start, R, PER_M, STEP, max_length_m=0.05) is None
+    assert plan_sweep(cloud, tree, np.zeros(len(cloud)), start, R, PER_M, STEP) is None  # nothing to wipe
+
+
+def test_no_leg_across_a_hollow() -> None:
+    """Dirt on both sides of a 3 cm deep trench: no straight leg may cross it in the air, so no sweep reaches
+    97 % of both sides; with the trench filled, one does."""
+    spots = lambda p: (np.linalg.norm(np.abs(p[:, :2]) - [0.06, 0.0], axis=1) <= 0.008).astype(float)  # noqa: E731
+    start = np.array([-0.06, 0.0, 0.0])
+    hollow = _plane(spots, trench=0.03)
+    assert plan_sweep(hollow, cKDTree(hollow.points), hollow.target, start, R, PER_M, STEP, goal=0.97) is None
+    flat = _plane(spots)
+    plan = plan_sweep(flat, cKDTree(flat.points), flat.target, start, R, PER_M, STEP, goal=0.97)
+    assert plan is not None
+    dense = np.vstack([a + np.linspace(0, 1, 5)[:, None] * (b - a) for a, b in itertools.pairwise(plan.waypoints)])
+    assert cKDTree(flat.points).query(dense)[0].max() <= MAX_LINE_GAP_M
+
+
+def test_a_sweep_on_a_wall_runs_on_the_wall_and_keeps_the_pad_above_the_support() -> None:
+    """A half cylinder (the cup's wall) with a band of dirt near its foot: the legs follow the arc (not the chord
+    inside the wall) and the pad's centre stays a pad radius above the table (its disc is vertical)."""
+    radius, spacing = 0.04, 0.003
+    ang = np.linspace(-np.pi, 0.0, int(np.pi * radius / spacing))
+    a, z = np.meshgrid(ang, np.arange(0.0, 0.1 + 1e-9, spacing))
+    pts = np.column_stack([radius * np.cos(a.ravel()), radius * np.sin(a.ravel()), z.ravel()])
+    normals = np.column_stack([np.cos(a.ravel()), np.sin(a.ravel()), np.zeros(a.size)])
+    zz, side = z.ravel(), np.abs(a.ravel() + np.pi / 2)
+    band = ((zz >= 0.012) & (zz <= 0.04) & (side <= np.radians(50))).astype(float)
+    cloud = SurfaceCloud(points=pts, normals=normals, target=band, spacing=spacing)
+    start = pts[np.argmin(np.linalg.norm(pts - [0.0, -radius, 0.03], axis=1))]
+    plan = plan_sweep(cloud, cKDTree(pts), band, start, R, PER_M, STEP, goal=0.9, support_z_m=0.0)
+    assert plan is not None
+    r_xy = np.hypot(plan.waypoints[:, 0], plan.waypoints[:, 1])
+    assert np.all(np.abs(r_xy - radius) <= 1e-3)  # on the arc
+    assert plan.waypoints[:, 2].min() >= R - 1e-9  # the vertical pad's disc clears z = 0
+    assert np.all(plan.corners[:, 2] >= R - 1e-9)
+
+
+def test_the_island_is_the_dirt_joined_to_the_touch_down() -> None:
+    spots = lambda p: ((np.linalg.norm(p[:, :2] - [-0.05, 0.0], axis=1) <= 0.01)  # noqa: E731
+                       | (np.linalg.norm(p[:, :2] - [0.05, 0.0], axis=1) <= 0.01)).astype(float)
+    cloud = _plane(spots)
+    here = np.array([-0.06, 0.0, 0.0])
+    near = dirt_island(cloud.points, cloud.target, here, link_m=0.05)
+    assert near.sum() > 0 and np.all(cloud.points[near, 0] < 0) and np.all(cloud.target[near] > 0)
+    both = dirt_island(cloud.points, cloud.target, here, link_m=0.09)
+    assert np.array_equal(both, cloud.target > 0)
+    assert not dirt_island(cloud.points, np.zeros(len(cloud)), here, 0.05).any()
+
+
+def test_the_planner_and_the_option_refuse_bad_input() -> None:
+    cloud = _plane(_strip, half=0.03)
+    tree = cKDTree(cloud.points)
+    here = np.zeros(3)
+    with pytest.raises(InputError, match="shape"):
+        plan_sweep(cloud, tree, np.ones(3), here, R, PER_M, STEP)
+    for kwargs, match in (({"goal": 1.0}, "goal"), ({"goal": 0.0}, "goal"), ({"max_corners": 0}, "corner")):
+        with pytest.raises(ConfigError, match=match):
+            plan_sweep(cloud, tree, cloud.target, here, R, PER_M, STEP, **kwargs)
+    with pytest.raises(ConfigError, match="pad_radius_m"):
+        plan_sweep(cloud, tree, cloud.target, here, -R, PER_M, STEP)
+    with pytest.raises(ConfigError, match="step_m"):
+        plan_sweep(cloud, tree, cloud.target, here, R, PER_M, float("nan"))
+    bare = SurfaceCloud(points=cloud.points, normals=None, target=cloud.target, spacing=cloud.spacing)
+    with pytest.raises(InputError, match="normals"):
+        plan_sweep(bare, tree, cloud.target, here, R, PER_M, STEP)
+    for bad in (-1, 1.5):
+        with pytest.raises(ConfigError, match="sweep_corners"):
+            CleanConfig(sweep_corners=bad)
+    assert CleanConfig(sweep_corners=0).sweep_corners == 0
