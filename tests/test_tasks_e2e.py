@@ -268,6 +268,7 @@ def test_sparse_spots_are_cleaned_island_by_island() -> None:
     cfg = CleanConfig(object_name="plate", marking="spots", budget_s=22.0)
     m = run_clean(cfg, progress=False).metrics
     assert m["island_strokes"] >= 3  # one stroke per spot at least, no ergodic dwell
+    assert m["first_sweep_m"] == 0.0  # the first spot is smaller than the pad: its stroke, not a planned sweep
     assert m["contact_transfers"] + m["island_relocations"] >= 2  # from spot to spot
     assert m["dirt_removed_fraction"] > 0.95
     t95 = m["time_to_95pct_s"]

@@ -111,6 +111,9 @@ SUPPORT_Z_M = 0.0
 #: (CleanConfig.sweep_corners) [-]: above the 95 % mark, because the tool rounds the sweep's corners and turns
 #: (±1–2 cm at a turn on the cup) and wipes a little less than the plan.
 SWEEP_GOAL = 0.97
+#: The planned sweep is made when the island of dirt at the touch-down (dirt joined within two pad radii) holds at
+#: least this share of the view's dirt [-].
+SWEEP_MIN_SHARE = 0.95
 #: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
 #: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
 #: (two IK solves, a few ms each).
@@ -172,8 +175,9 @@ class CleanConfig(SimWorldParams):
                                         "wear model [-]")
     sweep_corners: int = param(
         5, "with --objective clean, the first stretch in contact is a planned sweep: a polyline of at most this "
-        "many straight legs from the touch-down that the wear model predicts takes 95 % of the view's dirt off in "
-        "the shortest slide (then the explorer goes on); 0 = none, the explorer from the touch-down [-]")
+        "many straight legs from the touch-down that the wear model predicts takes 97 % of the island of dirt "
+        "there off in the shortest slide (then the explorer goes on); none with a keep-out zone (a sweep knows "
+        "none); 0 = none, the explorer from the touch-down [-]")
     model_stall_steps: int = param(
         60, "with --objective clean, back to the camera (or on to the next island of dirt) when the wear model "
         "predicts less than a tenth of what is left removed over this many exploration steps [-]")
@@ -887,10 +891,14 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     sweep_m = 0.0
     if strokes and cfg.sweep_corners > 0:
         t_plan = time.perf_counter()
-        first_island = dirt_island(cloud.points, wear.remaining(), cmd.point, 2.0 * cfg.pad_radius_m)
-        # an island smaller than the pad gets its straight stroke instead
-        plan = (None if plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m)
-                else plan_sweep(cloud, wear.tree, wear.remaining() * first_island, cmd.point, cfg.pad_radius_m,
+        view_dirt = wear.remaining()
+        first_island = dirt_island(cloud.points, view_dirt, cmd.point, 2.0 * cfg.pad_radius_m)
+        # only over (nearly) the whole view's dirt: after a sweep of one island among several the explorer took
+        # longer over the others than from its own start (the plate's blobs); an island smaller than the pad
+        # gets its straight stroke instead
+        plan = (None if (float(view_dirt[first_island].sum()) < SWEEP_MIN_SHARE * float(view_dirt.sum())
+                         or plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m))
+                else plan_sweep(cloud, wear.tree, view_dirt * first_island, cmd.point, cfg.pad_radius_m,
                                 cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), stroke_step_m,
                                 goal=SWEEP_GOAL, max_corners=cfg.sweep_corners, support_z_m=support_z,
                                 max_length_m=cfg.vision_max_steps * stroke_step_m, seed=cfg.seed))
