@@ -845,6 +845,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         source.reset(x0)  # a first step here, not in the loop: numba loads the compiled step on first use
         source.step()
         capture()  # to the capture posture, as the camera path did
+    # the set-up below (the wear model, the planned sweep: up to about a second) runs between two ticks
+    loop.pause()
     cmd: ExplorationCommand = source.reset(x0)
     cmd = cmd[0] if isinstance(cmd, list) else cmd
     # the robot's own estimate of what it has wiped off since the last view (tactex only: the baselines

@@ -260,6 +260,15 @@ class ControlLoop:
         q_goal = np.clip(state.q + dq, low, high)
         return self.move_joints(q_goal, self.joint_move_duration(q_goal, min_duration_s=duration_s), settle_s=0.0)
 
+    def pause(self) -> None:
+        """Before wall-clock work longer than a control cycle between two ticks (planning, a model
+        build): a real robot's torque control ends and the robot holds its posture itself until the
+        next tick starts it again (:meth:`LibfrankaBackend.pause`), where it would otherwise wait for
+        a command that does not come and drop the link; a simulated robot waits anyway."""
+        pause = getattr(self.backend, "pause", None)
+        if pause is not None:
+            pause()
+
     def hold(self, duration_s: float) -> RobotState:
         """Hold still: at the posture the joint controller was last sent to when it is running, else at
         the current one."""
