@@ -204,7 +204,7 @@ class CleanConfig(SimWorldParams):
         0.01, "height above the captured surface under which only the force loop's slow approach moves the tool "
         "(a margin for the capture's error) [m]")
     joint_speed_rad_s: float = param(
-        0.8, "peak joint speed of the joint moves out of contact (to the camera, to a hover, between islands) "
+        1.5, "peak joint speed of the joint moves out of contact (to the camera, to a hover, between islands) "
         "[rad/s]; the Franka allows 2.2–2.6")
     approach_force_n: float = param(3.0, "force set point while approaching (slow, gentle touch-down) [N]")
     force_ramp_s: float = param(0.1, "ramp from the approach force to the set point after touch-down [s]")
