@@ -6,8 +6,10 @@ SCHED_FIFO when allowed), the vision process beside the twin.
 Figures: the wipe's force error and tanks (VA-UFIC §III policy, Net F/T and vision), the loop's
 timing (``loop_compute_us``: our share of each 1 ms cycle, target p99.9 ≤ 300 µs), lost cycles,
 the twin's command success rate (commands within its 0.5 ms window), torque-rate clips; the clean's
-share of the twin's marking removed (the twin measures it). Skipped without the ``franka`` extra or
-with fewer than two cores.
+share of the twin's marking removed (the twin measures it). ``link_floor``: ``tactex robot check --bare``
+on the same twin just before the wipe (Franka's example joint hold in 7 floats per tick, no vision
+process): what this machine allows a loop that does almost nothing, beside which the wipe's figures
+read as tactex's share. Skipped without the ``franka`` extra or with fewer than two cores.
 """
 
 from __future__ import annotations
@@ -32,19 +34,25 @@ TARGETS = {
 
 
 def _cli(args: list[str]) -> None:
-    subprocess.run([sys.executable, "-m", "tactex.cli", *args], check=True, stdout=subprocess.DEVNULL,
-                   stderr=subprocess.PIPE)
+    done = subprocess.run([sys.executable, "-m", "tactex.cli", *args], stdout=subprocess.DEVNULL,
+                          stderr=subprocess.PIPE, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"tactex {' '.join(args[:3])} ... ended with {done.returncode}: "
+                           f"{done.stderr.strip()[-1500:]}")
 
 
-def _loop(m: dict) -> dict:
+def _timing(m: dict) -> dict:
     return {
         "loop_compute_us_p50": m["loop_compute_us"]["p50"],
         "loop_compute_us_p999": m["loop_compute_us"]["p99.9"],
         "loop_period_us_p999": m["loop_period_us"]["p99.9"],
         "lost_cycles": m["lost_cycles"],
         "min_command_success_rate": m["min_command_success_rate"],
-        "torque_rate_clip_ticks": m["torque_rate_clip_ticks"],
     }
+
+
+def _loop(m: dict) -> dict:
+    return {**_timing(m), "torque_rate_clip_ticks": m["torque_rate_clip_ticks"]}
 
 
 def run(args) -> dict:
@@ -61,6 +69,16 @@ def run(args) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         tmp_p = Path(tmp)
         with TwinProcess("sine_panel", cpus={0}) as twin:
+            # the check exits non-zero when the link fails; its figures are what is wanted either way
+            floor = tmp_p / "floor.json"
+            check = subprocess.run([sys.executable, "-m", "tactex.cli", "robot", "check", "--robot-ip", twin.hostname,
+                                    "--bare", "--control-cpu", "1", "--duration-s", "5" if quick else "10",
+                                    "--out", str(floor)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            if floor.exists():
+                out["link_floor"] = _timing(json.loads(floor.read_text()))
+            else:  # the check did not get as far as the link test; the wipe and clean still run
+                print(f"   link floor not measured: tactex robot check --bare ended with {check.returncode}: "
+                      f"{check.stderr.strip()[-500:]}")
             _cli(["wipe", "--robot", "franka", "--robot-ip", twin.hostname, "--ft",
                   f"netft:{twin.hostname}:{twin.ft_port}", "--control-cpu", "1", "--quiet", "--no-video",
                   "--duration-s", "5" if quick else "20", "--out", str(tmp_p / "wipe")])

@@ -24,7 +24,7 @@ pytest.importorskip("pylibfranka", reason=REASON)
 pytest.importorskip("franky_sim", reason=REASON)
 
 from tactex.cli import main  # noqa: E402
-from tactex.errors import ConfigError, RobotError  # noqa: E402
+from tactex.errors import ConfigError, InputError, RobotError  # noqa: E402
 from tactex.robots.check import check_robot  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming, franka_model_terms  # noqa: E402
 from tactex.sim.twin_process import TwinProcess  # noqa: E402
@@ -120,6 +120,138 @@ def test_robot_check_passes_on_the_twin(panel, capsys, tmp_path):
     assert found["tcp_offset_error_m"] < 1e-6 and found["wrench_source"] == "netft"
     assert found["max_lost_fraction"] == pytest.approx(0.05)
     assert found["q_drift_rad"] < 0.01
+
+
+def test_bare_robot_check_holds_with_seven_floats_and_reports_the_link(panel, capsys, tmp_path, monkeypatch):
+    held = []
+    bare_hold = LibfrankaBackend.bare_hold
+
+    def spy(self, duration_s):
+        held.append(duration_s)
+        return bare_hold(self, duration_s)
+
+    monkeypatch.setattr(LibfrankaBackend, "bare_hold", spy)
+    out = tmp_path / "bare.json"
+    code = main(["robot", "check", "--robot-ip", panel.hostname, "--bare", "--duration-s", "1",
+                 "--max-lost-percent", "5", "--min-success-rate", "0", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert held == [1.0] and "link (bare):" in text
+    found = json.loads(out.read_text())
+    assert found["bare"] is True and found["loop_ticks"] > 500
+    assert np.isfinite(found["loop_compute_us"]["p99.9"]) and found["q_drift_rad"] < 0.01
+
+
+def test_bare_hold_checks_its_input_and_hands_the_robot_back(panel):
+    import gc
+
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        q_start = backend.state().q.copy()
+        for bad in (0.0, -1.0, float("nan"), float("inf"), True, "1"):
+            with pytest.raises(InputError, match="duration"):
+                backend.bare_hold(bad)
+        state = backend.bare_hold(0.3)
+        assert backend.timing.n > 150 and np.abs(state.q - q_start).max() < 0.01
+        # torque control ended with the hold (motion_finished sent, nothing pending, the collector back on)
+        assert backend._control is None and not backend._pending_write and gc.isenabled()
+        # the next step starts torque control again for a task
+        backend.apply_torque(np.zeros(7))
+        assert np.isfinite(backend.step().q).all()
+    finally:
+        backend.close()
+    with pytest.raises(RobotError, match="closed"):
+        backend.bare_hold(0.1)
+    dry = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname, dry_run=True))
+    try:
+        with pytest.raises(ConfigError, match="dry run"):
+            dry.bare_hold(0.1)
+    finally:
+        dry.close()
+
+
+class _ScriptedControl:
+    """A torque control that answers with the robot's last real state, changed by ``script(tick, state)``
+    before each read (which may also raise); records every command written."""
+
+    class _Ms:
+        def to_sec(self) -> float:
+            return 1e-3
+
+    def __init__(self, state, script) -> None:
+        self.state, self.script, self.tick, self.written = state, script, 0, []
+
+    def readOnce(self):
+        self.script(self.tick, self.state)
+        self.tick += 1
+        return self.state, self._Ms()
+
+    def writeOnce(self, cmd) -> None:
+        self.written.append((list(cmd.tau_J), bool(cmd.motion_finished)))
+
+
+class _ScriptedRobot:
+    def __init__(self, control) -> None:
+        self.control = control
+
+    def start_torque_control(self):
+        return self.control
+
+
+def _bare_hold_scripted(backend, script, duration_s=0.02):
+    state = backend._franka_state
+    q_real = list(state.q)
+    control = _ScriptedControl(state, script)
+    robot, backend.robot = backend.robot, _ScriptedRobot(control)
+    try:
+        return control, backend.bare_hold(duration_s)
+    finally:
+        backend.robot = robot
+        state.q = q_real
+
+
+def test_bare_hold_sends_zero_torque_for_a_nan_state_and_clips_to_the_limits(panel):
+    from tactex.control.safety import FRANKA_TAU_MAX
+
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        q0 = list(backend._franka_state.q)
+
+        def script(tick, state):
+            # tick 0 sets the posture held; ticks 2-4 read NaN, from tick 5 the arm is 1 rad off on every joint
+            state.q = [float("nan")] * 7 if 2 <= tick <= 4 else [x + 1.0 for x in q0] if tick >= 5 else q0
+
+        control, _ = _bare_hold_scripted(backend, script)
+        sent = np.array([tau for tau, finished in control.written if not finished])
+        assert len(sent) > 10 and np.isfinite(sent).all()
+        assert (sent[2:5] == 0.0).all()  # the NaN states' answers
+        np.testing.assert_allclose(sent[5:], np.tile(-np.array(FRANKA_TAU_MAX), (len(sent) - 5, 1)))
+        assert control.written[-1] == ([0.0] * 7, True)  # the end: zero torque, motion_finished
+        assert backend._control is None
+    finally:
+        backend.close()
+
+
+def test_bare_hold_ends_torque_control_on_a_libfranka_error(panel):
+    import gc
+
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        def script(tick, state):
+            if tick == 5:
+                raise RuntimeError("communication_constraints_violation")
+
+        with pytest.raises(RobotError, match="communication_constraints_violation"):
+            _bare_hold_scripted(backend, script, duration_s=10.0)
+        assert backend._control is None and not backend._pending_write and gc.isenabled()
+        assert any("communication_constraints_violation" in e for e in backend.events)
+    finally:
+        backend.close()
+
+
+def test_bare_check_refuses_a_dry_run():
+    with pytest.raises(ConfigError, match="dry run"):
+        check_robot(FrankaConfig(robot_ip="127.0.0.254", dry_run=True), bare=True)
 
 
 def test_wipe_on_the_twin_presses_with_netft_and_vision(panel):

@@ -159,6 +159,11 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
                f"franka/{task}/lost_cycles", f"franka/{task}/min_command_success_rate"),
               lambda p50, p999, lost, rate: f"{p50:.0f} µs; {p999:.0f} µs; {lost}; {rate:.2f}",
               lambda p50, p999, lost, rate: p999 <= 300 and lost == 0 and rate >= 0.99)
+    r.add("the link's floor on the same twin (`tactex robot check --bare`, no vision): compute p50; p99.9; lost "
+          "cycles; min command success rate", "–",
+          tuple(f"franka/link_floor/{k}" for k in ("loop_compute_us_p50", "loop_compute_us_p999", "lost_cycles",
+                                                   "min_command_success_rate")),
+          lambda p50, p999, lost, rate: f"{p50:.0f} µs; {p999:.0f} µs; {lost}; {rate:.2f}")
     r.add("`--cloud` clean over the protocol (twin): removed", "–",
           ("franka/clean/dirt_removed_fraction",), lambda rem: f"{rem * 100:.1f} %")
     return r.rows

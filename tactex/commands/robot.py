@@ -25,6 +25,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="fail the link test when the robot's control_command_success_rate (its share of "
                              "the last 100 commands that came in time) falls below this [0–1] "
                              f"(default: {LINK_MIN_SUCCESS_RATE:g})")
+    parser.add_argument("--bare", action="store_true",
+                        help="hold with Franka's example joint impedance in 7 floats per tick instead of tactex's "
+                             "controller and safety layer: the link's floor (what the PC, network and robot allow); "
+                             "when the check fails both ways, tactex is not the cause")
     parser.add_argument("--out", metavar="FILE.json", help="also write the findings as JSON")
     add_dataclass_arguments(parser, FrankaConfig)
 
@@ -45,15 +49,17 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--min-success-rate must be in [0, 1], got {args.min_success_rate}")
     cfg = dataclass_from_args(FrankaConfig, args)
     result = check_robot(cfg, args.duration_s, note=lambda m: print(f"tactex robot: {m}", file=sys.stderr),
-                         max_lost_fraction=args.max_lost_percent / 100.0, min_success_rate=args.min_success_rate)
+                         max_lost_fraction=args.max_lost_percent / 100.0, min_success_rate=args.min_success_rate,
+                         bare=args.bare)
     i = result.info
     print(f"robot {i['robot_ip']}: mode {i.get('robot_mode')}, TCP at {[round(x, 4) for x in i['tcp_position_m']]} m, "
           f"load {i['load_mass_kg']:.3f} kg, wrench source {i['wrench_source']}")
     if "loop_ticks" in i:
         c, p = i["loop_compute_us"], i["loop_period_us"]
-        print(f"link: {i['loop_ticks']} cycles, {i['lost_cycles']} lost, min success rate "
+        link = "link (bare)" if args.bare else "link"
+        print(f"{link}: {i['loop_ticks']} cycles, {i['lost_cycles']} lost, min success rate "
               f"{i['min_command_success_rate']:.3f}, period p50/p99.9 {p['p50']:.0f}/{p['p99.9']:.0f} µs, "
-              f"our compute p50/p99.9 {c['p50']:.0f}/{c['p99.9']:.0f} µs, drift {i['q_drift_rad'] * 1e3:.2f} mrad")
+              f"loop compute p50/p99.9 {c['p50']:.0f}/{c['p99.9']:.0f} µs, drift {i['q_drift_rad'] * 1e3:.2f} mrad")
     for w in result.warnings:
         print(f"warning: {w}")
     for pr in result.problems:

@@ -4,7 +4,9 @@ Like libfranka's ``communication_test`` it runs a torque loop for a while and co
 robot reports lost (its ``Duration`` between two states) and the lowest
 ``control_command_success_rate``; unlike it, the loop holds the current posture with tactex's joint
 impedance behind the safety layer (not zero torque, which lets an arm with a misdeclared load
-drift), so the arm stays where it is. ``dry_run`` only reads states and never starts torque control.
+drift), so the arm stays where it is. ``bare`` holds with seven floats per tick instead
+(:meth:`LibfrankaBackend.bare_hold`): the link's floor. ``dry_run`` only reads states and never starts
+torque control.
 """
 
 from __future__ import annotations
@@ -72,8 +74,12 @@ def link_verdict(metrics: dict[str, Any], duration_s: float, max_lost_fraction: 
 
 def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeometry | None = None,
                 note=None, max_lost_fraction: float = LINK_MAX_LOST_FRACTION,
-                min_success_rate: float = LINK_MIN_SUCCESS_RATE) -> CheckResult:
+                min_success_rate: float = LINK_MIN_SUCCESS_RATE, bare: bool = False) -> CheckResult:
     """Connect, report the robot's set-up and state, run the link test for ``duration_s`` [s].
+
+    ``bare``: the link test holds with :meth:`LibfrankaBackend.bare_hold` (Franka's example joint
+    impedance in 7 Python floats) instead of tactex's joint controller behind the safety layer: the
+    link's floor, to tell the PC and network's share of a failure from tactex's.
 
     The link fails when more than ``max_lost_fraction`` [0, 1) of its cycles are lost or the command
     success rate falls below ``min_success_rate`` [0, 1] (see :func:`link_verdict`).
@@ -82,6 +88,8 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         raise ConfigError(f"the allowed share of lost cycles must be in [0, 1), got {max_lost_fraction}")
     if not 0.0 <= min_success_rate <= 1.0:
         raise ConfigError(f"the lowest command success rate must be in [0, 1], got {min_success_rate}")
+    if bare and config.dry_run:
+        raise ConfigError("--bare holds the arm with torques: it cannot run in a dry run (drop --dry-run)")
     tool = tool or ToolGeometry()
     t0 = time.perf_counter()
     backend = LibfrankaBackend(config, tool=tool)
@@ -113,18 +121,22 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
         if not np.isfinite(state.wrench_tool).all():
             problems.append("the wrench source gives no finite reading")
         if note is not None:
-            note(f"connected in {info['connect_s'] * 1e3:.0f} ms; {'reading' if config.dry_run else 'holding'} "
-                 f"for {duration_s:g} s")
-        from tactex.tasks.runner import ControlLoop
-
-        loop = ControlLoop(backend)
+            doing = "reading" if config.dry_run else "holding (bare)" if bare else "holding"
+            note(f"connected in {info['connect_s'] * 1e3:.0f} ms; {doing} for {duration_s:g} s")
+        info["bare"] = bare
         try:
-            loop.hold(duration_s)
+            if bare:
+                backend.bare_hold(duration_s)
+            else:
+                from tactex.tasks.runner import ControlLoop
+
+                ControlLoop(backend).hold(duration_s)
         except (RobotError, SensorFault) as exc:
             problems.append(str(exc))
         m = backend.loop_metrics()
         info.update(m)
-        q_drift = float(np.abs(loop.state.q - state.q).max())
+        # the last state read, also when the hold ended early
+        q_drift = float(np.abs(np.asarray(backend._franka_state.q) - state.q).max())
         info["q_drift_rad"] = q_drift
         info["lost_fraction"] = lost_fraction(m)
         info["max_lost_fraction"] = max_lost_fraction

@@ -39,6 +39,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tactex.config import param
+from tactex.control.safety import FRANKA_TAU_MAX
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
 from tactex.perception.frame import CameraFrame
@@ -62,6 +63,10 @@ _GRAVITY = [0.0, 0.0, -9.81]
 #: A tick whose command comes this late ends the run [µs]: libfranka tolerates a few lost cycles,
 #: not tens of them in a row.
 LATE_COMMAND_ABORT_US = 20_000.0
+#: The bare hold's joint stiffness [N·m/rad] and damping [N·m·s/rad]: the gains of libfranka's
+#: ``joint_impedance_control`` example, which holds a real arm with them.
+BARE_STIFFNESS_N_M_PER_RAD = (600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0)
+BARE_DAMPING_N_M_S_PER_RAD = (50.0, 50.0, 50.0, 50.0, 30.0, 25.0, 15.0)
 
 
 @dataclass(frozen=True)
@@ -540,6 +545,66 @@ class LibfrankaBackend:
         self._pending_write = False
         self._last_read_wall = None  # the pause is not a late tick
         self._gc_on()
+
+    def bare_hold(self, duration_s: float) -> RobotState:
+        """Hold the current posture for ``duration_s`` [s] with the gains of Franka's joint impedance
+        example (:data:`BARE_STIFFNESS_N_M_PER_RAD`, :data:`BARE_DAMPING_N_M_S_PER_RAD`) in 7 Python floats
+        per tick: no model, no state conversion, no safety layer, none of tactex's controllers. The link's
+        floor: what this PC, its network and the robot allow a loop that does (almost) nothing;
+        :attr:`timing` records it as :meth:`step` does. Unlike Franka's example it adds no Coriolis term
+        and no rate limiter (the arm holds still); each torque is clipped to the Franka's limits and a
+        non-finite state is answered with zero torque. Torque control ends (``motion_finished``) when it
+        returns; the returned state is the last one answered. The wrench source is not read meanwhile."""
+        if self._closed:
+            raise RobotError("the Franka backend is closed")
+        if self.config.dry_run:
+            raise ConfigError("the bare hold commands torques: it cannot run in a dry run (drop --dry-run)")
+        if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) \
+                or not (math.isfinite(duration_s) and duration_s > 0):
+            raise InputError(f"the bare hold's duration must be a positive number of seconds, got {duration_s!r}")
+        self.pause()
+        plf, timing, perf = self._plf, self.timing, time.perf_counter
+        k, d = BARE_STIFFNESS_N_M_PER_RAD, BARE_DAMPING_N_M_S_PER_RAD
+        lim = FRANKA_TAU_MAX
+        zero = [0.0] * 7
+        try:
+            control = self._control = self.robot.start_torque_control()
+            self._gc_off()
+            state, duration = control.readOnce()
+            self._pending_write = True
+            self._t += max(duration.to_sec(), 1e-3)
+            q0 = list(state.q)
+            t_read = perf()
+            t_end = t_read + duration_s
+            while True:
+                q, dq = state.q, state.dq
+                tau = [k[j] * (q0[j] - q[j]) - d[j] * dq[j] for j in range(7)]
+                # checked before the clip: Python's min/max turn a NaN into either bound
+                tau = [min(lim[j], max(-lim[j], tau[j])) for j in range(7)] if all(map(math.isfinite, tau)) else zero
+                t_send = perf()
+                control.writeOnce(plf.Torques(tau))
+                self._pending_write = False
+                self._franka_state = state
+                if t_send >= t_end:
+                    break
+                state, duration = control.readOnce()
+                self._pending_write = True
+                now = perf()
+                timing.add((t_send - t_read) * 1e6, (now - t_read) * 1e6, max(0, round(duration.to_sec() * 1e3) - 1),
+                           float(state.control_command_success_rate))
+                t_read = now
+                self._t += max(duration.to_sec(), 1e-3)
+            self._tau = np.zeros(7)
+            self._finish_motion(self._tau)  # reads the next state, answers it with motion_finished
+            self._control = None
+        except Exception as exc:
+            raise self._fault(exc) from exc  # ends the control
+        finally:
+            self._last_read_wall = None
+            if self._control is None:
+                self._gc_on()
+        self._state = self._convert(self._franka_state)
+        return self._state
 
     def loop_metrics(self) -> dict[str, Any]:
         """The loop's timing figures and the wrench source's counters (metrics.json)."""
