@@ -356,12 +356,14 @@ def test_robot_check_passes_its_limits_to_the_check(monkeypatch, capsys):
 
     seen = {}
 
-    def fake_check(cfg, duration_s, note=None, max_lost_fraction=None, min_success_rate=None):
-        seen.update(max_lost_fraction=max_lost_fraction, min_success_rate=min_success_rate)
+    def fake_check(cfg, duration_s, note=None, max_lost_fraction=None, min_success_rate=None, bare=None):
+        seen.update(max_lost_fraction=max_lost_fraction, min_success_rate=min_success_rate, bare=bare)
         raise ConfigError("stop here")
 
     monkeypatch.setattr(check, "check_robot", fake_check)
     code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--max-lost-percent", "2", "--min-success-rate",
                  "0.8"])
     assert code == 2 and "stop here" in capsys.readouterr().err
-    assert seen == {"max_lost_fraction": pytest.approx(0.02), "min_success_rate": 0.8}
+    assert seen == {"max_lost_fraction": pytest.approx(0.02), "min_success_rate": 0.8, "bare": False}
+    code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--bare"])
+    assert code == 2 and seen["bare"] is True
