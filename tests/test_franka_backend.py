@@ -333,11 +333,26 @@ def test_clean_of_a_given_cloud_on_the_twin_plans_its_sweep_without_dropping_the
         removed = twin.status().get("dirt_removed_fraction", 0.0)
     metrics = json.loads((out / "metrics.json").read_text())
     assert code == 0 and metrics["aborted"] == "", metrics["aborted"]
-    assert metrics["first_sweep_m"] > 0.0  # the sweep was planned and slid
-    # a real Franka ends the motion after a run of missing commands; the twin goes on, so the pause shows as
-    # a link that lost no second of commands (1.5 s of search is 1500 lost cycles) and a wipe that worked
+    assert metrics["first_sweep_m"] > 0.0  # the sweep was planned
+    # without the pause the backend's late-answer guard ends the run (a real Franka would stop; the twin goes
+    # on), and no second of commands went missing (1.5 s of search would be 1500 lost cycles)
     assert metrics["lost_cycles"] < 1000
     assert removed > 0.3
+
+
+def test_a_pause_after_a_late_tick_ends_torque_control_with_the_error(panel):
+    # pause() answers the state read last: after slow work with torque control on that answer is late, and a
+    # real Franka would have stopped; so does the backend, instead of finishing the motion as if in time
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        backend.apply_torque(np.zeros(7))
+        backend.step()  # torque control runs; this state waits for its answer
+        time.sleep(0.05)
+        with pytest.raises(RobotError, match="ms late"):
+            backend.pause()
+        assert backend._control is None
+    finally:
+        backend.close()
 
 
 def test_twin_killed_mid_run_ends_cleanly_with_data(tmp_path):

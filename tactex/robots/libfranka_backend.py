@@ -389,19 +389,23 @@ class LibfrankaBackend:
         """writeOnce the torque set last, timing our share of the cycle (state read → command sent)."""
         t_send = time.perf_counter()
         self._compute_us = (t_send - self._t_read) * 1e6
-        if self._compute_us > LATE_COMMAND_ABORT_US:
-            # a real Franka stops here (communication_constraints_violation); a twin would keep the last
-            # torque on an arm nobody controls
-            self.close()
-            raise RobotError(
-                f"the control loop answered {self._compute_us / 1e3:.0f} ms late (budget 1 ms): something slow "
-                "ran between two ticks while torque control was on; a real Franka stops with "
-                "communication_constraints_violation. Torque control ended")
+        self._abort_if_late(self._compute_us)
         try:
             self._control.writeOnce(self._plf.Torques(self._tau.tolist()))
         except Exception as exc:
             raise self._fault(exc) from exc
         self._pending_write = False
+
+    def _abort_if_late(self, late_us: float) -> None:
+        """End torque control and raise when the pending state's answer comes ``late_us`` [µs] after it,
+        more than :data:`LATE_COMMAND_ABORT_US`: a real Franka stops there (communication_constraints_violation);
+        a twin would keep the last torque on an arm nobody controls."""
+        if late_us > LATE_COMMAND_ABORT_US:
+            self.close()
+            raise RobotError(
+                f"the control loop answered {late_us / 1e3:.0f} ms late (budget 1 ms): something slow ran between "
+                "two ticks while torque control was on (end it first: ControlLoop.pause); a real Franka stops "
+                "with communication_constraints_violation. Torque control ended")
 
     def step(self) -> RobotState:
         """Send the torque set by :meth:`apply_torque` (unless it went already) and wait for the next
@@ -537,6 +541,8 @@ class LibfrankaBackend:
         control is not running."""
         if self._control is None or self.config.dry_run:
             return
+        if self._pending_write:  # the state read last still waits for its answer: it must not come late either
+            self._abort_if_late((time.perf_counter() - self._t_read) * 1e6)
         try:
             self._finish_motion(self._tau)
         except Exception as exc:
