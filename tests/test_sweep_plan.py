@@ -13,7 +13,7 @@ from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks.clean import CleanConfig
 from tactex.tasks.stroke import MAX_LINE_GAP_M
-from tactex.tasks.sweep_plan import dirt_island, plan_sweep
+from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.wear_model import WearModel
 
 K_P, R, STEP, FORCE = 5e-3, 0.025, 0.003, 10.0
@@ -129,7 +129,35 @@ def test_the_planner_and_the_option_refuse_bad_input() -> None:
     bare = SurfaceCloud(points=cloud.points, normals=None, target=cloud.target, spacing=cloud.spacing)
     with pytest.raises(InputError, match="normals"):
         plan_sweep(bare, tree, cloud.target, here, R, PER_M, STEP)
-    for bad in (-1, 1.5):
-        with pytest.raises(ConfigError, match="sweep_corners"):
+    for kwargs in ({"max_corners": MAX_CORNERS + 1}, {"max_corners": 2.7}, {"max_corners": True}):
+        with pytest.raises(ConfigError, match="corners"):
+            plan_sweep(cloud, tree, cloud.target, here, R, PER_M, STEP, **kwargs)
+    for length in (0.0, -1.0, float("nan")):
+        with pytest.raises(ConfigError, match="max_length_m"):
+            plan_sweep(cloud, tree, cloud.target, here, R, PER_M, STEP, max_length_m=length)
+    for start in (np.array([np.nan, 0.0, 0.0]), np.zeros(2)):
+        with pytest.raises(InputError, match="start_m"):
+            plan_sweep(cloud, tree, cloud.target, start, R, PER_M, STEP)
+    with pytest.raises(InputError, match="KD-tree"):
+        plan_sweep(cloud, cKDTree(cloud.points[:10]), cloud.target, here, R, PER_M, STEP)
+    for bad_target in (np.full(len(cloud), np.nan), -cloud.target):
+        with pytest.raises(InputError, match="finite dirt mass"):
+            plan_sweep(cloud, tree, bad_target, here, R, PER_M, STEP)
+    with pytest.raises(InputError, match="here_m"):
+        dirt_island(cloud.points, cloud.target, np.array([np.inf, 0.0, 0.0]), 2 * R)
+    with pytest.raises(ConfigError, match="link_m"):
+        dirt_island(cloud.points, cloud.target, here, 0.0)
+    for bad in (-1, 1.5, True, MAX_CORNERS + 1):
+        with pytest.raises(ConfigError, match="--sweep-corners"):
             CleanConfig(sweep_corners=bad)
     assert CleanConfig(sweep_corners=0).sweep_corners == 0
+
+
+def test_the_same_seed_plans_the_same_sweep() -> None:
+    cloud = _plane(_strip)
+    tree, start = cKDTree(cloud.points), np.array([0.02, 0.0, 0.0])
+    a = plan_sweep(cloud, tree, cloud.target, start, R, PER_M, STEP, goal=0.95, seed=3)
+    b = plan_sweep(cloud, tree, cloud.target, start, R, PER_M, STEP, goal=0.95, seed=3)
+    assert a is not None and b is not None
+    np.testing.assert_array_equal(a.waypoints, b.waypoints)
+    assert a.length_m == b.length_m

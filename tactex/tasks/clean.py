@@ -68,7 +68,7 @@ from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
-from tactex.tasks.sweep_plan import dirt_island, plan_sweep
+from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
 from tactex.tasks.wear_model import WearModel
@@ -109,7 +109,7 @@ APPROACH_ACCEL_M_S2 = 1.0
 SUPPORT_Z_M = 0.0
 #: Share of the first island's dirt the wear model must predict off by the end of the planned sweep
 #: (CleanConfig.sweep_corners) [-]: above the 95 % mark, because the tool rounds the sweep's corners and turns
-#: (±1–2 cm at a turn on the cup) and wipes a little less than the plan.
+#: and wipes a little less than the plan.
 SWEEP_GOAL = 0.97
 #: The planned sweep is made when the island of dirt at the touch-down (dirt joined within two pad radii) holds at
 #: least this share of the view's dirt [-].
@@ -175,9 +175,9 @@ class CleanConfig(SimWorldParams):
                                         "wear model [-]")
     sweep_corners: int = param(
         5, "with --objective clean, the first stretch in contact is a planned sweep: a polyline of at most this "
-        "many straight legs from the touch-down that the wear model predicts takes 97 % of the island of dirt "
-        "there off in the shortest slide (then the explorer goes on); none with a keep-out zone (a sweep knows "
-        "none); 0 = none, the explorer from the touch-down [-]")
+        f"many straight legs from the touch-down that the wear model predicts takes {100 * SWEEP_GOAL:.0f} % of the "
+        "island of dirt there off in the shortest slide (then the explorer goes on); none with a keep-out zone "
+        "(a sweep knows none); 0 = none, the explorer from the touch-down [-]")
     model_stall_steps: int = param(
         60, "with --objective clean, back to the camera (or on to the next island of dirt) when the wear model "
         "predicts less than a tenth of what is left removed over this many exploration steps [-]")
@@ -277,9 +277,10 @@ class CleanConfig(SimWorldParams):
                 f"exploration step at explorer_rate_hz = {self.explorer_rate_hz}; keep it below "
                 f"{90.0 * self.explorer_rate_hz:g} deg/s (an about-turn would blend through a zero normal)"
             )
-        if not (isinstance(self.sweep_corners, (int, np.integer)) and self.sweep_corners >= 0):
-            raise ConfigError(f"sweep_corners must be a whole number ≥ 0 (0 = no planned sweep), got "
-                              f"{self.sweep_corners!r}")
+        if isinstance(self.sweep_corners, bool) or not isinstance(self.sweep_corners, (int, np.integer)) \
+                or not 0 <= self.sweep_corners <= MAX_CORNERS:
+            raise ConfigError(f"--sweep-corners must be a whole number in 0–{MAX_CORNERS} (0 = no planned sweep), "
+                              f"got {self.sweep_corners!r}")
         el = float(self.side_capture_elevation_deg)
         if not (np.isfinite(el) and 0.0 <= el <= 75.0):
             raise ConfigError(f"side_capture_elevation_deg must be within 0–75 deg (above 75 the camera no longer sees "
@@ -895,9 +896,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         t_plan = time.perf_counter()
         view_dirt = wear.remaining()
         first_island = dirt_island(cloud.points, view_dirt, cmd.point, 2.0 * cfg.pad_radius_m)
-        # only over (nearly) the whole view's dirt: after a sweep of one island among several the explorer took
-        # longer over the others than from its own start (the plate's blobs); an island smaller than the pad
-        # gets its straight stroke instead
+        # only over (nearly) the whole view's dirt: after a sweep of one island among several the explorer's
+        # route over the others is longer than from its own start; an island smaller than the pad gets its
+        # straight stroke instead
         plan = (None if (float(view_dirt[first_island].sum()) < SWEEP_MIN_SHARE * float(view_dirt.sum())
                          or plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m))
                 else plan_sweep(cloud, wear.tree, view_dirt * first_island, cmd.point, cfg.pad_radius_m,
@@ -1197,7 +1198,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "vision_updates": vision_updates,
         "island_relocations": island_moves,
         "island_strokes": n_strokes,
-        "first_sweep_m": sweep_m,  # [m] the planned sweep's slide to 95 % predicted (0: none planned)
+        "first_sweep_m": sweep_m,  # [m] the planned sweep's slide to its goal, as predicted (0: none planned)
         "contact_transfers": n_transfers,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],

@@ -35,7 +35,7 @@ from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks.stroke import MAX_LINE_GAP_M
 
-__all__ = ["SweepPlan", "dirt_island", "plan_sweep"]
+__all__ = ["MAX_CORNERS", "SweepPlan", "dirt_island", "plan_sweep"]
 
 #: Random polylines tried before refining the best [-].
 N_RANDOM = 300
@@ -45,6 +45,9 @@ N_REFINE = 1500
 N_CLIMBS = 3
 #: Most candidate corners (cloud points near the dirt, thinned evenly) [-].
 MAX_CANDIDATES = 400
+#: Most corners a sweep may have after its start [-]: the search's cost grows with them, and a longer sweep
+#: is the explorer's job.
+MAX_CORNERS = 20
 
 
 @dataclass(frozen=True)
@@ -150,6 +153,11 @@ def dirt_island(points_m: np.ndarray, target: np.ndarray, here_m: np.ndarray, li
     (``target`` > 0) joined to the dirty point nearest ``here_m`` through dirty points less than ``link_m`` [m]
     apart (all False when there is no dirt)."""
     pts = np.asarray(points_m, dtype=float)
+    here_m = np.asarray(here_m, dtype=float)
+    if here_m.shape != (3,) or not np.isfinite(here_m).all():
+        raise InputError(f"here_m must be a finite point (3,) [m], got {here_m!r}")
+    if not (np.isfinite(link_m) and link_m > 0):
+        raise ConfigError(f"link_m must be a positive distance [m], got {link_m!r}")
     dirty = np.flatnonzero(np.asarray(target) > 0)
     mask = np.zeros(len(pts), dtype=bool)
     if dirty.size == 0:
@@ -158,7 +166,7 @@ def dirt_island(points_m: np.ndarray, target: np.ndarray, here_m: np.ndarray, li
     pairs = tree.query_pairs(float(link_m), output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(dirty.size, dirty.size))
     _, label = connected_components(graph, directed=False)
-    seed = int(tree.query(np.asarray(here_m, dtype=float))[1])
+    seed = int(tree.query(here_m)[1])
     mask[dirty[label == label[seed]]] = True
     return mask
 
@@ -178,19 +186,29 @@ def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: 
     target = np.asarray(target, dtype=float)
     if target.shape != (len(cloud),):
         raise InputError(f"target must have shape ({len(cloud)},), got {target.shape}")
+    if not (np.isfinite(target).all() and (target >= 0).all()):
+        raise InputError("target must be a finite dirt mass ≥ 0 per cloud point")
+    if tree.n != len(cloud):
+        raise InputError(f"the KD-tree holds {tree.n} points, the cloud {len(cloud)}: build it on the cloud's points")
+    start_m = np.asarray(start_m, dtype=float)
+    if start_m.shape != (3,) or not np.isfinite(start_m).all():
+        raise InputError(f"start_m must be a finite point (3,) [m], got {start_m!r}")
     if cloud.normals is None:
         raise InputError("a sweep is planned on a cloud with normals")
     if not (0.0 < goal < 1.0):
         raise ConfigError(f"the sweep's goal must be within (0, 1), got {goal!r}")
-    if int(max_corners) < 1:
-        raise ConfigError(f"a sweep needs at least one corner after the start, got {max_corners!r}")
+    if isinstance(max_corners, bool) or not isinstance(max_corners, (int, np.integer)) \
+            or not 1 <= max_corners <= MAX_CORNERS:
+        raise ConfigError(f"a sweep has 1–{MAX_CORNERS} corners after the start, got {max_corners!r}")
+    if np.isnan(max_length_m) or max_length_m <= 0:
+        raise ConfigError(f"max_length_m must be a positive length [m] (inf: no limit), got {max_length_m!r}")
     for name, v in (("pad_radius_m", pad_radius_m), ("removal_per_m", removal_per_m), ("step_m", step_m)):
         if not (np.isfinite(v) and v > 0):
             raise ConfigError(f"{name} must be a positive number, got {v!r}")
     if not np.any(target > 0):
         return None
     pred = _Predictor(cloud, tree, target, pad_radius_m, removal_per_m, step_m, support_z_m)
-    start = int(tree.query(np.asarray(start_m, dtype=float))[1])
+    start = int(tree.query(start_m)[1])
     # candidate corners: the cloud points within a pad radius of the dirt (the pad's centre may pass beside
     # a stroke of dirt) where the pad clears the support, at most MAX_CANDIDATES of them drawn at random
     dist, _ = pred.dirt_tree.query(cloud.points, distance_upper_bound=pad_radius_m)
