@@ -288,5 +288,7 @@ def test_command_success_rate_counts_late_answers(twin, robot):
     # each late answer costs the twin at least 2 cycles: ≥ 20 of the last 100 in the late phase; a
     # loaded machine may cost the prompt phases a few too, hence the relative margins
     assert late < prompt - 0.1 and late < after - 0.1, (prompt, late, after)
-    status = twin.wait_status(lambda s: s.get("command_success_rate_min", 1.0) < 1.0, 3.0)
-    assert status["command_success_rate_min"] <= late + 0.05  # the motion's minimum, kept after it ended
+    # the status file is rewritten every 0.5 s: one written during the late phase already shows a drop, so
+    # wait for the motion's minimum itself, kept after the motion ended
+    status = twin.wait_status(lambda s: s.get("command_success_rate_min", 1.0) <= late + 0.05, 3.0)
+    assert status["command_success_rate_min"] <= late + 0.05, status
