@@ -152,18 +152,17 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
           ("tasks/clean/plate/tactex/torque_rate_clip_ticks", "tasks/clean/bowl/tactex/torque_rate_clip_ticks",
            "tasks/wipe/va_ufic/torque_rate_clip_ticks"),
           lambda a, b, c: f"{a + b + c}", lambda a, b, c: a + b + c == 0)
+    link = ("loop_compute_us_p50", "loop_compute_us_p999", "lost_cycles", "min_command_success_rate")
+
+    def link_text(p50: float, p999: float, lost: int, rate: float) -> str:
+        return f"{p50:.0f} µs; {p999:.0f} µs; {lost}; {rate:.2f}"
+
     for task in ("wipe", "clean"):
         r.add(f"real-robot loop (twin), {task}: compute p50; p99.9; lost cycles; min command success rate",
-              "≤ 300 µs at p99.9; 0 lost; ≥ 0.99",
-              (f"franka/{task}/loop_compute_us_p50", f"franka/{task}/loop_compute_us_p999",
-               f"franka/{task}/lost_cycles", f"franka/{task}/min_command_success_rate"),
-              lambda p50, p999, lost, rate: f"{p50:.0f} µs; {p999:.0f} µs; {lost}; {rate:.2f}",
+              "≤ 300 µs at p99.9; 0 lost; ≥ 0.99", tuple(f"franka/{task}/{k}" for k in link), link_text,
               lambda p50, p999, lost, rate: p999 <= 300 and lost == 0 and rate >= 0.99)
     r.add("the link's floor on the same twin (`tactex robot check --bare`, no vision): compute p50; p99.9; lost "
-          "cycles; min command success rate", "–",
-          tuple(f"franka/link_floor/{k}" for k in ("loop_compute_us_p50", "loop_compute_us_p999", "lost_cycles",
-                                                   "min_command_success_rate")),
-          lambda p50, p999, lost, rate: f"{p50:.0f} µs; {p999:.0f} µs; {lost}; {rate:.2f}")
+          "cycles; min command success rate", "–", tuple(f"franka/link_floor/{k}" for k in link), link_text)
     r.add("`--cloud` clean over the protocol (twin): removed", "–",
           ("franka/clean/dirt_removed_fraction",), lambda rem: f"{rem * 100:.1f} %")
     return r.rows

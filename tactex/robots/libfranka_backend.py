@@ -198,6 +198,11 @@ def franka_state_to_robot_state(state: Any, model: Any, t: float, wrench: Wrench
     )
 
 
+def _lost_cycles(period_ms: float) -> int:
+    """The cycles the robot reports missing before a state: its ``Duration`` since the last state [ms], minus one."""
+    return max(0, round(period_ms) - 1)
+
+
 def pin_control_thread(cpu: int, priority: int = 80) -> str:
     """Pin the calling process to ``cpu`` and give it SCHED_FIFO ``priority`` when the system allows
     (root, or an rtprio limit; libfranka does the same with RealtimeConfig.kEnforce). Returns what
@@ -442,7 +447,7 @@ class LibfrankaBackend:
         period_us = (now - self._last_read_wall) * 1e6 if self._last_read_wall is not None else float("nan")
         compute_us = self._compute_us if self._last_read_wall is not None else float("nan")
         self._last_read_wall = now
-        lost = max(0, round(period_ms) - 1)
+        lost = _lost_cycles(period_ms)
         if not math.isnan(compute_us):
             self.timing.add(compute_us, period_us, lost, float(franka_state.control_command_success_rate))
         self._t += max(period_ms, 1.0) * 1e-3
@@ -596,10 +601,11 @@ class LibfrankaBackend:
                 state, duration = control.readOnce()
                 self._pending_write = True
                 now = perf()
-                timing.add((t_send - t_read) * 1e6, (now - t_read) * 1e6, max(0, round(duration.to_sec() * 1e3) - 1),
+                period_ms = duration.to_sec() * 1e3
+                timing.add((t_send - t_read) * 1e6, (now - t_read) * 1e6, _lost_cycles(period_ms),
                            float(state.control_command_success_rate))
                 t_read = now
-                self._t += max(duration.to_sec(), 1e-3)
+                self._t += max(period_ms, 1.0) * 1e-3
             self._tau = np.zeros(7)
             self._finish_motion(self._tau)  # reads the next state, answers it with motion_finished
             self._control = None
