@@ -579,3 +579,60 @@ def test_the_commanded_point_keeps_the_pad_above_the_table() -> None:
     assert _pad_over_support(plate, np.array([0.0, 0.0, 1.0]), 0.0, 0.025) is plate
     tilted = np.array([0.0, -np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])  # a rim at 30° from level
     np.testing.assert_allclose(_pad_over_support(plate, tilted * 2.0, 0.0, 0.025)[2], 0.025 * 0.5)
+
+
+def test_pause_calls_the_backends_optional_hook_and_passes_over_a_backend_without_it() -> None:
+    """ControlLoop.pause ends torque control through the backend's ``pause`` when it has one (the
+    protocol's optional hook); a backend without it is one that waits, and MuJoCo's hook leaves the
+    simulation where it was."""
+    from tactex.robots import MujocoBackend, RobotBackend
+    from tactex.sim import SceneConfig
+    from tactex.tasks.runner import ControlLoop
+    from tests.test_control_common import make_state
+
+    class Still:  # the required methods only: a backend written before the hook
+        dt = 1e-3
+
+        def __init__(self) -> None:
+            self._state = make_state(q=np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0]))
+
+        def reset(self, seed=None):
+            return self._state
+
+        def state(self):
+            return self._state
+
+        def apply_torque(self, tau) -> None:
+            assert np.isfinite(tau).all()
+
+        def step(self):
+            return self._state
+
+        def camera_frame(self):
+            return None
+
+        def close(self) -> None:
+            pass
+
+    class Pausing(Still):
+        def __init__(self) -> None:
+            super().__init__()
+            self.pauses = 0
+
+        def pause(self) -> None:
+            self.pauses += 1
+
+    assert isinstance(Still(), RobotBackend)  # the hook is not required by the protocol
+    ControlLoop(Still()).pause()  # nothing to call: no error
+    pausing = Pausing()
+    ControlLoop(pausing).pause()
+    assert pausing.pauses == 1
+
+    sim = MujocoBackend(SceneConfig(object_name="plane"))
+    assert callable(getattr(sim, "pause", None))  # the simulation states that it waits
+    loop = ControlLoop(sim)
+    loop.hold(0.01)
+    t, q = sim.time, sim.state().q.copy()
+    loop.pause()
+    assert sim.time == t
+    np.testing.assert_array_equal(sim.state().q, q)

@@ -167,6 +167,10 @@ class MujocoBackend:
         self._state = self._make_state()
         return self._state
 
+    def pause(self) -> None:
+        """Wall-clock work between two ticks is coming: nothing to do, simulated time waits for it
+        (the :class:`~tactex.robots.backend.RobotBackend` protocol's optional hook)."""
+
     def camera_frame(self) -> CameraFrame | None:
         """A new RGB-D frame when one is due, else None.
 

@@ -264,7 +264,8 @@ class ControlLoop:
         """Before wall-clock work longer than a control cycle between two ticks (planning, a model
         build): a real robot's torque control ends and the robot holds its posture itself until the
         next tick starts it again (:meth:`LibfrankaBackend.pause`), where it would otherwise wait for
-        a command that does not come and drop the link; a simulated robot waits anyway."""
+        a command that does not come and drop the link; a simulated robot waits anyway. ``pause`` is
+        the backend protocol's optional hook: a backend without it is one that waits."""
         pause = getattr(self.backend, "pause", None)
         if pause is not None:
             pause()
