@@ -239,3 +239,39 @@ def test_with_config_keeps_the_keep_out_zone(strip_plate):
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40), keep_out=keep_out).with_config(stall_steps=30)
     assert ex.config.stall_steps == 30 and np.array_equal(ex.keep_out, keep_out)
     assert not ex.clear_points[keep_out].any()
+
+
+def test_target_the_agent_may_not_stand_by_is_left_out_and_the_rest_is_covered():
+    """A whole plate target with a keep-out strip: the target within the clearance (footprint radius + ½ voxel)
+    of the strip is no goal, so it is left out of the target and of the residual, which the explorer then takes
+    to 0 instead of sitting at the strip's edge drawn by target it may not reach."""
+    pts = _grid(41, 21)
+    x = pts[:, 0]
+    keep_out = np.abs(x - 0.06) <= 0.006
+    cloud = SurfaceCloud(pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)), target=np.ones(len(pts)), spacing=H)
+    basis = build_basis(cloud, n_eigen=40, n_neighbors=20, cache=False)
+    cfg = HedacConfig(n_eigen=40)
+    ex = HedacExplorer(cloud, basis, cfg, keep_out=keep_out)
+    clear_m = cfg.agent_radius_m + 0.5 * H
+    assert ex.keep_out_clearance_m == pytest.approx(clear_m)
+    d = np.min(np.abs(x[:, None] - x[keep_out][None]), axis=1)
+    band = ~keep_out & (d < clear_m - 1e-9)
+    assert ex.target_near_keep_out == int(band.sum()) > 0
+    assert np.all(ex.target[band | keep_out] == 0.0) and np.all(ex.target[~band & ~keep_out] > 0.0)
+    assert ex.source_mode == "sweep"  # still a whole-surface target outside the zone and its band
+    ex.reset(np.array([0.01, 0.03, 0.0]))
+    for _ in range(3000):
+        ex.step()
+        if ex.coverage_residual() <= 0.0:
+            break
+    assert ex.keep_out_contacts == 0
+    assert ex.coverage_residual() <= 0.05
+
+
+def test_target_entirely_beside_a_keep_out_zone_is_refused(strip_plate):
+    cloud, keep_out, basis = strip_plate
+    x = cloud.points[:, 0]
+    beside = (np.abs(x - 0.075) > 0.006) & (np.abs(x - 0.075) <= 0.009)  # within r_a + ½ voxel of the strip
+    near_only = cloud.with_target(beside.astype(float))
+    with pytest.raises(ExplorationError, match=r"within 9\.0 mm of it"):
+        HedacExplorer(near_only, basis, HedacConfig(n_eigen=40), keep_out=keep_out)

@@ -405,3 +405,69 @@ def test_keep_out_mask_is_carried_onto_the_voxels() -> None:
     assert vox.shape == (len(down),)
     # a voxel holding any kept-out point is kept out; its mean may lie a little past the line
     assert np.all(down.points[vox, 0] < 0.01 + 0.003) and np.all(down.points[~vox, 0] >= 0.009 - 1e-12)
+
+
+def test_a_keep_out_mask_indexes_the_files_rows_nan_rows_included(tmp_path, capsys) -> None:
+    """The mask has one entry per row of the file; rows with NaN coordinates (dropped on reading) count too."""
+    _, strip, _ = _strip_plate_file(tmp_path)
+    g = np.arange(0.0, 0.1501, 0.003)
+    x, y = np.meshgrid(g, np.arange(0.0, 0.0601, 0.003))
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    target = ((pts[:, 0] < 0.035) | (pts[:, 0] > 0.115)).astype(float)
+    rows = np.arange(len(pts) + 5)
+    nan_rows = rows[::len(rows) // 5][:5]  # five NaN rows spread through the file
+    file_pts = np.full((len(rows), 3), np.nan)
+    file_target = np.zeros(len(rows))
+    keep = np.ones(len(rows), dtype=bool)
+    keep[nan_rows] = False
+    file_pts[keep], file_target[keep] = pts, target
+    path = tmp_path / "holes.npz"
+    np.savez(path, points=file_pts, target=file_target)
+    file_mask = np.zeros(len(rows), dtype=bool)
+    file_mask[keep] = strip
+    file_mask[nan_rows] = True  # a NaN row's entry is read and dropped with it
+    np.save(tmp_path / "file_mask.npy", file_mask)
+    out = tmp_path / "run"
+    assert main(["explore", str(path), "--voxel-size", "0", "--n-eigen", "40", "--steps", "20", "--x0", "0.01",
+                 "0.03", "0", "--agent-radius", "0.0075", "--no-html", "--quiet", "--keep-out-mask",
+                 str(tmp_path / "file_mask.npy"), "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["keep_out_points"] == int(strip.sum())
+    np.save(tmp_path / "finite_mask.npy", strip)  # one per finite point: the file has more rows
+    _fails(["explore", str(path), "--voxel-size", "0", "--keep-out-mask", str(tmp_path / "finite_mask.npy"),
+            "--out", str(tmp_path / "o")], capsys, f"the cloud file has {len(rows)} points")
+
+
+def test_keep_out_mask_on_a_mesh_and_other_option_misuse_are_refused(tmp_path, capsys) -> None:
+    o = str(tmp_path / "o")
+    mesh = tmp_path / "square.obj"
+    mesh.write_text("v 0 0 0\nv 0.06 0 0\nv 0.06 0.06 0\nv 0 0.06 0\nf 1 2 3\nf 1 3 4\n")
+    np.save(tmp_path / "four.npy", np.array([True, False, False, False]))
+    _fails(["explore", str(mesh), "--target", "all", "--keep-out-mask", str(tmp_path / "four.npy"), "--out", o],
+           capsys, "--keep-out-mask", "cannot index a mesh")
+    path, strip, _ = _strip_plate_file(tmp_path)
+    _fails(["explore", str(path), "--keep-out-threshold", "0.5", "--out", o], capsys, "--keep-out-channel")
+    np.save(tmp_path / "none.npy", np.zeros_like(strip))
+    _fails(["explore", str(path), "--voxel-size", "0", "--keep-out-mask", str(tmp_path / "none.npy"), "--out", o],
+           capsys, "marks no point")
+    (tmp_path / "text.npy").write_text("1 0 1\n")
+    _fails(["explore", str(path), "--keep-out-mask", str(tmp_path / "text.npy"), "--out", o], capsys,
+           "np.save")
+
+
+def test_a_colour_keep_out_that_takes_most_of_the_cloud_is_warned_about(tmp_path) -> None:
+    from tactex.pointcloud.keep_out import raw_keep_out
+
+    white = SurfaceCloud(points=np.random.default_rng(1).random((200, 3)) * 0.05, colors=np.full((200, 3), 0.95))
+    with pytest.warns(RuntimeWarning, match="white and grey"):
+        zone = raw_keep_out(white, "blue", 0.9, "")
+    assert zone.all()
+    coloured = white.colors.copy()
+    coloured[:20] = (0.0, 0.0, 1.0)
+    coloured[20:] = (0.9, 0.2, 0.2)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a sticker's share: no warning
+        zone = raw_keep_out(SurfaceCloud(points=white.points, colors=coloured), "blue", 0.9, "")
+    assert zone.sum() == 20

@@ -216,9 +216,12 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path,
 
 
 def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeypatch) -> None:
-    """Dirt right up to both sides of a keep-out strip: when the wear model sends the robot to the other side, the
-    touch-down is a footprint radius clear of the strip (the dirty point nearest to the robot lies at the strip's
-    edge, where the sponge would press on it)."""
+    """Dirt right up to both sides of a keep-out strip: when the robot goes to the other side (the wear model's
+    island move or the explorer's relocation, whichever comes first), the touch-down is a footprint radius clear of
+    the strip (the dirty point nearest to the robot lies at the strip's edge, where the sponge would press on it).
+    The dirt within the clearance is no goal (the explorer leaves it out of its target), so the explorer
+    usually relocates first; test_wear_model checks the island move's own rule."""
+    from tactex.ergodic.explorer import HedacExplorer
     from tactex.tasks.wear_model import WearModel
 
     islands = []  # where the task's island moves would touch down
@@ -229,16 +232,26 @@ def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeyp
         islands.append(out)
         return out
 
+    explorers = []
+    init = HedacExplorer.__init__
+
+    def keep(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        explorers.append(self)
+
     monkeypatch.setattr(WearModel, "next_island", record)
-    cloud, path, mask, x, _ = _plate_with_keep_out(
+    monkeypatch.setattr(HedacExplorer, "__init__", keep)
+    cloud, path, mask, x, pos = _plate_with_keep_out(
         tmp_path, lambda x, y: (np.abs(x) <= 0.04) & (np.abs(y) <= 0.02) & (np.abs(x) > 0.01),
         lambda x, y: np.abs(x) <= 0.01)
     strip = np.abs(x) <= 0.01
     cfg = CleanConfig(object_name="plate", budget_s=20.0, n_eigen=60, cloud=str(path),
                       keep_out_mask=str(mask), eigensolver="arpack")
-    m = run_clean(cfg, progress=False).metrics
-    moves = [p for p in islands if p is not None]
-    assert moves, "no island move: the scenario does not test the touch-down"
+    r = run_clean(cfg, progress=False)
+    m = r.metrics
+    moves = [p for p in islands if p is not None] + [c.point for e in explorers for c in e.relocations]
+    assert moves, "no move to the other side: the scenario does not test the touch-down"
+    assert ((r.agent_path[:, 0] - pos[0] < -0.02).any() and (r.agent_path[:, 0] - pos[0] > 0.02).any())
     for p in moves:
         assert np.min(np.linalg.norm(cloud.points[strip] - p, axis=1)) >= cfg.agent_radius_m, p
     assert m["keep_out_contacts"] == 0

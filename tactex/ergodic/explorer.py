@@ -307,7 +307,8 @@ class HedacExplorer:
                                  f"got {mask.dtype} {mask.shape}")
             mask = mask.copy()
         if mask.all():
-            raise InputError("keep_out marks every cloud point: nothing may be touched; mark fewer points")
+            raise InputError("the keep-out zone marks every cloud point: nothing may be touched; mark fewer points "
+                             "(--keep-out-threshold, --keep-out-mask)")
         self._keep_out = mask
         self._ko_idx = np.flatnonzero(mask)
         self._ko_clear = self._r_a + KEEP_OUT_MARGIN * self.spacing
@@ -333,6 +334,11 @@ class HedacExplorer:
         return self._safe.copy()
 
     @property
+    def keep_out_clearance_m(self) -> float:
+        """Least distance [m] between the agent and a kept-out point: footprint radius + ½ voxel."""
+        return self._ko_clear
+
+    @property
     def keep_out_contacts(self) -> int:
         """Kept-out cloud points inside a footprint so far (0 unless something is wrong)."""
         self._require_state()
@@ -350,13 +356,25 @@ class HedacExplorer:
             raise InputError(f"target mass must have shape ({len(self.cloud)},), got {p.shape}")
         if not np.all(np.isfinite(p)) or p.min() < 0:
             raise InputError("target mass must be finite and ≥ 0 everywhere")
+        self.target_near_keep_out = 0
         if self._ko_idx.size:
             if float(p.sum()) > 0 and not p[~self._keep_out].any():
                 raise ExplorationError(
                     "every target point is kept out (keep-out zone): nothing may be touched; shrink the keep-out "
                     "zone (--keep-out-threshold, --keep-out-mask) or mark other target points"
                 )
-            p = np.where(self._keep_out, 0.0, p)
+            # Target closer to the zone than the clearance is no goal: the agent may not stand there, and the
+            # relocations and the passes touch down and walk only where it may. It is left out of the target
+            # (and so of the coverage residual) rather than left to attract the potential to the zone's edge.
+            near = (p > 0) & ~self._keep_out & ~self._safe
+            if near.any() and not p[self._safe].any():
+                raise ExplorationError(
+                    f"every target point lies in the keep-out zone or within {self._ko_clear * 1e3:.1f} mm of it "
+                    "(footprint radius + ½ voxel): a footprint there would touch the zone; shrink the keep-out zone "
+                    "(--keep-out-threshold, --keep-out-mask) or mark target farther from it"
+                )
+            self.target_near_keep_out = int(np.count_nonzero(near))
+            p = np.where(self._safe, p, 0.0)
         total = float(p.sum())
         if total <= 0:
             raise ExplorationError(
@@ -381,7 +399,7 @@ class HedacExplorer:
         self._dcoef = np.zeros(self._phi.shape[1])
         cfg = self.config
         sweep = cfg.source_mode == "sweep" or (
-            cfg.source_mode == "auto" and uniform_whole_target(self._target, self._keep_out))
+            cfg.source_mode == "auto" and uniform_whole_target(self._target, ~self._safe))
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
                                   cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
         self._passes = None
@@ -477,8 +495,8 @@ class HedacExplorer:
                 if not self._clear_of_keep_out(p, int(self._near[i])):
                     raise ExplorationError(
                         f"the start {np.round(p, 4).tolist()} m lies within {self._ko_clear * 1e3:.1f} mm (footprint "
-                        "radius + ½ voxel) of a keep-out point; start elsewhere, or let the explorer relocate "
-                        "(HedacConfig.relocate)"
+                        "radius + ½ voxel) of a keep-out point; start elsewhere, or let the explorer relocate off "
+                        "it (relocation is off: HedacConfig.relocate)"
                     )
         self._monitors = [
             ProgressMonitor(p, 0, cfg.stall_radius * self.spacing, cfg.stall_steps, cfg.progress_steps) for p in self._x

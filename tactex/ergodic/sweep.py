@@ -36,8 +36,9 @@ __all__ = ["SweepSource", "uniform_whole_target"]
 
 
 def uniform_whole_target(target: np.ndarray, keep_out: np.ndarray | None = None) -> bool:
-    """True when the target puts the same mass on every cloud point outside the keep-out zone (a
-    whole-surface target, ``--target all``): the case ``source_mode = "auto"`` sweeps."""
+    """True when the target puts the same mass on every cloud point outside ``keep_out`` (N,) (bool: the
+    zone and the band the footprint may not stand in; a whole-surface target, ``--target all``): the case
+    ``source_mode = "auto"`` sweeps."""
     t = np.asarray(target, dtype=np.float64)
     if keep_out is not None and keep_out.any():
         t = t[~keep_out]

@@ -218,7 +218,7 @@ def load_explore_cloud_keep_out(
     read = read_cloud(path, mesh_spacing_m=cfg.voxel_size_m or 0.003)
     raw = read.cloud
     voxel = 0.0 if read.n_faces else cfg.voxel_size_m  # a mesh is sampled at the voxel spacing already
-    keep_out = raw_keep_out(raw, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
+    keep_out = raw_keep_out(raw, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask, read)
     cloud, rule = file_target(raw, voxel, cfg.target_rule(), src)
     if keep_out is not None and voxel > 0:
         keep_out = keep_out_on_voxels(raw.points, keep_out, voxel)
@@ -367,6 +367,11 @@ def run_explore(
             )
     if keep_out is not None:
         say(f"keep-out zone: {int(keep_out.sum())} points; the footprint stays off them")
+        if explorer.target_near_keep_out:
+            clear_mm = explorer.keep_out_clearance_m * 1e3
+            say(f"{explorer.target_near_keep_out} target points lie within {clear_mm:.1f} mm of the zone (footprint "
+                "radius + ½ voxel), where the agent may not stand: left out of the target and of the coverage "
+                "residual (a footprint passing by may still touch them)")
 
     x0, x0_source = _start_position(cloud, cfg, source_info)
     start = explorer.reset(x0)[0].point
@@ -415,8 +420,8 @@ def run_explore(
     if stalled_from is not None:
         say(
             f"warning: the agent stayed in place from step {stalled_from} on, coverage residual {residual[-1]:.3f}"
-            + (": the target left is out of reach (within a footprint radius of a keep-out zone) or "
-               "already touched; HEDAC revisits it in place" if hcfg.relocate else
+            + (f": {explorer.untouched_count()} target points left untouched, none the explorer may walk or fly "
+               "to (each attempt stalled); HEDAC revisits the surface in place" if hcfg.relocate else
                ": the potential may rise only across gaps it may not leave the cloud to cross; let it relocate "
                "(--relocate), or see --max-off-cloud, --max-bridge")
         )
@@ -461,6 +466,7 @@ def run_explore(
         ],
         "keep_out_points": int(keep_out.sum()) if keep_out is not None else 0,
         "keep_out_contacts": explorer.keep_out_contacts,
+        "target_near_keep_out": explorer.target_near_keep_out,
         "step_time_s": step_s,
         "config": dataclasses.asdict(cfg),
         "explorer_config": dataclasses.asdict(hcfg),

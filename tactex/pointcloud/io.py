@@ -53,12 +53,15 @@ class CloudFile:
         n_dropped: points left out for NaN/inf coordinates or normals.
         n_faces: faces of a mesh file (0 for a point cloud); its points are samples of its surface.
         notes: those facts in words, for the user.
+        kept: per row of a point cloud file (bool), whether it is in ``cloud``; None when every row is
+            (or for a mesh). A per-point array given for the file (a keep-out mask) is carried over by it.
     """
 
     cloud: SurfaceCloud
     n_dropped: int = 0
     n_faces: int = 0
     notes: tuple[str, ...] = ()
+    kept: np.ndarray | None = None
 
 
 class _Finite:
@@ -75,6 +78,10 @@ class _Finite:
             keep &= np.isfinite(np.asarray(normals, dtype=np.float64)).all(axis=1)
         self.keep = keep
         self.dropped = int(keep.size - keep.sum())
+
+    def kept_rows(self) -> np.ndarray | None:
+        """Per row, whether it was kept; None when every row was."""
+        return self.keep if self.dropped else None
 
     def __call__(self, values: Any) -> Any:
         if values is None or self.keep is None or not self.dropped:
@@ -150,7 +157,8 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     target = np.asarray(v["target"], dtype=np.float64) if "target" in names else None
     cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors, target=finite(target),
                          spacing=_ply_spacing(ply))
-    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)))
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)),
+                     kept=finite.kept_rows())
 
 
 #: The comment save_ply writes so that a voxel-filtered cloud keeps its spacing h [m] through a PLY.
@@ -241,7 +249,8 @@ def _read_pcd(p: Path) -> CloudFile:
     elif {"r", "g", "b"} <= set(fields):
         colors = _colors_to_unit(finite(np.stack([pc.pc_data["r"], pc.pc_data["g"], pc.pc_data["b"]], axis=1)))
     cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors)
-    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)))
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)),
+                     kept=finite.kept_rows())
 
 
 def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
@@ -303,7 +312,8 @@ def _read_npz(p: Path) -> CloudFile:
         target=finite(data.get("target")),
         spacing=spacing,
     )
-    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(data["points"])))
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(data["points"])),
+                     kept=finite.kept_rows())
 
 
 def save_npz(cloud: SurfaceCloud, path: str | Path) -> Path:

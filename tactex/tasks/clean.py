@@ -690,7 +690,7 @@ def load_target_cloud_keep_out(path: str | Path, voxel_size_m: float, keep_out_c
     read = read_cloud(path, mesh_spacing_m=voxel_size_m)
     raw = read.cloud
     voxel_size_m = 0.0 if read.n_faces else voxel_size_m  # a mesh is sampled at the voxel spacing already
-    keep_out = raw_keep_out(raw, keep_out_channel, keep_out_threshold, keep_out_mask)
+    keep_out = raw_keep_out(raw, keep_out_channel, keep_out_threshold, keep_out_mask, read)
     if raw.colors is None and raw.n_target == 0:
         raise InputError(f"--cloud '{path}' has neither a target nor colours: mark the dirt red (255, 0, 0)")
     cloud, _ = file_target(raw, voxel_size_m, TargetRule("auto"), str(path))
@@ -832,6 +832,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     # where the sponge may touch down, as the explorer's own relocations: a footprint radius (and half a voxel)
     # clear of every keep-out point (None: anywhere; a keep-out zone comes with the explorer, not the raster)
     touch_down_ok = source.clear_points if keep_out is not None and isinstance(source, HedacExplorer) else None
+    if touch_down_ok is not None:  # dirt that close to the zone is no goal of the explorer's either: not cleanable
+        cleanable &= touch_down_ok
+        n_target0 = int(np.count_nonzero(cloud.target[cleanable] > 0))
     # where the sponge first touches down, on dirt it may touch
     targets = _touchable(np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0),
                          touch_down_ok)
