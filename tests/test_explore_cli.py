@@ -471,3 +471,29 @@ def test_a_colour_keep_out_that_takes_most_of_the_cloud_is_warned_about(tmp_path
         warnings.simplefilter("error")  # a sticker's share: no warning
         zone = raw_keep_out(SurfaceCloud(points=white.points, colors=coloured), "blue", 0.9, "")
     assert zone.sum() == 20
+
+
+def test_the_report_draws_flights_apart_from_the_walk_and_the_keep_out_zone(tmp_path) -> None:
+    """The plots draw the path from the start (before the first step), each relocation as a chord through the
+    air, and the kept-out points; fields.npz holds the zone."""
+    from tactex.report.path_segments import split_flights
+
+    path, strip, _ = _strip_plate_file(tmp_path)
+    out = tmp_path / "run"
+    assert main(["explore", str(path), "--voxel-size", "0", "--n-eigen", "40", "--steps", "700", "--x0", "0.01",
+                 "0.03", "0", "--agent-radius", "0.0075", "--quiet", "--keep-out-channel", "blue",
+                 "--keep-out-threshold", "0.9", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["relocations"] >= 1
+    with np.load(out / "fields.npz", allow_pickle=False) as f:
+        np.testing.assert_array_equal(f["keep_out"], strip)
+    page = (out / "explore.html").read_text()
+    assert '"name":"flight"' in page and '"name":"keep-out"' in page
+    # the split: a flight is a chord of its own, and the walk breaks there
+    walk = np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0], [6, 0, 0]])
+    surface, air = split_flights(walk, [2])
+    assert np.isnan(surface[2]).all() and np.array_equal(surface[[0, 1, 3, 4]], walk)
+    np.testing.assert_array_equal(air, walk[[1, 2]])
+    assert split_flights(walk, [])[1] is None
+    with pytest.raises(Exception, match="flights"):
+        split_flights(walk, [0])

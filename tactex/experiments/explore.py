@@ -19,7 +19,7 @@ import dataclasses
 import math
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -472,7 +472,8 @@ def run_explore(
         "explorer_config": dataclasses.asdict(hcfg),
     }
     say(f"writing the report to {out}")
-    files = write_explore_report(out, cloud, trajectory, coverage, potential, metrics, html=cfg.html)
+    files = write_explore_report(out, cloud, trajectory, coverage, potential, metrics, html=cfg.html, start=start,
+                                 flights=[r.step for r in relocations], keep_out=keep_out)
     return ExploreResult(out_dir=out, metrics=to_jsonable(metrics), trajectory=trajectory, files=files)
 
 
@@ -485,8 +486,16 @@ def write_explore_report(
     metrics: dict[str, Any],
     *,
     html: bool = True,
+    start: np.ndarray | None = None,
+    flights: Sequence[int] = (),
+    keep_out: np.ndarray | None = None,
 ) -> dict[str, Path]:
-    """Write metrics.json, trajectory.npy, fields.npz and the plots of one run into ``out``."""
+    """Write metrics.json, trajectory.npy, fields.npz and the plots of one run into ``out``.
+
+    ``trajectory`` (T, 3) [m] holds each step's point; the plots draw the path from ``start`` (3,) [m]
+    (the point the agent started from, before its first step) when given, the flights (the steps k of
+    ``trajectory`` reached through the air: relocations) as dashed chords, and the ``keep_out`` (N,)
+    (bool) points, which fields.npz also holds."""
     from matplotlib.colors import LinearSegmentedColormap
 
     from tactex.report import cloud_html, plot_cloud, plot_series, write_metrics
@@ -502,7 +511,9 @@ def write_explore_report(
     files["series"] = out / "series.npz"
     np.save(out / "trajectory.npy", trajectory, allow_pickle=False)
     files["trajectory"] = out / "trajectory.npy"
-    np.savez(out / "fields.npz", points=cloud.points, target=cloud.target, coverage=coverage, potential=potential)
+    zone = np.zeros(len(cloud), dtype=bool) if keep_out is None else np.asarray(keep_out, dtype=bool)
+    np.savez(out / "fields.npz", points=cloud.points, target=cloud.target, coverage=coverage, potential=potential,
+             keep_out=zone)
     files["fields"] = out / "fields.npz"
     name = metrics["source"].get("name") or Path(metrics["source"].get("path", "cloud")).stem
     title = f"{name}: {metrics['n_points']} points, K={metrics['config']['n_eigen']}, α={metrics['config']['alpha']:g}"
@@ -519,11 +530,14 @@ def write_explore_report(
         title=title,
     )
     fields = {"target": cloud.target, "coverage": coverage, "potential": potential}
+    drawn = trajectory if start is None else np.vstack([np.asarray(start, dtype=float)[None], trajectory])
+    shift = 0 if start is None else 1  # with the start first, step k's point is row k + 1
+    path_kw = {"trajectory": drawn, "flights": [k + shift for k in flights if k + shift >= 1], "keep_out": keep_out}
     files["cloud_png"] = plot_cloud(
         cloud.points,
         fields,
         out / "cloud.png",
-        trajectory=trajectory,
+        **path_kw,
         title=title,
         cmaps={"target": target_cmap, "coverage": "viridis", "potential": "inferno"},
     )
@@ -534,7 +548,7 @@ def write_explore_report(
             cloud.points,
             fields,
             out / "explore.html",
-            trajectory=trajectory,
+            **path_kw,
             title=title,
             colorscales={"target": TARGET_COLORSCALE, "coverage": "Viridis", "potential": "Inferno"},
         )

@@ -8,7 +8,7 @@ import numpy as np
 
 from tactex.errors import InputError
 
-__all__ = ["as_fields", "as_path", "as_points"]
+__all__ = ["as_fields", "as_mask", "as_path", "as_points"]
 
 
 def as_points(points: object, name: str = "points") -> np.ndarray:
@@ -44,4 +44,13 @@ def as_path(path: object, name: str = "trajectory") -> np.ndarray | None:
         raise InputError(f"{name} must have shape (T, 3), got {arr.shape}")
     if not np.isfinite(arr).all():
         raise InputError(f"{name} holds NaN/inf values")
+    return arr
+
+
+def as_mask(mask: object, n: int, name: str = "mask") -> np.ndarray:
+    """A boolean per point (n,)."""
+    arr = np.asarray(mask)
+    if arr.shape != (n,) or arr.dtype != bool:
+        raise InputError(f"{name} must be a boolean array of shape ({n},) to match the points, got {arr.dtype} "
+                         f"{arr.shape}")
     return arr

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tactex.report._validate import as_fields, as_path, as_points
+from tactex.report._validate import as_fields, as_mask, as_path, as_points
+from tactex.report.path_segments import split_flights
 
 __all__ = ["color_limits", "plot_cloud"]
 
@@ -47,6 +48,8 @@ def plot_cloud(
     path: str | Path,
     *,
     trajectory: np.ndarray | None = None,
+    flights: Sequence[int] = (),
+    keep_out: np.ndarray | None = None,
     title: str | None = None,
     cmaps: Mapping[str, Any] | None = None,
     point_size: float = 2.0,
@@ -60,6 +63,9 @@ def plot_cloud(
         fields: {name: (N,) values} (a bare array is one field; None → grey cloud).
         path: output PNG file.
         trajectory: (T, 3) agent path [m]: black line, start green, end purple (as TEC Fig. 8).
+        flights: indices k of the trajectory reached from k − 1 through the air (relocations): drawn as
+            dashed grey chords, not as a walk across the surface.
+        keep_out: (N,) bool, kept-out points, drawn as blue crosses over every panel.
         title: figure title.
         cmaps: colour map (name or matplotlib Colormap) per field name (default "viridis").
         point_size: marker size [pt²].
@@ -72,6 +78,8 @@ def plot_cloud(
     pts = as_points(points)
     data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
     traj = as_path(trajectory)
+    walked, flown = (None, None) if traj is None else split_flights(traj, flights)
+    zone = None if keep_out is None else pts[as_mask(keep_out, pts.shape[0], "keep_out")]
     cmaps = dict(cmaps or {})
     n = len(data)
     fig = Figure(figsize=(4.6 * n, 4.6), dpi=dpi)
@@ -95,13 +103,19 @@ def plot_cloud(
         )
         if name != "cloud":
             fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16, orientation="horizontal")
+        if zone is not None and zone.shape[0]:
+            ax.scatter(zone[:, 0], zone[:, 1], zone[:, 2], color="dodgerblue", marker="x", s=6, lw=0.6,
+                       depthshade=False, zorder=2, label="keep-out")
         if traj is not None and traj.shape[0] > 0:
-            ax.plot(traj[:, 0], traj[:, 1], traj[:, 2], color="black", lw=1.2, zorder=3, label="path")
+            ax.plot(walked[:, 0], walked[:, 1], walked[:, 2], color="black", lw=1.2, zorder=3, label="path")
+            if flown is not None:
+                ax.plot(flown[:, 0], flown[:, 1], flown[:, 2], color="dimgrey", lw=1.0, ls="--", zorder=3,
+                        label="flight")
             ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False, zorder=4,
                        label="start")
             ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False, zorder=4, label="end")
-            if i == 0:
-                ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
+        if i == 0 and ((traj is not None and traj.shape[0] > 0) or zone is not None):
+            ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
         _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
         ax.view_init(*view)
         ax.set_title(name)

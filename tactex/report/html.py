@@ -6,14 +6,15 @@ connection (robot PCs often have none); ``include_plotlyjs="cdn"`` writes a smal
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tactex.errors import ConfigError
-from tactex.report._validate import as_fields, as_path, as_points
+from tactex.report._validate import as_fields, as_mask, as_path, as_points
+from tactex.report.path_segments import split_flights
 
 __all__ = ["cloud_html"]
 
@@ -24,6 +25,8 @@ def cloud_html(
     path: str | Path,
     *,
     trajectory: np.ndarray | None = None,
+    flights: Sequence[int] = (),
+    keep_out: np.ndarray | None = None,
     title: str | None = None,
     colorscales: Mapping[str, Any] | None = None,
     point_size: float = 2.5,
@@ -37,6 +40,9 @@ def cloud_html(
         fields: {name: (N,) values}; the first is shown first. None → a plain cloud.
         path: output HTML file.
         trajectory: (T, 3) agent path [m] (start green, end purple).
+        flights: indices k of the trajectory reached from k − 1 through the air (relocations): a dashed
+            grey chord each, not a walk across the surface.
+        keep_out: (N,) bool, kept-out points, drawn as blue crosses.
         title: page title.
         colorscales: plotly colour scale (name or [[0, colour], …, [1, colour]]) per field (default "Viridis").
         point_size: marker size [px].
@@ -51,8 +57,16 @@ def cloud_html(
     pts = as_points(points)
     data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
     traj = as_path(trajectory)
+    zone = None if keep_out is None else pts[as_mask(keep_out, pts.shape[0], "keep_out")]
+    flown = np.unique(np.asarray(list(flights), dtype=np.intp))
     if traj is not None and traj.shape[0] > max_path_points > 1:
-        traj = traj[np.unique(np.linspace(0, traj.shape[0] - 1, max_path_points).round().astype(int))]
+        keep = np.linspace(0, traj.shape[0] - 1, max_path_points).round().astype(np.intp)
+        if flown.size:  # every flight's two ends stay, so that it is drawn as the chord it was
+            flown = flown[(flown >= 1) & (flown < traj.shape[0])]
+            keep = np.concatenate([keep, flown - 1, flown])
+        keep = np.unique(keep)
+        flown = np.searchsorted(keep, flown)
+        traj = traj[keep]
     scales = dict(colorscales or {})
     names = list(data)
     traces = []
@@ -75,12 +89,22 @@ def cloud_html(
             )
         )
     extra = 0
+    if zone is not None and zone.shape[0]:
+        traces.append(go.Scatter3d(x=zone[:, 0], y=zone[:, 1], z=zone[:, 2], mode="markers", name="keep-out",
+                                   marker={"size": 3, "color": "dodgerblue", "symbol": "x"}))
+        extra += 1
     if traj is not None and traj.shape[0] > 0:
+        walked, air = split_flights(traj, flown)
         traces.append(
             go.Scatter3d(
-                x=traj[:, 0], y=traj[:, 1], z=traj[:, 2], mode="lines", name="path", line={"color": "black", "width": 4}
+                x=walked[:, 0], y=walked[:, 1], z=walked[:, 2], mode="lines", name="path",
+                line={"color": "black", "width": 4}, connectgaps=False,
             )
         )
+        if air is not None:
+            traces.append(go.Scatter3d(x=air[:, 0], y=air[:, 1], z=air[:, 2], mode="lines", name="flight",
+                                       line={"color": "dimgrey", "width": 3, "dash": "dash"}, connectgaps=False))
+            extra += 1
         for name, i, colour in (("start", 0, "limegreen"), ("end", -1, "purple")):
             traces.append(
                 go.Scatter3d(
@@ -92,7 +116,7 @@ def cloud_html(
                     marker={"size": 6, "color": colour, "line": {"color": "black", "width": 1}},
                 )
             )
-        extra = 3
+        extra += 3
     buttons = [
         {
             "label": name,
