@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tactex.errors import ConfigError, InputError
 from tactex.tasks.clean import PHASES, CleanConfig, run_clean
 from tactex.tasks.wipe import WipeConfig, run_wipe
 
@@ -313,3 +314,38 @@ def test_a_fully_marked_surface_is_cleaned_with_the_dirt_source_not_the_sweep(mo
     m = run_clean(CleanConfig(object_name="plate", marking="full", budget_s=9.0, n_eigen=40), progress=False).metrics
     assert configs and all(c.source_mode == "ergodic" for c in configs)
     assert m["dirt_removed_fraction"] > 0.0
+
+
+def test_with_a_cloud_the_simulated_dirt_is_the_clouds_target(tmp_path) -> None:
+    """In simulation, --cloud's target is the dirt (not the scene's --marking), so that what the run reports as
+    removed is what the user marked; a cloud off the simulated object is refused."""
+    from tactex.pointcloud import save_npz
+
+    cloud, path, _, _, _ = _plate_with_keep_out(
+        tmp_path, lambda x, y: (np.abs(x - 0.03) <= 0.02) & (np.abs(y) <= 0.02), lambda x, y: np.abs(x) <= 0.001)
+    cfg = CleanConfig(object_name="plate", budget_s=12.0, n_eigen=60, cloud=str(path), eigensolver="arpack")
+    m = run_clean(cfg, progress=False).metrics
+    assert m["marking"] == "cloud"
+    assert m["dirt_removed_fraction"] >= 0.95  # the patch; the X marking it replaced lies mostly elsewhere
+    lifted = save_npz(cloud.transformed(np.eye(3), np.array([0.0, 0.0, 0.2])), tmp_path / "lifted.npz")
+    with pytest.raises(ConfigError, match="base frame"):
+        run_clean(replace(cfg, cloud=str(lifted)), progress=False)
+
+
+def test_painting_the_dirt_field_from_points() -> None:
+    from tactex.sim.dirt import DirtField
+    from tactex.sim.objects import get_object
+
+    surface = get_object("plate").surface
+    field = DirtField(surface, "X", 0.002)
+    patch = field.points[(np.abs(field.points[:, 0]) <= 0.01) & (np.abs(field.points[:, 1]) <= 0.01)]
+    grid = patch[::4]  # a coarser grid over the same square, as a voxelised cloud's points
+    n = field.paint(grid, 0.006)
+    inside = (np.abs(field.points[:, 0]) <= 0.01) & (np.abs(field.points[:, 1]) <= 0.01)
+    assert n == int(field.initial.sum()) and field.initial[inside].all()
+    assert not field.initial[(np.abs(field.points[:, 0]) > 0.02) | (np.abs(field.points[:, 1]) > 0.02)].any()
+    assert field.remaining_fraction() == 1.0
+    with pytest.raises(InputError):
+        field.paint(np.zeros((0, 3)), 0.006)
+    with pytest.raises(ConfigError):
+        field.paint(grid, 0.0)

@@ -99,6 +99,22 @@ class DirtField:
     def reset(self) -> None:
         self.level = self.initial.copy()
 
+    def paint(self, points_obj_m: np.ndarray, radius_m: float) -> int:
+        """Replace the marking by dirt on the cells within ``radius_m`` [m] of ``points_obj_m`` (M, 3)
+        (object frame [m]; e.g. a given cloud's target, so that the simulation's dirt is that target).
+        Returns the number of dirty cells; the levels start again from it."""
+        from scipy.spatial import cKDTree
+
+        pts = np.asarray(points_obj_m, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0 or not np.isfinite(pts).all():
+            raise InputError(f"dirt points must be a finite (M, 3) array with M ≥ 1, got shape {pts.shape}")
+        if not (np.isfinite(radius_m) and radius_m > 0.0):
+            raise ConfigError(f"paint radius must be a positive number of metres, got {radius_m!r}")
+        near = cKDTree(pts).query(self.points, distance_upper_bound=radius_m)[0] <= radius_m
+        self.initial = (near & self.valid).astype(float)
+        self.reset()
+        return int(np.count_nonzero(self.initial))
+
     @property
     def total_initial(self) -> float:
         return float(self.initial.sum())

@@ -140,7 +140,8 @@ class CleanConfig(SimWorldParams):
 
     object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)",
                              option="object", aliases=("--object-name",))
-    marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full")
+    marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full (in simulation with --cloud the cloud's "
+                              "target is the dirt instead)")
     force_n: float = param(10.0, "pressing force set point along the tool axis [N]")
     n_eigen: int | None = param(
         None, "eigenpairs n_K of the spectral diffusion; default: one per 5 footprint areas of the captured "
@@ -729,6 +730,19 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
         backend.close()
 
 
+def _dirt_from_cloud(backend, cloud: SurfaceCloud, object_name: str) -> None:
+    """In simulation with ``--cloud``, the dirt is the cloud's target, not the scene's ``--marking``: what the run
+    reports as removed is then what the user marked. The cells within 0.71 voxel of a target point (the
+    farthest a cell inside a marked area lies from the grid's points) are dirty."""
+    pos, rot = backend.object_pose()
+    target_obj = (cloud.points[cloud.target > 0] - pos) @ rot
+    radius = cloud.spacing * np.sqrt(0.5)
+    if backend.dirt.paint(target_obj, radius) == 0:
+        raise ConfigError(
+            f"no point of --cloud's target lies on the simulated {object_name}'s surface (within {radius * 1e3:.1f} "
+            "mm): the cloud must be in the robot base frame, with the object where the scene puts it (--object)")
+
+
 def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
                progress: bool) -> CleanResult:
     wall0 = time.perf_counter()
@@ -738,6 +752,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     given, keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
                                                   cfg.keep_out_threshold, cfg.keep_out_mask)
                        if cfg.cloud else (None, None))
+    if given is not None and log.truth:
+        _dirt_from_cloud(backend, given, scene_cfg.object_name)
     acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
     cap_pos, cap_rot = _capture_pose(scene_cfg, cfg) if given is None else _cloud_capture_pose(given, cfg)
     try:
@@ -1221,7 +1237,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "force_set_point_n": cfg.force_n,
         "baseline": cfg.baseline or "tactex",
         "object": cfg.object_name,
-        "marking": cfg.marking,
+        "marking": "cloud" if cfg.cloud else cfg.marking,  # with --cloud the dirt is its target (simulated too)
         "safety_events": len(loop.safety.events),
         # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
         "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
