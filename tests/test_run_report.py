@@ -322,3 +322,17 @@ def test_phases_come_from_the_recorded_changes() -> None:
     assert vision_round_trips(ch[:, 0], ch[:, 1]).shape == (0, 2)  # no approach after the retract
     ch = np.vstack([ch, [[2.7, P["move"]], [2.8, P["capture"]], [2.8, P["move"]], [2.9, P["approach"]]]])
     np.testing.assert_allclose(vision_round_trips(ch[:, 0], ch[:, 1]), [[2.5, 2.9]])
+
+
+def test_lift_offs_without_a_view_are_moves_and_contact_stretches_break_at_lift_offs() -> None:
+    from tactex.report.run_report import contact_stretches, trips_with_a_view
+
+    trips = np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]])
+    np.testing.assert_array_equal(trips_with_a_view(trips, [1.5, 5.9]), [True, False, True])
+    assert trips_with_a_view(np.zeros((0, 2)), [1.0]).shape == (0,)
+    tcp = np.arange(30, dtype=float).reshape(10, 3)
+    tcp[5] = np.nan  # a dropped sample inside a stretch is no lift-off
+    contact = np.array([1, 1, 0, 0, 1, 1, 1, 0, 1, 1], dtype=bool)
+    pts, lifted = contact_stretches(tcp, contact)
+    np.testing.assert_array_equal(pts, tcp[[0, 1, 4, 6, 8, 9]])
+    assert lifted == [2, 4]

@@ -228,11 +228,34 @@ def vision_round_trips(t: np.ndarray, phase: np.ndarray) -> np.ndarray:
     return np.asarray(spans, dtype=np.float64).reshape(-1, 2)
 
 
+def trips_with_a_view(trips: np.ndarray, view_times_s: np.ndarray) -> np.ndarray:
+    """Per lift-off-to-touch-down span (k, 2) [s], whether a camera view was taken in it (a trip to vision)
+    or not (a move through the air: a relocation, or the task's move to the next island)."""
+    times = np.asarray(view_times_s, dtype=np.float64).reshape(-1)
+    return np.array([bool(np.any((times >= a) & (times <= b))) for a, b in np.reshape(trips, (-1, 2))], dtype=bool)
+
+
+def contact_stretches(tcp_m: np.ndarray, in_contact: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """The TCP's points (M, 3) [m] while in contact (finite rows of ``tcp_m`` where ``in_contact``), and the
+    indices of those points that start a new stretch after the tool was lifted (for a plot's flights)."""
+    tcp = np.asarray(tcp_m, dtype=np.float64).reshape(-1, 3)
+    contact = np.asarray(in_contact, dtype=bool)
+    stretch = np.cumsum(contact & ~np.r_[False, contact[:-1]])  # which stretch in contact each row is in
+    rows = np.flatnonzero(contact & np.isfinite(tcp).all(axis=1))  # a dropped sample does not end a stretch
+    return tcp[rows], (np.flatnonzero(np.diff(stretch[rows]) > 0) + 1).tolist()
+
+
 def _plot_dirt(s: Mapping[str, np.ndarray], trips: np.ndarray, times: np.ndarray | None, path: Path) -> Path:
     fig, (ax,) = _figure()
     ax.plot(s["t"], 100.0 * s["dirt_remaining"], color="C3", lw=1.5, label="dirt remaining (simulated surface)")
-    for i, (a, b) in enumerate(trips):
-        ax.axvspan(a, b, color="C0", alpha=0.15, lw=0, label="return to vision" if i == 0 else None)
+    # a lift-off followed by a touch-down is a trip to the camera when a view was taken in it, else a move
+    # through the air (a relocation, or the task's move to the next island)
+    vision = np.ones(len(trips), dtype=bool) if times is None else trips_with_a_view(trips, times)
+    labelled = set()
+    for (a, b), seen in zip(trips, vision, strict=True):
+        name = "return to vision" if seen else "lift and move"
+        ax.axvspan(a, b, color="C0" if seen else "C7", alpha=0.15, lw=0, label=None if name in labelled else name)
+        labelled.add(name)
     for i, tv in enumerate([] if times is None else times):
         ax.axvline(tv, color="C0", ls="--", lw=1.0, label="vision update" if i == 0 else None)
     ax.set_ylim(0, 105)
@@ -389,7 +412,7 @@ def write_clean_report(
     fields = {k: np.asarray(v, dtype=np.float64) for k, v in (result.fields or {}).items()}
     agent = _finite_rows(result.agent_path)
     explore = np.rint(s["phase"]) == CLEAN_PHASES["explore"]
-    tcp_contact = _finite_rows(s["tcp"][explore])
+    tcp_contact, lifted = contact_stretches(s["tcp"], explore)
     np.savez_compressed(
         out / "cloud.npz", points=cloud.points, agent_path=agent, tcp_path_contact=tcp_contact,
         **{f"field_{k}": v for k, v in fields.items()},
@@ -419,8 +442,8 @@ def write_clean_report(
     _try_plot(rep, "cloud_png", plot_cloud, cloud.points, named, out / "cloud.png",
               trajectory=agent if len(agent) else None, title=f"{label}: fields with the agent path", cmaps=cmaps)
     _try_plot(rep, "tcp_png", plot_cloud, cloud.points, {"dirt (first capture)": named["dirt (first capture)"]},
-              out / "cloud_tcp.png", trajectory=tcp_contact if len(tcp_contact) else None,
-              title=f"{label}: TCP path in contact", cmaps=cmaps)
+              out / "cloud_tcp.png", trajectory=tcp_contact if len(tcp_contact) else None, flights=lifted,
+              title=f"{label}: TCP path in contact (dashed: lifted between)", cmaps=cmaps)
     erg = _ergodicity(metrics)
     if len(erg):
         rep.files["ergodicity_png"] = plot_series(
