@@ -309,6 +309,7 @@ def run_explore(
     """
     from tactex.ergodic import HedacExplorer
     from tactex.ergodic.kernel import compile_pending
+    from tactex.ergodic.sweep import uniform_whole_target
     from tactex.spectral import build_basis
 
     cfg = config if config is not None else ExploreConfig()
@@ -333,7 +334,9 @@ def run_explore(
                         eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
     basis_s = time.perf_counter() - t0
     say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
-    if hcfg.compiled and compile_pending():
+    sweeps = hcfg.source_mode == "sweep" or (
+        hcfg.source_mode == "auto" and uniform_whole_target(cloud.target, keep_out))
+    if hcfg.compiled and not sweeps and compile_pending():  # the sweep source steps in numpy
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
