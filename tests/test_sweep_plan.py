@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.tasks import sweep_plan
 from tactex.tasks.clean import CleanConfig
 from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.wear_model import WearModel
@@ -101,11 +102,11 @@ def test_the_island_is_the_dirt_joined_to_the_touch_down() -> None:
                        | (np.linalg.norm(p[:, :2] - [0.05, 0.0], axis=1) <= 0.01)).astype(float)
     cloud = _plane(spots)
     here = np.array([-0.06, 0.0, 0.0])
-    near = dirt_island(cloud.points, cloud.target, here, link_m=0.05)
+    near = dirt_island(cloud.points, cloud.target, here, link_m=0.05, spacing_m=cloud.spacing)
     assert near.sum() > 0 and np.all(cloud.points[near, 0] < 0) and np.all(cloud.target[near] > 0)
-    both = dirt_island(cloud.points, cloud.target, here, link_m=0.09)
+    both = dirt_island(cloud.points, cloud.target, here, link_m=0.09, spacing_m=cloud.spacing)
     assert np.array_equal(both, cloud.target > 0)
-    assert not dirt_island(cloud.points, np.zeros(len(cloud)), here, 0.05).any()
+    assert not dirt_island(cloud.points, np.zeros(len(cloud)), here, 0.05, spacing_m=cloud.spacing).any()
 
 
 def test_the_planner_and_the_option_refuse_bad_input() -> None:
@@ -139,9 +140,9 @@ def test_the_planner_and_the_option_refuse_bad_input() -> None:
         with pytest.raises(InputError, match="finite dirt mass"):
             plan_sweep(cloud, tree, bad_target, here, R, PER_M, STEP)
     with pytest.raises(InputError, match="here_m"):
-        dirt_island(cloud.points, cloud.target, np.array([np.inf, 0.0, 0.0]), 2 * R)
+        dirt_island(cloud.points, cloud.target, np.array([np.inf, 0.0, 0.0]), 2 * R, spacing_m=cloud.spacing)
     with pytest.raises(ConfigError, match="link_m"):
-        dirt_island(cloud.points, cloud.target, here, 0.0)
+        dirt_island(cloud.points, cloud.target, here, 0.0, spacing_m=cloud.spacing)
     for bad in (-1, 1.5, True, MAX_CORNERS + 1):
         with pytest.raises(ConfigError, match="--sweep-corners"):
             CleanConfig(sweep_corners=bad)
@@ -156,3 +157,47 @@ def test_the_same_seed_plans_the_same_sweep() -> None:
     assert a is not None and b is not None
     np.testing.assert_array_equal(a.waypoints, b.waypoints)
     assert a.length_m == b.length_m
+
+
+class _CountingTree(cKDTree):
+    """The planner's KD-trees, counting the work that grows with the dirt's density: (sample, dirty point) pairs
+    under the pad and the island's links."""
+
+    pairs = links = 0
+
+    def query_ball_point(self, x, r, *args, **kwargs):
+        out = super().query_ball_point(x, r, *args, **kwargs)
+        _CountingTree.pairs += sum(len(u) for u in out) if isinstance(out, np.ndarray) else len(out)
+        return out
+
+    def query_pairs(self, r, *args, **kwargs):
+        out = super().query_pairs(r, *args, **kwargs)
+        _CountingTree.links += len(out)
+        return out
+
+
+def _planned_work(cloud: SurfaceCloud, monkeypatch: pytest.MonkeyPatch) -> tuple:
+    """The sweep planned on ``cloud`` (the agent's step: one spacing) and the work its island and search took."""
+    monkeypatch.setattr(sweep_plan, "cKDTree", _CountingTree)
+    _CountingTree.pairs = _CountingTree.links = 0
+    start = np.array([0.0, 0.0, 0.0])
+    island = dirt_island(cloud.points, cloud.target, start, 2 * R, spacing_m=cloud.spacing)
+    plan = plan_sweep(cloud, cKDTree(cloud.points), cloud.target * island, start, R, PER_M, cloud.spacing,
+                      goal=0.95, seed=1)
+    return plan, island, _CountingTree.pairs, _CountingTree.links
+
+
+def test_the_planner_s_work_does_not_grow_with_the_cloud_s_density(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The strip at 1 mm (``--voxel-size-m 0.001``) costs the planner about what it does at the default 3 mm
+    (without the grid: 26x the pairs, 82x the links) and its sweep still wipes the goal."""
+    plan3, island3, pairs3, links3 = _planned_work(_plane(_strip), monkeypatch)
+    dense = _plane(_strip, spacing=0.001)
+    plan1, island1, pairs1, links1 = _planned_work(dense, monkeypatch)
+    assert plan3 is not None and plan1 is not None
+    assert np.array_equal(island1, dense.target > 0) and np.array_equal(island3, _plane(_strip).target > 0)
+    assert pairs3 > 0 and links3 > 0
+    assert pairs1 <= 2.0 * pairs3
+    # the strip's 13 rows of 1 mm points fall in 6 rows of 3 mm cells (the coarse strip has 5 rows of points)
+    assert links1 <= 3.0 * links3
+    assert _wiped_share(dense, plan1.waypoints) >= 0.95  # measured on every point, not on the cells
+    assert plan1.length_m <= 0.24  # as short as on the default grid (one turn along the strip)

@@ -914,7 +914,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     if strokes and cfg.sweep_corners > 0:
         t_plan = time.perf_counter()
         view_dirt = wear.remaining()
-        first_island = dirt_island(cloud.points, view_dirt, cmd.point, 2.0 * cfg.pad_radius_m)
+        first_island = dirt_island(cloud.points, view_dirt, cmd.point, 2.0 * cfg.pad_radius_m, spacing_m=cloud.spacing)
         # only over (nearly) the whole view's dirt: after a sweep of one island among several the explorer's
         # route over the others is longer than from its own start; an island smaller than the pad gets its
         # straight stroke instead
