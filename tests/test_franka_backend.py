@@ -333,7 +333,7 @@ def test_clean_of_a_given_cloud_on_the_twin_plans_its_sweep_without_dropping_the
         removed = twin.status().get("dirt_removed_fraction", 0.0)
     metrics = json.loads((out / "metrics.json").read_text())
     assert code == 0 and metrics["aborted"] == "", metrics["aborted"]
-    assert metrics["first_sweep_m"] > 0.0  # the sweep was planned
+    assert metrics["first_sweep_planned_m"] > 0.0 and metrics["first_sweep_m"] > 0.0  # planned and slid
     # without the pause the backend's late-answer guard ends the run (a real Franka would stop; the twin goes
     # on), and no second of commands went missing (1.5 s of search would be 1500 lost cycles)
     assert metrics["lost_cycles"] < 1000

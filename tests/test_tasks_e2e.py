@@ -264,7 +264,10 @@ def test_the_cup_starts_with_a_planned_sweep_of_its_marking() -> None:
     within the first contact, with the force in its band."""
     cfg = CleanConfig(object_name="cup", marking="blobs", budget_s=9.0)
     m = run_clean(cfg, progress=False).metrics
-    assert 0.05 < m["first_sweep_m"] < 0.25  # planned, and shorter than the explorer's 0.23 m to the 95 % mark
+    planned = m["first_sweep_planned_m"]
+    assert 0.05 < planned < 0.25  # planned, and shorter than the explorer's 0.23 m to the 95 % mark
+    # slid: to its last corner, a little beyond the goal's mark
+    assert planned <= m["first_sweep_m"] <= planned + 0.05, (m["first_sweep_m"], planned)
     assert m["island_strokes"] == 0  # the sweep is not counted as a stroke through a small island
     t95 = m["time_to_95pct_s"]
     assert t95 is not None and not m["vision_update_times_s"]
@@ -272,6 +275,37 @@ def test_the_cup_starts_with_a_planned_sweep_of_its_marking() -> None:
     assert to95["contact_clean"] < 0.1  # the sweep stays on the blobs
     assert to95["contact_dirt"] < 2.9  # the explorer alone took 3.3 s of contact (and 0.6 s on clean wall)
     assert m["force_within_20pct_fraction"] >= 0.9 and m["max_contact_force_n"] <= 2.0 * cfg.force_n
+
+
+def test_a_sweep_whose_touch_down_is_out_of_reach_is_not_reported_as_slid(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The planned sweep starts with a hover over its first point; when that is out of the arm's reach the sweep
+    is dropped (the robot moves on to other dirt), and the metrics say so: planned, not slid."""
+    from tactex.errors import SimulationError
+    from tactex.tasks import clean
+
+    planned: list = []
+    refused: list = []
+    plan_sweep, hover_plan = clean.plan_sweep, clean._hover_plan
+
+    def record_plan(*args, **kwargs):
+        plan = plan_sweep(*args, **kwargs)
+        planned.append(plan)
+        return plan
+
+    def unreachable_sweep_start(loop, point_m, *args, **kwargs):
+        if planned and planned[0] is not None and not refused and np.allclose(point_m, planned[0].waypoints[0]):
+            refused.append(point_m)
+            raise SimulationError("test: the sweep's first hover is out of reach")
+        return hover_plan(loop, point_m, *args, **kwargs)
+
+    monkeypatch.setattr(clean, "plan_sweep", record_plan)
+    monkeypatch.setattr(clean, "_hover_plan", unreachable_sweep_start)
+    with pytest.warns(RuntimeWarning, match="no hover pose"):
+        m = run_clean(CleanConfig(object_name="cup", marking="blobs", budget_s=4.0), progress=False).metrics
+    assert refused, "the sweep's hover was never asked for: the scenario does not test the drop"
+    assert m["first_sweep_planned_m"] == pytest.approx(planned[0].length_m) and m["first_sweep_planned_m"] > 0
+    assert m["first_sweep_m"] == 0.0
+    assert m["contact_time_s"] > 0  # the robot went on elsewhere
 
 
 def test_sparse_spots_are_cleaned_island_by_island() -> None:
@@ -282,7 +316,8 @@ def test_sparse_spots_are_cleaned_island_by_island() -> None:
     cfg = CleanConfig(object_name="plate", marking="spots", budget_s=22.0)
     m = run_clean(cfg, progress=False).metrics
     assert m["island_strokes"] >= 3  # one stroke per spot at least, no ergodic dwell
-    assert m["first_sweep_m"] == 0.0  # the first spot is smaller than the pad: its stroke, not a planned sweep
+    assert m["first_sweep_planned_m"] == m["first_sweep_m"] == 0.0  # the first spot is smaller than the pad: its
+    # stroke, not a planned sweep
     assert m["contact_transfers"] + m["island_relocations"] >= 2  # from spot to spot
     assert m["dirt_removed_fraction"] > 0.95
     t95 = m["time_to_95pct_s"]

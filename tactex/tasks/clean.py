@@ -909,8 +909,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
 
     # the first stretch in contact, planned while the robot still holds at the capture pose (wall clock,
     # counted with the choice of the touch-down)
-    sweep: IslandStroke | None = None
-    sweep_m = 0.0
+    sweep: IslandStroke | None = None  # until its leg starts
+    first_sweep: IslandStroke | None = None  # the planned sweep, for its metrics
+    first_sweep_planned_m = 0.0  # [m] its slide to the goal, as the wear model predicts it
     if strokes and cfg.sweep_corners > 0:
         t_plan = time.perf_counter()
         view_dirt = wear.remaining()
@@ -926,11 +927,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                                 max_length_m=cfg.vision_max_steps * stroke_step_m, seed=cfg.seed))
         start_plan_s += time.perf_counter() - t_plan
         if plan is not None:
-            sweep_m = plan.length_m
+            first_sweep_planned_m = plan.length_m
             # the whole view's dirt is its island: not clean when the sweep ends, so the explorer goes on from there
-            sweep = IslandStroke(WaypointPath(cloud, plan.waypoints, stroke_step_m, tree=wear.tree),
-                                 np.flatnonzero(wear.dirty()), plan.waypoints[0], plan.waypoints[-1],
-                                 passes=MAX_PASSES)
+            sweep = first_sweep = IslandStroke(WaypointPath(cloud, plan.waypoints, stroke_step_m, tree=wear.tree),
+                                               np.flatnonzero(wear.dirty()), plan.waypoints[0], plan.waypoints[-1],
+                                               passes=MAX_PASSES)
 
     aborted = ""
     try:
@@ -1217,7 +1218,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "vision_updates": vision_updates,
         "island_relocations": island_moves,
         "island_strokes": n_strokes,
-        "first_sweep_m": sweep_m,  # [m] the planned sweep's slide to its goal, as predicted (0: none planned)
+        # [m] slid along the planned first sweep (0: none, or its touch-down was out of reach) and its slide to
+        # the goal as the wear model predicted it when planned (0: none planned)
+        "first_sweep_m": 0.0 if first_sweep is None else first_sweep.path.path_length,
+        "first_sweep_planned_m": first_sweep_planned_m,
         "contact_transfers": n_transfers,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],
