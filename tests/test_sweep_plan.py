@@ -12,7 +12,8 @@ from scipy.spatial import cKDTree
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks import sweep_plan
-from tactex.tasks.clean import CleanConfig
+from tactex.tasks.clean import SWEEP_MIN_SHARE, CleanConfig, _first_sweep
+from tactex.tasks.stroke import MAX_LINE_GAP_M
 from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.wear_model import WearModel
 
@@ -201,3 +202,60 @@ def test_the_planner_s_work_does_not_grow_with_the_cloud_s_density(monkeypatch: 
     assert links1 <= 3.0 * links3
     assert _wiped_share(dense, plan1.waypoints) >= 0.95  # measured on every point, not on the cells
     assert plan1.length_m <= 0.24  # as short as on the default grid (one turn along the strip)
+
+
+def test_the_sweep_uses_only_the_corners_its_goal_needs() -> None:
+    """Five corners are allowed; the strip needs fewer: the corners after the one on whose leg the goal is reached
+    are not driven (the plan ends at that corner)."""
+    cloud = _plane(_strip)
+    plan = plan_sweep(cloud, cKDTree(cloud.points), cloud.target, np.zeros(3), R, PER_M, STEP, goal=0.95,
+                      max_corners=5, seed=1)
+    assert plan is not None
+    assert 2 <= len(plan.corners) < 1 + 5  # the start and some of the five corners
+    np.testing.assert_allclose(plan.waypoints[-1], plan.corners[-1], atol=1e-9)
+    # the goal is reached on the last leg: the slide to the corner before it is shorter than the plan's
+    slide = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(plan.waypoints, axis=0), axis=1))])
+    before_last = int(np.argmin(np.linalg.norm(plan.waypoints - plan.corners[-2], axis=1)))
+    assert slide[before_last] < plan.length_m <= slide[-1] + 1e-9
+
+
+def test_no_leg_beside_the_surface_across_a_hole() -> None:
+    """A slot cut out of the plane between two spots (a hole in the capture, in the surface's own plane: no
+    leg runs above or under the surface there, only beside it): the sweep goes round the slot, never across."""
+    spots = lambda p: (np.linalg.norm(np.abs(p[:, :2]) - [0.05, 0.0], axis=1) <= 0.008).astype(float)  # noqa: E731
+    whole = _plane(spots)
+    keep = ~((np.abs(whole.points[:, 0]) < 0.03) & (np.abs(whole.points[:, 1]) < 0.015))
+    cloud = SurfaceCloud(points=whole.points[keep], normals=whole.normals[keep], target=whole.target[keep],
+                         spacing=whole.spacing)
+    tree = cKDTree(cloud.points)
+    plan = plan_sweep(cloud, tree, cloud.target, np.array([-0.05, 0.0, 0.0]), R, PER_M, STEP, goal=0.9, seed=0)
+    assert plan is not None and _wiped_share(cloud, plan.waypoints) >= 0.9 - 0.01  # both spots
+    # every step of the slide stays on the captured surface (the slot is 6 x 3 cm, its middle 15 mm from it)
+    step = np.diff(plan.waypoints, axis=0)[:, None]
+    along = plan.waypoints[:-1, None] + np.linspace(0.0, 1.0, 5)[None, :, None] * step
+    assert tree.query(along.reshape(-1, 3))[0].max() <= MAX_LINE_GAP_M
+
+
+def _two_islands(spot_half_m: float) -> SurfaceCloud:
+    """The strip and, 8 cm beside it (farther than two pad radii), a square spot of half-width ``spot_half_m``."""
+    return _plane(lambda p: np.maximum(_strip(p), ((np.abs(p[:, 0]) <= spot_half_m + 1e-9)
+                                                   & (np.abs(p[:, 1] - 0.09) <= spot_half_m + 1e-9)).astype(float)))
+
+
+@pytest.mark.parametrize(("spot_half_m", "planned"), [(0.003, True), (0.009, False)])
+def test_the_first_sweep_needs_the_touch_down_s_island_to_hold_nearly_all_the_dirt(spot_half_m: float,
+                                                                                  planned: bool) -> None:
+    """``tactex clean`` plans its sweep only when the touch-down's island holds SWEEP_MIN_SHARE (95 %) of the view's
+    dirt: beside the strip (265 points) a spot of 9 points (3 %) leaves it the sweep, one of 49 (16 %) does not."""
+    cloud = _two_islands(spot_half_m)
+    cfg = CleanConfig()
+    wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
+    view = wear.remaining()
+    here = np.zeros(3)
+    island = dirt_island(cloud.points, view, here, 2 * cfg.pad_radius_m, spacing_m=cloud.spacing)
+    share = view[island].sum() / view.sum()
+    assert (share >= SWEEP_MIN_SHARE) == planned  # the scenario straddles the gate
+    plan = _first_sweep(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
+    assert (plan is not None) == planned
+    if plan is not None:  # over the touch-down's island only
+        assert np.all(np.abs(plan.corners[:, 1]) <= 0.006 + R)

@@ -68,7 +68,7 @@ from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
-from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
+from tactex.tasks.sweep_plan import MAX_CORNERS, SweepPlan, dirt_island, plan_sweep
 from tactex.tasks.time_breakdown import TimeBreakdown, time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target, workspace_crop
 from tactex.tasks.wear_model import WearModel
@@ -430,6 +430,26 @@ def _lag_m(tcp_m: np.ndarray, cmd: ExplorationCommand) -> float:
     d = np.asarray(tcp_m, dtype=float) - cmd.point
     d = d - float(d @ cmd.normal) * cmd.normal
     return float(np.sqrt(d @ d))
+
+
+def _first_sweep(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m: np.ndarray, cfg: CleanConfig,
+                 step_m: float, support_z_m: float | None) -> SweepPlan | None:
+    """The planned first sweep from the touch-down ``here_m`` (3,) [m] over the wear model's island of dirt there
+    (joined within two pad radii), or None: when that island holds less than :data:`SWEEP_MIN_SHARE` of the view's
+    dirt (after a sweep of one island among several the explorer's route over the others is longer than from its
+    own start), when it is smaller than the pad (it gets its straight stroke, coming from ``from_m`` (3,) [m]), or
+    when no polyline of ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of
+    ``step_m`` [m]. ``support_z_m`` [m]: the plane the object stands on (None: none)."""
+    view_dirt = wear.remaining()
+    island = dirt_island(cloud.points, view_dirt, here_m, 2.0 * cfg.pad_radius_m, spacing_m=cloud.spacing)
+    if float(view_dirt[island].sum()) < SWEEP_MIN_SHARE * float(view_dirt.sum()):
+        return None
+    if plan_stroke(cloud, wear.tree, wear, here_m, from_m, cfg.pad_radius_m, step_m) is not None:
+        return None
+    return plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
+                      cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m, goal=SWEEP_GOAL,
+                      max_corners=cfg.sweep_corners, support_z_m=support_z_m,
+                      max_length_m=cfg.vision_max_steps * step_m, seed=cfg.seed)
 
 
 def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel, cfg: CleanConfig,
@@ -914,17 +934,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     first_sweep_planned_m = 0.0  # [m] its slide to the goal, as the wear model predicts it
     if strokes and cfg.sweep_corners > 0:
         t_plan = time.perf_counter()
-        view_dirt = wear.remaining()
-        first_island = dirt_island(cloud.points, view_dirt, cmd.point, 2.0 * cfg.pad_radius_m, spacing_m=cloud.spacing)
-        # only over (nearly) the whole view's dirt: after a sweep of one island among several the explorer's
-        # route over the others is longer than from its own start; an island smaller than the pad gets its
-        # straight stroke instead
-        plan = (None if (float(view_dirt[first_island].sum()) < SWEEP_MIN_SHARE * float(view_dirt.sum())
-                         or plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m, stroke_step_m))
-                else plan_sweep(cloud, wear.tree, view_dirt * first_island, cmd.point, cfg.pad_radius_m,
-                                cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), stroke_step_m,
-                                goal=SWEEP_GOAL, max_corners=cfg.sweep_corners, support_z_m=support_z,
-                                max_length_m=cfg.vision_max_steps * stroke_step_m, seed=cfg.seed))
+        plan = _first_sweep(cloud, wear, cmd.point, leg_from, cfg, stroke_step_m, support_z)
         start_plan_s += time.perf_counter() - t_plan
         if plan is not None:
             first_sweep_planned_m = plan.length_m
