@@ -258,17 +258,45 @@ def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeyp
     assert m["keep_out_contacts"] == 0
 
 
-def test_the_cup_starts_with_a_planned_sweep_of_its_marking() -> None:
+def test_the_cup_starts_with_a_planned_sweep_of_its_marking(monkeypatch: pytest.MonkeyPatch) -> None:
     """Issue 21: on the cup's wall the first stretch in contact is a planned sweep of a few long passes over
-    the blobs (the wear model's shortest slide to 97 % of them), then the explorer; the marking is 95 % off
-    within the first contact, with the force in its band."""
+    the blobs (the wear model's shortest slide to 97 % of them), then the explorer, which starts from what the
+    wear model says the sweep left; the marking is 95 % off within the first contact, with the force in its
+    band."""
+    from tactex.ergodic.explorer import HedacExplorer
+    from tactex.tasks import clean
+    from tactex.tasks.step_ahead import StepAhead
+
+    events: list[tuple] = []  # the explorer's restarts, its target updates (the target's mass) and its steps
+    restart, update, step = clean._Legs.restart, StepAhead.update_target_later, HedacExplorer.step
+    monkeypatch.setattr(clean._Legs, "restart", lambda self, x0: events.append(("restart",)) or restart(self, x0))
+    monkeypatch.setattr(StepAhead, "update_target_later",
+                        lambda self, target: events.append(("update", float(target.sum()))) or update(self, target))
+    monkeypatch.setattr(HedacExplorer, "step", lambda self, *a, **k: events.append(("step",)) or step(self, *a, **k))
+    swept: list[float] = []  # the dirt mass the sweep was planned for
+    plan_sweep = clean.plan_sweep
+    monkeypatch.setattr(clean, "plan_sweep", lambda cloud, tree, target, *a, **k:
+                        swept.append(float(np.sum(target))) or plan_sweep(cloud, tree, target, *a, **k))
+    strokes: list = []  # the straight strokes planned through small islands (the sweep is none of them)
+    plan_stroke = clean.plan_stroke
+    monkeypatch.setattr(clean, "plan_stroke", lambda *a, **k: strokes.append(plan_stroke(*a, **k)) or strokes[-1])
     cfg = CleanConfig(object_name="cup", marking="blobs", budget_s=9.0)
     m = run_clean(cfg, progress=False).metrics
+    # the handover: the explorer restarts where the sweep ended and gets the model's target before its first step
+    # (not at its first model update, up to model_update_steps later)
+    assert events.count(("restart",)) == 1, events[:5]
+    handover = events.index(("restart",))
+    assert events[handover + 1][0] == "update", events[handover:handover + 5]
+    # what the sweep left by the model (which calls a point clean at --wear-margin 1.5 times its dirt wiped: a
+    # third of the view's mass where the plan, at margin 1, wiped 97 %), not the view's whole marking
+    assert events[handover + 1][1] < 0.5 * swept[0], (events[handover + 1], swept)
     planned = m["first_sweep_planned_m"]
     assert 0.05 < planned < 0.25  # planned, and shorter than the explorer's 0.23 m to the 95 % mark
     # slid: to its last corner, a little beyond the goal's mark
     assert planned <= m["first_sweep_m"] <= planned + 0.05, (m["first_sweep_m"], planned)
-    assert m["island_strokes"] == 0  # the sweep is not counted as a stroke through a small island
+    # the sweep is not counted as a stroke through a small island (the explorer, seeing the sweep's wiping, slides
+    # to a leftover spot with one)
+    assert m["island_strokes"] == sum(st is not None and not st.transfer_only for st in strokes)
     t95 = m["time_to_95pct_s"]
     assert t95 is not None and not m["vision_update_times_s"]
     to95 = m["time_breakdown_to_95pct_s"]

@@ -1054,6 +1054,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                             if stroke is None:  # the explorer takes over here
                                 legs.restart(cmd.point)
                                 predicted_left.clear()
+                                # from what the model says is left, not from its target of before the stroke
+                                # (its own next model update is model_update_steps away)
+                                ahead.update_target_later(wear.remaining())
                     taken = ahead.take() if stroke is None else None
                     if taken is not None:
                         cmd, reads = taken
