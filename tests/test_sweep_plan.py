@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks import sweep_plan
-from tactex.tasks.clean import SWEEP_MIN_SHARE, CleanConfig, _first_sweep
+from tactex.tasks.clean import SWEEP_MIN_SHARE, CleanConfig, _first_leg
 from tactex.tasks.stroke import MAX_LINE_GAP_M
 from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.wear_model import WearModel
@@ -255,7 +255,8 @@ def test_the_first_sweep_needs_the_touch_down_s_island_to_hold_nearly_all_the_di
     island = dirt_island(cloud.points, view, here, 2 * cfg.pad_radius_m, spacing_m=cloud.spacing)
     share = view[island].sum() / view.sum()
     assert (share >= SWEEP_MIN_SHARE) == planned  # the scenario straddles the gate
-    plan = _first_sweep(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
-    assert (plan is not None) == planned
-    if plan is not None:  # over the touch-down's island only
+    stroke, plan = _first_leg(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
+    assert (plan is not None) == planned and (stroke is not None) == planned  # the strip is no small island
+    if plan is not None:  # over the touch-down's island only, driven as planned
+        np.testing.assert_array_equal(stroke.path.waypoints, plan.waypoints)
         assert np.all(np.abs(plan.corners[:, 1]) <= 0.006 + R)

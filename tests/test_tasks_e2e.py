@@ -336,6 +336,31 @@ def test_a_sweep_whose_touch_down_is_out_of_reach_is_not_reported_as_slid(monkey
     assert m["contact_time_s"] > 0  # the robot went on elsewhere
 
 
+def test_the_first_stroke_is_planned_once(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A single 1 cm spot (all the view's dirt, smaller than the pad): the stroke through it that the set-up plans
+    while the arm holds at the capture pose (to rule out a planned sweep) is the one the first leg drives, not
+    planned again."""
+    from tactex.tasks import clean
+
+    calls: list[tuple] = []  # each plan_stroke's island point, start and result
+    plan_stroke = clean.plan_stroke
+
+    def record(cloud, tree, wear, island_point_m, from_m, *args, **kwargs):
+        out = plan_stroke(cloud, tree, wear, island_point_m, from_m, *args, **kwargs)
+        calls.append((tuple(np.round(island_point_m, 6)), tuple(np.round(from_m, 6)), out))
+        return out
+
+    monkeypatch.setattr(clean, "plan_stroke", record)
+    _, path, _, _, _ = _plate_with_keep_out(tmp_path, lambda x, y: np.hypot(x - 0.05, y) <= 0.005,
+                                            lambda x, y: np.zeros_like(x, dtype=bool))
+    cfg = CleanConfig(object_name="plate", budget_s=8.0, n_eigen=60, cloud=str(path), eigensolver="arpack")
+    m = run_clean(cfg, progress=False).metrics
+    assert calls and calls[0][2] is not None  # the spot's stroke, planned at the set-up
+    assert m["island_strokes"] >= 1 and m["first_sweep_planned_m"] == 0.0 and m["contact_time_s"] > 0
+    starts = [c[:2] for c in calls]
+    assert len(set(starts)) == len(starts), starts  # no stroke planned twice from the same point
+
+
 def test_sparse_spots_are_cleaned_island_by_island() -> None:
     """Issue 21: three 1 cm spots far apart on the plate. Each spot is smaller than the pad: the robot wipes
     it with a straight stroke (back and forth until the wear model calls it clean) and moves on to the

@@ -432,24 +432,33 @@ def _lag_m(tcp_m: np.ndarray, cmd: ExplorationCommand) -> float:
     return float(np.sqrt(d @ d))
 
 
-def _first_sweep(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m: np.ndarray, cfg: CleanConfig,
-                 step_m: float, support_z_m: float | None) -> SweepPlan | None:
-    """The planned first sweep from the touch-down ``here_m`` (3,) [m] over the wear model's island of dirt there
-    (joined within two pad radii), or None: when that island holds less than :data:`SWEEP_MIN_SHARE` of the view's
-    dirt (after a sweep of one island among several the explorer's route over the others is longer than from its
-    own start), when it is smaller than the pad (it gets its straight stroke, coming from ``from_m`` (3,) [m]), or
-    when no polyline of ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of
-    ``step_m`` [m]. ``support_z_m`` [m]: the plane the object stands on (None: none)."""
+def _first_leg(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m: np.ndarray, cfg: CleanConfig,
+               step_m: float, support_z_m: float | None) -> tuple[IslandStroke | None, SweepPlan | None]:
+    """The first leg in contact from the touch-down ``here_m`` (3,) [m], planned while the arm holds at the capture
+    pose: ``(stroke, plan)``. When the wear model's island of dirt there is smaller than the pad, its straight
+    stroke (coming from ``from_m`` (3,) [m]) and None. Else, with ``cfg.sweep_corners`` > 0, the planned sweep over
+    that island (dirt joined within two pad radii) as a stroke, and its plan; but (None, None), the explorer from
+    the touch-down, when the island holds less than :data:`SWEEP_MIN_SHARE` of the view's dirt (after a sweep of one
+    island among several the explorer's route over the others is longer than from its own start) or no polyline of
+    ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of ``step_m`` [m].
+    ``support_z_m`` [m]: the plane the object stands on (None: none)."""
+    stroke = plan_stroke(cloud, wear.tree, wear, here_m, from_m, cfg.pad_radius_m, step_m)
+    if stroke is not None or cfg.sweep_corners == 0:
+        return stroke, None
     view_dirt = wear.remaining()
     island = dirt_island(cloud.points, view_dirt, here_m, 2.0 * cfg.pad_radius_m, spacing_m=cloud.spacing)
     if float(view_dirt[island].sum()) < SWEEP_MIN_SHARE * float(view_dirt.sum()):
-        return None
-    if plan_stroke(cloud, wear.tree, wear, here_m, from_m, cfg.pad_radius_m, step_m) is not None:
-        return None
-    return plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
+        return None, None
+    plan = plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
                       cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m, goal=SWEEP_GOAL,
                       max_corners=cfg.sweep_corners, support_z_m=support_z_m,
                       max_length_m=cfg.vision_max_steps * step_m, seed=cfg.seed)
+    if plan is None:
+        return None, None
+    # the whole view's dirt is its island: not clean when the sweep ends, so the explorer goes on from there
+    sweep = IslandStroke(WaypointPath(cloud, plan.waypoints, step_m, tree=wear.tree), np.flatnonzero(wear.dirty()),
+                         plan.waypoints[0], plan.waypoints[-1], passes=MAX_PASSES)
+    return sweep, plan
 
 
 def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel, cfg: CleanConfig,
@@ -927,28 +936,25 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     ergodicity: list[tuple[float, float]] = []
     explore_time = 0.0
 
-    # the first stretch in contact, planned while the robot still holds at the capture pose (wall clock,
-    # counted with the choice of the touch-down)
-    sweep: IslandStroke | None = None  # until its leg starts
-    first_sweep: IslandStroke | None = None  # the planned sweep, for its metrics
-    first_sweep_planned_m = 0.0  # [m] its slide to the goal, as the wear model predicts it
-    if strokes and cfg.sweep_corners > 0:
+    # the first stretch in contact (a small island's stroke, the planned sweep or neither: the explorer), planned
+    # while the robot still holds at the capture pose (wall clock, counted with the choice of the touch-down)
+    first_leg: IslandStroke | None = None
+    first_plan: SweepPlan | None = None
+    if strokes:
         t_plan = time.perf_counter()
-        plan = _first_sweep(cloud, wear, cmd.point, leg_from, cfg, stroke_step_m, support_z)
+        first_leg, first_plan = _first_leg(cloud, wear, cmd.point, leg_from, cfg, stroke_step_m, support_z)
         start_plan_s += time.perf_counter() - t_plan
-        if plan is not None:
-            first_sweep_planned_m = plan.length_m
-            # the whole view's dirt is its island: not clean when the sweep ends, so the explorer goes on from there
-            sweep = first_sweep = IslandStroke(WaypointPath(cloud, plan.waypoints, stroke_step_m, tree=wear.tree),
-                                               np.flatnonzero(wear.dirty()), plan.waypoints[0], plan.waypoints[-1],
-                                               passes=MAX_PASSES)
+    first_sweep = first_leg if first_plan is not None else None
+    first_leg_due = strokes  # the next leg is the first: its stroke is planned already
 
     aborted = ""
     try:
         while loop.t < t_end:
             if new_leg and strokes:
-                if sweep is not None:
-                    stroke, counted, sweep = sweep, sweep, None  # counted: not an island stroke
+                if first_leg_due:
+                    stroke, first_leg_due = first_leg, False
+                    if first_sweep is not None:
+                        counted = first_sweep  # not an island stroke
                 else:
                     stroke = plan_stroke(cloud, wear.tree, wear, cmd.point, leg_from, cfg.pad_radius_m,
                                          stroke_step_m)
@@ -1234,7 +1240,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         # [m] slid along the planned first sweep (0: none, or its touch-down was out of reach) and its slide to
         # the goal as the wear model predicted it when planned (0: none planned)
         "first_sweep_m": 0.0 if first_sweep is None else first_sweep.path.path_length,
-        "first_sweep_planned_m": first_sweep_planned_m,
+        "first_sweep_planned_m": 0.0 if first_plan is None else first_plan.length_m,
         "contact_transfers": n_transfers,
         "vision_update_times_s": vision_times,
         "phase_changes": [[t, p] for t, p in log.phase_changes],
