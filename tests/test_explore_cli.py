@@ -435,7 +435,7 @@ def test_a_keep_out_mask_indexes_the_files_rows_nan_rows_included(tmp_path, caps
     assert m["keep_out_points"] == int(strip.sum())
     np.save(tmp_path / "finite_mask.npy", strip)  # one per finite point: the file has more rows
     _fails(["explore", str(path), "--voxel-size", "0", "--keep-out-mask", str(tmp_path / "finite_mask.npy"),
-            "--out", str(tmp_path / "o")], capsys, f"the cloud file has {len(rows)} points")
+            "--out", str(tmp_path / "o")], capsys, f"the cloud file has {len(rows)} rows", "5 of them with NaN")
 
 
 def test_keep_out_mask_on_a_mesh_and_other_option_misuse_are_refused(tmp_path, capsys) -> None:

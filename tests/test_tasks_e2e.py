@@ -250,6 +250,7 @@ def test_an_island_move_touches_down_clear_of_a_keep_out_strip(tmp_path, monkeyp
                       keep_out_mask=str(mask), eigensolver="arpack")
     r = run_clean(cfg, progress=False)
     m = r.metrics
+    assert m["target_near_keep_out"] > 0  # the dirt at the strip's edge: no goal
     moves = [p for p in islands if p is not None] + [c.point for e in explorers for c in e.relocations]
     assert moves, "no move to the other side: the scenario does not test the touch-down"
     assert ((r.agent_path[:, 0] - pos[0] < -0.02).any() and (r.agent_path[:, 0] - pos[0] > 0.02).any())
@@ -282,8 +283,9 @@ def test_the_cup_starts_with_a_planned_sweep_of_its_marking(monkeypatch: pytest.
     monkeypatch.setattr(clean, "plan_stroke", lambda *a, **k: strokes.append(plan_stroke(*a, **k)) or strokes[-1])
     cfg = CleanConfig(object_name="cup", marking="blobs", budget_s=9.0)
     m = run_clean(cfg, progress=False).metrics
-    # the handover: the explorer restarts where the sweep ended and gets the model's target before its first step
-    # (not at its first model update, up to model_update_steps later)
+    # the handover: the explorer restarts where the sweep ended and the model's target is queued at once, for the
+    # step after its first (StepAhead applies a target after the tick's send; before, it waited for the first model
+    # update, up to model_update_steps later)
     assert events.count(("restart",)) == 1, events[:5]
     handover = events.index(("restart",))
     assert events[handover + 1][0] == "update", events[handover:handover + 5]
@@ -407,31 +409,42 @@ def test_a_fully_marked_surface_is_cleaned_with_the_dirt_source_not_the_sweep(mo
 def test_with_a_cloud_the_simulated_dirt_is_the_clouds_target(tmp_path) -> None:
     """In simulation, --cloud's target is the dirt (not the scene's --marking), so that what the run reports as
     removed is what the user marked; a cloud off the simulated object is refused."""
-    from tactex.pointcloud import save_npz
+    from tactex.pointcloud import SurfaceCloud, save_npz
 
-    cloud, path, _, _, _ = _plate_with_keep_out(
+    cloud, path, _, _, _ = _plate_with_keep_out(  # its keep-out mask file is not given to the run
         tmp_path, lambda x, y: (np.abs(x - 0.03) <= 0.02) & (np.abs(y) <= 0.02), lambda x, y: np.abs(x) <= 0.001)
     cfg = CleanConfig(object_name="plate", budget_s=12.0, n_eigen=60, cloud=str(path), eigensolver="arpack")
     m = run_clean(cfg, progress=False).metrics
     assert m["marking"] == "cloud"
     assert m["dirt_removed_fraction"] >= 0.95  # the patch; the X marking it replaced lies mostly elsewhere
-    lifted = save_npz(cloud.transformed(np.eye(3), np.array([0.0, 0.0, 0.2])), tmp_path / "lifted.npz")
+    lifted = save_npz(cloud.transformed(np.eye(3), np.array([0.0, 0.0, 0.05])), tmp_path / "lifted.npz")
     with pytest.raises(ConfigError, match="base frame"):
         run_clean(replace(cfg, cloud=str(lifted)), progress=False)
+    half = cloud.points.copy()
+    half[half[:, 0] > np.median(half[cloud.target > 0, 0]), 2] += 0.05  # half the patch off the plate
+    partly = save_npz(SurfaceCloud(half, normals=cloud.normals, target=cloud.target, spacing=cloud.spacing),
+                      tmp_path / "partly.npz")
+    with pytest.warns(RuntimeWarning, match="not simulated as dirt"):
+        run_clean(replace(cfg, cloud=str(partly), budget_s=1.0), progress=False)
 
 
 def test_painting_the_dirt_field_from_points() -> None:
+    """A voxelised cloud's target (a 3 mm grid over a 20 mm square) paints every 2 mm cell inside the square at
+    clean's radius (0.71 voxel: the farthest an inside cell lies from the grid) and none a voxel beyond it."""
     from tactex.sim.dirt import DirtField
     from tactex.sim.objects import get_object
 
     surface = get_object("plate").surface
     field = DirtField(surface, "X", 0.002)
-    patch = field.points[(np.abs(field.points[:, 0]) <= 0.01) & (np.abs(field.points[:, 1]) <= 0.01)]
-    grid = patch[::4]  # a coarser grid over the same square, as a voxelised cloud's points
-    n = field.paint(grid, 0.006)
-    inside = (np.abs(field.points[:, 0]) <= 0.01) & (np.abs(field.points[:, 1]) <= 0.01)
+    g = np.arange(-0.0105, 0.0106, 0.003)
+    gx, gy = np.meshgrid(g, g)
+    grid = np.column_stack([gx.ravel(), gy.ravel(), surface.height(gx.ravel(), gy.ravel())])  # on the plate
+    n = field.paint(grid, 0.003 * np.sqrt(0.5))
+    x, y = field.points[:, 0], field.points[:, 1]
+    inside = (np.abs(x) <= 0.0105) & (np.abs(y) <= 0.0105) & field.valid
+    assert inside.sum() >= 100  # the square's 2 mm cells (about 11 × 11)
     assert n == int(field.initial.sum()) and field.initial[inside].all()
-    assert not field.initial[(np.abs(field.points[:, 0]) > 0.02) | (np.abs(field.points[:, 1]) > 0.02)].any()
+    assert not field.initial[(np.abs(x) > 0.0105 + 0.003) | (np.abs(y) > 0.0105 + 0.003)].any()
     assert field.remaining_fraction() == 1.0
     with pytest.raises(InputError):
         field.paint(np.zeros((0, 3)), 0.006)

@@ -24,6 +24,35 @@ from tactex.tasks.wipe import WipeConfig, wiping_policy
 TOL = 1e-9
 
 
+class _StillBackend:
+    """A backend that never moves, with the protocol's required methods only (no optional ``pause``)."""
+
+    dt = 1e-3
+
+    def __init__(self) -> None:
+        from tests.test_control_common import make_state
+
+        self._state = make_state(q=np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0]))
+
+    def reset(self, seed=None):
+        return self._state
+
+    def state(self):
+        return self._state
+
+    def apply_torque(self, tau) -> None:
+        assert np.isfinite(tau).all()
+
+    def step(self):
+        return self._state
+
+    def camera_frame(self):
+        return None
+
+    def close(self) -> None:
+        pass
+
+
 @pytest.mark.parametrize("normal", [[0, 0, 1], [0, 1, 0], [1, 0, 0], [0.3, -0.2, 0.9]])
 def test_tool_rotation_presses_along_minus_normal(normal) -> None:
     n = np.asarray(normal, float) / np.linalg.norm(normal)
@@ -370,22 +399,8 @@ def test_control_loop_resets_a_controller_once_then_resumes_it() -> None:
     the first time it is used and resumes it afterwards."""
     from tactex.control import VaUficController
     from tactex.tasks.runner import ControlLoop
-    from tests.test_control_common import make_state
 
-    class Still:  # a backend that never moves
-        def __init__(self) -> None:
-            self._state = make_state(q=np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0]))
-
-        def state(self):
-            return self._state
-
-        def apply_torque(self, tau) -> None:
-            assert np.isfinite(tau).all()
-
-        def step(self):
-            return self._state
-
-    loop = ControlLoop(Still())
+    loop = ControlLoop(_StillBackend())
     ctrl = VaUficController()
     loop.use(ctrl)
     assert ctrl.tank_i.energy == pytest.approx(24.5)
@@ -588,33 +603,8 @@ def test_pause_calls_the_backends_optional_hook_and_passes_over_a_backend_withou
     from tactex.robots import MujocoBackend, RobotBackend
     from tactex.sim import SceneConfig
     from tactex.tasks.runner import ControlLoop
-    from tests.test_control_common import make_state
 
-    class Still:  # the required methods only: a backend written before the hook
-        dt = 1e-3
-
-        def __init__(self) -> None:
-            self._state = make_state(q=np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0]))
-
-        def reset(self, seed=None):
-            return self._state
-
-        def state(self):
-            return self._state
-
-        def apply_torque(self, tau) -> None:
-            assert np.isfinite(tau).all()
-
-        def step(self):
-            return self._state
-
-        def camera_frame(self):
-            return None
-
-        def close(self) -> None:
-            pass
-
-    class Pausing(Still):
+    class Pausing(_StillBackend):
         def __init__(self) -> None:
             super().__init__()
             self.pauses = 0
@@ -622,17 +612,17 @@ def test_pause_calls_the_backends_optional_hook_and_passes_over_a_backend_withou
         def pause(self) -> None:
             self.pauses += 1
 
-    assert isinstance(Still(), RobotBackend)  # the hook is not required by the protocol
-    ControlLoop(Still()).pause()  # nothing to call: no error
+    assert isinstance(_StillBackend(), RobotBackend)  # the hook is not required by the protocol
+    ControlLoop(_StillBackend()).pause()  # nothing to call: no error
     pausing = Pausing()
     ControlLoop(pausing).pause()
     assert pausing.pauses == 1
 
-    sim = MujocoBackend(SceneConfig(object_name="plane"))
-    assert callable(getattr(sim, "pause", None))  # the simulation states that it waits
-    loop = ControlLoop(sim)
-    loop.hold(0.01)
-    t, q = sim.time, sim.state().q.copy()
-    loop.pause()
-    assert sim.time == t
-    np.testing.assert_array_equal(sim.state().q, q)
+    with MujocoBackend(SceneConfig(object_name="plane")) as sim:
+        assert callable(getattr(sim, "pause", None))  # the simulation states that it waits
+        loop = ControlLoop(sim)
+        loop.hold(0.01)
+        t, q = sim.time, sim.state().q.copy()
+        loop.pause()
+        assert sim.time == t
+        np.testing.assert_array_equal(sim.state().q, q)

@@ -76,7 +76,7 @@ from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.ergodic.passes import RingPasses
 from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
 from tactex.ergodic.source import REBUILD_STEPS, SourceSums, update_source_numpy
-from tactex.ergodic.sweep import SweepSource, uniform_whole_target
+from tactex.ergodic.sweep import SweepSource, sweeps
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
@@ -356,7 +356,7 @@ class HedacExplorer:
             raise InputError(f"target mass must have shape ({len(self.cloud)},), got {p.shape}")
         if not np.all(np.isfinite(p)) or p.min() < 0:
             raise InputError("target mass must be finite and ≥ 0 everywhere")
-        self.target_near_keep_out = 0
+        near_count = 0
         if self._ko_idx.size:
             if float(p.sum()) > 0 and not p[~self._keep_out].any():
                 raise ExplorationError(
@@ -373,7 +373,7 @@ class HedacExplorer:
                     "(footprint radius + ½ voxel): a footprint there would touch the zone; shrink the keep-out zone "
                     "(--keep-out-threshold, --keep-out-mask) or mark target farther from it"
                 )
-            self.target_near_keep_out = int(np.count_nonzero(near))
+            near_count = int(np.count_nonzero(near))
             p = np.where(self._safe, p, 0.0)
         total = float(p.sum())
         if total <= 0:
@@ -381,6 +381,7 @@ class HedacExplorer:
                 "the target has no mass (all zeros): nothing to explore; mark target points first "
                 "(e.g. tactex.pointcloud.target_from_channel)"
             )
+        self.target_near_keep_out = near_count
         self._target = p
         self._tidx = np.flatnonzero(p > 0)
         self._p_t = p[self._tidx] / total
@@ -398,8 +399,7 @@ class HedacExplorer:
         self._src = SourceSums(self._tidx.size, self._phi.shape[1])
         self._dcoef = np.zeros(self._phi.shape[1])
         cfg = self.config
-        sweep = cfg.source_mode == "sweep" or (
-            cfg.source_mode == "auto" and uniform_whole_target(self._target, ~self._safe))
+        sweep = sweeps(cfg.source_mode, self._target, ~self._safe)
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
                                   cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
         self._passes = None

@@ -35,6 +35,12 @@ from scipy.spatial import cKDTree
 __all__ = ["SweepSource", "uniform_whole_target"]
 
 
+def sweeps(source_mode: str, target: np.ndarray, keep_out: np.ndarray | None = None) -> bool:
+    """Whether an explorer with ``source_mode`` ("auto", "sweep", "ergodic") uses the sweep source on ``target`` (N,)
+    outside ``keep_out`` (N,) (bool, or None)."""
+    return source_mode == "sweep" or (source_mode == "auto" and uniform_whole_target(target, keep_out))
+
+
 def uniform_whole_target(target: np.ndarray, keep_out: np.ndarray | None = None) -> bool:
     """True when the target puts the same mass on every cloud point outside ``keep_out`` (N,) (bool: the
     zone and the band the footprint may not stand in; a whole-surface target, ``--target all``): the case

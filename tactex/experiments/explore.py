@@ -30,7 +30,12 @@ from tactex.config import param, to_jsonable
 from tactex.errors import ConfigError, ExplorationError, InputError
 from tactex.pointcloud import SurfaceCloud
 from tactex.pointcloud.io import SUPPORTED_SUFFIXES, read_cloud
-from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxels, raw_keep_out
+from tactex.pointcloud.keep_out import (
+    DEFAULT_KEEP_OUT_THRESHOLD,
+    check_keep_out_options,
+    keep_out_on_voxels,
+    raw_keep_out,
+)
 from tactex.pointcloud.markings import marked_cloud, resolve_marking
 from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
 from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target, file_target
@@ -108,9 +113,11 @@ class ExploreConfig:
     keep_out_channel: str = param(
         "", "colour channel marking a keep-out zone no footprint may touch: red, green or blue ('' = none)"
     )
-    keep_out_threshold: float = param(1.0, "channel level at or above which a point is kept out, 0–1 [-]")
+    keep_out_threshold: float = param(DEFAULT_KEEP_OUT_THRESHOLD, "with --keep-out-channel: the channel level at or "
+                                      "above which a point is kept out, 0–1 [-]")
     keep_out_mask: str = param(
-        "", "a .npy file with one boolean per point of the cloud file (or of the sampled built-in): True = keep out"
+        "", "a .npy file with one boolean per row of the cloud file, rows with NaN coordinates included (or per "
+        "point of the sampled built-in); True = keep out; not for meshes (their points are samples)"
     )
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
     eigensolver: str = param(
@@ -309,7 +316,7 @@ def run_explore(
     """
     from tactex.ergodic import HedacExplorer
     from tactex.ergodic.kernel import compile_pending
-    from tactex.ergodic.sweep import uniform_whole_target
+    from tactex.ergodic.sweep import sweeps
     from tactex.spectral import build_basis
 
     cfg = config if config is not None else ExploreConfig()
@@ -334,9 +341,9 @@ def run_explore(
                         eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
     basis_s = time.perf_counter() - t0
     say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
-    sweeps = hcfg.source_mode == "sweep" or (
-        hcfg.source_mode == "auto" and uniform_whole_target(cloud.target, keep_out))
-    if hcfg.compiled and not sweeps and compile_pending():  # the sweep source steps in numpy
+    # the sweep source steps in numpy (the explorer also leaves the keep-out zone's clearance band out; a target
+    # uniform outside the zone is uniform outside the band too)
+    if hcfg.compiled and not sweeps(hcfg.source_mode, cloud.target, keep_out) and compile_pending():
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)

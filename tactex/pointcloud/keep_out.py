@@ -51,8 +51,9 @@ def check_keep_out_options(channel: str, threshold: float, mask_path: str) -> No
         raise ConfigError(f"--keep-out-mask '{mask_path}' must be a .npy file holding one boolean per cloud point")
 
 
-def load_keep_out_mask(path: str | Path, n_points: int) -> np.ndarray:
-    """The boolean mask (n_points,) stored in ``path`` (.npy, no pickle)."""
+def load_keep_out_mask(path: str | Path, n_points: int, n_finite: int | None = None) -> np.ndarray:
+    """The boolean mask (n_points,) stored in ``path`` (.npy, no pickle); ``n_finite``: how many of the file's
+    rows have finite coordinates, when not all (a mask of that length gets a message of its own)."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"--keep-out-mask '{p}' does not exist")
@@ -66,6 +67,11 @@ def load_keep_out_mask(path: str | Path, n_points: int) -> np.ndarray:
             mask = mask.astype(bool)
         else:
             raise InputError(f"--keep-out-mask '{p}' holds {mask.dtype} values; save a boolean array (True = keep out)")
+    if n_finite is not None and mask.shape == (n_finite,) != (n_points,):
+        raise InputError(
+            f"--keep-out-mask '{p}' has one entry per finite point ({n_finite}), but the cloud file has {n_points} "
+            f"rows, {n_points - n_finite} of them with NaN/inf coordinates: give one boolean per row of the file, "
+            "those rows included")
     if mask.shape != (n_points,):
         raise InputError(
             f"--keep-out-mask '{p}' has shape {mask.shape} but the cloud file has {n_points} points; "
@@ -106,7 +112,8 @@ def raw_keep_out(cloud: SurfaceCloud, channel: str, threshold: float, mask_path:
                 "--voxel-size-m, not the file's vertices; mark the zone in the vertex colours "
                 "(--keep-out-channel), or convert the mesh to a point cloud file and give one boolean per point")
         rows = read.kept if read is not None and read.kept is not None else None
-        file_mask = load_keep_out_mask(mask_path, len(cloud) if rows is None else rows.size)
+        file_mask = load_keep_out_mask(mask_path, len(cloud) if rows is None else rows.size,
+                                       n_finite=None if rows is None else len(cloud))
         mask |= file_mask if rows is None else file_mask[rows]
     if not mask.any():
         if not channel:

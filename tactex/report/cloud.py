@@ -114,7 +114,7 @@ def plot_cloud(
             ax.scatter(*traj[0], color="limegreen", s=40, edgecolors="black", depthshade=False, zorder=4,
                        label="start")
             ax.scatter(*traj[-1], color="purple", s=40, edgecolors="black", depthshade=False, zorder=4, label="end")
-        if i == 0 and ((traj is not None and traj.shape[0] > 0) or zone is not None):
+        if i == 0 and ((traj is not None and traj.shape[0] > 0) or (zone is not None and zone.shape[0] > 0)):
             ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
         _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
         ax.view_init(*view)

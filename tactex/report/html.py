@@ -61,8 +61,8 @@ def cloud_html(
     flown = np.unique(np.asarray(list(flights), dtype=np.intp))
     if traj is not None and traj.shape[0] > max_path_points > 1:
         keep = np.linspace(0, traj.shape[0] - 1, max_path_points).round().astype(np.intp)
+        split_flights(traj, flown)  # checks the indices, as for a path drawn whole
         if flown.size:  # every flight's two ends stay, so that it is drawn as the chord it was
-            flown = flown[(flown >= 1) & (flown < traj.shape[0])]
             keep = np.concatenate([keep, flown - 1, flown])
         keep = np.unique(keep)
         flown = np.searchsorted(keep, flown)

@@ -216,8 +216,10 @@ def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def vision_round_trips(t: np.ndarray, phase: np.ndarray) -> np.ndarray:
-    """(k, 2) [s] spans of the visual re-measurements (TEC §VI-B): from each retract that is followed by another
-    approach to the start of that approach (retract, move to the capture pose, capture, return)."""
+    """(k, 2) [s] spans from each retract that is followed by another approach to the start of that approach: the
+    visual re-measurements (TEC §VI-B: retract, move to the capture pose, capture, return) and the moves through
+    the air without a view (a relocation, the move to the next island; :func:`trips_with_a_view` tells them
+    apart)."""
     ph = np.rint(phase)
     approaches = [a for a, _ in _segments(ph == CLEAN_PHASES["approach"])]
     spans = []
@@ -415,6 +417,7 @@ def write_clean_report(
     tcp_contact, lifted = contact_stretches(s["tcp"], explore)
     np.savez_compressed(
         out / "cloud.npz", points=cloud.points, agent_path=agent, tcp_path_contact=tcp_contact,
+        tcp_path_contact_lifted=np.asarray(lifted, dtype=np.intp),  # rows that start a stretch after a lift-off
         **{f"field_{k}": v for k, v in fields.items()},
     )
     rep.files["cloud_data"] = out / "cloud.npz"

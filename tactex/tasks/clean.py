@@ -50,7 +50,12 @@ from tactex.errors import ConfigError, ExplorationError, InputError, SimulationE
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
-from tactex.pointcloud.keep_out import check_keep_out_options, keep_out_on_voxels, raw_keep_out
+from tactex.pointcloud.keep_out import (
+    DEFAULT_KEEP_OUT_THRESHOLD,
+    check_keep_out_options,
+    keep_out_on_voxels,
+    raw_keep_out,
+)
 from tactex.pointcloud.markings import resolve_marking
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.report.run_report import CLEAN_PHASES
@@ -252,9 +257,11 @@ class CleanConfig(SimWorldParams):
     keep_out_channel: str = param(
         "", "colour channel marking a keep-out zone the sponge must never touch: red, green or blue ('' = none); "
             "read on --cloud's points, else on the captured cloud")
-    keep_out_threshold: float = param(1.0, "channel level at or above which a point is kept out, 0–1 [-]")
+    keep_out_threshold: float = param(DEFAULT_KEEP_OUT_THRESHOLD, "with --keep-out-channel: the channel level at or "
+                                      "above which a point is kept out, 0–1 [-]")
     keep_out_mask: str = param(
-        "", "a .npy file with one boolean per point of --cloud (True = keep out); needs --cloud")
+        "", "a .npy file with one boolean per row of --cloud, rows with NaN coordinates included (True = keep out); "
+        "needs --cloud, not a mesh (its points are samples)")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -709,7 +716,7 @@ def load_target_cloud(path: str | Path, voxel_size_m: float) -> SurfaceCloud:
 
 
 def load_target_cloud_keep_out(path: str | Path, voxel_size_m: float, keep_out_channel: str = "",
-                               keep_out_threshold: float = 1.0,
+                               keep_out_threshold: float = DEFAULT_KEEP_OUT_THRESHOLD,
                                keep_out_mask: str = "") -> tuple[SurfaceCloud, np.ndarray | None]:
     """:func:`load_target_cloud` and its keep-out zone (a boolean per returned point, None without one;
     see :mod:`tactex.pointcloud.keep_out`)."""
@@ -759,17 +766,30 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
         backend.close()
 
 
+#: Share of a --cloud's target off the simulated object above which the run warns [-].
+OFF_SURFACE_WARN = 0.2
+
+
 def _dirt_from_cloud(backend, cloud: SurfaceCloud, object_name: str) -> None:
     """In simulation with ``--cloud``, the dirt is the cloud's target, not the scene's ``--marking``: what the run
-    reports as removed is then what the user marked. The cells within 0.71 voxel of a target point (the
-    farthest a cell inside a marked area lies from the grid's points) are dirty."""
+    reports as removed is then what the user marked (``cloud``'s target: the caller leaves out the dirt a keep-out
+    zone and its clearance hold, which no footprint may touch). The cells within 0.71 voxel of a target point
+    (the farthest a cell inside a marked area lies from the grid's points) are dirty."""
+    from scipy.spatial import cKDTree
+
     pos, rot = backend.object_pose()
     target_obj = (cloud.points[cloud.target > 0] - pos) @ rot
     radius = cloud.spacing * np.sqrt(0.5)
-    if backend.dirt.paint(target_obj, radius) == 0:
+    field = backend.dirt
+    if field.paint(target_obj, radius) == 0:
         raise ConfigError(
             f"no point of --cloud's target lies on the simulated {object_name}'s surface (within {radius * 1e3:.1f} "
             "mm): the cloud must be in the robot base frame, with the object where the scene puts it (--object)")
+    off = cKDTree(field.points[field.valid]).query(target_obj)[0] > radius
+    if off.mean() > OFF_SURFACE_WARN:
+        warnings.warn(f"clean: {off.mean():.0%} of --cloud's target lies farther than {radius * 1e3:.1f} mm from the "
+                      f"simulated {object_name}'s surface and is not simulated as dirt (is the cloud in the robot "
+                      "base frame?)", RuntimeWarning, stacklevel=2)
 
 
 def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
@@ -781,8 +801,6 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     given, keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
                                                   cfg.keep_out_threshold, cfg.keep_out_mask)
                        if cfg.cloud else (None, None))
-    if given is not None and log.truth:
-        _dirt_from_cloud(backend, given, scene_cfg.object_name)
     acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
     cap_pos, cap_rot = _capture_pose(scene_cfg, cfg) if given is None else _cloud_capture_pose(given, cfg)
     try:
@@ -880,6 +898,15 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     if touch_down_ok is not None:  # dirt that close to the zone is no goal of the explorer's either: not cleanable
         cleanable &= touch_down_ok
         n_target0 = int(np.count_nonzero(cloud.target[cleanable] > 0))
+    # dirty points the explorer leaves out of its target as too near a keep-out zone (counted before the wear
+    # model's targets, which hold none of them)
+    near_keep_out = int(getattr(source, "target_near_keep_out", 0))
+    if near_keep_out:
+        bar.note(f"{near_keep_out} dirty points lie within {source.keep_out_clearance_m * 1e3:.1f} mm "
+                 "of the keep-out zone (agent radius + ½ voxel), where the sponge may not be centred: no goal (a pass "
+                 "beside them may still brush them)")
+    if given is not None and log.truth:
+        _dirt_from_cloud(backend, given.with_target(np.where(cleanable, given.target, 0.0)), scene_cfg.object_name)
     # where the sponge first touches down, on dirt it may touch
     targets = _touchable(np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0),
                          touch_down_ok)
@@ -902,7 +929,10 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     # keep TEC's coverage target)
     wear = (WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m, PrestonParams().force_threshold_n,
                       cfg.wear_margin) if cfg.baseline == "" and cfg.objective == "clean" else None)
-    target0 = float(cloud.target.sum())
+    cleanable_target = np.where(cleanable, cloud.target, 0.0)
+    if wear is not None:
+        wear.reset(cleanable_target)  # dirt the robot may not touch is never predicted left: it holds no goal
+    target0 = float(cleanable_target.sum())
     lead = LineLead(cfg.line_lead_s, dt_step)
     tool_normal = (ToolNormal(cloud, tree=wear.tree if wear is not None else None)
                    if cfg.line_normal_feedback > 0 else None)
@@ -1061,7 +1091,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
                                 legs.restart(cmd.point)
                                 predicted_left.clear()
                                 # from what the model says is left, not from its target of before the stroke
-                                # (its own next model update is model_update_steps away)
+                                # (its own next model update is model_update_steps away); applied after this
+                                # tick's send, so the first step, taken in this tick, still sees the old target
                                 ahead.update_target_later(wear.remaining())
                     taken = ahead.take() if stroke is None else None
                     if taken is not None:
@@ -1257,6 +1288,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "relocations": legs.relocations + len(getattr(source, "relocations", ())),
         "keep_out_points": int(keep_out.sum()) if keep_out is not None else 0,
         "keep_out_contacts": legs.keep_out_contacts + int(getattr(source, "keep_out_contacts", 0)),
+        "target_near_keep_out": near_keep_out,
         "force_set_point_n": cfg.force_n,
         "baseline": cfg.baseline or "tactex",
         "object": cfg.object_name,
