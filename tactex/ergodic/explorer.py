@@ -108,6 +108,8 @@ RELOCATION_CHECK_EVERY = 10
 #: and none to come covers are touched at once (see HedacExplorer._missed) [-]: nearly all the points the passes
 #: leave lie within 1.0–1.5 r_a of the agent's path (TEC bunny), their neighbouring passes being 1.8 r_a apart.
 REPAIR_RADIUS = 2.0
+#: A part of at most this many footprint discs of points is a speck, touched in passing (see _speck) [-].
+SPECK_POINTS = 1.0
 #: Steps an agent steers at one such point before it leaves it to the hunt [-].
 REPAIR_STEPS = 6
 #: A keep-out zone's clearance beyond the footprint radius [voxels]: the footprint is laid around the
@@ -444,6 +446,7 @@ class HedacExplorer:
         if self._passes is not None:
             self._passes.reset()
         self._leftover_goal = -1
+        self._on_speck = False  # the agent on a pass steers at a speck (see _speck)
         self._hop_to = -1  # cloud index the hunt hops to this step (see _leftover), or −1
         self._hop_goal = -1  # the hunt's goal (target index) that hop is on the way to
         self._given_up = np.zeros(self._tidx.size, dtype=bool)
@@ -950,7 +953,8 @@ class HedacExplorer:
                 g = g - go * inward
                 if guide is not None and float(g.dot(g)) < EDGE_BLOCKED**2 * float(guide.dot(guide)):
                     # the way leads off the edge (across a hole the agent cannot cross): give the goal up
-                    self._passes.drop_goal(abandon=True)
+                    if not self._on_speck:
+                        self._passes.drop_goal(abandon=True)
                     if self._leftover_goal >= 0:
                         self._given_up[self._leftover_goal] = True
                         self._leftover_goal = -1
@@ -1027,15 +1031,19 @@ class HedacExplorer:
         passes = self._passes
         j = self._tpos.item(self._near[0])
         near = j if j >= 0 else passes.nearest(here)
-        wp = passes.waypoint(here, near)
+        wp = passes.waypoint(here, near, self._untouched)
         if wp is None:
             wp = self._leftover(here)
             if wp is None:
                 return None
         elif not passes.heading_far:
-            miss = self._missed(here, near)
-            if miss is not None:
-                wp = miss
+            speck = self._speck(here, near)
+            if speck is not None:
+                wp = speck
+            else:
+                miss = self._missed(here, near)
+                if miss is not None:
+                    wp = miss
         to = wp - here
         to -= float(to.dot(nrm)) * nrm
         return to if float(to.dot(to)) > 0.0 else None
@@ -1061,7 +1069,26 @@ class HedacExplorer:
             return p
         return None
 
-    def _leftover(self, here: np.ndarray) -> np.ndarray | None:
+    def _speck(self, here: np.ndarray, near: int) -> np.ndarray | None:
+        """On a pass: where the agent steers [m] (3,) on its way to an untouched speck (a part of at most
+        ``SPECK_POINTS`` footprint discs, across a gap the hops or a footprint span) within ``REPAIR_RADIUS``
+        footprint radii of the agent at ``here``, or None. The agent touches it as it passes: the hunt after the
+        passes would walk back for each speck from afar."""
+        cand = self._untouched() & ~self._given_up
+        g = self._leftover_goal
+        if self._on_speck and g >= 0 and cand[g]:
+            return self._leftover(here)
+        passes = self._passes
+        limit = SPECK_POINTS * np.pi * (self._r_a / self.spacing) ** 2
+        specks = passes.specks(here, near, cand, REPAIR_RADIUS * self._r_a, limit)
+        self._on_speck = bool(specks.any())
+        if not self._on_speck:
+            self._leftover_goal = -1
+            return None
+        self._leftover_goal = -1
+        return self._leftover(here, specks)
+
+    def _leftover(self, here: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray | None:
         """After the passes: where the agent steers [m] (3,) on its way to the untouched target point nearest by
         surface distance over its walking part and the hops from it (or a speck within a footprint radius of them),
         kept as the goal until a footprint touches it; None when none is left. At the near end of a hop on the way
@@ -1071,7 +1098,9 @@ class HedacExplorer:
         if not (g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g)):
             j = self._tpos.item(self._near[0])
             near = j if j >= 0 else passes.nearest(here)
-            g = passes.closest(near, self._untouched() & ~self._given_up, self._r_a)
+            if candidates is None:
+                candidates = self._untouched() & ~self._given_up
+            g = passes.closest(near, candidates, self._r_a)
             self._leftover_goal = g
             if g < 0:
                 return None

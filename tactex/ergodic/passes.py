@@ -98,6 +98,10 @@ TWO_OPT_PASSES = 20
 #: are shorter along the surface than this share of the chord tour's [-]: on a flat or gently curved part the two
 #: differ by the graph distance's zigzag, and the chord's tour is kept (see RingPasses._tour_of).
 SURFACE_GAIN = 0.9
+#: Target points farther than LEFTOVER footprint radii from every waypoint of the chosen plan (where the rings'
+#: wavefronts meet) get clean-up waypoints: centres of a greedy cover by discs of CLEAN_UP footprint radii [-].
+LEFTOVER = 1.0
+CLEAN_UP = 0.6
 #: The hunt hops once the agent is within this many voxels of the hop's near end (see RingPasses.hop_due).
 HOP_REACH = 2.0
 #: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
@@ -164,6 +168,7 @@ class RingPasses:
                 self._reach = self._graph.maximum(hop.maximum(hop.T))
         _, self._reach_part = connected_components(self._reach, directed=False)
         self._tree = cKDTree(self._points)
+        self._sizes = None  # points per part (see specks)
         if origin not in PASS_ORIGINS:
             raise ValueError(f"origin must be one of {PASS_ORIGINS}, got {origin!r}")
         self.origin = origin
@@ -189,6 +194,7 @@ class RingPasses:
         self._arc: dict[int, np.ndarray] = {}  # per part: the arc of each entry of the tour (a new arc: a jump)
         self._at: dict[int, int] = {}  # per part: the first entry of the tour not walked yet
         self.spacing_m: dict[int, float] = {}  # per laid part: the spacing of its passes [m] (see SPACING_SHARES)
+        self._clean: dict[int, np.ndarray] = {}  # per clean-up waypoint: the left points it is for (target indices)
         self._replan = False
         self._route_goal = -1  # the goal of route() and its surface distance map (T,) [m], or None: straight
         self._route = None
@@ -263,6 +269,11 @@ class RingPasses:
             (p for p in plans if p[0] == origin), key=lambda p: p[3])[4]
         self.ring[way] = ring
         self.pending[way] = True
+        extra = self._clean_up(members, way)
+        if extra.size:
+            self.ring[extra] = ring.max() + 1
+            self.pending[extra] = True
+            self._plan(part, self._points[start])
         self._at[part] = 0
 
     # ------------------------------------------------------------------ the tour over the arcs
@@ -270,6 +281,17 @@ class RingPasses:
         """The part's pending waypoints as arcs (connected runs of one ring's middle line, each in order along it),
         and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
         idx = np.flatnonzero(self.pending & (self._part == part))
+        clean = np.isin(idx, np.fromiter(self._clean, dtype=np.intp, count=len(self._clean)))
+        self._plan_arcs(part, idx[~clean], x)
+        if clean.any():
+            self._insert(part, idx[clean])
+            inserted = self._tour[part], self._arc[part], self._tour_length(part)
+            self._plan_arcs(part, idx, x)
+            if self._tour_length(part) >= inserted[2]:
+                self._tour[part], self._arc[part] = inserted[:2]
+
+    def _plan_arcs(self, part: int, idx: np.ndarray, x: np.ndarray) -> None:
+        """The waypoints idx as arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
         arcs = self._arcs(idx)
         self._at[part] = 0
         if not arcs:
@@ -279,6 +301,28 @@ class RingPasses:
         walk = self._tour_of(arcs, np.asarray(x, dtype=np.float64))
         self._tour[part] = np.concatenate(walk)
         self._arc[part] = np.repeat(np.arange(len(walk)), [len(a) for a in walk])
+
+    def _insert(self, part: int, extra: np.ndarray) -> None:
+        """Clean-up waypoints ``extra`` (target indices) into the part's tour, each where it lengthens the tour
+        least (cheapest insertion by chord): a detour off the pass next to it, an arc of its own that splits the
+        arc it leaves from."""
+        tour, arc = list(self._tour[part]), self._arc[part]
+        new = list(np.r_[True, arc[1:] != arc[:-1]]) if arc.size else []
+        p = self._points
+        for c in extra.tolist():
+            if not tour:
+                tour, new = [c], [True]
+                continue
+            q = p[tour]
+            to = np.linalg.norm(q - p[c], axis=1)
+            cost = np.r_[to[:-1] + to[1:] - np.linalg.norm(np.diff(q, axis=0), axis=1), to[-1]]
+            g = int(cost.argmin()) + 1  # insert before entry g (after entry g − 1)
+            tour.insert(g, c)
+            new.insert(g, True)
+            if g + 1 < len(new):
+                new[g + 1] = True
+        self._tour[part] = np.asarray(tour, dtype=np.intp)
+        self._arc[part] = np.cumsum(new).astype(np.intp) - 1
 
     def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
@@ -352,6 +396,29 @@ class RingPasses:
         keep[::SUBSAMPLE] = True
         keep[starts] = keep[ends] = True
         return float(np.linalg.norm(np.diff(self._points[tour[keep]], axis=0), axis=1).sum())
+
+    def _clean_up(self, members: np.ndarray, way: np.ndarray) -> np.ndarray:
+        """Clean-up waypoints (target indices) for the points of ``members`` that the passes along waypoints ``way``
+        leave (farther than ``LEFTOVER`` footprint radii from every waypoint): where the rings' wavefronts meet (the
+        medial axis, a last ring round a maximum of the distance) no middle line runs. A greedy disc cover of those
+        points by discs of ``CLEAN_UP`` footprint radii centred on them; each centre is a waypoint of its own."""
+        if way.size == 0 or CLEAN_UP <= 0.0:
+            return np.zeros(0, dtype=np.intp)
+        gap = cKDTree(self._points[way]).query(self._points[members])[0]
+        left = members[(gap > LEFTOVER * self.footprint_m) & self._allowed[members]]
+        if left.size == 0:
+            return left
+        q = self._points[left]
+        balls = cKDTree(q).query_ball_point(q, CLEAN_UP * self.footprint_m)
+        open_ = np.ones(left.size, dtype=bool)
+        centres = []
+        while open_.any():
+            gain = np.array([np.count_nonzero(open_[b]) for b in balls])
+            c = int(gain.argmax())
+            centres.append(left[c])
+            self._clean[int(left[c])] = left[np.asarray(balls[c], dtype=np.intp)[open_[balls[c]]]]
+            open_[balls[c]] = False
+        return np.asarray(centres, dtype=np.intp)
 
     def _hunt_length(self, members: np.ndarray, way: np.ndarray) -> float:
         """Estimated path [m] of the hunt for the points of ``members`` a plan with waypoints ``way`` leaves: those
@@ -547,12 +614,12 @@ class RingPasses:
         """The target point nearest to x (3,) [m]."""
         return int(self._tree.query(x)[1])
 
-    def waypoint(self, x: np.ndarray, near: int) -> np.ndarray | None:
+    def waypoint(self, x: np.ndarray, near: int, untouched=None) -> np.ndarray | None:
         """The waypoint [m] (3,) the agent at x (3,) [m], nearest target point ``near``, steers at; None
         when its part has no pending waypoint (lays the part's rings first if they are not)."""
         self.lay(near)
         if self.order == "tour":
-            return self._tour_waypoint(x, near)
+            return self._tour_waypoint(x, near, untouched)
         g = self._goal
         if not (g >= 0 and self.pending[g] and self._part[g] == self._part[near]):
             cand = np.flatnonzero(self.pending & (self._part == self._part[near]))
@@ -588,6 +655,23 @@ class RingPasses:
         covered = [self.pending[b].any() for b in self._tree.query_ball_point(self._points[idx], self.footprint_m)]
         return idx[~np.array(covered, dtype=bool)]
 
+    def specks(self, x: np.ndarray, near: int, candidates: np.ndarray, radius_m: float,
+               max_points: float) -> np.ndarray:
+        """Target points (T,) (bool) of ``candidates`` within ``radius_m`` [m] of the agent at x (3,) [m] on parts
+        other than target point ``near``'s, of at most ``max_points`` points each, that the walking links and the
+        hops join to it (specks the hunt would otherwise come back for)."""
+        out = np.zeros(len(self._points), dtype=bool)
+        idx = np.asarray(self._tree.query_ball_point(x, radius_m), dtype=np.intp)
+        if idx.size == 0:
+            return out
+        if self._sizes is None:
+            self._sizes = np.bincount(self._part)
+        part = self._part
+        idx = idx[candidates[idx] & (part[idx] != part[near]) & (self._sizes[part[idx]] <= max_points)
+                  & (self._reach_part[idx] == self._reach_part[near])]
+        out[idx] = True
+        return out
+
     def next_pending(self, near: int) -> int:
         """The next pending waypoint on the tour of target point ``near``'s part (target index), or −1."""
         part = int(self._part[near])
@@ -600,13 +684,16 @@ class RingPasses:
         self._at[part] = i
         return int(tour[i]) if i < tour.size else -1
 
-    def _tour_waypoint(self, x: np.ndarray, near: int) -> np.ndarray | None:
+    def _tour_waypoint(self, x: np.ndarray, near: int, untouched=None) -> np.ndarray | None:
         part = int(self._part[near])
         if self._replan:
             self._replan = False
             self._goal, self._to_goal = -1, None
             self._plan(part, x)
         g = self._follow(x, part)
+        while g in self._clean and untouched is not None and not untouched()[self._clean[g]].any():
+            self.pending[g] = False  # what it was for is touched already (a step aside, a pass's footprint)
+            g = self._follow(x, part)
         if g < 0:
             self._goal, self._to_goal = -1, None
             return None
