@@ -164,7 +164,9 @@ def _holed_square() -> np.ndarray:
     return pts[~hole]
 
 
-def test_each_arc_is_walked_along_itself_and_a_closed_ring_is_one_arc():
+def test_each_arc_is_walked_along_itself_and_a_closed_ring_is_one_arc(monkeypatch):
+    # the rings' own arcs (a clean-up waypoint at a corner is a detour that splits the loop it leaves from)
+    monkeypatch.setattr(passes_module, "CLEAN_UP", 0.0)
     pts = _grid(41, 41)
     passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
     assert passes.order == "tour"
@@ -197,7 +199,8 @@ def _walk_length(passes: RingPasses, pts: np.ndarray, start: int) -> float:
 
 
 def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order(monkeypatch):
-    monkeypatch.setattr(passes_module, "SPACING_SHARES", (1.0,))  # the orders compared on the same rings
+    monkeypatch.setattr(passes_module, "SPACING_SHARES", (1.0,))  # the orders compared on the same rings ...
+    monkeypatch.setattr(passes_module, "CLEAN_UP", 0.0)  # ... and waypoints (the greedy order has no clean-up)
     pts = _holed_square()
     start = int(np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
     lengths = {}
@@ -549,3 +552,81 @@ def test_a_stall_in_the_hunt_touches_down_where_the_hops_reach_before_a_part_the
     ex._near[0] = 10 * 20
     cmd = ex._relocate(0, "stall")
     assert int(np.argmin(np.linalg.norm(pts - cmd.point, axis=1))) in set(ex._tidx[t_c].tolist())
+
+
+def test_the_plan_covers_the_sliver_where_the_rings_from_the_edge_meet(monkeypatch):
+    """A strip 36 mm wide: the rings from its edges meet along its middle line (the medial axis), where the first
+    ring's middle lines lie 1.7 footprint radii away and the second ring has no middle line. The plan's clean-up
+    waypoints cover that sliver (every point within a footprint radius of a waypoint), and they are on the tour."""
+    pts = _grid(60, 12)
+    r_a = 0.0075
+
+    def plan():
+        passes = RingPasses(pts, None, pass_spacing_m=1.8 * r_a, reach_m=2.5 * H, voxel_m=H, footprint_m=r_a)
+        passes.lay(0)
+        way = np.flatnonzero(passes.pending)
+        gap = np.min(np.linalg.norm(pts[:, None] - pts[way][None], axis=2), axis=1)
+        return passes, way, gap
+
+    monkeypatch.setattr(passes_module, "CLEAN_UP", 0.0)
+    _, _, gap = plan()
+    left = pts[gap > r_a]
+    assert len(left) > 50  # the sliver the rings leave ...
+    # ... along the middle of the strip (and its medial axis's branches into the corners)
+    assert np.mean(np.abs(left[:, 1] - 5.5 * H) <= 1.5 * H) > 0.7
+    monkeypatch.undo()
+    passes, way, gap = plan()
+    assert gap.max() <= passes_module.LEFTOVER * r_a
+    clean = np.fromiter(passes._clean, dtype=np.intp)
+    assert clean.size > 5 and np.mean(np.abs(pts[clean, 1] - 5.5 * H) <= 1.5 * H) > 0.7
+    assert set(way.tolist()) == set(passes._tour[0].tolist())  # every waypoint, the clean-up's too, on the tour
+
+
+def test_a_clean_up_waypoint_whose_points_are_touched_is_skipped():
+    pts = _grid(60, 12)
+    r_a = 0.0075
+    passes = RingPasses(pts, None, pass_spacing_m=1.8 * r_a, reach_m=2.5 * H, voxel_m=H, footprint_m=r_a)
+    passes.lay(0)
+    tour = passes._tour[0]
+    first = next(i for i, j in enumerate(tour.tolist()) if j in passes._clean)
+    passes.pending[tour[:first]] = False  # the tour walked up to the first clean-up waypoint
+    passes._at[0] = first
+    c = int(tour[first])
+    x = pts[c] + np.array([3 * r_a, 0.0, 0.0])  # off the tour's pass: it steers at the next entry
+    untouched = np.ones(len(pts), dtype=bool)
+    passes.waypoint(x, 0, lambda: untouched)
+    assert passes.pending[c] and passes._goal == c
+    untouched[passes._clean[c]] = False  # a step aside touched what it was for
+    passes.waypoint(x, 0, lambda: untouched)
+    assert not passes.pending[c] and passes._goal != c
+
+
+def test_on_a_pass_the_agent_touches_a_speck_it_passes_instead_of_coming_back_for_it(monkeypatch):
+    """Three scan points 2.5 voxels off a square plate's edge (a part of their own the hops join to the plate): the
+    first ring along that edge passes within two footprint radii of them, and the agent hops over and back then,
+    before the plate's passes end; without that the hunt comes back for them at the end, on a longer path."""
+    plate = _grid(25, 25)
+    speck = np.array([[-2.5 * H, 12 * H, 0.0], [-2.5 * H, 13 * H, 0.0], [-3.5 * H, 12 * H, 0.0]])
+    pts = np.vstack([plate, speck])
+    cloud = _flat_target(pts)
+    basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
+
+    def run():
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
+        assert ex._passes.n_parts == 2
+        ex.reset(pts[12 * 25 + 12])
+        on = ex._tpos[np.arange(len(plate), len(pts))]
+        pending = None
+        while ex.untouched_count() > 0 and ex.total_path_length < 3.0:
+            ex.step()
+            if pending is None and not ex._untouched()[on].any():
+                pending = int(ex._passes.pending.sum())
+        assert ex.untouched_count() == 0 and not ex.relocations
+        return pending, ex.total_path_length
+
+    pending, path = run()
+    monkeypatch.setattr(explorer_module, "SPECK_POINTS", 0.0)
+    pending_off, path_off = run()
+    assert pending_off == 0  # without: touched in the hunt after the passes
+    assert pending > 10  # with: touched while the passes still had waypoints to walk
+    assert path < 0.95 * path_off

@@ -41,8 +41,9 @@ is the sweep source of :mod:`.sweep` instead of eq. 1–2: every target point no
 weighted up next to covered ground, so that every point is passed over once in passes (numpy step).
 With one agent and ``HedacConfig.sweep_pass_spacing`` > 0 the sweep also plans its passes
 (:mod:`.passes`): the agent steers along rings of surface distance from where it starts, laid side by
-side, instead of up the potential's slope, and the sweep source's potential leads it over whatever the
-passes missed once its part has no pass left.
+side, instead of up the potential's slope, stepping aside to what they miss and touching the specks they
+pass (small parts across a hop), and the sweep source's potential leads it over whatever the passes missed
+once its part has no pass left.
 
 When walking makes no progress (the agent's Laplacian part holds no untouched target, it stalls,
 or it touches nothing new for long) the step is a relocation instead (:mod:`.relocation`): the agent

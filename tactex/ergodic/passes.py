@@ -14,6 +14,12 @@ The ring k holds the target points with k·w ≤ d < (k+1)·w, w = ``pass_spacin
 d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the ring, and w a little under
 2 r_a leaves an overlap for the agent's tracking error.
 
+Where the rings' wavefronts meet (the medial axis, the last ring round a maximum of d) no middle line runs, and
+the plan leaves a sliver farther than r_a from every waypoint (the uncut region of contour-parallel pocketing):
+those points get clean-up waypoints, the centres of a greedy disc cover (``LEFTOVER``, ``CLEAN_UP``), inserted
+into the tour where each lengthens it least, or toured as arcs of their own when that is shorter; one whose
+points are touched already is skipped.
+
 The plan is a set of waypoints, the target points on the middle line of their ring (|d − (k+½)·w| ≤ ½ voxel). On
 a closed or holed surface a ring's middle line breaks into several arcs (its connected runs); each arc is
 ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
@@ -23,7 +29,8 @@ round a fold or an ear's base the chord is a fraction of the walk). Along an arc
 farthest of its next waypoints within ``AHEAD`` voxels; the waypoints behind its place on the arc are done. A target
 point the passes walked past untouched (the agent's tracking error left it at the footprint's edge) and no pending
 waypoint will cover (``missed``) is touched at once when it lies within a couple of footprint radii: the
-explorer steps aside to it. The start of the next arc, when farther than a pass spacing, is reached down the
+explorer steps aside to it; a speck (a small part the hops join, ``specks``) within that reach is touched in
+passing too. The start of the next arc, when farther than a pass spacing, is reached down the
 surface distance to it. (Order "greedy", the earlier rule: the pending waypoint of least cost_j = |x_j − x| +
 ``ring_cost`` · w · (k_j − k_low).) A waypoint is also done once the agent came within ``reach_m`` of it. When
 no waypoint of the agent's part is left the explorer hunts the untouched points one after the other, each the
