@@ -109,6 +109,9 @@ SURFACE_GAIN = 0.9
 #: wavefronts meet) get clean-up waypoints: centres of a greedy cover by discs of CLEAN_UP footprint radii [-].
 LEFTOVER = 1.0
 CLEAN_UP = 0.6
+#: A clean-up waypoint is done once the agent came this close [footprint radii] (its points lie at the
+#: footprint's edge from the passes; the wider reach of a pass's waypoints would leave them untouched) [-].
+CLEAN_REACH = 0.5
 #: The hunt hops once the agent is within this many voxels of the hop's near end (see RingPasses.hop_due).
 HOP_REACH = 2.0
 #: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
@@ -147,6 +150,8 @@ class RingPasses:
         self.pass_spacing_m = float(pass_spacing_m)
         self.footprint_m = 0.5 * self.pass_spacing_m if footprint_m is None else float(footprint_m)
         self.reach_m = float(reach_m)
+        self._clean_reach = min(self.reach_m, CLEAN_REACH * (0.5 * self.pass_spacing_m if footprint_m is None
+                                                            else float(footprint_m)))
         self._half_line = 0.5 * float(voxel_m)
         self.ring_cost = float(ring_cost)
         self._allowed = np.ones(n, dtype=bool) if allowed is None else np.asarray(allowed, dtype=bool)
@@ -563,7 +568,7 @@ class RingPasses:
             d = d[m:]
             beyond = np.flatnonzero(d > AHEAD * 2.0 * self._half_line)
             c = (int(beyond[0]) - 1 if beyond.size else d.size - 1)
-            if c <= 0 and d[0] <= self.reach_m:
+            if c <= 0 and d[0] <= (self.reach_m if int(tour[i]) not in self._clean else self._clean_reach):
                 self.pending[tour[i]] = False
                 i += 1
                 continue
@@ -611,6 +616,9 @@ class RingPasses:
         """Waypoints within ``reach_m`` of the agent point x (3,) [m] are done."""
         idx = self._tree.query_ball_point(x, self.reach_m)
         if idx:
+            if self._clean:
+                idx = [j for j in idx if j not in self._clean
+                       or np.linalg.norm(self._points[j] - x) <= self._clean_reach]
             self.pending[idx] = False
 
     def point(self, j: int) -> np.ndarray:
