@@ -630,3 +630,18 @@ def test_on_a_pass_the_agent_touches_a_speck_it_passes_instead_of_coming_back_fo
     assert pending_off == 0  # without: touched in the hunt after the passes
     assert pending > 10  # with: touched while the passes still had waypoints to walk
     assert path < 0.95 * path_off
+
+
+def test_a_clean_up_waypoint_is_done_only_close_to_it_not_at_the_passes_reach():
+    """The passes' waypoints are done at ``reach_m`` (the agent goes on along its pass); a clean-up waypoint's points
+    lie at the footprint's edge from the passes, so it is done only within CLEAN_REACH footprint radii."""
+    pts = _grid(60, 12)
+    r_a = 0.0075
+    passes = RingPasses(pts, None, pass_spacing_m=1.8 * r_a, reach_m=r_a, voxel_m=H, footprint_m=r_a)
+    passes.lay(0)
+    c = next(iter(passes._clean))
+    assert passes.pending[c]
+    passes.mark(pts[c] + np.array([0.0, 0.8 * r_a, 0.0]))  # within the passes' reach
+    assert passes.pending[c]
+    passes.mark(pts[c] + np.array([0.0, 0.9 * passes_module.CLEAN_REACH * r_a, 0.0]))
+    assert not passes.pending[c]

@@ -17,8 +17,8 @@ d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the rin
 Where the rings' wavefronts meet (the medial axis, the last ring round a maximum of d) no middle line runs, and
 the plan leaves a sliver farther than r_a from every waypoint (the uncut region of contour-parallel pocketing):
 those points get clean-up waypoints, the centres of a greedy disc cover (``LEFTOVER``, ``CLEAN_UP``), inserted
-into the tour where each lengthens it least, or toured as arcs of their own when that is shorter; one whose
-points are touched already is skipped.
+into the tour where each lengthens it least, or toured as arcs of their own when that is shorter; one is done
+within ``CLEAN_REACH`` footprint radii, or skipped when its points are touched already.
 
 The plan is a set of waypoints, the target points on the middle line of their ring (|d − (k+½)·w| ≤ ½ voxel). On
 a closed or holed surface a ring's middle line breaks into several arcs (its connected runs); each arc is
