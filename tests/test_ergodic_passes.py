@@ -645,3 +645,41 @@ def test_a_clean_up_waypoint_is_done_only_close_to_it_not_at_the_passes_reach():
     assert passes.pending[c]
     passes.mark(pts[c] + np.array([0.0, 0.9 * passes_module.CLEAN_REACH * r_a, 0.0]))
     assert not passes.pending[c]
+
+
+def test_a_clean_up_waypoint_stays_the_goal_until_the_agent_is_close_to_it():
+    """Walking the tour, the agent's place on it does not pass a clean-up waypoint it came within the passes'
+    reach of but not within CLEAN_REACH; each clean-up waypoint is an arc of its own in either tour."""
+    pts = _grid(60, 12)
+    r_a = 0.0075
+    passes = RingPasses(pts, None, pass_spacing_m=1.8 * r_a, reach_m=r_a, voxel_m=H, footprint_m=r_a)
+    passes.lay(0)
+    part = int(passes._part[0])
+    tour, arc = passes._tour[part], passes._arc[part]
+    centres = [int(c) for c in passes._clean]
+    assert centres
+    for c in centres:  # an arc of one
+        assert np.count_nonzero(arc == arc[np.flatnonzero(tour == c)[0]]) == 1
+    idx = np.flatnonzero(passes.pending & (passes._part == part))
+    passes._plan_arcs(part, idx, pts[0])  # the nearest-neighbour tour over everything: still arcs of one
+    tour_nn, arc_nn = passes._tour[part], passes._arc[part]
+    for c in centres:
+        assert np.count_nonzero(arc_nn == arc_nn[np.flatnonzero(tour_nn == c)[0]]) == 1
+    passes._tour[part], passes._arc[part] = tour, arc
+    c = centres[0]
+    passes._at[part] = int(np.flatnonzero(tour == c)[0])
+    x = pts[c] + np.array([0.0, 0.8 * r_a, 0.0])  # within the passes' reach, not within CLEAN_REACH
+    goal = passes.waypoint(x, int(passes.nearest(x)))
+    assert passes.pending[c] and np.allclose(goal, pts[c])
+
+
+def test_clean_up_waypoints_lie_only_where_the_agent_may_stand():
+    pts = _grid(60, 12)
+    r_a = 0.0075
+    free = RingPasses(pts, None, pass_spacing_m=1.8 * r_a, reach_m=r_a, voxel_m=H, footprint_m=r_a)
+    free.lay(0)
+    centres = pts[list(free._clean)]
+    allowed = pts[:, 0] < np.median(centres[:, 0])  # half of the strip's clean-up sliver is not allowed
+    held = RingPasses(pts, None, pass_spacing_m=1.8 * r_a, reach_m=r_a, voxel_m=H, footprint_m=r_a, allowed=allowed)
+    held.lay(int(np.flatnonzero(allowed)[0]))
+    assert held._clean and all(allowed[c] for c in held._clean)

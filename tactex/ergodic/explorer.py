@@ -1033,11 +1033,14 @@ class HedacExplorer:
         j = self._tpos.item(self._near[0])
         near = j if j >= 0 else passes.nearest(here)
         wp = passes.waypoint(here, near, self._untouched)
-        if wp is None:
+        if wp is not None and passes.heading_far:
+            self._drop_speck()  # a speck is touched in passing, not on the way to a far arc
+        elif wp is None:
+            self._drop_speck()
             wp = self._leftover(here)
             if wp is None:
                 return None
-        elif not passes.heading_far:
+        else:
             speck = self._speck(here, near)
             if speck is not None:
                 wp = speck
@@ -1070,27 +1073,35 @@ class HedacExplorer:
             return p
         return None
 
+    def _drop_speck(self) -> None:
+        """The agent no longer steers at a speck: its goal is not the hunt's."""
+        if self._on_speck:
+            self._on_speck = False
+            self._leftover_goal = -1
+
     def _speck(self, here: np.ndarray, near: int) -> np.ndarray | None:
         """On a pass: where the agent steers [m] (3,) on its way to an untouched speck (a part of at most
-        ``SPECK_POINTS`` footprint discs, across a gap the hops or a footprint span) within ``REPAIR_RADIUS``
-        footprint radii of the agent at ``here``, or None. The agent touches it as it passes: the hunt after the
-        passes would walk back for each speck from afar."""
+        ``SPECK_POINTS`` footprint discs that the hops join to the agent's) within ``REPAIR_RADIUS`` footprint radii
+        of the agent at ``here``, or None. The agent touches it as it passes: the hunt after the passes would walk
+        back for each speck from afar."""
+        passes = self._passes
+        if not passes.has_specks:
+            return None
         cand = self._untouched() & ~self._given_up
         g = self._leftover_goal
         if self._on_speck and g >= 0 and cand[g]:
             return self._leftover(here)
-        passes = self._passes
         limit = SPECK_POINTS * np.pi * (self._r_a / self.spacing) ** 2
         specks = passes.specks(here, near, cand, REPAIR_RADIUS * self._r_a, limit)
         self._on_speck = bool(specks.any())
-        if not self._on_speck:
-            self._leftover_goal = -1
-            return None
         self._leftover_goal = -1
+        if not self._on_speck:
+            return None
         return self._leftover(here, specks)
 
     def _leftover(self, here: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray | None:
-        """After the passes: where the agent steers [m] (3,) on its way to the untouched target point nearest by
+        """After the passes (or, with ``candidates``, on a pass to a speck): where the agent steers [m] (3,) on its
+        way to the untouched target point nearest by
         surface distance over its walking part and the hops from it (or a speck within a footprint radius of them),
         kept as the goal until a footprint touches it; None when none is left. At the near end of a hop on the way
         it sets ``_hop_to`` (the far end's cloud index): the step hops there along the chord."""

@@ -108,6 +108,7 @@ SURFACE_GAIN = 0.9
 #: Target points farther than LEFTOVER footprint radii from every waypoint of the chosen plan (where the rings'
 #: wavefronts meet) get clean-up waypoints: centres of a greedy cover by discs of CLEAN_UP footprint radii [-].
 LEFTOVER = 1.0
+#: Radius of the clean-up discs, in footprint radii [-] (see LEFTOVER).
 CLEAN_UP = 0.6
 #: A clean-up waypoint is done once the agent came this close [footprint radii] (its points lie at the
 #: footprint's edge from the passes; the wider reach of a pass's waypoints would leave them untouched) [-].
@@ -150,8 +151,7 @@ class RingPasses:
         self.pass_spacing_m = float(pass_spacing_m)
         self.footprint_m = 0.5 * self.pass_spacing_m if footprint_m is None else float(footprint_m)
         self.reach_m = float(reach_m)
-        self._clean_reach = min(self.reach_m, CLEAN_REACH * (0.5 * self.pass_spacing_m if footprint_m is None
-                                                            else float(footprint_m)))
+        self._clean_reach = min(self.reach_m, CLEAN_REACH * self.footprint_m)
         self._half_line = 0.5 * float(voxel_m)
         self.ring_cost = float(ring_cost)
         self._allowed = np.ones(n, dtype=bool) if allowed is None else np.asarray(allowed, dtype=bool)
@@ -180,7 +180,8 @@ class RingPasses:
                 self._reach = self._graph.maximum(hop.maximum(hop.T))
         _, self._reach_part = connected_components(self._reach, directed=False)
         self._tree = cKDTree(self._points)
-        self._sizes = None  # points per part (see specks)
+        self._sizes = np.bincount(self._part)  # points per walking part (see specks)
+        self._any_speck: bool | None = None  # see has_specks
         if origin not in PASS_ORIGINS:
             raise ValueError(f"origin must be one of {PASS_ORIGINS}, got {origin!r}")
         self.origin = origin
@@ -283,7 +284,9 @@ class RingPasses:
         self.pending[way] = True
         extra = self._clean_up(members, way)
         if extra.size:
-            self.ring[extra] = ring.max() + 1
+            # a ring of its own per clean-up waypoint: an arc of one, which the agent's place on an arc never passes
+            # (only CLEAN_REACH marks it done)
+            self.ring[extra] = ring.max() + 1 + np.arange(extra.size)
             self.pending[extra] = True
             self._plan(part, self._points[start])
         self._at[part] = 0
@@ -631,7 +634,9 @@ class RingPasses:
 
     def waypoint(self, x: np.ndarray, near: int, untouched=None) -> np.ndarray | None:
         """The waypoint [m] (3,) the agent at x (3,) [m], nearest target point ``near``, steers at; None
-        when its part has no pending waypoint (lays the part's rings first if they are not)."""
+        when its part has no pending waypoint (lays the part's rings first if they are not). ``untouched``: a
+        callable giving the untouched target points (T,) (bool), or None; a clean-up waypoint none of whose points
+        is untouched any more is skipped."""
         self.lay(near)
         if self.order == "tour":
             return self._tour_waypoint(x, near, untouched)
@@ -670,6 +675,16 @@ class RingPasses:
         covered = [self.pending[b].any() for b in self._tree.query_ball_point(self._points[idx], self.footprint_m)]
         return idx[~np.array(covered, dtype=bool)]
 
+    @property
+    def has_specks(self) -> bool:
+        """Whether the hops join some walking part to another: only then may a speck lie beside a pass; without
+        one, :meth:`specks` has nothing to find and the explorer skips it."""
+        if self._any_speck is None:
+            # a point whose hop-joined part holds more points than its walking part: a hop joins its part to another
+            joined = np.bincount(self._reach_part)[self._reach_part] > self._sizes[self._part]
+            self._any_speck = bool(joined.any())
+        return self._any_speck
+
     def specks(self, x: np.ndarray, near: int, candidates: np.ndarray, radius_m: float,
                max_points: float) -> np.ndarray:
         """Target points (T,) (bool) of ``candidates`` within ``radius_m`` [m] of the agent at x (3,) [m] on parts
@@ -679,8 +694,6 @@ class RingPasses:
         idx = np.asarray(self._tree.query_ball_point(x, radius_m), dtype=np.intp)
         if idx.size == 0:
             return out
-        if self._sizes is None:
-            self._sizes = np.bincount(self._part)
         part = self._part
         idx = idx[candidates[idx] & (part[idx] != part[near]) & (self._sizes[part[idx]] <= max_points)
                   & (self._reach_part[idx] == self._reach_part[near])]
