@@ -1041,25 +1041,28 @@ class HedacExplorer:
             if wp is None:
                 return None
         else:
-            speck = self._speck(here, near)
+            open_ = self._untouched() & ~self._given_up  # once per step: both look at it
+            speck = self._speck(here, near, open_)
             if speck is not None:
                 wp = speck
             else:
-                miss = self._missed(here, near)
+                miss = self._missed(here, near, open_)
                 if miss is not None:
                     wp = miss
         to = wp - here
         to -= float(to.dot(nrm)) * nrm
         return to if float(to.dot(to)) > 0.0 else None
 
-    def _missed(self, here: np.ndarray, near: int) -> np.ndarray | None:
+    def _missed(self, here: np.ndarray, near: int, open_: np.ndarray | None = None) -> np.ndarray | None:
         """On a pass: the nearest untouched target point [m] (3,) within ``REPAIR_RADIUS`` footprint radii of the agent
         at ``here`` that the passes walked past and none to come covers (the agent's tracking error left it
         at the footprint's edge), or None. The agent steps aside to touch it now, a detour of a fraction of a
         footprint radius; the hunt after the passes would come back for it from afar. A point it steered at for
         ``REPAIR_STEPS`` steps without touching it (across a fold, off an edge) is given up here and left to the
-        hunt."""
-        cand = self._untouched() & ~self._given_up & ~self._repair_failed
+        hunt. ``open_``: the untouched target not given up (T,) (bool), when the caller has it."""
+        if open_ is None:
+            open_ = self._untouched() & ~self._given_up
+        cand = open_ & ~self._repair_failed
         passes = self._passes
         for g in passes.missed(here, near, cand, REPAIR_RADIUS * self._r_a).tolist():
             p = passes.point(g)
@@ -1079,20 +1082,19 @@ class HedacExplorer:
             self._on_speck = False
             self._leftover_goal = -1
 
-    def _speck(self, here: np.ndarray, near: int) -> np.ndarray | None:
+    def _speck(self, here: np.ndarray, near: int, open_: np.ndarray) -> np.ndarray | None:
         """On a pass: where the agent steers [m] (3,) on its way to an untouched speck (a part of at most
         ``SPECK_POINTS`` footprint discs that the hops join to the agent's) within ``REPAIR_RADIUS`` footprint radii
         of the agent at ``here``, or None. The agent touches it as it passes: the hunt after the passes would walk
-        back for each speck from afar."""
+        back for each speck from afar. ``open_``: the untouched target not given up (T,) (bool)."""
         passes = self._passes
         if not passes.has_specks:
             return None
-        cand = self._untouched() & ~self._given_up
         g = self._leftover_goal
-        if self._on_speck and g >= 0 and cand[g]:
+        if self._on_speck and g >= 0 and open_[g]:
             return self._leftover(here)
         limit = SPECK_POINTS * np.pi * (self._r_a / self.spacing) ** 2
-        specks = passes.specks(here, near, cand, REPAIR_RADIUS * self._r_a, limit)
+        specks = passes.specks(here, near, open_, REPAIR_RADIUS * self._r_a, limit)
         self._on_speck = bool(specks.any())
         self._leftover_goal = -1
         if not self._on_speck:

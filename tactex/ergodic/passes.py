@@ -571,7 +571,7 @@ class RingPasses:
             d = d[m:]
             beyond = np.flatnonzero(d > AHEAD * 2.0 * self._half_line)
             c = (int(beyond[0]) - 1 if beyond.size else d.size - 1)
-            if c <= 0 and d[0] <= (self.reach_m if int(tour[i]) not in self._clean else self._clean_reach):
+            if c <= 0 and d[0] <= self._reach_of(int(tour[i])):
                 self.pending[tour[i]] = False
                 i += 1
                 continue
@@ -620,9 +620,15 @@ class RingPasses:
         idx = self._tree.query_ball_point(x, self.reach_m)
         if idx:
             if self._clean:
+                # the ball holds the passes' reach already: only a clean-up waypoint's own reach is checked
                 idx = [j for j in idx if j not in self._clean
-                       or np.linalg.norm(self._points[j] - x) <= self._clean_reach]
+                       or np.linalg.norm(self._points[j] - x) <= self._reach_of(j)]
             self.pending[idx] = False
+
+    def _reach_of(self, j: int) -> float:
+        """How close [m] the agent must come to waypoint j for it to be done: a clean-up waypoint's points lie at
+        the footprint's edge from the passes, so it is done only within ``CLEAN_REACH`` footprint radii."""
+        return self._clean_reach if j in self._clean else self.reach_m
 
     def point(self, j: int) -> np.ndarray:
         """Target point j [m] (3,)."""

@@ -111,7 +111,7 @@ def raw_keep_out(cloud: SurfaceCloud, channel: str, threshold: float, mask_path:
                 f"--keep-out-mask '{mask_path}' cannot index a mesh: its points are samples of the faces at "
                 "--voxel-size-m, not the file's vertices; mark the zone in the vertex colours "
                 "(--keep-out-channel), or convert the mesh to a point cloud file and give one boolean per point")
-        rows = read.kept if read is not None and read.kept is not None else None
+        rows = None if read is None else read.kept
         file_mask = load_keep_out_mask(mask_path, len(cloud) if rows is None else rows.size,
                                        n_finite=None if rows is None else len(cloud))
         mask |= file_mask if rows is None else file_mask[rows]

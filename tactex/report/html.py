@@ -14,7 +14,7 @@ import numpy as np
 
 from tactex.errors import ConfigError
 from tactex.report._validate import as_fields, as_mask, as_path, as_points
-from tactex.report.path_segments import split_flights
+from tactex.report.path_segments import flight_indices, split_flights
 
 __all__ = ["cloud_html"]
 
@@ -58,10 +58,9 @@ def cloud_html(
     data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
     traj = as_path(trajectory)
     zone = None if keep_out is None else pts[as_mask(keep_out, pts.shape[0], "keep_out")]
-    flown = np.unique(np.asarray(list(flights), dtype=np.intp))
+    flown = flight_indices(flights, 0 if traj is None else traj.shape[0])
     if traj is not None and traj.shape[0] > max_path_points > 1:
         keep = np.linspace(0, traj.shape[0] - 1, max_path_points).round().astype(np.intp)
-        split_flights(traj, flown)  # checks the indices, as for a path drawn whole
         if flown.size:  # every flight's two ends stay, so that it is drawn as the chord it was
             keep = np.concatenate([keep, flown - 1, flown])
         keep = np.unique(keep)

@@ -12,7 +12,16 @@ import numpy as np
 
 from tactex.errors import InputError
 
-__all__ = ["split_flights"]
+__all__ = ["flight_indices", "split_flights"]
+
+
+def flight_indices(flights: Sequence[int], n_points: int) -> np.ndarray:
+    """The flights' indices into a path of ``n_points`` points, sorted and unique; each must lie in
+    1..n_points − 1 (a flight ends at a point reached from the one before)."""
+    idx = np.unique(np.asarray(list(flights), dtype=np.intp))
+    if idx.size and (idx[0] < 1 or idx[-1] >= n_points):
+        raise InputError(f"flights must be step indices in 1..{n_points - 1}, got {idx.tolist()}")
+    return idx
 
 
 def split_flights(path: np.ndarray, flights: Sequence[int]) -> tuple[np.ndarray, np.ndarray | None]:
@@ -27,11 +36,9 @@ def split_flights(path: np.ndarray, flights: Sequence[int]) -> tuple[np.ndarray,
         surface: the path with a NaN row in place of each flight; air: the flights' chords
         (lift-off, touch-down, NaN, …), or None without flights.
     """
-    idx = np.unique(np.asarray(list(flights), dtype=np.intp))
+    idx = flight_indices(flights, path.shape[0])
     if idx.size == 0:
         return path, None
-    if idx[0] < 1 or idx[-1] >= path.shape[0]:
-        raise InputError(f"flights must be step indices in 1..{path.shape[0] - 1}, got {idx.tolist()}")
     gap = np.full((1, 3), np.nan)
     pieces = np.split(path, idx)
     surface = np.vstack([p for piece in pieces for p in (piece, gap)][:-1])

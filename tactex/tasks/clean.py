@@ -905,8 +905,9 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         bar.note(f"{near_keep_out} dirty points lie within {source.keep_out_clearance_m * 1e3:.1f} mm "
                  "of the keep-out zone (agent radius + ½ voxel), where the sponge may not be centred: no goal (a pass "
                  "beside them may still brush them)")
+    cleanable_target = np.where(cleanable, cloud.target, 0.0)
     if given is not None and log.truth:
-        _dirt_from_cloud(backend, given.with_target(np.where(cleanable, given.target, 0.0)), scene_cfg.object_name)
+        _dirt_from_cloud(backend, cloud.with_target(cleanable_target), scene_cfg.object_name)
     # where the sponge first touches down, on dirt it may touch
     targets = _touchable(np.flatnonzero((source.target if isinstance(source, HedacExplorer) else cloud.target) > 0),
                          touch_down_ok)
@@ -929,7 +930,6 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     # keep TEC's coverage target)
     wear = (WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m, PrestonParams().force_threshold_n,
                       cfg.wear_margin) if cfg.baseline == "" and cfg.objective == "clean" else None)
-    cleanable_target = np.where(cleanable, cloud.target, 0.0)
     if wear is not None:
         wear.reset(cleanable_target)  # dirt the robot may not touch is never predicted left: it holds no goal
     target0 = float(cleanable_target.sum())
