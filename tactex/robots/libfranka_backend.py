@@ -61,7 +61,7 @@ __all__ = [
 
 _GRAVITY = [0.0, 0.0, -9.81]
 #: A tick whose command comes this late ends the run [µs]: libfranka tolerates a few lost cycles,
-#: not tens of them in a row.
+#: not tens of them in a row. The default of :attr:`FrankaConfig.late_abort_ms`, and its ceiling on a robot.
 LATE_COMMAND_ABORT_US = 20_000.0
 #: The bare hold's joint stiffness [N·m/rad] and damping [N·m·s/rad]: the gains of libfranka's
 #: ``joint_impedance_control`` example, which holds a real arm with them.
@@ -92,6 +92,11 @@ class FrankaConfig:
                                  "allowed, and keep the vision process off it (-1: no pinning)")
     cpu_latency_us: int = param(-1, "while connected, hold the CPUs' idle wake-up latency at or below this "
                                     "through /dev/cpu_dma_latency (0: idle CPUs poll; -1: no request) [µs]")
+    late_abort_ms: float = param(
+        LATE_COMMAND_ABORT_US / 1e3,
+        "a command this late after its state ends torque control with an error, as a real Franka stops after "
+        "~20 lost cycles; more is allowed only on a loopback address (tactex twin on a busy machine, whose "
+        "stalls are the machine's, not a robot's) [ms]")
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot_ip, str) or not self.robot_ip.strip():
@@ -109,6 +114,13 @@ class FrankaConfig:
             raise ConfigError(f"control_cpu must be a core number in 0..{cpus - 1} or -1 (no pinning), "
                               f"got {self.control_cpu!r}")
         check_latency_us(self.cpu_latency_us)
+        late = self.late_abort_ms
+        if isinstance(late, bool) or not isinstance(late, (int, float)) or not (math.isfinite(late) and late > 0):
+            raise ConfigError(f"late_abort_ms must be a positive number of milliseconds, got {late!r}")
+        if late * 1e3 > LATE_COMMAND_ABORT_US and not self.is_loopback:
+            raise ConfigError(f"late_abort_ms above {LATE_COMMAND_ABORT_US / 1e3:.0f} ms is for tactex twin on a "
+                              f"loopback address only (a real Franka stops at about 20 lost cycles anyway); "
+                              f"got {late!r} with robot_ip {self.robot_ip!r}")
         for name in ("ft_counts_per_force", "ft_counts_per_torque", "ft_timeout_s", "collision_torque_n_m",
                      "collision_force_n"):
             v = float(getattr(self, name))
@@ -116,13 +128,18 @@ class FrankaConfig:
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
 
     @property
-    def ignore_realtime(self) -> bool:
-        if self.realtime != "auto":
-            return self.realtime == "ignore"
+    def is_loopback(self) -> bool:
+        """Whether ``robot_ip`` is this machine (tactex twin), not a robot on the network."""
         try:
             return ipaddress.ip_address(self.robot_ip).is_loopback
         except ValueError:
             return self.robot_ip == "localhost"
+
+    @property
+    def ignore_realtime(self) -> bool:
+        if self.realtime != "auto":
+            return self.realtime == "ignore"
+        return self.is_loopback
 
     def wrench_source(self, tool: ToolGeometry) -> WrenchSource:
         if self.ft == "franka":
@@ -403,9 +420,9 @@ class LibfrankaBackend:
 
     def _abort_if_late(self, late_us: float) -> None:
         """End torque control and raise when the pending state's answer comes ``late_us`` [µs] after it,
-        more than :data:`LATE_COMMAND_ABORT_US`: a real Franka stops there (communication_constraints_violation);
+        more than ``config.late_abort_ms``: a real Franka stops there (communication_constraints_violation);
         a twin would keep the last torque on an arm nobody controls."""
-        if late_us > LATE_COMMAND_ABORT_US:
+        if late_us > self.config.late_abort_ms * 1e3:
             self.close()
             raise RobotError(
                 f"the control loop answered {late_us / 1e3:.0f} ms late (budget 1 ms): something slow ran between "
