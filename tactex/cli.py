@@ -150,9 +150,10 @@ def _show_warning(args: argparse.Namespace, typed: dict[str, str]):
 
 def _write_status(args: argparse.Namespace, argv: Sequence[str], status: str, started: float,
                   error: str | None = None) -> None:
-    """status.json in the run folder, if the command made one: what was asked, how it ended, and why."""
+    """status.json in the run folder, if the command made one or took over one that held a run (see
+    :func:`_held_run`): what was asked, how it ended, and why."""
     out = getattr(args, "out", None)
-    if not out or not Path(out).is_dir():
+    if not out or not Path(out).is_dir() or not getattr(args, "_out_taken", True):
         return
     data = {
         "command": args.command,
@@ -165,6 +166,18 @@ def _write_status(args: argparse.Namespace, argv: Sequence[str], status: str, st
     }
     with contextlib.suppress(OSError):  # a folder we cannot write must not hide the error itself
         (Path(out) / "status.json").write_text(json.dumps(data, indent=2, default=str) + "\n")
+
+
+def _held_run(args: argparse.Namespace) -> None:
+    """Note whether ``--out`` already holds a run: then only a command that took the folder over
+    (:func:`tactex.commands._out.check_out` sets ``_out_taken``) writes status.json there; one refused,
+    or stopped by a bad option before its check, leaves the other run's status alone."""
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and out and Path(out).expanduser().is_dir():
+        from tactex.report.outdir import run_in_folder
+
+        if run_in_folder(out) is not None:
+            args._out_taken = False
 
 
 def _canonical_options(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:
@@ -194,6 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args._options = _canonical_options(parser, args.command)
     typed = _typed_options(parser, argv, args.command)
+    _held_run(args)
     started = time.time()
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning(args, typed)

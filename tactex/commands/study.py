@@ -24,6 +24,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="study folder: runs.jsonl, table.csv/.parquet, summary.csv/.txt, study.json, plots; "
                              "an existing study there is resumed")
+    from tactex.commands._out import add_force_argument
+
+    add_force_argument(parser, NAME)
     parser.add_argument("--spec", metavar="FILE", help="study file (.toml, .yaml): task, seeds, draws, [fixed], "
                                                        "[grid], [random], [success]; CLI options add to it")
     parser.add_argument("--task", choices=("clean", "wipe"), default=None, help="the task (default: clean)")
@@ -88,10 +91,12 @@ def spec_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    from tactex.commands._out import check_out
     from tactex.experiments.executor import make_executor
     from tactex.experiments.study import print_to_stderr, run_study
 
     spec = spec_from_args(args)
+    check_out(args, NAME)
     say = None if args.quiet else print_to_stderr("tactex study")
     with make_executor(args.workers, ray=args.ray, ray_address=args.ray_address) as ex:
         try:
