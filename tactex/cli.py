@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from tactex import __version__
-from tactex.errors import TactexError
+from tactex.errors import RunInterrupted, TactexError
 
 __all__ = ["build_parser", "main"]
 
@@ -195,7 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Python warnings reach the user as one line each, without a source path. When the command made
     its run folder (``--out``), ``status.json`` there says how the run ended: done, failed (with the
-    error) or interrupted."""
+    error) or interrupted (Ctrl-C, exit code 130: explore, sweep, clean and wipe save what they had
+    done first, marked ``"partial": true``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -224,9 +225,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"tactex {args.command}: error: {message}", file=sys.stderr)
             _write_status(args, argv, "failed", started, message)
             return 2
-        except KeyboardInterrupt:
-            print(f"tactex {args.command}: interrupted", file=sys.stderr)
-            _write_status(args, argv, "interrupted", started, "interrupted by the user (Ctrl-C)")
+        except KeyboardInterrupt as exc:  # a RunInterrupted says what the run saved, and where
+            kept = f"; {exc}" if isinstance(exc, RunInterrupted) and str(exc) else ""
+            print(f"tactex {args.command}: interrupted{kept}", file=sys.stderr)
+            _write_status(args, argv, "interrupted", started, f"interrupted by the user (Ctrl-C){kept}")
             return 130
     _write_status(args, argv, "done" if code == 0 else "stopped early", started)
     return code

@@ -33,6 +33,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from tactex.errors import RunInterrupted
     from tactex.experiments.executor import make_executor
     from tactex.experiments.sweep import SweepConfig, run_sweep
 
@@ -48,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     with make_executor(cfg.workers, ray=args.ray, ray_address=args.ray_address) as ex:
         try:
             result = run_sweep(args.clouds, args.out, cfg, progress=say, executor=ex)
+        except RunInterrupted:
+            raise  # the settings done are written; its message says where
         except KeyboardInterrupt:
             print(f"tactex sweep: the finished settings are in {args.out}/settings — run the same command again "
                   "to resume", file=sys.stderr)

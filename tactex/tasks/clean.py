@@ -1304,6 +1304,7 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "robot": "franka" if robot is not None else "sim",
         "target_source": "cloud" if given is not None else "camera",
         "aborted": aborted,
+        "partial": bool(aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
     }
     if robot is not None:
         metrics.update(backend.loop_metrics())

@@ -463,6 +463,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
         "robot": "franka" if robot is not None else "sim",
         "aborted": aborted,
+        "partial": bool(aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
         **vision.stats(),
     }
     if robot is not None:
