@@ -47,7 +47,7 @@ def robot_params(args: argparse.Namespace) -> RealRobotParams | None:
 
 def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> int:
     from tactex.report.outdir import prepare_out_dir
-    from tactex.report.run_report import summary_table
+    from tactex.report.run_report import safety_summary, summary_table
     from tactex.tasks.demo import run_compare, run_task
 
     cfg = dataclass_from_args(config_cls, args)
@@ -66,6 +66,10 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
                             robot=robot)]
         page = reports[0].html or out
     print(summary_table([(r.label, r.metrics) for r in reports]))
+    for r in reports:
+        said = safety_summary(r.metrics)
+        if said:
+            print(f"safety layer ({r.label}): {said}")
     print(f"report: {page}")
     aborted = [r.metrics.get("aborted") for r in reports if r.metrics.get("aborted")]
     if aborted:

@@ -22,7 +22,7 @@ import numpy as np
 from tactex.config import param, write_json
 from tactex.errors import ConfigError, InputError, MissingDependencyError, RunInterrupted
 from tactex.report.outdir import prepare_out_dir
-from tactex.report.run_report import RunReport, summary_table, write_index_html, write_run_report
+from tactex.report.run_report import RunReport, safety_summary, summary_table, write_index_html, write_run_report
 
 __all__ = [
     "DemoConfig",
@@ -216,8 +216,12 @@ class DemoResult:
     wall_time_s: float = 0.0
 
     def summary(self) -> str:
+        """The tables of the runs per task, then a line per run whose safety layer stepped in."""
         tables = {k: summary_table([(r.label, r.metrics) for r in reps]) for k, reps in self.reports.items() if reps}
-        return "\n\n".join(f"{kind}:\n{table}" for kind, table in tables.items())
+        text = "\n\n".join(f"{kind}:\n{table}" for kind, table in tables.items())
+        safety = [f"safety layer ({kind} {r.label}): {said}" for kind, reps in self.reports.items() for r in reps
+                  if (said := safety_summary(r.metrics))]
+        return "\n\n".join([text, "\n".join(safety)]) if safety else text
 
 
 def run_demo(out_dir: str | Path = "runs/demo", config: DemoConfig | None = None, *, progress: bool = True,

@@ -459,6 +459,10 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "controller": inner.name,
         "baseline": cfg.baseline or "va_ufic",
         "safety_events": len(loop.safety.events),
+        # per kind: events (force_limit: one per retreat), ticks for nan_wrench and the torque and rate limits
+        "safety_counts": dict(loop.safety.counts),
+        "safety_limits": {"max_contact_force_n": loop.safety.limits.max_contact_force,
+                          "tau_rate_max_n_m_s": loop.safety.limits.tau_rate_max},
         # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
         "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
         "robot": "franka" if robot is not None else "sim",
