@@ -337,6 +337,29 @@ def test_a_folder_holding_another_run_is_refused_without_force(tmp_path, capsys)
     assert _run([*argv, "--out", str(plain)]) == 0
 
 
+def test_sweep_study_and_demo_take_over_only_their_own_folder(tmp_path) -> None:
+    """sweep and study resume their own folder (the same command again) and the demo replaces its own
+    (make demo twice in a row); a folder of another command's run is still refused."""
+    from tactex.errors import InputError
+    from tactex.report.outdir import check_run_folder
+
+    for command in ("sweep", "study", "demo"):
+        out = tmp_path / command
+        out.mkdir()
+        (out / "status.json").write_text(json.dumps({"command": command, "status": "done",
+                                                     "started": "2026-12-02T01:00:00"}))
+        check_run_folder(out, command, own=True)
+        with pytest.raises(InputError, match=f"holds a tactex {command} run"):
+            check_run_folder(out, "explore")
+        with pytest.raises(InputError, match="add --force"):
+            check_run_folder(out, "sweep" if command != "sweep" else "study", own=True)
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "metrics.json").write_text("{}")  # a run written by the library: no status.json
+    with pytest.raises(InputError, match="holds a run;"):
+        check_run_folder(tmp_path / "lib", "demo", own=True)
+    check_run_folder(tmp_path / "lib", "explore", force=True)
+
+
 def test_a_finished_run_says_done(tmp_path, capsys) -> None:
     out = tmp_path / "ok"
     assert _run(["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-html", "--no-cache",
