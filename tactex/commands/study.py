@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from tactex.commands._out import add_force_argument, check_out
+
 NAME = "study"
 HELP = ("run clean or wipe over a grid and/or random draws of parameters and seeds (local processes or Ray), "
         "with a table of every run, statistics per setting and plots; re-running resumes")
@@ -24,8 +26,6 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="study folder: runs.jsonl, table.csv/.parquet, summary.csv/.txt, study.json, plots; "
                              "an existing study there is resumed")
-    from tactex.commands._out import add_force_argument
-
     add_force_argument(parser, NAME)
     parser.add_argument("--spec", metavar="FILE", help="study file (.toml, .yaml): task, seeds, draws, [fixed], "
                                                        "[grid], [random], [success]; CLI options add to it")
@@ -91,7 +91,6 @@ def spec_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from tactex.commands._out import check_out
     from tactex.experiments.executor import make_executor
     from tactex.experiments.study import print_to_stderr, run_study
 
