@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from tactex import __version__
-from tactex.errors import TactexError
+from tactex.errors import RunInterrupted, TactexError
 
 __all__ = ["build_parser", "main"]
 
@@ -150,9 +150,10 @@ def _show_warning(args: argparse.Namespace, typed: dict[str, str]):
 
 def _write_status(args: argparse.Namespace, argv: Sequence[str], status: str, started: float,
                   error: str | None = None) -> None:
-    """status.json in the run folder, if the command made one: what was asked, how it ended, and why."""
+    """status.json in the run folder, if the command made one or took over one that held a run (see
+    :func:`_held_run`): what was asked, how it ended, and why."""
     out = getattr(args, "out", None)
-    if not out or not Path(out).is_dir():
+    if not out or not Path(out).is_dir() or not getattr(args, "_out_taken", True):
         return
     data = {
         "command": args.command,
@@ -165,6 +166,18 @@ def _write_status(args: argparse.Namespace, argv: Sequence[str], status: str, st
     }
     with contextlib.suppress(OSError):  # a folder we cannot write must not hide the error itself
         (Path(out) / "status.json").write_text(json.dumps(data, indent=2, default=str) + "\n")
+
+
+def _held_run(args: argparse.Namespace) -> None:
+    """Note whether ``--out`` already holds a run: then only a command that took the folder over
+    (:func:`tactex.commands._out.check_out` sets ``_out_taken``) writes status.json there; one refused,
+    or stopped by a bad option before its check, leaves the other run's status alone."""
+    out = getattr(args, "out", None)
+    if isinstance(out, str) and out and Path(out).expanduser().is_dir():
+        from tactex.report.outdir import run_in_folder
+
+        if run_in_folder(out) is not None:
+            args._out_taken = False
 
 
 def _canonical_options(parser: argparse.ArgumentParser, command: str | None) -> dict[str, str]:
@@ -182,7 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     Python warnings reach the user as one line each, without a source path. When the command made
     its run folder (``--out``), ``status.json`` there says how the run ended: done, failed (with the
-    error) or interrupted."""
+    error) or interrupted (Ctrl-C, exit code 130: explore, sweep, clean and wipe save what they had
+    done first, marked ``"partial": true``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -194,6 +208,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     args._options = _canonical_options(parser, args.command)
     typed = _typed_options(parser, argv, args.command)
+    _held_run(args)
     started = time.time()
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning(args, typed)
@@ -210,9 +225,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"tactex {args.command}: error: {message}", file=sys.stderr)
             _write_status(args, argv, "failed", started, message)
             return 2
-        except KeyboardInterrupt:
-            print(f"tactex {args.command}: interrupted", file=sys.stderr)
-            _write_status(args, argv, "interrupted", started, "interrupted by the user (Ctrl-C)")
+        except KeyboardInterrupt as exc:  # a RunInterrupted says what the run saved, and where
+            kept = f"; {exc}" if isinstance(exc, RunInterrupted) and str(exc) else ""
+            print(f"tactex {args.command}: interrupted{kept}", file=sys.stderr)
+            _write_status(args, argv, "interrupted", started, f"interrupted by the user (Ctrl-C){kept}")
             return 130
     _write_status(args, argv, "done" if code == 0 else "stopped early", started)
     return code

@@ -109,7 +109,10 @@ def add_dataclass_arguments(
 
 
 def dataclass_from_args(cls: type[T], args: argparse.Namespace, *, prefix: str = "", **overrides: Any) -> T:
-    """Instantiate ``cls`` from parsed options (those left at None keep the class default)."""
+    """Instantiate ``cls`` from parsed options (those left at None keep the class default).
+
+    A field with ``unused_with=(other, why)`` in its metadata refuses its option when the user gave it
+    and ``other`` is set (:class:`ConfigError` naming both options and ``why``)."""
     kwargs: dict[str, Any] = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
         value = getattr(args, prefix + f.name, None)
@@ -117,9 +120,25 @@ def dataclass_from_args(cls: type[T], args: argparse.Namespace, *, prefix: str =
             kwargs[f.name] = tuple(value) if isinstance(value, list) else value
     kwargs.update(overrides)
     try:
-        return cls(**kwargs)
+        obj = cls(**kwargs)
     except TypeError as exc:
         raise ConfigError(f"invalid parameters for {cls.__name__}: {exc}") from exc
+    _check_unused(obj, args, prefix)
+    return obj
+
+
+def _check_unused(obj: Any, args: argparse.Namespace, prefix: str) -> None:
+    """Refuse an option the user gave that another option makes meaningless: a field's metadata
+    ``unused_with=(other_field, why)`` names the other field (set to a true value) and the reason. Only
+    options typed count (their value is not None): a default the other option overrides is no mistake."""
+    for f in dataclasses.fields(obj):
+        other = f.metadata.get("unused_with")
+        if other is None or getattr(args, prefix + f.name, None) is None or not getattr(obj, other[0]):
+            continue
+        this = _option(f.metadata.get("option", f.name), prefix)
+        that_field = next(g for g in dataclasses.fields(obj) if g.name == other[0])
+        that = _option(that_field.metadata.get("option", that_field.name), prefix)
+        raise ConfigError(f"{this} has no effect with {that}: {other[1]}; drop {this}")
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -19,6 +19,7 @@ __all__ = [
     "MissingDependencyError",
     "PerceptionError",
     "RobotError",
+    "RunInterrupted",
     "SafetyFault",
     "SensorFault",
     "SimulationError",
@@ -87,6 +88,13 @@ class SensorFault(TactexError, RuntimeError):
 
 class SafetyFault(ControllerFault):
     """The safety layer tripped and the controller is holding or retreating."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a run, and what it had done is saved: the message says what and where.
+
+    A ``KeyboardInterrupt`` (not a :class:`TactexError`), so that the caller's program stops as it
+    would on any Ctrl-C, and no ``except Exception`` swallows it."""
 
 
 #: How to repair pygafro, a core dependency (a failed import means a broken installation, not a missing extra).

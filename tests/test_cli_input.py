@@ -64,6 +64,7 @@ def files(tmp_path):
     """Broken and awkward files as users have them."""
     f = {}
     good = save_ply(SurfaceCloud(points=np.random.default_rng(0).random((50, 3)) * 0.05), tmp_path / "good.ply")
+    f["good"] = good
     raw = good.read_bytes()
     (tmp_path / "truncated.ply").write_bytes(raw[: len(raw) // 2])
     f["truncated"] = tmp_path / "truncated.ply"
@@ -123,6 +124,19 @@ def test_clean_cloud_mistakes(files, tmp_path, capsys) -> None:
     _one_line(capsys, code, "clean", "is not an .npz file")
 
 
+def test_marking_with_cloud_is_refused_only_when_given(files, tmp_path, capsys) -> None:
+    """--cloud's target is the dirt: a --marking beside it was ignored without a word."""
+    from tactex.tasks.clean import CleanConfig
+
+    out = tmp_path / "c"
+    code = _run(["clean", "--cloud", str(files["good"]), "--marking", "RLI", "--quiet", "--out", str(out)])
+    _one_line(capsys, code, "clean", "--marking has no effect with --cloud", "drop --marking")
+    assert not out.exists()
+    # the default marking, which the user did not give, is no mistake
+    args = build_parser().parse_args(["clean", "--cloud", str(files["good"]), "--out", str(out)])
+    assert dataclass_from_args(CleanConfig, args).cloud == str(files["good"])
+
+
 def test_sweep_file_mistakes(files, tmp_path, capsys) -> None:
     code = _run(["sweep", str(files["bad_pcd"]), "--quiet", "--out", str(tmp_path / "s")])
     _one_line(capsys, code, "sweep", "3 FIELDS but 2 COUNT")
@@ -157,6 +171,10 @@ def test_sweep_file_mistakes(files, tmp_path, capsys) -> None:
         (["clean", "--marking", "Q"], ("unknown marking 'Q'",)),
         (["clean", "--force-n", "-5"], ("--force-n must be a positive number",)),
         (["clean", "--voxel-size-m", "0"], ("--voxel-size-m must be a positive number",)),
+        # the safety layer retreats at 40 N of contact: a set point whose peaks (2× it) reach that cannot work
+        (["clean", "--force-n", "60"], ("--force-n 60 N", "retreats at a contact force of 40 N",
+                                        "give at most 20 N")),
+        (["wipe", "--force-n", "20.5"], ("--force-n 20.5 N", "at most 20 N")),
         (["clean", "--approach-force-n", "0.5"], ("--approach-force-n 0.5 N", "--contact-threshold-n")),
         (["wipe", "--object", "nope"], ("unknown object 'nope'",)),
         (["wipe", "--force-n", "nan"], ("--force-n",)),
@@ -289,6 +307,57 @@ def test_an_interrupted_run_says_so(tmp_path, capsys, monkeypatch) -> None:
     assert _run(["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-cache", "--out", str(out)]) == 130
     assert "tactex explore: interrupted" in capsys.readouterr().err
     assert _status(out)["status"] == "interrupted"
+
+
+def test_a_folder_holding_another_run_is_refused_without_force(tmp_path, capsys) -> None:
+    """explore --out DIR wrote over another run's folder without a word."""
+    argv = ["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-html", "--no-cache"]
+    out = tmp_path / "run"
+    assert _run([*argv, "--out", str(out)]) == 0
+    capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    code = _run([*argv, "--seed", "1", "--out", str(out)])
+    _one_line(capsys, code, "explore", f"--out '{out}' holds a tactex explore run (done, ",
+              "give a new folder, or add --force")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # status.json included
+    # a bad option there leaves the other run's status alone too
+    _one_line(capsys, _run([*argv[:2], "--steps", "0", "--out", str(out)]), "explore", "--steps 0")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # other commands refuse it as well, before any work
+    for command in (["sweep", "cup", "--steps", "5"], ["clean"], ["wipe"], ["demo"], ["study"]):
+        _one_line(capsys, _run([*command, "--quiet", "--out", str(out)]), command[0], "holds a tactex explore run")
+    assert _run([*argv, "--seed", "1", "--force", "--out", str(out)]) == 0
+    assert _status(out)["status"] == "done" and _status(out)["options"]["seed"] == 1
+    # a folder of files without a run in it is no other run's, nor one whose run failed (a typo fixed, run again)
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    (plain / "notes.txt").write_text("x")
+    assert _run([*argv[:2], "--steps", "0", "--out", str(plain)]) == 2
+    assert _status(plain)["status"] == "failed"
+    assert _run([*argv, "--out", str(plain)]) == 0
+
+
+def test_sweep_study_and_demo_take_over_only_their_own_folder(tmp_path) -> None:
+    """sweep and study resume their own folder (the same command again) and the demo replaces its own
+    (make demo twice in a row); a folder of another command's run is still refused."""
+    from tactex.errors import InputError
+    from tactex.report.outdir import check_run_folder
+
+    for command in ("sweep", "study", "demo"):
+        out = tmp_path / command
+        out.mkdir()
+        (out / "status.json").write_text(json.dumps({"command": command, "status": "done",
+                                                     "started": "2026-12-02T01:00:00"}))
+        check_run_folder(out, command, own=True)
+        with pytest.raises(InputError, match=f"holds a tactex {command} run"):
+            check_run_folder(out, "explore")
+        with pytest.raises(InputError, match="add --force"):
+            check_run_folder(out, "sweep" if command != "sweep" else "study", own=True)
+    (tmp_path / "lib").mkdir()
+    (tmp_path / "lib" / "metrics.json").write_text("{}")  # a run written by the library: no status.json
+    with pytest.raises(InputError, match="holds a run;"):
+        check_run_folder(tmp_path / "lib", "demo", own=True)
+    check_run_folder(tmp_path / "lib", "explore", force=True)
 
 
 def test_a_finished_run_says_done(tmp_path, capsys) -> None:

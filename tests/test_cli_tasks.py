@@ -220,3 +220,40 @@ def test_an_unreachable_capture_pose_names_the_parameter(tmp_path, capsys) -> No
     code = main(["clean", "--object-name", "cup", "--side-capture-distance-m", "0.45", "--side-capture-elevation-deg",
                  "0", "--out", str(tmp_path / "c")])
     _one_line_error(capsys, code, "out of the arm's reach", "lower --side-capture-distance-m (now 0.45 m)")
+
+
+def test_safety_summary_says_how_often_and_why() -> None:
+    from tactex.report.run_report import safety_summary
+
+    assert safety_summary({"safety_counts": {}}) is None and safety_summary({}) is None
+    said = safety_summary({"safety_counts": {"force_limit": 22, "retreat_end": 22, "torque_rate_limit": 310},
+                           "safety_limits": {"max_contact_force_n": 40.0, "tau_rate_max_n_m_s": 1000.0},
+                           "max_contact_force_n": 61.24})
+    assert said == ("retreated 22× from a contact force above 40 N, peak 61.2 N; "
+                    "clipped the torque rate (1000 N·m/s) on 310 tick(s)")
+
+
+@pytest.mark.slow
+def test_a_run_whose_safety_layer_stepped_in_says_so_in_its_last_lines(tmp_path, capsys, monkeypatch) -> None:
+    """A clean at 60 N retreated 22 times and the terminal said only "dirt removed 43.6 %"."""
+    from tactex.control.safety import SafetyLimits
+    from tactex.tasks import runner
+
+    argv = ["wipe", "--duration-s", "3", "--quiet", "--no-video"]
+    assert main([*argv, "--out", str(tmp_path / "calm")]) == 0
+    assert json.loads((tmp_path / "calm" / "metrics.json").read_text())["safety_counts"] == {}
+    assert "safety layer" not in capsys.readouterr().out
+    real = runner.ControlLoop.__init__
+
+    def low_cap(self, backend, limits=None, **kw) -> None:  # the layer trips below the wipe's 15 N set point
+        real(self, backend, SafetyLimits(max_contact_force=8.0), **kw)
+
+    monkeypatch.setattr(runner.ControlLoop, "__init__", low_cap)
+    out = tmp_path / "tripped"
+    assert main([*argv, "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    m = json.loads((out / "metrics.json").read_text())
+    n = m["safety_counts"]["force_limit"]
+    assert n >= 1 and m["safety_limits"]["max_contact_force_n"] == 8.0
+    assert lines[-2].startswith(f"safety layer (tactex): retreated {n}× from a contact force above 8 N, peak "), lines
+    assert lines[-1] == f"report: {out / 'report.html'}"

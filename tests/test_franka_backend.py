@@ -421,9 +421,9 @@ def test_ctrl_c_ends_torque_control_and_saves(panel, tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert code == 1
+    assert code == 130  # Ctrl-C, as in simulation: what was recorded is written first
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["aborted"].startswith("KeyboardInterrupt")
+    assert metrics["aborted"].startswith("KeyboardInterrupt") and metrics["partial"] is True
     # the robot is free again: a new connection can take control at once
     check = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     check.close()

@@ -255,3 +255,21 @@ def test_table_columns_leave_out_wall_clock_and_series_and_split_axes():
     assert flat == {"dirt_removed_fraction": 0.5, "motion_rmse_m.x": 0.1, "motion_rmse_m.y": None,
                     "motion_rmse_m.z": 0.3, "tank_force_energy_j.min": 1.0, "tank_force_energy_j.max": 2.0,
                     "baseline": "raster"}
+
+
+def test_a_run_cut_by_ctrl_c_stops_the_study_instead_of_counting_as_done(monkeypatch) -> None:
+    """The task's loop turns Ctrl-C into an early stop (metrics "aborted"); in a study on one worker that
+    run was recorded as finished, the study went on, and a resumed study skipped it."""
+    from types import SimpleNamespace
+
+    from tactex.experiments.study import run_study_task
+    from tactex.tasks import demo
+
+    spec = demo.task_spec("wipe")
+    outcome = {"aborted": "KeyboardInterrupt", "partial": True}
+    stub = SimpleNamespace(config_cls=spec.config_cls, run=lambda cfg, progress: SimpleNamespace(metrics=outcome))
+    monkeypatch.setattr(demo, "task_spec", lambda kind: stub)
+    with pytest.raises(KeyboardInterrupt):
+        run_study_task({"task": "wipe", "config": {}})
+    outcome.update(aborted="RobotError: reflex", partial=True)  # a robot's stop is the run's result
+    assert run_study_task({"task": "wipe", "config": {}})["aborted"] == "RobotError: reflex"

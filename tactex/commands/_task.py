@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import sys
 
+from tactex.commands._out import add_force_argument, check_out
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 from tactex.errors import ConfigError
 from tactex.tasks.robot import RealRobotParams
@@ -15,6 +16,7 @@ def register_task(parser: argparse.ArgumentParser, kind: str, config_cls: type) 
     """``--out``, ``--compare``, ``--quiet``, ``--no-video`` and one option per field of the task config."""
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="run folder: config.json, metrics.json, series.npz, PNG plots, report.html")
+    add_force_argument(parser, kind)
     parser.add_argument("--compare", action="store_true",
                         help="run tactex and every baseline with the same parameters, one sub-folder each, "
                              "and report them side by side (index.html, summary.txt)")
@@ -45,7 +47,7 @@ def robot_params(args: argparse.Namespace) -> RealRobotParams | None:
 
 def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> int:
     from tactex.report.outdir import prepare_out_dir
-    from tactex.report.run_report import summary_table
+    from tactex.report.run_report import safety_summary, summary_table
     from tactex.tasks.demo import run_compare, run_task
 
     cfg = dataclass_from_args(config_cls, args)
@@ -54,6 +56,7 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
         raise ConfigError(f"--compare runs tactex and every baseline; drop --baseline {cfg.baseline}")
     if args.compare and robot is not None:
         raise ConfigError("--compare runs in simulation only; on a robot run tactex and a --baseline one at a time")
+    check_out(args, kind)
     out = prepare_out_dir(args.out)  # made only once the parameters are known to be good
     if args.compare:
         reports = run_compare(kind, cfg, out, progress=not args.quiet, video=args.video)
@@ -63,6 +66,10 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
                             robot=robot)]
         page = reports[0].html or out
     print(summary_table([(r.label, r.metrics) for r in reports]))
+    for r in reports:
+        said = safety_summary(r.metrics)
+        if said:
+            print(f"safety layer ({r.label}): {said}")
     print(f"report: {page}")
     aborted = [r.metrics.get("aborted") for r in reports if r.metrics.get("aborted")]
     if aborted:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from tactex.commands._out import add_force_argument, check_out
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 
 NAME = "explore"
@@ -26,6 +27,7 @@ def register(parser: argparse.ArgumentParser) -> None:
              f"{', '.join(surface_names())}",
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="run directory for metrics, trajectory and plots")
+    add_force_argument(parser, NAME)
     add_dataclass_arguments(parser, ExploreConfig)
     x0_help = ExploreConfig.__dataclass_fields__["x0"].metadata["help"]
     parser.add_argument("--x0", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None, help=x0_help)
@@ -40,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = dataclass_from_args(ExploreConfig, args, x0=tuple(args.x0) if args.x0 is not None else None)
     hedac = dataclass_from_args(HedacConfig, args)
+    check_out(args, NAME)
 
     def progress(msg: str) -> None:
         print(f"tactex explore: {msg}", file=sys.stderr, flush=True)

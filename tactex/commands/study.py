@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from tactex.commands._out import add_force_argument, check_out
+
 NAME = "study"
 HELP = ("run clean or wipe over a grid and/or random draws of parameters and seeds (local processes or Ray), "
         "with a table of every run, statistics per setting and plots; re-running resumes")
@@ -24,6 +26,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR",
                         help="study folder: runs.jsonl, table.csv/.parquet, summary.csv/.txt, study.json, plots; "
                              "an existing study there is resumed")
+    add_force_argument(parser, NAME)
     parser.add_argument("--spec", metavar="FILE", help="study file (.toml, .yaml): task, seeds, draws, [fixed], "
                                                        "[grid], [random], [success]; CLI options add to it")
     parser.add_argument("--task", choices=("clean", "wipe"), default=None, help="the task (default: clean)")
@@ -92,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from tactex.experiments.study import print_to_stderr, run_study
 
     spec = spec_from_args(args)
+    check_out(args, NAME)
     say = None if args.quiet else print_to_stderr("tactex study")
     with make_executor(args.workers, ray=args.ray, ray_address=args.ray_address) as ex:
         try:

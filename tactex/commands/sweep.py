@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from tactex.commands._out import add_force_argument, check_out
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 
 NAME = "sweep"
@@ -20,7 +21,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("clouds", metavar="CLOUD", nargs="+",
                         help=f"cloud files (.ply, .pcd, .npz), meshes (.ply with faces, .stl, .obj) or built-in "
                              f"objects: {', '.join(surface_names())}")
-    parser.add_argument("--out", required=True, metavar="DIR", help="run directory for sweep.json, curves.npz, plots")
+    parser.add_argument("--out", required=True, metavar="DIR",
+                        help="run directory for sweep.json, curves.npz, plots; a sweep's folder given again resumes it")
+    add_force_argument(parser, NAME)
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     parser.add_argument("--tune", metavar="SPACE", default=None,
                         help="instead of the grid, search HEDAC's parameters with Ray Tune: a .toml/.yaml file with "
@@ -30,10 +33,12 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from tactex.errors import RunInterrupted
     from tactex.experiments.executor import make_executor
     from tactex.experiments.sweep import SweepConfig, run_sweep
 
     cfg = dataclass_from_args(SweepConfig, args)
+    check_out(args, NAME)
 
     def progress(msg: str) -> None:
         print(f"tactex sweep: {msg}", file=sys.stderr, flush=True)
@@ -44,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     with make_executor(cfg.workers, ray=args.ray, ray_address=args.ray_address) as ex:
         try:
             result = run_sweep(args.clouds, args.out, cfg, progress=say, executor=ex)
+        except RunInterrupted:
+            raise  # the settings done are written; its message says where
         except KeyboardInterrupt:
             print(f"tactex sweep: the finished settings are in {args.out}/settings — run the same command again "
                   "to resume", file=sys.stderr)

@@ -38,7 +38,17 @@ from tactex.control.joint_impedance import min_jerk
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, TactexError
 
-__all__ = ["FRANKA_Q_MAX", "FRANKA_Q_MIN", "FRANKA_TAU_MAX", "SafetyEvent", "SafetyLayer", "SafetyLimits"]
+__all__ = [
+    "FORCE_PEAK_RATIO",
+    "FRANKA_Q_MAX",
+    "FRANKA_Q_MIN",
+    "FRANKA_TAU_MAX",
+    "MAX_FORCE_SET_POINT_N",
+    "SafetyEvent",
+    "SafetyLayer",
+    "SafetyLimits",
+    "check_force_set_point",
+]
 
 FRANKA_TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 FRANKA_Q_MIN = (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973)
@@ -109,6 +119,27 @@ class SafetyLimits:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"SafetyLimits.{name} must be an integer ≥ 1, got {v!r}")
+
+
+#: The papers' quality bound on a force-controlled task: no contact force above this multiple of its set point.
+FORCE_PEAK_RATIO = 2.0
+
+
+#: The largest force set point of a task under the default limits [N].
+MAX_FORCE_SET_POINT_N = SafetyLimits.max_contact_force / FORCE_PEAK_RATIO
+
+
+def check_force_set_point(name: str, force_n: float, limits: SafetyLimits | None = None) -> None:
+    """Refuse a task's force set point ``force_n`` [N] (the field ``name``) whose allowed peaks, up to
+    :data:`FORCE_PEAK_RATIO` × it, would reach the force that trips the layer's retreat: such a task
+    spends its contact retreating. The limit stays where it is: it guards the object and the robot,
+    and a set point raised by a typo must not raise it too."""
+    cap = (limits or SafetyLimits()).max_contact_force
+    most = cap / FORCE_PEAK_RATIO
+    if force_n > most:
+        raise ConfigError(
+            f"{name} = {force_n:g} N is more than the safety layer allows: it retreats at a contact force of "
+            f"{cap:g} N, and contact peaks reach {FORCE_PEAK_RATIO:g}× the set point; give at most {most:g} N")
 
 
 class SafetyLayer(Controller):

@@ -9,7 +9,9 @@ coverage residual and the path length after every step.
 Outputs in the run directory: ``metrics.json`` (scalars), ``series.npz`` (per step: ergodicity,
 coverage residual, path length [m], step time [s]), ``trajectory.npy`` (steps × 3 [m]),
 ``fields.npz`` (points, target, coverage, potential), ``metrics.png``, ``cloud.png`` and
-``explore.html`` (interactive, works offline; a long path is drawn decimated).
+``explore.html`` (interactive, works offline; a long path is drawn decimated). Ctrl-C during the
+steps writes the steps done (``metrics.json`` with ``"partial": true`` and ``steps_done``), then
+raises :class:`~tactex.errors.RunInterrupted`.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param, to_jsonable
-from tactex.errors import ConfigError, ExplorationError, InputError
+from tactex.errors import ConfigError, ExplorationError, InputError, RunInterrupted
 from tactex.pointcloud import SurfaceCloud
 from tactex.pointcloud.io import SUPPORTED_SUFFIXES, read_cloud
 from tactex.pointcloud.keep_out import (
@@ -313,6 +315,9 @@ def run_explore(
         hedac: a :class:`tactex.ergodic.HedacConfig` for the explorer's other parameters; its
             alpha, n_eigen, agent radius, max velocity and seed are taken from ``config``.
         progress: called with one-line progress messages (e.g. print to stderr).
+
+    Raises:
+        RunInterrupted: Ctrl-C during the steps, once the steps done are written (a partial run).
     """
     from tactex.ergodic import HedacExplorer
     from tactex.ergodic.kernel import compile_pending
@@ -401,27 +406,37 @@ def run_explore(
     step_s = np.empty(n)
     every = max(1, n // 10)
     t_loop = last_said = time.perf_counter()
-    for k in range(n):
-        t = time.perf_counter()
-        cmd = explorer.step()
-        step_s[k] = time.perf_counter() - t
-        trajectory[k] = cmd.point
-        ergodicity[k] = explorer.ergodicity()
-        residual[k] = explorer.coverage_residual()
-        path_length[k] = explorer.path_length
-        air_length[k] = explorer.air_path_length
-        now = time.perf_counter()
-        if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
-            last_said = now
-            eta = (now - t_loop) / (k + 1) * (n - k - 1)
-            say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
-                + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
+    done = 0  # steps recorded in full
+    try:
+        for k in range(n):
+            t = time.perf_counter()
+            cmd = explorer.step()
+            step_s[k] = time.perf_counter() - t
+            trajectory[k] = cmd.point
+            ergodicity[k] = explorer.ergodicity()
+            residual[k] = explorer.coverage_residual()
+            path_length[k] = explorer.path_length
+            air_length[k] = explorer.air_path_length
+            done = k + 1
+            now = time.perf_counter()
+            if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
+                last_said = now
+                eta = (now - t_loop) / (k + 1) * (n - k - 1)
+                say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
+                    + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
+    except KeyboardInterrupt:
+        if done == 0:
+            raise
+        # Ctrl-C on a long run: the steps done are written as a partial run, then the interrupt goes on
+        say(f"interrupted after {done} of {n} steps: writing them")
+        trajectory, ergodicity, residual = trajectory[:done], ergodicity[:done], residual[:done]
+        path_length, air_length, step_s = path_length[:done], air_length[:done], step_s[:done]
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
         raise ExplorationError("the exploration produced NaN/inf values; please report this with the cloud and seed")
 
     stalled = _stalled_from(trajectory, explorer.spacing, hcfg.max_velocity)
     stalled_from = None if stalled is None or residual[-1] <= STALL_RESIDUAL else stalled + 1  # 1-based, as "step k/n"
-    relocations = explorer.relocations
+    relocations = [r for r in explorer.relocations if r.step < done]  # not the step Ctrl-C cut
     if relocations:
         counts = collections.Counter(m.reason for m in relocations)
         why = ", ".join(f"{r} {c}" for r, c in counts.items())
@@ -438,6 +453,8 @@ def run_explore(
     coverage = explorer.coverage
     potential = explorer.potential
     metrics: dict[str, Any] = {
+        "partial": done < n,  # Ctrl-C stopped the run after steps_done of config.steps
+        "steps_done": done,
         "stalled_from_step": stalled_from,
         "source": source_info,
         "n_points": len(cloud),
@@ -484,6 +501,9 @@ def run_explore(
     say(f"writing the report to {out}")
     files = write_explore_report(out, cloud, trajectory, coverage, potential, metrics, html=cfg.html, start=start,
                                  flights=[r.step for r in relocations], keep_out=keep_out)
+    if done < n:
+        raise RunInterrupted(f"the {done} steps done (of {n}) are in {out}: metrics.json (\"partial\": true), "
+                             "trajectory.npy, series.npz and the plots")
     return ExploreResult(out_dir=out, metrics=to_jsonable(metrics), trajectory=trajectory, files=files)
 
 

@@ -56,10 +56,15 @@ def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
     """One study run (executed by a worker): ``task = {"task": "clean", "config": {...}}`` → the
     run's metrics as JSON values. A pure function of the config: no files, no progress bar."""
     from tactex.tasks.demo import task_spec
+    from tactex.tasks.robot import stopped_by_user
 
     spec = task_spec(task["task"])
     cfg = spec.config_cls(**task["config"])
     result = spec.run(cfg, progress=False)
+    if stopped_by_user(result.metrics):
+        # the task's loop keeps a run Ctrl-C cut short as its own; here it must stop the study instead
+        # of being recorded as a finished run (which a resumed study would then skip)
+        raise KeyboardInterrupt
     return to_jsonable(result.metrics)
 
 

@@ -14,7 +14,9 @@ workers or the order the settings finish in.
 Each setting is written to ``settings/`` in the run directory as soon as it is done (an ``.npz``
 named by cloud, n_K and α, holding a fingerprint of everything its result depends on). A sweep
 that stops — Ctrl-C, a power cut, an error — is resumed by running the same command again with the
-same ``--out``: settings whose fingerprint matches are read back instead of run again.
+same ``--out``: settings whose fingerprint matches are read back instead of run again. On Ctrl-C the
+report of the settings done is written (``sweep.json`` with ``"partial": true``, the settings not run
+listed under ``not_run``), then :class:`~tactex.errors.RunInterrupted` is raised.
 
 Outputs in the run directory: ``sweep.json`` (configuration, per-setting statistics, failed
 settings with their errors), ``table.csv`` (one row per cloud, setting and start: the final
@@ -40,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param, to_jsonable, write_json
-from tactex.errors import ConfigError, ExplorationError
+from tactex.errors import ConfigError, ExplorationError, RunInterrupted
 from tactex.experiments.executor import Executor, LocalExecutor
 from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
 from tactex.report.outdir import prepare_out_dir
@@ -240,6 +242,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
     t0 = time.perf_counter()
     failed: list[dict[str, Any]] = []
     tasks = [(*job, cfg.steps, cfg.coverage_normalization) for job in jobs]
+    interrupted = False
     try:
         for done, outcome in enumerate(ex.run(_run_setting, tasks, clouds), start=1):
             job = jobs[outcome.index]
@@ -251,6 +254,12 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
                 failed.append({"cloud": job[0], "n_eigen": job[1], "alpha": job[2], "error": outcome.error,
                                "traceback": outcome.traceback})
                 say(f"[{done}/{len(jobs)}] {job[0]} n_K={job[1]} α={job[2]:g}: FAILED {outcome.error}")
+    except KeyboardInterrupt:
+        if not results:
+            raise
+        # Ctrl-C: the report of the settings done is written (the others NaN, "not run"), then the interrupt goes on
+        interrupted = True
+        say(f"interrupted: writing the {len(results)} of {len(all_jobs)} settings done")
     finally:
         if executor is None:
             ex.close()
@@ -259,13 +268,17 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
     nan = {"ergodicity": np.full((cfg.starts, cfg.steps), np.nan),
            "coverage_residual": np.full((cfg.starts, cfg.steps), np.nan),
            "path_length_m": np.full((cfg.starts, cfg.steps), np.nan), "first_path": np.full((cfg.steps, 3), np.nan)}
+    not_run = [job for job in all_jobs if job not in results and all(
+        (f["cloud"], f["n_eigen"], f["alpha"]) != job for f in failed)]
     for job in all_jobs:
         results.setdefault(job, nan)
     sweep_s = time.perf_counter() - t0
 
     curves: dict[str, dict[str, np.ndarray]] = {}
     summary: dict[str, Any] = {"config": asdict(cfg), "executor": ex.describe(), "sweep_time_s": sweep_s,
-                               "failed": failed, "clouds": {}}
+                               "partial": interrupted, "failed": failed,
+                               "not_run": [{"cloud": c, "n_eigen": k, "alpha": a} for c, k, a in not_run],
+                               "clouds": {}}
     nk, na = len(cfg.n_eigen), len(cfg.alpha)
     for key in clouds:
         c = {name: np.empty((nk, na, cfg.starts, cfg.steps)) for name in ("ergodicity", "coverage_residual",
@@ -295,11 +308,16 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
     say(f"writing the report to {out}")
     files = _write(out, summary, curves, clouds)
     files["table"] = _write_table(out / "table.csv", curves, {(f["cloud"], f["n_eigen"], f["alpha"]): f["error"]
-                                                              for f in failed})
+                                                              for f in failed}, set(not_run))
+    if interrupted:
+        raise RunInterrupted(f"the {len(all_jobs) - len(not_run)} settings done (of {len(all_jobs)}) are in {out}: "
+                             "sweep.json (\"partial\": true), table.csv, curves.npz and the plots; run the same "
+                             "command again to resume")
     return SweepResult(out_dir=out, summary=to_jsonable(summary), curves=curves, files=files)
 
 
-def _write_table(path: Path, curves: dict[str, dict[str, np.ndarray]], failed: dict[tuple, str]) -> Path:
+def _write_table(path: Path, curves: dict[str, dict[str, np.ndarray]], failed: dict[tuple, str],
+                 not_run: set[tuple] = frozenset()) -> Path:
     from tactex.experiments.study_report import write_csv
 
     cols = ["cloud", "n_eigen", "alpha", "start", "status", "error", "final_ergodicity", "final_coverage_residual",
@@ -310,7 +328,8 @@ def _write_table(path: Path, curves: dict[str, dict[str, np.ndarray]], failed: d
             for j, a in enumerate(c["alpha"].tolist()):
                 error = failed.get((key, k, a), "")
                 for s in range(c["ergodicity"].shape[2]):
-                    rows.append([key, k, a, s, "failed" if error else "ok", error.splitlines()[0] if error else "",
+                    status = "failed" if error else "not run" if (key, k, a) in not_run else "ok"
+                    rows.append([key, k, a, s, status, error.splitlines()[0] if error else "",
                                  float(c["ergodicity"][i, j, s, -1]), float(c["coverage_residual"][i, j, s, -1]),
                                  float(c["path_length_m"][i, j, s, -1])])
     return write_csv(path, cols, rows)

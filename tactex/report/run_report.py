@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import to_jsonable, write_json
+from tactex.control.safety import SafetyLimits
 from tactex.control.va_ufic import VaUficParams
 from tactex.errors import InputError
 from tactex.report.cloud import plot_cloud
@@ -47,6 +48,7 @@ __all__ = [
     "RunReport",
     "missing_metric_keys",
     "run_kind",
+    "safety_summary",
     "summary_table",
     "vision_round_trips",
     "write_clean_report",
@@ -714,6 +716,32 @@ def _as_rows(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping
         if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], Mapping)):
             raise InputError(f"summary rows must be (name, metrics mapping) pairs, got {item!r:.80}")
     return items
+
+
+def safety_summary(metrics: Mapping[str, Any]) -> str | None:
+    """What the safety layer did in a run, and why, as one line from ``metrics["safety_counts"]``
+    (None when it never stepped in): a run that retreated or was clipped must say so where its
+    results are read, not only in metrics.json."""
+    counts = {k: int(v) for k, v in (metrics.get("safety_counts") or {}).items() if v}
+    limits = metrics.get("safety_limits") or {}
+    cap = float(limits.get("max_contact_force_n", SafetyLimits.max_contact_force))
+    rate = float(limits.get("tau_rate_max_n_m_s", SafetyLimits.tau_rate_max))
+    peak = metrics.get("max_contact_force_n", metrics.get("max_force_n"))  # clean: the magnitude; wipe: the normal
+    peak_text = f", peak {float(peak):.1f} N" if isinstance(peak, (int, float)) and math.isfinite(peak) else ""
+    said = {
+        "force_limit": lambda n: f"retreated {n}× from a contact force above {cap:g} N{peak_text}",
+        "wrench_lost": lambda n: f"lost the F/T sensor {n}× (backed off, then held until it was back)",
+        "nan_wrench": lambda n: f"bridged {n} non-finite F/T reading(s) with the last finite one",
+        "nan_state": lambda n: f"held {n}× on a non-finite robot state",
+        "controller_fault": lambda n: f"held {n}× on a controller fault",
+        "nan_torque": lambda n: f"held {n}× on a non-finite controller torque",
+        "joint_limit": lambda n: f"pushed back from a joint limit {n}×",
+        "torque_limit": lambda n: f"saturated the torque at the joint limits on {n} tick(s)",
+        "torque_rate_limit": lambda n: f"clipped the torque rate ({rate:g} N·m/s) on {n} tick(s)",
+    }
+    parts = [say(counts[kind]) for kind, say in said.items() if counts.get(kind)]
+    parts += [f"{kind} {n}×" for kind, n in counts.items() if kind not in said and kind != "retreat_end"]
+    return "; ".join(parts) if parts else None
 
 
 def summary_table(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping[str, Any]]]) -> str:

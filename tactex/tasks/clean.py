@@ -41,6 +41,7 @@ from tactex.config import param
 from tactex.control.ga_line_force import GaLineForceController, GaLineForceParams
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import LineForceReference
+from tactex.control.safety import MAX_FORCE_SET_POINT_N, SafetyLimits, check_force_set_point
 from tactex.ergodic import kernel
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
@@ -145,9 +146,11 @@ class CleanConfig(SimWorldParams):
 
     object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)",
                              option="object", aliases=("--object-name",))
-    marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full (in simulation with --cloud the cloud's "
-                              "target is the dirt instead)")
-    force_n: float = param(10.0, "pressing force set point along the tool axis [N]")
+    marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full (not with --cloud, whose target is the "
+                              "dirt)", unused_with=("cloud", "the cloud's target is the dirt"))
+    force_n: float = param(10.0, "pressing force set point along the tool axis, at most "
+                                 f"{MAX_FORCE_SET_POINT_N:g}: contact peaks reach twice it, and the safety layer "
+                                 f"retreats at {SafetyLimits.max_contact_force:g} [N]")
     n_eigen: int | None = param(
         None, "eigenpairs n_K of the spectral diffusion; default: one per 5 footprint areas of the captured "
         "surface, at least TEC's 200 (which small objects keep), at most 1000 [-]")
@@ -293,6 +296,7 @@ class CleanConfig(SimWorldParams):
         if not (np.isfinite(el) and 0.0 <= el <= 75.0):
             raise ConfigError(f"side_capture_elevation_deg must be within 0–75 deg (above 75 the camera no longer sees "
                               f"the wall), got {self.side_capture_elevation_deg!r}")
+        check_force_set_point("force_n", self.force_n)
         if self.approach_force_n > self.force_n:
             raise ConfigError(f"approach_force_n ({self.approach_force_n}) must not exceed force_n ({self.force_n})")
         if not (np.isfinite(self.contact_threshold_n) and self.contact_threshold_n > 0):
@@ -1294,12 +1298,17 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
         "object": cfg.object_name,
         "marking": "cloud" if cfg.cloud else cfg.marking,  # with --cloud the dirt is its target (simulated too)
         "safety_events": len(loop.safety.events),
+        # per kind: events (force_limit: one per retreat), ticks for nan_wrench and the torque and rate limits
+        "safety_counts": dict(loop.safety.counts),
+        "safety_limits": {"max_contact_force_n": loop.safety.limits.max_contact_force,
+                          "tau_rate_max_n_m_s": loop.safety.limits.tau_rate_max},
         # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
         "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
         "ergodicity": ergodicity,
         "robot": "franka" if robot is not None else "sim",
         "target_source": "cloud" if given is not None else "camera",
         "aborted": aborted,
+        "partial": bool(aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
     }
     if robot is not None:
         metrics.update(backend.loop_metrics())

@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param, write_json
-from tactex.errors import ConfigError, InputError, MissingDependencyError
+from tactex.errors import ConfigError, InputError, MissingDependencyError, RunInterrupted
 from tactex.report.outdir import prepare_out_dir
-from tactex.report.run_report import RunReport, summary_table, write_index_html, write_run_report
+from tactex.report.run_report import RunReport, safety_summary, summary_table, write_index_html, write_run_report
 
 __all__ = [
     "DemoConfig",
@@ -131,17 +131,26 @@ def _try_video(result: Any, rep: RunReport, enabled: bool) -> None:
 def run_task(kind: str, config: Any, out_dir: str | Path, *, label: str | None = None, progress: bool = True,
              video: bool = True, note: Note | None = _note_stderr, robot: Any = None) -> RunReport:
     """Run one task with ``config`` and write its run folder; returns the report (metrics, files, notes).
-    ``robot``: :class:`~tactex.tasks.robot.RealRobotParams` to run on a real Franka, None for simulation."""
+    ``robot``: :class:`~tactex.tasks.robot.RealRobotParams` to run on a real Franka, None for simulation.
+
+    Ctrl-C during the task's program writes what it recorded (metrics marked ``"partial": true``, no
+    video), then raises :class:`~tactex.errors.RunInterrupted`."""
     spec = task_spec(kind)
     if not isinstance(config, spec.config_cls):
         raise ConfigError(f"{kind} needs a {spec.config_cls.__name__}, got {type(config).__name__}")
+    from tactex.tasks.robot import stopped_by_user
+
     out = prepare_out_dir(out_dir)
     result = spec.run(config, progress=progress) if robot is None else spec.run(config, progress=progress, robot=robot)
+    interrupted = stopped_by_user(result.metrics)
     rep = write_run_report(result, out, label=label or (config.baseline or "tactex"))
-    _try_video(result, rep, video)
+    _try_video(result, rep, video and not interrupted)  # after Ctrl-C the user waits for the exit, not a replay
     if note is not None:
         for n in rep.notes:
             note(f"{kind} {rep.label}: {n}")
+    if interrupted:
+        raise RunInterrupted(f"what the {kind} run recorded up to then ({result.metrics.get('sim_time_s', 0.0):.1f} s) "
+                             f"is in {out}: metrics.json (\"partial\": true), series.npz and the report")
     return rep
 
 
@@ -207,8 +216,12 @@ class DemoResult:
     wall_time_s: float = 0.0
 
     def summary(self) -> str:
+        """The tables of the runs per task, then a line per run whose safety layer stepped in."""
         tables = {k: summary_table([(r.label, r.metrics) for r in reps]) for k, reps in self.reports.items() if reps}
-        return "\n\n".join(f"{kind}:\n{table}" for kind, table in tables.items())
+        text = "\n\n".join(f"{kind}:\n{table}" for kind, table in tables.items())
+        safety = [f"safety layer ({kind} {r.label}): {said}" for kind, reps in self.reports.items() for r in reps
+                  if (said := safety_summary(r.metrics))]
+        return "\n\n".join([text, "\n".join(safety)]) if safety else text
 
 
 def run_demo(out_dir: str | Path = "runs/demo", config: DemoConfig | None = None, *, progress: bool = True,

@@ -38,6 +38,7 @@ __all__ = [
     "open_backend",
     "open_vision",
     "stop_reason",
+    "stopped_by_user",
 ]
 
 #: What ends a run on a robot early and keeps its data: a libfranka error or lost link, a lost
@@ -48,6 +49,11 @@ ROBOT_STOPS = (RobotError, SensorFault, KeyboardInterrupt)
 def stop_reason(exc: BaseException) -> str:
     """The ``aborted`` entry of a run's metrics for one of :data:`ROBOT_STOPS`."""
     return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+
+def stopped_by_user(metrics: dict) -> bool:
+    """Whether a run's metrics say Ctrl-C ended it (its ``aborted``, from :func:`stop_reason`)."""
+    return str(metrics.get("aborted") or "").startswith(KeyboardInterrupt.__name__)
 
 
 #: How often the loop asks whether the vision process is alive [ticks].

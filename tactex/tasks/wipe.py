@@ -47,6 +47,7 @@ from tactex.control.cartesian_impedance import CartesianImpedanceController
 from tactex.control.friction import FrictionCompensator, FrictionCompensatorParams
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import PoseForceReference
+from tactex.control.safety import MAX_FORCE_SET_POINT_N, SafetyLimits, check_force_set_point
 from tactex.control.va_ufic import VaUficController, VaUficParams
 from tactex.errors import ConfigError
 from tactex.perception.estimate import SurfaceEstimate
@@ -94,7 +95,9 @@ class WipeConfig(SimWorldParams):
     object_name: str = param("sine_panel", "the unknown surface (VA-UFIC §III: sine_panel)", option="object",
                              aliases=("--object-name",))
     duration_s: float = param(20.0, "duration of the wiping policy [s]")
-    force_n: float = param(15.0, "commanded force along the tool axis f_d,z [N]")
+    force_n: float = param(15.0, f"commanded force along the tool axis f_d,z, at most {MAX_FORCE_SET_POINT_N:g}: "
+                                 "contact peaks reach twice it, and the safety layer retreats at "
+                                 f"{SafetyLimits.max_contact_force:g} [N]")
     amplitude_m: float = param(0.04, "circle radius of the policy [m]")
     omega_rad_s: float = param(2.0, "angular rate of the policy circle [rad/s]")
     drift_m_s: float = param(0.005, "drift of the policy along −y of the tool [m/s]")
@@ -119,6 +122,7 @@ class WipeConfig(SimWorldParams):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        check_force_set_point("force_n", self.force_n)
         for name in ("amplitude_m", "drift_m_s", "start_height_m", "omega_rad_s", "contact_threshold_n"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
@@ -455,10 +459,15 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "controller": inner.name,
         "baseline": cfg.baseline or "va_ufic",
         "safety_events": len(loop.safety.events),
+        # per kind: events (force_limit: one per retreat), ticks for nan_wrench and the torque and rate limits
+        "safety_counts": dict(loop.safety.counts),
+        "safety_limits": {"max_contact_force_n": loop.safety.limits.max_contact_force,
+                          "tau_rate_max_n_m_s": loop.safety.limits.tau_rate_max},
         # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
         "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
         "robot": "franka" if robot is not None else "sim",
         "aborted": aborted,
+        "partial": bool(aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
         **vision.stats(),
     }
     if robot is not None:
