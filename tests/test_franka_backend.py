@@ -313,13 +313,16 @@ def _wait_for_stop(proc: subprocess.Popen, deadline_s: float) -> float:
     the report is written after it)."""
     t0 = time.monotonic()
     assert proc.stderr is not None
+    seen: list[str] = []
     while time.monotonic() - t0 < deadline_s:
         line = proc.stderr.readline()
         if "stopped early" in line:
             return time.monotonic() - t0
+        seen.append(line)
         if not line and proc.poll() is not None:
             break
-    raise AssertionError("the run never reported that it stopped")
+    tail = "".join(seen[-20:])
+    raise AssertionError(f"the run never reported that it stopped (exit {proc.poll()}); its last lines:\n{tail}")
 
 
 def test_clean_of_a_given_cloud_on_the_twin_plans_its_sweep_without_dropping_the_link(tmp_path, monkeypatch):
