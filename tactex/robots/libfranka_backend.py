@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tactex.config import param
-from tactex.control.safety import FRANKA_TAU_MAX
+from tactex.control.safety import FRANKA_TAU_MAX, LIMIT_MARGIN
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
 from tactex.perception.frame import CameraFrame
@@ -563,7 +563,8 @@ class LibfrankaBackend:
         per tick: no model, no state conversion, no safety layer, none of tactex's controllers. The link's
         floor: what this PC, its network and the robot allow a loop that does (almost) nothing;
         :attr:`timing` records it as :meth:`step` does. Unlike Franka's example it adds no Coriolis term
-        and no rate limiter (the arm holds still); each torque is clipped to the Franka's limits and a
+        and no rate limiter (the arm holds still); each torque is clipped a margin below the Franka's limits
+        (:data:`~tactex.control.safety.LIMIT_MARGIN`) and a
         non-finite state is answered with zero torque. Torque control ends (``motion_finished``) when it
         returns; the returned state is the last one answered. The wrench source is not read meanwhile."""
         if self._closed:
@@ -576,7 +577,7 @@ class LibfrankaBackend:
         self.pause()
         plf, timing, perf = self._plf, self.timing, time.perf_counter
         k, d = BARE_STIFFNESS_N_M_PER_RAD, BARE_DAMPING_N_M_S_PER_RAD
-        lim = FRANKA_TAU_MAX
+        lim = [m * (1.0 - LIMIT_MARGIN) for m in FRANKA_TAU_MAX]  # a margin below the robot's limits
         zero = [0.0] * 7
         try:
             control = self._control = self.robot.start_torque_control()
