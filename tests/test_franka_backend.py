@@ -226,7 +226,8 @@ def test_bare_hold_sends_zero_torque_for_a_nan_state_and_clips_to_the_limits(pan
         assert len(sent) > 10 and np.isfinite(sent).all()
         assert (sent[2:5] == 0.0).all()  # the NaN states' answers
         # clipped a margin below the robot's limits, where its own check fires
-        np.testing.assert_allclose(sent[5:], np.tile(-np.array(FRANKA_TAU_MAX) * (1 - LIMIT_MARGIN), (len(sent) - 5, 1)))
+        clip = np.array(FRANKA_TAU_MAX) * (1 - LIMIT_MARGIN)
+        np.testing.assert_allclose(sent[5:], np.tile(-clip, (len(sent) - 5, 1)))
         assert control.written[-1] == ([0.0] * 7, True)  # the end: zero torque, motion_finished
         assert backend._control is None
     finally:
