@@ -46,7 +46,7 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
 from tactex.ergodic.relocation import RelocationCommand
-from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError
+from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError, SurfaceNotFound
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -1038,7 +1038,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if t_move is not None and t_touch is not None:
                 island_move_s, t_move = t_touch - t_move, None
             if t_touch is None:
-                raise ExplorationError(
+                loop.pause()  # a real robot holds itself while the run's data is written
+                raise SurfaceNotFound(
                     f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
                     "surface and the real one disagree (object moved?)"
                 )

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import ConfigError, InputError, RobotError, SensorFault
+from tactex.errors import ConfigError, InputError, RobotError, SensorFault, SurfaceNotFound
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.robots.libfranka_backend import FrankaConfig
@@ -41,8 +41,9 @@ __all__ = [
 ]
 
 #: What ends a run on a robot early and keeps its data: a libfranka error or lost link, a lost
-#: sensor or vision process, Ctrl-C (torque control has ended by the time they reach the task).
-ROBOT_STOPS = (RobotError, SensorFault, KeyboardInterrupt)
+#: sensor or vision process, a surface that is not where the plan expects it, Ctrl-C (torque control
+#: has ended by the time they reach the task: a task pauses the loop before it raises SurfaceNotFound).
+ROBOT_STOPS = (RobotError, SensorFault, SurfaceNotFound, KeyboardInterrupt)
 
 
 def stop_reason(exc: BaseException) -> str:

@@ -1,0 +1,138 @@
+"""Our real-robot paths against franka-sim, an emulator of the Franka's own checks that nobody here
+wrote: its motion-limit checker (torque range, ``controller_torque_discontinuity`` at 1000 N·m/s, joint
+limits) and its communication constraints, both enforced as on the robot, over an FR3 model that is
+not ours (franky-sim's ``fr3.xml``: the Franka hand on the flange, other inertias, joint friction and
+damping) and nothing in its world but a floor. What the twin (tests/test_twin.py) cannot show: that
+no command of ours reaches a limit the robot checks.
+
+franka-sim pins numpy 1.26 and mujoco < 3.3 and runs from an environment of its own
+(``make .venv-franka-sim``, from tools/franka-sim/uv.lock; CI builds it). Without it these tests skip.
+One emulator serves the module; each test checks that it logged no violation while the test ran.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+REASON = "needs the franka extra: EXTRAS='dev fast franka' make test"
+pytest.importorskip("pylibfranka", reason=REASON)
+pytest.importorskip("franky_sim", reason=REASON)
+
+from tactex.cli import main  # noqa: E402
+from tactex.errors import RobotError  # noqa: E402
+from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend  # noqa: E402
+from tactex.sim.franka_sim_process import FrankaSimProcess, franka_sim_python  # noqa: E402
+from tactex.tasks.runner import ControlLoop  # noqa: E402
+
+pytestmark = [pytest.mark.franka, pytest.mark.skipif(
+    franka_sim_python() is None, reason="needs franka-sim's own environment: make .venv-franka-sim (CI builds it)")]
+
+
+@pytest.fixture(scope="module")
+def emulator():
+    with FrankaSimProcess(enforce=True) as proc:
+        yield proc
+
+
+@pytest.fixture
+def no_violation(emulator):
+    """The emulator logs no failed check while the test runs."""
+    before = len(emulator.violations())
+    yield emulator
+    assert emulator.violations()[before:] == []
+
+
+def _run(args: list[str], capsys) -> tuple[int, str, str]:
+    code = main(args)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_robot_check_passes_with_the_robots_checks_enforced(no_violation, capsys, tmp_path):
+    # the link's figures on a shared 2-core machine are the machine's (the franka bench measures them):
+    # lost cycles and success rate are loose here; what is checked is that the hold trips no check
+    code, out, err = _run(["robot", "check", "--robot-ip", no_violation.hostname, "--duration-s", "2",
+                           "--max-lost-percent", "5", "--min-success-rate", "0", "--out", str(tmp_path / "c.json")],
+                          capsys)
+    assert code == 0 and "check passed" in out, out + err
+    assert json.loads((tmp_path / "c.json").read_text())["loop_ticks"] > 1000
+
+
+def test_joint_moves_stay_below_the_robots_limits(no_violation):
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=no_violation.hostname))
+    try:
+        loop = ControlLoop(backend)
+        q0 = loop.state.q.copy()
+        for dq in ([0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, -0.2, 0.2, 0.3, 0.0, 0.3, 0.5], np.zeros(7)):
+            loop.move_joints(q0 + np.asarray(dq), settle_s=0.1)
+        q_end = loop.state.q.copy()
+    finally:
+        backend.close()
+    # franka-sim's arm is not ours, and its joints keep their dry friction (1.1 N·m; a real Franka's
+    # firmware compensates it): the wrist's soft joint spring stops short, the rest track
+    assert np.abs(q_end - q0)[:6].max() < 0.02 and abs(q_end[6] - q0[6]) < 0.2
+    assert loop.safety.counts.get("torque_rate_limit", 0) == 0 and loop.safety.counts.get("torque_limit", 0) == 0
+
+
+def test_wipe_without_a_surface_ends_with_a_named_outcome_and_keeps_its_data(no_violation, capsys, tmp_path):
+    # the plate the wipe expects is not in franka-sim's world: the approach gives up past where it should be
+    out = tmp_path / "wipe"
+    code, text, err = _run(["wipe", "--robot", "franka", "--robot-ip", no_violation.hostname, "--ft", "franka",
+                            "--camera", "none", "--duration-s", "8", "--quiet", "--no-video", "--out", str(out)],
+                           capsys)
+    assert code == 1, text + err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["aborted"].startswith("SurfaceNotFound: no contact within"), metrics["aborted"]
+    assert "stopped early (SurfaceNotFound" in err
+    assert (out / "series.npz").is_file() and metrics["loop_ticks"] > 100
+    assert metrics["torque_rate_clip_ticks"] == 0
+
+
+def test_clean_of_a_plate_that_is_not_there_ends_with_a_named_outcome_and_keeps_its_data(no_violation, capsys,
+                                                                                          tmp_path):
+    cloud = tmp_path / "plate.ply"
+    assert main(["twin", "--object", "plate", "--export-cloud", str(cloud)]) == 0
+    out = tmp_path / "clean"
+    code, text, err = _run(["clean", "--robot", "franka", "--robot-ip", no_violation.hostname, "--ft", "franka",
+                            "--camera", "none", "--cloud", str(cloud), "--budget-s", "30", "--quiet", "--no-video",
+                            "--out", str(out)], capsys)
+    assert code == 1, text + err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["aborted"].startswith("SurfaceNotFound: no contact within 6 s of approach"), metrics["aborted"]
+    assert (out / "series.npz").is_file()
+    # The clean's fast transit moves (joint impedance, 600 N·m/rad) meet the rate limit for a few ticks here,
+    # never the robot's (0 violations): franka-sim's physics runs below real time on a loaded machine and sends
+    # the same state again with its clock advanced (11 % of the states of one run), so the reference runs
+    # ahead of a frozen arm and the torque builds up, then falls as the arm catches up in double steps. On a
+    # robot the arm moves in real time. Bounded here; the count is in the report of issue 40.
+    assert metrics["torque_rate_clip_ticks"] < 200
+
+
+def test_dry_run_commands_nothing(no_violation, capsys, tmp_path):
+    out = tmp_path / "dry"
+    code, text, err = _run(["wipe", "--robot", "franka", "--robot-ip", no_violation.hostname, "--ft", "franka",
+                            "--camera", "none", "--dry-run", "--duration-s", "0.5", "--quiet", "--no-video",
+                            "--out", str(out)], capsys)
+    assert code == 0, text + err
+    assert json.loads((out / "metrics.json").read_text())["dry_run"]
+
+
+def test_a_torque_step_is_the_robots_reflex_and_ends_torque_control_with_its_name(emulator):
+    # a command past the rate limit, sent around the safety layer: the emulator aborts the motion as the
+    # robot would, and the backend ends torque control and names libfranka's error
+    before = len(emulator.violations())
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=emulator.hostname, auto_recovery=True))
+    try:
+        backend.apply_torque(np.zeros(7))
+        backend.step()  # torque control starts
+        with pytest.raises(RobotError, match="controller_torque_discontinuity"):
+            for _ in range(5):
+                backend.apply_torque(np.array([5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))  # 5000 N·m/s
+                backend.step()
+        assert backend._control is None  # libfranka ended the motion; the backend knows
+    finally:
+        backend.close()
+    assert any("controller_torque_discontinuity" in line for line in emulator.violations()[before:])
