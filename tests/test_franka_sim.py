@@ -6,7 +6,7 @@ damping) and nothing in its world but a floor. What the twin (tests/test_twin.py
 no command of ours reaches a limit the robot checks.
 
 franka-sim pins numpy 1.26 and mujoco < 3.3 and runs from an environment of its own
-(``make .venv-franka-sim``, from tools/franka-sim/uv.lock; CI builds it). Without it these tests skip.
+(``make franka-sim-env``, from tools/franka-sim/uv.lock; CI builds it). Without it these tests skip.
 One emulator serves the module; each test checks that it logged no violation while the test ran.
 """
 
@@ -28,7 +28,7 @@ from tactex.sim.franka_sim_process import FrankaSimProcess, franka_sim_python  #
 from tactex.tasks.runner import ControlLoop  # noqa: E402
 
 pytestmark = [pytest.mark.franka, pytest.mark.skipif(
-    franka_sim_python() is None, reason="needs franka-sim's own environment: make .venv-franka-sim (CI builds it)")]
+    franka_sim_python() is None, reason="needs franka-sim's own environment: make franka-sim-env (CI builds it)")]
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ robot's motion-limit checker (joint position/velocity/acceleration/jerk limits, 
 ``controller_torque_discontinuity`` at 1000 N·m/s) and its communication constraints (20
 consecutive lost command cycles abort the motion, counted in cycles, so a stalled simulator is not
 counted against the client). It pins numpy 1.26 and mujoco < 3.3, so it lives in an environment of
-its own (``tools/franka-sim``: its pyproject and uv.lock; ``make .venv-franka-sim``) and runs as a
+its own (``tools/franka-sim``: its pyproject and uv.lock; ``make franka-sim-env``) and runs as a
 separate process: :mod:`tactex.sim.franka_sim_serve`, run by that environment's Python, binds one
 loopback address (franka-sim's own launcher binds every interface).
 
@@ -46,7 +46,7 @@ _VIOLATION = re.compile(r"motion limit violated|aborting the motion|communicatio
 
 def franka_sim_python() -> Path | None:
     """The interpreter of franka-sim's environment: ``$TACTEX_FRANKA_SIM_PYTHON``, else the checkout's
-    ``.venv-franka-sim`` (built by ``make .venv-franka-sim``); None when there is none."""
+    ``.venv-franka-sim`` (built by ``make franka-sim-env``); None when there is none."""
     given = os.environ.get(FRANKA_SIM_PYTHON_ENV)
     if given:
         return Path(given) if Path(given).is_file() else None
@@ -133,7 +133,7 @@ class FrankaSimProcess:
     Attributes: ``hostname``, ``process``, ``ready_line``.
 
     Raises:
-        MissingDependencyError: no franka-sim environment (``make .venv-franka-sim``).
+        MissingDependencyError: no franka-sim environment (``make franka-sim-env``).
         TactexError: franka-sim exited or was not ready in time (its stderr attached).
     """
 
@@ -143,7 +143,7 @@ class FrankaSimProcess:
         if py is None or not py.is_file():
             raise MissingDependencyError(
                 "franka-sim", "", "The franka-sim rehearsal target",
-                fix="It runs in an environment of its own: build it with `make .venv-franka-sim` (from "
+                fix="It runs in an environment of its own: build it with `make franka-sim-env` (from "
                     f"tools/franka-sim/uv.lock), or name its Python in ${FRANKA_SIM_PYTHON_ENV}.")
         self.hostname, _ = free_loopback_address()
         self._dir = tempfile.TemporaryDirectory(prefix="tactex-franka-sim-")
