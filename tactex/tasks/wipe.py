@@ -460,6 +460,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     va_params = VaUficParams()
     metrics: dict[str, Any] = {
         "force_mae_n": float(np.mean(np.abs(f_err))) if f_err.size else float("nan"),
+        # share of the contact ticks whose force is within ±20 % of the set point (the clean reports the same)
+        "force_within_20pct_fraction": float(np.mean(np.abs(f_err) <= 0.2 * cfg.force_n)) if f_err.size else 0.0,
         "force_rmse_n": float(np.sqrt(np.mean(f_err**2))) if f_err.size else float("nan"),
         "motion_mae_m": mae_m,
         "motion_rmse_m": rmse_m,
