@@ -46,7 +46,7 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
 from tactex.ergodic.relocation import RelocationCommand
-from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError, SurfaceNotFound
+from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError, SurfaceNotFound, TactexError
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -68,7 +68,7 @@ from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath, WaypointPath
 from tactex.tasks.recorder import Recorder
-from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
+from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, end_on_robot, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
@@ -1234,6 +1234,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     except ROBOT_STOPS as exc:
         # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
         aborted = stop_reason(exc)
+        bar.note(f"stopped early: {aborted}")
+    except TactexError as exc:
+        if robot is None:  # in simulation an error of ours is raised; on a robot the run keeps its data
+            raise
+        aborted = end_on_robot(loop, exc)
         bar.note(f"stopped early: {aborted}")
     if stroke is not None:  # the program ended during a stroke: its path so far is part of the agent's
         legs.path_m += stroke.path.path_length

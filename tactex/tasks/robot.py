@@ -34,6 +34,7 @@ __all__ = [
     "ProcessVision",
     "RealRobotParams",
     "SurfaceVision",
+    "end_on_robot",
     "load_hand_eye",
     "open_backend",
     "open_vision",
@@ -49,6 +50,18 @@ ROBOT_STOPS = (RobotError, SensorFault, SurfaceNotFound, KeyboardInterrupt)
 def stop_reason(exc: BaseException) -> str:
     """The ``aborted`` entry of a run's metrics for one of :data:`ROBOT_STOPS`."""
     return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+
+def end_on_robot(loop, exc: BaseException) -> str:
+    """An error of ours that ends a run on a robot mid-task (a pose out of reach, a planning failure)
+    ends it as :data:`ROBOT_STOPS` do: torque control ends (``loop.pause``: the robot holds itself
+    while the run's data is written; a link already gone ended it already) and the run keeps what it
+    recorded. Returns the ``aborted`` entry for its metrics."""
+    try:
+        loop.pause()
+    except ROBOT_STOPS:
+        pass
+    return stop_reason(exc)
 
 
 #: How often the loop asks whether the vision process is alive [ticks].

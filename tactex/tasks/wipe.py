@@ -48,7 +48,7 @@ from tactex.control.friction import FrictionCompensator, FrictionCompensatorPara
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import PoseForceReference
 from tactex.control.va_ufic import VaUficController, VaUficParams
-from tactex.errors import ConfigError, SurfaceNotFound
+from tactex.errors import ConfigError, SurfaceNotFound, TactexError
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -56,7 +56,15 @@ from tactex.pointcloud.voxel import voxel_indices
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
-from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, SurfaceVision, open_backend, open_vision, stop_reason
+from tactex.tasks.robot import (
+    ROBOT_STOPS,
+    RealRobotParams,
+    SurfaceVision,
+    end_on_robot,
+    open_backend,
+    open_vision,
+    stop_reason,
+)
 from tactex.tasks.runner import TOOL_DOWN, ControlLoop
 from tactex.tasks.world import SimWorldParams
 
@@ -438,6 +446,11 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
         aborted = stop_reason(exc)
+        bar.note(f"stopped early: {aborted}")
+    except TactexError as exc:
+        if robot is None:  # in simulation an error of ours is raised; on a robot the run keeps its data
+            raise
+        aborted = end_on_robot(loop, exc)
         bar.note(f"stopped early: {aborted}")
     log.finish(loop.state)
     n_ticks, n_contact = log.n_ticks, log.n_contact
