@@ -307,6 +307,9 @@ class LibfrankaBackend:
         self._t_read = 0.0
         self._compute_us = float("nan")
         self._gc_was_on = False  # set while torque control runs with the collector switched off by us
+        #: tau_J_d [N·m] of the first state of a torque control just (re)started, until the control loop
+        #: takes it (ControlLoop.tick: the safety layer's rate limit continues from it); None otherwise
+        self.torque_restart: np.ndarray | None = None
         self._last_read_wall: float | None = None
         self.wrench = config.wrench_source(self.tool)
         self.scheduling = pin_control_thread(config.control_cpu)
@@ -425,7 +428,8 @@ class LibfrankaBackend:
                 self.wrench.prefetch(self._state.ee_rotation)
                 franka_state, period_ms = self._read_dry()
             else:
-                if self._control is None:
+                restarted = self._control is None
+                if restarted:
                     self._control = self.robot.start_torque_control()
                     self._pending_write = False
                     self._gc_off()
@@ -439,6 +443,8 @@ class LibfrankaBackend:
                 franka_state, duration = self._control.readOnce()
                 self._pending_write = True
                 period_ms = duration.to_sec() * 1e3
+                if restarted:  # the robot's torque-rate check starts from its own last command, not ours
+                    self.torque_restart = np.array(franka_state.tau_J_d, dtype=float)
         except RobotError:
             raise
         except Exception as exc:
