@@ -40,9 +40,11 @@ def emulator():
 @pytest.fixture
 def no_violation(emulator):
     """The emulator logs no failed check while the test runs."""
-    before = len(emulator.violations())
+    before, paced = len(emulator.violations()), len(emulator.realtime_factors())
     yield emulator
-    assert emulator.violations()[before:] == []
+    pace = emulator.realtime_factors()[paced:]
+    # a loaded machine shows here first: franka-sim below real time, and our loop late with it
+    assert emulator.violations()[before:] == [], f"franka-sim's real-time factor meanwhile: {pace or 'at least 1'}"
 
 
 def _run(args: list[str], capsys) -> tuple[int, str, str]:

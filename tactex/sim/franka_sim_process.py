@@ -42,6 +42,8 @@ _READY = "franka-sim ready:"
 #: franka-sim's log lines for a check that failed: a motion-limit violation (logged whether enforced or
 #: not), an abort, a communication-constraint violation.
 _VIOLATION = re.compile(r"motion limit violated|aborting the motion|communication_constraints_violation")
+#: franka-sim's own report of its pace, every 5 s: "simulation running at 0.52x real time".
+_PACE = re.compile(r"simulation running at ([0-9.]+)x real time")
 
 
 def franka_sim_python() -> Path | None:
@@ -193,6 +195,11 @@ class FrankaSimProcess:
     def violations(self) -> list[str]:
         """Every check franka-sim logged as failed so far (motion limits, aborts, lost commands)."""
         return [line for line in self.stderr().splitlines() if _VIOLATION.search(line)]
+
+    def realtime_factors(self) -> list[float]:
+        """franka-sim's real-time factors as it logged them so far (every 5 s while it runs behind): below 1
+        its physics lags its state clock and it sends the same state again with its clock advanced."""
+        return [float(m.group(1)) for m in _PACE.finditer(self.stderr())]
 
     def close(self, timeout_s: float = 20.0) -> int | None:
         """SIGTERM, wait, SIGKILL if needed; always reaps the child. Its exit code."""
