@@ -175,3 +175,29 @@ def test_torque_control_restarts_from_the_robots_last_command(no_violation):
         backend.close()
     assert held[0] == 3.0
     assert abs(firsts[0]) < 1.0 and abs(firsts[1] - firsts[0]) < 1.0  # one rate step at a time from the robot's 0
+
+
+def test_a_clean_stopped_before_its_first_touch_down_keeps_its_data(no_violation, capsys, tmp_path, monkeypatch):
+    # a stop during the moves before the program's loop (here: the second joint move fails as a reflex would)
+    from tactex.tasks.runner import ControlLoop as Loop
+
+    moves = []
+    move_joints = Loop.move_joints
+
+    def failing_move(self, *args, **kwargs):
+        moves.append(1)
+        if len(moves) == 2:
+            raise RobotError("libfranka ControlException: a reflex, staged by the test")
+        return move_joints(self, *args, **kwargs)
+
+    monkeypatch.setattr(Loop, "move_joints", failing_move)
+    cloud = tmp_path / "plate.ply"
+    assert main(["twin", "--object", "plate", "--export-cloud", str(cloud)]) == 0
+    out = tmp_path / "clean"
+    code, text, err = _run(["clean", "--robot", "franka", "--robot-ip", no_violation.hostname, "--ft", "franka",
+                            "--camera", "none", "--cloud", str(cloud), "--budget-s", "30", "--quiet", "--no-video",
+                            "--out", str(out)], capsys)
+    assert code == 1, text + err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["aborted"].startswith("RobotError: libfranka ControlException: a reflex, staged"), metrics["aborted"]
+    assert (out / "series.npz").is_file() and metrics["loop_ticks"] > 100

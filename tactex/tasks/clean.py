@@ -760,10 +760,62 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
                           "base frame); capturing it with the wrist camera is done in simulation only")
     scene_cfg = cfg.scene()
     backend = open_backend(scene_cfg, robot)
+    started = _Started()
     try:
-        return _run_clean(cfg, backend, scene_cfg, robot, progress)
+        return _run_clean(cfg, backend, scene_cfg, robot, progress, started)
+    except TactexError as exc:  # a RobotError, a SensorFault, SurfaceNotFound, a failure of ours
+        # on a robot, a stop outside the program's loop (the moves before its first touch-down, the final
+        # lift-off) keeps what was recorded too; the loop's own stops are kept inside it
+        result = started.stopped(cfg, exc) if robot is not None else None
+        if result is None:
+            raise
+        return result
     finally:
         backend.close()
+
+
+class _Started:
+    """What :func:`_run_clean` has started, for a run on a robot that stops outside the program's loop."""
+
+    def __init__(self) -> None:
+        self.log: _Log | None = None
+        self.loop: ControlLoop | None = None
+        self.cloud: SurfaceCloud | None = None
+        self.t0 = time.perf_counter()
+
+    def stopped(self, cfg: CleanConfig, exc: BaseException) -> CleanResult | None:
+        """The run so far (torque control ended, ``aborted`` naming ``exc``, the series recorded), or
+        None when nothing was recorded yet."""
+        log, loop, cloud = self.log, self.loop, self.cloud
+        if log is None or loop is None or cloud is None:
+            return None
+        series = log.rec.arrays()
+        if not len(series.get("t", ())):
+            return None
+        aborted = end_on_robot(loop, exc)
+        backend = loop.backend
+        metrics = {
+            "aborted": aborted,
+            "robot": "franka",
+            "sim_time_s": loop.t,
+            "wall_time_s": time.perf_counter() - self.t0,
+            "force_within_20pct_fraction": log.within_ticks / max(log.contact_ticks, 1),
+            "max_contact_force_n": log.max_force,
+            "contact_time_s": log.contact_ticks * backend.dt,
+            "force_set_point_n": cfg.force_n,
+            "baseline": cfg.baseline or "tactex",
+            "object": cfg.object_name,
+            "marking": "cloud",
+            "target_source": "cloud",
+            "n_points": len(cloud),
+            "safety_events": len(loop.safety.events),
+            "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
+            "phase_changes": [[t, p] for t, p in log.phase_changes],
+            **backend.loop_metrics(),
+        }
+        return CleanResult(config=cfg, metrics=metrics, series=series, cloud=cloud,
+                           fields={"target_initial": cloud.target.copy()}, agent_path=np.zeros((0, 3)),
+                           tcp_path=series.get("tcp", np.zeros((0, 3))), events=list(loop.safety.events))
 
 
 #: Share of a --cloud's target off the simulated object above which the run warns [-].
@@ -793,7 +845,7 @@ def _dirt_from_cloud(backend, cloud: SurfaceCloud, object_name: str) -> None:
 
 
 def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
-               progress: bool) -> CleanResult:
+               progress: bool, started: _Started | None = None) -> CleanResult:
     wall0 = time.perf_counter()
     log = _Log(backend, cfg)
     loop = ControlLoop(backend, on_tick=log, max_joint_speed=cfg.joint_speed_rad_s)
@@ -801,6 +853,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     given, keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
                                                   cfg.keep_out_threshold, cfg.keep_out_mask)
                        if cfg.cloud else (None, None))
+    if started is not None:
+        started.log, started.loop, started.cloud = log, loop, given
     acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
     cap_pos, cap_rot = _capture_pose(scene_cfg, cfg) if given is None else _cloud_capture_pose(given, cfg)
     try:
