@@ -19,7 +19,8 @@ STAMP := $(VENV)/.synced-$(subst $(space),-,$(strip $(EXTRAS)))
 UV_ENV := UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never
 SYNC := $(UV_ENV) $(UV) sync --frozen --python $(PYTHON) $(foreach e,$(EXTRAS),--extra $(e))
 
-.PHONY: demo test bench readme-status lint lock lock-check test-latest test-franka test-distributed clean-venv
+.PHONY: demo test bench readme-status lint lock lock-check test-latest test-franka test-distributed clean-venv \
+	franka-sim-env test-franka-sim
 
 $(UV): tools/uv-requirements.txt
 	$(PYTHON) -m pip install --quiet --disable-pip-version-check --require-hashes --upgrade \
@@ -71,5 +72,24 @@ test-latest: $(UV)
 test-distributed:
 	$(MAKE) test EXTRAS="$(EXTRAS) distributed"
 
+# franka-sim (PyPI, an independent emulator of the Franka's FCI checks: motion limits, torque rate,
+# lost commands) pins numpy 1.26 and mujoco < 3.3, so it gets an environment of its own, built from
+# its own lock (tools/franka-sim/uv.lock; re-lock with `$(UV) lock --project tools/franka-sim`).
+# tests/test_franka_sim.py start it as a separate process and skip while this environment is absent;
+# CI builds it. docs/twin.md: what it checks and what it does not.
+FS_VENV := .venv-franka-sim
+FS_STAMP := $(FS_VENV)/.synced
+$(FS_STAMP): $(UV) tools/franka-sim/uv.lock tools/franka-sim/pyproject.toml
+	UV_PROJECT_ENVIRONMENT=$(CURDIR)/$(FS_VENV) UV_PYTHON_DOWNLOADS=never \
+		$(UV) sync --frozen --project tools/franka-sim --python $(PYTHON)
+	touch $(FS_STAMP)
+
+franka-sim-env: $(FS_STAMP)
+
+# Our real-robot paths against franka-sim with its checks enforced (robot check, joint moves, the
+# wipe's and the clean's approaches, dry run, a reflex).
+test-franka-sim: $(STAMP) $(FS_STAMP)
+	$(PY) -m pytest -q tests/test_franka_sim.py
+
 clean-venv:
-	rm -rf $(VENV) .tools .venv-latest
+	rm -rf $(VENV) .tools .venv-latest $(FS_VENV)

@@ -24,6 +24,7 @@ __all__ = [
     "SensorFault",
     "SimulationError",
     "SpectralError",
+    "SurfaceNotFound",
     "TactexError",
     "UnitsError",
 ]
@@ -51,6 +52,12 @@ class SpectralError(TactexError, ValueError):
 
 class ExplorationError(TactexError, ValueError):
     """The ergodic explorer cannot proceed (no target mass, degenerate neighbourhood, ...)."""
+
+
+class SurfaceNotFound(ExplorationError):
+    """The tool found no surface where the plan expected one (the object moved, or is not there): an
+    outcome of a run, not a fault. The task ends, torque control ended first, and keeps what it
+    recorded (``aborted`` in its metrics names it)."""
 
 
 class PerceptionError(InputError):

@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 
 from tactex.control import FRANKA_Q_MAX, FRANKA_TAU_MAX, Controller, SafetyLayer, SafetyLimits
+from tactex.control.safety import LIMIT_MARGIN
 from tactex.errors import ConfigError, ControllerFault
 from tests.test_control_common import N_JOINTS, make_state
 
 TAU_MAX = np.asarray(FRANKA_TAU_MAX)
-RATE_STEP = 1000.0 * 1e-3
+RATE_STEP = 1000.0 * 1e-3  # the robot's limit per 1 ms tick [N·m]
+KEEP = 1.0 - LIMIT_MARGIN  # the share of each limit the layer uses
 Q_MID = np.array([0.0, 0.0, 0.0, -1.5, 0.0, 1.8, 0.0])
 
 
@@ -58,10 +60,11 @@ def test_rate_and_torque_limits():
     prev = np.zeros(N_JOINTS)
     for k in range(300):
         tau = layer.torque(_state(k), None)
-        assert (np.abs(tau) <= TAU_MAX).all()
-        assert (np.abs(tau - prev) <= RATE_STEP + 1e-12).all()
+        assert (np.abs(tau) < TAU_MAX).all()  # a margin below the robot's limits, never at them
+        assert (np.abs(tau - prev) < RATE_STEP).all()
+        assert (np.abs(tau - prev) <= KEEP * RATE_STEP + 1e-12).all()
         prev = tau
-    np.testing.assert_allclose(tau, [87.0, -87.0, 5.0, 0.5, 12.0, -12.0, 0.0])
+    np.testing.assert_allclose(tau, [87.0 * KEEP, -87.0 * KEEP, 5.0, 0.5, 12.0 * KEEP, -12.0 * KEEP, 0.0])
     kinds = [e.kind for e in layer.events]
     assert kinds.count("torque_limit") == 1 and "torque_rate_limit" in kinds  # reported once, when it starts
     assert layer.counts["torque_limit"] > 200
@@ -325,3 +328,55 @@ def test_hold_decays_by_exp_dt_over_t_each_tick():
     decay = np.exp(-limits.dt / limits.hold_decay_time)
     np.testing.assert_allclose(held1, tau * decay, rtol=1e-15)
     np.testing.assert_allclose(held2, tau * decay**2, rtol=1e-15)
+
+
+class Random(Controller):
+    """Wild commands: large, stepping, sometimes NaN, sometimes a fault."""
+
+    name = "random"
+
+    def __init__(self, rng) -> None:
+        self.rng = rng
+
+    def reset(self, state) -> None:
+        pass
+
+    def torque(self, state, reference):
+        u = self.rng.random()
+        if u < 0.01:
+            raise ControllerFault("random fault")
+        if u < 0.02:
+            return np.full(N_JOINTS, np.nan)
+        scale = 10.0 ** self.rng.uniform(-2, 3)  # 0.01 to 1000 N·m
+        return self.rng.normal(scale=scale, size=N_JOINTS)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_no_command_ever_reaches_the_robots_limits(seed):
+    """Over randomised states (joints near and past their limits, wrenches that trip the force limit or
+    drop out, NaN states) and randomised commands (huge, stepping, NaN, faults, controller hand-overs),
+    every command stays strictly below the robot's torque limits and its torque rate strictly below
+    1000 N·m/s: the layer clips a margin below them, on its compiled and its Python path alike."""
+    rng = np.random.default_rng(seed)
+    inners = [Random(rng), Random(rng)]
+    layer = SafetyLayer(inners[0], SafetyLimits(force_trip_ticks=3, retreat_time=0.02))
+    layer.reset(make_state(q=Q_MID))
+    q_lo, q_hi = np.asarray(layer.limits.q_min), np.asarray(layer.limits.q_max)
+    prev = np.zeros(N_JOINTS)
+    for k in range(6000):
+        if rng.random() < 0.005:
+            layer.inner = inners[rng.integers(2)]  # a hand-over: blended, on the Python path
+        q = rng.uniform(q_lo - 0.05, q_hi + 0.05)
+        wrench = rng.normal(scale=rng.choice([1.0, 60.0]), size=6)
+        if rng.random() < 0.02:
+            wrench[:] = np.nan
+        state = make_state(t=k * 1e-3, q=q, dq=rng.normal(scale=2.0, size=N_JOINTS), wrench_tool=wrench,
+                           seed=int(rng.integers(1000)))
+        if rng.random() < 0.005:
+            state.q[0] = np.nan
+        tau = layer.torque(state, None)
+        assert np.isfinite(tau).all()
+        assert (np.abs(tau) < TAU_MAX).all(), (k, tau)
+        assert (np.abs(tau - prev) / 1e-3 < 1000.0).all(), (k, tau - prev)
+        prev = tau
+    assert layer.counts.get("torque_rate_limit", 0) > 100 and layer.counts.get("torque_limit", 0) > 10

@@ -175,3 +175,40 @@ def test_force_tank_reports_no_damping_harvest_while_its_port_delivers():
     assert tank.damping_harvested_w == 0.0
     tank.step(damping_power=3.0, force_power=-1.0, dt=1e-3)  # λ = 1: stores β(ẋᵀDẋ − ẋᵀf_f)
     assert tank.damping_harvested_w == pytest.approx(3.0 * tank.last.harvest_power / 4.0)
+
+
+def test_a_drained_force_tanks_multiplier_is_continuous_in_the_power():
+    """Eq. 38's λ steps from 1 to 0 where ẋᵀf_f changes sign: with the tank drained (σ ≈ 0) the whole force
+    came and went tick to tick whenever the velocity along it changed sign (measured on franka-sim: the
+    command held at the robot's torque-rate limit until it aborted). Ramped over lambda_band_w, the
+    multiplier moves by at most Δp/band for a change Δp of ẋᵀf_f, and the paper's step is band 0."""
+    def multiplier(band: float, power: float) -> float:
+        tank = ForceTank(lambda_band_w=band)
+        tank.energy = tank.lower + 1e-9  # drained: σ ≈ 0
+        return tank.step(0.0, power, 1e-3)
+
+    powers = np.linspace(-0.5, 0.5, 2001)  # 0.5 mW apart
+    stepped = [multiplier(0.0, p) for p in powers]
+    ramped = [multiplier(0.3, p) for p in powers]
+    assert max(abs(np.diff(stepped))) > 0.99  # the paper's switch: 1 → 0 between two neighbouring powers
+    assert max(abs(np.diff(ramped))) <= (powers[1] - powers[0]) / 0.3 + 1e-9
+    assert multiplier(0.3, -0.3) == 1.0 and multiplier(0.3, -0.15) == pytest.approx(0.5, abs=1e-6)
+    assert multiplier(0.3, 0.1) == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(ConfigError, match="lambda_band_w"):
+        ForceTank(lambda_band_w=-1.0)
+
+
+def test_the_ramped_force_tank_stays_passive(rng):
+    """Inside the ramp the force acts, reduced, while it dissipates: the tank stores only what the applied
+    force and the damping dissipate, and its energy never drops below the lower limit."""
+    tank = ForceTank(lambda_band_w=0.3)
+    tank.energy = tank.lower + 0.05
+    for _ in range(20000):
+        power, damping = rng.normal(scale=0.3), abs(rng.normal(scale=0.1))
+        e0 = tank.energy
+        m = tank.step(damping, power, 1e-3)
+        assert 0.0 <= m <= 1.0 and tank.energy >= tank.lower - 1e-12
+        if power < 0.0:  # dissipating: the tank stores at most what was dissipated
+            assert tank.energy - e0 <= (damping - m * power) * 1e-3 + 1e-15
+        else:  # generating: the tank pays exactly what the force delivers
+            assert e0 - tank.energy == pytest.approx(m * power * 1e-3, abs=1e-12)

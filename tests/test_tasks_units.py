@@ -626,3 +626,48 @@ def test_pause_calls_the_backends_optional_hook_and_passes_over_a_backend_withou
         loop.pause()
         assert sim.time == t
         np.testing.assert_array_equal(sim.state().q, q)
+
+
+def test_end_on_robot_pauses_and_names_the_error():
+    """An error of ours mid-run on a robot ends torque control (pause) and becomes the run's ``aborted``;
+    a link already gone (the pause fails with one of the robot's stops) is no further error."""
+    from tactex.errors import RobotError, SimulationError
+    from tactex.tasks.robot import end_on_robot
+
+    class Loop:
+        paused = 0
+
+        def __init__(self, fail: bool) -> None:
+            self.fail = fail
+
+        def pause(self) -> None:
+            self.paused += 1
+            if self.fail:
+                raise RobotError("the link is gone")
+
+    for fail in (False, True):
+        loop = Loop(fail)
+        assert end_on_robot(loop, SimulationError("no hover pose within reach")) == \
+            "SimulationError: no hover pose within reach"
+        assert loop.paused == 1
+
+
+def test_the_wipes_approach_gives_up_past_the_expected_surface():
+    """Without contact the approach gives up once the TCP is start_height_m + approach_depth_m past the start
+    along the start tool axis; a contact ends the search for good."""
+    from types import SimpleNamespace
+
+    from tactex.tasks.wipe import WipeConfig, _Approach
+
+    cfg = WipeConfig(start_height_m=0.015, approach_depth_m=0.03)
+    axis = np.array([0.0, 0.0, -1.0])  # the tool points down
+    approach = _Approach(cfg, np.zeros(3), axis)
+
+    def state(z: float, fz: float = 0.0):
+        return SimpleNamespace(ee_position=np.array([0.01, 0.0, z]), wrench_tool=np.array([0.0, 0.0, fz, 0, 0, 0]))
+
+    assert not approach.gave_up(state(-0.044))
+    assert approach.gave_up(state(-0.046)) and "45 mm" in approach.message()
+    assert not approach.gave_up(state(-0.05, fz=2.0)) and not approach.searching
+    with pytest.raises(ConfigError, match="approach_depth_m"):
+        WipeConfig(approach_depth_m=-0.01)

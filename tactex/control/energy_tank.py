@@ -148,11 +148,26 @@ class EnergyTank:
 
 
 class ForceTank(EnergyTank):
-    """VA-UFIC eq. 37–45. Defaults from Table I: x_t,f(0) = 2, S̄ = 2 J, S_low = 1 J."""
+    """VA-UFIC eq. 37–45. Defaults from Table I: x_t,f(0) = 2, S̄ = 2 J, S_low = 1 J.
+
+    ``lambda_band_w`` [W] ramps eq. 38's switch λ over ẋᵀf_f ∈ [−band, 0] instead of stepping it at 0.
+    The paper's λ jumps from 1 (the force controller dissipates: it acts unmodified) to 0 (it is
+    routed through the tank, σ(S)) as the sign of ẋᵀf_f changes. With the tank full (σ = 1) that changes
+    nothing; with the tank drained (σ ≈ 0: a force pushing through free space, no surface where one
+    was expected) the force multiplier jumps between 1 and 0 whenever the velocity along the force
+    changes sign, and the whole force (15 N, 13 N·m on the shoulder) came and went from one 1 ms tick
+    to the next: measured on franka-sim, the commanded torque held at the robot's rate limit until the
+    robot aborted (controller_torque_discontinuity). Ramped, the multiplier λ + σ(1 − λ) is continuous in
+    ẋᵀf_f; inside the band the force is still dissipative (ẋᵀf_f < 0 and a multiplier in [0, 1]), and
+    all it dissipates is what the tank stores, so the tank stays passive. 0: the paper's step.
+    """
 
     def __init__(self, x0: float = 2.0, upper_j: float = 2.0, lower_j: float = 1.0, band_j: float = 0.1,
-                 enabled: bool = True) -> None:
+                 enabled: bool = True, lambda_band_w: float = 0.0) -> None:
         super().__init__(x0, upper_j, lower_j, band_j, enabled)
+        if not (math.isfinite(lambda_band_w) and lambda_band_w >= 0.0):
+            raise ConfigError(f"force tank lambda_band_w must be finite and ≥ 0, got {lambda_band_w!r}")
+        self.lambda_band_w = float(lambda_band_w)
 
     damping_harvested_w: float = 0.0
     """Part of this tick's ẋᵀD_Cẋ [W] the force tank stored; the impedance tank may store only the rest."""
@@ -161,22 +176,25 @@ class ForceTank(EnergyTank):
         """One tick with ẋᵀD_Cẋ [W] and ẋᵀf_f [W] of the force-control wrench f_f that would be
         applied; returns the multiplier λ + σ(1−λ) of eq. 51/73 for f_f.
 
-        λ = 1 when the force controller dissipates (ẋᵀf_f < 0, eq. 38): it acts unmodified and the
-        tank stores β·(ẋᵀDẋ − ẋᵀf_f) (eq. 39). Otherwise it is routed through the tank: the port
-        force f_f,var = ω_f y_t = σ f_f (eq. 42–43; ω_f has y_t, not u_t, in its denominator, as
+        λ = 1 when the force controller dissipates (ẋᵀf_f < 0, eq. 38; ramped from 0 at ẋᵀf_f = 0 to 1
+        at −``lambda_band_w``): it acts unmodified and the tank stores β·(ẋᵀDẋ − m·ẋᵀf_f) (eq. 39, m
+        the multiplier applied). Otherwise it is routed through the tank: the port force
+        f_f,var = ω_f y_t = σ f_f (eq. 42–43; ω_f has y_t, not u_t, in its denominator, as
         f_f,var = ω_f y_t requires) and the tank loses u_t y_t = −σ ẋᵀf_f.
         """
-        lam = 1.0 if force_power < 0.0 else 0.0
         gate = self.gate()
         self.damping_harvested_w = 0.0
-        if lam == 1.0:
+        if force_power < 0.0:
+            band = self.lambda_band_w
+            lam = 1.0 if band <= 0.0 or force_power <= -band else -force_power / band
+            m = 1.0 if lam >= 1.0 else lam + self.valve() * (1.0 - lam)
             damping = 0.0 if 0.0 > damping_power else damping_power  # max(damping_power, 0), NaN kept
-            dissipated = damping - force_power
+            dissipated = damping - m * force_power
             self._commit(0.0, 0.0, gate * dissipated, gate, lam, dt)
             # what was stored, split between the two dissipations in proportion
-            self.damping_harvested_w = self._last[2] * damping / dissipated
-            return 1.0
-        return self._commit(force_power, self.valve(), 0.0, gate, lam, dt)
+            self.damping_harvested_w = self._last[2] * damping / dissipated if dissipated > 0.0 else 0.0
+            return m
+        return self._commit(force_power, self.valve(), 0.0, gate, 0.0, dt)
 
 
 class ImpedanceTank(EnergyTank):

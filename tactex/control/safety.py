@@ -17,8 +17,12 @@
    retreat, its torque is blended in from the last command over ``handover_blend_s``: two controllers
    seldom agree on the torque at the switch, and the step would otherwise hit the rate limit;
 4. joint-limit repulsion inside ``joint_limit_margin`` of a limit (``joint_limit``);
-5. saturation to the Franka torque limits and the torque-rate limit (``torque_limit`` /
-   ``torque_rate_limit``, reported when saturation starts, counted every tick).
+5. saturation a margin below the Franka torque limits and torque-rate limit (``torque_limit`` /
+   ``torque_rate_limit``, reported when saturation starts, counted every tick). The robot's own
+   check fires at its limits (``controller_torque_discontinuity`` at 1000 N·m/s); clipping exactly
+   there let round-off decide (a command clipped to 1 N·m per 1 ms tick was judged 1000.0000x N·m/s
+   and aborted), so the layer clips at ``(1 − limit_margin)`` of each limit, as libfranka's own
+   limiter stays ``kLimitEps`` below them (``franka/rate_limiting.h``).
 
 Events are small frozen dataclasses in :attr:`SafetyLayer.events`; nothing non-finite ever leaves.
 """
@@ -43,6 +47,8 @@ __all__ = [
     "FRANKA_Q_MAX",
     "FRANKA_Q_MIN",
     "FRANKA_TAU_MAX",
+    "FRANKA_TAU_RATE_MAX",
+    "LIMIT_MARGIN",
     "MAX_FORCE_SET_POINT_N",
     "SafetyEvent",
     "SafetyLayer",
@@ -50,7 +56,13 @@ __all__ = [
     "check_force_set_point",
 ]
 
+#: The robot's joint torque limits [N·m] and torque-rate limit [N·m/s] (libfranka's kMaxTorqueRate):
+#: where its own checks fire (tau_J_range_violation, controller_torque_discontinuity).
 FRANKA_TAU_MAX = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+FRANKA_TAU_RATE_MAX = 1000.0
+#: The share of each limit no command uses [-]: 1 % (10 N·m/s of the rate, 0.87 N·m of a shoulder
+#: joint's torque) is far above round-off and costs the controllers nothing they use.
+LIMIT_MARGIN = 0.01
 FRANKA_Q_MIN = (-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973)
 FRANKA_Q_MAX = (2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973)
 
@@ -68,8 +80,11 @@ class SafetyEvent:
 class SafetyLimits:
     """Franka Emika limits by default."""
 
-    tau_max: tuple[float, ...] = param(FRANKA_TAU_MAX, "joint torque limits [N·m]")
-    tau_rate_max: float = param(1000.0, "joint torque-rate limit [N·m/s]")
+    tau_max: tuple[float, ...] = param(FRANKA_TAU_MAX, "the robot's joint torque limits [N·m]")
+    tau_rate_max: float = param(FRANKA_TAU_RATE_MAX, "the robot's joint torque-rate limit [N·m/s]")
+    limit_margin: float = param(
+        LIMIT_MARGIN, "commands are clipped at (1 − limit_margin) of tau_max and tau_rate_max, never at the "
+        "limits themselves, where the robot's own check fires and round-off decides [-]")
     q_min: tuple[float, ...] = param(FRANKA_Q_MIN, "lower joint limits [rad]")
     q_max: tuple[float, ...] = param(FRANKA_Q_MAX, "upper joint limits [rad]")
     joint_limit_margin: float = param(0.1, "repulsion starts this close to a joint limit [rad]")
@@ -115,6 +130,8 @@ class SafetyLimits:
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"SafetyLimits.{name} must be finite and ≥ 0, got {v!r}")
+        if not (isinstance(self.limit_margin, (int, float)) and 0.0 < self.limit_margin < 0.5):
+            raise ConfigError(f"SafetyLimits.limit_margin must lie in (0, 0.5), got {self.limit_margin!r}")
         for name in ("force_trip_ticks", "wrench_loss_ticks"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
@@ -150,12 +167,13 @@ class SafetyLayer(Controller):
         self.limits = limits or SafetyLimits()
         self.name = f"safe_{inner.name}"
         lim = self.limits
-        self._tau_max = np.asarray(lim.tau_max, dtype=float)
+        keep = 1.0 - lim.limit_margin
+        self._tau_max = np.asarray(lim.tau_max, dtype=float) * keep  # where commands are clipped [N·m]
         self._q_min = np.asarray(lim.q_min, dtype=float)
         self._q_max = np.asarray(lim.q_max, dtype=float)
         self._q_lo_margin = self._q_min + lim.joint_limit_margin
         self._q_hi_margin = self._q_max - lim.joint_limit_margin
-        self._rate_step = lim.tau_rate_max * lim.dt
+        self._rate_step = lim.tau_rate_max * keep * lim.dt  # largest change of a command per tick [N·m]
         self._hold_decay = float(np.exp(-lim.dt / lim.hold_decay_time))
         self._tau_max_l = self._tau_max.tolist()
         self._q_lo_margin_l = self._q_lo_margin.tolist()
@@ -198,6 +216,14 @@ class SafetyLayer(Controller):
         self._last_inner = self.inner
         self._blend_from = None
         self.inner.reset(state)
+
+    def reseed(self, tau_last: np.ndarray) -> None:
+        """Continue the rate limit from ``tau_last`` [N·m], the robot's own last command: when torque
+        control (re)starts after a pause the robot checks the first command against its ``tau_J_d``
+        (0 at rest), not against the last one tactex sent before the pause, which may hold newtons of
+        torque (a mis-set load held in place). A non-finite value counts as 0."""
+        tau = np.asarray(tau_last, dtype=float)
+        self._tau_prev[:] = tau if tau.shape == self._tau_prev.shape and np.isfinite(tau).all() else 0.0
 
     def _state_finite(self, state: RobotState) -> bool:
         """Every number of the state is finite: the compiled check when there is one (a state of

@@ -57,7 +57,11 @@ from tactex.errors import ConfigError, ControllerFault, InputError
 from tactex.geometry.so3 import exp_so3_rows, log_so3, log_so3_rows, matmul3_rows, matmul3_tn_rows
 from tactex.perception.estimate import SurfaceEstimate
 
-__all__ = ["PortFeedforward", "VaUficController", "VaUficParams", "desired_rotation_from_normal"]
+__all__ = ["TANK_F_LAMBDA_BAND_W", "PortFeedforward", "VaUficController", "VaUficParams",
+           "desired_rotation_from_normal"]
+
+#: The force tank's λ ramp [W] (:class:`~tactex.control.energy_tank.ForceTank`): 15 N at 2 cm/s.
+TANK_F_LAMBDA_BAND_W = 0.3
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,9 @@ class VaUficParams:
     tank_f_x0: float = param(2.0, "x_t,f(0) [√J]")
     tank_f_upper: float = param(2.0, "S̄_t,f [J]")
     tank_f_lower: float = param(1.0, "S_t,f lower limit [J]")
+    tank_f_lambda_band_w: float = param(
+        TANK_F_LAMBDA_BAND_W, "eq. 38's switch λ ramps from 1 to 0 as ẋᵀf_f rises from −band to 0 (the paper steps "
+        "it at 0, which bangs a drained tank's force on and off tick to tick; tactex.control.energy_tank) [W]")
 
     def __post_init__(self) -> None:
         for name in ("c_margin", "delta_c", "realign_time"):
@@ -166,7 +173,8 @@ class VaUficController(UficController):
         v = self.va
         self._shaper = AlignmentShaper(v.rho_min, v.rho_align_initial)
         self._tank_i = ImpedanceTank(v.tank_i_x0, v.tank_i_upper, v.tank_i_lower, enabled=v.tanks_enabled)
-        self._tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled)
+        self._tank_f = ForceTank(v.tank_f_x0, v.tank_f_upper, v.tank_f_lower, enabled=v.tanks_enabled,
+                                 lambda_band_w=v.tank_f_lambda_band_w)
         self._k_const = np.asarray(v.stiffness_const, dtype=float)
         self._k_max_t = np.concatenate([self._k_max[:3], np.zeros(3)])
         self._neg_k_const_f = tuple((-self._k_const).tolist())  # the same gains as Python floats (hot path)

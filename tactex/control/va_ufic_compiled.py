@@ -77,6 +77,7 @@ class CompiledTick:
         for on, up, low, band, tank in ((m.P_TI_ON, m.P_TI_UP, m.P_TI_LOW, m.P_TI_BAND, c._tank_i),
                                         (m.P_TF_ON, m.P_TF_UP, m.P_TF_LOW, m.P_TF_BAND, c._tank_f)):
             kp[on], kp[up], kp[low], kp[band] = float(tank.enabled), tank.upper, tank.lower, tank.band
+        kp[m.P_TF_LAM_BAND] = c._tank_f.lambda_band_w
         ff = c._port_feedforward
         if ff is not None:
             p = ff.params

@@ -61,7 +61,8 @@ P_AXES = 42  # 6
 P_TI_ON, P_TI_UP, P_TI_LOW, P_TI_BAND = 48, 49, 50, 51
 P_TF_ON, P_TF_UP, P_TF_LOW, P_TF_BAND = 52, 53, 54, 55
 P_FR_ON, P_FR_GAIN, P_FR_CUTOFF, P_FR_MU, P_FR_MAX = 56, 57, 58, 59, 60
-P_SIZE = 61
+P_TF_LAM_BAND = 61  # the force tank's λ ramp [W] (ForceTank.lambda_band_w)
+P_SIZE = 62
 
 OK = 0
 FAULT_FRICTION_FORCE = 1  # the friction feed-forward got a non-finite measured force
@@ -450,19 +451,24 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
 
     # the force tank (ForceTank.step)
     bf = S_TANK_F
-    lam = 1.0 if p_force < 0.0 else 0.0
     gate = _gate(ks[bf], kp[P_TF_UP], kp[P_TF_BAND])
     ks[bf + T_DAMP_HARVESTED] = 0.0
     tf_on = kp[P_TF_ON] != 0.0
-    if lam == 1.0:
+    if p_force < 0.0:
+        band = kp[P_TF_LAM_BAND]
+        lam = 1.0 if band <= 0.0 or p_force <= -band else -p_force / band
+        if lam >= 1.0:
+            m_f = 1.0
+        else:
+            valve = 1.0 if not tf_on else _valve(ks[bf], kp[P_TF_LOW], kp[P_TF_BAND])
+            m_f = lam + valve * (1.0 - lam)
         damping = 0.0 if 0.0 > p_damp else p_damp
-        dissipated = damping - p_force
+        dissipated = damping - m_f * p_force
         _commit(ks, bf, tf_on, kp[P_TF_UP], kp[P_TF_LOW], 0.0, 0.0, gate * dissipated, gate, lam, dt)
-        ks[bf + T_DAMP_HARVESTED] = ks[bf + T_LAST + 2] * damping / dissipated
-        m_f = 1.0
+        ks[bf + T_DAMP_HARVESTED] = ks[bf + T_LAST + 2] * damping / dissipated if dissipated > 0.0 else 0.0
     else:
         valve = 1.0 if not tf_on else _valve(ks[bf], kp[P_TF_LOW], kp[P_TF_BAND])
-        m_f = _commit(ks, bf, tf_on, kp[P_TF_UP], kp[P_TF_LOW], p_force, valve, 0.0, gate, lam, dt)
+        m_f = _commit(ks, bf, tf_on, kp[P_TF_UP], kp[P_TF_LOW], p_force, valve, 0.0, gate, 0.0, dt)
 
     # the impedance tank (ImpedanceTank.step)
     p_port = x0 * p0 + x1 * p1 + x2 * p2 + x3 * p3 + x4 * p4 + x5 * p5

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tactex.config import param
-from tactex.control.safety import FRANKA_TAU_MAX
+from tactex.control.safety import FRANKA_TAU_MAX, LIMIT_MARGIN
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
 from tactex.perception.frame import CameraFrame
@@ -324,6 +324,9 @@ class LibfrankaBackend:
         self._t_read = 0.0
         self._compute_us = float("nan")
         self._gc_was_on = False  # set while torque control runs with the collector switched off by us
+        #: tau_J_d [N·m] of the first state of a torque control just (re)started, until the control loop
+        #: takes it (ControlLoop.tick: the safety layer's rate limit continues from it); None otherwise
+        self.torque_restart: np.ndarray | None = None
         self._last_read_wall: float | None = None
         self.wrench = config.wrench_source(self.tool)
         self.scheduling = pin_control_thread(config.control_cpu)
@@ -442,7 +445,8 @@ class LibfrankaBackend:
                 self.wrench.prefetch(self._state.ee_rotation)
                 franka_state, period_ms = self._read_dry()
             else:
-                if self._control is None:
+                restarted = self._control is None
+                if restarted:
                     self._control = self.robot.start_torque_control()
                     self._pending_write = False
                     self._gc_off()
@@ -456,6 +460,8 @@ class LibfrankaBackend:
                 franka_state, duration = self._control.readOnce()
                 self._pending_write = True
                 period_ms = duration.to_sec() * 1e3
+                if restarted:  # the robot's torque-rate check starts from its own last command, not ours
+                    self.torque_restart = np.array(franka_state.tau_J_d, dtype=float)
         except RobotError:
             raise
         except Exception as exc:
@@ -580,7 +586,8 @@ class LibfrankaBackend:
         per tick: no model, no state conversion, no safety layer, none of tactex's controllers. The link's
         floor: what this PC, its network and the robot allow a loop that does (almost) nothing;
         :attr:`timing` records it as :meth:`step` does. Unlike Franka's example it adds no Coriolis term
-        and no rate limiter (the arm holds still); each torque is clipped to the Franka's limits and a
+        and no rate limiter (the arm holds still); each torque is clipped a margin below the Franka's limits
+        (:data:`~tactex.control.safety.LIMIT_MARGIN`) and a
         non-finite state is answered with zero torque. Torque control ends (``motion_finished``) when it
         returns; the returned state is the last one answered. The wrench source is not read meanwhile."""
         if self._closed:
@@ -593,7 +600,7 @@ class LibfrankaBackend:
         self.pause()
         plf, timing, perf = self._plf, self.timing, time.perf_counter
         k, d = BARE_STIFFNESS_N_M_PER_RAD, BARE_DAMPING_N_M_S_PER_RAD
-        lim = FRANKA_TAU_MAX
+        lim = [m * (1.0 - LIMIT_MARGIN) for m in FRANKA_TAU_MAX]  # a margin below the robot's limits
         zero = [0.0] * 7
         try:
             control = self._control = self.robot.start_torque_control()

@@ -71,10 +71,11 @@ class MujocoBackend:
         self._cache_views()
         tool = self.config.tool
         mass, com = tool.calibrated_mass_properties()
+        # the F/T's calibration is made with the tool as it is (tool_mass_scale mis-sets the robot's load only)
         self.ft_sensor = FTSensorModel(
-            mass, com, tool.tcp_offset_m, bias=self.config.ft_bias, noise_n=self.config.ft_noise_n,
-            noise_nm=self.config.ft_noise_nm, cutoff_hz=self.config.ft_cutoff_hz, dt_s=self.dt,
-            gravity=self.model.opt.gravity.copy(),
+            mass * self.config.tool_mass_scale, com, tool.tcp_offset_m, bias=self.config.ft_bias,
+            noise_n=self.config.ft_noise_n, noise_nm=self.config.ft_noise_nm, cutoff_hz=self.config.ft_cutoff_hz,
+            dt_s=self.dt, gravity=self.model.opt.gravity.copy(),
         )
         self.camera = RayCastCamera(
             self.model, ids["camera"], self.config.intrinsics, self.config.depth_noise_m,

@@ -41,6 +41,10 @@ class SceneConfig:
     tool_pad_radius_m: float = param(0.025, "sponge radius [m]")
     tool_pad_shape: str = param("cylinder", "pad shape: cylinder (flat sponge) or sphere")
     payload_mass_kg: float = param(0.0, "extra mass hung at the TCP, unknown to the F/T calibration [kg]")
+    tool_mass_scale: float = param(
+        1.0, "the wrist assembly's real mass and inertia as a multiple of its nominal one, which the gravity "
+        "compensation keeps assuming: the robot's tool load mis-set (the F/T's own calibration is made with the "
+        "tool as it is; a mis-calibrated sensor is ft_bias) [-]")
     camera_preset: str = param("d435i", "camera intrinsics preset: d435i or d415")
     camera_width: int = param(160, "camera image width [px]")
     camera_height: int = param(120, "camera image height [px]")
@@ -93,6 +97,7 @@ class SceneConfig:
         if self.tool_pad_shape not in ("cylinder", "sphere"):
             raise ConfigError(f"tool_pad_shape must be 'cylinder' or 'sphere', got '{self.tool_pad_shape}'")
         positive = {
+            "tool_mass_scale": (0.1, 10.0),
             "tool_stiffness_n_per_m": (100.0, 1e6),
             "tool_pad_radius_m": (0.005, 0.1),
             "camera_rate_hz": (0.1, 1000.0),
@@ -221,6 +226,22 @@ def _scene_xml(cfg: SceneConfig) -> str:
 </mujoco>"""
 
 
+#: The wrist assembly's bodies (sensor, adapter with the camera, sponge pad): what a tool load declares.
+TOOL_BODIES = ("ft_sensor", "tool_body", "pad")
+
+
+def _scale_tool_mass(model: mujoco.MjModel, scale: float) -> None:
+    """The wrist assembly ``scale`` × as heavy as declared: its bodies' masses and inertias scaled, their
+    gravity compensation kept at the nominal weight (``gravcomp`` 1/scale of the new weight), as a robot
+    compensates the load it was told, whatever hangs on its flange."""
+    for name in TOOL_BODIES:
+        b = model.body(name).id
+        model.body_mass[b] *= scale
+        model.body_inertia[b] *= scale
+        model.body_gravcomp[b] = model.body_gravcomp[b] / scale
+    mujoco.mj_setConst(model, mujoco.MjData(model))
+
+
 def build_scene(cfg: SceneConfig | None = None) -> Scene:
     """Compile the scene of ``cfg`` (default: VA-UFIC sine panel in front of the robot)."""
     cfg = cfg or SceneConfig()
@@ -229,6 +250,8 @@ def build_scene(cfg: SceneConfig | None = None) -> Scene:
         model = mujoco.MjModel.from_xml_string(xml)
     except ValueError as exc:
         raise SimulationError(f"the scene for object '{cfg.object_name}' does not compile: {exc}") from exc
+    if cfg.tool_mass_scale != 1.0:
+        _scale_tool_mass(model, cfg.tool_mass_scale)
     obj = cfg.sim_object
     marking = cfg.marking or obj.marking
     dirt = DirtField(

@@ -47,7 +47,7 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.explorer import HedacExplorer
 from tactex.ergodic.relocation import RelocationCommand
-from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError
+from tactex.errors import ConfigError, ExplorationError, InputError, SimulationError, SurfaceNotFound, TactexError
 from tactex.geometry.so3 import rotate_towards
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -69,7 +69,7 @@ from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath, WaypointPath
 from tactex.tasks.recorder import Recorder
-from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, open_backend, stop_reason
+from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, end_on_robot, open_backend, stop_reason
 from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
@@ -764,10 +764,62 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
                           "base frame); capturing it with the wrist camera is done in simulation only")
     scene_cfg = cfg.scene()
     backend = open_backend(scene_cfg, robot)
+    started = _Started()
     try:
-        return _run_clean(cfg, backend, scene_cfg, robot, progress)
+        return _run_clean(cfg, backend, scene_cfg, robot, progress, started)
+    except TactexError as exc:  # a RobotError, a SensorFault, SurfaceNotFound, a failure of ours
+        # on a robot, a stop outside the program's loop (the moves before its first touch-down, the final
+        # lift-off) keeps what was recorded too; the loop's own stops are kept inside it
+        result = started.stopped(cfg, exc) if robot is not None else None
+        if result is None:
+            raise
+        return result
     finally:
         backend.close()
+
+
+class _Started:
+    """What :func:`_run_clean` has started, for a run on a robot that stops outside the program's loop."""
+
+    def __init__(self) -> None:
+        self.log: _Log | None = None
+        self.loop: ControlLoop | None = None
+        self.cloud: SurfaceCloud | None = None
+        self.t0 = time.perf_counter()
+
+    def stopped(self, cfg: CleanConfig, exc: BaseException) -> CleanResult | None:
+        """The run so far (torque control ended, ``aborted`` naming ``exc``, the series recorded), or
+        None when nothing was recorded yet."""
+        log, loop, cloud = self.log, self.loop, self.cloud
+        if log is None or loop is None or cloud is None:
+            return None
+        series = log.rec.arrays()
+        if not len(series.get("t", ())):
+            return None
+        aborted = end_on_robot(loop, exc)
+        backend = loop.backend
+        metrics = {
+            "aborted": aborted,
+            "robot": "franka",
+            "sim_time_s": loop.t,
+            "wall_time_s": time.perf_counter() - self.t0,
+            "force_within_20pct_fraction": log.within_ticks / max(log.contact_ticks, 1),
+            "max_contact_force_n": log.max_force,
+            "contact_time_s": log.contact_ticks * backend.dt,
+            "force_set_point_n": cfg.force_n,
+            "baseline": cfg.baseline or "tactex",
+            "object": cfg.object_name,
+            "marking": "cloud",
+            "target_source": "cloud",
+            "n_points": len(cloud),
+            "safety_events": len(loop.safety.events),
+            "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
+            "phase_changes": [[t, p] for t, p in log.phase_changes],
+            **backend.loop_metrics(),
+        }
+        return CleanResult(config=cfg, metrics=metrics, series=series, cloud=cloud,
+                           fields={"target_initial": cloud.target.copy()}, agent_path=np.zeros((0, 3)),
+                           tcp_path=series.get("tcp", np.zeros((0, 3))), events=list(loop.safety.events))
 
 
 #: Share of a --cloud's target off the simulated object above which the run warns [-].
@@ -797,7 +849,7 @@ def _dirt_from_cloud(backend, cloud: SurfaceCloud, object_name: str) -> None:
 
 
 def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
-               progress: bool) -> CleanResult:
+               progress: bool, started: _Started | None = None) -> CleanResult:
     wall0 = time.perf_counter()
     log = _Log(backend, cfg)
     loop = ControlLoop(backend, on_tick=log, max_joint_speed=cfg.joint_speed_rad_s)
@@ -805,6 +857,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     given, keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
                                                   cfg.keep_out_threshold, cfg.keep_out_mask)
                        if cfg.cloud else (None, None))
+    if started is not None:
+        started.log, started.loop, started.cloud = log, loop, given
     acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
     cap_pos, cap_rot = _capture_pose(scene_cfg, cfg) if given is None else _cloud_capture_pose(given, cfg)
     try:
@@ -1042,7 +1096,8 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
             if t_move is not None and t_touch is not None:
                 island_move_s, t_move = t_touch - t_move, None
             if t_touch is None:
-                raise ExplorationError(
+                loop.pause()  # a real robot holds itself while the run's data is written
+                raise SurfaceNotFound(
                     f"no contact within 6 s of approach at {np.round(cmd.point, 3).tolist()}; the captured "
                     "surface and the real one disagree (object moved?)"
                 )
@@ -1237,6 +1292,11 @@ def _run_clean(cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRob
     except ROBOT_STOPS as exc:
         # torque control has ended (libfranka on its errors, the backend on ours): keep what was recorded
         aborted = stop_reason(exc)
+        bar.note(f"stopped early: {aborted}")
+    except TactexError as exc:
+        if robot is None:  # in simulation an error of ours is raised; on a robot the run keeps its data
+            raise
+        aborted = end_on_robot(loop, exc)
         bar.note(f"stopped early: {aborted}")
     if stroke is not None:  # the program ended during a stroke: its path so far is part of the agent's
         legs.path_m += stroke.path.path_length

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import ConfigError, InputError, RobotError, SensorFault
+from tactex.errors import ConfigError, InputError, RobotError, SensorFault, SurfaceNotFound
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.robots.libfranka_backend import FrankaConfig
@@ -34,6 +34,7 @@ __all__ = [
     "ProcessVision",
     "RealRobotParams",
     "SurfaceVision",
+    "end_on_robot",
     "load_hand_eye",
     "open_backend",
     "open_vision",
@@ -42,8 +43,9 @@ __all__ = [
 ]
 
 #: What ends a run on a robot early and keeps its data: a libfranka error or lost link, a lost
-#: sensor or vision process, Ctrl-C (torque control has ended by the time they reach the task).
-ROBOT_STOPS = (RobotError, SensorFault, KeyboardInterrupt)
+#: sensor or vision process, a surface that is not where the plan expects it, Ctrl-C (torque control
+#: has ended by the time they reach the task: a task pauses the loop before it raises SurfaceNotFound).
+ROBOT_STOPS = (RobotError, SensorFault, SurfaceNotFound, KeyboardInterrupt)
 
 
 def stop_reason(exc: BaseException) -> str:
@@ -54,6 +56,18 @@ def stop_reason(exc: BaseException) -> str:
 def stopped_by_user(metrics: dict) -> bool:
     """Whether a run's metrics say Ctrl-C ended it (its ``aborted``, from :func:`stop_reason`)."""
     return str(metrics.get("aborted") or "").startswith(KeyboardInterrupt.__name__)
+
+
+def end_on_robot(loop, exc: BaseException) -> str:
+    """An error of ours that ends a run on a robot mid-task (a pose out of reach, a planning failure)
+    ends it as :data:`ROBOT_STOPS` do: torque control ends (``loop.pause``: the robot holds itself
+    while the run's data is written; a link already gone ended it already) and the run keeps what it
+    recorded. Returns the ``aborted`` entry for its metrics."""
+    try:
+        loop.pause()
+    except ROBOT_STOPS:
+        pass
+    return stop_reason(exc)
 
 
 #: How often the loop asks whether the vision process is alive [ticks].

@@ -105,6 +105,10 @@ class ControlLoop:
         if after_send is not None:
             after_send(state)
         self.state = self.backend.step()
+        restart = getattr(self.backend, "torque_restart", None)
+        if restart is not None:  # torque control (re)started: the robot's last command is where ours continue
+            self.backend.torque_restart = None
+            self.safety.reseed(restart)
         if self.on_tick is not None:
             self.on_tick(self.state, reference, self.safety.inner)
         return self.state

@@ -17,7 +17,12 @@ from tactex.errors import ConfigError
 from tactex.sim.objects import resolve_object_name
 from tactex.sim.scene import SceneConfig
 
-__all__ = ["SimWorldParams"]
+__all__ = ["JOINT_FRICTION_N_M", "SimWorldParams"]
+
+#: Dry joint friction [N·m] that ``joint_friction_scale`` multiplies: what a real arm's friction
+#: compensation leaves (an assumption: 0.1 N·m, a tenth of the stock friction franky-sim and franka-sim
+#: put on an uncompensated FR3 joint, 0.25–1.14 N·m); the scene itself has none.
+JOINT_FRICTION_N_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -40,6 +45,12 @@ class SimWorldParams:
     depth_noise_m: float = param(0.0, "depth noise standard deviation at 1 m, grows with depth² [m]")
     command_delay_ticks: int = param(
         0, "control periods before a torque command acts (1: a real Franka's one-cycle latency) [-]")
+    tool_mass_scale: float = param(
+        1.0, "model mismatch: the tool's real mass as a multiple of the load the robot compensates (its F/T "
+        "calibration made with the tool as it is) [-]")
+    joint_friction_scale: float = param(
+        1.0, "model mismatch: the arm's joint friction; 1 is the scene's own (viscous 0.1 N·m·s/rad, no dry "
+        "friction), s ≠ 1 scales the viscous friction by s and adds s × 0.1 N·m of dry friction per joint [-]")
     seed: int = param(0, "seed of the sensor noise (the physics is deterministic: with the noise at its "
                          "default 0 the seed changes nothing but what a task seeds itself)")
 
@@ -49,7 +60,7 @@ class SimWorldParams:
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
-        for name in ("tool_friction", "ft_noise_n", "ft_noise_nm", "depth_noise_m"):
+        for name in ("tool_friction", "ft_noise_n", "ft_noise_nm", "depth_noise_m", "joint_friction_scale"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be a finite number ≥ 0, got {getattr(self, name)!r}")
@@ -58,10 +69,14 @@ class SimWorldParams:
 
     def scene(self, **scene_fields: Any) -> SceneConfig:
         """The task's :class:`SceneConfig`: these fields plus the task's own ``scene_fields``."""
+        if self.joint_friction_scale != 1.0:
+            nominal = SceneConfig()
+            scene_fields.setdefault("joint_damping", nominal.joint_damping * self.joint_friction_scale)
+            scene_fields.setdefault("joint_frictionloss", JOINT_FRICTION_N_M * self.joint_friction_scale)
         return SceneConfig(
             object_name=self.object_name, object_position=self.object_position, camera_width=self.camera_width,
             camera_height=self.camera_height, seed=self.seed, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
             tool_pad_shape=self.tool_pad_shape, tool_friction=self.tool_friction, ft_noise_n=self.ft_noise_n,
             ft_noise_nm=self.ft_noise_nm, depth_noise_m=self.depth_noise_m,
-            command_delay_ticks=self.command_delay_ticks, **scene_fields,
+            command_delay_ticks=self.command_delay_ticks, tool_mass_scale=self.tool_mass_scale, **scene_fields,
         )
