@@ -5,7 +5,8 @@ simulation without progress bars, its metrics returned. Runs go through an
 :class:`~tactex.experiments.executor.Executor` (local processes or Ray) and the study folder holds
 
 - ``runs.jsonl`` — one line per finished run, appended the moment it finishes (config, metrics,
-  error and traceback of a run that raised, where and how long it ran); a re-run of the same
+  error and traceback of a run that raised, where and how long it ran, and ``attempt``: how many
+  earlier starts were lost with their worker process or node); a re-run of the same
   study into the same folder skips the runs found here (``retry_failed`` re-runs those that failed);
 - ``table.csv`` (and ``table.parquet`` when pyarrow is installed) — one row per run in plan order:
   factors, status, error, and the scalar metrics, rewritten after every finished run. Wall-clock
@@ -215,7 +216,7 @@ def _record(spec: StudySpec, run: StudyRun, outcome) -> dict[str, Any]:
     return {"run_id": run.run_id, "index": run.index, "task": spec.task, "factors": run.factors,
             "config": run.config, "status": "ok" if outcome.ok else "failed", "error": outcome.error,
             "traceback": outcome.traceback, "metrics": metrics, "worker": outcome.worker,
-            "seconds": outcome.seconds}
+            "seconds": outcome.seconds, "attempt": outcome.attempt}
 
 
 def table_rows(spec: StudySpec, runs: list[StudyRun], known: dict[str, dict[str, Any]]) -> tuple[list[str], list]:

@@ -17,8 +17,9 @@ that stops — Ctrl-C, a power cut, an error — is resumed by running the same 
 same ``--out``: settings whose fingerprint matches are read back instead of run again.
 
 Outputs in the run directory: ``sweep.json`` (configuration, per-setting statistics, failed
-settings with their errors), ``table.csv`` (one row per cloud, setting and start: the final
-ergodicity, coverage residual and path length — the table pandas or polars users load),
+settings with their errors, ``ran_on``: the worker and attempt of each setting run in this session),
+``table.csv`` (one row per cloud, setting and start: the final ergodicity, coverage residual and
+path length — the table pandas or polars users load),
 ``curves.npz`` (per cloud: ergodicity, coverage residual and path length of every run and step,
 and the path of the first start for every setting), and per cloud ``<name>_vs_n_eigen.png``,
 ``<name>_vs_alpha.png``, ``<name>_time.png`` and ``<name>_paths.png``.
@@ -239,10 +240,13 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
     say(f"{len(jobs)} settings × {cfg.starts} starts × {cfg.steps} steps = {runs} runs on {ex.describe()}")
     t0 = time.perf_counter()
     failed: list[dict[str, Any]] = []
+    ran_on: list[dict[str, Any]] = []  # where each setting of this session ran (worker, attempt): sweep.json
     tasks = [(*job, cfg.steps, cfg.coverage_normalization) for job in jobs]
     try:
         for done, outcome in enumerate(ex.run(_run_setting, tasks, clouds), start=1):
             job = jobs[outcome.index]
+            ran_on.append({"cloud": job[0], "n_eigen": job[1], "alpha": job[2], "worker": outcome.worker,
+                           "attempt": outcome.attempt, "seconds": outcome.seconds})
             if outcome.ok:
                 results[job] = outcome.value
                 store.save(job, outcome.value)  # on disk at once: a stopped sweep resumes from here
@@ -265,7 +269,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
 
     curves: dict[str, dict[str, np.ndarray]] = {}
     summary: dict[str, Any] = {"config": asdict(cfg), "executor": ex.describe(), "sweep_time_s": sweep_s,
-                               "failed": failed, "clouds": {}}
+                               "failed": failed, "ran_on": ran_on, "clouds": {}}
     nk, na = len(cfg.n_eigen), len(cfg.alpha)
     for key in clouds:
         c = {name: np.empty((nk, na, cfg.starts, cfg.steps)) for name in ("ergodicity", "coverage_residual",
