@@ -280,6 +280,28 @@ def start_local_ray(num_cpus: int | None, attempts: int = 3) -> None:
                     "--ray-address auto") from exc
 
 
+#: Connections to a ``ray://`` address whose server was reached but whose session failed to start.
+CLIENT_ATTEMPTS = 3
+
+
+def _connect(ray, address: str) -> None:
+    """Connect to the cluster at ``address`` with :func:`cluster_runtime_env`.
+
+    A Ray client connection is tried again when the server answered but the session it starts for
+    this client (a process on the head) failed: on a loaded head that start can fail once and succeed
+    the next time. An address that does not answer fails at once (Ray has already waited for it)."""
+    for attempt in range(1, CLIENT_ATTEMPTS + 1):
+        try:
+            ray.init(address=address, runtime_env=cluster_runtime_env(), log_to_driver=False, configure_logging=False)
+            return
+        except ConnectionError as exc:
+            ray.shutdown()
+            if "Initialization failure from server" in str(exc) and attempt < CLIENT_ATTEMPTS:
+                time.sleep(1.0)
+                continue
+            raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
+
+
 class RayExecutor(Executor):
     """Ray tasks, one CPU each. ``address`` None starts a local instance with ``workers`` CPUs (0 =
     all cores) and stops it on ``close``; otherwise connects to that cluster (``ray://`` client
@@ -301,11 +323,7 @@ class RayExecutor(Executor):
             if address is None:
                 start_local_ray(workers or None)
             else:
-                try:
-                    ray.init(address=address, runtime_env=cluster_runtime_env(), log_to_driver=False,
-                             configure_logging=False)
-                except ConnectionError as exc:
-                    raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
+                _connect(ray, address)
             self._owns = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.workers = min(workers, cpus) if workers else cpus
