@@ -8,10 +8,12 @@ What the hosts share, and why that matches a real cluster:
 
 - the Python interpreter and its site-packages (the venv): on a cluster, every node runs the same
   image with the same Python, Ray and third-party packages installed;
-- nothing else: each host's Ray has its own folder (``--temp-dir``), tactex reaches the workers
-  through Ray's runtime environment (``py_modules``: the driver's copy, zipped into the cluster's
-  store and unpacked in each node's folder), and the data (clouds, bases) go as study inputs
-  through the object store. The test checks that the workers import tactex from their node's folder.
+- nothing else: each host has its own folder (Ray's ``--temp-dir``, its home and temporary
+  folder), tactex reaches the workers through Ray's runtime environment (``py_modules``: the
+  driver's copy, zipped into the cluster's store and unpacked in each node's folder), and the data
+  (a study's input files, a sweep's clouds and bases) go as study inputs through the object store.
+  The tests check that the workers import tactex from their node's folder and read the study's
+  input file from their own copy of it.
 
 ``ray stop`` is not used to end the hosts: it ends every Ray process of the machine, in any namespace
 (other Ray instances on this machine included). A host is ended by killing the processes in its
@@ -131,12 +133,15 @@ class Cluster:
 
     # -- Ray -----------------------------------------------------------------------------------------
     def ray_env(self, folder: Path) -> dict[str, str]:
-        """The environment of a host's processes: its own home (``folder``: Ray keeps files in ~/.ray),
+        """The environment of a host's processes: its own home and temporary folder in ``folder`` (Ray
+        keeps files in ~/.ray; a study's runs write their copies of its input files in the latter),
         token authentication off as set here (not from a token some other Ray left in this machine's
         ~/.ray), one BLAS thread, fast node-death detection."""
         env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
         env.update(FAST_NODE_DEATH)
         env["HOME"] = str(folder)
+        env["TMPDIR"] = str(folder / "tmp")  # each machine its own /tmp
+        (folder / "tmp").mkdir(parents=True, exist_ok=True)
         env["RAY_AUTH_MODE"] = "disabled"
         env["RAY_agent_register_timeout_ms"] = AGENT_WAIT_MS
         env.update({"RAY_USAGE_STATS_ENABLED": "0", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",

@@ -11,6 +11,7 @@ the tests pass or fail. The tests run in file order: the last one kills the work
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import shutil
 import signal
@@ -46,11 +47,14 @@ CLIENT_ADDRESS = f"ray://{HEAD_IP}:{CLIENT_PORT}"
 #: Hang guard of one command on the cluster [s] (a study here takes well under a minute).
 HANG_GUARD_S = 480
 
-# Four short cleaning runs (tactex and the raster baseline on the plate, two seeds with F/T noise).
+# Four short cleaning runs (tactex and the raster baseline on the plate, two seeds with F/T noise) whose dirt is
+# the target of a cloud file (plate.npz, a scan in the robot's base frame): a file only the submitting place has.
 STUDY_TOML = """task = "clean"
 seeds = 2
 [fixed]
 object_name = "plate"
+cloud = "plate.npz"
+n_eigen = 60
 budget_s = 1.0
 ft_noise_n = 0.5
 [grid]
@@ -85,14 +89,31 @@ def cluster(request):
         assert not left, f"the cluster's namespaces or interfaces were not removed: {left}"
 
 
+def _plate_cloud(path: Path) -> Path:
+    """The plate's surface in the robot's base frame with a 4 × 4 cm dirty patch, as a ``cloud`` file."""
+    import numpy as np
+
+    from tactex.pointcloud import save_npz
+    from tactex.pointcloud.markings import marked_cloud
+    from tactex.tasks.clean import CleanConfig
+
+    scene = CleanConfig(object_name="plate").scene()
+    pos, rot = scene.object_pose()
+    local = marked_cloud(scene.sim_object.surface, "full", 0.003)
+    x, y = local.points[:, 0], local.points[:, 1]
+    dirt = (np.abs(x - 0.03) <= 0.02) & (np.abs(y) <= 0.02)
+    return save_npz(local.with_target(dirt.astype(float)).transformed(rot, pos), path)
+
+
 @pytest.fixture(scope="module")
 def study_file(cluster) -> dict[str, Path]:
-    """The study file in each place that submits it (a host reads only its own files)."""
+    """The study file and its cloud file in each place that submits it (a host reads only its own files)."""
     out = {}
     for place in ("head", "client"):
         folder = cluster.root / place
         folder.mkdir(exist_ok=True)
         (folder / "study.toml").write_text(STUDY_TOML)
+        _plate_cloud(folder / "plate.npz")
         out[place] = folder / "study.toml"
     return out
 
@@ -101,7 +122,12 @@ def study_file(cluster) -> dict[str, Path]:
 def local_study(tmp_path_factory, study_file) -> Path:
     """The study on the local executor (one process): the reference tables."""
     out = tmp_path_factory.mktemp("local-study")
-    run_study(spec_from_dict(load_spec_file(study_file["client"])), out, LocalExecutor(1))
+    here = os.getcwd()
+    os.chdir(study_file["client"].parent)  # where its relative cloud path is
+    try:
+        run_study(spec_from_dict(load_spec_file(study_file["client"])), out, LocalExecutor(1))
+    finally:
+        os.chdir(here)
     return out
 
 
@@ -234,6 +260,9 @@ def test_a_study_on_the_cluster_gives_the_local_tables_from_a_driver_on_the_head
         nodes = sorted(r["worker"].split(":")[0] for r in records)
         print(f"{out.parent.name}: runs on {nodes}")
         assert WORKER_IP in nodes, f"no run executed on the worker node: {nodes}"
+    # the worker node's runs read the cloud from the copy they received, in the node's own temporary folder
+    copies = list((cluster.worker.folder / "tmp" / "tactex-study-inputs").glob("*.npz"))
+    assert [c.read_bytes() for c in copies] == [study_file["client"].with_name("plate.npz").read_bytes()]
 
 
 def test_a_sweep_through_the_client_gives_the_local_table_and_sends_the_inputs_once_per_node(cluster, tmp_path):

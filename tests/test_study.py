@@ -255,3 +255,27 @@ def test_table_columns_leave_out_wall_clock_and_series_and_split_axes():
     assert flat == {"dirt_removed_fraction": 0.5, "motion_rmse_m.x": 0.1, "motion_rmse_m.y": None,
                     "motion_rmse_m.z": 0.3, "tank_force_energy_j.min": 1.0, "tank_force_energy_j.max": 2.0,
                     "baseline": "raster"}
+
+
+def test_the_input_files_of_a_study_travel_with_its_runs(tmp_path, monkeypatch):
+    """A run gets the files its config names from the study (its machine may not have them): its own
+    copy, written once per content; a file the study cannot read is an actionable ConfigError."""
+    from tactex.errors import ConfigError
+    from tactex.experiments.study_files import local_config, pack_files
+
+    (tmp_path / "scan.npz").write_bytes(b"cloud bytes")
+    monkeypatch.chdir(tmp_path)
+    configs = [{"cloud": "scan.npz", "seed": s} for s in range(3)] + [{"cloud": "", "seed": 9}]
+    files = pack_files(configs)
+    assert files == {"scan.npz": (".npz", b"cloud bytes")}
+    elsewhere = tmp_path / "worker-tmp"
+    elsewhere.mkdir()
+    monkeypatch.setenv("TMPDIR", str(elsewhere))
+    monkeypatch.setattr("tempfile.tempdir", None)  # gettempdir() reads TMPDIR again
+    local = [local_config(c, files) for c in configs[:2]]
+    assert local[0]["cloud"] == local[1]["cloud"] != "scan.npz" and local[0]["seed"] == 0
+    assert Path(local[0]["cloud"]).is_relative_to(elsewhere) and Path(local[0]["cloud"]).read_bytes() == b"cloud bytes"
+    assert local_config(configs[3], files) == configs[3] and local_config(configs[0], None) == configs[0]
+    assert pack_files([{"seed": 0}]) is None
+    with pytest.raises(ConfigError, match=r"keep_out_mask = 'gone\.npy': cannot read"):
+        pack_files([{"keep_out_mask": "gone.npy"}])

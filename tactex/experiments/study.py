@@ -33,6 +33,7 @@ from typing import Any
 from tactex.config import to_jsonable, write_json
 from tactex.errors import ConfigError
 from tactex.experiments.executor import Executor, LocalExecutor
+from tactex.experiments.study_files import pack_files
 from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
 from tactex.report.outdir import prepare_out_dir
 
@@ -55,11 +56,14 @@ PER_AXIS_METRICS = ("motion_mae_m", "motion_rmse_m", "motion_mae_tool_m", "motio
 
 def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
     """One study run (executed by a worker): ``task = {"task": "clean", "config": {...}}`` → the
-    run's metrics as JSON values. A pure function of the config: no files, no progress bar."""
+    run's metrics as JSON values. A pure function of the config and of the input files it names,
+    which come in ``shared`` (:mod:`.study_files`: the worker's machine need not have them); no
+    progress bar."""
+    from tactex.experiments.study_files import local_config
     from tactex.tasks.demo import task_spec
 
     spec = task_spec(task["task"])
-    cfg = spec.config_cls(**task["config"])
+    cfg = spec.config_cls(**local_config(task["config"], shared))
     result = spec.run(cfg, progress=False)
     return to_jsonable(result.metrics)
 
@@ -178,10 +182,11 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
     say(f"{len(todo)} {spec.task} runs on {ex.describe()}")
     bar = _Progress(len(runs), skipped, progress)
     tasks = [{"task": spec.task, "config": r.config} for r in todo]
+    inputs = pack_files(t["config"] for t in tasks)  # the input files the runs name, sent with them
     t0 = time.perf_counter()
     interrupted = False
     try:
-        for outcome in ex.run(run_study_task, tasks):
+        for outcome in ex.run(run_study_task, tasks, inputs):
             run = todo[outcome.index]
             rec = _record(spec, run, outcome)
             known[run.run_id] = rec
