@@ -279,3 +279,33 @@ def test_the_input_files_of_a_study_travel_with_its_runs(tmp_path, monkeypatch):
     assert pack_files([{"seed": 0}]) is None
     with pytest.raises(ConfigError, match=r"keep_out_mask = 'gone\.npy': cannot read"):
         pack_files([{"keep_out_mask": "gone.npy"}])
+
+
+def test_a_ray_client_session_that_fails_to_start_is_tried_again_and_a_dead_address_is_not(monkeypatch):
+    """A ray:// server that answered but whose session for this client failed (a loaded head) gets
+    two more tries; a connection refused is reported at once as the --ray-address's fault."""
+    from tactex.errors import ConfigError
+    from tactex.experiments import executor
+
+    class FakeRay:
+        def __init__(self, errors):
+            self.errors, self.inits, self.env = list(errors), 0, None
+
+        def init(self, address, runtime_env, **kwargs):
+            self.inits += 1
+            self.env = runtime_env
+            if self.errors:
+                raise self.errors.pop(0)
+
+        def shutdown(self):
+            pass
+
+    monkeypatch.setattr(executor.time, "sleep", lambda s: None)
+    flaky = FakeRay([ConnectionError("Initialization failure from server: ZombieProcess")])
+    executor._connect(flaky, "ray://head:10001")
+    assert flaky.inits == 2
+    assert flaky.env["py_modules"] == [str(Path(executor.__file__).parents[1])]  # this tactex, shipped
+    dead = FakeRay([ConnectionError("connection refused")] * 3)
+    with pytest.raises(ConfigError, match="--ray-address 'ray://head:10001'"):
+        executor._connect(dead, "ray://head:10001")
+    assert dead.inits == 1
