@@ -273,3 +273,57 @@ def test_a_run_cut_by_ctrl_c_stops_the_study_instead_of_counting_as_done(monkeyp
         run_study_task({"task": "wipe", "config": {}})
     outcome.update(aborted="RobotError: reflex", partial=True)  # a robot's stop is the run's result
     assert run_study_task({"task": "wipe", "config": {}})["aborted"] == "RobotError: reflex"
+
+
+def test_the_input_files_of_a_study_travel_with_its_runs(tmp_path, monkeypatch):
+    """A run gets the files its config names from the study (its machine may not have them): its own
+    copy, written once per content; a file the study cannot read is an actionable ConfigError."""
+    from tactex.errors import ConfigError
+    from tactex.experiments.study_files import local_config, pack_files
+
+    (tmp_path / "scan.npz").write_bytes(b"cloud bytes")
+    monkeypatch.chdir(tmp_path)
+    configs = [{"cloud": "scan.npz", "seed": s} for s in range(3)] + [{"cloud": "", "seed": 9}]
+    files = pack_files(configs)
+    assert files == {"scan.npz": (".npz", b"cloud bytes")}
+    elsewhere = tmp_path / "worker-tmp"
+    elsewhere.mkdir()
+    monkeypatch.setenv("TMPDIR", str(elsewhere))
+    monkeypatch.setattr("tempfile.tempdir", None)  # gettempdir() reads TMPDIR again
+    local = [local_config(c, files) for c in configs[:2]]
+    assert local[0]["cloud"] == local[1]["cloud"] != "scan.npz" and local[0]["seed"] == 0
+    assert Path(local[0]["cloud"]).is_relative_to(elsewhere) and Path(local[0]["cloud"]).read_bytes() == b"cloud bytes"
+    assert local_config(configs[3], files) == configs[3] and local_config(configs[0], None) == configs[0]
+    assert pack_files([{"seed": 0}]) is None
+    with pytest.raises(ConfigError, match=r"keep_out_mask = 'gone\.npy': cannot read"):
+        pack_files([{"keep_out_mask": "gone.npy"}])
+
+
+def test_a_ray_client_session_that_fails_to_start_is_tried_again_and_a_dead_address_is_not(monkeypatch):
+    """A ray:// server that answered but whose session for this client failed (a loaded head) gets
+    two more tries; a connection refused is reported at once as the --ray-address's fault."""
+    from tactex.errors import ConfigError
+    from tactex.experiments import executor
+
+    class FakeRay:
+        def __init__(self, errors):
+            self.errors, self.inits, self.env = list(errors), 0, None
+
+        def init(self, address, runtime_env, **kwargs):
+            self.inits += 1
+            self.env = runtime_env
+            if self.errors:
+                raise self.errors.pop(0)
+
+        def shutdown(self):
+            pass
+
+    monkeypatch.setattr(executor.time, "sleep", lambda s: None)
+    flaky = FakeRay([ConnectionError("Initialization failure from server: ZombieProcess")])
+    executor._connect(flaky, "ray://head:10001")
+    assert flaky.inits == 2
+    assert flaky.env["py_modules"] == [str(Path(executor.__file__).parents[1])]  # this tactex, shipped
+    dead = FakeRay([ConnectionError("connection refused")] * 3)
+    with pytest.raises(ConfigError, match="--ray-address 'ray://head:10001'"):
+        executor._connect(dead, "ray://head:10001")
+    assert dead.inits == 1

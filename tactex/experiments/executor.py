@@ -12,6 +12,9 @@ index, so what it writes does not depend on the executor or the order.
   (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``). The shared inputs are put in Ray's object
   store once; a node fetches them once and its workers read them without a copy. Ray re-runs a task
   whose worker or node is lost (``max_retries``); an exception raised by the run itself is not retried.
+  On an existing cluster the runs execute this process's tactex: the package is shipped to the nodes
+  in Ray's runtime environment (``py_modules``), so a node needs only Python, Ray and tactex's
+  third-party dependencies, and can never run another version of tactex than the driver's.
 
 Either way a run that raises becomes an outcome with its error and traceback (the study goes on),
 every run is limited to one BLAS thread (the processes are the parallelism, and results do not
@@ -31,11 +34,13 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from tactex.errors import ConfigError, ExecutorError, MissingDependencyError
 
-__all__ = ["Executor", "LocalExecutor", "Outcome", "RayExecutor", "echo", "make_executor", "start_local_ray"]
+__all__ = ["Executor", "LocalExecutor", "Outcome", "RayExecutor", "cluster_runtime_env", "echo", "make_executor",
+           "start_local_ray"]
 
 #: A run: ``fn(task, shared)`` → a picklable result. Must be a module-level function.
 RunFn = Callable[[Any, Any], Any]
@@ -48,7 +53,9 @@ DEFAULT_MAX_RETRIES = 3
 class Outcome:
     """One finished run: ``index`` into the task list; ``value`` when it returned, otherwise
     ``error`` (``Type: message``) and ``traceback``. ``worker`` is ``host:pid`` of the process
-    that ran it; ``seconds`` its wall time there [s]."""
+    that ran it (on Ray the host is the node's IP address, as Ray names nodes); ``seconds`` its wall
+    time there [s]; ``attempt`` how many earlier starts of the run were lost with their worker
+    process or node (0: it ran once)."""
 
     index: int
     value: Any = None
@@ -56,6 +63,7 @@ class Outcome:
     traceback: str = ""
     worker: str = ""
     seconds: float = 0.0
+    attempt: int = 0
 
     @property
     def ok(self) -> bool:
@@ -67,11 +75,12 @@ def _limit_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
-def _call(fn: RunFn, index: int, task: Any, shared: Any) -> Outcome:
-    """Run one task where it is executed; an exception becomes an error outcome."""
+def _call(fn: RunFn, index: int, task: Any, shared: Any, host: str = "") -> Outcome:
+    """Run one task where it is executed; an exception becomes an error outcome. ``host`` names this
+    machine in :attr:`Outcome.worker` (default: its hostname)."""
     from threadpoolctl import threadpool_limits
 
-    where = f"{socket.gethostname()}:{os.getpid()}"
+    where = f"{host or socket.gethostname()}:{os.getpid()}"
     t0 = time.perf_counter()
     try:
         with threadpool_limits(limits=1):
@@ -187,6 +196,7 @@ class LocalExecutor(Executor):
                                 continue
                             remaining.discard(i)
                             self.running = min(len(pending), self.workers)
+                            out.attempt = attempts[i] - 1
                             yield out
                 except BaseException:
                     _stop_pool(pool)
@@ -229,6 +239,27 @@ def _import_ray():
 _RUNTIME_ENV = {"env_vars": {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}}
 
 
+def cluster_runtime_env() -> dict[str, Any]:
+    """The runtime environment of a study on an existing cluster: :data:`_RUNTIME_ENV` and this
+    process's tactex package (``py_modules``: Ray zips the folder once, keeps it in the cluster's
+    store by content hash, and each node unpacks it in its own session folder before its first run)."""
+    import tactex
+
+    return {**_RUNTIME_ENV, "py_modules": [str(Path(tactex.__file__).parent)]}
+
+
+def _call_ray(fn: RunFn, index: int, task: Any, shared: Any) -> Outcome:
+    """:func:`_call` in a Ray worker: the node's IP address and the task's attempt in the outcome."""
+    import ray
+
+    out = _call(fn, index, task, shared, host=ray.util.get_node_ip_address())
+    # Ray numbers the starts of a task (0 = first); it has no public call for it
+    core = getattr(ray._private.worker.global_worker, "core_worker", None)
+    attempt = getattr(core, "get_current_task_attempt_number", None)
+    out.attempt = int(attempt()) if callable(attempt) else 0
+    return out
+
+
 def start_local_ray(num_cpus: int | None, attempts: int = 3) -> None:
     """Start a Ray instance on this machine with ``num_cpus`` CPUs (None: all).
 
@@ -249,10 +280,33 @@ def start_local_ray(num_cpus: int | None, attempts: int = 3) -> None:
                     "--ray-address auto") from exc
 
 
+#: Connections to a ``ray://`` address whose server was reached but whose session failed to start.
+CLIENT_ATTEMPTS = 3
+
+
+def _connect(ray, address: str) -> None:
+    """Connect to the cluster at ``address`` with :func:`cluster_runtime_env`.
+
+    A Ray client connection is tried again when the server answered but the session it starts for
+    this client (a process on the head) failed: on a loaded head that start can fail once and succeed
+    the next time. An address that does not answer fails at once (Ray has already waited for it)."""
+    for attempt in range(1, CLIENT_ATTEMPTS + 1):
+        try:
+            ray.init(address=address, runtime_env=cluster_runtime_env(), log_to_driver=False, configure_logging=False)
+            return
+        except ConnectionError as exc:
+            ray.shutdown()
+            if "Initialization failure from server" in str(exc) and attempt < CLIENT_ATTEMPTS:
+                time.sleep(1.0)
+                continue
+            raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
+
+
 class RayExecutor(Executor):
     """Ray tasks, one CPU each. ``address`` None starts a local instance with ``workers`` CPUs (0 =
     all cores) and stops it on ``close``; otherwise connects to that cluster (``ray://`` client
-    addresses included) and only disconnects. If this process is already connected to Ray (a test,
+    addresses included, with this process's tactex shipped to the nodes: :func:`cluster_runtime_env`)
+    and only disconnects. If this process is already connected to Ray (a test,
     a notebook), that connection is used as it is. ``workers`` > 0 caps the runs in flight."""
 
     name = "ray"
@@ -269,10 +323,7 @@ class RayExecutor(Executor):
             if address is None:
                 start_local_ray(workers or None)
             else:
-                try:
-                    ray.init(address=address, runtime_env=_RUNTIME_ENV, log_to_driver=False, configure_logging=False)
-                except ConnectionError as exc:
-                    raise ConfigError(f"cannot connect to the Ray cluster at --ray-address '{address}': {exc}") from exc
+                _connect(ray, address)
             self._owns = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.workers = min(workers, cpus) if workers else cpus
@@ -291,7 +342,7 @@ class RayExecutor(Executor):
             return
         # once into the object store; a task given the reference reads the node's copy
         shared_ref = ray.put(shared)
-        remote = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False)(_call)
+        remote = ray.remote(num_cpus=1, max_retries=self.max_retries, retry_exceptions=False)(_call_ray)
         queue = list(range(len(tasks)))
         refs: dict[Any, int] = {}
         try:

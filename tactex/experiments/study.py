@@ -5,7 +5,8 @@ simulation without progress bars, its metrics returned. Runs go through an
 :class:`~tactex.experiments.executor.Executor` (local processes or Ray) and the study folder holds
 
 - ``runs.jsonl`` — one line per finished run, appended the moment it finishes (config, metrics,
-  error and traceback of a run that raised, where and how long it ran); a re-run of the same
+  error and traceback of a run that raised, where and how long it ran, and ``attempt``: how many
+  earlier starts were lost with their worker process or node); a re-run of the same
   study into the same folder skips the runs found here (``retry_failed`` re-runs those that failed);
 - ``table.csv`` (and ``table.parquet`` when pyarrow is installed) — one row per run in plan order:
   factors, status, error, and the scalar metrics, rewritten after every finished run. Wall-clock
@@ -32,6 +33,7 @@ from typing import Any
 from tactex.config import to_jsonable, write_json
 from tactex.errors import ConfigError
 from tactex.experiments.executor import Executor, LocalExecutor
+from tactex.experiments.study_files import pack_files
 from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
 from tactex.report.outdir import prepare_out_dir
 
@@ -54,12 +56,15 @@ PER_AXIS_METRICS = ("motion_mae_m", "motion_rmse_m", "motion_mae_tool_m", "motio
 
 def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
     """One study run (executed by a worker): ``task = {"task": "clean", "config": {...}}`` → the
-    run's metrics as JSON values. A pure function of the config: no files, no progress bar."""
+    run's metrics as JSON values. A pure function of the config and of the input files it names,
+    which come in ``shared`` (:mod:`.study_files`: the worker's machine need not have them); no
+    progress bar."""
+    from tactex.experiments.study_files import local_config
     from tactex.tasks.demo import task_spec
     from tactex.tasks.robot import stopped_by_user
 
     spec = task_spec(task["task"])
-    cfg = spec.config_cls(**task["config"])
+    cfg = spec.config_cls(**local_config(task["config"], shared))
     result = spec.run(cfg, progress=False)
     if stopped_by_user(result.metrics):
         # the task's loop keeps a run Ctrl-C cut short as its own; here it must stop the study instead
@@ -182,10 +187,11 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
     say(f"{len(todo)} {spec.task} runs on {ex.describe()}")
     bar = _Progress(len(runs), skipped, progress)
     tasks = [{"task": spec.task, "config": r.config} for r in todo]
+    inputs = pack_files(t["config"] for t in tasks)  # the input files the runs name, sent with them
     t0 = time.perf_counter()
     interrupted = False
     try:
-        for outcome in ex.run(run_study_task, tasks):
+        for outcome in ex.run(run_study_task, tasks, inputs):
             run = todo[outcome.index]
             rec = _record(spec, run, outcome)
             known[run.run_id] = rec
@@ -220,7 +226,7 @@ def _record(spec: StudySpec, run: StudyRun, outcome) -> dict[str, Any]:
     return {"run_id": run.run_id, "index": run.index, "task": spec.task, "factors": run.factors,
             "config": run.config, "status": "ok" if outcome.ok else "failed", "error": outcome.error,
             "traceback": outcome.traceback, "metrics": metrics, "worker": outcome.worker,
-            "seconds": outcome.seconds}
+            "seconds": outcome.seconds, "attempt": outcome.attempt}
 
 
 def table_rows(spec: StudySpec, runs: list[StudyRun], known: dict[str, dict[str, Any]]) -> tuple[list[str], list]:

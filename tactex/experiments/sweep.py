@@ -19,8 +19,9 @@ report of the settings done is written (``sweep.json`` with ``"partial": true``,
 listed under ``not_run``), then :class:`~tactex.errors.RunInterrupted` is raised.
 
 Outputs in the run directory: ``sweep.json`` (configuration, per-setting statistics, failed
-settings with their errors), ``table.csv`` (one row per cloud, setting and start: the final
-ergodicity, coverage residual and path length — the table pandas or polars users load),
+settings with their errors, ``ran_on``: the worker and attempt of each setting run in this session),
+``table.csv`` (one row per cloud, setting and start: the final ergodicity, coverage residual and
+path length — the table pandas or polars users load),
 ``curves.npz`` (per cloud: ergodicity, coverage residual and path length of every run and step,
 and the path of the first start for every setting), and per cloud ``<name>_vs_n_eigen.png``,
 ``<name>_vs_alpha.png``, ``<name>_time.png`` and ``<name>_paths.png``.
@@ -241,11 +242,14 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
     say(f"{len(jobs)} settings × {cfg.starts} starts × {cfg.steps} steps = {runs} runs on {ex.describe()}")
     t0 = time.perf_counter()
     failed: list[dict[str, Any]] = []
+    ran_on: list[dict[str, Any]] = []  # where each setting of this session ran (worker, attempt): sweep.json
     tasks = [(*job, cfg.steps, cfg.coverage_normalization) for job in jobs]
     interrupted = False
     try:
         for done, outcome in enumerate(ex.run(_run_setting, tasks, clouds), start=1):
             job = jobs[outcome.index]
+            ran_on.append({"cloud": job[0], "n_eigen": job[1], "alpha": job[2], "worker": outcome.worker,
+                           "attempt": outcome.attempt, "seconds": outcome.seconds})
             if outcome.ok:
                 results[job] = outcome.value
                 store.save(job, outcome.value)  # on disk at once: a stopped sweep resumes from here
@@ -276,7 +280,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
 
     curves: dict[str, dict[str, np.ndarray]] = {}
     summary: dict[str, Any] = {"config": asdict(cfg), "executor": ex.describe(), "sweep_time_s": sweep_s,
-                               "partial": interrupted, "failed": failed,
+                               "partial": interrupted, "failed": failed, "ran_on": ran_on,
                                "not_run": [{"cloud": c, "n_eigen": k, "alpha": a} for c, k, a in not_run],
                                "clouds": {}}
     nk, na = len(cfg.n_eigen), len(cfg.alpha)
