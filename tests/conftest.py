@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,12 @@ except ImportError:  # pragma: no cover - threadpoolctl is a dependency, but the
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# A suite started in the background by a non-interactive shell (`make test &`, some CI runners) has
+# SIGINT ignored, and every process it starts inherits that: the tests that Ctrl-C a run would see it
+# finish instead. Python's own handler here gives the children the default action back at exec.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 

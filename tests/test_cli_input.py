@@ -360,6 +360,22 @@ def test_sweep_study_and_demo_take_over_only_their_own_folder(tmp_path) -> None:
     check_run_folder(tmp_path / "lib", "explore", force=True)
 
 
+def test_a_study_killed_before_its_status_is_resumed_in_its_folder(tmp_path) -> None:
+    """A study or sweep killed outright (SIGKILL, a lost ray:// client) leaves its results but no
+    status.json: its files say whose folder it is, so the same command resumes there and another is
+    refused."""
+    from tactex.errors import InputError
+    from tactex.report.outdir import check_run_folder
+
+    for command, name in (("study", "runs.jsonl"), ("study", "study.json"), ("sweep", "sweep.json")):
+        out = tmp_path / command / name
+        out.mkdir(parents=True)
+        (out / name).write_text("{}\n")
+        check_run_folder(out, command, own=True)
+        with pytest.raises(InputError, match=f"holds a tactex {command} run"):
+            check_run_folder(out, "explore")
+
+
 def test_a_finished_run_says_done(tmp_path, capsys) -> None:
     out = tmp_path / "ok"
     assert _run(["explore", "cup", "--steps", "5", "--n-eigen", "8", "--quiet", "--no-html", "--no-cache",

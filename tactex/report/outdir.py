@@ -15,6 +15,8 @@ __all__ = ["RUN_FILES", "check_run_folder", "prepare_out_dir", "run_in_folder"]
 #: sweep: sweep.json; study: study.json, runs.jsonl), and the CLI's status.json unless it says the run
 #: failed (a run stopped by its checks or an error leaves no results to protect: run it again there).
 RUN_FILES = ("status.json", "metrics.json", "sweep.json", "study.json", "runs.jsonl")
+#: The command a result file belongs to, where only one command writes it.
+_RESULTS_OF = {"sweep.json": "sweep", "study.json": "study", "runs.jsonl": "study"}
 
 
 def prepare_out_dir(out: str | Path) -> Path:
@@ -49,7 +51,10 @@ def run_in_folder(out: str | Path) -> str | None:
         return None
     results = any((p / name).is_file() for name in RUN_FILES if name != "status.json")
     status_file = p / "status.json"
-    if not status_file.is_file():
+    if not status_file.is_file():  # a run killed before the CLI wrote it: its files say whose it is
+        owners = {command for name, command in _RESULTS_OF.items() if (p / name).is_file()}
+        if len(owners) == 1:
+            return f"a tactex {owners.pop()} run (stopped before it wrote status.json)"
         return "a run" if results else None
     try:
         status = json.loads(status_file.read_text())
