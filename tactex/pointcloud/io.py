@@ -11,7 +11,6 @@ the CAD parts industrial users have — are sampled on their surface at the voxe
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -125,13 +124,16 @@ def load_ply(path: str | Path) -> SurfaceCloud:
     return _read_ply(_check_file(path), DEFAULT_MESH_SPACING_M).cloud
 
 
-def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
-    from plyfile import PlyData, PlyParseError
+#: The vertex properties a PLY cloud is read from.
+_USED = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "target"})
 
-    try:
-        ply = PlyData.read(str(p))
-    except (PlyParseError, ValueError, OSError, IndexError, KeyError, TypeError) as exc:
-        raise CloudError(f"'{p}' is not a readable PLY file: {exc}") from exc
+
+def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
+    from plyfile import PlyListProperty
+
+    from tactex.pointcloud.ply_check import read_ply
+
+    ply = read_ply(p)
     if "face" in ply and ply["face"].count > 0:
         from tactex.pointcloud.mesh import read_mesh
 
@@ -142,6 +144,10 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     names = set(v.data.dtype.names or ())
     if not {"x", "y", "z"} <= names:
         raise CloudError(f"'{p}' vertices lack x/y/z properties (found {sorted(names)})")
+    lists = sorted(prop.name for prop in v.properties if isinstance(prop, PlyListProperty) and prop.name in _USED)
+    if lists:
+        raise CloudError(f"'{p}': its vertex properties {', '.join(lists)} are lists; a vertex's x, y, z, normal, "
+                         "colour and target are single numbers")
     points = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
     normals = (
         np.stack([v["nx"], v["ny"], v["nz"]], axis=1).astype(np.float64)
@@ -283,25 +289,13 @@ def load_npz(path: str | Path) -> SurfaceCloud:
 
 
 def _read_npz(p: Path) -> CloudFile:
-    if not zipfile.is_zipfile(p):
-        raise CloudError(f"'{p}' is not an .npz file (a zip archive of named arrays); give a .npz with a "
-                         "'points' array, or a .ply/.pcd file")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except ValueError as exc:  # numpy's own words would advise allow_pickle, which we never use
-        pickled = "pickle" in str(exc)
-        raise CloudError(f"'{p}' holds " + ("Python objects (pickled), not plain arrays: tactex reads only "
-                         "numeric arrays ('points', 'colors', ...)" if pickled else
-                         "no readable arrays (a damaged or non-numpy zip file)")) from exc
-    except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise CloudError(f"'{p}' is not a readable .npz file (damaged or truncated)") from exc
-    if "points" not in data:
-        raise CloudError(f"'{p}' has no 'points' array (found {sorted(data)})")
+    from tactex.pointcloud.npz_check import read_npz_arrays
+
+    data = read_npz_arrays(p)
     colors = _colors_to_unit(data["colors"]) if "colors" in data else None
     spacing = 0.0
     if "spacing" in data:
-        if np.shape(data["spacing"]) != () or not np.issubdtype(np.asarray(data["spacing"]).dtype, np.number):
+        if np.shape(data["spacing"]) != ():
             raise CloudError(f"'{p}': 'spacing' must be one number [m], got shape {np.shape(data['spacing'])}")
         spacing = float(data["spacing"])
     finite = _Finite(data["points"], data.get("normals"))
