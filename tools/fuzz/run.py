@@ -180,10 +180,11 @@ def main(argv: list[str] | None = None) -> None:
     for i, seed in enumerate(fuzzer.target.seeds()):
         (corpus / f"seed{i:02d}").write_bytes(seed)
     max_len = max(args.max_len, *(len(s) for s in fuzzer.target.seeds()))
-    # libFuzzer's own limits are off (ours are above) or a safety net past our deadline.
+    # libFuzzer's own limits: memory off (the address space is capped), time a safety net past ours
+    # (atheris reads -timeout=0 as "any unit running at its 1 s check has timed out").
     artifacts = args.out / "artifacts" / args.reader
     artifacts.mkdir(parents=True, exist_ok=True)
-    atheris.Setup([sys.argv[0], f"-max_total_time={int(args.seconds) + 60}", "-timeout=0", "-rss_limit_mb=0",
+    atheris.Setup([sys.argv[0], f"-max_total_time={int(args.seconds) + 60}", "-timeout=120", "-rss_limit_mb=0",
                    f"-artifact_prefix={artifacts}/",
                    f"-max_len={max_len}", "-print_final_stats=1", *libfuzzer_args, str(corpus)], fuzzer.one)
     atheris.Fuzz()
