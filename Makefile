@@ -78,6 +78,7 @@ FUZZ_JOBS ?= 1
 FUZZ_READERS ?= ply pcd_ascii pcd_binary pcd_binary_compressed npz obj stl hand_eye study_spec
 fuzz:
 	$(MAKE) EXTRAS="$(EXTRAS) fuzz" $(VENV)/.synced-$(subst $(space),-,$(strip $(EXTRAS) fuzz))
+	mkdir -p fuzz
 	printf '%s\n' $(FUZZ_READERS) | xargs -P $(FUZZ_JOBS) -I READER \
 		sh -c 'nice -n 10 $(PY) tools/fuzz/run.py READER --seconds $(FUZZ_SECONDS) --out fuzz > fuzz/READER.log 2>&1'
 	$(PY) tools/fuzz/summary.py fuzz

@@ -10,7 +10,6 @@ than the header says) is refused as well: the header is wrong, and which rows ar
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,10 @@ _PLY_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, IndexError,
                                                  OverflowError, StopIteration)
 
 
+#: Whitespace after a binary PLY's data that is tolerated (a newline some writers add) [bytes].
+_MAX_TRAILING_SPACE = 64
+
+
 def read_ply(p: Path):
     """The :class:`plyfile.PlyData` of the PLY file ``p``, its header's counts checked against the
     file's size before any data is read.
@@ -34,14 +37,14 @@ def read_ply(p: Path):
     """
     from plyfile import PlyData, PlyParseError
 
-    raw = p.read_bytes()
-    stream = io.BytesIO(raw)
+    size = p.stat().st_size
     try:
-        header = PlyData._parse_header(stream)  # plyfile's own parser: the header read as it reads it
+        with p.open("rb") as f:
+            header = PlyData._parse_header(f)  # plyfile's own parser: the header read as it reads it
+            start = f.tell()
+            body = f.read() if header.text else b""  # a binary body is only measured, not read here
     except (PlyParseError, *_PLY_ERRORS) as exc:
         raise CloudError(f"'{p}' is not a readable PLY file: {_first_line(exc)}") from None
-    start = stream.tell()
-    body = raw[start:]
     for element in header.elements:
         if element.count < 0:
             raise CloudError(f"'{p}' is not a readable PLY file: its element '{element.name}' has a negative "
@@ -49,18 +52,19 @@ def read_ply(p: Path):
     if header.text:
         _check_text(p, header, body)
     else:
-        _check_binary(p, header, len(body))
+        _check_binary(p, header, size - start)
     try:
         if header.text:  # plyfile wraps the file in a text reader, which closes it when done
-            ply, end = PlyData.read(str(p)), len(raw)
+            ply = PlyData.read(str(p))
         else:
             with p.open("rb") as f:
                 ply = PlyData.read(f)
                 end = f.tell()
+                rest = f.read(_MAX_TRAILING_SPACE) if end < size else b""
     except (PlyParseError, *_PLY_ERRORS) as exc:
         raise CloudError(f"'{p}' is not a readable PLY file: {_first_line(exc)}") from None
-    if not header.text and raw[end:].strip():
-        raise CloudError(f"'{p}' holds {len(raw) - end} bytes after the {_counts(header)} its header announces: "
+    if not header.text and end < size and (rest.strip() or size - end > _MAX_TRAILING_SPACE):
+        raise CloudError(f"'{p}' holds {size - end} bytes after the {_counts(header)} its header announces: "
                          "the header's counts are wrong (fix the 'element' lines) or the file is damaged")
     return ply
 
