@@ -165,4 +165,4 @@ def study_spec_seeds() -> list[bytes]:
     return [b'task = "clean"\nseeds = 2\n\n[fixed]\nbudget_s = 30.0\n\n[grid]\ntool_friction = [0.2, 0.4]\n'
             b'baseline = ["", "raster"]\n\n[success]\nmetric = "dirt_removed_fraction"\nat_least = 0.9\n',
             b'task = "wipe"\nseeds = [0, 3]\ndraws = 2\ndraw_seed = 1\n\n[random]\n'
-            b'force_n = {uniform = [5.0, 15.0]}\nn_eigen = {integers = [50, 200]}\n']
+            b'force_n = {uniform = [5.0, 15.0]}\ncommand_delay_ticks = {integers = [0, 3]}\n']
