@@ -8,6 +8,7 @@ import io
 import json
 import logging
 import struct
+import warnings
 import zipfile
 
 import numpy as np
@@ -83,6 +84,15 @@ def test_ply_value_outside_its_type(tmp_path) -> None:
     data = (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
             b"property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n0 0 0 302 0 0\n")
     _refused(_write(tmp_path, "302.ply", data), "does not fit its property's type (302 out of bounds for uint8)")
+
+
+def test_ply_empty_ascii_list_warns_nothing(tmp_path) -> None:
+    # fuzz (a warning, shown by the CLI as numpy's words): plyfile's np.loadtxt of an empty list
+    data = (b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+            b"property list uchar int tags\nend_header\n0 0 0 0\n0.01 0 0 1 7\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(read_cloud(_write(tmp_path, "tags.ply", data)).cloud) == 2
 
 
 # --- PCD: the data against POINTS ----------------------------------------------------------------------

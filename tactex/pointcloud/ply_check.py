@@ -10,6 +10,7 @@ than the header says) is refused as well: the header is wrong, and which rows ar
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -54,19 +55,28 @@ def read_ply(p: Path):
     else:
         _check_binary(p, header, size - start)
     try:
-        if header.text:  # plyfile wraps the file in a text reader, which closes it when done
-            ply = PlyData.read(str(p))
-        else:
-            with p.open("rb") as f:
-                ply = PlyData.read(f)
-                end = f.tell()
-                rest = f.read(_MAX_TRAILING_SPACE) if end < size else b""
+        with warnings.catch_warnings():
+            # plyfile reads an ASCII list with np.loadtxt, which warns when a list is empty (a valid list)
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            ply, end, rest = _read(p, header.text, size)
     except (PlyParseError, *_PLY_ERRORS) as exc:
         raise CloudError(f"'{p}' is not a readable PLY file: {_first_line(exc)}") from None
     if not header.text and end < size and (rest.strip() or size - end > _MAX_TRAILING_SPACE):
         raise CloudError(f"'{p}' holds {size - end} bytes after the {_counts(header)} its header announces: "
                          "the header's counts are wrong (fix the 'element' lines) or the file is damaged")
     return ply
+
+
+def _read(p: Path, text: bool, size: int):
+    """plyfile's reading of ``p``; where a binary file's data end, and up to 64 bytes after them."""
+    from plyfile import PlyData
+
+    if text:  # plyfile wraps the file in a text reader, which closes it when done
+        return PlyData.read(str(p)), size, b""
+    with p.open("rb") as f:
+        ply = PlyData.read(f)
+        end = f.tell()
+        return ply, end, f.read(_MAX_TRAILING_SPACE) if end < size else b""
 
 
 def _first_line(exc: BaseException) -> str:

@@ -142,6 +142,9 @@ class Fuzzer:
             key, detail = f"log record from {rec.name}", rec.getMessage()
         for w in caught if "caught" in locals() else ():
             tag = f"{w.category.__name__}: {str(w.message)[:80]}"
+            if tag not in self.warnings:  # keep the first input of each, to trace it
+                self.crash_dir.mkdir(parents=True, exist_ok=True)
+                (self.crash_dir / f"warning-{hashlib.sha1(data).hexdigest()[:12]}{path.suffix}").write_bytes(data)
             self.warnings[tag] = self.warnings.get(tag, 0) + 1
         if key is not None:
             self._crash(key, detail, data, path.suffix)
