@@ -125,6 +125,18 @@ def test_binary_compressed_pcd_truncated_block(tmp_path) -> None:
     _refused(_write(tmp_path, "t.pcd", _pcd("binary_compressed")[:-20]), "truncated")
 
 
+def test_signalling_nan_is_dropped_without_numpy_warning(tmp_path) -> None:
+    # fuzz (a warning, 37 inputs in the binary PCD run): widening a float32 sNaN warns "invalid value
+    # encountered in cast"; the point is dropped and counted like any NaN
+    data = _pcd("binary")
+    start = data.index(b"DATA binary\n") + len(b"DATA binary\n")
+    data = data[:start] + struct.pack("<I", 0x7F800001) + data[start + 4:]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = read_cloud(_write(tmp_path, "snan.pcd", data))
+    assert (len(got.cloud), got.n_dropped) == (39, 1)
+
+
 def test_pcd_count_not_a_number(tmp_path) -> None:
     # fuzz: ValueError at pcd_header <genexpr> (int() of a COUNT word)
     data = _pcd("binary").replace(b"COUNT 1 1 1", b"COUNT 1 1 ?")

@@ -234,8 +234,8 @@ def _read_pcd(p: Path) -> CloudFile:
     except CloudError as exc:
         raise CloudError(f"'{p}': {exc}") from None
     fields = tuple(pc.fields)
-    arr = pc.numpy()
-    col = {name: arr[:, i] for i, name in enumerate(fields)}
+    # the used fields as stored: pc.numpy() would cast every field, used or not, to one common type
+    col = {name: np.atleast_1d(pc.pc_data[name]) for name in fields}
     if not {"x", "y", "z"} <= set(fields):
         raise CloudError(f"'{p}' lacks x/y/z fields (found {list(fields)})")
     points = np.stack([col["x"], col["y"], col["z"]], axis=1).astype(np.float64)
@@ -247,13 +247,13 @@ def _read_pcd(p: Path) -> CloudFile:
     if "rgb" in fields or "rgba" in fields:
         ascii_file = str(getattr(pc.metadata.data, "value", pc.metadata.data)).lower() == "ascii"
         try:
-            packed = _packed_rgb(pc.pc_data["rgb" if "rgb" in fields else "rgba"], ascii_file)
+            packed = _packed_rgb(col["rgb" if "rgb" in fields else "rgba"], ascii_file)
         except CloudError as exc:
             raise CloudError(f"'{p}': {exc}") from exc
         rgb = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255], axis=1)
         colors = finite(rgb).astype(np.float64) / 255.0
     elif {"r", "g", "b"} <= set(fields):
-        colors = _colors_to_unit(finite(np.stack([pc.pc_data["r"], pc.pc_data["g"], pc.pc_data["b"]], axis=1)))
+        colors = _colors_to_unit(finite(np.stack([col["r"], col["g"], col["b"]], axis=1)))
     cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors)
     return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)),
                      kept=finite.kept_rows())
@@ -280,7 +280,8 @@ def _packed_rgb(field: np.ndarray, ascii_file: bool) -> np.ndarray:
                 )
             return values.astype(np.float32).view(np.uint32)
         return np.clip(np.round(values), 0.0, 2.0**32 - 1).astype(np.uint32)
-    return field.astype(np.float32).view(np.uint32)
+    with np.errstate(over="ignore", invalid="ignore"):  # an 8-byte float rgb field: only its float32 bits count
+        return field.astype(np.float32).view(np.uint32)
 
 
 def load_npz(path: str | Path) -> SurfaceCloud:
@@ -336,7 +337,6 @@ def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING
         path: .ply, .pcd, .npz, .stl or .obj file.
         mesh_spacing_m: sampling spacing of a mesh's surface [m] (the voxel size of the run).
     """
-    from tactex.pointcloud.mesh import read_mesh
 
     p = Path(path)
     suffix = p.suffix.lower()
@@ -345,6 +345,16 @@ def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING
             f"cannot read '{p}': unknown suffix '{p.suffix}'; supported: {', '.join(SUPPORTED_SUFFIXES)}"
         )
     p = _check_file(p)
+    # A signalling NaN in float data (a damaged file's bits) makes numpy warn "invalid value
+    # encountered in cast" when it is widened to float64; the point is dropped and counted by the
+    # finite rule, so the warning would only add numpy's words to the CLI's output.
+    with np.errstate(invalid="ignore"):
+        return _read_by_suffix(p, suffix, mesh_spacing_m)
+
+
+def _read_by_suffix(p: Path, suffix: str, mesh_spacing_m: float) -> CloudFile:
+    from tactex.pointcloud.mesh import read_mesh
+
     try:
         if suffix == ".ply":
             return _read_ply(p, mesh_spacing_m)
