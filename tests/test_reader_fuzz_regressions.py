@@ -218,6 +218,12 @@ def test_npz_damaged_deflate_stream(tmp_path) -> None:
     _refused(path, "not a readable .npz file")
 
 
+def test_npz_multi_disk_end_record(tmp_path) -> None:
+    # fuzz: BadZipFile at zipfile _EndRecData64, raised through zipfile.is_zipfile itself
+    data = b"PK\x06\x07" + struct.pack("<IQI", 0, 0, 2) + b"PK\x05\x06" + bytes(18)
+    _refused(_write(tmp_path, "disks.npz", data), "span multiple disks")
+
+
 def test_npz_damaged_member_header(tmp_path) -> None:
     # fuzz: TokenError at tokenize (numpy parsing a header dict cut short)
     member = b"\x93NUMPY\x01\x00\x16\x00{'descr': '<f8', (\n" + b"\0" * 24

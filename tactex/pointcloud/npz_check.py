@@ -47,7 +47,11 @@ def read_npz_arrays(p: Path) -> dict[str, np.ndarray]:
         CloudError: the file is not a readable archive of numpy arrays, a member holds no numbers,
             or a member's header announces more (or less) data than the archive holds for it.
     """
-    if not zipfile.is_zipfile(p):
+    try:
+        is_zip = zipfile.is_zipfile(p)
+    except HEADER_ERRORS as exc:  # it looked at the end records and found them damaged
+        raise CloudError(f"'{p}' is not a readable .npz file (damaged or truncated: {_first_line(exc)})") from None
+    if not is_zip:
         raise CloudError(f"'{p}' is not an .npz file (a zip archive of named arrays); give a .npz with a "
                          "'points' array, or a .ply/.pcd file")
     size = p.stat().st_size

@@ -1,8 +1,8 @@
 """The figures of a fuzz run: executions, time and crashes per reader, and whether each crash class
 is fixed (its kept input replayed on the current code passes). Printed, and written to
-``OUT/results.json`` under the round's name (earlier rounds there are kept).
+``OUT/results.json`` (or ``--results``) under the round's name (earlier rounds there are kept).
 
-    python tools/fuzz/summary.py fuzz [--round NAME]
+    python tools/fuzz/summary.py fuzz [--round NAME] [--results FILE]
 """
 
 from __future__ import annotations
@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
     parser.add_argument("--round", default=time.strftime("%Y-%m-%dT%H:%M", time.gmtime()))
+    parser.add_argument("--results", type=Path, help="the results file (default: OUT/results.json)")
     args = parser.parse_args(argv)
     readers = {}
     for reader in TARGETS:
@@ -87,7 +88,7 @@ def main(argv: list[str] | None = None) -> None:
               f"{r['classes_found']} crash classes ({r['crashing_inputs']} inputs), {r['classes_fixed']} fixed")
         for key, c in classes.items():
             print(f"    {key}: {c['inputs']} inputs; now {c['now']}")
-    results_file = args.out / "results.json"
+    results_file = args.results or args.out / "results.json"
     results = json.loads(results_file.read_text()) if results_file.is_file() else {"rounds": {}}
     results["rounds"][args.round] = readers
     results_file.write_text(json.dumps(results, indent=2) + "\n")
