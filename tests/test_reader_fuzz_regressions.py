@@ -18,7 +18,7 @@ from tactex.errors import CloudError, ConfigError, InputError, TactexError
 from tactex.experiments.study_spec import load_spec_file, spec_from_dict
 from tactex.pointcloud import SurfaceCloud, save_ply
 from tactex.pointcloud.io import read_cloud
-from tactex.tasks.hand_eye import load_hand_eye
+from tactex.tasks.robot import load_hand_eye
 from tests.format_fixtures import pcd_bytes
 
 
@@ -159,6 +159,10 @@ def _npy_bytes(shape: tuple[int, ...], descr: str, data: bytes) -> bytes:
     return buf.getvalue() + data
 
 
+#: A .npy header whose dict ends inside a string: numpy's parser raises tokenize.TokenError.
+_UNTERMINATED_HEADER = b"\x93NUMPY\x01\x00" + struct.pack("<H", 52) + b"{'descr': '<f8', 'fortran_order" + bytes(21)
+
+
 def test_npz_shape_bomb_is_refused_before_allocating(tmp_path) -> None:
     # np.load allocated 224 GiB for the shape in a 1 kB file
     path = _npz_with(tmp_path, "bomb.npz", _npy_bytes((10**10, 3), "<f8", b"\0" * 1200))
@@ -226,7 +230,7 @@ def test_npz_multi_disk_end_record(tmp_path) -> None:
 
 def test_npz_damaged_member_header(tmp_path) -> None:
     # fuzz: TokenError at tokenize (numpy parsing a header dict cut short)
-    member = b"\x93NUMPY\x01\x00\x16\x00{'descr': '<f8', (\n" + b"\0" * 24
+    member = _UNTERMINATED_HEADER + b"\0" * 24
     _refused(_npz_with(tmp_path, "tok.npz", member), "not a readable .npz file")
 
 
@@ -279,7 +283,7 @@ def test_hand_eye_json_too_big(tmp_path) -> None:
     (_npy_bytes((10**9, 4), "<f8", b"\0" * 128), r"shape \(1000000000, 4\)"),  # fromfile of the header's count
     (_npy_bytes((4, 4), "<U8", b"\0" * 512), "holds text"),  # np.asarray(float) of strings: ValueError
     (_npy_bytes((4, 4), "<f8", b"\0" * 100), "damaged or truncated"),  # fewer bytes than 4×4
-    (b"\x93NUMPY\x01\x00\x16\x00{'descr': '<f8', (\n", "is not a .npy array"),  # TokenError
+    (_UNTERMINATED_HEADER + b"\0" * 128, "is not a .npy array"),  # fuzz: TokenError at tokenize
     (b"", "is not a .npy array"),  # fuzz: EOFError at np.load (an empty file)
 ])
 def test_hand_eye_npy_checked_before_reading(tmp_path, member, needle) -> None:
