@@ -294,6 +294,32 @@ def test_hand_eye_npy_checked_before_reading(tmp_path, member, needle) -> None:
     assert f"'{path}'" in str(info.value)
 
 
+def _npy_with_header(text: bytes) -> bytes:
+    text = text.ljust(118) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(text)) + text + bytes(128)
+
+
+@pytest.mark.parametrize(("name", "data", "needle"), [
+    # numpy: "required additional header parsing as it was created on Python 2" (a UserWarning)
+    ("py2.npy", _npy_with_header(b"{'descr': '<f8', 'fortran_order': False, 'shape': (4L, 5L), }"), "shape (4, 5)"),
+    # Python: "invalid escape sequence" compiling the header's text (a DeprecationWarning)
+    ("escape.npy", _npy_with_header(b"{'descr': '<f\\p8', 'fortran_order': False, 'shape': (4, 4), }"),
+     "is not a .npy array"),
+    # numpy: "overflow encountered in matmul" checking that huge numbers are a rotation
+    ("huge.json", json.dumps([[1e200] * 4] * 3 + [[0, 0, 0, 1]]).encode(), "4×4 rigid transform"),
+])
+def test_hand_eye_refusals_warn_nothing(tmp_path, name, data, needle) -> None:
+    # fuzz: warnings the CLI would have shown in numpy's and Python's words (59, 52 and 6 inputs)
+    path = tmp_path / name
+    path.write_bytes(data)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(InputError) as info:
+            load_hand_eye(path)
+    assert needle in str(info.value)
+    assert not caught, [str(w.message) for w in caught]
+
+
 # --- the study spec --------------------------------------------------------------------------------------
 
 

@@ -11,10 +11,13 @@ sentence naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import struct
+import warnings
 import zipfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from tokenize import TokenError
 
@@ -23,7 +26,7 @@ import numpy as np
 from tactex.errors import CloudError
 
 __all__ = ["DEFLATE_MAX_RATIO", "HEADER_ERRORS", "NPZ_ARRAYS", "NUMERIC_KINDS", "kind_words", "npy_header",
-           "read_npz_arrays"]
+           "quiet_numpy_header", "read_npz_arrays"]
 
 #: The arrays a cloud is read from; other members of the archive are not read.
 NPZ_ARRAYS = ("points", "normals", "colors", "target", "spacing")
@@ -84,13 +87,26 @@ def npy_header(stream) -> tuple[tuple[int, ...], np.dtype]:
         ValueError (or another of :data:`HEADER_ERRORS`): the stream holds no numpy array header.
     """
     version = np.lib.format.read_magic(stream)
-    if version == (1, 0):
-        shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
-    elif version == (2, 0):
-        shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
-    else:
-        raise ValueError(f"numpy format version {version}, which tactex does not read")
+    with quiet_numpy_header():
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
+        else:
+            raise ValueError(f"numpy format version {version}, which tactex does not read")
     return tuple(shape), dtype
+
+
+@contextlib.contextmanager
+def quiet_numpy_header() -> Iterator[None]:
+    """numpy's warnings while it parses a .npy header ("required additional header parsing as it was
+    created on Python 2", Python's "invalid escape sequence" in the header's text): about the file's
+    age or damage, which the checks here report in their own words."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", SyntaxWarning)
+        yield
 
 
 def kind_words(dtype: np.dtype) -> str:
@@ -121,5 +137,5 @@ def _read_member(p: Path, archive: zipfile.ZipFile, info: zipfile.ZipInfo, size:
         more = "more" if need > held else "fewer"
         raise CloudError(f"{where} announces shape {tuple(shape)} of {dtype} ({need} bytes), {more} than the "
                          f"{held} bytes the file holds for it: the file is damaged")
-    with archive.open(info) as member:
+    with archive.open(info) as member, quiet_numpy_header():
         return np.lib.format.read_array(member, allow_pickle=False)

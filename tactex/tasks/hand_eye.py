@@ -21,7 +21,7 @@ MAX_JSON_BYTES = 1 << 16
 
 
 def _read_npy(p: Path) -> np.ndarray:
-    from tactex.pointcloud.npz_check import HEADER_ERRORS, NUMERIC_KINDS, kind_words, npy_header
+    from tactex.pointcloud.npz_check import HEADER_ERRORS, NUMERIC_KINDS, kind_words, npy_header, quiet_numpy_header
 
     with p.open("rb") as f:
         try:
@@ -34,7 +34,8 @@ def _read_npy(p: Path) -> np.ndarray:
         if shape != (4, 4):
             raise InputError(f"hand-eye calibration '{p}' must hold a 4×4 rigid transform, got shape {shape}")
     try:
-        return np.load(p, allow_pickle=False)
+        with quiet_numpy_header():
+            return np.load(p, allow_pickle=False)
     except HEADER_ERRORS as exc:
         raise InputError(f"hand-eye calibration '{p}' cannot be read (damaged or truncated): "
                          f"{str(exc).strip()[:120]}") from None
@@ -59,7 +60,9 @@ def load_hand_eye(path: str | Path) -> np.ndarray:
     pose = _read_json(p) if p.suffix == ".json" else _read_npy(p)
     pose = np.asarray(pose, dtype=float)
     rot = pose[:3, :3] if pose.shape == (4, 4) else None
-    if rot is None or not np.isfinite(pose).all() or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) \
+    # a finite rotation's entries are within ±1: larger ones fail the check without overflowing in it
+    if rot is None or not np.isfinite(pose).all() or np.abs(rot).max() > 1.0 + 1e-4 \
+            or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) \
             or not np.allclose(pose[3], [0, 0, 0, 1]) or np.linalg.det(rot) < 0:
         raise InputError(f"hand-eye calibration '{p}' must hold a 4×4 rigid transform (rotation, translation in "
                          f"metres, last row 0 0 0 1), got shape {pose.shape}")
