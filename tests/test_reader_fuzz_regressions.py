@@ -199,15 +199,22 @@ def test_npz_encrypted_member(tmp_path) -> None:
     _refused(path, "encrypted")
 
 
-def test_npz_unsupported_compression(tmp_path) -> None:
-    # fuzz: NotImplementedError at zipfile _check_compression
+@pytest.mark.parametrize(("field", "value", "needle"), [
+    # fuzz: NotImplementedError at zipfile _check_compression: a compression method numpy does not read
+    ((8, 10), struct.pack("<H", 99), "compression numpy does not read"),
+    # fuzz: NotImplementedError at zipfile _RealGetContents: "zip file version 7.6" (version needed)
+    ((4, 6), struct.pack("<H", 76), "not a readable .npz file"),
+    # fuzz: NotImplementedError at zipfile open: "compressed patched data (flag bit 5)"
+    ((6, 8), struct.pack("<H", 0x20), "not a readable .npz file"),
+])
+def test_npz_zip_features_numpy_does_not_read(tmp_path, field, value, needle) -> None:
     path = _npz_with(tmp_path, "lz.npz", _npy_bytes((1, 3), "<f8", b"\0" * 24))
     raw = bytearray(path.read_bytes())
-    for sig, offset in ((b"PK\x03\x04", 8), (b"PK\x01\x02", 10)):  # the compression method of both headers
+    for sig, offset in zip((b"PK\x03\x04", b"PK\x01\x02"), field, strict=True):  # the local and central headers
         at = raw.find(sig) + offset
-        raw[at:at + 2] = struct.pack("<H", 99)
+        raw[at:at + 2] = value
     path.write_bytes(bytes(raw))
-    _refused(path, "compression numpy does not read")
+    _refused(path, needle)
 
 
 def test_npz_damaged_deflate_stream(tmp_path) -> None:
@@ -237,10 +244,17 @@ def test_npz_damaged_member_header(tmp_path) -> None:
 # --- meshes: trimesh quiet, its errors ours ----------------------------------------------------------
 
 
-def test_obj_faces_that_are_not_triangles(tmp_path, capsys) -> None:
+_OBJ_BODY = (b"v 0 0 0\nv 0.055 0\nvt 0 0\nvt\x001 0\nvt 0 1\nf 1/1 2/2 3/.05 0 0\nv 0 0.05 0\nvt 0 0\nvt\x001 0\n"
+             b"vt 0 1\n")
+
+
+@pytest.mark.parametrize("data", [
     # fuzz: ValueError at trimesh sample_surface ("cannot reshape array of size 16 into shape (2,3)")
-    data = (b"mtllib missing.mtl\nusemtl skin\nv 0 0 0\nv 0.055 0\nvt 0 0\nvt\x001 0\nvt 0 1\nf 1/1 2/2 3/.05 0 0\n"
-            b"v 0 0.05 0\nvt 0 0\nvt\x001 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    b"mtllib missing.mtl\nusemtl skin\n" + _OBJ_BODY + b"f 1/1 2/2 3/3\n",
+    # fuzz: ValueError at trimesh caching __isub__ ("operands could not be broadcast together")
+    b"\0\0ib missing.mtl\nusemtl skin\n" + _OBJ_BODY + b"f 1",
+])
+def test_obj_faces_that_are_not_triangles(tmp_path, capsys, data) -> None:
     _refused(_write(tmp_path, "bad.obj", data), "not a readable mesh")
     assert capsys.readouterr().err == ""
 
