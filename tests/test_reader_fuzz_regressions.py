@@ -347,6 +347,10 @@ def test_hand_eye_refusals_warn_nothing(tmp_path, name, data, needle) -> None:
     ('[success]\nat_least = "most"\n', "at_least must be a number"),  # math.isnan(str): TypeError
     ('[success]\nmetric = 3\n', "metric must be a metric's name"),
     ('draws = 1\ndraw_seed = -1\n[random]\nforce_n = {uniform = [1.0, 2.0]}\n', "draw_seed must be"),
+    # fuzz (long round): ValueError "high is out of bounds for int64" in numpy's integers draw
+    ('task = "wipe"\ndraws = 3\n[random]\ncommand_delay_ticks = {integers = [0, 3' + "3" * 40 + ']}\n', "too wide"),
+    # numpy's uniform: OverflowError "high - low range exceeds valid bounds"
+    ('draws = 3\n[random]\nforce_n = {uniform = [-1e308, 1e308]}\n', "too wide"),
 ])
 def test_study_spec_mistakes_are_config_errors(tmp_path, toml, needle) -> None:
     path = tmp_path / "study.toml"

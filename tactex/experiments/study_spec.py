@@ -53,6 +53,8 @@ DEFAULT_SUCCESS = {"clean": ("dirt_removed_fraction", 0.9), "wipe": ("contact_fr
 DISTRIBUTIONS = ("uniform", "loguniform", "choice", "integers")
 #: Most runs a study plans (grid × draws × seeds): more is a typo, not a study (weeks of simulation).
 MAX_RUNS = 1_000_000
+#: Largest bound of an integers draw: numpy draws within int64.
+_INT_BOUND = 2**62
 #: Fields a study must not set: it runs in simulation, the seed comes from ``seeds``.
 NOT_STUDY_FIELDS = ("seed",)
 
@@ -206,6 +208,11 @@ class StudySpec:
         if not low < high or (kind == "loguniform" and low <= 0):
             raise ConfigError(f"{where}: {kind} needs low < high{' and low > 0' if kind == 'loguniform' else ''}, "
                               f"got [{low}, {high}]")
+        # numpy draws integers within int64 and uniform numbers over a finite width
+        if (kind == "integers" and not -_INT_BOUND <= low < high <= _INT_BOUND) or \
+                (kind == "uniform" and not math.isfinite(float(high) - float(low))):
+            raise ConfigError(f"{where}: {kind} [{low:.4g}, {high:.4g}] is too wide to draw from; give a range "
+                              "the parameter can take")
         return (kind, float(low), float(high))
 
     @staticmethod
