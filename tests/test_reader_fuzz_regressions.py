@@ -343,6 +343,8 @@ def test_hand_eye_refusals_warn_nothing(tmp_path, name, data, needle) -> None:
     ("seeds = 10000\n[grid]\ntool_friction = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]\n"
      "budget_s = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0]\n", "plans 1,200,000 runs"),
     ('[grid]\nbaseline = [{a = 1}, "raster"]\n', "is not a single value"),  # TypeError: unhashable
+    # fuzz (confirmation round): 444,440 draws × 2 seeds took over 5 s of CPU to list
+    ('seeds = [0, 3]\ndraws = 60000\n[random]\nforce_n = {uniform = [0, 3]}\n', "plans 120,000 runs"),
     ('draws = 2\n[random]\nbaseline = {uniform = ["a", "b"]}\n', "draws numbers"),  # float('a'): ValueError
     ('[success]\nat_least = "most"\n', "at_least must be a number"),  # math.isnan(str): TypeError
     ('[success]\nmetric = 3\n', "metric must be a metric's name"),

@@ -51,8 +51,9 @@ __all__ = ["DEFAULT_SUCCESS", "StudyRun", "StudySpec", "level_label", "load_spec
 #: Success of a run per task: the metric and the least value that counts (with no error and no abort).
 DEFAULT_SUCCESS = {"clean": ("dirt_removed_fraction", 0.9), "wipe": ("contact_fraction_after_first_contact", 0.9)}
 DISTRIBUTIONS = ("uniform", "loguniform", "choice", "integers")
-#: Most runs a study plans (grid × draws × seeds): more is a typo, not a study (weeks of simulation).
-MAX_RUNS = 1_000_000
+#: Most runs a study plans (grid × draws × seeds): 100,000 runs of 30 s are a month of one core,
+#: and a plan ten times that takes seconds just to list.
+MAX_RUNS = 100_000
 #: Largest bound of an integers draw: numpy draws within int64.
 _INT_BOUND = 2**62
 #: Fields a study must not set: it runs in simulation, the seed comes from ``seeds``.
