@@ -21,6 +21,7 @@ import json
 import logging
 import os
 import resource
+import shutil
 import signal
 import sys
 import tempfile
@@ -105,6 +106,8 @@ class Fuzzer:
         """Read one input; record a crash if it is one."""
         if time.time() >= self.deadline:
             self.write()
+            self.sink.close()
+            shutil.rmtree(self.work, ignore_errors=True)
             os._exit(0)  # libFuzzer would exit() without running Python's clean-up either
         from tactex.errors import TactexError
 
