@@ -20,7 +20,7 @@ UV_ENV := UV_PROJECT_ENVIRONMENT=$(VENV) UV_PYTHON_DOWNLOADS=never
 SYNC := $(UV_ENV) $(UV) sync --frozen --python $(PYTHON) $(foreach e,$(EXTRAS),--extra $(e))
 
 .PHONY: demo test bench readme-status lint lock lock-check test-latest test-franka test-distributed clean-venv \
-	franka-sim-env test-franka-sim
+	franka-sim-env test-franka-sim fuzz
 
 $(UV): tools/uv-requirements.txt
 	$(PYTHON) -m pip install --quiet --disable-pip-version-check --require-hashes --upgrade \
@@ -90,6 +90,18 @@ franka-sim-env: $(FS_STAMP)
 # wipe's and the clean's approaches, dry run, a reflex).
 test-franka-sim: $(STAMP) $(FS_STAMP)
 	$(PY) -m pytest -q tests/test_franka_sim.py
+
+# Fuzz the file readers (tools/fuzz/, atheris from the fuzz extra): each for FUZZ_SECONDS, under nice,
+# FUZZ_JOBS at a time. Crashes and the figures go to fuzz/ (fuzz/results.json is committed). Not in CI.
+FUZZ_SECONDS ?= 600
+FUZZ_JOBS ?= 1
+FUZZ_READERS ?= ply pcd_ascii pcd_binary pcd_binary_compressed npz obj stl hand_eye study_spec
+fuzz:
+	$(MAKE) EXTRAS="$(EXTRAS) fuzz" $(VENV)/.synced-$(subst $(space),-,$(strip $(EXTRAS) fuzz))
+	mkdir -p fuzz
+	printf '%s\n' $(FUZZ_READERS) | xargs -P $(FUZZ_JOBS) -I READER \
+		sh -c 'nice -n 10 $(PY) tools/fuzz/run.py READER --seconds $(FUZZ_SECONDS) --out fuzz > fuzz/READER.log 2>&1'
+	$(PY) tools/fuzz/summary.py fuzz
 
 clean-venv:
 	rm -rf $(VENV) .tools .venv-latest $(FS_VENV)

@@ -51,6 +51,11 @@ __all__ = ["DEFAULT_SUCCESS", "StudyRun", "StudySpec", "level_label", "load_spec
 #: Success of a run per task: the metric and the least value that counts (with no error and no abort).
 DEFAULT_SUCCESS = {"clean": ("dirt_removed_fraction", 0.9), "wipe": ("contact_fraction_after_first_contact", 0.9)}
 DISTRIBUTIONS = ("uniform", "loguniform", "choice", "integers")
+#: Most runs a study plans (grid × draws × seeds): 100,000 runs of 30 s are a month of one core,
+#: and a plan ten times that takes seconds just to list.
+MAX_RUNS = 100_000
+#: Largest bound of an integers draw: numpy draws within int64.
+_INT_BOUND = 2**62
 #: Fields a study must not set: it runs in simulation, the seed comes from ``seeds``.
 NOT_STUDY_FIELDS = ("seed",)
 
@@ -72,6 +77,8 @@ def _coerce(cls: type, name: str, value: Any, where: str) -> Any:
         raise ConfigError(f"{where}: set the seeds with seeds (--seeds), not '{name}'")
     typ = typing.get_type_hints(cls)[name]
     origin = typing.get_origin(typ)
+    if isinstance(value, dict) or (isinstance(value, (list, tuple)) and origin is not tuple):
+        raise ConfigError(f"{where}: {name} = {value!r:.60} is not a single value")
     try:
         if typ is bool:
             if isinstance(value, str):
@@ -124,8 +131,8 @@ class StudySpec:
     success_at_least: float = math.nan
 
     def __post_init__(self) -> None:
-        if self.task not in DEFAULT_SUCCESS:
-            raise ConfigError(f"unknown study task '{self.task}'; valid: {', '.join(DEFAULT_SUCCESS)} (--task)")
+        if not isinstance(self.task, str) or self.task not in DEFAULT_SUCCESS:
+            raise ConfigError(f"unknown study task {self.task!r:.60}; valid: {', '.join(DEFAULT_SUCCESS)} (--task)")
         cls = _config_cls(self.task)
         grid = {}
         for name, levels in self.grid.items():
@@ -143,8 +150,8 @@ class StudySpec:
             raise ConfigError(f"{sorted(both)[0]} is given twice (grid, fixed, random): keep one")
         seeds = self.seeds
         if isinstance(seeds, int) and not isinstance(seeds, bool):
-            if seeds < 1:
-                raise ConfigError(f"seeds must be ≥ 1 (a count) or a list of seeds, got {seeds}")
+            if not 1 <= seeds <= MAX_RUNS:
+                raise ConfigError(f"seeds must be a count from 1 to {MAX_RUNS:,} or a list of seeds, got {seeds:.3g}")
             seeds = tuple(range(seeds))
         try:
             seeds = tuple(int(s) for s in seeds)
@@ -152,13 +159,23 @@ class StudySpec:
             raise ConfigError(f"seeds must be a count or a list of integers ≥ 0, got {self.seeds!r}") from exc
         if not seeds or any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
             raise ConfigError(f"seeds must be distinct integers ≥ 0, got {self.seeds!r}")
-        if isinstance(self.draws, bool) or not isinstance(self.draws, int) or self.draws < 0:
-            raise ConfigError(f"draws must be an integer ≥ 0, got {self.draws!r}")
+        if isinstance(self.draws, bool) or not isinstance(self.draws, int) or not 0 <= self.draws <= MAX_RUNS:
+            raise ConfigError(f"draws must be an integer from 0 to {MAX_RUNS:,}, got {self.draws!r:.40}")
+        if isinstance(self.draw_seed, bool) or not isinstance(self.draw_seed, int) or self.draw_seed < 0:
+            raise ConfigError(f"draw_seed must be an integer ≥ 0, got {self.draw_seed!r:.40}")
+        n_runs = math.prod(len(v) for v in grid.values()) * max(self.draws, 1) * len(seeds)
+        if n_runs > MAX_RUNS:
+            raise ConfigError(f"the study plans {n_runs:,} runs (grid × draws × seeds), more than {MAX_RUNS:,}: "
+                              "fewer levels, draws or seeds")
         if random and self.draws == 0:
             raise ConfigError(f"[random] gives {', '.join(random)} but draws = 0; set draws (--draws N) to sample them")
         if self.draws and not random:
             raise ConfigError("draws > 0 needs [random] distributions (--random NAME=uniform:LOW:HIGH)")
         metric, at_least = DEFAULT_SUCCESS[self.task]
+        if not isinstance(self.success_metric, str):
+            raise ConfigError(f"success: metric must be a metric's name, got {self.success_metric!r:.40}")
+        if isinstance(self.success_at_least, bool) or not isinstance(self.success_at_least, (int, float)):
+            raise ConfigError(f"success: at_least must be a number, got {self.success_at_least!r:.40}")
         metric = self.success_metric or metric
         at_least = at_least if math.isnan(self.success_at_least) else float(self.success_at_least)
         object.__setattr__(self, "grid", grid)
@@ -187,9 +204,16 @@ class StudySpec:
         if not isinstance(args, (list, tuple)) or len(args) != 2:
             raise ConfigError(f"{where}: {kind} needs [low, high], got {args!r}")
         low, high = (_coerce(cls, name, v, where) for v in args)
+        if isinstance(low, (str, bool, tuple)):
+            raise ConfigError(f"{where}: {kind} draws numbers, but {name} is not a number; use choice = [...]")
         if not low < high or (kind == "loguniform" and low <= 0):
             raise ConfigError(f"{where}: {kind} needs low < high{' and low > 0' if kind == 'loguniform' else ''}, "
                               f"got [{low}, {high}]")
+        # numpy draws integers within int64 and uniform numbers over a finite width
+        if (kind == "integers" and not -_INT_BOUND <= low < high <= _INT_BOUND) or \
+                (kind == "uniform" and not math.isfinite(float(high) - float(low))):
+            raise ConfigError(f"{where}: {kind} [{low:.4g}, {high:.4g}] is too wide to draw from; give a range "
+                              "the parameter can take")
         return (kind, float(low), float(high))
 
     @staticmethod

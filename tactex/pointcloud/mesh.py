@@ -33,17 +33,10 @@ SAMPLE_SEED = 0
 def read_mesh(path: Path, spacing_m: float):
     """The cloud sampled from the mesh file at ``path`` every ``spacing_m`` [m], as a
     :class:`tactex.pointcloud.io.CloudFile`."""
-    import trimesh
-
     from tactex.pointcloud.io import CloudFile
+    from tactex.pointcloud.mesh_load import load_mesh
 
-    try:
-        mesh = trimesh.load(str(path), force="mesh", process=True)
-    except Exception as exc:  # trimesh raises many kinds on files it cannot parse
-        detail = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
-        raise CloudError(f"'{path}' is not a readable mesh: {detail}") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise CloudError(f"'{path}' holds no triangles (an empty or unreadable mesh file)")
+    mesh, load_notes = load_mesh(path)
     n_faces = len(mesh.faces)
     good = np.isfinite(mesh.vertices).all(axis=1)
     dropped = int((~good).sum())
@@ -51,7 +44,8 @@ def read_mesh(path: Path, spacing_m: float):
         mesh.update_faces(good[mesh.faces].all(axis=1))
         mesh.remove_unreferenced_vertices()
     cloud = sample_mesh(mesh, spacing_m, f"'{path}'")
-    notes = [f"a mesh of {n_faces} faces ({mesh.area:.4g} m² of surface), sampled every {spacing_m * 1e3:.3g} mm"]
+    notes = [f"a mesh of {n_faces} faces ({mesh.area:.4g} m² of surface), sampled every {spacing_m * 1e3:.3g} mm",
+             *load_notes]
     if dropped:
         notes.append(f"dropped {dropped} vertices with NaN/inf coordinates (and their faces)")
     return CloudFile(cloud, dropped, n_faces=n_faces, notes=tuple(notes))

@@ -9,11 +9,12 @@ wrong in any other way is refused in one sentence naming the line, not pydantic'
 from __future__ import annotations
 
 import io
+import struct
 from pathlib import Path
 
 from tactex.errors import CloudError
 
-__all__ = ["PCD_VERSIONS", "normalised_header", "read_pcd"]
+__all__ = ["PCD_VERSIONS", "check_data", "normalised_header", "read_pcd"]
 
 #: VERSION values read (PCL writes ".7"; some writers "0.7").
 PCD_VERSIONS = {".5": "0.5", "0.5": "0.5", ".6": "0.6", "0.6": "0.6", ".7": "0.7", "0.7": "0.7"}
@@ -58,6 +59,9 @@ def normalised_header(lines: list[str]) -> tuple[dict[str, list[str]], str]:
                                                                                         and size not in ("4", "8")):
             raise CloudError(f"its header has a field of TYPE {kind} and SIZE {size}; PCD fields are F (4 or 8 "
                              "bytes), U or I (1, 2, 4 or 8 bytes)")
+    for count in head["COUNT"]:
+        if _int("COUNT", [count]) == 0:
+            raise CloudError("its COUNT line has a 0: each field holds at least one value")
     for key in ("WIDTH", "HEIGHT", "POINTS"):
         if key in head:
             _int(key, head[key])
@@ -76,6 +80,52 @@ def normalised_header(lines: list[str]) -> tuple[dict[str, list[str]], str]:
     head["TYPE"] = [t.upper() for t in head["TYPE"]]
     head["VERSION"] = ["0.7"]
     return head, PCD_VERSIONS[version]
+
+
+#: LZF writes a run of up to 264 repeated bytes in 3 (88:1); no binary_compressed block expands more.
+LZF_MAX_RATIO = 88
+
+
+def check_data(head: dict[str, list[str]], body: bytes) -> None:
+    """The data after a normalised header holds exactly the points it announces, checked before any
+    array is allocated: an ascii file one line per point, a binary one POINTS × record bytes, a
+    binary_compressed one a block whose sizes fit the file and the header (its uncompressed size is
+    what pypcd4 allocates). Trailing whitespace aside, data past the points is refused too."""
+    points = int(head["POINTS"][0])
+    kind = head["DATA"][0]
+    announced = f"its header announces {points} points"
+    if kind == "ascii":
+        rows = sum(1 for line in body.splitlines() if line.strip())
+        if rows != points:
+            why = "it is truncated, or" if rows < points else "it has rows past its points:"
+            raise CloudError(f"{announced} but its ascii data has {rows} rows: {why} its POINTS line is wrong")
+        return
+    record = sum(int(s) * int(c) for s, c in zip(head["SIZE"], head["COUNT"], strict=True))
+    need = points * record
+    if kind == "binary":
+        end = need
+        if len(body) < need:
+            raise CloudError(f"it is truncated: {announced} of {record} bytes ({need} bytes of binary data), the "
+                             f"file holds {len(body)}")
+    else:
+        if points == 0 and not body.strip():
+            return
+        if len(body) < 8:
+            raise CloudError(f"it is truncated: {announced} but its binary_compressed data has no block sizes")
+        compressed, uncompressed = struct.unpack("<II", body[:8])
+        if uncompressed != need:
+            raise CloudError(f"{announced} of {record} bytes ({need} bytes), its compressed block says "
+                             f"{uncompressed}: the header or the block is damaged")
+        if compressed > len(body) - 8:
+            raise CloudError(f"it is truncated: its compressed block has {compressed} bytes, the file holds "
+                             f"{len(body) - 8}")
+        if need > LZF_MAX_RATIO * compressed + 8:
+            raise CloudError(f"its compressed block of {compressed} bytes cannot hold the {need} bytes {announced[4:]}"
+                             ": the header or the block is damaged")
+        end = 8 + compressed
+    if body[end:].strip():
+        raise CloudError(f"{announced} ({end} bytes of {kind} data), the file holds {len(body) - end} bytes more: "
+                         "its POINTS line is wrong or the file is damaged")
 
 
 def read_pcd(path: Path):
@@ -104,12 +154,7 @@ def read_pcd(path: Path):
     head, _ = normalised_header(lines)
     text = "".join(f"{key} {' '.join(head[key])}\n" for key in _KEYS)
     body = raw[stream.tell():]
-    if head["DATA"][0] == "binary":
-        record = sum(int(s) * int(c) for s, c in zip(head["SIZE"], head["COUNT"], strict=True))
-        need = int(head["POINTS"][0]) * record
-        if len(body) < need:
-            raise CloudError(f"it is truncated: its header announces {head['POINTS'][0]} points of {record} bytes "
-                             f"({need} bytes of binary data), the file holds {len(body)}")
+    check_data(head, body)
     try:
         return PointCloud.from_fileobj(io.BytesIO(text.encode("ascii") + body))  # type: ignore[arg-type]
     except Exception as exc:  # pypcd4/pydantic/numpy/lzf raise many kinds on data that does not fit its header

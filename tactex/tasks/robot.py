@@ -12,20 +12,19 @@ newest estimate, so a slow frame never delays a torque command.
 
 from __future__ import annotations
 
-import json
 import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import ConfigError, InputError, RobotError, SensorFault, SurfaceNotFound
+from tactex.errors import ConfigError, RobotError, SensorFault, SurfaceNotFound
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.robots.libfranka_backend import FrankaConfig
+from tactex.tasks.hand_eye import load_hand_eye
 
 __all__ = [
     "ROBOT_STOPS",
@@ -101,30 +100,6 @@ class RealRobotParams(FrankaConfig):
         """The backend's part of these parameters."""
         names = {f.name for f in fields(FrankaConfig)}
         return FrankaConfig(**{n: getattr(self, n) for n in names})
-
-
-def load_hand_eye(path: str | Path) -> np.ndarray:
-    """tool_T_camera (4, 4) from a ``.npy`` array or a ``.json`` nested list (no pickle)."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"hand-eye calibration '{p}' is not a file (give a .npy or .json 4×4 tool_T_camera)")
-    try:
-        if p.suffix == ".json":
-            pose = np.asarray(json.loads(p.read_text()), dtype=float)
-        else:
-            pose = np.load(p, allow_pickle=False)
-    except (ValueError, OSError) as exc:
-        raise InputError(f"hand-eye calibration '{p}' cannot be read: {exc}") from exc
-    pose = np.asarray(pose, dtype=float)
-    rot = pose[:3, :3] if pose.shape == (4, 4) else None
-    if rot is None or not np.isfinite(pose).all() or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) \
-            or not np.allclose(pose[3], [0, 0, 0, 1]) or np.linalg.det(rot) < 0:
-        raise InputError(f"hand-eye calibration '{p}' must hold a 4×4 rigid transform (rotation, translation in "
-                         f"metres, last row 0 0 0 1), got shape {pose.shape}")
-    if np.abs(pose[:3, 3]).max() > 1.0:
-        raise InputError(f"hand-eye calibration '{p}': the camera sits {np.abs(pose[:3, 3]).max():.3g} from the "
-                         "tool; give the translation in metres")
-    return pose
 
 
 class SurfaceVision(ABC):
