@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tactex.errors import InputError, MissingDependencyError, TactexError
-from tactex.sim.twin_process import _die_with_parent, free_loopback_address
+from tactex.sim.twin_process import _die_with_parent, end_child, free_loopback_address
 
 __all__ = ["FRANKA_SIM_PYTHON_ENV", "Box", "FrankaSimProcess", "franka_sim_python", "write_fr3_mjcf"]
 
@@ -203,21 +203,7 @@ class FrankaSimProcess:
 
     def close(self, timeout_s: float = 20.0) -> int | None:
         """SIGTERM, wait, SIGKILL if needed; always reaps the child. Its exit code."""
-        proc = self.process
-        code = None
-        if proc is not None:
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(timeout=timeout_s)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-            code = proc.wait()
-            if proc.stdout is not None:
-                proc.stdout.close()
-        if getattr(self, "_stderr", None) is not None and not self._stderr.closed:
-            self._stderr.close()
-        return code
+        return end_child(self.process, getattr(self, "_stderr", None), timeout_s)
 
     def __enter__(self) -> FrankaSimProcess:
         return self.start()

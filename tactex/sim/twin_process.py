@@ -26,7 +26,7 @@ from pathlib import Path
 from tactex.errors import TactexError
 from tactex.sim.twin_clock import linux_prctl
 
-__all__ = ["TwinProcess", "free_loopback_address"]
+__all__ = ["TwinProcess", "end_child", "free_loopback_address"]
 
 _READY = "twin ready:"
 
@@ -65,6 +65,26 @@ def free_loopback_address(rng: random.Random | None = None, attempts: int = 50) 
         finally:
             sock.close()
     raise TactexError(f"no free loopback address with TCP 1337/1338 after {attempts} tries (127.0.0.2–250)")
+
+
+def end_child(proc: subprocess.Popen | None, stderr, timeout_s: float) -> int | None:
+    """End a server started as a child: SIGTERM, wait ``timeout_s`` [s], SIGKILL if it is still there;
+    always reaps it and closes its stdout pipe and its stderr file (``stderr``, may be None). Its exit
+    code, None when there was no process."""
+    code = None
+    if proc is not None:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        code = proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+    if stderr is not None and not stderr.closed:
+        stderr.close()
+    return code
 
 
 class TwinProcess:
@@ -164,21 +184,7 @@ class TwinProcess:
 
     def close(self, timeout_s: float = 10.0) -> int | None:
         """SIGTERM, wait, SIGKILL if needed; always reaps the child. Its exit code."""
-        proc = self.process
-        code = None
-        if proc is not None:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=timeout_s)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-            code = proc.wait()
-            if proc.stdout is not None:
-                proc.stdout.close()
-        if getattr(self, "_stderr", None) is not None and not self._stderr.closed:
-            self._stderr.close()
-        return code
+        return end_child(self.process, getattr(self, "_stderr", None), timeout_s)
 
     def cleanup(self) -> None:
         """close() and remove the temporary folder (status file, stderr)."""

@@ -33,7 +33,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from targets import TARGETS
+from targets import TARGETS, LogRecords
 
 #: Modules instrumented for coverage feedback: the readers and the libraries they call.
 INSTRUMENTED = ["tactex", "plyfile", "pypcd4", "trimesh", "tomllib", "numpy.lib", "zipfile", "json"]
@@ -47,15 +47,6 @@ class Hang(Exception):
 
 def _on_hang(signum, frame):
     raise Hang("more CPU time than allowed on one input")
-
-
-class _Records(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.records: list[logging.LogRecord] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
 
 
 class Fuzzer:
@@ -78,7 +69,7 @@ class Fuzzer:
         self.last_write = 0.0
         # a real file, not a StringIO: libraries ask sys.stderr for its fileno() (faulthandler, lazy imports)
         self.sink = tempfile.TemporaryFile("w+", dir=self.work)
-        self.records = _Records()
+        self.records = LogRecords()
         logging.getLogger().addHandler(self.records)
         signal.signal(signal.SIGVTALRM, _on_hang)
 

@@ -18,16 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from targets import TARGETS
-
-
-class _Records(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.records: list[logging.LogRecord] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(record)
+from targets import TARGETS, LogRecords
 
 
 def replay(reader: str, example: Path) -> str:
@@ -40,7 +31,7 @@ def replay(reader: str, example: Path) -> str:
     suffix = example.suffix if callable(target.suffix) else target.suffix
     path = example.parent / f"replay{suffix}"
     path.write_bytes(data)
-    records = _Records()
+    records = LogRecords()
     logging.getLogger().addHandler(records)
     try:
         with tempfile.TemporaryFile("w+") as sink:

@@ -6,6 +6,7 @@ message names the file; anything else is a crash (see ``run.py``).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,18 @@ from typing import Any
 
 import numpy as np
 import seeds
+
+
+class LogRecords(logging.Handler):
+    """The log records of warning level and above that one read emitted (a reader must log nothing a user
+    would see as noise: the fuzzer counts them)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
 
 
 @dataclass(frozen=True)
