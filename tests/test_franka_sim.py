@@ -132,17 +132,23 @@ def test_wipe_without_a_surface_ends_with_a_named_outcome_and_keeps_its_data(no_
     assert metrics["torque_rate_clip_ticks"] < 20
 
 
-@_judged
-def test_clean_of_a_plate_that_is_not_there_ends_with_a_named_outcome_and_keeps_its_data(no_violation, capsys,
-                                                                                          tmp_path):
+def _clean_of_a_plate_cloud(emulator, tmp_path, capsys):
+    """``tactex clean --cloud`` of the plate's exported cloud on ``emulator`` (there is no plate there), which
+    must stop early (exit 1); its run folder and metrics."""
     cloud = tmp_path / "plate.ply"
     assert main(["twin", "--object", "plate", "--export-cloud", str(cloud)]) == 0
     out = tmp_path / "clean"
-    code, text, err = _run(["clean", "--robot", "franka", "--robot-ip", no_violation.hostname, "--ft", "franka",
+    code, text, err = _run(["clean", "--robot", "franka", "--robot-ip", emulator.hostname, "--ft", "franka",
                             "--camera", "none", "--cloud", str(cloud), "--budget-s", "30", "--quiet", "--no-video",
                             "--out", str(out)], capsys)
     assert code == 1, text + err
-    metrics = json.loads((out / "metrics.json").read_text())
+    return out, json.loads((out / "metrics.json").read_text())
+
+
+@_judged
+def test_clean_of_a_plate_that_is_not_there_ends_with_a_named_outcome_and_keeps_its_data(no_violation, capsys,
+                                                                                          tmp_path):
+    out, metrics = _clean_of_a_plate_cloud(no_violation, tmp_path, capsys)
     assert metrics["aborted"].startswith("SurfaceNotFound: no contact within 6 s of approach"), metrics["aborted"]
     assert (out / "series.npz").is_file()
     # The clean's fast transit moves (joint impedance, 600 N·m/rad) meet the rate limit for a few ticks here,
@@ -231,13 +237,6 @@ def test_a_clean_stopped_before_its_first_touch_down_keeps_its_data(no_violation
         return move_joints(self, *args, **kwargs)
 
     monkeypatch.setattr(Loop, "move_joints", failing_move)
-    cloud = tmp_path / "plate.ply"
-    assert main(["twin", "--object", "plate", "--export-cloud", str(cloud)]) == 0
-    out = tmp_path / "clean"
-    code, text, err = _run(["clean", "--robot", "franka", "--robot-ip", no_violation.hostname, "--ft", "franka",
-                            "--camera", "none", "--cloud", str(cloud), "--budget-s", "30", "--quiet", "--no-video",
-                            "--out", str(out)], capsys)
-    assert code == 1, text + err
-    metrics = json.loads((out / "metrics.json").read_text())
+    out, metrics = _clean_of_a_plate_cloud(no_violation, tmp_path, capsys)
     assert metrics["aborted"].startswith("RobotError: libfranka ControlException: a reflex, staged"), metrics["aborted"]
     assert (out / "series.npz").is_file() and metrics["loop_ticks"] > 100
