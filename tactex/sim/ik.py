@@ -41,7 +41,8 @@ def solve_site_ik(model: mujoco.MjModel, site_id: int, qpos_adr: np.ndarray, dof
     within :data:`REACHED_POS_M` and :data:`REACHED_ROT_RAD`, and out of reach otherwise. Where the posture
     pull keeps the error just above the tight tolerances, or the target is out of reach, the steps shrink
     geometrically to a fixed point and the search otherwise runs all ``max_iter`` steps (tens of
-    milliseconds: many control cycles); the posture then differs from that fixed point by a few times the step. None (the default) keeps the full search."""
+    milliseconds: many control cycles); the posture then differs from that fixed point by a few times the step.
+    None (the default) keeps the full search."""
     p_target = np.asarray(position_world, dtype=float).reshape(-1)
     if p_target.shape != (3,) or not np.isfinite(p_target).all():
         raise InputError(f"IK target position must be 3 finite numbers [m], got {position_world!r}")
