@@ -57,9 +57,9 @@ MAX_CANDIDATES = 400
 #: is the explorer's job.
 MAX_CORNERS = 20
 #: Finest grid [m] the planner works on: on a finer cloud the dirt is merged per cell of this edge and the legs
-#: are sampled no closer. TEC's 3 mm voxel (``tactex clean``'s default ``--voxel-size-m``): the grid the planner
-#: was tuned and measured on, so a default cloud's plan is the same, and a 3 mm cell is small beside the pad
-#: (a disc of 25 mm radius covers ~200 of them).
+#: are sampled no closer. TEC's 3 mm voxel (``tactex clean``'s default ``--voxel-size-m``): on a default cloud
+#: the grid merges nothing, so the search plans on the cloud its parameters suit, and a 3 mm cell is small
+#: beside the pad (a disc of 25 mm radius covers ~200 of them).
 PLAN_GRID_M = 0.003
 
 
