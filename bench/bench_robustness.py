@@ -69,7 +69,8 @@ DATA = DATA / "tactile_ergodic_control"
 TEC = ("bun270_X", "cup_X", "plate_shapes")
 BUDGET_M = 3.0
 #: The goal restated for a case 3 m cannot cover by area (no path within the budget could reach it): residual
-#: GOAL within this multiple of its ideal path; such a case runs to that path instead of 3 m, from IDEAL_STARTS starts (6–16 m each).
+#: GOAL within this multiple of its ideal path; such a case runs to that path instead of 3 m, from IDEAL_STARTS
+#: starts (6–16 m each).
 IDEAL_GOAL = 1.3
 IDEAL_STARTS = 5
 GOAL = 0.05
