@@ -408,7 +408,7 @@ class SafetyLayer(Controller):
     def _finish_compiled(self, state: RobotState, tau: np.ndarray) -> np.ndarray | None:
         """:meth:`_finish` of the inner controller's ``tau`` as one compiled call
         (:func:`tactex.control.joint_kernels.limit_torque`); a non-finite ``tau`` holds, as in
-        :meth:`torque`. None (warned) when the kernel cannot take the state's arrays."""
+        :meth:`torque`. None (warned) when the compiled kernel cannot take the state's arrays."""
         lim = self.limits
         flags = joint_kernels.run(self._limit_kernel, tau, self._tau_prev, self._tau_max, state.q, state.dq,
                                   self._q_lo_margin, self._q_hi_margin, lim.joint_limit_stiffness,
