@@ -68,8 +68,9 @@ DATA = Path(os.environ.get("TACTEX_SHARED_DATA", Path(__file__).resolve().parent
 DATA = DATA / "tactile_ergodic_control"
 TEC = ("bun270_X", "cup_X", "plate_shapes")
 BUDGET_M = 3.0
-#: The goal restated for a case 3 m cannot cover by area (the lead's call): residual GOAL within this multiple
-#: of its ideal path; such a case runs to that path instead of 3 m, from IDEAL_STARTS starts (6–16 m each).
+#: The goal restated for a case 3 m cannot cover by area (no path within the budget could reach it): residual
+#: GOAL within this multiple of its ideal path; such a case runs to that path instead of 3 m, from IDEAL_STARTS
+#: starts (6–16 m each).
 IDEAL_GOAL = 1.3
 IDEAL_STARTS = 5
 GOAL = 0.05
@@ -183,8 +184,8 @@ def _state(ex: HedacExplorer) -> dict:
 
 
 def _case(cloud: SurfaceCloud, keep_out, radius: float, n_neighbors: int, starts: int, seed: int) -> dict:
-    # One agent's matrix-vector products are small: BLAS threads only contend for the two cores (a sweep step
-    # took ~7x longer at load 7 with them).
+    # One agent's matrix-vector products are small: BLAS threads gain nothing on them and, on a loaded
+    # machine, only wait for cores, so a step would take several times longer with them.
     with threadpool_limits(1, user_api="blas"):
         return _case_runs(cloud, keep_out, radius, n_neighbors, starts, seed)
 

@@ -28,7 +28,7 @@ for _obj in CLEAN_OBJECTS:
     TARGETS[f"tasks.clean.{_obj}.tactex.dirt_removed_fraction"] = (">=", 0.95)
     TARGETS[f"tasks.clean.{_obj}.tactex.force_within_20pct_fraction"] = (">=", 0.90)
     TARGETS[f"tasks.clean.{_obj}.tactex.max_contact_force_n"] = ("<=", 20.0)
-    # issue 17: torques smooth enough for a real arm (the safety layer's rate limiter never engages)
+    # torques smooth enough for a real arm (the safety layer's rate limiter never engages)
     TARGETS[f"tasks.clean.{_obj}.tactex.torque_rate_clip_ticks"] = ("<=", 0)
 TARGETS.update({
     "tasks.wipe.va_ufic.force_mae_n": ("<=", 0.5),

@@ -30,7 +30,7 @@ def _command_modules() -> list:
 
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors: the option and what is wrong, then where the help is (argparse
-    would print the whole usage first, 30 lines for clean)."""
+    would print the whole usage first, dozens of lines for clean)."""
 
     def error(self, message: str) -> typing.NoReturn:
         message = re.sub(r"invalid int value: ('[^']*')", r"needs a whole number, got \1", message)
@@ -39,7 +39,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
     def _get_option_tuples(self, option_string: str) -> list:
-        # An abbreviation matching an option and its old alias (--object, --object-name) is not ambiguous.
+        # An abbreviation matching an option and its alias (--object, --object-name) is not ambiguous.
         tuples = super()._get_option_tuples(option_string)
         seen: set[str] = set()
         unique = []

@@ -8,8 +8,8 @@ S never goes below S_low (the singularity the paper guards against with S_low).
 
 Dissipation is harvested once. Eq. 39 and eq. 57 both store β·ẋᵀD_Cẋ, the same dissipated
 power, so the two tanks together could give back up to twice what the damping took from the
-robot: an independent ∫τ·q̇ audit of a 4.5 s wiping run with contact loss found the controller
-delivering 0.30 J more than its storage lost. Here the force tank (small, and usually full) takes
+robot, and an independent ∫τ·q̇ audit of a wiping run with contact loss shows the controller
+delivering more energy than its storage lost. Here the force tank (small, and usually full) takes
 its share first (:attr:`ForceTank.damping_harvested_w`) and the impedance tank gets the rest of
 ẋᵀD_Cẋ, so the pair never stores more than was dissipated (a deviation from the paper's literal
 eq. 39/57, which is not passive as a pair).
@@ -155,9 +155,9 @@ class ForceTank(EnergyTank):
     routed through the tank, σ(S)) as the sign of ẋᵀf_f changes. With the tank full (σ = 1) that changes
     nothing; with the tank drained (σ ≈ 0: a force pushing through free space, no surface where one
     was expected) the force multiplier jumps between 1 and 0 whenever the velocity along the force
-    changes sign, and the whole force (15 N, 13 N·m on the shoulder) came and went from one 1 ms tick
-    to the next: measured on franka-sim, the commanded torque held at the robot's rate limit until the
-    robot aborted (controller_torque_discontinuity). Ramped, the multiplier λ + σ(1 − λ) is continuous in
+    changes sign, and the whole force (the 15 N set point, 13 N·m on the shoulder) comes and goes
+    from one 1 ms tick to the next: the commanded torque stays clipped at the robot's rate limit until
+    the robot aborts (controller_torque_discontinuity). Ramped, the multiplier λ + σ(1 − λ) is continuous in
     ẋᵀf_f; inside the band the force is still dissipative (ẋᵀf_f < 0 and a multiplier in [0, 1]), and
     all it dissipates is what the tank stores, so the tank stays passive. 0: the paper's step.
     """

@@ -146,7 +146,7 @@ class GaLineForceController(Controller):
         self._axes = np.asarray(p.force_axes, dtype=float)
         self._d_z = float(p.damping_linear[2])
         # The tick runs on Python floats (gains as tuples, PID states as lists): at 1 kHz a numpy call on
-        # a 6-vector costs more than the float operations it replaces, and the tick had ~30 of them.
+        # a 6-vector costs more than the float operations it replaces, and the tick makes dozens of them.
         self._k_f = tuple(self._k.tolist())
         self._axes_f = tuple(self._axes.tolist())
         self._integral = [0.0] * 6  # ∫W_e per tool axis [N·s, N·m·s]
@@ -210,7 +210,7 @@ class GaLineForceController(Controller):
             r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz,
             r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz)
 
-        # eq. 39–41, per tool axis on floats; the clamp to ±lim keeps a NaN, as np.minimum/np.maximum did
+        # eq. 39–41, per tool axis on floats; the clamp to ±lim keeps a NaN, as np.minimum/np.maximum do
         force_n = reference.force_n
         w_raw = state.wrench_tool.tolist()
         w_med = w_raw

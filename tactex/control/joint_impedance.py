@@ -64,8 +64,8 @@ class JointTarget:
     (PCHIP: no overshoot past a via point, where a C² spline swung far out after an uneven step)
     through start, via points and goal, parameterised by chord length in joint space, travelled
     with one minimum-jerk timing. Through IK waypoints of a Cartesian transit this is one smooth
-    motion; a rest-to-rest move per waypoint stopped the arm every ~0.13 s and shook the tool at
-    that rate (~8 Hz, ±1.5 N on the wrist F/T).
+    motion; a rest-to-rest move per waypoint would stop the arm at every waypoint and shake the tool
+    at that rate (a force ripple on the wrist F/T).
     """
 
     q_start: np.ndarray

@@ -20,9 +20,9 @@
 5. saturation a margin below the Franka torque limits and torque-rate limit (``torque_limit`` /
    ``torque_rate_limit``, reported when saturation starts, counted every tick). The robot's own
    check fires at its limits (``controller_torque_discontinuity`` at 1000 N·m/s); clipping exactly
-   there let round-off decide (a command clipped to 1 N·m per 1 ms tick was judged 1000.0000x N·m/s
-   and aborted), so the layer clips at ``(1 − limit_margin)`` of each limit, as libfranka's own
-   limiter stays ``kLimitEps`` below them (``franka/rate_limiting.h``).
+   there lets round-off decide (a command clipped to exactly 1 N·m per 1 ms tick can be judged a
+   hair above 1000 N·m/s, and the robot aborts), so the layer clips at ``(1 − limit_margin)`` of
+   each limit, as libfranka's own limiter stays ``kLimitEps`` below them (``franka/rate_limiting.h``).
 
 Events are small frozen dataclasses in :attr:`SafetyLayer.events`; nothing non-finite ever leaves.
 """
@@ -408,7 +408,7 @@ class SafetyLayer(Controller):
     def _finish_compiled(self, state: RobotState, tau: np.ndarray) -> np.ndarray | None:
         """:meth:`_finish` of the inner controller's ``tau`` as one compiled call
         (:func:`tactex.control.joint_kernels.limit_torque`); a non-finite ``tau`` holds, as in
-        :meth:`torque`. None (warned) when the kernel cannot take the state's arrays."""
+        :meth:`torque`. None (warned) when the compiled kernel cannot take the state's arrays."""
         lim = self.limits
         flags = joint_kernels.run(self._limit_kernel, tau, self._tau_prev, self._tau_max, state.q, state.dq,
                                   self._q_lo_margin, self._q_hi_margin, lim.joint_limit_stiffness,
@@ -462,7 +462,7 @@ _F64 = np.dtype(np.float64)
 
 def _state_finite(state: RobotState) -> bool:
     """Every number of the state is finite. One concatenation and one reduction (NaN and inf
-    propagate through a sum): ~4× cheaper at 1 kHz than a check per array. (``ravel`` views, not
+    propagate through a sum): at 1 kHz far cheaper than one check per array. (``ravel`` views, not
     ``axis=None``, which copies through a slower flattening path.)"""
     flat = np.concatenate((
         state.q, state.dq, state.tau_measured, state.ee_position, state.ee_rotation.ravel(), state.ee_twist,

@@ -187,7 +187,7 @@ class UficController(Controller):
         for i in range(6):  # an index loop: zip(strict=True) alone costs more than the arithmetic
             a, fd = axes[i], wrench_des_tool[i]
             err = a * (fd - wrench_meas_tool[i])
-            if integrate:  # clamp to ±lim; a NaN stays NaN, as it did with np.minimum/np.maximum
+            if integrate:  # clamp to ±lim; a NaN stays NaN, as with np.minimum/np.maximum
                 s = integ[i] + err * dt
                 integ[i] = lim if s > lim else (-lim if s < -lim else s)
             out[i] = fd + kp * err + ki * integ[i]

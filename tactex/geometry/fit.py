@@ -55,8 +55,8 @@ MAX_RADIUS_RATIO = 1e6
 #: Spheres smaller than this many neighbourhood radii must fit the neighbourhood better than its PCA
 #: plane does (geometric residuals), or the plane is taken. On a sparse or ragged scan edge the
 #: algebraic fit can return a small sphere that fits the points worse than a plane, with a normal at
-#: the agent 60–120° off the surface (the simulated bowl's rim: the agent stuck, the tool tilted onto
-#: the wall, 45 N); a genuine small sphere fits far better than any plane, however one-sided the
+#: the agent 60–120° off the surface (at a bowl's rim that tilts the tool onto the wall and the agent
+#: sticks there); a genuine small sphere fits far better than any plane, however one-sided the
 #: neighbourhood. Larger spheres are left alone: they are nearly planes over a neighbourhood.
 CHECK_RADIUS_RATIO = 3.0
 

@@ -1,8 +1,8 @@
 """Rotation helpers in closed form (numpy): hat, exp/log on SO(3), geodesic interpolation.
 
 Written out by hand rather than through ``scipy.spatial.transform.Rotation`` because the
-controllers call them at 1 kHz and scipy's object construction costs ~20 µs per call; the
-formulas are tested against scipy in ``tests/test_geometry_so3.py``.
+controllers call them at 1 kHz and scipy's object construction alone takes a sizeable share of a
+1 ms tick per call; the formulas are tested against scipy in ``tests/test_geometry_so3.py``.
 
 The ``*_rows`` variants take rotations as three rows of Python floats (tuples, or the lists
 ``rot.tolist()`` gives) and return tuples: a controller tick needs a log and up to three 3×3

@@ -175,8 +175,8 @@ def frame_to_cloud(
             f"the depth frame at t={frame.timestamp} holds no valid depth in "
             f"[{frame.intrinsics.min_depth_m}, {frame.intrinsics.max_depth_m}] m"
         )
-    # einsum, not ``@``: a (N, 3) @ (3, 3) product goes through threaded BLAS, which is 10× slower
-    # on a loaded 2-core machine.
+    # einsum, not ``@``: a (N, 3) @ (3, 3) product goes through threaded BLAS, whose threads wait for
+    # cores on a loaded machine far longer than this small product takes on one.
     pts = np.einsum("ij,kj->ik", dp.points, pose[:3, :3]) + pose[:3, 3] if in_world else dp.points
     colors = None if dp.colors is None else np.clip(dp.colors, 0.0, 1.0)
     # The pixel footprint at the median depth: exact spacing of a fronto-parallel view, and it

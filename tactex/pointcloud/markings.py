@@ -74,7 +74,8 @@ def _blobs(uv: np.ndarray) -> np.ndarray:
 
 
 def _spots(uv: np.ndarray) -> np.ndarray:
-    # Sparse dirt: three small spots far apart, 1 cm across on the 26 cm plate (issue 21's sparse case).
+    # Sparse dirt: three small spots far apart, 1 cm across on the 26 cm plate, the case where cleaning
+    # only where the dirt is should beat covering the whole surface most clearly.
     centres = np.array([[0.27, 0.3], [0.74, 0.42], [0.42, 0.76]])
     d = np.linalg.norm(uv[:, None, :] - centres[None], axis=2)
     return (d <= 0.005 / 0.26).any(axis=1)

@@ -125,7 +125,7 @@ def cloud_html(
         for i, name in enumerate(names)
     ]
     fig = go.Figure(data=traces)
-    # The title on top, the field menu on its own row below it (over the title it hid the text).
+    # The title on top, the field menu on its own row below it (over the title it would hide the text).
     fig.update_layout(
         title={"text": title or "", "x": 0.01, "xanchor": "left", "y": 0.98, "yanchor": "top"},
         scene={"aspectmode": "data", "xaxis_title": "x [m]", "yaxis_title": "y [m]", "zaxis_title": "z [m]"},

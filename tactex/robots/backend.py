@@ -19,8 +19,8 @@ class RobotBackend(Protocol):
     ``dt`` is the control period [s] (1 ms for a Franka). ``apply_torque`` takes torques
     *without* gravity: like the Franka firmware, the backend adds gravity compensation.
 
-    Optional hook (not part of the protocol's required methods, so backends written before it still
-    conform): ``pause() -> None``, called before wall-clock work longer than a control cycle between
+    Optional hook (not part of the protocol's required methods, so a backend without it still
+    conforms): ``pause() -> None``, called before wall-clock work longer than a control cycle between
     two ticks (planning, a model build). A backend whose robot needs a command every cycle ends torque
     control there and starts it again at the next tick (:meth:`LibfrankaBackend.pause`); a simulated
     robot, which waits anyway, has a no-op (:meth:`MujocoBackend.pause`). A backend without it is

@@ -177,8 +177,8 @@ class MujocoBackend:
 
         Frames are exposed at ``camera_rate_hz`` and delivered ``camera_latency_s`` later (like a real
         camera; ``CameraFrame.timestamp`` is the exposure time). The frame is rendered at exposure
-        (a worker thread was tried: the GIL hand-overs with the 1 kHz loop made it slower on two
-        cores). With ``SceneConfig.camera_worker`` a worker process renders it instead and the frame
+        (not in a worker thread: its GIL hand-overs with the 1 kHz loop cost more than the rendering
+        they would overlap). With ``SceneConfig.camera_worker`` a worker process renders it instead and the frame
         is delivered at the next exposure (one frame period after its timestamp; the frames equal
         those of ``camera_latency_s`` = one period in process). Noise is seeded per frame, so runs
         are reproducible.

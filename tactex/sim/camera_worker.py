@@ -1,9 +1,9 @@
 """Wrist-camera frames ray cast in a worker process while the physics runs on (opt-in,
 ``SceneConfig(camera_worker=True)``).
 
-Why a process: a 160×120 frame costs ~3 ms of numpy in the 1 kHz loop, about a third of the wall
-time of a wiping episode; a thread does not help (the GIL hand-overs with the control loop made it
-slower). A second process uses the machine's second core.
+Why a process: ray casting a 160×120 frame costs several control periods of numpy in the 1 kHz
+loop, a large share of the wall time of a wiping episode; a thread does not help (its GIL
+hand-overs with the control loop cost more than they overlap). A second process uses another core.
 
 Protocol (one frame in flight): at a frame's exposure tick the backend writes a snapshot — camera
 pose, object pose, the dirt levels, the timestamp and the noise seed — into shared memory and sends
@@ -19,7 +19,7 @@ no pickle, and the caller's ``__main__`` is never re-imported, unlike multiproce
 worker exits on a stop message or when its socket closes (the parent died); :meth:`close`, a
 ``weakref.finalize`` (also run at exit) and the backend's ``close`` stop it.
 
-Start cost: a fresh interpreter importing tactex, ~1.1 s of one core on an idle machine, spent while
+Start cost: a fresh interpreter importing tactex, about a second of one core, spent while
 the backend goes on; :meth:`CameraWorker.wait_ready` waits for it.
 """
 
@@ -159,8 +159,8 @@ class CameraWorker:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]))
         env["OMP_NUM_THREADS"] = env.get("OMP_NUM_THREADS", "1")
         # glibc: keep a frame's freed temporaries (~5 MB) in the heap. In a fresh process the top of
-        # the heap is trimmed back after each frame and large blocks are mmapped anew, which cost
-        # ~370 page faults and 1.8× the in-process time per frame (measured)
+        # the heap is trimmed back after each frame and large blocks are mmapped anew, whose page
+        # faults would make a frame in the worker far slower than the same frame in process
         env.setdefault("MALLOC_MMAP_THRESHOLD_", str(64 << 20))
         env.setdefault("MALLOC_TRIM_THRESHOLD_", str(256 << 20))
         try:

@@ -1,7 +1,7 @@
 """Inverse kinematics of a site by damped least squares on the MuJoCo model.
 
 mink (the maintained MuJoCo IK library) is not a dependency and solves a QP per step; placing the
-tool above a surface needs only a few dozen damped Newton steps, done here in ~1 ms.
+tool above a surface needs only a few dozen damped Newton steps, one small linear solve each.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ def solve_site_ik(model: mujoco.MjModel, site_id: int, qpos_adr: np.ndarray, dof
     ``settled_step_rad`` [rad]: also stop once a step is smaller than this; the pose is then reached when it is
     within :data:`REACHED_POS_M` and :data:`REACHED_ROT_RAD`, and out of reach otherwise. Where the posture
     pull keeps the error just above the tight tolerances, or the target is out of reach, the steps shrink
-    geometrically to a fixed point and the search otherwise runs all ``max_iter`` steps (~35 ms); the posture
-    then differs from that fixed point by a few times the step. None (the default) keeps the full search."""
+    geometrically to a fixed point and the search otherwise runs all ``max_iter`` steps (tens of
+    milliseconds: many control cycles); the posture then differs from that fixed point by a few times the step.
+    None (the default) keeps the full search."""
     p_target = np.asarray(position_world, dtype=float).reshape(-1)
     if p_target.shape != (3,) or not np.isfinite(p_target).all():
         raise InputError(f"IK target position must be 3 finite numbers [m], got {position_world!r}")

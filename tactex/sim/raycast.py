@@ -2,20 +2,20 @@
 (box, cylinder or height field), in numpy.
 
 Why not only ``mujoco.mj_multiRay``: MuJoCo intersects each ray with each geom in C, one ray at a
-time; against a height field that costs ~1 µs per ray, i.e. 20–100 ms for a 160×120 frame, which
-alone would make a 30 Hz camera slower than real time. Here the table is a plane, boxes and
+time; against a height field that costs so much per ray that a 160×120 frame alone takes longer
+than a 30 Hz camera's period, slower than real time. Here the table is a plane, boxes and
 cylinders are closed-form, and a height field is intersected by safeguarded Newton iterations on
 the same grid MuJoCo collides with (bilinear between grid nodes; MuJoCo's two triangles per cell
 differ from it by less than the grid's own interpolation error). ``RayCastCamera(method="mujoco")``
 keeps MuJoCo's ray caster, and the tests check both agree.
 
-Speed (this runs at 30 Hz beside a 1 kHz control loop; a 160×120 frame takes ~2 ms): rays are
+Speed (this runs at 30 Hz beside a 1 kHz control loop, in the same process by default): rays are
 three component arrays (x, y, z of the directions), cast in chunks of at most :data:`CHUNK_RAYS`,
 in float32 where the precision allows (depths keep ~10 nm). A frame costs a few hundred numpy
 operations per chunk, so fewer, larger chunks are faster, up to the point where the temporaries
-stop fitting in the cache and the heap: whole 640×480 frames and the old (rays × samples) march
-arrays were page-faulted anew on every allocation (glibc mmaps blocks above its threshold), which
-made them several times slower than their arithmetic.
+stop fitting in the cache and the heap: a whole 640×480 frame at once, or one (rays × samples)
+array for the whole height-field march, is page-faulted anew on every allocation (glibc mmaps
+blocks above its threshold), which makes it several times slower than its arithmetic.
 """
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ class SceneRayCaster:
         cy -= fy
         # one gather of the cell's four coefficients (16 bytes, a complex128) beats four of 4 bytes;
         # transposed into four contiguous rows by one copy, as arithmetic on the strided columns runs
-        # numpy's scalar loops (~3× the instructions of the copy per use)
+        # numpy's scalar loops (several times the instructions of the copy per use)
         c0, c1, c2, c3 = self._coefs16.take(k, mode="clip").view(np.float32).reshape(-1, 4).T.copy()
         gx = c3 * cy  # ∂z/∂cx = c1 + c3·fy
         gx += c1

@@ -2,7 +2,7 @@
 
 On a cloud of a few thousand points the hierarchical eigensolver factors L − σM once and solves it for
 p ≈ 150 right-hand sides two or three times. QDLDL (``qdldl``, the OSQP project's LDLᵀ with SuiteSparse's
-AMD ordering) factors such a matrix about twice as fast as SuperLU with its minimum-degree ordering, and
+AMD ordering) factors such a matrix faster than SuperLU with its minimum-degree ordering, and
 much faster than CHOLMOD through cholespy (whose nested-dissection route pays off only on large clouds),
 and it hands its factors over. Neither it nor scipy nor cholespy solves a block of right-hand sides in one
 sweep on a CPU, so the two substitutions here sweep the factor once for the whole (n, p) block, the p values

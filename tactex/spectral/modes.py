@@ -2,11 +2,10 @@
 
 The K-th Laplace eigenfunction of a surface of area A varies on the length √(πA/K) (Weyl's law,
 λ_K ≈ 4πK/A), so a basis resolves the agent's footprint once K grows with A/(π r_a²), the number of
-footprints the surface holds. Measured on the built-in door (0.24 m², X marking, 3000 steps, two
-seeds; ``docs/large_surfaces.md``): with r_a = 7.5 mm (1 380 footprints) K = 50 stalls (coverage
-residual 0.96), K = 100 leaves 0.08, K = 200 0.012 and K = 400 nothing, ergodicity flat from 200 on;
-with r_a = 20 mm (194 footprints) K = 50 stalls and K = 100 covers everything. Hence one mode per
-``FOOTPRINTS_PER_MODE`` footprints, never fewer than TEC's 200 (which small objects keep).
+footprints the surface holds. On the built-in door, with far fewer modes than that the agent stalls
+and part of the target is never covered, while more than about one mode per five footprints adds
+nothing to coverage or ergodicity (the runs are tabulated in ``docs/large_surfaces.md``). Hence one
+mode per ``FOOTPRINTS_PER_MODE`` footprints, never fewer than TEC's 200 (which small objects keep).
 """
 
 from __future__ import annotations
@@ -17,7 +16,7 @@ from tactex.errors import ConfigError
 
 __all__ = ["FOOTPRINTS_PER_MODE", "MAX_AUTO_EIGEN", "MIN_AUTO_EIGEN", "auto_n_eigen"]
 
-#: Footprint areas π r_a² of surface per eigenpair (measured, see the module doc).
+#: Footprint areas π r_a² of surface per eigenpair (from the door runs, see the module doc).
 FOOTPRINTS_PER_MODE = 5.0
 #: TEC's n_K (Fig. 11), the floor of the rule: small objects keep the paper's basis.
 MIN_AUTO_EIGEN = 200

@@ -33,7 +33,7 @@ from tactex.pointcloud.cloud import SurfaceCloud
 __all__ = ["LEAD_SMOOTHING_S", "LineLead", "ToolNormal", "blend_normals"]
 
 #: [s] time constant of the lead's low-pass, as long as the default lead: the offset follows a change of the
-#: agent's velocity over about the time it leads by (0.1 s still left torque-rate clips on the cup's wall)
+#: agent's velocity over about the time it leads by (a shorter 0.1 s leaves torque-rate clips on the cup's wall)
 LEAD_SMOOTHING_S = 0.2
 
 
@@ -42,7 +42,7 @@ class LineLead:
     last step over the step's duration), through a first-order low-pass of ``smoothing_s``.
 
     The agent moves in steps, so its velocity jumps at every step boundary (a turn, a reversal at a
-    stroke's end, a held step); the unfiltered lead jumped with it, by up to ``lead_s`` × the speed
+    stroke's end, a held step); an unfiltered lead would jump with it, by up to ``lead_s`` × the speed
     change (1.2 cm at a hold), a step in the reference the line stiffness turns into a torque step.
 
     Args:

@@ -1,4 +1,4 @@
-"""Straight strokes through small islands of dirt (issue 21).
+"""Straight strokes through small islands of dirt: the pad wipes an island in a pass or two.
 
 An island of dirt smaller than the pad needs no ergodic coverage: one straight pass of the pad over it
 wipes every point of it, back and forth until the robot's wear model

@@ -1,4 +1,4 @@
-"""A planned first sweep over the captured dirt (issue 21).
+"""A planned first sweep over the captured dirt: a few long passes instead of HEDAC's first loops.
 
 At the first touch-down the robot knows the whole view's dirt and nothing has been wiped yet, so the
 first stretch in contact can be planned instead of followed step by step: a polyline of a few straight
@@ -15,7 +15,8 @@ two corners brought onto the surface along the nearest cloud point's normal (on 
 raised where the pad's disc would touch the support the object stands on. A leg whose chord runs above
 the surface or beside it (across a bowl's hollow or a hole in the capture) by more than
 :data:`~tactex.tasks.stroke.MAX_LINE_GAP_M` is not used; under the surface (a convex wall) is fine. None
-when no polyline of at most ``max_corners`` legs reaches the goal: the explorer then starts as before.
+when no polyline of at most ``max_corners`` legs reaches the goal: the explorer then starts from the
+touch-down without a planned sweep.
 
 The sweep is planned for the island of dirt the touch-down is on (dirt joined within two pad radii), not
 for islands far apart, between which a lift-off and a flight are quicker than a slide.
@@ -56,9 +57,9 @@ MAX_CANDIDATES = 400
 #: is the explorer's job.
 MAX_CORNERS = 20
 #: Finest grid [m] the planner works on: on a finer cloud the dirt is merged per cell of this edge and the legs
-#: are sampled no closer. TEC's 3 mm voxel (``tactex clean``'s default ``--voxel-size-m``): the grid the planner
-#: was tuned and measured on, so a default cloud's plan is the same, and a 3 mm cell is small beside the pad
-#: (a disc of 25 mm radius covers ~200 of them).
+#: are sampled no closer. TEC's 3 mm voxel (``tactex clean``'s default ``--voxel-size-m``): on a default cloud
+#: the grid merges nothing, so the search plans on the cloud its parameters suit, and a 3 mm cell is small
+#: beside the pad (a disc of 25 mm radius covers ~200 of them).
 PLAN_GRID_M = 0.003
 
 
