@@ -316,6 +316,13 @@ class _WipeLog:
         friction = comp_last[:2] if comp_last is not None else np.zeros(2)
         self._pending = (state_ctrl, self.pos_ref + offset, tel, friction, self.estimate)
 
+    def stopped_at(self, state) -> None:
+        """A run that stopped before its policy ran: the state where the robot stopped is its one
+        recorded row (no controller figures), so the run folder holds every series a report reads."""
+        self._pending = (state, state.ee_position.copy(), {}, np.zeros(2), None)
+        self._complete(state)
+        self._pending = None
+
     def finish(self, state) -> None:
         """After the loop: complete the last tick sent, if the state it produced arrived."""
         if self._pending is not None and state is not self._pending[0]:
@@ -399,6 +406,21 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         backend.close()
 
 
+def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot: RealRobotParams | None) -> str:
+    """Move to the policy's start pose [m, rotation matrix]; ``""`` when there, else why the robot
+    stopped on the way (torque control ended, as :func:`end_on_robot` leaves it). In simulation an
+    error of ours is raised."""
+    try:
+        loop.move_to_pose(p_start, r_start, settle_s=0.5)
+    except ROBOT_STOPS as exc:
+        return stop_reason(exc)
+    except TactexError as exc:
+        if robot is None:
+            raise
+        return end_on_robot(loop, exc)
+    return ""
+
+
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
               progress: bool, wall0: float) -> WipeResult:
     loop = ControlLoop(backend)
@@ -409,7 +431,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     z_surf = float(surface.project(np.array([[0.0, cfg.start_y_m, 0.0]]))[0][0, 2])
     p_start = obj_pos + obj_rot @ np.array([0.0, cfg.start_y_m, z_surf]) + np.array([0.0, 0.0, cfg.start_height_m])
     r_start = _rot_x(cfg.start_tilt_deg) @ TOOL_DOWN
-    loop.move_to_pose(p_start, r_start, settle_s=0.5)
+    # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
+    aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
 
     compensator: FrictionCompensator | None = None
@@ -441,11 +464,14 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         policy.advance(state_ctrl, state_ctrl.t + backend.dt - t0)
         log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
 
-    aborted = ""
     try:
-        policy.advance(loop.state, loop.t - t0)
-        log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
-        while loop.t - t0 < cfg.duration_s - 1e-9:
+        if aborted:
+            bar.note(f"stopped on the way to the start pose: {aborted}")
+            log.stopped_at(loop.state)
+        else:
+            policy.advance(loop.state, loop.t - t0)
+            log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
+        while not aborted and loop.t - t0 < cfg.duration_s - 1e-9:
             loop.tick(policy.reference, after_send=after_send)
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
