@@ -59,15 +59,15 @@ class GaLineForceParams:
     derivative_cutoff_hz: float = param(
         2.0,
         "low-pass cut-off of the wrench-error derivative [Hz]; the F/T signal carries the tool's inertial "
-        "force, and K_d = 0.5 on a less filtered derivative destabilised the simulated Franka (20 Hz: diverged, "
-        "5 Hz: lost contact)",
+        "force, and K_d = 0.5 on a less filtered derivative destabilises the force loop (the arm rings or "
+        "loses the contact)",
     )
     wrench_cutoff_hz: float = param(
         50.0,
         "first-order low-pass of the measured wrench the PID regulates [Hz]: a sliding contact's stick-slip "
-        "shows on the F/T as one-tick spikes of ~4 N, which K_p and K_d (as K_d·ΔW/τ, 6× K_p) passed straight to "
-        "the joints; a lower cut-off, or a second low-pass on the derivative, destabilised the force loop on a "
-        "stiff (10 kN/m) pad",
+        "shows on the F/T as one-tick spikes, which K_p and K_d (as K_d·ΔW/τ, 6× K_p) would pass straight to "
+        "the joints; a lower cut-off, or a second low-pass on the derivative, adds enough lag to destabilise the "
+        "force loop on a stiff pad",
     )
     force_axes: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
@@ -89,15 +89,15 @@ class GaLineForceParams:
     )
     wrench_median_ticks: int = param(
         3, "median over this many ticks of the measured wrench before the low-pass (1: none) [-]: a sliding "
-        "pad's one-tick F/T dips (−4 N) reached the joints through K_d's high-frequency gain (K_d/τ_d ≈ 6) as "
-        "6 N steps, each a torque-rate clip on joints 2 and 4 (67 in a 20 s clean); a slew limit on W_C "
-        "instead kept the controller from recovering after a 100 N spike")
+        "pad's one-tick F/T dips would reach the joints through K_d's high-frequency gain (K_d/τ_d ≈ 6) as "
+        "torque steps at the robot's torque-rate limit; a median drops single-tick outliers without the lag "
+        "of a slew limit, which keeps the controller from recovering after a large spike")
     latency_horizon_ticks: float = param(
         2.0, "horizon h of the implicit impedance in control periods [-]: τ = M (M + h·B + h²·K)⁻¹ τ_explicit "
         "with the line stiffness K and damping D mapped to the joints (tactex.control.damping), so that a "
         "command acting one or two ticks late does not ring on the light wrist modes: 2 caps dt·B/m at 1/2, "
-        "inside the 0.618 that two ticks of delay allow (0 clips on the plate at a delay of 2); 3 raised the "
-        "cup's touch-down peak from 27.9 to 31.0 N; 0: explicit, as eq. 47")
+        "inside the 0.618 that two ticks of delay allow; a longer horizon softens the force loop and raises the "
+        "touch-down force peak; 0: explicit, as eq. 47")
     approach_speed_min: float = param(
         0.005, "out of contact, below this speed along the tool axis the tool counts as held by joint friction and "
         "the force integrator builds up the push [m/s]")

@@ -41,7 +41,7 @@ class JointImpedanceParams:
         3.0, "horizon h of the implicit impedance in control periods [-]: the torque is M (M + h·D + h²·K)⁻¹ "
         "(K·e + D·ė) (tactex.control.damping). 1 with K left out is the backward-Euler damping, stable at "
         "1 kHz without command delay; a real Franka applies each command one cycle later, and with two "
-        "ticks of delay that form threw the arm about; 3 keeps every mode's dt·D/m ≤ 1/3; 0: stiffness explicit, "
+        "ticks of delay that form is unstable; 3 keeps every mode's dt·D/m ≤ 1/3; 0: stiffness explicit, "
         "damping backward Euler over one period")
 
     def __post_init__(self) -> None:

@@ -53,8 +53,8 @@ class NullspaceParams:
     damping: float = param(2.0 * np.sqrt(20.0), "null-space joint damping [N·m·s/rad]")
     latency_horizon_ticks: float = param(
         3.0, "the posture torque is applied as M (M + (h·D + h²·K)·I)⁻¹ τ over the horizon h = this × dt "
-        "(tactex.control.damping) [-]; 0: as computed. Explicit, the null-space damping made the wrist "
-        "chatter at 60 Hz behind a one-tick command delay (9.6k torque-rate clips in a 20 s clean)")
+        "(tactex.control.damping) [-]; 0: as computed. Explicit, the null-space damping on the light wrist "
+        "is unstable behind a one-tick command delay: the wrist chatters against the torque-rate limit")
     dt: float = param(1e-3, "control period [s]")
 
     def __post_init__(self) -> None:

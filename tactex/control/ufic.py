@@ -62,12 +62,12 @@ class UficParams:
     dt: float = param(1e-3, "nominal control period [s]")
     wrench_cutoff_hz: float = param(
         20.0, "first-order low-pass of the measured wrench the controller uses [Hz]: a sliding contact's "
-        "stick-slip shows on the F/T as one-tick spikes of ~7 N, which K_p passed straight to the joints")
+        "stick-slip shows on the F/T as one-tick spikes, which K_p would pass straight to the joints")
     latency_horizon_ticks: float = param(
         3.0, "horizon h of the implicit impedance in control periods [-]: τ = M (M + h·B + h²·K)⁻¹ Jᵀf with "
         "D_C and K_max mapped to the joints (tactex.control.damping); 0: τ = Jᵀf as in eq. 13. Explicit, the "
-        "rotational damping (2·√(0.1·200) ≈ 9 N·m·s/rad) on the light wrist rotation diverged behind a "
-        "one-tick command delay (19k torque-rate clips, 460 N in a wipe)")
+        "rotational damping (2·√(0.1·200) ≈ 9 N·m·s/rad) on the light wrist rotation is unstable behind a "
+        "one-tick command delay")
     damping_switch_s: float = param(
         0.02, "time constant of the change between the free and the contact damping along the tool axis [s]: "
         "switched in one tick at touch-down, the step of (D_free − D_contact)·v hit the torque-rate limit")
