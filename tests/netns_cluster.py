@@ -136,7 +136,9 @@ class Cluster:
         """The environment of a host's processes: its own home and temporary folder in ``folder`` (Ray
         keeps files in ~/.ray; a study's runs write their copies of its input files in the latter),
         token authentication off as set here (not from a token some other Ray left in this machine's
-        ~/.ray), one BLAS thread, fast node-death detection."""
+        ~/.ray), one BLAS thread, fast node-death detection, and Ray's workers at the nice level of
+        everything else: Ray lowers them to nice 15 by default, which suits a node of its own, but here the
+        nodes share the machine with the rest of the suite, and niced workers are starved by it."""
         env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
         env.update(FAST_NODE_DEATH)
         env["HOME"] = str(folder)
@@ -144,6 +146,7 @@ class Cluster:
         (folder / "tmp").mkdir(parents=True, exist_ok=True)
         env["RAY_AUTH_MODE"] = "disabled"
         env["RAY_agent_register_timeout_ms"] = AGENT_WAIT_MS
+        env["RAY_worker_niceness"] = "0"
         env.update({"RAY_USAGE_STATS_ENABLED": "0", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
                     "MKL_NUM_THREADS": "1"})
         env.pop("PYTHONPATH", None)
