@@ -62,6 +62,8 @@ baseline = ["", "raster"]
 """
 # Six settings of a TEC cloud from ../shared/data: the cloud and its basis are the shared input.
 SWEEP = {"n_eigen": (10, 30), "alpha": (5.0, 10.0, 20.0), "starts": 2, "steps": 30}
+#: Sweeps submitted at most until the worker node runs two of the six settings.
+SWEEP_ATTEMPTS = 3
 SWEEP_ARGS = ["--n-eigen", "10", "30", "--alpha", "5", "10", "20", "--starts", "2", "--steps", "30"]
 
 
@@ -269,22 +271,29 @@ def test_a_sweep_through_the_client_gives_the_local_table_and_sends_the_inputs_o
     cloud = tec_cloud_path("cup_X")
     local = tmp_path / "local"
     run_sweep([cloud], local, SweepConfig(**SWEEP), executor=LocalExecutor(1))
-    before = {ip: _store_counts(ip) for ip in (HEAD_IP, WORKER_IP)}
-    out = cluster.root / "client" / "sweep"
     # the client's own copy of the data (the submitting machine's files): the nodes get it through the object store
     mine = cluster.root / "client" / "data"
     mine.mkdir(parents=True, exist_ok=True)
     for f in cloud.parent.glob("cup_X*"):
         shutil.copy(f, mine / f.name)
-    _finish(_tactex(cluster, "client", "sweep", str(mine / cloud.name), "--out", str(out), *SWEEP_ARGS,
-                    "--ray-address", CLIENT_ADDRESS))
-    after = {ip: _store_counts(ip) for ip in (HEAD_IP, WORKER_IP)}
-    assert (local / "table.csv").read_bytes() == (out / "table.csv").read_bytes()
-    ran_on = json.loads((out / "sweep.json").read_text())["ran_on"]
-    per_node = {ip: sum(r["worker"].startswith(f"{ip}:") for r in ran_on) for ip in (HEAD_IP, WORKER_IP)}
-    created = {ip: (after[ip][0] - before[ip][0], after[ip][1] - before[ip][1]) for ip in after}
-    print(f"sweep: settings per node {per_node}; objects, bytes created per node {created}")
-    assert sum(per_node.values()) == len(ran_on) == 6 and per_node[WORKER_IP] >= 2
+    # once per node is told apart from once per run only by a node with two runs or more; how Ray shares
+    # six settings between two one-CPU nodes depends on what else the machine runs, so the sweep is
+    # submitted again (to a new folder) until the worker node gets two
+    for attempt in range(1, SWEEP_ATTEMPTS + 1):
+        before = {ip: _store_counts(ip) for ip in (HEAD_IP, WORKER_IP)}
+        out = cluster.root / "client" / f"sweep-{attempt}"
+        _finish(_tactex(cluster, "client", "sweep", str(mine / cloud.name), "--out", str(out), *SWEEP_ARGS,
+                        "--ray-address", CLIENT_ADDRESS))
+        after = {ip: _store_counts(ip) for ip in (HEAD_IP, WORKER_IP)}
+        assert (local / "table.csv").read_bytes() == (out / "table.csv").read_bytes()
+        ran_on = json.loads((out / "sweep.json").read_text())["ran_on"]
+        per_node = {ip: sum(r["worker"].startswith(f"{ip}:") for r in ran_on) for ip in (HEAD_IP, WORKER_IP)}
+        created = {ip: (after[ip][0] - before[ip][0], after[ip][1] - before[ip][1]) for ip in after}
+        print(f"sweep {attempt}: settings per node {per_node}; objects, bytes created per node {created}")
+        assert sum(per_node.values()) == len(ran_on) == 6 and per_node[WORKER_IP] >= 1
+        if per_node[WORKER_IP] >= 2:
+            break
+    assert per_node[WORKER_IP] >= 2, f"the worker node ran fewer than two settings in {SWEEP_ATTEMPTS} sweeps"
     # the shared input (cloud, basis, starts) as Ray stores it: pickle protocol 5, the arrays' buffers aligned
     clouds, _ = prepare_clouds([cloud], SweepConfig(**SWEEP), lambda msg: None)
     size = len(pickle.dumps(clouds, protocol=5))
