@@ -277,23 +277,39 @@ def _variants(segments: list[_Segment]) -> list[list[_Segment]]:
     return [forward, backwards(forward), flipped, backwards(flipped)]
 
 
-def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float,
-           angle_step_deg: float, clearance_m: float) -> None:
+def _number(name: str, value: object) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{name} must be a number, got {value!r}") from exc
+
+
+def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float, angle_step_deg: float,
+           clearance_m: float, link_factor: float, start_m: np.ndarray | None, from_start: bool) -> None:
     if not isinstance(cloud, SurfaceCloud):
         raise InputError(f"the region raster plans on a SurfaceCloud, got {type(cloud).__name__}")
     if cloud.normals is None:
         raise InputError("the region raster needs a cloud with normals: estimate them first")
-    if not (np.isfinite(pad_radius_m) and pad_radius_m > 0):
+    r, s = _number("pad_radius_m", pad_radius_m), _number("line_spacing_m", line_spacing_m)
+    if not (np.isfinite(r) and r > 0):
         raise ConfigError(f"pad_radius_m must be > 0 m, got {pad_radius_m!r}")
-    if not (np.isfinite(line_spacing_m) and 0 < line_spacing_m <= 2.0 * pad_radius_m):
-        raise ConfigError(f"line_spacing_m must lie in (0, 2 × pad radius = {2.0 * pad_radius_m:g}] m (farther apart, "
+    if not (np.isfinite(s) and 0 < s <= 2.0 * r):
+        raise ConfigError(f"line_spacing_m must lie in (0, 2 × pad radius = {2.0 * r:g}] m (farther apart, "
                           f"strips between the lines stay out of the pad's reach), got {line_spacing_m!r}")
-    if not (np.isfinite(gap_m) and gap_m >= 0):
-        raise ConfigError(f"gap_m (the longest slide between segments) must be ≥ 0 m, got {gap_m!r}")
-    if not (np.isfinite(angle_step_deg) and 0 < angle_step_deg <= 90):
-        raise ConfigError(f"angle_step_deg must lie in (0, 90] degrees, got {angle_step_deg!r}")
-    if not (np.isfinite(clearance_m) and clearance_m >= 0):
-        raise ConfigError(f"clearance_m (the flights' height) must be ≥ 0 m, got {clearance_m!r}")
+    limits = (("gap_m", gap_m, 0.0, np.inf, "the longest slide between segments, ≥ 0 m"),
+              ("angle_step_deg", angle_step_deg, 1e-9, 90.0, "in (0, 90] degrees"),
+              ("clearance_m", clearance_m, 0.0, np.inf, "the flights' height, ≥ 0 m"),
+              ("link_factor", link_factor, 1e-9, np.inf, "cloud spacings, > 0"))
+    for name, value, low, high, what in limits:
+        v = _number(name, value)
+        if not (np.isfinite(v) and low <= v <= high):
+            raise ConfigError(f"{name} ({what}) is out of range: got {value!r}")
+    if start_m is not None:
+        x0 = np.asarray(start_m, dtype=float)
+        if x0.shape != (3,) or not np.isfinite(x0).all():
+            raise InputError(f"start_m must be a finite point (3,) [m], got {start_m!r}")
+    elif from_start:
+        raise InputError("from_start needs start_m, the point (3,) [m] the plan begins at")
     if not np.any(cloud.target > 0):
         raise ExplorationError("the cloud's target holds no dirt (every value is 0): nothing to raster; "
                                "set one with SurfaceCloud.with_target or check the capture")
@@ -317,14 +333,11 @@ def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m:
         link_factor: points of the region less than this × the cloud spacing apart are one island [-].
         clearance_m: height of a flight above its lift-off and touch-down points [m].
     """
-    _check(cloud, pad_radius_m, line_spacing_m, gap_m, angle_step_deg, clearance_m)
+    _check(cloud, pad_radius_m, line_spacing_m, gap_m, angle_step_deg, clearance_m, link_factor, start_m, from_start)
     islands = dirty_islands(cloud, pad_radius_m, link_factor)
     rasters = [_raster_island(cloud, isl, line_spacing_m, angle_step_deg, gap_m, clearance_m, pad_radius_m)
                for isl in islands]
-    here = (cloud.points[islands[0]].mean(axis=0) if start_m is None
-            else np.asarray(start_m, dtype=float).reshape(3))
-    if not np.isfinite(here).all():
-        raise InputError(f"start_m must be a finite point (3,) [m], got {start_m!r}")
+    here = cloud.points[islands[0]].mean(axis=0) if start_m is None else np.asarray(start_m, dtype=float)
     pending = list(range(len(islands)))
     order: list[int] = []
     walk: list[_Segment] = []
@@ -340,7 +353,7 @@ def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m:
         here = segs[-1].points[-1]
     if from_start:
         tree = cKDTree(cloud.points)
-        x0 = np.asarray(start_m, dtype=float).reshape(3)
+        x0 = np.asarray(start_m, dtype=float)
         walk.insert(0, _Segment(x0[None], cloud.normals[int(tree.query(x0)[1])][None], -1))
     pts, nrm, kind, segment = _join(cloud, walk, gap_m, from_start)
     steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
