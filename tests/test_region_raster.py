@@ -100,9 +100,11 @@ def test_a_rotated_rectangle_is_rastered_along_its_length_in_snake_order() -> No
     # 24 cm long, a little under two spacings wide: two lines along it, eight across
     dirt = (np.abs(p @ axis) <= 0.12) & (np.abs(p @ across) <= 0.95 * SPACING)
     cloud = base.with_target(dirt.astype(float))
-    plan = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05)
+    # the lines stop over the last dirt: the path is then the area's (with the default overrun of a pad radius
+    # at each end of each line, 2 × 5 cm longer)
+    plan = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05, overrun_m=0.0)
     assert len(plan.directions) == 1 and abs(float(plan.directions[0] @ axis)) > np.cos(np.radians(1.0))
-    principal_only = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05, angle_step_deg=90.0)
+    principal_only = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05, angle_step_deg=90.0, overrun_m=0.0)
     assert plan.surface_length_m <= principal_only.surface_length_m + 1e-12
     assert plan.turns == 1 and covered(plan, cloud).all()
     # snake order: each line walked the other way from the one before
@@ -110,6 +112,21 @@ def test_a_rotated_rectangle_is_rastered_along_its_length_in_snake_order() -> No
     assert len(heading) == 2 and heading[0] * heading[1] < 0
     # the path is close to the area bound at this spacing (area / spacing)
     assert plan.surface_length_m <= 1.15 * dirty_area_m2(cloud) / SPACING
+
+
+def test_the_lines_overrun_the_dirt_by_up_to_the_pad_radius_within_the_region() -> None:
+    cloud = with_squares(plate(), [(0.0, 0.0)], 0.09)
+    trimmed = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05, overrun_m=0.0)
+    default = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05)
+    assert default.surface_length_m == plan_region_raster(cloud, PAD_R, SPACING, 0.05, overrun_m=PAD_R).surface_length_m
+    for overrun in (0.01, PAD_R, 2 * PAD_R):
+        plan = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05, overrun_m=overrun)
+        longer = [len(b) - len(a) for a, b in zip(segments_of(trimmed), segments_of(plan), strict=True)]
+        extent = [np.linalg.norm(s[-1] - s[0]) for s in segments_of(plan)]
+        base = [np.linalg.norm(s[-1] - s[0]) for s in segments_of(trimmed)]
+        # on, up to the region's edge a pad radius past the dirt (line points a spacing apart)
+        assert np.allclose(np.subtract(extent, base), 2 * min(overrun, PAD_R), atol=H) and min(longer) > 0
+        assert covered(plan, cloud).all()
 
 
 def test_snake_order_on_many_lines() -> None:
@@ -187,6 +204,7 @@ def test_update_target_replans_over_only_what_is_left() -> None:
         ({"angle_step_deg": 120.0}, ConfigError, "angle_step_deg"),
         ({"clearance_m": np.nan}, ConfigError, "clearance_m"),
         ({"link_factor": 0.0}, ConfigError, "link_factor"),
+        ({"overrun_m": -0.01}, ConfigError, "overrun_m"),
         ({"start_m": [np.nan, 0, 0]}, InputError, "start_m"),
         ({"start_m": [0.0, 0.0]}, InputError, "start_m"),
         ({"from_start": True}, InputError, "from_start needs start_m"),
@@ -265,8 +283,10 @@ def test_the_region_raster_is_far_shorter_than_the_whole_raster_on_the_plate_wit
     whole = RasterPath(cloud, lane_spacing_m=SPACING, max_step_m=step)
     whole_m = float(np.linalg.norm(np.diff(whole.waypoints, axis=0), axis=1).sum())
     region = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.1)
+    trimmed = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.1, overrun_m=0.0)
     bound_m = dirty_area_m2(cloud) / SPACING
     print(f"\nplate X, lines {SPACING * 1e3:.0f} mm apart: region raster {region.surface_length_m:.3f} m "
-          f"(+{region.air_length_m:.3f} m in the air, {region.lift_offs} lift-offs), whole raster {whole_m:.3f} m, "
-          f"area / spacing {bound_m:.3f} m")
+          f"(+{region.air_length_m:.3f} m in the air, {region.lift_offs} lift-offs; lines stopping over the dirt "
+          f"{trimmed.surface_length_m:.3f} m), whole raster {whole_m:.3f} m, area / spacing {bound_m:.3f} m")
     assert region.surface_length_m + region.air_length_m < 0.5 * whole_m
+    assert trimmed.surface_length_m < region.surface_length_m

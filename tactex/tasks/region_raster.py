@@ -15,7 +15,10 @@ Noether. The region and the choices made on it:
   within a spacing of its cutting plane, one per spacing along the line, moved onto the plane; it breaks
   where the island leaves the plane (an arm of an X, a hole). Each dirty point is assigned to the
   nearest line point, and each segment runs from the first to the last of its points that some dirty
-  point is assigned to: the pad's centre passes over every dirty point's projection on its line.
+  point is assigned to (the pad's centre passes over every dirty point's projection on its line), and
+  on by ``overrun_m`` (default: the pad radius) past them within the island, so that the pad passes
+  wholly over the last dirty points too: a line stopping over them would wipe them for half the pad's
+  length, and an island smaller than the pad for a fraction of it.
 - The direction kept is the one with the shortest path (segments, slides and flights between them, a
   flight counted with its climb and descent), the fewest turns (changes of line) breaking ties within
   :data:`TIE_TOLERANCE`, among the directions whose lines pass within the pad radius of every dirty
@@ -163,7 +166,7 @@ def _island_frame(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, 
 
 
 def _slices(points: np.ndarray, normals: np.ndarray, dirty_xyz: np.ndarray, t: np.ndarray, d: np.ndarray,
-            centre: np.ndarray, spacing_m: float, h: float) -> list[_Segment]:
+            centre: np.ndarray, spacing_m: float, h: float, overrun_m: float) -> list[_Segment]:
     """The island's line segments for lines along ``t`` spaced along ``d`` (3,) each, forward along ``t``,
     trimmed to the dirt assigned to them (see the module's description)."""
     v_dirt = (dirty_xyz - centre) @ d
@@ -194,7 +197,10 @@ def _slices(points: np.ndarray, normals: np.ndarray, dirty_xyz: np.ndarray, t: n
     for i, (p, nrm, k) in enumerate(raw):
         hit = index[nearest[owner[nearest] == i]]
         if hit.size:
-            a, b = int(hit.min()), int(hit.max())
+            # the line runs overrun_m past its outermost assigned dirt, as far as the island goes
+            along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+            a = int(np.searchsorted(along, along[hit.min()] - overrun_m - 1e-12, side="left"))
+            b = int(np.searchsorted(along, along[hit.max()] + overrun_m + 1e-12, side="right")) - 1
             segments.append(_Segment(p[a:b + 1], nrm[a:b + 1], k))
     return segments
 
@@ -217,8 +223,9 @@ def _snake(segments: list[_Segment], flip_first: bool, gap_m: float = np.inf,
     return out, length, max(len(lines) - 1, 0)
 
 
-def _raster_island(cloud: SurfaceCloud, island: np.ndarray, spacing_m: float, angle_step_deg: float,
-                   gap_m: float, clearance_m: float, reach_m: float) -> tuple[list[_Segment], np.ndarray, float, int]:
+def _raster_island(cloud: SurfaceCloud, island: np.ndarray, spacing_m: float, angle_step_deg: float, gap_m: float,
+                   clearance_m: float, reach_m: float,
+                   overrun_m: float) -> tuple[list[_Segment], np.ndarray, float, int]:
     """The island's raster along the candidate direction with the shortest path (fewest turns on a tie) among
     those whose lines pass within ``reach_m`` [m] of every dirty point (if none does, those that leave the fewest
     out): its segments (each forward along the line direction), that direction (3,), its angle from the first
@@ -231,7 +238,7 @@ def _raster_island(cloud: SurfaceCloud, island: np.ndarray, spacing_m: float, an
     for ang in angles:
         a = np.radians(ang)
         t = np.cos(a) * e1 + np.sin(a) * e2
-        segs = _slices(pts, nrm, dirty_xyz, t, np.cross(n, t), centre, spacing_m, cloud.spacing)
+        segs = _slices(pts, nrm, dirty_xyz, t, np.cross(n, t), centre, spacing_m, cloud.spacing, overrun_m)
         if segs:
             _, length, turns = _snake(segs, False, gap_m, clearance_m)
             # on a strongly bent island the cutting planes lie farther apart on the surface where it turns away
@@ -285,7 +292,8 @@ def _number(name: str, value: object) -> float:
 
 
 def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float, angle_step_deg: float,
-           clearance_m: float, link_factor: float, start_m: np.ndarray | None, from_start: bool) -> None:
+           clearance_m: float, link_factor: float, start_m: np.ndarray | None, from_start: bool,
+           overrun_m: float) -> None:
     if not isinstance(cloud, SurfaceCloud):
         raise InputError(f"the region raster plans on a SurfaceCloud, got {type(cloud).__name__}")
     if cloud.normals is None:
@@ -299,7 +307,8 @@ def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_
     limits = (("gap_m", gap_m, 0.0, np.inf, "the longest slide between segments, ≥ 0 m"),
               ("angle_step_deg", angle_step_deg, 1e-9, 90.0, "in (0, 90] degrees"),
               ("clearance_m", clearance_m, 0.0, np.inf, "the flights' height, ≥ 0 m"),
-              ("link_factor", link_factor, 1e-9, np.inf, "cloud spacings, > 0"))
+              ("link_factor", link_factor, 1e-9, np.inf, "cloud spacings, > 0"),
+              ("overrun_m", overrun_m, 0.0, np.inf, "the lines' run past the dirt, ≥ 0 m"))
     for name, value, low, high, what in limits:
         v = _number(name, value)
         if not (np.isfinite(v) and low <= v <= high):
@@ -317,7 +326,8 @@ def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_
 
 def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float, *,
                        start_m: np.ndarray | None = None, from_start: bool = False, angle_step_deg: float = 15.0,
-                       link_factor: float = 1.5, clearance_m: float = 0.02) -> RegionRasterPlan:
+                       link_factor: float = 1.5, clearance_m: float = 0.02,
+                       overrun_m: float | None = None) -> RegionRasterPlan:
     """The raster over ``cloud``'s dirt (see the module's description).
 
     Args:
@@ -332,10 +342,17 @@ def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m:
         angle_step_deg: step between the candidate line directions [deg].
         link_factor: points of the region less than this × the cloud spacing apart are one island [-].
         clearance_m: height of a flight above its lift-off and touch-down points [m].
+        overrun_m: how far each line runs on past the outermost dirt it covers [m], within the island (which
+            reaches a pad radius beyond the dirt); default: the pad radius, so that every dirty point passes
+            under the pad's whole length, as in a raster over the whole dilated region. At 0 the pad's centre
+            stops over the last dirty point, which passes under half of it, and an island shorter than the pad
+            under a fraction.
     """
-    _check(cloud, pad_radius_m, line_spacing_m, gap_m, angle_step_deg, clearance_m, link_factor, start_m, from_start)
+    overrun_m = pad_radius_m if overrun_m is None else overrun_m
+    _check(cloud, pad_radius_m, line_spacing_m, gap_m, angle_step_deg, clearance_m, link_factor, start_m, from_start,
+           overrun_m)
     islands = dirty_islands(cloud, pad_radius_m, link_factor)
-    rasters = [_raster_island(cloud, isl, line_spacing_m, angle_step_deg, gap_m, clearance_m, pad_radius_m)
+    rasters = [_raster_island(cloud, isl, line_spacing_m, angle_step_deg, gap_m, clearance_m, pad_radius_m, overrun_m)
                for isl in islands]
     here = cloud.points[islands[0]].mean(axis=0) if start_m is None else np.asarray(start_m, dtype=float)
     pending = list(range(len(islands)))

@@ -33,6 +33,8 @@ class RegionRasterPath(WaypointPath):
         max_step_m: the most the agent moves along the path per step [m].
         angle_step_deg: step between candidate line directions [deg].
         clearance_m: height of the flights above the surface [m].
+        overrun_m: how far each line runs on past the dirt it covers [m] (default: the pad radius; see
+            ``plan_region_raster``).
         start_m: where the tool is (3,) [m], for the order of the islands (default: the largest island's centre).
 
     Attributes:
@@ -44,9 +46,9 @@ class RegionRasterPath(WaypointPath):
 
     def __init__(self, cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float,
                  max_step_m: float, *, angle_step_deg: float = 15.0, clearance_m: float = 0.02,
-                 start_m: np.ndarray | None = None) -> None:
+                 overrun_m: float | None = None, start_m: np.ndarray | None = None) -> None:
         self._options = dict(pad_radius_m=pad_radius_m, line_spacing_m=line_spacing_m, gap_m=gap_m,
-                             angle_step_deg=angle_step_deg, clearance_m=clearance_m)
+                             angle_step_deg=angle_step_deg, clearance_m=clearance_m, overrun_m=overrun_m)
         self.clearance_m = float(clearance_m)
         self.target = np.array(cloud.target, dtype=float)
         plan = plan_region_raster(cloud, start_m=start_m, **self._options)
