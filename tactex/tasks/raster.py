@@ -15,7 +15,7 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 
-__all__ = ["RasterPath", "WaypointPath", "boustrophedon"]
+__all__ = ["RasterPath", "WaypointPath", "boustrophedon", "tangent_basis"]
 
 #: How much more the normals tilt along the second principal axis than along the first before the lanes
 #: run along the second (see :func:`boustrophedon`) [-].
@@ -61,6 +61,13 @@ def boustrophedon(cloud: SurfaceCloud, lane_spacing_m: float, step_m: float) -> 
     return np.concatenate(waypoints)
 
 
+def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal tangent basis (u, v) (3,) each of the unit ``normal`` (3,), (u, v, normal) right-handed."""
+    u = np.cross(normal, [0.0, 1.0, 0.0] if abs(normal[0]) > 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
 class WaypointPath:
     """Serves a path of waypoints on a cloud as :class:`ExplorationCommand`s, like the explorer does (same
     interface: ``reset(x0)``, ``step()``, ``done``), moving at most ``max_step_m`` per step along them; each
@@ -100,9 +107,8 @@ class WaypointPath:
 
     def _command(self, step: int, velocity: np.ndarray) -> ExplorationCommand:
         n = self.cloud.normals[int(self._tree.query(self._x)[1])]
-        u = np.cross(n, [0.0, 1.0, 0.0] if abs(n[0]) > 0.9 else [1.0, 0.0, 0.0])
-        u /= np.linalg.norm(u)
-        return ExplorationCommand(self._x.copy(), velocity, n.copy(), u, np.cross(n, u), step, 0)
+        u, v = tangent_basis(n)
+        return ExplorationCommand(self._x.copy(), velocity, n.copy(), u, v, step, 0)
 
     def reset(self, x0: np.ndarray | None = None) -> ExplorationCommand:
         """Start at the waypoint nearest ``x0`` (default: the first) and walk on from there, wrapping
@@ -119,18 +125,22 @@ class WaypointPath:
         self.waypoints = np.concatenate([self.waypoints, np.asarray(waypoints, dtype=float).reshape(-1, 3)])
 
     def step(self, measured_position: np.ndarray | None = None) -> ExplorationCommand:
-        budget = self.max_step_m
+        return self._walk(self.max_step_m, len(self.waypoints) - 1)
+
+    def _walk(self, budget_m: float, last: int) -> ExplorationCommand:
+        """Move on along the waypoints by at most ``budget_m`` [m], stopping at waypoint index ``last``; the
+        command there (a path with lift-offs stops at the waypoint before each)."""
         start = self._x.copy()
-        while budget > 1e-12 and not self.done:
+        while budget_m > 1e-12 and self._k < last:
             nxt = self.waypoints[self._k + 1]
             d = float(np.linalg.norm(nxt - self._x))
-            if d <= budget:
+            if d <= budget_m:
                 self._x = nxt.copy()
                 self._k += 1
-                budget -= d
+                budget_m -= d
             else:
-                self._x = self._x + (nxt - self._x) * (budget / d)
-                budget = 0.0
+                self._x = self._x + (nxt - self._x) * (budget_m / d)
+                budget_m = 0.0
         self.path_length += float(np.linalg.norm(self._x - start))
         return self._command(self._k, self._x - start)
 
