@@ -173,7 +173,7 @@ _vec = st.tuples(*[st.floats(-1e3, 1e3, allow_subnormal=False)] * 3)
 def test_transport_is_tangent_and_never_longer(v, n, n_scale):
     """For any v and a unit n (off by round-off): the transported velocity is tangent and no longer
     than v; away from the normal cone it keeps v's length; the float and compiled paths agree."""
-    from tactex.ergodic import kernel
+    from tactex.ergodic import compiled_step as kernel
 
     v = np.array(v, dtype=float)
     n = np.array(n) / np.linalg.norm(n) * n_scale
@@ -192,7 +192,7 @@ def test_transport_is_tangent_and_never_longer(v, n, n_scale):
 
 def test_transport_fades_continuously_inside_the_normal_cone():
     """Inside the cone the length falls linearly with the angle to the normal (no jump to full speed)."""
-    from tactex.ergodic import kernel
+    from tactex.ergodic import compiled_step as kernel
 
     n = np.array([0.0, 0.0, 1.0])
     for s in (0.5, 0.1, 0.01, 1e-9):

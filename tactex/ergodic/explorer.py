@@ -66,13 +66,13 @@ from scipy.linalg.lapack import dposv as _dposv
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from tactex.ergodic import kernel as _kernel
+from tactex.ergodic import compiled_step
 from tactex.ergodic.agents import Agent, make_agent
 from tactex.ergodic.bridges import Bridge, gap_links
 from tactex.ergodic.command import ExplorationCommand
+from tactex.ergodic.compiled_step import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.config import HedacConfig
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTOL
-from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 from tactex.ergodic.passes import RingPasses
 from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
@@ -85,7 +85,7 @@ from tactex.pointcloud import SurfaceCloud
 __all__ = ["HedacExplorer"]
 
 _log = logging.getLogger(__name__)
-#: The patch kinds :func:`~tactex.ergodic.kernel.project_floats` takes, by its code.
+#: The patch kinds :func:`~tactex.ergodic.compiled_step.project_floats` takes, by its code.
 _PATCH_KINDS = {"sphere": 0, "plane": 1}
 _Z = np.array([0.0, 0.0, 1.0])
 # ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
@@ -151,7 +151,7 @@ def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _plane_slope(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float,
                  b0: float, b1: float, b2: float) -> tuple[float, float] | None:
-    """:func:`~tactex.ergodic.kernel.plane_slope` (c_u, c_v), or None when the block is not positive
+    """:func:`~tactex.ergodic.compiled_step.plane_slope` (c_u, c_v), or None when the block is not positive
     definite (collinear points)."""
     ok, c_u, c_v = plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2, PLANE_PIVOT_RTOL)
     return (c_u, c_v) if ok else None
@@ -160,7 +160,7 @@ def _plane_slope(a00: float, a01: float, a02: float, a11: float, a12: float, a22
 def _project_floats(patch: SurfacePatch, x: tuple, ref: tuple) -> tuple[tuple, tuple]:
     """:func:`_project_local` on Python floats: x and ref are 3-tuples, so are the point and normal.
 
-    Sphere and plane (the per-step cases) in Python floats (:func:`~tactex.ergodic.kernel.project_floats`,
+    Sphere and plane (the per-step cases) in Python floats (:func:`~tactex.ergodic.compiled_step.project_floats`,
     which the compiled step shares): three numbers do not pay numpy's per-call overhead; the other
     kinds, and a point at a sphere's centre, go through :meth:`SurfacePatch.project`.
     """
@@ -270,22 +270,22 @@ class HedacExplorer:
         self._decay_alpha = np.nan
         self._decay = np.ones(k)
         self._set_target(cloud.target)
-        self._kernel_out = np.empty(_kernel.OUT_SIZE)
-        self._kernel_prm = _kernel.params(
+        self._compiled_out = np.empty(compiled_step.OUT_SIZE)
+        self._compiled_prm = compiled_step.params(
             agent_radius_m=self._r_a, eps2=self._eps2, source_weight=self._source_w,
             max_acceleration=cfg.max_acceleration * self.spacing / self._dt**2, max_velocity=self._v_max,
             max_step_m=self._step_max, dt=self._dt, max_off_m=self._off, edge_offset=EDGE_OFFSET,
             normalize_by_target=self._norm_target, order=cfg.order, edge_braking=cfg.edge_braking,
         )
         # The compiled step forms eq. 1–2's source itself: the sweep source runs the numpy step.
-        self._walk_kernel = self._compile_kernel() if cfg.compiled and self._sweep is None else None
+        self._walk_compiled = self._compile_step() if cfg.compiled and self._sweep is None else None
         self._agents: list[Agent] = []
         self._x = np.zeros((0, 3))
         self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
         self.step_count = 0
         self.bridges_taken = 0
         self._pass = _WHOLE
-        self.compiled_steps = 0  # agent steps the compiled kernel took (the rest ran in numpy)
+        self.compiled_steps = 0  # agent steps the compiled step took (the rest ran in numpy)
         self._monitors: list[ProgressMonitor] = []
         self._relocating = cfg.relocate
         self.relocations: list[RelocationCommand] = []
@@ -412,11 +412,11 @@ class HedacExplorer:
             self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
                                       PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe,
                                       origin=cfg.sweep_pass_origin, footprint_m=self._r_a, hops=self._target_hops())
-        if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
+        if hasattr(self, "_walk_compiled"):  # a new target may switch a running explorer between the sources
             if sweep:
-                self._walk_kernel = None
-            elif cfg.compiled and self._walk_kernel is None:
-                self._walk_kernel = self._compile_kernel()
+                self._walk_compiled = None
+            elif cfg.compiled and self._walk_compiled is None:
+                self._walk_compiled = self._compile_step()
 
     def _target_hops(self) -> coo_matrix | None:
         """The gap links (hops, :mod:`.bridges`) between target points clear of the keep-out zones, as a (T, T) matrix
@@ -553,8 +553,8 @@ class HedacExplorer:
 
     @property
     def compiled(self) -> bool:
-        """Whether the walking steps run compiled (numba, :mod:`.kernel`) rather than in numpy."""
-        return self._walk_kernel is not None
+        """Whether the walking steps run compiled (numba, :mod:`.compiled_step`) rather than in numpy."""
+        return self._walk_compiled is not None
 
     @property
     def n_agents(self) -> int:
@@ -834,7 +834,7 @@ class HedacExplorer:
             return self._bridge_step(i)
         x = self._x[i]
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
-        if self._walk_kernel is not None and self._pass == _WHOLE:
+        if self._walk_compiled is not None and self._pass == _WHOLE:
             cmd = self._compiled_step(i, x, cand)
             if cmd is not None:
                 return cmd
@@ -1126,53 +1126,53 @@ class HedacExplorer:
             self._leftover_goal = -1  # planned again from the far side
         return aim
 
-    def _compile_kernel(self):
-        """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.
+    def _compile_step(self):
+        """The compiled walking step (:mod:`.compiled_step`), or None (numpy) without numba or when it fails.
 
         It is called once here on a dummy state of this explorer's array types: numba makes (or loads
         from its cache) the machine code now, not in the middle of the first step of a control loop.
         """
-        if not _kernel.available():
+        if not compiled_step.available():
             return None
         n, k = len(self._points), self._phi.shape[1]
         try:
-            fn = _kernel.compiled_walk_step()
+            fn = compiled_step.compiled_walk_step()
             if fn is None:  # numba's JIT switched off (NUMBA_DISABLE_JIT)
                 return None
             if not fn.signatures:  # the first explorer of this process: numba compiles or loads its cache
                 _log.info("preparing the compiled exploration step (numba compiles it once per machine, ~10–15 s)")
             fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),
                np.zeros(n), 0.0, self._tidx, self._tpos, self._p_t, self._phitm_t, np.zeros(k),
-               np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._kernel_prm,
-               np.empty(_kernel.OUT_SIZE), np.zeros_like(self._src.c_used), np.zeros_like(self._src.active),
+               np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._compiled_prm,
+               np.empty(compiled_step.OUT_SIZE), np.zeros_like(self._src.c_used), np.zeros_like(self._src.active),
                np.zeros_like(self._src.sums), np.zeros(k))
         except Exception as exc:  # numba's import, typing or compilation: numpy still works
             reason = f"{type(exc).__name__}: {exc}"
-            _kernel.disable(reason)
+            compiled_step.disable(reason)
             warnings.warn(f"the compiled exploration step is unavailable, running numpy ({reason})",
                           RuntimeWarning, stacklevel=3)
             return None
         return fn
 
     def _compiled_step(self, i: int, x: np.ndarray, cand: np.ndarray) -> ExplorationCommand | None:
-        """The walking step of agent i compiled (:mod:`.kernel`), or None (nothing changed) for a
+        """The walking step of agent i compiled (:mod:`.compiled_step`), or None (nothing changed) for a
         case the kernel leaves to the numpy step: a degenerate fit, a scan edge with a hop across a
         hole in reach, or a vanishing gradient."""
         agent = self._agents[i]
-        out = self._kernel_out
+        out = self._compiled_out
         try:
-            status = self._walk_kernel(
+            status = self._walk_compiled(
                 self._points, cand, x, np.array(self._nrm_t[i]), agent.velocity, self._cov, self._cov_sum,
                 self._tidx, self._tpos, self._p_t, self._phitm_t, self._coef, self._s_ext, self._decay, self._phi,
-                self._gaps.has, self._n_n, self._kernel_prm, out, self._src.c_used, self._src.active,
+                self._gaps.has, self._n_n, self._compiled_prm, out, self._src.c_used, self._src.active,
                 self._src.sums, self._dcoef,
             )
         except Exception as exc:  # e.g. numba failing to type arguments it has not seen: numpy goes on
-            self._walk_kernel = None
+            self._walk_compiled = None
             warnings.warn(f"the compiled exploration step failed, this explorer runs numpy from now on "
                           f"({type(exc).__name__}: {exc})", RuntimeWarning, stacklevel=4)
             return None
-        if status != _kernel.OK:
+        if status != compiled_step.OK:
             return None
         self.compiled_steps += 1
         o = out.copy()  # the command, the agent and the explorer keep views of this one copy

@@ -1,4 +1,4 @@
-"""The compiled walking step (tactex.ergodic.kernel) against the numpy step it replaces.
+"""The compiled walking step (tactex.ergodic.compiled_step) against the numpy step it replaces.
 
 The numpy step is the reference. Each check runs two explorers side by side and, before every
 step, copies the numpy explorer's whole state into the compiled one, so every step starts from the
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from tactex.ergodic import HedacConfig, HedacExplorer
-from tactex.ergodic import kernel as ker
+from tactex.ergodic import compiled_step as ker
 from tactex.errors import ConfigError
 from tactex.experiments.explore import ExploreConfig, load_explore_cloud
 from tactex.pointcloud import SurfaceCloud
@@ -86,7 +86,7 @@ def _run_side_by_side(cloud, basis, x0, steps: int, measured_noise_m: float = 0.
                      nrm_tol: float = NRM_TOL, measured_offset_m: np.ndarray | None = None, **cfg) -> HedacExplorer:
     ex_c = HedacExplorer(cloud, basis, HedacConfig(n_eigen=basis.evecs.shape[1], **cfg))
     ex_n = ex_c.with_config(compiled=False)
-    assert ex_c._walk_kernel is not None and ex_n._walk_kernel is None
+    assert ex_c._walk_compiled is not None and ex_n._walk_compiled is None
     ex_c.reset(x0)
     ex_n.reset(x0)
     rng = np.random.default_rng(7)
@@ -294,7 +294,7 @@ def test_a_kernel_that_fails_mid_run_hands_over_to_numpy(objects):
     def broken(*args):
         raise TypeError("no matching definition")
 
-    ex._walk_kernel = broken
+    ex._walk_compiled = broken
     with pytest.warns(RuntimeWarning, match="runs numpy from now on.*no matching definition"):
         ex.step()
     for _ in range(3):
@@ -311,7 +311,7 @@ def test_without_numba_or_when_switched_off_the_numpy_step_runs(objects, monkeyp
         ex.reset(_start(cloud))
         for _ in range(5):
             ex.step()
-        assert ex._walk_kernel is None and ex.compiled_steps == 0 and ex.path_length > 0
+        assert ex._walk_compiled is None and ex.compiled_steps == 0 and ex.path_length > 0
 
 
 @needs_numba
@@ -320,9 +320,7 @@ def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
 
     monkeypatch.setattr(numba.config, "DISABLE_JIT", True)
     # restored after the test: the compiled step, its helpers and the failure flag
-    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "_sphere_beats_plane", "project_floats",
-                 "tangent_floats",
-                 "plane_slope", "transported_floats", "braked_direction"):
+    for name in ("_compiled", "_failure", *ker.HELPERS):
         monkeypatch.setattr(ker, name, getattr(ker, name))
     ker._compiled = None
     cloud, basis = objects["bowl"]
@@ -408,3 +406,10 @@ def test_compile_pending_says_whether_a_compile_or_cache_load_is_ahead(objects, 
     monkeypatch.setattr(config, "DISABLE_JIT", False)
     monkeypatch.setattr(ker, "_failure", "broken")
     assert not ker.compile_pending()
+
+
+def test_the_former_module_name_is_the_compiled_step_itself():
+    """``tactex.ergodic.kernel`` is the same module object: attributes set through it reach the step."""
+    from tactex.ergodic import kernel
+
+    assert kernel is ker
