@@ -150,7 +150,7 @@ def test_several_agents_run_the_numpy_step(objects):
 
 @needs_numba
 def test_measured_positions_beyond_the_cloud_edge_are_pulled_back_alike(objects):
-    # 4 voxels off the plate's rim: the landing slides, is clamped back within max_off_cloud, the
+    # 4 voxels off the plate's rim: the landing slides, is clamped back within max_off_cloud_voxels, the
     # step is shortened and, when halving cannot get back, goes halfway to the nearest point.
     cloud, basis = objects["plate"]
     rim = cloud.points[np.argmax(cloud.points[:, 0])]
@@ -195,7 +195,7 @@ def test_unsynced_runs_follow_the_same_path_until_round_off_grows(objects):
 def test_scan_hole_hops_go_through_numpy_and_agree():
     cloud = gap_strips(0.012, 0.01, seed=3)
     basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
-    ex = _run_side_by_side(cloud, basis, cloud.points[20], steps=150, max_bridge=6.0)
+    ex = _run_side_by_side(cloud, basis, cloud.points[20], steps=150, max_bridge_voxels=6.0)
     assert ex.bridges_taken >= 1, "the scenario must make the agent hop"
     assert 0 < ex.compiled_steps < 150  # the hops ran in numpy, the walk compiled
 

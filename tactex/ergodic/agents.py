@@ -88,7 +88,7 @@ class SecondOrderAgent(Agent):
 
     def edge_direction(self, direction: tuple, inward: tuple, normal: tuple) -> tuple:
         """At a scan edge the velocity's outward part must go (the agent stays within
-        max_off_cloud of the cloud); dropping it after the fact changes the velocity by up to
+        max_off_cloud_voxels of the cloud); dropping it after the fact changes the velocity by up to
         v_max in one step, well over a_max·dt. So the acceleration brakes it first: its inward
         share is at least b = min(1, v_out / (a_max·dt)) (all of it while the outward speed exceeds
         one step's change). A gradient that already turns inward that much is kept; otherwise the

@@ -461,7 +461,8 @@ def _agent_velocity(e0, e1, e2, vel, n0, n1, n2, at_edge, i0, i1, i2, prm):
 
 def _land_on_cloud(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2, q0, q1, q2, n0, n1, n2, scale, d, dd, prm):
     """Landing on the fitted patch; past the cloud's edge the outward part of the velocity q goes, and a landing
-    still out is pulled within max_off_cloud of the nearest point. Returns (ok, step [m], normal there, |step|²)."""
+    still out is pulled within max_off_cloud_voxels of the nearest point. Returns (ok, step [m], normal there,
+    |step|²)."""
     dt, off2 = prm[_DT], prm[_OFF2]
     dq2 = np.empty(d.shape[0])
     ok, st0, st1, st2, m0, m1, m2, ss, kmin = _land(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2,
@@ -481,7 +482,7 @@ def _land_on_cloud(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2, q0, q1, q2,
                                                             q0, q1, q2, n0, n1, n2, scale, dt, d, dd, dq2)
             if not ok:
                 return False, st0, st1, st2, m0, m1, m2, ss
-        if dq2[kmin] > off2:  # still out: within max_off_cloud of the nearest point
+        if dq2[kmin] > off2:  # still out: within max_off_cloud_voxels of the nearest point
             f = prm[_OFF] / dq2[kmin] ** 0.5
             st0 = d[kmin, 0] + (st0 - d[kmin, 0]) * f
             st1 = d[kmin, 1] + (st1 - d[kmin, 1]) * f
@@ -492,7 +493,7 @@ def _land_on_cloud(kind, cx, cy, cz, rad, px, py, pz, sf0, sf1, sf2, q0, q1, q2,
 
 def _clamp_step(st0, st1, st2, ss, d, dd, jmin, prm):
     """The step ≤ v_max·dt: shortening may cut a corner past the edge, so it is halved until back within
-    max_off_cloud, else it goes halfway to the nearest cloud point (see the explorer). Returns (step, length)."""
+    max_off_cloud_voxels, else it goes halfway to the nearest cloud point (see the explorer). Returns (step, length)."""
     sl = ss**0.5
     step_max, off2 = prm[_STEP_MAX], prm[_OFF2]
     if sl <= step_max:

@@ -29,7 +29,7 @@ One step for each agent:
 Scan edges (eq. 5's Neumann boundary): where the neighbours' centroid lies well inside the
 tangent plane the outward part of the gradient is dropped, so the agent follows the edge; a step
 that would leave the cloud loses its outward velocity, and the agent never strays farther than
-``max_off_cloud`` voxels from the nearest cloud point (it still lies on the fitted surface).
+``max_off_cloud_voxels`` voxels from the nearest cloud point (it still lies on the fitted surface).
 
 Cost per step is independent of N and of the target's size where it matters: Φᵀ M s is kept as
 running sums over the target rows (:mod:`.source`) that change only where the footprint did, so a
@@ -50,7 +50,7 @@ or it touches nothing new for long) the step is a relocation instead (:mod:`.rel
 lifts off, flies and touches down at untouched target elsewhere. Keep-out zones (``keep_out``) hold
 no target, and the agent's point stays a footprint radius plus half a voxel away from them.
 
-Starting and measured positions farther than ``max_snap_distance`` voxels from the cloud are
+Starting and measured positions farther than ``max_snap_distance_voxels`` voxels from the cloud are
 rejected with :class:`~tactex.errors.ExplorationError` (a robot that far from the surface is not
 in contact, and a silent snap would hide it); nearer ones are projected onto the surface.
 """
@@ -160,10 +160,10 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         self._dt = cfg.step_duration_s
         self._v_max = cfg.max_velocity * self.spacing / self._dt
         self._step_max = cfg.max_velocity * self.spacing
-        self._snap = cfg.max_snap_distance * self.spacing
+        self._snap = cfg.max_snap_distance_voxels * self.spacing
         self._r_a2 = self._r_a**2
-        self._off2 = (cfg.max_off_cloud * self.spacing) ** 2
-        self._off = cfg.max_off_cloud * self.spacing
+        self._off2 = (cfg.max_off_cloud_voxels * self.spacing) ** 2
+        self._off = cfg.max_off_cloud_voxels * self.spacing
         self._source_w = float(cfg.source_weight)
         self._norm_target = cfg.coverage_normalization == "target"
         self._edge_braking = cfg.edge_braking
@@ -183,8 +183,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
         laplacian = getattr(basis, "L", None)  # a duck-typed basis without it: no hops
-        self._bridge_max2 = (cfg.max_bridge * self.spacing) ** 2
-        self._gaps = gap_links(self._points, laplacian, self._tree, self._off, cfg.max_bridge * self.spacing)
+        self._bridge_max2 = (cfg.max_bridge_voxels * self.spacing) ** 2
+        self._gaps = gap_links(self._points, laplacian, self._tree, self._off, cfg.max_bridge_voxels * self.spacing)
         self._bridges: list[Bridge | None] = []
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
@@ -354,7 +354,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
                         "it (relocation is off: HedacConfig.relocate)"
                     )
         self._monitors = [
-            ProgressMonitor(p, 0, cfg.stall_radius * self.spacing, cfg.stall_steps, cfg.progress_steps) for p in self._x
+            ProgressMonitor(p, 0, cfg.stall_radius_voxels * self.spacing, cfg.stall_steps, cfg.progress_steps)
+            for p in self._x
         ]
         return out
 
@@ -369,8 +370,9 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         if d > self._snap:
             raise ExplorationError(
                 f"{name} = {np.round(x, 4).tolist()} m is {d * 1e3:.1f} mm from the nearest cloud point, farther "
-                f"than max_snap_distance = {self.config.max_snap_distance:g} voxels ({self._snap * 1e3:.1f} mm); "
-                "start on (or just above) the surface, or raise HedacConfig.max_snap_distance"
+                f"than max_snap_distance_voxels = {self.config.max_snap_distance_voxels:g} "
+                f"({self._snap * 1e3:.1f} mm); "
+                "start on (or just above) the surface, or raise HedacConfig.max_snap_distance_voxels"
             )
         return d
 

@@ -258,7 +258,7 @@ class HedacStep:
             step = np.array(step)
             step *= self._step_max / sl
             sl = self._step_max
-            # Shortening may cut a corner past the edge: halve until back within max_off_cloud.
+            # Shortening may cut a corner past the edge: halve until back within max_off_cloud_voxels.
             # An agent right at the limit and pushed outward never gets back by halving (it would
             # stand still for good): it steps halfway to its nearest cloud point instead.
             for _ in range(5):

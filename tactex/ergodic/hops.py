@@ -29,7 +29,7 @@ class Hops:
         """A hop along a gap link of the neighbours (see :mod:`.bridges`) when the potential at its
         far end beats every value around the agent (u − u0 at the neighbours, plus the raw source)."""
         far = np.unique(self._gaps.of(nbr))
-        # The flight starts here, not at the neighbour the link leaves from: keep it within max_bridge.
+        # The flight starts here, not at the neighbour the link leaves from: keep it within max_bridge_voxels.
         reach = self._points.take(far, 0) - here
         far = far[np.einsum("ij,ij->i", reach, reach) <= self._bridge_max2]
         if far.size == 0:

@@ -48,7 +48,7 @@ class KeepOut:
             self._ko_tree = None
             self._ko_dist = np.full(n, np.inf)
         # Agent points near cloud point j are surely clear when j is this much farther than the
-        # clearance: the agent is at most a step plus max_off_cloud from its nearest point.
+        # clearance: the agent is at most a step plus max_off_cloud_voxels from its nearest point.
         self._ko_sure = self._ko_clear + 2.0 * (self._step_max + self._off) + self.spacing
         self._safe = self._ko_dist >= self._ko_clear
 

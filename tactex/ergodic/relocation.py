@@ -13,7 +13,7 @@ yet (and that a footprint may touch: clear of keep-out zones), the one with the 
 within a footprint radius per metre of flight: ``score = m_r(j) / (|x_j − x| + r_a)``. Nearer wins,
 and a clump beats a lone speck at the same distance.
 
-Hops across scan holes (``HedacConfig.max_bridge``, :mod:`.bridges`) stay as they are: a hop is a
+Hops across scan holes (``HedacConfig.max_bridge_voxels``, :mod:`.bridges`) stay as they are: a hop is a
 short in-contact slide along a link of the Laplacian (a few voxels, the tool never leaves the
 surface); a relocation is the general fallback for everything a hop cannot join, and it costs a
 lift-off. The explorer hops first when the Laplacian joins the two sides; it relocates only when
