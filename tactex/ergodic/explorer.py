@@ -384,8 +384,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         keeps the accumulated coverage and the diffused potential.
         """
         self._set_target(mass)
-        # A hop in progress goes on to the far side of its hole: dropped, it left the agent mid-air,
-        # up to 2.7 voxels off the cloud and walking from a neighbourhood that held 5 of its 20 points.
+        # A hop in progress goes on to the far side of its hole: dropped, it would leave the agent mid-air,
+        # off the cloud, walking from a neighbourhood that holds few of its points.
         if not keep_coverage or not hasattr(self, "_cov"):
             if self._agents:
                 self._reset_fields()

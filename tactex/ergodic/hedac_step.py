@@ -32,7 +32,7 @@ __all__ = ["EDGE_OFFSET", "FOOTPRINT", "MOVE", "WHOLE", "HedacStep"]
 
 _log = logging.getLogger(__name__)
 # ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
-# these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
+# these tiny arrays (the step is mostly numpy calls, their overhead is most of its cost), same results.
 _sum = np.add.reduce
 _min = np.minimum.reduce
 if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
@@ -86,7 +86,7 @@ class HedacStep:
         return np.union1d(knn, np.asarray(ball, dtype=np.intp))
 
     def _step_agent(self, i: int, exact: bool) -> ExplorationCommand:
-        # The per-step hot path: every line is a few µs, so vector algebra reuses the squared
+        # The per-step hot path: every line pays numpy's call overhead, so vector algebra reuses the squared
         # distances dd instead of recomputing them (|d − s|² = dd − 2 d·s + |s|²).
         if self._bridges[i] is not None:
             return self._bridge_step(i)
