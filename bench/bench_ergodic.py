@@ -7,7 +7,7 @@ connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II l
 * ``ergodic.<cloud>.step_time_median_s``: one full step (neighbours, fit, projection, coverage,
   source, diffusion, gradient, agent), median over ``STEPS_TIMED`` steps from the first start, as
   the explorer runs by default: compiled by numba when the ``fast`` extra is installed
-  (``step_kernel`` says which ran, ``compiled_share`` the share of steps the kernel took; the rest
+  (``step_kernel`` says which ran, ``compiled_share`` the share of steps the compiled step took; the rest
   fell back to numpy). ``step_time_median_numpy_s`` is the same steps with ``compiled=False``.
 * ``ergodic.<cloud>.residual_at_path_m``: coverage residual (the authors' metric) when the agent
   has travelled 0.5 / 1 / 2 m, on the surface plus through the air of its relocations (issue 18;
@@ -238,7 +238,7 @@ def run(args) -> dict:
         vals = "/".join(f"{v:.3f}" for v in r.values())
         ratios = "/".join(f"{v:.2f}" for v in q.values())
         print(f"   {name:13s} {label:10s} {vals:24s} {'/'.join(f'{v:.2f}' for v in a):18s} {ratios:16s} {parked:.2f}")
-    print(f"   {'cloud':13s} step median: default (which kernel, share compiled)   numpy")
+    print(f"   {'cloud':13s} step median: default (which step, share compiled)   numpy")
     for name, r in out.items():
         print(f"   {name:13s} {r['step_time_median_s'] * 1e3:.3f} ms ({r['step_kernel']}, {r['compiled_share']:.0%})"
               f"{'':22s} {r['step_time_median_numpy_s'] * 1e3:.3f} ms")

@@ -122,7 +122,6 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
     For one run from one start, :func:`explore` does it all in one call.
     """
 
-
     def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None,
                  keep_out: np.ndarray | None = None) -> None:
         self.config = config if config is not None else HedacConfig()
