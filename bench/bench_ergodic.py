@@ -7,7 +7,7 @@ connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II l
 * ``ergodic.<cloud>.step_time_median_s``: one full step (neighbours, fit, projection, coverage,
   source, diffusion, gradient, agent), median over ``STEPS_TIMED`` steps from the first start, as
   the explorer runs by default: compiled by numba when the ``fast`` extra is installed
-  (``step_kernel`` says which ran, ``compiled_share`` the share of steps the kernel took; the rest
+  (``step_kernel`` says which ran, ``compiled_share`` the share of steps the compiled step took; the rest
   fell back to numpy). ``step_time_median_numpy_s`` is the same steps with ``compiled=False``.
 * ``ergodic.<cloud>.residual_at_path_m``: coverage residual (the authors' metric) when the agent
   has travelled 0.5 / 1 / 2 m, on the surface plus through the air of its relocations (issue 18;
@@ -18,11 +18,11 @@ connected object). Agent radius 7.5 mm (15 mm on the plate), α = 10, Table II l
   from where it was 20 steps earlier (an agent oscillating in place: path without coverage).
 * ``ergodic.<cloud>.start_gap_voxels``: per start, the widest scan gap [voxels] on the best way
   from the start to the target over the cloud (single linkage; None beyond 10 voxels). An agent
-  that stays within ``max_off_cloud`` voxels of the cloud crosses at most 2·max_off_cloud, and
+  that stays within ``max_off_cloud_voxels`` voxels of the cloud crosses at most 2·max_off_cloud_voxels, and
   only where the far side lies along its tangent plane (bunny start 9: 14.9 mm, 61° out of it).
 * ``ergodic.<cloud>.variants.<name>.*``: the same quality figures with one choice changed:
   ``eq2_domain`` normalises the coverage over the whole cloud (eq. 2 literally, instead of over
-  the target's support), ``no_hops`` never hops a scan hole (``max_bridge = 0``), ``cooling``
+  the target's support), ``no_hops`` never hops a scan hole (``max_bridge_voxels = 0``), ``cooling``
   adds a heat loss in the form of eq. 4's −u term, β = 0.05 per step (``HedacConfig.cooling``, a
   tuned value, off by default).
 * ``ergodic.<cloud>.realized_accel_over_limit_share`` / ``realized_accel_max_ratio``: the agent's
@@ -70,7 +70,7 @@ AUTHORS = {
 }
 VARIANTS = {
     "eq2_domain": {"coverage_normalization": "domain"},
-    "no_hops": {"max_bridge": 0.0},
+    "no_hops": {"max_bridge_voxels": 0.0},
     "cooling": {"cooling": 0.05},
 }
 PARK_WINDOW = 20  # steps
@@ -238,7 +238,7 @@ def run(args) -> dict:
         vals = "/".join(f"{v:.3f}" for v in r.values())
         ratios = "/".join(f"{v:.2f}" for v in q.values())
         print(f"   {name:13s} {label:10s} {vals:24s} {'/'.join(f'{v:.2f}' for v in a):18s} {ratios:16s} {parked:.2f}")
-    print(f"   {'cloud':13s} step median: default (which kernel, share compiled)   numpy")
+    print(f"   {'cloud':13s} step median: default (which step, share compiled)   numpy")
     for name, r in out.items():
         print(f"   {name:13s} {r['step_time_median_s'] * 1e3:.3f} ms ({r['step_kernel']}, {r['compiled_share']:.0%})"
               f"{'':22s} {r['step_time_median_numpy_s'] * 1e3:.3f} ms")

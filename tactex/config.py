@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import typing
+import warnings
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -19,13 +21,19 @@ import numpy as np
 
 from tactex.errors import ConfigError
 
-__all__ = ["add_dataclass_arguments", "dataclass_from_args", "option_aliases", "param", "to_jsonable", "write_json"]
+__all__ = ["accept_old_names", "add_dataclass_arguments", "dataclass_from_args", "option_aliases", "param",
+           "to_jsonable", "write_json"]
 
 T = TypeVar("T")
 
 
 def param(default: Any, help: str, **kw: Any) -> Any:
-    """A dataclass field with a help text (units in brackets) used by the generated CLI."""
+    """A dataclass field with a help text (units in brackets) used by the generated CLI.
+
+    Metadata the generated CLI reads from ``kw``: ``option`` (the option's own name), ``aliases`` (more
+    option strings, hidden from the help), ``old_names`` (former field names: their options are hidden
+    aliases, and with :func:`accept_old_names` on the class they work as keywords and attributes too),
+    ``cli=False`` (no option), ``unused_with`` (see :func:`dataclass_from_args`)."""
     if isinstance(default, (list, dict, np.ndarray)):
         return dataclasses.field(default_factory=lambda: default, metadata={"help": help, **kw})
     return dataclasses.field(default=default, metadata={"help": help, **kw})
@@ -53,8 +61,36 @@ def option_aliases(cls: type) -> dict[str, list[str]]:
     out = {}
     for f in dataclasses.fields(cls):
         name = f.metadata.get("option", f.name)
-        out[f.name] = [_option(name, ""), *f.metadata.get("aliases", ())]
+        out[f.name] = [_option(name, ""), *_hidden_options(f, "")]
     return out
+
+
+def _hidden_options(f: dataclasses.Field, prefix: str) -> list[str]:
+    """A field's option strings that work but the help does not show: its aliases and its old names'."""
+    return [*f.metadata.get("aliases", ()), *(_option(old, prefix) for old in f.metadata.get("old_names", ()))]
+
+
+def accept_old_names(cls: type[T]) -> type[T]:
+    """Class decorator for a dataclass whose fields were renamed (``param(..., old_names=("old",))``):
+    ``cls(old=...)`` still works (a :class:`DeprecationWarning` names the new field) and ``obj.old``
+    reads the new field. When a call passes both names, the old one wins: ``dataclasses.replace(obj,
+    old=...)`` passes every field by its new name besides the change."""
+    renames = {old: f.name for f in dataclasses.fields(cls) for old in f.metadata.get("old_names", ())}
+    init = cls.__init__
+
+    @functools.wraps(init)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        for old, new in renames.items():
+            if old in kwargs:
+                warnings.warn(f"{cls.__name__}.{old} is now {cls.__name__}.{new}; the old name will go",
+                              DeprecationWarning, stacklevel=2)
+                kwargs[new] = kwargs.pop(old)
+        init(self, *args, **kwargs)
+
+    cls.__init__ = __init__  # type: ignore[method-assign]
+    for old, new in renames.items():
+        setattr(cls, old, property(lambda self, _new=new: getattr(self, _new), doc=f"The former name of ``{new}``."))
+    return cls
 
 
 def add_dataclass_arguments(
@@ -68,7 +104,8 @@ def add_dataclass_arguments(
     so that only options the user gave override the dataclass defaults.
 
     A field's metadata may rename its option (``option="object"`` for ``object_name``) and give
-    older names that still work (``aliases=("--object-name",)``, hidden from the help). The help
+    older names that still work (``aliases=("--object-name",)``, or a renamed field's ``old_names``,
+    hidden from the help). The help
     shows the default once, as it would be typed; a help text that states its own default (it
     says "default") or a default of None/'' adds nothing."""
     hints = typing.get_type_hints(cls)
@@ -104,7 +141,7 @@ def add_dataclass_arguments(
         if kw is None:
             continue
         parser.add_argument(opt, dest=dest, default=None, help=help_text, **kw)
-        for alias in f.metadata.get("aliases", ()):
+        for alias in _hidden_options(f, prefix):
             parser.add_argument(alias, dest=dest, default=None, help=argparse.SUPPRESS, **kw)
 
 

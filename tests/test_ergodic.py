@@ -173,7 +173,7 @@ _vec = st.tuples(*[st.floats(-1e3, 1e3, allow_subnormal=False)] * 3)
 def test_transport_is_tangent_and_never_longer(v, n, n_scale):
     """For any v and a unit n (off by round-off): the transported velocity is tangent and no longer
     than v; away from the normal cone it keeps v's length; the float and compiled paths agree."""
-    from tactex.ergodic import kernel
+    from tactex.ergodic import compiled_step as kernel
 
     v = np.array(v, dtype=float)
     n = np.array(n) / np.linalg.norm(n) * n_scale
@@ -192,7 +192,7 @@ def test_transport_is_tangent_and_never_longer(v, n, n_scale):
 
 def test_transport_fades_continuously_inside_the_normal_cone():
     """Inside the cone the length falls linearly with the angle to the normal (no jump to full speed)."""
-    from tactex.ergodic import kernel
+    from tactex.ergodic import compiled_step as kernel
 
     n = np.array([0.0, 0.0, 1.0])
     for s in (0.5, 0.1, 0.01, 1e-9):
@@ -258,8 +258,8 @@ def test_metrics_reject_bad_input(fn):
         ("max_velocity", -0.5), ("max_acceleration", float("inf")), ("footprint_sharpness", 0.0),
         ("step_duration_s", float("nan")), ("alpha_final", -2.0), ("source_weight", float("nan")),
         ("n_eigen", 0), ("n_neighbors_fit", 3), ("order", 3),
-        ("max_off_cloud", -1.0), ("max_snap_distance", 0.0), ("alpha_decay_steps", 0),
-        ("max_bridge", -1.0), ("max_bridge", float("nan")), ("coverage_normalization", "cloud"),
+        ("max_off_cloud_voxels", -1.0), ("max_snap_distance_voxels", 0.0), ("alpha_decay_steps", 0),
+        ("max_bridge_voxels", -1.0), ("max_bridge_voxels", float("nan")), ("coverage_normalization", "cloud"),
         ("edge_braking", 1), ("edge_braking", "yes"), ("cooling", -0.1), ("cooling", float("inf")),
     ],
 )
@@ -510,7 +510,7 @@ def test_bad_inputs_are_refused_with_clear_errors(plane):
         ex.reset(np.array([0.0, np.nan, 0.0]))
     with pytest.raises(InputError, match=r"\(n_agents, 3\)"):
         ex.reset(np.zeros(2))
-    with pytest.raises(ExplorationError, match=r"x0 = .* mm from the nearest cloud point.*max_snap_distance"):
+    with pytest.raises(ExplorationError, match=r"x0 = .* mm from the nearest cloud point.*max_snap_distance_voxels"):
         ex.reset(np.array([0.0, 0.0, 0.2]))
     with pytest.raises(ExplorationError, match="no mass"):
         HedacExplorer(cloud.with_target(np.zeros(len(cloud))), basis, _cfg())
@@ -531,7 +531,7 @@ def test_never_a_nan_position_across_a_scan_edge(plane):
     for _ in range(200):
         cmd = ex.step()
         assert np.all(np.isfinite(cmd.point)) and np.all(np.isfinite(cmd.velocity))
-        assert ex._tree.query(cmd.point)[0] <= ex.config.max_off_cloud * H * (1 + 1e-9)
+        assert ex._tree.query(cmd.point)[0] <= ex.config.max_off_cloud_voxels * H * (1 + 1e-9)
 
 
 def _tec_cup():
@@ -562,7 +562,7 @@ def test_vertical_wall_works_as_well_as_a_horizontal_one():
         assert np.degrees(np.arccos(np.clip(cb.normal @ (rot @ ca.normal), -1, 1))) < 0.1
     for ex in (a, b):
         d = ex._tree.query(ex.positions[0])[0]
-        assert d <= ex.config.max_off_cloud * H
+        assert d <= ex.config.max_off_cloud_voxels * H
 
 
 def test_agent_stays_on_a_cylinder_wall_with_exact_normals():
@@ -601,7 +601,7 @@ def test_config_is_a_frozen_dataclass():
 
 
 def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
-    """Walking only (no hops): max_off_cloud = 2.5 voxels crosses a 9.5 mm hole, 1 voxel does not.
+    """Walking only (no hops): max_off_cloud_voxels = 2.5 voxels crosses a 9.5 mm hole, 1 voxel does not.
 
     At 1 voxel the band farther than 3 mm from both sides is 3.5 mm wide, more than one 3 mm step: a
     9 mm hole leaves a 3 mm band that one straight step can jump, which round-off alone decides."""
@@ -610,7 +610,7 @@ def test_max_off_cloud_bridges_a_scan_hole_only_when_allowed():
     start = np.array([0.02, 0.045, 0.0])
     reached = {}
     for off in (1.0, 2.5):
-        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud=off, max_bridge=0.0, relocate=False))
+        ex = HedacExplorer(cloud, basis, _cfg(max_off_cloud_voxels=off, max_bridge_voxels=0.0, relocate=False))
         ex.reset(start)
         best = -np.inf
         for _ in range(250):
@@ -656,7 +656,7 @@ def test_source_weight_zero_leaves_the_diffused_potential(plane):
 
 
 def test_on_a_real_scan_the_agent_stays_within_one_voxel_and_keeps_the_speed_limit():
-    """The TEC cup scan: every command within max_off_cloud (1 voxel) of the cloud, |v| ≤ v_max,
+    """The TEC cup scan: every command within max_off_cloud_voxels (1 voxel) of the cloud, |v| ≤ v_max,
     the chord between commands ≤ v_max·dt, unit normals, no NaN (the released code: up to 11 mm
     off the surface and 5 mm steps at a 3 mm limit)."""
     cup = _tec_cup()
@@ -667,7 +667,7 @@ def test_on_a_real_scan_the_agent_stays_within_one_voxel_and_keeps_the_speed_lim
     for _ in range(400):
         cmd = ex.step()
         assert np.all(np.isfinite(cmd.point)) and abs(np.linalg.norm(cmd.normal) - 1) < 1e-12
-        assert ex._tree.query(cmd.point)[0] <= ex.config.max_off_cloud * ex.spacing * (1 + 1e-9)
+        assert ex._tree.query(cmd.point)[0] <= ex.config.max_off_cloud_voxels * ex.spacing * (1 + 1e-9)
         assert np.linalg.norm(cmd.velocity) <= v_max * (1 + LIMIT_RTOL)
         assert np.linalg.norm(cmd.point - prev) <= v_max * ex.config.step_duration_s * (1 + LIMIT_RTOL)
         prev = cmd.point

@@ -15,7 +15,7 @@ from .conftest import gap_strips, tec_cloud_path, tec_initial_positions
 
 MAX_STEPS = 2000  # a parked agent must fail the test, not hang it
 H = 0.003  # [m]
-GAP = 0.012  # [m] a 4-voxel scan hole: too wide to walk at max_off_cloud = 1 voxel
+GAP = 0.012  # [m] a 4-voxel scan hole: too wide to walk at max_off_cloud_voxels = 1 voxel
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,7 @@ def test_gap_links_are_the_laplacian_links_across_the_hole(strips):
 def test_gap_links_none_when_disabled_too_short_or_without_a_hole(strips):
     cloud, basis = strips
     pts, tree = cloud.points, cKDTree(cloud.points)
-    assert gap_links(pts, basis.L, tree, H, 0.0).n_links == 0  # max_bridge = 0
+    assert gap_links(pts, basis.L, tree, H, 0.0).n_links == 0  # max_bridge_voxels = 0
     assert gap_links(pts, basis.L, tree, H, 3 * H).n_links == 0  # shorter than the hole
     assert gap_links(pts, None, tree, H, 6 * H).n_links == 0  # a basis without its Laplacian
     solid = gap_strips(0.0, 0.02, seed=3)  # one continuous grid: the walk reaches everything
@@ -56,9 +56,9 @@ def test_the_agent_hops_the_hole_only_when_allowed(strips):
     cloud, basis = strips
     start = np.array([0.02, 0.045, 0.0])
     result = {}
-    for max_bridge in (0.0, 6.0):
+    for max_bridge_voxels in (0.0, 6.0):
         # relocation off: this is about the walk and its hops (relocation crosses the hole through the air)
-        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge, relocate=False))
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge_voxels=max_bridge_voxels, relocate=False))
         (prev,) = ex.reset(start)
         v_max = ex.config.max_velocity * H
         for _ in range(250):
@@ -66,9 +66,9 @@ def test_the_agent_hops_the_hole_only_when_allowed(strips):
             assert np.all(np.isfinite(cmd.point)) and abs(np.linalg.norm(cmd.normal) - 1.0) < 1e-9
             assert np.linalg.norm(cmd.point - prev.point) <= v_max * (1 + 1e-9)
             # walking: within a voxel of the cloud; hopping: on the chord, over the hole's middle at most
-            assert ex._tree.query(cmd.point)[0] <= (H if max_bridge == 0.0 else GAP / 2 + H) * (1 + 1e-9)
+            assert ex._tree.query(cmd.point)[0] <= (H if max_bridge_voxels == 0.0 else GAP / 2 + H) * (1 + 1e-9)
             prev = cmd
-        result[max_bridge] = (ex.bridges_taken, ex.coverage_residual())
+        result[max_bridge_voxels] = (ex.bridges_taken, ex.coverage_residual())
     assert result[0.0] == (0, 1.0)  # stuck at the rim: the target is never touched
     assert result[6.0][0] >= 1 and result[6.0][1] < 0.5
 
@@ -84,13 +84,13 @@ def _until_hopping(ex: HedacExplorer, limit: int = 400):
 def test_a_hop_is_never_longer_than_max_bridge(strips):
     """The flight starts at the agent, not at the neighbour the gap link leaves from."""
     cloud, basis = strips
-    for max_bridge in (4.5, 6.0):
-        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge))
+    for max_bridge_voxels in (4.5, 6.0):
+        ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge_voxels=max_bridge_voxels))
         for y in (0.03, 0.045, 0.06):
             ex.reset(np.array([0.02, y, 0.0]))
             _until_hopping(ex)
             bridge = ex._bridges[0]
-            assert np.linalg.norm(bridge.end - bridge.start) <= max_bridge * H * (1 + 1e-12)
+            assert np.linalg.norm(bridge.end - bridge.start) <= max_bridge_voxels * H * (1 + 1e-12)
 
 
 def test_a_hop_in_progress_accepts_measured_positions(strips):
@@ -162,7 +162,7 @@ def test_bridge_normal_blends_along_the_chord_and_survives_opposite_ends():
 
 
 def test_on_the_tec_bunny_no_agent_stands_still_at_the_off_cloud_limit():
-    """Bunny start 2 (n_K = 60) used to reach the max_off_cloud limit with the potential pulling it
+    """Bunny start 2 (n_K = 60) used to reach the max_off_cloud_voxels limit with the potential pulling it
     outward at step 42; halving the step never got back inside and it stood still for good. Every
     20 steps of every run must now add path."""
     bunny = target_from_channel(voxel_down_sample(load_ply(tec_cloud_path("bun270_X")), H), "red", 1.0)
@@ -186,16 +186,16 @@ def test_on_the_tec_bunny_an_agent_started_on_its_base_reaches_the_x():
     start = tec_initial_positions("bun270_X")[9]
     basis = build_basis(bunny, n_eigen=60, n_neighbors=40, cache=False)
     residual = {}
-    for max_bridge in (0.0, 6.0):
-        ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge=max_bridge, relocate=False))
+    for max_bridge_voxels in (0.0, 6.0):
+        ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge_voxels=max_bridge_voxels, relocate=False))
         ex.reset(start)
         while ex.path_length < 1.0 and ex.step_count < MAX_STEPS:
             ex.step()
-        residual[max_bridge] = (ex.bridges_taken, ex.coverage_residual())
+        residual[max_bridge_voxels] = (ex.bridges_taken, ex.coverage_residual())
     assert residual[0.0] == (0, 1.0)
     assert residual[6.0][0] >= 1 and residual[6.0][1] < 0.3, residual
     # Without hops, relocation gets it there too: it stalls at the rim and flies across.
-    ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge=0.0))
+    ex = HedacExplorer(bunny, basis, HedacConfig(n_eigen=60, max_bridge_voxels=0.0))
     ex.reset(start)
     while ex.total_path_length < 1.0 and ex.step_count < MAX_STEPS:
         ex.step()
@@ -250,4 +250,4 @@ def test_a_new_target_mid_hop_lets_the_hop_finish():
             break
     assert not ex.hopping()
     off = [float(ex._tree.query(ex.step().point)[0]) / cloud.spacing for _ in range(20)]
-    assert max(off) <= 1.0 + 1e-9  # walking again: within max_off_cloud (1 voxel) of the cloud
+    assert max(off) <= 1.0 + 1e-9  # walking again: within max_off_cloud_voxels (1 voxel) of the cloud

@@ -7,7 +7,8 @@ import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-import tactex.ergodic.explorer as explorer_module
+import tactex.ergodic.guidance as guidance_module
+import tactex.ergodic.pass_planner as planner_module
 import tactex.ergodic.passes as passes_module
 from tactex.ergodic import HedacConfig, HedacExplorer
 from tactex.ergodic.passes import SPACING_SHARES, RingPasses
@@ -84,7 +85,7 @@ def test_rings_from_the_edge_run_parallel_to_it_and_a_closed_surface_falls_back_
 
 
 def test_the_next_goal_is_on_the_lowest_pending_ring_and_a_given_up_goal_is_done(monkeypatch):
-    monkeypatch.setattr(passes_module, "SPACING_SHARES", (1.0,))  # the rings at w: ring 0 is more than the start
+    monkeypatch.setattr(planner_module, "SPACING_SHARES", (1.0,))  # the rings at w: ring 0 is more than the start
     pts = _grid(41, 41)
     w = 4.5 * H
     passes = RingPasses(pts, None, pass_spacing_m=w, reach_m=H, voxel_m=H, origin="start")
@@ -166,7 +167,7 @@ def _holed_square() -> np.ndarray:
 
 def test_each_arc_is_walked_along_itself_and_a_closed_ring_is_one_arc(monkeypatch):
     # the rings' own arcs (a clean-up waypoint at a corner is a detour that splits the loop it leaves from)
-    monkeypatch.setattr(passes_module, "CLEAN_UP", 0.0)
+    monkeypatch.setattr(planner_module, "CLEAN_UP", 0.0)
     pts = _grid(41, 41)
     passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H)
     assert passes.order == "tour"
@@ -199,8 +200,8 @@ def _walk_length(passes: RingPasses, pts: np.ndarray, start: int) -> float:
 
 
 def test_the_tour_over_the_arcs_is_shorter_than_the_greedy_order(monkeypatch):
-    monkeypatch.setattr(passes_module, "SPACING_SHARES", (1.0,))  # the orders compared on the same rings ...
-    monkeypatch.setattr(passes_module, "CLEAN_UP", 0.0)  # ... and waypoints (the greedy order has no clean-up)
+    monkeypatch.setattr(planner_module, "SPACING_SHARES", (1.0,))  # the orders compared on the same rings ...
+    monkeypatch.setattr(planner_module, "CLEAN_UP", 0.0)  # ... and waypoints (the greedy order has no clean-up)
     pts = _holed_square()
     start = int(np.argmin(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
     lengths = {}
@@ -292,7 +293,7 @@ def test_a_speck_across_a_gap_the_agent_may_not_walk_or_hop_is_reached_by_reloca
     is done the agent lifts off and touches down there."""
     pts, speck, cloud, basis = _plate_and_speck()
     assert basis.n_components == 1
-    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40, max_bridge=0.0))
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40, max_bridge_voxels=0.0))
     assert ex._passes.n_parts == 2
     ex.reset(pts[12 * 25 + 12])
     while ex.untouched_count() > 0 and ex.total_path_length < 3.0:
@@ -303,7 +304,7 @@ def test_a_speck_across_a_gap_the_agent_may_not_walk_or_hop_is_reached_by_reloca
 
 
 def test_the_hunt_hops_to_a_speck_across_a_gap_the_laplacian_spans_instead_of_lifting_off():
-    """The same speck with hops (max_bridge 6 voxels, the default): the Laplacian's links across the gap are hops,
+    """The same speck with hops (max_bridge_voxels 6, the default): the Laplacian's links across the gap are hops,
     and the hunt walks to the plate's edge, slides across in contact and touches the speck: no relocation."""
     pts, speck, cloud, basis = _plate_and_speck()
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
@@ -484,14 +485,14 @@ def test_on_a_pass_the_agent_steps_aside_to_a_point_the_passes_missed_and_gives_
     assert ex._missed(here, near) is None
     # the passes walked past it: the agent steers at it
     passes.pending[w] = False
-    aims = [ex._missed(here, near) for _ in range(explorer_module.REPAIR_STEPS)]
+    aims = [ex._missed(here, near) for _ in range(guidance_module.REPAIR_STEPS)]
     assert all(a is not None and np.allclose(a, pts[j]) for a in aims)
     # still untouched after REPAIR_STEPS looks (across a fold, off an edge): left to the hunt, not given up
     assert ex._missed(here, near) is None
     assert not ex._given_up[j]
     # out of REPAIR_RADIUS: not a step aside
     ex.reset(pts[20 * 40 + 20])
-    far = int(np.argmin(np.abs(dist - (explorer_module.REPAIR_RADIUS + 0.5) * r_a)))
+    far = int(np.argmin(np.abs(dist - (guidance_module.REPAIR_RADIUS + 0.5) * r_a)))
     ex._cov[ex._tidx] = 2.0 * ex._p_t.max()
     ex._cov[ex._tidx[far]] = 0.0
     passes.waypoint(here, near)
@@ -505,18 +506,18 @@ def test_the_steps_aside_cover_a_square_on_a_shorter_path_than_the_hunt_alone():
     basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
 
     def run(radius: float) -> tuple[float, int]:
-        explorer_module.REPAIR_RADIUS = radius
+        guidance_module.REPAIR_RADIUS = radius
         ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=40))
         ex.reset(pts[7 * 40 + 31])
         while ex.untouched_count() and ex.path_length < 2.0:
             ex.step()
         return ex.path_length, ex.untouched_count()
 
-    keep = explorer_module.REPAIR_RADIUS
+    keep = guidance_module.REPAIR_RADIUS
     try:
         off, on = run(0.0), run(keep)
     finally:
-        explorer_module.REPAIR_RADIUS = keep
+        guidance_module.REPAIR_RADIUS = keep
     assert on[1] == 0 and off[1] == 0
     # the steps aside cost a fraction of a footprint each; the hunt comes back for each point from afar (measured
     # 1.23 m with them, 1.53 m without)
@@ -568,7 +569,7 @@ def test_the_plan_covers_the_sliver_where_the_rings_from_the_edge_meet(monkeypat
         gap = np.min(np.linalg.norm(pts[:, None] - pts[way][None], axis=2), axis=1)
         return passes, way, gap
 
-    monkeypatch.setattr(passes_module, "CLEAN_UP", 0.0)
+    monkeypatch.setattr(planner_module, "CLEAN_UP", 0.0)
     _, _, gap = plan()
     left = pts[gap > r_a]
     assert len(left) > 50  # the sliver the rings leave ...
@@ -625,7 +626,7 @@ def test_on_a_pass_the_agent_touches_a_speck_it_passes_instead_of_coming_back_fo
         return pending, ex.total_path_length
 
     pending, path = run()
-    monkeypatch.setattr(explorer_module, "SPECK_POINTS", 0.0)
+    monkeypatch.setattr(guidance_module, "SPECK_POINTS", 0.0)
     pending_off, path_off = run()
     assert pending_off == 0  # without: touched in the hunt after the passes
     assert pending > 10  # with: touched while the passes still had waypoints to walk

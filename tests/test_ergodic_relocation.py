@@ -70,18 +70,18 @@ def test_a_finished_part_sends_the_agent_to_the_other_part():
 
 
 def test_a_stall_at_a_hole_the_agent_may_not_cross_relocates():
-    """A 9.5 mm scan hole the Laplacian links but the agent may neither walk (max_off_cloud 1 voxel) nor
-    hop (max_bridge 0): the agent stalls at the rim, then relocates beyond the hole. (At 9 mm the band
+    """A 9.5 mm scan hole the Laplacian links but the agent may neither walk (max_off_cloud_voxels 1 voxel) nor
+    hop (max_bridge_voxels 0): the agent stalls at the rim, then relocates beyond the hole. (At 9 mm the band
     farther than one voxel from both sides is 3 mm, which one straight 3 mm step can jump: round-off
     decides whether it does.)"""
     cloud = gap_strips(0.0095, 0.01, seed=2)
     basis = build_basis(cloud, n_eigen=60, n_neighbors=40, cache=False)
     assert basis.n_components == 1
     start = np.array([0.02, 0.045, 0.0])
-    stuck = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=0.0, relocate=False))
+    stuck = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge_voxels=0.0, relocate=False))
     stuck.reset(start)
     assert max(c.point[0] for c in _run(stuck, 250)) < 14 * H + 0.0095
-    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge=0.0))
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, max_bridge_voxels=0.0))
     ex.reset(start)
     cmds = _run(ex, 250)
     relocs = [c for c in cmds if isinstance(c, RelocationCommand)]
@@ -212,7 +212,7 @@ def test_keep_out_input_is_checked(strip_plate):
 
 @pytest.mark.parametrize(
     ("field", "value"),
-    [("stall_steps", 1), ("progress_steps", -1), ("stall_radius", 0.0), ("relocation_clearance_m", -0.01),
+    [("stall_steps", 1), ("progress_steps", -1), ("stall_radius_voxels", 0.0), ("relocation_clearance_m", -0.01),
      ("relocate", 1)],
 )
 def test_relocation_parameters_are_validated(field, value):

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from tactex.ergodic import HedacConfig, HedacExplorer
-from tactex.ergodic import kernel as ker
+from tactex.ergodic import compiled_step as ker
 from tactex.ergodic.source import SourceSums, update_source, update_source_numpy
 from tactex.errors import ConfigError
 from tactex.pointcloud import SurfaceCloud

@@ -27,6 +27,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tactex.control.compiler import compile_kernel
+
 _log = logging.getLogger(__name__)
 
 __all__ = ["JointKernels", "available", "compile_kernel", "disable", "kernels", "latency_shaped_task_torque",
@@ -274,21 +276,6 @@ def kernels() -> JointKernels | None:
         return None
     _kernels = JointKernels(task, posture, tick, finite, limit)
     return _kernels
-
-
-def compile_kernel(func, signature: str | None = None):
-    """``func`` compiled by numba (for ``signature`` now, else at its first call), its machine code
-    cached beside its module when that folder (or numba's per-user one) is writable."""
-    from numba import njit
-
-    args = (signature,) if signature else ()
-    func = getattr(func, "py_func", func)  # a helper compiled by an earlier build
-    # error_model="numpy": a division by zero gives inf/NaN as in the Python reference (the safety
-    # layer then holds) instead of raising ZeroDivisionError out of the control loop
-    try:
-        return njit(*args, cache=True, nogil=True, error_model="numpy")(func)
-    except RuntimeError:  # no writable cache location anywhere: compile in every process
-        return njit(*args, nogil=True, error_model="numpy")(func)
 
 
 def run(kernel, *args, then: str = "this controller runs numpy from now on"):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import warnings
 from types import SimpleNamespace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,7 +23,6 @@ from tactex.errors import ControllerFault, InputError
 if TYPE_CHECKING:
     from tactex.control.references import PoseForceReference
     from tactex.control.state import RobotState
-    from tactex.control.va_ufic import VaUficController
 
 __all__ = ["CompiledTick"]
 
@@ -31,9 +30,13 @@ _NO_NORMAL = np.zeros(3)
 
 
 class CompiledTick:
-    """The compiled tick of one VA-UFIC controller (see the module docstring)."""
+    """The compiled tick of one VA-UFIC controller (see the module docstring).
 
-    def __init__(self, ctrl: VaUficController, kernel, layout) -> None:
+    ``ctrl`` is the :class:`~tactex.control.va_ufic.VaUficController` it belongs to, typed ``Any`` here:
+    that module imports this one, and the tick reads the controller's own fields by name anyway.
+    """
+
+    def __init__(self, ctrl: Any, kernel, layout) -> None:
         self.ctrl = ctrl
         self.kernel = kernel
         self.m = layout  # the tick module: its S_*/P_* indices
@@ -45,7 +48,7 @@ class CompiledTick:
         self.state: RobotState | None = None  # the last tick's state (telemetry's kinetic energy)
 
     @classmethod
-    def make(cls, ctrl: VaUficController) -> CompiledTick | None:
+    def make(cls, ctrl: Any) -> CompiledTick | None:
         """The compiled tick for ``ctrl``, or None when it runs Python: no kernels (numba missing or
         disabled), or a port feed-forward other than :class:`FrictionCompensator` (the tick compiles
         that one only)."""

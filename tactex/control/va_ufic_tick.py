@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from tactex.control.joint_kernels import compile_kernel as _jit  # imported by joint_kernels.kernels(), with numba
+from tactex.control.compiler import compile_kernel as _jit  # this module is imported by joint_kernels.kernels()
 
 __all__ = ["FAULT_FRICTION_DT", "FAULT_FRICTION_FORCE", "FAULT_FRICTION_RHO", "FAULT_ROTATION", "OK", "va_ufic_tick"]
 
@@ -258,24 +258,10 @@ def _start_realign(ks, rl, zx, zy, zz, t):
     ks[S_RE_LOG], ks[S_RE_LOG + 1], ks[S_RE_LOG + 2] = wx, wy, wz
 
 
-def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrench, ref_twist,
-                 surf_ok, normal, curvature, f_world):
-    """One VA-UFIC tick: updates ``ks`` and writes the world wrench [N, N·m] to ``f_world`` (6,).
-
-    Args:
-        ks: (S_SIZE,) the state vector. kp: (P_SIZE,) the constants.
-        t: the state's time [s]. rot: (3, 3) world_R_tool. pos: (3,) TCP [m]. twist: (6,) TCP twist,
-        world [m/s, rad/s]. wrench: (6,) measured wrench, tool frame [N, N·m].
-        ref_pos, ref_rot, ref_wrench, ref_twist: the reference's (3,), (3, 3), (6,) tool frame, (6,) world.
-        surf_ok: 1.0 when the surface estimate is valid and fresh (its normal and curvature are then
-        checked here as in VaUficController._surface). normal: (3,) its outward normal, world.
-        curvature: its l_s [-].
-
-    Returns:
-        OK, or a FAULT_* code (the Python reference raises ControllerFault there); the state is then
-        changed as far as the reference's would be when it raises.
-    """
-    # dt (UficController._dt)
+@_jit
+def _begin(ks, kp, t, rot, ref_rot):
+    """The tick's period dt [s] (UficController._dt) and the tool rotation as a row-major 9-vector; R_d set
+    from the reference on the first tick, and a re-orientation in progress advanced."""
     tp = ks[S_T_PREV]
     dt = t - tp if (not math.isnan(tp)) and 0.0 < t - tp < 0.1 else kp[P_DT]
     ks[S_T_PREV] = t
@@ -290,16 +276,12 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
         ks[S_ROT_D_OK] = 1.0
     if ks[S_RE_ON] != 0.0:
         _advance_realign(ks, kp, t, dt, rl)
+    return dt, rl
 
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rl[0], rl[1], rl[2], rl[3], rl[4], rl[5], rl[6], rl[7], rl[8]
-    px, py, pz = pos[0], pos[1], pos[2]
-    dx, dy, dz = ref_pos[0], ref_pos[1], ref_pos[2]
-    ox, oy, oz = ks[S_OFFSET], ks[S_OFFSET + 1], ks[S_OFFSET + 2]
-    ex, ey, ez = px - dx - ox, py - dy - oy, pz - dz - oz
-    e0, e1, e2 = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
-    e3, e4, e5 = _log_rows(_rows_tn(ks[S_ROT_D:S_ROT_D + 9], rl))
 
-    # the surface estimate (VaUficController._surface)
+@_jit
+def _surface(surf_ok, normal, curvature, r02, r12, r22):
+    """The surface estimate (VaUficController._surface): (usable, θ [rad], l_s, the unit inward normal z)."""
     usable, theta, ls, zx, zy, zz = False, 0.0, 0.0, 0.0, 0.0, 0.0
     if surf_ok != 0.0:
         nx, ny, nz = normal[0], normal[1], normal[2]
@@ -314,8 +296,12 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
             cos_t = cos_t if cos_t < 1.0 else 1.0  # max(-1, min(1, ·)) as Python evaluates it, NaN included
             cos_t = cos_t if cos_t > -1.0 else -1.0
             theta = math.acos(cos_t)
+    return usable, theta, ls, zx, zy, zz
 
-    # the wrench filter (UficController._wrench_filtered)
+
+@_jit
+def _filter_wrench(ks, kp, dt, wrench):
+    """The low-passed measured wrench, tool frame (UficController._wrench_filtered), kept in ``ks``."""
     wm = np.empty(6)
     if ks[S_W_OK] != 0.0:
         a = dt / (dt + kp[P_TAU_W])
@@ -327,8 +313,12 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
             wm[i] = wrench[i]
     ks[S_W:S_W + 6] = wm
     ks[S_W_OK] = 1.0
+    return wm
 
-    # eq. 17-21
+
+@_jit
+def _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls):
+    """Eq. 17-21: the alignment cost C, h and the new ρ_align (kept in ``ks``)."""
     tactile = wm[0] * e0 + wm[1] * e1 + wm[2] * e2 + wm[3] * e3 + wm[4] * e4 + wm[5] * e5
     c = kp[P_ALPHA] * abs(tactile) + kp[P_XI] * abs(theta) + kp[P_GAMMA] * abs(ls)
     h = 1.0 - c / kp[P_C_MARGIN]
@@ -344,37 +334,43 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
     rho_new = rho_new if rho_new > 0.0 else 0.0
     rho_align = rho_new if rho_new < 1.0 else 1.0
     ks[S_RHO] = rho_align
+    return c, h, rho_align
 
-    if rho_align <= kp[P_COMPLIANT]:
-        ks[S_OFFSET], ks[S_OFFSET + 1], ks[S_OFFSET + 2] = px - dx, py - dy, pz - dz
-        e0 = e1 = e2 = 0.0
-        if usable and ks[S_RE_ON] == 0.0:
-            rd = ks[S_ROT_D:S_ROT_D + 9]
-            cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
-            cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
-            cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
-            if math.acos(cos_tilt) > kp[P_REALIGN_MIN]:
-                for x in rl:  # desired_rotation_from_normal refuses a non-finite rotation
-                    if not math.isfinite(x):
-                        return FAULT_ROTATION
-                _start_realign(ks, rl, zx, zy, zz, t)
 
-    # eq. 30
+@_jit
+def _go_compliant(ks, kp, rl, ox, oy, oz, usable, zx, zy, zz, t):
+    """Compliant (ρ_align low): the position offset ``o`` [m] fed back, and a re-orientation to the surface
+    normal started when the tool is tilted from it. Returns OK or FAULT_ROTATION."""
+    ks[S_OFFSET], ks[S_OFFSET + 1], ks[S_OFFSET + 2] = ox, oy, oz
+    if usable and ks[S_RE_ON] == 0.0:
+        rd = ks[S_ROT_D:S_ROT_D + 9]
+        cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
+        cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
+        cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
+        if math.acos(cos_tilt) > kp[P_REALIGN_MIN]:
+            for x in rl:  # desired_rotation_from_normal refuses a non-finite rotation
+                if not math.isfinite(x):
+                    return FAULT_ROTATION
+            _start_realign(ks, rl, zx, zy, zz, t)
+    return OK
+
+
+@_jit
+def _force_shaping(kp, ref_wrench, e0, e1, e2, e3, e4, e5):
+    """Eq. 30: ρ_frc, the force's share by the position error along the tool axis."""
     wd0, wd1, wd2 = ref_wrench[0], ref_wrench[1], ref_wrench[2]
     wd3, wd4, wd5 = ref_wrench[3], ref_wrench[4], ref_wrench[5]
     if wd0 * e0 + wd1 * e1 + wd2 * e2 + wd3 * e3 + wd4 * e4 + wd5 * e5 <= 0.0:
-        rho_frc = 1.0
-    elif 0.0 < e2 <= kp[P_DELTA_C]:
-        rho_frc = 0.5 * (1.0 + math.cos(math.pi * e2 / kp[P_DELTA_C]))
-    else:
-        rho_frc = 0.0
+        return 1.0
+    if 0.0 < e2 <= kp[P_DELTA_C]:
+        return 0.5 * (1.0 + math.cos(math.pi * e2 / kp[P_DELTA_C]))
+    return 0.0
 
-    vx, vy, vz, wx, wy, wz = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]
-    x0, x1, x2 = r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz
-    x3, x4, x5 = r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz
 
-    # D_C (UficController._select_damping)
-    tgt = P_D_CONTACT if wm[2] >= kp[P_CONTACT_N] else P_D_FREE
+@_jit
+def _select_damping(ks, kp, dt, fz):
+    """D_C (UficController._select_damping) for the filtered normal force ``fz`` [N], kept in ``ks``."""
+    tgt = P_D_CONTACT if fz >= kp[P_CONTACT_N] else P_D_FREE
     tau_s = kp[P_SWITCH_S]
     if tau_s <= 0:
         dz_new = kp[tgt + 2]
@@ -383,10 +379,11 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
     for i in range(6):
         ks[S_D + i] = kp[tgt + i]
     ks[S_D + 2] = dz_new
-    d0, d1, d2, d3, d4, d5 = ks[S_D], ks[S_D + 1], ks[S_D + 2], ks[S_D + 3], ks[S_D + 4], ks[S_D + 5]
-    dx0, dx1, dx2, dx3, dx4, dx5 = d0 * x0, d1 * x1, d2 * x2, d3 * x3, d4 * x4, d5 * x5
 
-    # eq. 10-12 (UficController.force_wrench_tool)
+
+@_jit
+def _force_wrench(ks, kp, dt, rho_frc, ref_wrench, wm):
+    """Eq. 10-12 (UficController.force_wrench_tool): the shaped force PI's wrench, tool frame (6,)."""
     integrate = rho_frc > 1e-3
     kpf, kif, lim = kp[P_KP_F], kp[P_KI_F], kp[P_ILIM]
     ff = np.empty(6)
@@ -397,59 +394,50 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
             s = ks[S_INTEG + i] + err * dt
             ks[S_INTEG + i] = lim if s > lim else (-lim if s < -lim else s)
         ff[i] = rho_frc * (fd + kpf * err + kif * ks[S_INTEG + i])
-    f0, f1, f2, f3, f4, f5 = ff[0], ff[1], ff[2], ff[3], ff[4], ff[5]
+    return ff
 
-    neg_rho = -rho_align
-    km = P_K_MAX_T
-    p0, p1, p2 = neg_rho * kp[km] * e0, neg_rho * kp[km + 1] * e1, neg_rho * kp[km + 2] * e2
-    p3, p4, p5 = neg_rho * kp[km + 3] * e3, neg_rho * kp[km + 4] * e4, neg_rho * kp[km + 5] * e5
-    if kp[P_DAMP_FF] != 0.0:
-        ux, uy, uz, qx, qy, qz = ref_twist[0], ref_twist[1], ref_twist[2], ref_twist[3], ref_twist[4], ref_twist[5]
-        p0 += d0 * (r00 * ux + r10 * uy + r20 * uz)
-        p1 += d1 * (r01 * ux + r11 * uy + r21 * uz)
-        p2 += d2 * (r02 * ux + r12 * uy + r22 * uz)
-        p3 += d3 * (r00 * qx + r10 * qy + r20 * qz)
-        p4 += d4 * (r01 * qx + r11 * qy + r21 * qz)
-        p5 += d5 * (r02 * qx + r12 * qy + r22 * qz)
 
-    if kp[P_FR_ON] != 0.0:  # FrictionCompensator.wrench_tool
-        fx, fy, fz = wrench[0], wrench[1], wrench[2]
-        if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
-            return FAULT_FRICTION_FORCE
-        if not (math.isfinite(rho_align) and 0.0 <= rho_align <= 1.0):
-            return FAULT_FRICTION_RHO
-        if not (math.isfinite(dt) and dt > 0):
-            return FAULT_FRICTION_DT
-        fb = S_FRIC
-        if ks[fb + 2] != 0.0:
-            if dt != ks[fb + 4]:
-                ks[fb + 3] = 1.0 - math.exp(-2.0 * math.pi * kp[P_FR_CUTOFF] * dt)
-                ks[fb + 4] = dt
-            a = ks[fb + 3]
-            g0, g1 = ks[fb], ks[fb + 1]
-            g0, g1 = g0 + a * (fx - g0), g1 + a * (fy - g1)
-        else:
-            g0, g1 = fx, fy
-            ks[fb + 2] = 1.0
-        ks[fb], ks[fb + 1] = g0, g1
-        mu_fz = kp[P_FR_MU] * (0.0 if 0.0 > fz else fz)  # max(fz, 0.0)
-        bound = mu_fz if mu_fz < kp[P_FR_MAX] else kp[P_FR_MAX]  # min(max_force, ·)
-        mag = math.hypot(g0, g1)
-        if mag > 0.0:
-            ratio = bound / mag
-            sat = ratio if ratio < 1.0 else 1.0  # min(1.0, ·)
-        else:
-            sat = 0.0
-        scale = kp[P_FR_GAIN] * rho_align * sat
-        w0, w1 = scale * g0, scale * g1
-        ks[fb + 5], ks[fb + 6] = w0, w1
-        ks[fb + 7] = ks[fb + 8] = ks[fb + 9] = ks[fb + 10] = 0.0
-        p0, p1, p2, p3, p4, p5 = p0 + w0, p1 + w1, p2 + 0.0, p3 + 0.0, p4 + 0.0, p5 + 0.0
+@_jit
+def _friction(ks, kp, dt, rho_align, wrench):
+    """FrictionCompensator.wrench_tool: (OK or a FAULT_FRICTION_* code, its in-plane force w0, w1 [N])."""
+    fx, fy, fz = wrench[0], wrench[1], wrench[2]
+    if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
+        return FAULT_FRICTION_FORCE, 0.0, 0.0
+    if not (math.isfinite(rho_align) and 0.0 <= rho_align <= 1.0):
+        return FAULT_FRICTION_RHO, 0.0, 0.0
+    if not (math.isfinite(dt) and dt > 0):
+        return FAULT_FRICTION_DT, 0.0, 0.0
+    fb = S_FRIC
+    if ks[fb + 2] != 0.0:
+        if dt != ks[fb + 4]:
+            ks[fb + 3] = 1.0 - math.exp(-2.0 * math.pi * kp[P_FR_CUTOFF] * dt)
+            ks[fb + 4] = dt
+        a = ks[fb + 3]
+        g0, g1 = ks[fb], ks[fb + 1]
+        g0, g1 = g0 + a * (fx - g0), g1 + a * (fy - g1)
+    else:
+        g0, g1 = fx, fy
+        ks[fb + 2] = 1.0
+    ks[fb], ks[fb + 1] = g0, g1
+    mu_fz = kp[P_FR_MU] * (0.0 if 0.0 > fz else fz)  # max(fz, 0.0)
+    bound = mu_fz if mu_fz < kp[P_FR_MAX] else kp[P_FR_MAX]  # min(max_force, ·)
+    mag = math.hypot(g0, g1)
+    if mag > 0.0:
+        ratio = bound / mag
+        sat = ratio if ratio < 1.0 else 1.0  # min(1.0, ·)
+    else:
+        sat = 0.0
+    scale = kp[P_FR_GAIN] * rho_align * sat
+    w0, w1 = scale * g0, scale * g1
+    ks[fb + 5], ks[fb + 6] = w0, w1
+    ks[fb + 7] = ks[fb + 8] = ks[fb + 9] = ks[fb + 10] = 0.0
+    return OK, w0, w1
 
-    p_damp = x0 * dx0 + x1 * dx1 + x2 * dx2 + x3 * dx3 + x4 * dx4 + x5 * dx5
-    p_force = x0 * f0 + x1 * f1 + x2 * f2 + x3 * f3 + x4 * f4 + x5 * f5
 
-    # the force tank (ForceTank.step)
+@_jit
+def _force_tank(ks, kp, dt, p_force, p_damp):
+    """The force tank (ForceTank.step) on the force port's power ``p_force`` and the damping's ``p_damp`` [W]:
+    the force's modulation m_f."""
     bf = S_TANK_F
     gate = _gate(ks[bf], kp[P_TF_UP], kp[P_TF_BAND])
     ks[bf + T_DAMP_HARVESTED] = 0.0
@@ -469,16 +457,90 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
     else:
         valve = 1.0 if not tf_on else _valve(ks[bf], kp[P_TF_LOW], kp[P_TF_BAND])
         m_f = _commit(ks, bf, tf_on, kp[P_TF_UP], kp[P_TF_LOW], p_force, valve, 0.0, gate, 0.0, dt)
+    return m_f
 
-    # the impedance tank (ImpedanceTank.step)
-    p_port = x0 * p0 + x1 * p1 + x2 * p2 + x3 * p3 + x4 * p4 + x5 * p5
+
+@_jit
+def _impedance_tank(ks, kp, dt, p_port, p_damp):
+    """The impedance tank (ImpedanceTank.step) on the variable stiffness's port power ``p_port`` [W]: its
+    valve σ_i."""
     bi = S_TANK_I
     ti_on = kp[P_TI_ON] != 0.0
     gate_i = _gate(ks[bi], kp[P_TI_UP], kp[P_TI_BAND])
     valve_i = 1.0 if not ti_on else _valve(ks[bi], kp[P_TI_LOW], kp[P_TI_BAND])
     spring_power = -p_port  # ImpedanceTank.step's argument; its demand is minus that
-    sigma_i = _commit(ks, bi, ti_on, kp[P_TI_UP], kp[P_TI_LOW], -spring_power, valve_i,
-                      gate_i * (p_damp - ks[bf + T_DAMP_HARVESTED]), gate_i, 1.0, dt)
+    return _commit(ks, bi, ti_on, kp[P_TI_UP], kp[P_TI_LOW], -spring_power, valve_i,
+                   gate_i * (p_damp - ks[S_TANK_F + T_DAMP_HARVESTED]), gate_i, 1.0, dt)
+
+
+def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrench, ref_twist,
+                 surf_ok, normal, curvature, f_world):
+    """One VA-UFIC tick: updates ``ks`` and writes the world wrench [N, N·m] to ``f_world`` (6,).
+
+    Args:
+        ks: (S_SIZE,) the state vector. kp: (P_SIZE,) the constants.
+        t: the state's time [s]. rot: (3, 3) world_R_tool. pos: (3,) TCP [m]. twist: (6,) TCP twist,
+        world [m/s, rad/s]. wrench: (6,) measured wrench, tool frame [N, N·m].
+        ref_pos, ref_rot, ref_wrench, ref_twist: the reference's (3,), (3, 3), (6,) tool frame, (6,) world.
+        surf_ok: 1.0 when the surface estimate is valid and fresh (its normal and curvature are then
+        checked here as in VaUficController._surface). normal: (3,) its outward normal, world.
+        curvature: its l_s [-].
+
+    Returns:
+        OK, or a FAULT_* code (the Python reference raises ControllerFault there); the state is then
+        changed as far as the reference's would be when it raises.
+    """
+    dt, rl = _begin(ks, kp, t, rot, ref_rot)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rl[0], rl[1], rl[2], rl[3], rl[4], rl[5], rl[6], rl[7], rl[8]
+    px, py, pz = pos[0], pos[1], pos[2]
+    dx, dy, dz = ref_pos[0], ref_pos[1], ref_pos[2]
+    ox, oy, oz = ks[S_OFFSET], ks[S_OFFSET + 1], ks[S_OFFSET + 2]
+    ex, ey, ez = px - dx - ox, py - dy - oy, pz - dz - oz
+    e0, e1, e2 = r00 * ex + r10 * ey + r20 * ez, r01 * ex + r11 * ey + r21 * ez, r02 * ex + r12 * ey + r22 * ez
+    e3, e4, e5 = _log_rows(_rows_tn(ks[S_ROT_D:S_ROT_D + 9], rl))
+    usable, theta, ls, zx, zy, zz = _surface(surf_ok, normal, curvature, r02, r12, r22)
+    wm = _filter_wrench(ks, kp, dt, wrench)
+    c, h, rho_align = _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls)
+    if rho_align <= kp[P_COMPLIANT]:
+        e0 = e1 = e2 = 0.0
+        code = _go_compliant(ks, kp, rl, px - dx, py - dy, pz - dz, usable, zx, zy, zz, t)
+        if code != OK:
+            return code
+    rho_frc = _force_shaping(kp, ref_wrench, e0, e1, e2, e3, e4, e5)
+
+    vx, vy, vz, wx, wy, wz = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]
+    x0, x1, x2 = r00 * vx + r10 * vy + r20 * vz, r01 * vx + r11 * vy + r21 * vz, r02 * vx + r12 * vy + r22 * vz
+    x3, x4, x5 = r00 * wx + r10 * wy + r20 * wz, r01 * wx + r11 * wy + r21 * wz, r02 * wx + r12 * wy + r22 * wz
+    _select_damping(ks, kp, dt, wm[2])
+    d0, d1, d2, d3, d4, d5 = ks[S_D], ks[S_D + 1], ks[S_D + 2], ks[S_D + 3], ks[S_D + 4], ks[S_D + 5]
+    dx0, dx1, dx2, dx3, dx4, dx5 = d0 * x0, d1 * x1, d2 * x2, d3 * x3, d4 * x4, d5 * x5
+    ff = _force_wrench(ks, kp, dt, rho_frc, ref_wrench, wm)
+    f0, f1, f2, f3, f4, f5 = ff[0], ff[1], ff[2], ff[3], ff[4], ff[5]
+
+    # the variable stiffness's port wrench, and the damping feed-forward of the reference's twist
+    neg_rho = -rho_align
+    km = P_K_MAX_T
+    p0, p1, p2 = neg_rho * kp[km] * e0, neg_rho * kp[km + 1] * e1, neg_rho * kp[km + 2] * e2
+    p3, p4, p5 = neg_rho * kp[km + 3] * e3, neg_rho * kp[km + 4] * e4, neg_rho * kp[km + 5] * e5
+    if kp[P_DAMP_FF] != 0.0:
+        ux, uy, uz, qx, qy, qz = ref_twist[0], ref_twist[1], ref_twist[2], ref_twist[3], ref_twist[4], ref_twist[5]
+        p0 += d0 * (r00 * ux + r10 * uy + r20 * uz)
+        p1 += d1 * (r01 * ux + r11 * uy + r21 * uz)
+        p2 += d2 * (r02 * ux + r12 * uy + r22 * uz)
+        p3 += d3 * (r00 * qx + r10 * qy + r20 * qz)
+        p4 += d4 * (r01 * qx + r11 * qy + r21 * qz)
+        p5 += d5 * (r02 * qx + r12 * qy + r22 * qz)
+    if kp[P_FR_ON] != 0.0:
+        code, w0, w1 = _friction(ks, kp, dt, rho_align, wrench)
+        if code != OK:
+            return code
+        p0, p1, p2, p3, p4, p5 = p0 + w0, p1 + w1, p2 + 0.0, p3 + 0.0, p4 + 0.0, p5 + 0.0
+
+    p_damp = x0 * dx0 + x1 * dx1 + x2 * dx2 + x3 * dx3 + x4 * dx4 + x5 * dx5
+    p_force = x0 * f0 + x1 * f1 + x2 * f2 + x3 * f3 + x4 * f4 + x5 * f5
+    m_f = _force_tank(ks, kp, dt, p_force, p_damp)
+    p_port = x0 * p0 + x1 * p1 + x2 * p2 + x3 * p3 + x4 * p4 + x5 * p5
+    sigma_i = _impedance_tank(ks, kp, dt, p_port, p_damp)
 
     kc = P_K_CONST
     g0 = -kp[kc] * e0 - dx0 + sigma_i * p0 + m_f * f0
@@ -490,7 +552,7 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
 
     r = S_RAW
     ks[r], ks[r + 1], ks[r + 2], ks[r + 3], ks[r + 4], ks[r + 5] = rho_align, rho_frc, c, h, theta, ls
-    ks[r + 6], ks[r + 7], ks[r + 8], ks[r + 9] = 1.0 if usable else 0.0, sigma_i, m_f, wd2 - wm[2]
+    ks[r + 6], ks[r + 7], ks[r + 8], ks[r + 9] = 1.0 if usable else 0.0, sigma_i, m_f, ref_wrench[2] - wm[2]
     ks[r + 10], ks[r + 11], ks[r + 12], ks[r + 13], ks[r + 14], ks[r + 15] = e0, e1, e2, e3, e4, e5
     ks[S_RAW_OK] = 1.0
     f_world[0] = r00 * g0 + r01 * g1 + r02 * g2

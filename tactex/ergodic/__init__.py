@@ -3,13 +3,14 @@
 from tactex.ergodic.agents import Agent, FirstOrderAgent, SecondOrderAgent, make_agent, transport
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
-from tactex.ergodic.explorer import HedacExplorer
+from tactex.ergodic.explorer import Exploration, HedacExplorer, explore
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, cubic_features, cubic_gradient, cubic_value, fit_cubic
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
 
 __all__ = [
     "CUBIC_EXPONENTS",
     "Agent",
+    "Exploration",
     "ExplorationCommand",
     "FirstOrderAgent",
     "HedacConfig",
@@ -19,6 +20,7 @@ __all__ = [
     "cubic_features",
     "cubic_gradient",
     "cubic_value",
+    "explore",
     "fit_cubic",
     "make_agent",
     "normalized_ergodicity",

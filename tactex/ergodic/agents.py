@@ -13,14 +13,14 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from tactex.ergodic.kernel import braked_direction, transported_floats
+from tactex.ergodic.compiled_step import braked_direction, transported_floats
 
 __all__ = ["Agent", "FirstOrderAgent", "SecondOrderAgent", "make_agent", "transport"]
 
 
 def transport(v: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """v [m/s] (3,) carried to the plane ⊥ ``normal``, keeping its length (see
-    :func:`tactex.ergodic.kernel.transported_floats`: a v along the normal fades instead)."""
+    :func:`tactex.ergodic.compiled_step.transported_floats`: a v along the normal fades instead)."""
     v0, v1, v2 = (float(x) for x in v)
     n0, n1, n2 = (float(x) for x in normal)
     return np.array(transported_floats(v0, v1, v2, n0, n1, n2))
@@ -88,7 +88,7 @@ class SecondOrderAgent(Agent):
 
     def edge_direction(self, direction: tuple, inward: tuple, normal: tuple) -> tuple:
         """At a scan edge the velocity's outward part must go (the agent stays within
-        max_off_cloud of the cloud); dropping it after the fact changes the velocity by up to
+        max_off_cloud_voxels of the cloud); dropping it after the fact changes the velocity by up to
         v_max in one step, well over a_max·dt. So the acceleration brakes it first: its inward
         share is at least b = min(1, v_out / (a_max·dt)) (all of it while the outward speed exceeds
         one step's change). A gradient that already turns inward that much is kept; otherwise the

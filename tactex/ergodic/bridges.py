@@ -4,9 +4,9 @@ A single-view scan has holes (occlusion shadows, dark or shiny patches). robust_
 its operator from local triangulations of each point's ``n_neighbors`` nearest points, so where a
 hole is narrower than that neighbourhood the Laplacian links the two sides and heat diffuses
 across (TEC §VI-D: the neighbour count decides which parts are connected). An agent that walks on
-the cloud cannot follow: it stays within ``max_off_cloud`` voxels of a cloud point and stops at
-the hole's rim while the potential keeps pulling it across (the bunny's base is joined to its
-body only by 15 mm links: an agent started there never reaches the target).
+the cloud cannot follow: it stays within ``max_off_cloud_voxels`` voxels of a cloud point and stops at
+the hole's rim while the potential keeps pulling it across (a scan's base may be joined to its
+body only by such links: an agent started there would never reach the target).
 
 :func:`gap_links` finds these links once per cloud: a link of L whose straight chord passes
 farther than the walking limit from every cloud point, and no longer than the longest hop

@@ -6,7 +6,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from tactex.config import param
+from tactex.config import accept_old_names, param
 from tactex.errors import ConfigError
 
 __all__ = ["COVERAGE_NORMALIZATIONS", "SOURCE_MODES", "HedacConfig", "check_coverage_normalization"]
@@ -32,12 +32,14 @@ def _check_number(name: str, value: object, strict: bool) -> None:
         raise ConfigError(f"HedacConfig.{name} must be {kind}, got {value!r}")
 
 
+@accept_old_names
 @dataclass(frozen=True)
 class HedacConfig:
     """HEDAC spectral exploration on a point cloud.
 
     Lengths of the agent's motion are in units of the cloud spacing h (the voxel size, 3 mm in
-    the paper), so Table II's 3 mm/s and 3 mm/s² at a 3 mm voxel and a 1 s step are
+    the paper; a field in voxels says so in its name, or in its unit per step), so Table II's 3 mm/s and
+    3 mm/s² at a 3 mm voxel and a 1 s step are
     ``max_velocity = 1`` voxel/step and ``max_acceleration = 1`` voxel/step². Table II's
     "M = 20" is the number of nearest neighbours n_N of the tangent-space fit and the gradient
     (the authors' code: ``nb_minimum_neighbors = 20``).
@@ -48,14 +50,13 @@ class HedacConfig:
     the source of hundreds of covered points outweighs the few target points no footprint has
     touched yet: the agent goes back over covered strokes while isolated target points wait.
     Dividing by the integral over the target's support keeps HEDAC's ergodic behaviour (it still
-    revisits the target in proportion to p) but lets an untouched point stand out. On the TEC
-    clouds (ten starts, 1 m of path) it takes the cup's coverage residual from 0.18 to 0 and the
-    bunny's from 0.12 to 0. When the target covers the whole cloud the two options are the same.
-    ``"domain"`` is eq. 2 literally. The price is paid in eq. 48: eq. 2's deficit is exactly what
-    eq. 48 measures, so HEDAC with it dwells on the target in proportion to p, while with
-    ``"target"`` the agent moves on once a point has its share of the on-target coverage. After
-    1000 steps eq. 48 reads 0.67 / 0.53 / 0.48 (bunny / cup / plate) instead of 0.46 / 0.37 /
-    0.41. Choose ``"domain"`` when the time share matters more than touching every point;
+    revisits the target in proportion to p) but lets an untouched point stand out, and on the TEC
+    clouds it leaves no target point untouched where eq. 2 leaves some. When the target covers
+    the whole cloud the two options are the same. ``"domain"`` is eq. 2 literally. The price is
+    paid in eq. 48: eq. 2's deficit is exactly what eq. 48 measures, so HEDAC with it dwells on
+    the target in proportion to p, while with ``"target"`` the agent moves on once a point has its
+    share of the on-target coverage, and eq. 48 reads higher. Choose ``"domain"`` when the time
+    share matters more than touching every point;
     ``tactex sweep`` (the paper's parameter study) uses it.
     """
 
@@ -84,18 +85,21 @@ class HedacConfig:
     source_weight: float = param(
         1.0, "weight of the undiffused source added to the potential (the authors' code: 1; 0 = diffused only) [-]"
     )
-    max_off_cloud: float = param(
+    max_off_cloud_voxels: float = param(
         1.0,
         "farthest the agent may stray from the nearest cloud point (it stays on the fitted surface, so this "
         "lets it bridge scan holes the Laplacian connects) [voxels]",
+        old_names=("max_off_cloud",),
     )
-    max_bridge: float = param(
+    max_bridge_voxels: float = param(
         6.0,
-        "longest hop [voxels] across a scan hole, along a link of the Laplacian that joins its two sides, "
-        "taken when the potential beyond is higher than anywhere around the agent (0 = never hop)",
+        "longest hop across a scan hole, along a link of the Laplacian that joins its two sides, taken when the "
+        "potential beyond is higher than anywhere around the agent (0 = never hop) [voxels]",
+        old_names=("max_bridge",),
     )
-    max_snap_distance: float = param(
-        10.0, "farthest start/measured position from the cloud that is projected onto it [voxels]"
+    max_snap_distance_voxels: float = param(
+        10.0, "farthest start/measured position from the cloud that is projected onto it [voxels]",
+        old_names=("max_snap_distance",),
     )
     coverage_normalization: str = param(
         "target",
@@ -113,11 +117,11 @@ class HedacConfig:
     relocate: bool = param(
         True,
         "lift and move (TEC §VI-B) when walking makes no progress: the agent's Laplacian part holds no untouched "
-        "target, it stalls (stall_steps within stall_radius), or the untouched target stops shrinking "
+        "target, it stalls (stall_steps within stall_radius_voxels), or the untouched target stops shrinking "
         "(progress_steps); it touches down at untouched target elsewhere (see tactex.ergodic.relocation)",
     )
-    stall_steps: int = param(20, "steps within stall_radius of one point that count as a stall [steps]")
-    stall_radius: float = param(2.0, "radius of the stall rule [voxels]")
+    stall_steps: int = param(20, "steps within stall_radius_voxels of one point that count as a stall [steps]")
+    stall_radius_voxels: float = param(2.0, "radius of the stall rule [voxels]", old_names=("stall_radius",))
     progress_steps: int = param(
         300, "steps without a newly touched target point, while untouched target is left, before relocating "
         "(0 = never) [steps]"
@@ -169,14 +173,14 @@ class HedacConfig:
             "max_velocity",
             "max_acceleration",
             "step_duration_s",
-            "max_off_cloud",
-            "max_snap_distance",
-            "stall_radius",
+            "max_off_cloud_voxels",
+            "max_snap_distance_voxels",
+            "stall_radius_voxels",
             "relocation_clearance_m",
         )
         for name in positive:
             _check_number(name, getattr(self, name), strict=True)
-        for name in ("alpha_final", "source_weight", "max_bridge", "cooling"):
+        for name in ("alpha_final", "source_weight", "max_bridge_voxels", "cooling"):
             _check_number(name, getattr(self, name), strict=False)
         for name, low in (("n_eigen", 1), ("n_neighbors_fit", 5), ("alpha_decay_steps", 1), ("stall_steps", 2),
                           ("progress_steps", 0)):

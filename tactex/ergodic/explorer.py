@@ -29,7 +29,7 @@ One step for each agent:
 Scan edges (eq. 5's Neumann boundary): where the neighbours' centroid lies well inside the
 tangent plane the outward part of the gradient is dropped, so the agent follows the edge; a step
 that would leave the cloud loses its outward velocity, and the agent never strays farther than
-``max_off_cloud`` voxels from the nearest cloud point (it still lies on the fitted surface).
+``max_off_cloud_voxels`` voxels from the nearest cloud point (it still lies on the fitted surface).
 
 Cost per step is independent of N and of the target's size where it matters: Φᵀ M s is kept as
 running sums over the target rows (:mod:`.source`) that change only where the footprint did, so a
@@ -50,81 +50,46 @@ or it touches nothing new for long) the step is a relocation instead (:mod:`.rel
 lifts off, flies and touches down at untouched target elsewhere. Keep-out zones (``keep_out``) hold
 no target, and the agent's point stays a footprint radius plus half a voxel away from them.
 
-Starting and measured positions farther than ``max_snap_distance`` voxels from the cloud are
+Starting and measured positions farther than ``max_snap_distance_voxels`` voxels from the cloud are
 rejected with :class:`~tactex.errors.ExplorationError` (a robot that far from the surface is not
 in contact, and a silent snap would hide it); nearer ones are projected onto the surface.
 """
 
 from __future__ import annotations
 
-import logging
-import warnings
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg.lapack import dposv as _dposv
-from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
-from tactex.ergodic import kernel as _kernel
+from tactex.ergodic import compiled_step
 from tactex.ergodic.agents import Agent, make_agent
 from tactex.ergodic.bridges import Bridge, gap_links
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.config import HedacConfig
-from tactex.ergodic.gradient import CUBIC_EXPONENTS, PLANE_PIVOT_RTOL, RIDGE_RTOL
-from tactex.ergodic.kernel import plane_slope, project_floats, tangent_floats
+from tactex.ergodic.guidance import PASS_REACH, REPAIR_RADIUS, REPAIR_STEPS, SPECK_POINTS, PassGuidance
+from tactex.ergodic.hedac_step import EDGE_OFFSET, WHOLE, HedacStep
+from tactex.ergodic.hops import Hops
+from tactex.ergodic.keep_out import KEEP_OUT_MARGIN, KeepOut
 from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
+from tactex.ergodic.multi_agent import MultiAgent
 from tactex.ergodic.passes import RingPasses
-from tactex.ergodic.relocation import ProgressMonitor, RelocationCommand, air_length, choose_touch_down
-from tactex.ergodic.source import REBUILD_STEPS, SourceSums, update_source_numpy
+from tactex.ergodic.relocation import STALL_SAMPLE_EVERY, ProgressMonitor, Relocating, RelocationCommand
+from tactex.ergodic.source import REBUILD_STEPS, SourceSums
+from tactex.ergodic.surface_fit import plane_slope_checked, project_local, tangent_basis
 from tactex.ergodic.sweep import SweepSource, sweeps
 from tactex.errors import ConfigError, ExplorationError, InputError
-from tactex.geometry.fit import SurfacePatch, fit_local_design, fit_sphere_or_plane
+from tactex.geometry.fit import fit_sphere_or_plane
 from tactex.pointcloud import SurfaceCloud
 
-__all__ = ["HedacExplorer"]
+# The explorer's own names, and its parts' constants importable from here too (their home is the part).
+__all__ = ["EDGE_OFFSET", "KEEP_OUT_MARGIN", "PASS_REACH", "REBUILD_STEPS", "REPAIR_RADIUS", "REPAIR_STEPS",
+           "SPECK_POINTS", "Exploration", "HedacExplorer", "explore"]
 
-_log = logging.getLogger(__name__)
-#: The patch kinds :func:`~tactex.ergodic.kernel.project_floats` takes, by its code.
-_PATCH_KINDS = {"sphere": 0, "plane": 1}
+_project_local = project_local
+_plane_slope = plane_slope_checked
 _Z = np.array([0.0, 0.0, 1.0])
-# ndarray.dot and the ufunc reductions dispatch in a fraction of @ / np.dot / ndarray.sum's time on
-# these tiny arrays (the step is ~130 numpy calls, their overhead is most of its cost), same results.
-_sum = np.add.reduce
-_min = np.minimum.reduce
-if CUBIC_EXPONENTS != ((0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)):
-    raise RuntimeError("the explorer's in-place monomials assume gradient.CUBIC_EXPONENTS' order")
-# Column picks of the in-place monomials: (u, v) → (u·u, u·v, v·v) → (u²·u, u²·v, v²·u, v²·v).
-_QUAD_A, _QUAD_B = np.array([0, 0, 1]), np.array([0, 1, 1])
-_CUBE_A, _CUBE_B = np.array([0, 0, 2, 2]), np.array([0, 1, 0, 1])
-#: Tangential offset of the neighbours' centroid (in neighbourhood radii) that marks a scan edge:
-#: ≈ 0 inside a uniformly sampled surface, ≈ 0.42 on a straight edge (half-disc centroid 4/(3π)).
-EDGE_OFFSET = 0.25
-#: Steps between the samples of the agent's position for the stall rule (a multiple of them is a
-#: stall: an agent sampled inside the stall circle every time), and between the checks of the untouched
-#: target (part done, no progress) of the relocation rules: a few µs each, not paid every step.
-STALL_SAMPLE_EVERY = 5
-RELOCATION_CHECK_EVERY = 10
-#: On a pass, untouched target points within this many footprint radii of the agent that the passes walked past
-#: and none to come covers are touched at once (see HedacExplorer._missed) [-]: nearly all the points the passes
-#: leave lie within 1.0–1.5 r_a of the agent's path (TEC bunny), their neighbouring passes being 1.8 r_a apart.
-REPAIR_RADIUS = 2.0
-#: A part of at most this many footprint discs of points is a speck, touched in passing (see _speck) [-].
-SPECK_POINTS = 1.0
-#: Steps an agent steers at one such point before it leaves it to the hunt [-].
-REPAIR_STEPS = 6
-#: A keep-out zone's clearance beyond the footprint radius [voxels]: the footprint is laid around the
-#: agent projected on its fitted patch, a fraction of a voxel from the agent point the guard checks.
-KEEP_OUT_MARGIN = 0.5
-#: A planned pass's waypoint is given up when the scan edge leaves less than this share of the way to it [-].
-EDGE_BLOCKED = 0.2
-#: A planned pass's waypoint is done once the agent came this close [voxels] (see :mod:`.passes`): the agent goes on
-#: along its pass instead of working its way onto each waypoint (at the scan's rim, where it dithers at the off-cloud
-#: limit, it cannot); what the footprint then leaves beside the pass it steps aside to.
-PASS_REACH = 2.5
-#: Passes of a step (see step_all): one agent does all of it; several agents lay their footprints
-#: first, then (after one diffusion) move.
-_WHOLE, _FOOTPRINT, _MOVE = 0, 1, 2
 
 
 def _read_only(a: np.ndarray) -> np.ndarray:
@@ -133,56 +98,7 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return view
 
 
-def _tangent_matrix(n: np.ndarray | tuple) -> np.ndarray:
-    """(3, 2) orthonormal tangent basis [t_u, t_v] with (t_u, t_v, n) right-handed (n an array or 3 floats)."""
-    return _tangent_matrix_0uv(n)[:, 1:]
-
-
-def _tangent_matrix_0uv(n: np.ndarray | tuple) -> np.ndarray:
-    """(3, 3) [0, t_u, t_v]: :func:`_tangent_matrix` after a zero column (offsets · it = rows (0, u, v))."""
-    a0, a1, a2, b0, b1, b2 = tangent_floats(*(n if isinstance(n, tuple) else n.tolist()))
-    return np.array([[0.0, a0, b0], [0.0, a1, b1], [0.0, a2, b2]])
-
-
-def _tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    t = _tangent_matrix(n)
-    return t[:, 0].copy(), t[:, 1].copy()
-
-
-def _plane_slope(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float,
-                 b0: float, b1: float, b2: float) -> tuple[float, float] | None:
-    """:func:`~tactex.ergodic.kernel.plane_slope` (c_u, c_v), or None when the block is not positive
-    definite (collinear points)."""
-    ok, c_u, c_v = plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2, PLANE_PIVOT_RTOL)
-    return (c_u, c_v) if ok else None
-
-
-def _project_floats(patch: SurfacePatch, x: tuple, ref: tuple) -> tuple[tuple, tuple]:
-    """:func:`_project_local` on Python floats: x and ref are 3-tuples, so are the point and normal.
-
-    Sphere and plane (the per-step cases) in Python floats (:func:`~tactex.ergodic.kernel.project_floats`,
-    which the compiled step shares): three numbers do not pay numpy's per-call overhead; the other
-    kinds, and a point at a sphere's centre, go through :meth:`SurfacePatch.project`.
-    """
-    kind = _PATCH_KINDS.get(patch.kind)
-    if kind is not None:
-        ok, p0, p1, p2, n0, n1, n2 = project_floats(
-            kind, *patch.center.tolist(), patch.radius, *patch.direction.tolist(), *x, *ref
-        )
-        if ok:
-            return (p0, p1, p2), (n0, n1, n2)
-    refa = np.array(ref)
-    p, n = patch.project(np.array(x), refa)
-    return tuple(p.tolist()), tuple((n if float(n @ refa) >= 0.0 else -n).tolist())
-
-
-def _project_local(patch: SurfacePatch, x: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest point of the patch to x and the unit normal there, oriented along ``ref``."""
-    p, n = _project_floats(patch, tuple(x.tolist()), tuple(ref.tolist()))
-    return np.array(p), np.array(n)
-
-
-class HedacExplorer:
+class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAgent):
     """Spectral HEDAC on a :class:`SurfaceCloud` with a Laplace eigenbasis.
 
     Args:
@@ -198,6 +114,12 @@ class HedacExplorer:
     Relocation (``config.relocate``, :mod:`.relocation`): when walking makes no progress, ``step``
     returns a :class:`~tactex.ergodic.relocation.RelocationCommand` (lift off, fly, touch down)
     instead of an :class:`ExplorationCommand`, and the agent jumps to the touch-down point.
+
+    The explorer is assembled from its parts, one file each: the walking step (:mod:`.hedac_step`, with
+    the compiled twin :mod:`.compiled_step`), the guidance along planned passes (:mod:`.guidance`), hops
+    across scan holes (:mod:`.hops`), relocation (:mod:`.relocation`), keep-out zones (:mod:`.keep_out`)
+    and the team step (:mod:`.multi_agent`); this class holds the state they share and the public face.
+    For one run from one start, :func:`explore` does it all in one call.
     """
 
     def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None,
@@ -237,10 +159,10 @@ class HedacExplorer:
         self._dt = cfg.step_duration_s
         self._v_max = cfg.max_velocity * self.spacing / self._dt
         self._step_max = cfg.max_velocity * self.spacing
-        self._snap = cfg.max_snap_distance * self.spacing
+        self._snap = cfg.max_snap_distance_voxels * self.spacing
         self._r_a2 = self._r_a**2
-        self._off2 = (cfg.max_off_cloud * self.spacing) ** 2
-        self._off = cfg.max_off_cloud * self.spacing
+        self._off2 = (cfg.max_off_cloud_voxels * self.spacing) ** 2
+        self._off = cfg.max_off_cloud_voxels * self.spacing
         self._source_w = float(cfg.source_weight)
         self._norm_target = cfg.coverage_normalization == "target"
         self._edge_braking = cfg.edge_braking
@@ -260,8 +182,8 @@ class HedacExplorer:
         self._w_q, self._w_sq = self._w[:, :3], self._w[:, 4]
         self._build_neighbourhoods()
         laplacian = getattr(basis, "L", None)  # a duck-typed basis without it: no hops
-        self._bridge_max2 = (cfg.max_bridge * self.spacing) ** 2
-        self._gaps = gap_links(self._points, laplacian, self._tree, self._off, cfg.max_bridge * self.spacing)
+        self._bridge_max2 = (cfg.max_bridge_voxels * self.spacing) ** 2
+        self._gaps = gap_links(self._points, laplacian, self._tree, self._off, cfg.max_bridge_voxels * self.spacing)
         self._bridges: list[Bridge | None] = []
         self._near = np.zeros(0, dtype=np.intp)
         self._rng = np.random.default_rng(cfg.seed)
@@ -270,28 +192,27 @@ class HedacExplorer:
         self._decay_alpha = np.nan
         self._decay = np.ones(k)
         self._set_target(cloud.target)
-        self._kernel_out = np.empty(_kernel.OUT_SIZE)
-        self._kernel_prm = _kernel.params(
+        self._compiled_out = np.empty(compiled_step.OUT_SIZE)
+        self._compiled_prm = compiled_step.params(
             agent_radius_m=self._r_a, eps2=self._eps2, source_weight=self._source_w,
             max_acceleration=cfg.max_acceleration * self.spacing / self._dt**2, max_velocity=self._v_max,
             max_step_m=self._step_max, dt=self._dt, max_off_m=self._off, edge_offset=EDGE_OFFSET,
             normalize_by_target=self._norm_target, order=cfg.order, edge_braking=cfg.edge_braking,
         )
         # The compiled step forms eq. 1–2's source itself: the sweep source runs the numpy step.
-        self._walk_kernel = self._compile_kernel() if cfg.compiled and self._sweep is None else None
+        self._walk_compiled = self._compile_step() if cfg.compiled and self._sweep is None else None
         self._agents: list[Agent] = []
         self._x = np.zeros((0, 3))
         self._nrm_t: list[tuple] = []  # each agent's unit normal as a float triple (the step reads these)
         self.step_count = 0
         self.bridges_taken = 0
-        self._pass = _WHOLE
-        self.compiled_steps = 0  # agent steps the compiled kernel took (the rest ran in numpy)
+        self._pass = WHOLE
+        self.compiled_steps = 0  # agent steps the compiled step took (the rest ran in numpy)
         self._monitors: list[ProgressMonitor] = []
         self._relocating = cfg.relocate
         self.relocations: list[RelocationCommand] = []
         self.air_path_lengths = np.zeros(0)
 
-    # ------------------------------------------------------------------ parts and keep-out zones
     @staticmethod
     def _part_labels(basis, n: int) -> np.ndarray:
         """Connected part (N,) of each point as the basis' Laplacian links them (all 0 without one)."""
@@ -299,60 +220,6 @@ class HedacExplorer:
             return np.asarray(basis.component_labels(), dtype=np.intp)
         return np.zeros(n, dtype=np.intp)
 
-    def _set_keep_out(self, keep_out: np.ndarray | None) -> None:
-        n = len(self.cloud)
-        if keep_out is None:
-            mask = np.zeros(n, dtype=bool)
-        else:
-            mask = np.asarray(keep_out)
-            if mask.shape != (n,) or mask.dtype != bool:
-                raise InputError(f"keep_out must be a boolean mask of shape ({n},) (one per cloud point), "
-                                 f"got {mask.dtype} {mask.shape}")
-            mask = mask.copy()
-        if mask.all():
-            raise InputError("the keep-out zone marks every cloud point: nothing may be touched; mark fewer points "
-                             "(--keep-out-threshold, --keep-out-mask)")
-        self._keep_out = mask
-        self._ko_idx = np.flatnonzero(mask)
-        self._ko_clear = self._r_a + KEEP_OUT_MARGIN * self.spacing
-        if self._ko_idx.size:
-            self._ko_tree = cKDTree(self._points[self._ko_idx])
-            self._ko_dist = self._ko_tree.query(self._points)[0]
-        else:
-            self._ko_tree = None
-            self._ko_dist = np.full(n, np.inf)
-        # Agent points near cloud point j are surely clear when j is this much farther than the
-        # clearance: the agent is at most a step plus max_off_cloud from its nearest point.
-        self._ko_sure = self._ko_clear + 2.0 * (self._step_max + self._off) + self.spacing
-        self._safe = self._ko_dist >= self._ko_clear
-
-    @property
-    def keep_out(self) -> np.ndarray:
-        """The kept-out cloud points (N,) (bool)."""
-        return self._keep_out.copy()
-
-    @property
-    def clear_points(self) -> np.ndarray:
-        """Cloud points (N,) (bool) an agent may stand on: at least r_a + ½ voxel from every kept-out point."""
-        return self._safe.copy()
-
-    @property
-    def keep_out_clearance_m(self) -> float:
-        """Least distance [m] between the agent and a kept-out point: footprint radius + ½ voxel."""
-        return self._ko_clear
-
-    @property
-    def keep_out_contacts(self) -> int:
-        """Kept-out cloud points inside a footprint so far (0 unless something is wrong)."""
-        self._require_state()
-        return int(np.count_nonzero(self._cov.take(self._ko_idx) > 0.0)) if self._ko_idx.size else 0
-
-    def _clear_of_keep_out(self, x: np.ndarray, near: int) -> bool:
-        if self._ko_tree is None or self._ko_dist.item(near) >= self._ko_sure:
-            return True
-        return float(self._ko_tree.query(x)[0]) >= self._ko_clear
-
-    # ------------------------------------------------------------------ target and state
     def _set_target(self, mass: np.ndarray) -> None:
         p = np.asarray(mass, dtype=np.float64)
         if p.shape != (len(self.cloud),):
@@ -412,28 +279,11 @@ class HedacExplorer:
             self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
                                       PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe,
                                       origin=cfg.sweep_pass_origin, footprint_m=self._r_a, hops=self._target_hops())
-        if hasattr(self, "_walk_kernel"):  # a new target may switch a running explorer between the sources
+        if hasattr(self, "_walk_compiled"):  # a new target may switch a running explorer between the sources
             if sweep:
-                self._walk_kernel = None
-            elif cfg.compiled and self._walk_kernel is None:
-                self._walk_kernel = self._compile_kernel()
-
-    def _target_hops(self) -> coo_matrix | None:
-        """The gap links (hops, :mod:`.bridges`) between target points clear of the keep-out zones, as a (T, T) matrix
-        of target positions, or None without any."""
-        g = self._gaps
-        if not g.n_links:
-            return None
-        src = np.repeat(np.arange(len(self._points)), np.diff(g.ptr))
-        a, b = self._tpos[src], self._tpos[g.far]
-        ok = (a >= 0) & (b >= 0)
-        a, b = a[ok], b[ok]
-        ok = self._t_safe[a] & self._t_safe[b]
-        a, b = a[ok], b[ok]
-        if a.size == 0:
-            return None
-        t = self._tidx.size
-        return coo_matrix((np.ones(a.size), (a, b)), shape=(t, t))
+                self._walk_compiled = None
+            elif cfg.compiled and self._walk_compiled is None:
+                self._walk_compiled = self._compile_step()
 
     def _reset_fields(self) -> None:
         n = len(self.cloud)
@@ -489,10 +339,10 @@ class HedacExplorer:
             nb = self._tree.query(xi, k=self.config.n_neighbors_fit)[1]
             self._near[i] = int(nb[0])
             patch = fit_sphere_or_plane(self._points[nb], validate=False)
-            p, nrm = _project_local(patch, xi, self._initial_normal(xi))
+            p, nrm = project_local(patch, xi, self._initial_normal(xi))
             self._x[i] = p
             self._nrm_t[i] = tuple(nrm.tolist())
-            t1, t2 = _tangent_basis(nrm)
+            t1, t2 = tangent_basis(nrm)
             out.append(ExplorationCommand(p.copy(), np.zeros(3), nrm.copy(), t1, t2, 0, i))
         if not cfg.relocate:
             for i, p in enumerate(self._x):
@@ -503,7 +353,8 @@ class HedacExplorer:
                         "it (relocation is off: HedacConfig.relocate)"
                     )
         self._monitors = [
-            ProgressMonitor(p, 0, cfg.stall_radius * self.spacing, cfg.stall_steps, cfg.progress_steps) for p in self._x
+            ProgressMonitor(p, 0, cfg.stall_radius_voxels * self.spacing, cfg.stall_steps, cfg.progress_steps)
+            for p in self._x
         ]
         return out
 
@@ -518,8 +369,9 @@ class HedacExplorer:
         if d > self._snap:
             raise ExplorationError(
                 f"{name} = {np.round(x, 4).tolist()} m is {d * 1e3:.1f} mm from the nearest cloud point, farther "
-                f"than max_snap_distance = {self.config.max_snap_distance:g} voxels ({self._snap * 1e3:.1f} mm); "
-                "start on (or just above) the surface, or raise HedacConfig.max_snap_distance"
+                f"than max_snap_distance_voxels = {self.config.max_snap_distance_voxels:g} "
+                f"({self._snap * 1e3:.1f} mm); "
+                "start on (or just above) the surface, or raise HedacConfig.max_snap_distance_voxels"
             )
         return d
 
@@ -531,15 +383,14 @@ class HedacExplorer:
         keeps the accumulated coverage and the diffused potential.
         """
         self._set_target(mass)
-        # A hop in progress goes on to the far side of its hole: dropped, it left the agent mid-air,
-        # up to 2.7 voxels off the cloud and walking from a neighbourhood that held 5 of its 20 points.
+        # A hop in progress goes on to the far side of its hole: dropped, it would leave the agent mid-air,
+        # off the cloud, walking from a neighbourhood that holds few of its points.
         if not keep_coverage or not hasattr(self, "_cov"):
             if self._agents:
                 self._reset_fields()
         else:
             self._s_ext[:] = 0.0
 
-    # ------------------------------------------------------------------ stepping
     @property
     def source_mode(self) -> str:
         """The source term in use: 'sweep' (:mod:`.sweep`) or 'ergodic' (eq. 1–2); HedacConfig.source_mode
@@ -553,11 +404,12 @@ class HedacExplorer:
 
     @property
     def compiled(self) -> bool:
-        """Whether the walking steps run compiled (numba, :mod:`.kernel`) rather than in numpy."""
-        return self._walk_kernel is not None
+        """Whether the walking steps run compiled (numba, :mod:`.compiled_step`) rather than in numpy."""
+        return self._walk_compiled is not None
 
     @property
     def n_agents(self) -> int:
+        """Agents running (0 before reset)."""
         return len(self._agents)
 
     def step(self, measured_position: np.ndarray | None = None) -> ExplorationCommand:
@@ -597,21 +449,7 @@ class HedacExplorer:
         elif self.n_agents == 1:
             cmds = [self._step_agent(0, exact)]
         else:
-            # Eq. 3 and 19 with several agents: every footprint of this step in the coverage first, one
-            # source and one diffusion, then each agent follows that potential. (Stepping the agents one
-            # after the other diffused the potential once per agent.) The compiled step walks one agent
-            # at a time and is not used here.
-            near = self._near.copy()
-            self._pass = _FOOTPRINT
-            try:
-                for i in range(self.n_agents):
-                    self._step_agent(i, exact)
-                self._update_potential()
-                self._near[:] = near  # the move pass starts from the same neighbourhoods
-                self._pass = _MOVE
-                cmds = [self._step_agent(i, exact) for i in range(self.n_agents)]
-            finally:
-                self._pass = _WHOLE
+            cmds = self._step_together(list(range(self.n_agents)), exact)  # eq. 3 and 19 with a team
         if before is not None:
             cmds = [c if isinstance(c, RelocationCommand) else self._keep_out_guard(c, before[c.agent]) for c in cmds]
         if self._sweep is not None:
@@ -622,736 +460,6 @@ class HedacExplorer:
         self.step_count += 1
         return cmds
 
-    # ------------------------------------------------------------------ relocation (lift-and-move)
-    def _untouched(self) -> np.ndarray:
-        """Per target point, True when no footprint has touched it yet and one may (clear of keep-out)."""
-        return (self._cov.take(self._tidx) < self._p_t) & self._t_safe
-
-    def _relocation_due(self, i: int) -> str | None:
-        """Why agent i should relocate now (a :data:`~.relocation.RELOCATION_REASONS` entry), or None."""
-        if self._bridges[i] is not None:
-            return None
-        mon = self._monitors[i]
-        k = self.step_count
-        mon.moved_to(self._x[i], k)
-        if self._ko_tree is not None and not self._clear_of_keep_out(self._x[i], int(self._near[i])):
-            return "keep_out"
-        stalled = mon.stalled(k)
-        if not stalled and k % RELOCATION_CHECK_EVERY:
-            return None
-        untouched = self._untouched()
-        count = int(np.count_nonzero(untouched))
-        if count == 0:
-            mon.restart(self._x[i], k, 0)  # nothing left to touch: HEDAC goes on revisiting in place
-            return None
-        if stalled:
-            return "stall"
-        part = self._labels.item(int(self._near[i]))
-        if not (untouched & (self._t_part == part)).any():
-            return "part_done"
-        if self.planned_passes and not self._walkable_left(untouched):
-            return "part_done"  # what is left of the part lies across a gap the agent may not walk
-        if mon.no_progress(count, k):
-            return "no_progress"
-        return None
-
-    def _walkable_left(self, untouched: np.ndarray) -> bool:
-        """Whether untouched target (T,) (bool) is left that the agent may walk to: on its part of the passes'
-        graph (links ≤ 2 voxels, see :mod:`.passes`) and not given up (it stalled on the way, or the way led off
-        a scan edge). A speck across a wider gap, e.g. a few scan points hanging below a rim, is reached by
-        relocating."""
-        j = self._tpos.item(self._near[0])
-        if j < 0:
-            return True  # off the target: the potential leads there
-        return self._passes.touchable(j, untouched & ~self._given_up, self._r_a)
-
-    def _step_with_relocations(self, moves: list[str | None], exact: bool) -> list:
-        """One step in which some agents relocate; the others (and those with nowhere to go) walk."""
-        out: list = [self._relocate(i, m) if m is not None else None for i, m in enumerate(moves)]
-        walking = [i for i, c in enumerate(out) if c is None]
-        if len(walking) == 1:
-            out[walking[0]] = self._step_agent(walking[0], exact)
-        elif walking:
-            near = self._near.copy()
-            self._pass = _FOOTPRINT
-            try:
-                for i in walking:
-                    self._step_agent(i, exact)
-                self._update_potential()
-                self._near[:] = near
-                self._pass = _MOVE
-                for i in walking:
-                    out[i] = self._step_agent(i, exact)
-            finally:
-                self._pass = _WHOLE
-        return out
-
-    def _relocate(self, i: int, reason: str) -> RelocationCommand | None:
-        """Agent i lifts off, flies to the chosen untouched target and lands there at rest."""
-        untouched = self._untouched()
-        cand = self._tidx[untouched]
-        x = self._x[i].copy()
-        j = self._next_on_tour(i) if reason == "stall" else None
-        on_tour = j is not None
-        if j is None and reason == "stall" and self.planned_passes:
-            # A stall in the hunt touches down where the walks and hops from here still reach target: that side is
-            # finished before the flight to a part they do not reach, which is then the only one left (else the
-            # flight lands there, and another brings the agent back for the rest).
-            same = self._passes.reach_mask(self._tpos.item(self._near[i]), untouched & ~self._given_up)
-            if same.any():
-                j = choose_touch_down(self._points, self._tidx[same], self._p_t[same], x, self._r_a)
-        if j is None:
-            j = choose_touch_down(self._points, cand, self._p_t[untouched], x, self._r_a)
-        mon = self._monitors[i]
-        if j is None:
-            mon.restart(x, self.step_count, 0)
-            return None
-        end = self._points[j].copy()
-        n_end = self._touch_down_normal(j, np.array(self._nrm_t[i]))
-        n_start = np.array(self._nrm_t[i])
-        c = self.config.relocation_clearance_m
-        air = air_length(x, n_start, end, n_end, c)
-        self._x[i] = end
-        self._nrm_t[i] = tuple(n_end.tolist())
-        self._near[i] = j
-        self._agents[i].velocity = np.zeros(3)
-        self.air_path_lengths[i] += air
-        if self._passes is not None:
-            self._passes.drop_goal(abandon=reason == "stall", replan=not on_tour)
-            if reason == "stall" and self._leftover_goal >= 0:
-                self._given_up[self._leftover_goal] = True  # it stalled on the way: not a goal again
-            self._leftover_goal = -1
-        mon.restart(end, self.step_count, None)
-        t1, t2 = _tangent_basis(n_end)
-        cmd = RelocationCommand(end.copy(), np.zeros(3), n_end, t1, t2, self.step_count, i, x, n_start, c, air, reason)
-        self.relocations.append(cmd)
-        _log.info("agent %d relocates (%s) from %s to %s m, %.3f m through the air", i, reason,
-                  np.round(x, 4).tolist(), np.round(end, 4).tolist(), air)
-        return cmd
-
-    def _next_on_tour(self, i: int) -> int | None:
-        """Where a guided agent that stalled touches down: its tour's next waypoint past the one it stalled on
-        (cloud index), if that is untouched (it hops the obstacle and goes on with the plan); else None."""
-        if not self.planned_passes:
-            return None
-        t = self._tpos.item(self._near[i])
-        if t < 0:
-            return None
-        passes = self._passes
-        passes.drop_goal(abandon=True)
-        g = passes.next_pending(t)
-        while g >= 0 and self._cov.item(self._tidx.item(g)) >= self._p_t.item(g):
-            passes.pending[g] = False  # touched already: a footprint passed over it
-            g = passes.next_pending(t)
-        return None if g < 0 else int(self._tidx.item(g))
-
-    def _touch_down_normal(self, j: int, current: np.ndarray) -> np.ndarray:
-        """Unit outward normal at cloud point j: the fitted patch's, oriented along the cloud's own normal
-        when it has normals, else away from the cloud's centroid (a closed object) or, where that is
-        ambiguous (an open sheet seen edge-on from its centroid), along the agent's current normal."""
-        end = self._points[j]
-        nb = self._tree.query(end, k=self._n_n)[1]
-        if self.cloud.normals is not None:
-            ref = self.cloud.normals[j]
-        else:
-            ref = current
-            radial = end - self._points.mean(axis=0)
-            rn = float(np.sqrt(radial @ radial))
-            if rn > 0.0:
-                _, probe = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, radial / rn)
-                if abs(float(probe @ radial)) > 0.3 * rn:
-                    ref = radial / rn
-        _, n = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, ref)
-        return n
-
-    def _keep_out_guard(self, cmd: ExplorationCommand, x_old: np.ndarray) -> ExplorationCommand:
-        """The step of cmd, kept clear of the keep-out zones: slid along the zone (its part towards the
-        nearest kept-out point dropped), or not taken at all (the agent stops; a stop is a stall)."""
-        i = cmd.agent
-        x_new = cmd.point
-        if self._clear_of_keep_out(x_new, int(self._near[i])):
-            return cmd
-        self._bridges[i] = None  # a hop towards a keep-out zone ends here
-        _, q = self._ko_tree.query(x_new)
-        away = x_old - self._points[self._ko_idx[q]]
-        na = float(np.sqrt(away @ away))
-        move = x_new - x_old
-        step_old = float(np.sqrt(move @ move))
-        x_fix = x_old.copy()
-        if na > 0.0:
-            away /= na
-            slid = move - min(float(move @ away), 0.0) * away
-            if self._clear_of_keep_out(x_old + slid, int(self._near[i])) and \
-                    float(self._ko_tree.query(x_old + slid)[0]) >= self._ko_clear:
-                x_fix = x_old + slid
-        move = x_fix - x_old
-        step = float(np.sqrt(move @ move))
-        self.path_lengths[i] += step - step_old
-        v = move * (1.0 / self._dt)
-        v -= float(v @ cmd.normal) * cmd.normal
-        self._agents[i].velocity = v
-        self._x[i] = x_fix
-        self._near[i] = int(self._tree.query(x_fix)[1])
-        return cmd._replace(point=x_fix.copy(), velocity=v.copy())
-
-    def _update_decay(self) -> None:
-        alpha = self.config.alpha_at(self.step_count)
-        if alpha != self._decay_alpha:
-            # e^{−(λ δt + β)}: eq. 19's diffusion and the cooling β of u̇ = αh²Δu − βu + s per step (eq. 4's −u)
-            self._decay = np.exp(-(self._evals * (alpha * self.spacing**2) + self.config.cooling))
-            self._decay_alpha = alpha
-
-    def _build_neighbourhoods(self) -> None:
-        """Per cloud point j, the indices within R_j = max(r_a, d_j,n_N) + (2 + v_max)·h.
-
-        The agent is at most (1 + v_max)·h from the point nearest to it one step earlier, so the
-        ball of that point holds every cloud point within max(r_a, kNN radius) + h of the agent:
-        the footprint and the n_N nearest neighbours come from one small distance computation
-        instead of two K-D tree queries per step.
-        """
-        cfg = self.config
-        h = self.spacing
-        dk = self._tree.query(self._points, k=cfg.n_neighbors_fit)[0][:, -1]
-        radius = np.maximum(self._r_a, dk) + (2.0 + cfg.max_velocity) * h
-        self._ball = [np.asarray(b, dtype=np.intp) for b in self._tree.query_ball_point(self._points, radius)]
-
-    def _candidates(self, i: int, x: np.ndarray, exact: bool) -> np.ndarray:
-        if not exact:
-            return self._ball[self._near[i]]
-        d, j = self._tree.query(x)
-        self._near[i] = int(j)
-        if d <= self.spacing:
-            return self._ball[int(j)]
-        # Off the surface (a measured position): gather the footprint and the kNN directly.
-        knn = self._tree.query(x, k=self.config.n_neighbors_fit)[1]
-        ball = self._tree.query_ball_point(x, self._r_a + float(d))
-        return np.union1d(knn, np.asarray(ball, dtype=np.intp))
-
-    def _step_agent(self, i: int, exact: bool) -> ExplorationCommand:
-        # The per-step hot path: every line is a few µs, so vector algebra reuses the squared
-        # distances dd instead of recomputing them (|d − s|² = dd − 2 d·s + |s|²).
-        if self._bridges[i] is not None:
-            return self._bridge_step(i)
-        x = self._x[i]
-        cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
-        if self._walk_kernel is not None and self._pass == _WHOLE:
-            cmd = self._compiled_step(i, x, cand)
-            if cmd is not None:
-                return cmd
-        pts = self._points
-        n_n = self._n_n
-        d = pts.take(cand, 0)  # take, not fancy indexing: same values, a fraction of the dispatch
-        d -= x
-        sx, sy, sz = (d * d).T
-        dd = sx + sz  # the order of np.einsum("ij,ij->i", d, d), bit for bit
-        dd += sy
-        self._near[i] = cand.item(dd.argmin())
-        part = dd.argpartition(self._n_n1)[:n_n]
-        nbr = cand.take(part)
-        dd_n = dd.take(part)
-        scale2 = max(dd_n.tolist())  # exact: no rounding in a max
-        scale = scale2**0.5 if scale2 > 0.0 else self.spacing
-        inv = 1.0 / scale
-
-        # Sphere/plane fit around the agent (eq. 23–26) in agent-centred, scaled coordinates.
-        dk = d.take(part, 0)
-        # The fit's design rows (q, −1, −½|q|²), q = dk·inv, in the preallocated buffer
-        # (−½·(dd·inv²) = dd·(−½·inv²) exactly: a factor ½ only shifts the exponent).
-        np.multiply(dk, inv, self._w_q)
-        np.multiply(dd_n, -0.5 * (inv * inv), self._w_sq)
-        patch = fit_local_design(self._w)
-        (p0, p1, p2), nt = _project_floats(patch, (0.0, 0.0, 0.0), self._nrm_t[i])
-        sf = (p0 * scale, p1 * scale, p2 * scale)  # the projected agent, agent-centred [m]
-        shift, nrm = np.array(sf), np.array(nt)
-
-        # Every candidate on the tangent plane at the projected agent (eq. 31), and the kernel
-        # φ(r) = exp(−ε² r²) of eq. 30 there: the footprint is φ inside r_a (3D distance, so the
-        # far side of a thin wall stays out), the raw source's plane fit weighs the whole ball by it.
-        tb0 = _tangent_matrix_0uv(nt)
-        tb = tb0[:, 1:]
-        rel = d - shift
-        g1uv = rel.dot(tb0)  # rows (0, u, v) [m]; column 0 becomes 1 below
-        rel *= rel
-        d2 = _sum(rel, 1)
-        kern = g1uv * g1uv
-        kern = _sum(kern, 1)
-        kern *= -self._eps2
-        np.exp(kern, kern)
-        g1uv[:, 0] = 1.0
-        tuv = g1uv[:, 1:]
-        inside = (d2 <= self._r_a2).nonzero()[0]
-        fp = cand.take(inside)
-        phi = kern.take(inside)
-        if self._pass != _MOVE:
-            self._add_coverage(fp, phi)
-            if self._pass == _FOOTPRINT:
-                return None
-            self._update_potential()
-        u = self._phi.take(nbr, 0).dot(self._coef)
-
-        # Gradient on the tangent plane (eq. 32–33): weighted cubic in scaled (u, v).
-        uv = tuv.take(part, 0)
-        uv *= inv
-        self._xf_lin[...] = uv  # uv stays contiguous: the reductions and products below are cheaper on it
-        # Monomials of CUBIC_EXPONENTS in place, a block of columns per call (the same products:
-        # u·u, u·v, v·v, then u²·u, u²·v, v²·u, v²·v).
-        xf = self._xf
-        xq = self._xf_quad
-        np.multiply(uv.take(_QUAD_A, 1), uv.take(_QUAD_B, 1), xq)
-        np.multiply(xq.take(_CUBE_A, 1), uv.take(_CUBE_B, 1), self._xf_cube)
-        w = self._wt
-        np.add(self._xf_uu, self._xf_vv, w)
-        w *= -self._eps2 * scale2
-        np.exp(w, w)  # eq. 33: φ(r) on the tangent plane
-        np.multiply(xf, self._wt_col, self._xw)
-        xwt = self._xwt
-        a = xwt.dot(xf, self._a)
-        self._a_diag += RIDGE_RTOL * a.item(0) + 1e-300
-        u0 = u.item(0)
-        u -= u0
-        _, c, info = _dposv(a, xwt.dot(u), 0, 0, 1)  # overwrite_b
-        if info == 0:
-            slope_uv = c[1:3]  # the cubic's linear coefficients: its slope at the agent
-            if self._source_w > 0.0:
-                slope = self._source_slope(cand, g1uv, d2)
-                if slope is not None:  # [1/m] → per scaled unit: × scale
-                    c1, c2 = slope_uv.tolist()
-                    k = self._source_w * scale
-                    slope_uv = np.array((c1 + k * slope[0], c2 + k * slope[1]))
-            g = tb.dot(slope_uv)
-        else:
-            g = np.zeros(3)
-        guide = None
-        if self._passes is not None and self._pass == _WHOLE and self.n_agents == 1:
-            guide = self._pass_direction(x, sf, nrm)
-            if self._hop_to >= 0:
-                here = np.array((x.item(0) + sf[0], x.item(1) + sf[1], x.item(2) + sf[2]))
-                bridge = self._hop_bridge(self._hop_to, here, nrm)
-                self._hop_to = -1
-                if bridge is not None:
-                    self._bridges[i] = bridge
-                    return self._bridge_move(i, x, bridge)
-                self._given_up[self._hop_goal] = True  # the hop's far side faces away: not a goal again
-                guide = None
-            if guide is not None:
-                g = guide
-        # At a scan edge (neighbours' centroid well inside) the Neumann boundary of eq. 5 allows no
-        # outward flux: drop the outward part of the gradient so the agent follows the edge.
-        cu, cv = _sum(uv, 0).tolist()  # n_n × the neighbours' centroid in (u, v) [radii]
-        cn = (cu * cu + cv * cv) ** 0.5
-        inward = None
-        if cn > EDGE_OFFSET * n_n:
-            # A hop follows the potential; an agent on a planned pass follows its waypoints and does not hop.
-            if guide is None and self._gaps.n_links and self._gaps.has.take(nbr).any():
-                here = np.array((x.item(0) + sf[0], x.item(1) + sf[1], x.item(2) + sf[2]))
-                bridge = self._plan_bridge(nbr, u, u0, here, nrm)
-                if bridge is not None:
-                    self._bridges[i] = bridge
-                    return self._bridge_move(i, x, bridge)
-            inward = tb.dot(np.array((cu / cn, cv / cn)))
-            go = float(g.dot(inward))
-            if go < 0.0:
-                g = g - go * inward
-                if guide is not None and float(g.dot(g)) < EDGE_BLOCKED**2 * float(guide.dot(guide)):
-                    # the way leads off the edge (across a hole the agent cannot cross): give the goal up
-                    if not self._on_speck:
-                        self._passes.drop_goal(abandon=True)
-                    if self._leftover_goal >= 0:
-                        self._given_up[self._leftover_goal] = True
-                        self._leftover_goal = -1
-        g0, g1, g2 = g.tolist()
-        gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5  # np.dot's order for three numbers
-        if gn > 0.0 and gn < np.inf:
-            k = 1.0 / gn
-            direction = (g0 * k, g1 * k, g2 * k)
-        else:
-            r = self._rng.normal(size=2)
-            direction = tuple(tb.dot(r / float(np.hypot(r[0], r[1]))).tolist())
-
-        # Agent update, back onto the surface, within one voxel of the cloud, step ≤ v_max·dt.
-        agent = self._agents[i]
-        if inward is not None and self._edge_braking:  # at a scan edge: brake the outward motion first
-            direction = agent.edge_direction(direction, tuple(inward.tolist()), nt)
-        v = agent.command_velocity_floats(direction, nt)
-        step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
-        if dq2.item(k) > self._off2:
-            # Past the edge of the cloud (eq. 5's boundary): drop the outward part of the velocity so
-            # the agent slides along the edge, and stay within one voxel of the nearest point.
-            out = np.array(step) - d[k]
-            out -= float(out.dot(nrm)) * nrm
-            no = float(out.dot(out)) ** 0.5
-            if no > 0.0:
-                out *= 1.0 / no
-                va = np.array(v)
-                v = tuple((va - max(float(va.dot(out)), 0.0) * out).tolist())
-                step, n_new, ss, dq2, k = self._land(patch, sf, v, nt, scale, d, dd)
-            if dq2[k] > self._off2:
-                step = d[k] + (np.array(step) - d[k]) * (self._off / float(dq2[k]) ** 0.5)
-                ss = float(step.dot(step))
-        sl = ss**0.5
-        if sl > self._step_max:
-            step = np.array(step)
-            step *= self._step_max / sl
-            sl = self._step_max
-            # Shortening may cut a corner past the edge: halve until back within max_off_cloud.
-            # An agent right at the limit and pushed outward never gets back by halving (it would
-            # stand still for good): it steps halfway to its nearest cloud point instead.
-            for _ in range(5):
-                if float(_min(dd - 2.0 * d.dot(step) + float(step.dot(step)))) <= self._off2:
-                    break
-                step *= 0.5
-                sl *= 0.5
-            else:
-                j = int(dd.argmin())
-                dj = float(dd[j]) ** 0.5
-                step = d[j] * (0.5 * min(1.0, self._step_max / dj)) if dj > 0.0 else np.zeros(3)
-                sl = float(step.dot(step)) ** 0.5
-        # x + step, step / dt and the velocity's tangential part, in Python floats (the same operations).
-        s0, s1, s2 = step if isinstance(step, tuple) else step.tolist()
-        x0, x1, x2 = x.tolist()
-        m0, m1, m2 = n_new
-        idt = 1.0 / self._dt
-        v0, v1, v2 = s0 * idt, s1 * idt, s2 * idt
-        vn = v0 * m0 + v1 * m1 + v2 * m2
-        v_t = (v0 - vn * m0, v1 - vn * m1, v2 - vn * m2)
-        agent.velocity = np.array(v_t)
-        self.path_lengths[i] = self.path_lengths.item(i) + sl
-        self._nrm_t[i] = n_new
-        # the command's frame at the landing point: the tangent basis of its normal, the velocity's
-        # tangential part (the step is a chord)
-        u0, u1, u2, w0, w1, w2 = tangent_floats(m0, m1, m2)
-        x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
-        self._x[i] = x_new
-        return ExplorationCommand(x_new, np.array(v_t), n_new, np.array((u0, u1, u2)), np.array((w0, w1, w2)),
-                                  self.step_count, i)
-
-    def _pass_direction(self, x: np.ndarray, shift: tuple, nrm: np.ndarray) -> np.ndarray | None:
-        """Towards the next waypoint of the planned passes, on the tangent plane (3,), or None: no pass left
-        on the agent's part (the potential leads)."""
-        here = np.array((x.item(0) + shift[0], x.item(1) + shift[1], x.item(2) + shift[2]))
-        passes = self._passes
-        j = self._tpos.item(self._near[0])
-        near = j if j >= 0 else passes.nearest(here)
-        wp = passes.waypoint(here, near, self._untouched)
-        if wp is not None and passes.heading_far:
-            self._drop_speck()  # a speck is touched in passing, not on the way to a far arc
-        elif wp is None:
-            self._drop_speck()
-            wp = self._leftover(here)
-            if wp is None:
-                return None
-        else:
-            open_ = self._untouched() & ~self._given_up  # once per step: both look at it
-            speck = self._speck(here, near, open_)
-            if speck is not None:
-                wp = speck
-            else:
-                miss = self._missed(here, near, open_)
-                if miss is not None:
-                    wp = miss
-        to = wp - here
-        to -= float(to.dot(nrm)) * nrm
-        return to if float(to.dot(to)) > 0.0 else None
-
-    def _missed(self, here: np.ndarray, near: int, open_: np.ndarray | None = None) -> np.ndarray | None:
-        """On a pass: the nearest untouched target point [m] (3,) within ``REPAIR_RADIUS`` footprint radii of the agent
-        at ``here`` that the passes walked past and none to come covers (the agent's tracking error left it
-        at the footprint's edge), or None. The agent steps aside to touch it now, a detour of a fraction of a
-        footprint radius; the hunt after the passes would come back for it from afar. A point it steered at for
-        ``REPAIR_STEPS`` steps without touching it (across a fold, off an edge) is given up here and left to the
-        hunt. ``open_``: the untouched target not given up (T,) (bool), when the caller has it."""
-        if open_ is None:
-            open_ = self._untouched() & ~self._given_up
-        cand = open_ & ~self._repair_failed
-        passes = self._passes
-        for g in passes.missed(here, near, cand, REPAIR_RADIUS * self._r_a).tolist():
-            p = passes.point(g)
-            if float(np.linalg.norm(p - here)) < 0.5 * self._r_a:
-                continue  # under the footprint: touched as the agent goes on
-            n = self._repair_steps.get(g, 0) + 1
-            self._repair_steps[g] = n
-            if n > REPAIR_STEPS:
-                self._repair_failed[g] = True
-                continue
-            return p
-        return None
-
-    def _drop_speck(self) -> None:
-        """The agent no longer steers at a speck: its goal is not the hunt's."""
-        if self._on_speck:
-            self._on_speck = False
-            self._leftover_goal = -1
-
-    def _speck(self, here: np.ndarray, near: int, open_: np.ndarray) -> np.ndarray | None:
-        """On a pass: where the agent steers [m] (3,) on its way to an untouched speck (a part of at most
-        ``SPECK_POINTS`` footprint discs that the hops join to the agent's) within ``REPAIR_RADIUS`` footprint radii
-        of the agent at ``here``, or None. The agent touches it as it passes: the hunt after the passes would walk
-        back for each speck from afar. ``open_``: the untouched target not given up (T,) (bool)."""
-        passes = self._passes
-        if not passes.has_specks:
-            return None
-        g = self._leftover_goal
-        if self._on_speck and g >= 0 and open_[g]:
-            return self._leftover(here)
-        limit = SPECK_POINTS * np.pi * (self._r_a / self.spacing) ** 2
-        specks = passes.specks(here, near, open_, REPAIR_RADIUS * self._r_a, limit)
-        self._on_speck = bool(specks.any())
-        self._leftover_goal = -1
-        if not self._on_speck:
-            return None
-        return self._leftover(here, specks)
-
-    def _leftover(self, here: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray | None:
-        """After the passes (or, with ``candidates``, on a pass to a speck): where the agent steers [m] (3,) on its
-        way to the untouched target point nearest by
-        surface distance over its walking part and the hops from it (or a speck within a footprint radius of them),
-        kept as the goal until a footprint touches it; None when none is left. At the near end of a hop on the way
-        it sets ``_hop_to`` (the far end's cloud index): the step hops there along the chord."""
-        g = self._leftover_goal
-        passes = self._passes
-        if not (g >= 0 and self._cov.item(self._tidx.item(g)) < self._p_t.item(g)):
-            j = self._tpos.item(self._near[0])
-            near = j if j >= 0 else passes.nearest(here)
-            if candidates is None:
-                candidates = self._untouched() & ~self._given_up
-            g = passes.closest(near, candidates, self._r_a)
-            self._leftover_goal = g
-            if g < 0:
-                return None
-        aim = passes.route(here, g)
-        hop = passes.hop_due(here)
-        if hop >= 0:
-            self._hop_to = int(self._tidx.item(hop))
-            self._hop_goal = g
-            self._leftover_goal = -1  # planned again from the far side
-        return aim
-
-    def _compile_kernel(self):
-        """The compiled walking step (:mod:`.kernel`), or None (numpy) without numba or when it fails.
-
-        It is called once here on a dummy state of this explorer's array types: numba makes (or loads
-        from its cache) the machine code now, not in the middle of the first step of a control loop.
-        """
-        if not _kernel.available():
-            return None
-        n, k = len(self._points), self._phi.shape[1]
-        try:
-            fn = _kernel.compiled_walk_step()
-            if fn is None:  # numba's JIT switched off (NUMBA_DISABLE_JIT)
-                return None
-            if not fn.signatures:  # the first explorer of this process: numba compiles or loads its cache
-                _log.info("preparing the compiled exploration step (numba compiles it once per machine, ~10–15 s)")
-            fn(self._points, self._ball[0], self._points[0].copy(), np.array((0.0, 0.0, 1.0)), np.zeros(3),
-               np.zeros(n), 0.0, self._tidx, self._tpos, self._p_t, self._phitm_t, np.zeros(k),
-               np.zeros_like(self._s_ext), self._decay, self._phi, self._gaps.has, self._n_n, self._kernel_prm,
-               np.empty(_kernel.OUT_SIZE), np.zeros_like(self._src.c_used), np.zeros_like(self._src.active),
-               np.zeros_like(self._src.sums), np.zeros(k))
-        except Exception as exc:  # numba's import, typing or compilation: numpy still works
-            reason = f"{type(exc).__name__}: {exc}"
-            _kernel.disable(reason)
-            warnings.warn(f"the compiled exploration step is unavailable, running numpy ({reason})",
-                          RuntimeWarning, stacklevel=3)
-            return None
-        return fn
-
-    def _compiled_step(self, i: int, x: np.ndarray, cand: np.ndarray) -> ExplorationCommand | None:
-        """The walking step of agent i compiled (:mod:`.kernel`), or None (nothing changed) for a
-        case the kernel leaves to the numpy step: a degenerate fit, a scan edge with a hop across a
-        hole in reach, or a vanishing gradient."""
-        agent = self._agents[i]
-        out = self._kernel_out
-        try:
-            status = self._walk_kernel(
-                self._points, cand, x, np.array(self._nrm_t[i]), agent.velocity, self._cov, self._cov_sum,
-                self._tidx, self._tpos, self._p_t, self._phitm_t, self._coef, self._s_ext, self._decay, self._phi,
-                self._gaps.has, self._n_n, self._kernel_prm, out, self._src.c_used, self._src.active,
-                self._src.sums, self._dcoef,
-            )
-        except Exception as exc:  # e.g. numba failing to type arguments it has not seen: numpy goes on
-            self._walk_kernel = None
-            warnings.warn(f"the compiled exploration step failed, this explorer runs numpy from now on "
-                          f"({type(exc).__name__}: {exc})", RuntimeWarning, stacklevel=4)
-            return None
-        if status != _kernel.OK:
-            return None
-        self.compiled_steps += 1
-        o = out.copy()  # the command, the agent and the explorer keep views of this one copy
-        agent.velocity = o[15:18]
-        self.path_lengths[i] = self.path_lengths.item(i) + o.item(18)
-        self._near[i] = int(o.item(19))
-        self._cov_sum = o.item(20)
-        self._nrm_t[i] = tuple(o[6:9].tolist())
-        self._x[i] = o[:3]
-        return ExplorationCommand(o[:3], o[3:6], o[6:9], o[9:12], o[12:15], self.step_count, i)
-
-    def _source_slope(self, cand: np.ndarray, g1uv: np.ndarray, d2: np.ndarray) -> tuple[float, float] | None:
-        """Slope (c_u, c_v) [1/m] of the plane through the raw source over the candidate ball
-        (rows (1, u, v) of the candidates ``cand`` with tangent-plane coordinates u, v [m], squared
-        3D distances ``d2`` [m²] from the projected agent), or None when there is no source there
-        or the plane is degenerate.
-
-        The weights are the kernel φ of the 3D distance, not of the tangent-plane distance: the
-        back of a thin wall lies close on the tangent plane, and its spikes (which the footprint
-        can never clear from this side) would pull the agent.
-
-        The raw source is a set of isolated spikes at uncovered target points, typically just
-        outside the footprint (which has cleared its inside) and so beyond the n_N neighbours of
-        the cubic: the ball (every cloud point within max(r_a, kNN radius) + h of the agent) sees
-        them. A cubic through a rim spike would overshoot and its slope at the agent point *away*
-        from it; the weighted plane (eq. 33's weights) has the spike's slope sign. Both fits are
-        linear in the values, so the slope of (smooth part + spikes) is the sum of the two.
-        """
-        src = self._source_at(cand)
-        if not src.any():
-            return None
-        kern = d2 * -self._eps2
-        np.exp(kern, kern)
-        wg = g1uv * kern[:, None]
-        b0, b1, b2 = src.dot(wg).tolist()
-        if not b0 > 0.0:
-            return None
-        (a00, a01, a02), (_, a11, a12), (_, _, a22) = wg.T.dot(g1uv).tolist()
-        return _plane_slope(a00, a01, a02, a11, a12, a22, b0, b1, b2)
-
-    # ------------------------------------------------------------------ scan-hole bridges
-    def _plan_bridge(self, nbr: np.ndarray, u: np.ndarray, u0: float, here: np.ndarray,
-                     nrm: np.ndarray) -> Bridge | None:
-        """A hop along a gap link of the neighbours (see :mod:`.bridges`) when the potential at its
-        far end beats every value around the agent (u − u0 at the neighbours, plus the raw source)."""
-        far = np.unique(self._gaps.of(nbr))
-        # The flight starts here, not at the neighbour the link leaves from: keep it within max_bridge.
-        reach = self._points.take(far, 0) - here
-        far = far[np.einsum("ij,ij->i", reach, reach) <= self._bridge_max2]
-        if far.size == 0:
-            return None
-        u_far = self._phi.take(far, 0).dot(self._coef)
-        local = u
-        if self._source_w > 0.0:
-            local = u + self._source_w * self._source_at(nbr)
-            u_far += self._source_w * self._source_at(far)
-        k = int(u_far.argmax())
-        if float(u_far[k]) <= float(local.max()) + u0:
-            return None
-        return self._hop_bridge(int(far[k]), here, nrm)
-
-    def _hop_bridge(self, j: int, here: np.ndarray, nrm: np.ndarray) -> Bridge | None:
-        """A hop from ``here`` [m] (normal ``nrm``) to cloud point j across a gap link, or None when j's side faces the
-        other way (the back of a part, not across a hole)."""
-        end = self._points[j]
-        nb = self._tree.query(end, k=self._n_n)[1]
-        normals = self.cloud.normals
-        ref = nrm if normals is None else normals[j]  # the cloud's own outward side when it has one
-        _, end_normal = _project_local(fit_sphere_or_plane(self._points[nb], validate=False), end, ref)
-        if float(end_normal @ nrm) < 0.0:
-            return None
-        self.bridges_taken += 1
-        return Bridge(j, here.copy(), end.copy(), nrm.copy(), end_normal)
-
-    def _bridge_step(self, i: int) -> ExplorationCommand:
-        """One step of a hop in progress: the footprint where the agent is, the potential, then
-        on along the chord."""
-        bridge = self._bridges[i]
-        x = self._x[i]
-        if self._pass != _MOVE:
-            nrm = bridge.normal_at(x)
-            cand = self._ball[int(self._tree.query(x)[1])]
-            d = self._points.take(cand, 0)
-            d -= x
-            dd = np.einsum("ij,ij->i", d, d)
-            inside = (dd <= self._r_a2).nonzero()[0]
-            dn = d.take(inside, 0).dot(nrm)
-            phi = np.exp(-self._eps2 * (dd.take(inside) - dn * dn))  # r on the plane ⊥ the chord's normal
-            self._add_coverage(cand.take(inside), phi)
-            if self._pass == _FOOTPRINT:
-                return None
-            self._update_potential()
-        return self._bridge_move(i, x, bridge)
-
-    def _bridge_move(self, i: int, x: np.ndarray, bridge: Bridge) -> ExplorationCommand:
-        """Move from x [m] (the agent, or the robot's measured point) along the chord towards the
-        bridge's end, at most v_max·dt from x: the goal is x's projection on the chord advanced by
-        v_max·dt, so an agent off the chord (a measured point above it, the unprojected agent at
-        the start) converges to it instead of drifting. The agent's limits hold on the hop too:
-        the velocity changes by at most a_max·dt per step, so a hop that starts across the
-        agent's heading first bends towards the chord. On arrival the walk resumes from the end."""
-        chord = bridge.end - bridge.start
-        length = float(np.sqrt(chord @ chord))
-        t = bridge.share(x)
-        if (1.0 - t) * length <= self._step_max:
-            goal = bridge.end
-        else:
-            goal = bridge.start + chord * (t + self._step_max / length)
-        move = goal - x
-        ml = float(np.sqrt(move @ move))
-        arrived = goal is bridge.end and ml <= self._step_max
-        if ml > self._step_max:
-            move *= self._step_max / ml
-            ml = self._step_max
-        v, limited = self._agents[i].reachable_velocity(move * (1.0 / self._dt))
-        if limited:
-            move = v * self._dt
-            ml = float(np.sqrt(move @ move))
-            arrived = False
-        x_new = x + move
-        if arrived:
-            x_new = bridge.end.copy()
-            nrm = bridge.end_normal.copy()
-            self._bridges[i] = None
-            self._near[i] = bridge.target
-        else:
-            nrm = bridge.normal_at(x_new)
-        v = move * (1.0 / self._dt)
-        self._agents[i].velocity = v - float(v @ nrm) * nrm
-        self.path_lengths[i] += ml
-        self._nrm_t[i] = tuple(nrm.tolist())
-        self._x[i] = x_new
-        t1, t2 = _tangent_basis(nrm)
-        return ExplorationCommand(x_new.copy(), v, nrm, t1, t2, self.step_count, i)
-
-    # ------------------------------------------------------------------ coverage and potential
-    def _source_at(self, idx: np.ndarray) -> np.ndarray:
-        """The source s of the last step at cloud points idx (zero off the target)."""
-        return self._s_ext.take(self._tpos.take(idx))
-
-    def _add_coverage(self, fp: np.ndarray, phi: np.ndarray) -> None:
-        """Footprint values phi at cloud points fp (no repeats) added to c̃ and its running sum (eq. 3)."""
-        cov = self._cov
-        cov.put(fp, cov.take(fp) + phi)  # fp holds no repeats: the same as cov[fp] += phi
-        self._cov_sum += float(_sum(phi))
-
-    def _update_potential(self) -> None:
-        """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
-        cov = self._cov
-        if self._sweep is not None:
-            dcoef = self._s_t.dot(self._phitm_t) if self._sweep.source(self._s_t) > 0.0 else np.zeros_like(self._coef)
-        else:
-            norm = float(_sum(cov.take(self._tidx))) if self._norm_target else self._cov_sum
-            dcoef = update_source_numpy(cov, self._tidx, self._p_t, norm, self._s_t, self._src, self._phitm_t)
-        # Diffuse after adding the source: the truncated projection of a sharp source rings
-        # (Gibbs), its heat-kernel image does not; the raw source is added back at full resolution.
-        coef = self._coef
-        coef += dcoef
-        coef *= self._decay
-
-    def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
-              d: np.ndarray, dd: np.ndarray) -> tuple[tuple, tuple, float, np.ndarray, int]:
-        """Where velocity v [m/s] takes the agent in one step, projected onto the fitted patch
-        (agent-centred coordinates, scaled by ``scale`` in the fit; ``shift`` and ``nrm`` are the
-        projected agent [m], its normal and v as float triples): the step [m], the normal there (triples),
-        |step|², the squared distances from the landing point to the candidates d (offsets from
-        the agent, squared norms dd) and the index of the nearest one."""
-        v0, v1, v2 = v
-        dt, k = self._dt, 1.0 / scale
-        s0, s1, s2 = shift
-        (x0, x1, x2), n_new = _project_floats(patch, ((s0 + v0 * dt) * k, (s1 + v1 * dt) * k, (s2 + v2 * dt) * k), nrm)
-        x0, x1, x2 = x0 * scale, x1 * scale, x2 * scale
-        ss = x0 * x0 + x1 * x1 + x2 * x2  # np.dot's order for three numbers
-        dq2 = d.dot(np.array((2.0 * x0, 2.0 * x1, 2.0 * x2)))  # = 2 d·step exactly (×2 is exact)
-        np.subtract(dd, dq2, dq2)
-        dq2 += ss
-        return (x0, x1, x2), n_new, ss, dq2, int(dq2.argmin())
-
-    # ------------------------------------------------------------------ read-outs
     @property
     def positions(self) -> np.ndarray:
         """Agents' current points on the surface [m] (n_agents, 3)."""
@@ -1391,10 +499,6 @@ class HedacExplorer:
         u[self._tidx] += self.config.source_weight * self._s_t
         return u
 
-    def hopping(self, agent: int = 0) -> bool:
-        """True while the agent is hopping a scan hole (on the chord between its two sides)."""
-        return self._bridges[agent] is not None if agent < len(self._bridges) else False
-
     @property
     def source(self) -> np.ndarray:
         """The source s (N,) of the last step (eq. 1, scaled to unit sum; zero off the target)."""
@@ -1426,3 +530,52 @@ class HedacExplorer:
         """A fresh explorer on the same cloud and basis with some parameters changed."""
         return HedacExplorer(self.cloud, self.basis, replace(self.config, **changes),
                              keep_out=self._keep_out if self._ko_idx.size else None)
+
+
+class Exploration(NamedTuple):
+    """One agent's run from :func:`explore`: the start and ``steps`` steps (world frame).
+
+    Attributes:
+        points: the agent's point on the surface [m] (steps + 1, 3); row 0 is the start projected onto it.
+        velocities: its velocity [m/s] (steps + 1, 3) (zero at the start and at a relocation's touch-down).
+        normals: the unit outward surface normal there (steps + 1, 3).
+        coverage_residual: the coverage residual after each step (steps,) [-]
+            (:meth:`HedacExplorer.coverage_residual`: √share of target never inside a footprint).
+        commands: every command, the start's first (steps + 1): :class:`ExplorationCommand`, or
+            :class:`~tactex.ergodic.relocation.RelocationCommand` where the agent relocated.
+        explorer: the explorer after the last step (its coverage, potential, ergodicity, path lengths).
+    """
+
+    points: np.ndarray
+    velocities: np.ndarray
+    normals: np.ndarray
+    coverage_residual: np.ndarray
+    commands: list
+    explorer: HedacExplorer
+
+
+def explore(cloud: SurfaceCloud, basis, x0: np.ndarray, steps: int, config: HedacConfig | None = None,
+            keep_out: np.ndarray | None = None) -> Exploration:
+    """Explore ``cloud`` with one agent from ``x0`` (3,) [m] for ``steps`` steps, in one call.
+
+    The same as building a :class:`HedacExplorer` (``cloud``, its Laplace ``basis``, ``config``,
+    ``keep_out``), resetting it at ``x0`` and stepping it ``steps`` times: the trajectory is the one a
+    hand-driven explorer walks. For vision feedback (``update_target``), measured positions or several
+    agents, drive a :class:`HedacExplorer` yourself.
+
+    Raises:
+        InputError: ``steps`` is not an integer ≥ 0, or ``x0`` is not one point (3,).
+    """
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise InputError(f"steps must be an integer ≥ 0, got {steps!r}")
+    if np.shape(x0) != (3,):
+        raise InputError(f"x0 must be one point of shape (3,) [m], got shape {np.shape(x0)}; for several agents "
+                         "use HedacExplorer.reset and step_all")
+    explorer = HedacExplorer(cloud, basis, config, keep_out=keep_out)
+    commands = list(explorer.reset(x0))
+    residual = np.empty(int(steps))
+    for k in range(int(steps)):
+        commands.append(explorer.step())
+        residual[k] = explorer.coverage_residual()
+    return Exploration(np.array([c.point for c in commands]), np.array([c.velocity for c in commands]),
+                       np.array([c.normal for c in commands]), residual, commands, explorer)

@@ -1,54 +1,27 @@
-"""Ring passes: the walking plan of a sweep, passes along rings of surface distance from the target's edge.
+"""Ring passes: the walking plan of a sweep and its online follower.
 
-Whatever a coverage path does, it covers at most a band of width 2 r_a per metre, so a target of
-area A needs at least A / (2 r_a) of path. HEDAC's strokes, even with the sweep source, lay passes
-as the potential happens to curve and leave slivers and single points between them, each costing a
-later pass. A planned sweep lays its passes side by side instead: along the level sets of the
-geodesic distance d (its rings), ``pass_spacing`` apart, from the target's outer edge (origin
-"edge": contour-parallel passes, as a pocket is milled; the first pass's footprint reaches the
-edge, and a disc is covered in closed loops) or from the agent's start, whichever tour (below) plus the
-hunt for what its plan leaves is shorter; origin "start" always from the start. Each origin is planned at
-w and at 0.9 w (``SPACING_SHARES``), and the tighter plan is kept where the islands of points the full
-one leaves at the footprint's edge (``AT_RISK``) cost the hunt more detours than its longer tour.
-The ring k holds the target points with k·w ≤ d < (k+1)·w, w = ``pass_spacing``; its pass runs along
-d = (k+½)·w, so a footprint of radius r_a ≥ w/2 centred on it covers the ring, and w a little under
-2 r_a leaves an overlap for the agent's tracking error.
+:class:`RingPasses` lays the passes of a target part the first time the agent stands on it (the
+planner, :mod:`.pass_planner`: rings of surface distance from the target's edge or the start, their
+arcs in the order of a short tour, clean-up waypoints where the rings' wavefronts meet) and then tells
+the agent where to steer, step by step.
 
-Where the rings' wavefronts meet (the medial axis, the last ring round a maximum of d) no middle line runs, and
-the plan leaves a sliver farther than r_a from every waypoint (the uncut region of contour-parallel pocketing):
-those points get clean-up waypoints, the centres of a greedy disc cover (``LEFTOVER``, ``CLEAN_UP``), inserted
-into the tour where each lengthens it least, or toured as arcs of their own when that is shorter; one is done
-within ``CLEAN_REACH`` footprint radii, or skipped when its points are touched already.
-
-The plan is a set of waypoints, the target points on the middle line of their ring (|d − (k+½)·w| ≤ ½ voxel). On
-a closed or holed surface a ring's middle line breaks into several arcs (its connected runs); each arc is
-ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
-(a closed arc is entered anywhere), then 2-opt, by the chords and by the surface distances between the ends; the
-surface's tour is kept when its moves are clearly shorter along the surface (the agent walks them on the surface:
-round a fold or an ear's base the chord is a fraction of the walk). Along an arc the agent steers at a carrot, the
-farthest of its next waypoints within ``AHEAD`` voxels; the waypoints behind its place on the arc are done. A target
-point the passes walked past untouched (the agent's tracking error left it at the footprint's edge) and no pending
-waypoint will cover (``missed``) is touched at once when it lies within a couple of footprint radii: the
-explorer steps aside to it; a speck (a small part the hops join, ``specks``) within that reach is touched in
-passing too. The start of the next arc, when farther than a pass spacing, is reached down the
-surface distance to it. (Order "greedy", the earlier rule: the pending waypoint of least cost_j = |x_j − x| +
-``ring_cost`` · w · (k_j − k_low).) A waypoint is also done once the agent came within ``reach_m`` of it. When
-no waypoint of the agent's part is left the explorer hunts the untouched points one after the other, each the
-nearest along the surface (``closest``: on the walking part and the parts the hops join it to, or a speck within
-r_a across a gap) and reached down the surface distance to it (``route``; across a hop in contact, ``hop_due``),
-and then the sweep source's potential and the relocation rules take
-over (other parts get their rings when the agent touches down there; a relocation plans the tour again from
-where it lands).
-
-d is Dijkstra's distance (scipy.sparse.csgraph) over the links of the cloud's Laplacian between
-target points, each as long as its chord: the same neighbourhoods the heat diffuses over, and the
-same parts, except links longer than ``MAX_LINK`` voxels (a hole the agent cannot walk across). A
-graph distance zigzags along the links, so it is smoothed before its level sets are taken.
+Along an arc the agent steers at a carrot, the farthest of its next waypoints within ``AHEAD`` voxels;
+the waypoints behind its place on the arc are done. A target point the passes walked past untouched (the
+agent's tracking error left it at the footprint's edge) and no pending waypoint will cover (``missed``) is
+touched at once when it lies within a couple of footprint radii: the explorer steps aside to it; a speck (a
+small part the hops join, ``specks``) within that reach is touched in passing too. The start of the next
+arc, when farther than a pass spacing, is reached down the surface distance to it. (Order "greedy": the
+pending waypoint of least cost_j = |x_j − x| + ``ring_cost`` · w · (k_j − k_low).) A waypoint is also done
+once the agent came within ``reach_m`` of it; a clean-up waypoint only within ``CLEAN_REACH`` footprint
+radii, and it is skipped when its points are touched already. When no waypoint of the agent's part is left
+the explorer hunts the untouched points one after the other, each the nearest along the surface
+(``closest``: on the walking part and the parts the hops join it to, or a speck within r_a across a gap)
+and reached down the surface distance to it (``route``; across a hop in contact, ``hop_due``), and then
+the sweep source's potential and the relocation rules take over (other parts get their rings when the
+agent touches down there; a relocation plans the tour again from where it lands).
 """
 
 from __future__ import annotations
-
-from itertools import pairwise
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -56,71 +29,37 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from tactex.ergodic.config import PASS_ORIGINS
+from tactex.ergodic.pass_planner import (
+    AT_RISK,
+    CLEAN_UP,
+    LEFTOVER,
+    MAX_LINK,
+    SPACING_SHARES,
+    WINDOW,
+    PassPlanner,
+)
 
-__all__ = ["RingPasses"]
+# The planner's constants a reader of the passes looks for are importable from here too (their home is the planner).
+__all__ = ["AHEAD", "AT_RISK", "CARROT", "CLEAN_REACH", "CLEAN_UP", "HOP_REACH", "LEFTOVER", "MAX_LINK", "ORDERS",
+           "SPACING_SHARES", "WINDOW", "RingPasses"]
 
-#: Rounds of averaging of the distance over the links before its level sets are taken (see RingPasses._smooth).
-SMOOTHING = 10
-#: Longest link of the distance graph [voxels]: the agent walks up to a voxel off the cloud (max_off_cloud), so it
-#: crosses a gap of two voxels between cloud points, not more.
-MAX_LINK = 2.0
-#: Edge points: centroid offset of EDGE_NEIGHBOURS nearest neighbours over their radius above EDGE_OFFSET; a part
-#: whose longest connected run of them is shorter than MIN_EDGE_POINTS has no edge (a closed surface).
-EDGE_NEIGHBOURS = 12
-EDGE_OFFSET = 0.25
-MIN_EDGE_POINTS = 10
-#: Edge points this close [voxels] are one run of the edge, tried in turn (a rim where the surface turns steep is
-#: sampled sparsely and its edge points lie a few voxels apart; a scan's dropouts lie a few voxels inside its rim).
-EDGE_LINKS = (2.0, 4.0)
 #: On the way to a far goal the agent steers at the point within this many half-voxels nearest to it by surface
 #: distance (a carrot a few voxels ahead on the shortest path).
 CARROT = 6.0
 #: Walking an arc, the agent steers at the farthest of its next waypoints still within AHEAD voxels of it (a
 #: carrot on the line: it tracks the pass, not each point, and does not wiggle around them).
 AHEAD = 3.0
-#: Waypoints of an arc looked at for the agent's place on it and for the carrot [-].
-WINDOW = 16
-#: A tour of rings from the start counts this many times its length against one from the edge: the edge's own
-#: points are then left for the end, each a trip, where the first ring from the edge covers them [-].
-START_PENALTY = 1.1
-#: A plan's target points farther than the footprint radius from all its waypoints are left to the hunt after the
-#: passes, which walks about this many times the ideal path over them (A / (2 r_a)); the plans are compared by
-#: tour length plus that estimate [-] (a part narrower than the first ring otherwise wins with no waypoint at all).
-HUNT_FACTOR = 4.0
-#: Pass spacings planned per origin, as shares of ``pass_spacing_m`` [-]: the tighter one leaves fewer points at the
-#: footprint's edge (on a bowl's steep rim, round its middle, at ring changes), each a detour of the hunt later, at
-#: the price of a longer tour (see RingPasses.lay).
-SPACING_SHARES = (1.0, 0.9)
-#: A target point farther than this share of the footprint radius from every waypoint of a plan is at risk: the
-#: agent's tracking error may leave it untouched [-].
-AT_RISK = 0.9
-#: What an island of points at risk (points within a footprint radius joined) costs the hunt, in footprint radii
-#: of path [-]. Measured: the hunts after the passes walk ~1.5-3 cm per island at r_a = 7.5 mm.
-ISLAND_COST = 2.0
-#: Waypoints of an arc between two along which its length is measured [-] (see RingPasses._tour_length).
-SUBSAMPLE = 3
-#: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
-TWO_OPT_PASSES = 20
-#: The tour over the arcs planned by surface distance replaces the one planned by chord when its moves between arcs
-#: are shorter along the surface than this share of the chord tour's [-]: on a flat or gently curved part the two
-#: differ by the graph distance's zigzag, and the chord's tour is kept (see RingPasses._tour_of).
-SURFACE_GAIN = 0.9
-#: Target points farther than LEFTOVER footprint radii from every waypoint of the chosen plan (where the rings'
-#: wavefronts meet) get clean-up waypoints: centres of a greedy cover by discs of CLEAN_UP footprint radii [-].
-LEFTOVER = 1.0
-#: Radius of the clean-up discs, in footprint radii [-] (see LEFTOVER).
-CLEAN_UP = 0.6
 #: A clean-up waypoint is done once the agent came this close [footprint radii] (its points lie at the
 #: footprint's edge from the passes; the wider reach of a pass's waypoints would leave them untouched) [-].
 CLEAN_REACH = 0.5
 #: The hunt hops once the agent is within this many voxels of the hop's near end (see RingPasses.hop_due).
 HOP_REACH = 2.0
 #: "tour": the arcs in the order of a short tour over their end points (nearest neighbour, then 2-opt);
-#: "greedy": the pending waypoint of least cost (distance plus ring), the earlier rule.
+#: "greedy": the pending waypoint of least cost (distance plus ring).
 ORDERS = ("tour", "greedy")
 
 
-class RingPasses:
+class RingPasses(PassPlanner):
     """Waypoints of the ring passes over the target points, laid lazily per connected part.
 
     Args:
@@ -223,328 +162,6 @@ class RingPasses:
         self._to_goal = None
         self._replan = self._replan or replan
 
-    def lay(self, start: int) -> None:
-        """Lay the rings of target point ``start``'s part (once per part). With origin "edge" and the tour, the
-        rings from the outer edge found with each of ``EDGE_LINKS`` and from the start are all planned, and the
-        shortest tour is kept (a scan's rim may be sampled sparsely, a closed surface has only the edges of its
-        holes; no single rule suits every part)."""
-        part = int(self._part[start])
-        if self._laid[part]:
-            return
-        self._laid[part] = True
-        members = np.flatnonzero(self._part == part)
-        sub = self._graph[members][:, members]
-        s = int(np.searchsorted(members, start))
-        seeds: list[np.ndarray] = []
-        if self.origin == "edge":
-            for link in EDGE_LINKS if self.order == "tour" else EDGE_LINKS[:1]:
-                edge = self._outer_edge(members, link)
-                if edge.size >= MIN_EDGE_POINTS and not any(np.array_equal(edge, e) for e in seeds):
-                    seeds.append(edge)
-        if not seeds or self.order == "tour":  # no edge (closed), rings from the start asked for, or a candidate
-            seeds.append(np.array([s]))
-        plans = []  # (seed, share, cost of the origin, cost of the spacing, plan)
-        for n_seed, seed in enumerate(seeds):
-            d = self._smooth(sub, dijkstra(sub, directed=False, indices=seed, min_only=True))
-            for share in SPACING_SHARES if self.order == "tour" else SPACING_SHARES[:1]:
-                w = share * self.pass_spacing_m
-                k = np.floor(d / w)
-                on_line = (np.abs(d - (k + 0.5) * w) <= self._half_line) & self._allowed[members]
-                thin = False
-                if not on_line.any() and seed.size > 1:
-                    # A part narrower than the first ring (a strip under 2 r_a wide): one pass along its ridge,
-                    # the points farthest from the edge, whose footprint reaches both sides; with no ridge (every
-                    # point on the edge, a strip a few voxels wide) no pass: the hunt walks it nearest first,
-                    # which along a strip is one pass.
-                    ridge = d >= d.max() - 2.0 * self._half_line
-                    thin = 2 * np.count_nonzero(ridge) > ridge.size
-                    on_line = ridge & self._allowed[members] & ~thin
-                    k = np.zeros_like(k)
-                way = members[on_line]
-                self.ring[way] = k[on_line].astype(np.intp)
-                self.pending[way] = True
-                if self.order != "tour":
-                    self.spacing_m[part] = w
-                    return
-                self._plan(part, self._points[start])
-                length = self._tour_length(part)
-                if seed.size == 1 and len(seeds) > 1:
-                    length *= START_PENALTY
-                length += self._hunt_length(members, way) / (HUNT_FACTOR if thin else 1.0)
-                plans.append((n_seed, share, length, length + self._island_cost(members, way),
-                              (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
-                self.ring[way] = -1
-                self.pending[way] = False
-        # The origin by its plan at the full spacing (tour and the hunt for what it leaves), then its spacing also by
-        # the islands it leaves at risk: compared over origins, the islands chose worse origins on the TEC bunny.
-        origin = min((p for p in plans if p[1] == SPACING_SHARES[0]), key=lambda p: p[2])[0]
-        way, ring, self._tour[part], self._arc[part], self.spacing_m[part] = min(
-            (p for p in plans if p[0] == origin), key=lambda p: p[3])[4]
-        self.ring[way] = ring
-        self.pending[way] = True
-        extra = self._clean_up(members, way)
-        if extra.size:
-            # a ring of its own per clean-up waypoint: an arc of one, which the agent's place on an arc never passes
-            # (only CLEAN_REACH marks it done)
-            self.ring[extra] = ring.max() + 1 + np.arange(extra.size)
-            self.pending[extra] = True
-            self._plan(part, self._points[start])
-        self._at[part] = 0
-
-    # ------------------------------------------------------------------ the tour over the arcs
-    def _plan(self, part: int, x: np.ndarray) -> None:
-        """The part's pending waypoints as arcs (connected runs of one ring's middle line, each in order along it),
-        and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
-        idx = np.flatnonzero(self.pending & (self._part == part))
-        clean = np.isin(idx, np.fromiter(self._clean, dtype=np.intp, count=len(self._clean)))
-        self._plan_arcs(part, idx[~clean], x)
-        if clean.any():
-            self._insert(part, idx[clean])
-            inserted = self._tour[part], self._arc[part], self._tour_length(part)
-            self._plan_arcs(part, idx, x)
-            if self._tour_length(part) >= inserted[2]:
-                self._tour[part], self._arc[part] = inserted[:2]
-
-    def _plan_arcs(self, part: int, idx: np.ndarray, x: np.ndarray) -> None:
-        """The waypoints idx as arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
-        arcs = self._arcs(idx)
-        self._at[part] = 0
-        if not arcs:
-            self._tour[part] = np.zeros(0, dtype=np.intp)
-            self._arc[part] = np.zeros(0, dtype=np.intp)
-            return
-        walk = self._tour_of(arcs, np.asarray(x, dtype=np.float64))
-        self._tour[part] = np.concatenate(walk)
-        self._arc[part] = np.repeat(np.arange(len(walk)), [len(a) for a in walk])
-
-    def _insert(self, part: int, extra: np.ndarray) -> None:
-        """Clean-up waypoints ``extra`` (target indices) into the part's tour, each where it lengthens the tour
-        least (cheapest insertion by chord): a detour off the pass next to it, an arc of its own that splits the
-        arc it leaves from."""
-        tour, arc = list(self._tour[part]), self._arc[part]
-        new = list(np.r_[True, arc[1:] != arc[:-1]]) if arc.size else []
-        p = self._points
-        for c in extra.tolist():
-            if not tour:
-                tour, new = [c], [True]
-                continue
-            q = p[tour]
-            to = np.linalg.norm(q - p[c], axis=1)
-            cost = np.r_[to[:-1] + to[1:] - np.linalg.norm(np.diff(q, axis=0), axis=1), to[-1]]
-            g = int(cost.argmin()) + 1  # insert before entry g (after entry g − 1)
-            tour.insert(g, c)
-            new.insert(g, True)
-            if g + 1 < len(new):
-                new[g + 1] = True
-        self._tour[part] = np.asarray(tour, dtype=np.intp)
-        self._arc[part] = np.cumsum(new).astype(np.intp) - 1
-
-    def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
-        """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
-        neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt,
-        once by the chords between the ends and once by the surface distances. The agent walks the moves down the
-        surface distance: round a fold or an ear's base the chord ranks them wrongly, so the surface's tour is kept
-        when its moves are shorter along the surface than ``SURFACE_GAIN`` times the chord's; on a flat part the
-        graph distance zigzags along the links and ranks straight moves wrongly, and the chord's tour is kept."""
-        p = self._points
-        closed = [self._closed(a) for a in arcs]
-        start = self._on_arcs(arcs, x)
-        ends = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in arcs]))
-        rows = dict(zip(ends.tolist(), dijkstra(self._graph, directed=False, indices=ends), strict=True))
-
-        def surface(v: int) -> np.ndarray:
-            if v not in rows:
-                rows[v] = dijkstra(self._graph, directed=False, indices=v)
-            return rows[v]
-
-        def chord(v: int) -> np.ndarray:
-            return np.linalg.norm(p - p[v], axis=1)
-
-        tours = []
-        for way in (chord, surface):
-            walk = self._two_opt(self._nearest_arcs(arcs, closed, start, way), start, way)
-            moves = [(start, walk[0][0])] + [(a[-1], b[0]) for a, b in pairwise(walk)]
-            tours.append((walk, sum(float(surface(int(u))[v]) for u, v in moves)))
-        (by_chord, chord_m), (by_surface, surface_m) = tours
-        return by_surface if surface_m < SURFACE_GAIN * chord_m else by_chord
-
-    @staticmethod
-    def _nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way) -> list[np.ndarray]:
-        """The arcs in nearest-neighbour order from target point ``start`` by the distances ``way(v)`` (T,) [m]
-        from target point v, each entered at its nearer end (a closed one at its nearest point)."""
-        left = list(range(len(arcs)))
-        here = start
-        walk: list[np.ndarray] = []
-        while left:
-            best, best_d, best_seq = -1, np.inf, None
-            r = way(here)
-            for i in left:
-                a = arcs[i]
-                if closed[i]:
-                    d = r[a]
-                    j = int(d.argmin())
-                    cand, dist = np.roll(a, -j), float(d[j])
-                else:
-                    d0, d1 = float(r[a[0]]), float(r[a[-1]])
-                    cand, dist = (a, d0) if d0 <= d1 else (a[::-1], d1)
-                if dist < best_d or best < 0:
-                    best, best_d, best_seq = i, dist, cand
-            left.remove(best)
-            walk.append(best_seq)
-            here = int(best_seq[-1])
-        return walk
-
-    def _on_arcs(self, arcs: list[np.ndarray], x: np.ndarray) -> int:
-        """The target point of the arcs' part nearest to x (3,) [m] (where the tour starts)."""
-        members = np.flatnonzero(self._part == self._part[arcs[0][0]])
-        return int(members[np.linalg.norm(self._points[members] - x, axis=1).argmin()])
-
-    def _tour_length(self, part: int) -> float:
-        """Length [m] of the part's tour: along each arc through every third waypoint (the middle line is a voxel
-        thick, and a polyline through each of its points zigzags across it), and the jumps between arcs."""
-        tour, arc = self._tour[part], self._arc[part]
-        if tour.size < 2:
-            return 0.0
-        starts = np.flatnonzero(np.r_[True, arc[1:] != arc[:-1]])
-        ends = np.r_[starts[1:], tour.size] - 1
-        keep = np.zeros(tour.size, dtype=bool)
-        keep[::SUBSAMPLE] = True
-        keep[starts] = keep[ends] = True
-        return float(np.linalg.norm(np.diff(self._points[tour[keep]], axis=0), axis=1).sum())
-
-    def _clean_up(self, members: np.ndarray, way: np.ndarray) -> np.ndarray:
-        """Clean-up waypoints (target indices) for the points of ``members`` that the passes along waypoints ``way``
-        leave (farther than ``LEFTOVER`` footprint radii from every waypoint): where the rings' wavefronts meet (the
-        medial axis, a last ring round a maximum of the distance) no middle line runs. A greedy disc cover of those
-        points by discs of ``CLEAN_UP`` footprint radii centred on them; each centre is a waypoint of its own."""
-        if way.size == 0 or CLEAN_UP <= 0.0:
-            return np.zeros(0, dtype=np.intp)
-        gap = cKDTree(self._points[way]).query(self._points[members])[0]
-        left = members[(gap > LEFTOVER * self.footprint_m) & self._allowed[members]]
-        if left.size == 0:
-            return left
-        q = self._points[left]
-        balls = cKDTree(q).query_ball_point(q, CLEAN_UP * self.footprint_m)
-        open_ = np.ones(left.size, dtype=bool)
-        centres = []
-        while open_.any():
-            gain = np.array([np.count_nonzero(open_[b]) for b in balls])
-            c = int(gain.argmax())
-            centres.append(left[c])
-            self._clean[int(left[c])] = left[np.asarray(balls[c], dtype=np.intp)[open_[balls[c]]]]
-            open_[balls[c]] = False
-        return np.asarray(centres, dtype=np.intp)
-
-    def _hunt_length(self, members: np.ndarray, way: np.ndarray) -> float:
-        """Estimated path [m] of the hunt for the points of ``members`` a plan with waypoints ``way`` leaves: those
-        farther than the footprint radius from every waypoint, HUNT_FACTOR times their ideal path."""
-        if way.size:
-            gap = cKDTree(self._points[way]).query(self._points[members], distance_upper_bound=self.footprint_m)[0]
-            left = int(np.count_nonzero(~np.isfinite(gap)))
-        else:
-            left = members.size
-        voxel = 2.0 * self._half_line
-        return HUNT_FACTOR * left * voxel * voxel / (2.0 * self.footprint_m)
-
-    def _island_cost(self, members: np.ndarray, way: np.ndarray) -> float:
-        """Estimated detours [m] of the hunt for the islands of points of ``members`` that a plan with waypoints
-        ``way`` leaves at risk (farther than AT_RISK footprint radii from every waypoint): ISLAND_COST radii each."""
-        if way.size == 0:
-            return 0.0  # the hunt estimate already counts the whole part
-        gap = cKDTree(self._points[way]).query(self._points[members])[0]
-        risk = self._points[members[gap > AT_RISK * self.footprint_m]]
-        if len(risk) == 0:
-            return 0.0
-        pairs = cKDTree(risk).query_pairs(self.footprint_m, output_type="ndarray")
-        g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(risk), len(risk)))
-        return ISLAND_COST * self.footprint_m * connected_components(g, directed=False)[0]
-
-    def _two_opt(self, walk: list[np.ndarray], start: int, row) -> list[np.ndarray]:
-        """2-opt on an open tour of arcs from target point ``start``, by the distances ``row(v)`` (T,) [m] from
-        target point v: reversing a run of arcs reverses each of them too."""
-        n = len(walk)
-        if n < 3:
-            return walk
-        nodes = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in walk]))
-        dist = np.array([row(int(v))[nodes] for v in nodes])  # between the ends (both ways: an arc may turn)
-        at = {int(v): k for k, v in enumerate(nodes)}
-        for _ in range(TWO_OPT_PASSES):
-            entry = np.array([at[int(a[0])] for a in walk])
-            out = np.array([at[int(a[-1])] for a in walk])
-            before = np.r_[at[start], out[:-1]]  # where the tour is before arc i
-            improved = False
-            for i in range(n - 1):
-                # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
-                # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
-                j = np.arange(i + 1, n)
-                old = dist[before[i], entry[i]]
-                new = dist[before[i], out[j]]
-                nxt = np.r_[entry[j[:-1] + 1], 0]
-                old_after = dist[out[j], nxt]
-                new_after = dist[entry[i], nxt]
-                old_after[-1] = new_after[-1] = 0.0
-                gain = old + old_after - new - new_after
-                k = int(gain.argmax())
-                if gain[k] > 1e-9:
-                    jj = int(j[k])
-                    walk[i:jj + 1] = [a[::-1] for a in walk[i:jj + 1][::-1]]
-                    improved = True
-                    break
-            if not improved:
-                break
-        return walk
-
-    def _arcs(self, idx: np.ndarray) -> list[np.ndarray]:
-        """Waypoints idx split into arcs: per ring, the connected runs of its middle line (links ≤ MAX_LINK
-        voxels), each ordered along itself."""
-        link = MAX_LINK * 2.0 * self._half_line
-        arcs: list[np.ndarray] = []
-        for k in np.unique(self.ring[idx]):
-            ring = idx[self.ring[idx] == k]
-            if ring.size <= 2:
-                arcs.extend(ring[i:i + 1] for i in range(ring.size))
-                continue
-            q = self._points[ring]
-            pairs = cKDTree(q).query_pairs(link, output_type="ndarray")
-            length = np.maximum(np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1), 1e-12)
-            g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size)).tocsr()
-            g = g.maximum(g.T)
-            n, label = connected_components(g, directed=False)
-            for c in range(n):
-                m = np.flatnonzero(label == c)
-                arcs.append(ring[m[self._along(g[m][:, m], q[m])]])
-        return arcs
-
-    def _along(self, g: csr_matrix, q: np.ndarray) -> np.ndarray:
-        """The order along a connected run of a middle line (its graph g, points q): from one end by surface
-        distance; a closed run is cut next to that end and walked round from one side of the cut to the other."""
-        if len(q) <= 2:
-            return np.arange(len(q))
-        a = int(np.nan_to_num(dijkstra(g, indices=0), posinf=-1.0).argmax())  # an end (the farthest from any point)
-        da = dijkstra(g, indices=a)
-        voxel = 2.0 * self._half_line
-        cut = np.linalg.norm(q - q[a], axis=1) <= MAX_LINK * voxel
-        rest = np.flatnonzero(~cut)
-        if rest.size > 2:
-            sub = g[rest][:, rest]
-            n, _ = connected_components(sub, directed=False)
-            if n == 1:
-                e0 = int(np.nan_to_num(dijkstra(sub, indices=0), posinf=-1.0).argmax())
-                d0 = dijkstra(sub, indices=e0)
-                e1 = int(np.nan_to_num(d0, posinf=-1.0).argmax())
-                near_a = np.linalg.norm(q[rest[[e0, e1]]] - q[a], axis=1) <= (MAX_LINK + 1.5) * voxel
-                if near_a.all() and d0[e1] > 2.0 * (MAX_LINK + 1.5) * voxel:  # a loop: both ends of the rest by a
-                    head = rest[np.argsort(d0, kind="stable")]
-                    tail = np.flatnonzero(cut)
-                    tail = tail[np.argsort(np.linalg.norm(q[tail] - q[head[-1]], axis=1), kind="stable")]
-                    return np.concatenate([head, tail])
-        return np.argsort(np.nan_to_num(da, posinf=np.inf), kind="stable")
-
-    def _closed(self, arc: np.ndarray) -> bool:
-        """Whether the arc (in order) ends next to where it starts (a loop, entered anywhere)."""
-        return arc.size > 2 * WINDOW and bool(
-            np.linalg.norm(self._points[arc[0]] - self._points[arc[-1]]) <= (MAX_LINK + 1.5) * 2.0 * self._half_line)
-
     def _follow(self, x: np.ndarray, part: int) -> int:
         """The waypoint the agent at x (3,) [m] on the part steers at along the tour, or −1 when none is left.
         Entries of the tour behind the agent's place on its arc are done; far from the tour's next entry (the
@@ -577,43 +194,6 @@ class RingPasses:
                 continue
             self._at[part] = i
             return int(win[m + max(c, 0)])
-
-    def _edge_points(self) -> np.ndarray:
-        """Target points (T,) (bool) on the edge of the target: their nearest neighbours' centroid lies more than
-        ``EDGE_OFFSET`` of the neighbourhood's radius away from them (≈ 0 inside, ≈ 0.42 on a straight edge)."""
-        k = min(EDGE_NEIGHBOURS, len(self._points))
-        dist, idx = self._tree.query(self._points, k=k)
-        offset = np.linalg.norm(self._points[idx].mean(axis=1) - self._points, axis=1)
-        return offset > EDGE_OFFSET * np.maximum(dist[:, -1], 1e-12)
-
-    def _outer_edge(self, members: np.ndarray, link: float = EDGE_LINKS[0]) -> np.ndarray:
-        """Positions in ``members`` of the longest connected run of edge points of that part (its outer edge; a scan's
-        holes and dropouts inside have edges too, and rings from all of them would cut the part into pieces)."""
-        edge = np.flatnonzero(self._edge[members])
-        if edge.size < MIN_EDGE_POINTS:
-            return edge
-        tree = cKDTree(self._points[members[edge]])
-        pairs = tree.query_pairs(2.0 * self._half_line * link, output_type="ndarray")
-        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(edge.size, edge.size))
-        _, label = connected_components(graph, directed=False)
-        size = np.bincount(label)
-        if size.max() < MIN_EDGE_POINTS:  # scattered points of a noisy or curved surface, not an edge
-            return np.zeros(0, dtype=np.intp)
-        return edge[label == size.argmax()]
-
-    @staticmethod
-    def _smooth(links: csr_matrix, d: np.ndarray) -> np.ndarray:
-        """d averaged over each point's links ``SMOOTHING`` times: a graph distance zigzags along the links, its
-        level sets wobble by about a voxel, and a pass along them is longer than it needs to be; averaging keeps
-        a distance that varies linearly (and the spacing of the level sets) away from the start and the edges."""
-        d = np.where(np.isfinite(d), d, 0.0)
-        adj = links.copy()
-        adj.data[:] = 1.0
-        deg = np.asarray(adj.sum(axis=1)).ravel()
-        inv = np.divide(1.0, deg, out=np.zeros_like(deg), where=deg > 0)
-        for _ in range(SMOOTHING):
-            d = 0.5 * d + 0.5 * inv * (adj @ d)
-        return d
 
     def mark(self, x: np.ndarray) -> None:
         """Waypoints within ``reach_m`` of the agent point x (3,) [m] are done."""

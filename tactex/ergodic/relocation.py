@@ -13,7 +13,7 @@ yet (and that a footprint may touch: clear of keep-out zones), the one with the 
 within a footprint radius per metre of flight: ``score = m_r(j) / (|x_j − x| + r_a)``. Nearer wins,
 and a clump beats a lone speck at the same distance.
 
-Hops across scan holes (``HedacConfig.max_bridge``, :mod:`.bridges`) stay as they are: a hop is a
+Hops across scan holes (``HedacConfig.max_bridge_voxels``, :mod:`.bridges`) stay as they are: a hop is a
 short in-contact slide along a link of the Laplacian (a few voxels, the tool never leaves the
 surface); a relocation is the general fallback for everything a hop cannot join, and it costs a
 lift-off. The explorer hops first when the Laplacian joins the two sides; it relocates only when
@@ -22,23 +22,36 @@ neither walking nor hopping makes progress.
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tactex.ergodic.surface_fit import normal_at, tangent_basis
+
 __all__ = [
+    "RELOCATION_CHECK_EVERY",
     "RELOCATION_REASONS",
+    "STALL_SAMPLE_EVERY",
     "ProgressMonitor",
+    "Relocating",
     "RelocationCommand",
     "choose_touch_down",
 ]
+
+_log = logging.getLogger(__name__)
 
 #: Why the explorer relocated (RelocationCommand.reason).
 RELOCATION_REASONS = ("part_done", "stall", "no_progress", "keep_out")
 #: Candidates scored per relocation at most (the nearest ones; the score falls with distance).
 MAX_CANDIDATES = 4000
+#: Steps between the samples of the agent's position for the stall rule (a multiple of them is a
+#: stall: an agent sampled inside the stall circle every time), and between the checks of the untouched
+#: target (part done, no progress) of the relocation rules: cheap, but not worth paying every step.
+STALL_SAMPLE_EVERY = 5
+RELOCATION_CHECK_EVERY = 10
 
 
 class RelocationCommand(NamedTuple):
@@ -165,3 +178,114 @@ class ProgressMonitor:
             h.popleft()
         first_step, first = h[0]
         return step - first_step >= self.progress_steps and first - untouched < self.min_gain
+
+
+class Relocating:
+    """The explorer's relocations (mixed into :class:`~tactex.ergodic.explorer.HedacExplorer`): when an
+    agent is due one (:meth:`_relocation_due`), it lifts off, flies and touches down at untouched target
+    (:meth:`_relocate`); the other agents walk that step. It reads the explorer's target and coverage, the
+    agents' state, the progress monitors and the passes' plan (a stall on a planned tour lands further on)."""
+
+    def _untouched(self) -> np.ndarray:
+        """Per target point, True when no footprint has touched it yet and one may (clear of keep-out)."""
+        return (self._cov.take(self._tidx) < self._p_t) & self._t_safe
+
+    def _relocation_due(self, i: int) -> str | None:
+        """Why agent i should relocate now (a :data:`~.relocation.RELOCATION_REASONS` entry), or None."""
+        if self._bridges[i] is not None:
+            return None
+        mon = self._monitors[i]
+        k = self.step_count
+        mon.moved_to(self._x[i], k)
+        if self._ko_tree is not None and not self._clear_of_keep_out(self._x[i], int(self._near[i])):
+            return "keep_out"
+        stalled = mon.stalled(k)
+        if not stalled and k % RELOCATION_CHECK_EVERY:
+            return None
+        untouched = self._untouched()
+        count = int(np.count_nonzero(untouched))
+        if count == 0:
+            mon.restart(self._x[i], k, 0)  # nothing left to touch: HEDAC goes on revisiting in place
+            return None
+        if stalled:
+            return "stall"
+        part = self._labels.item(int(self._near[i]))
+        if not (untouched & (self._t_part == part)).any():
+            return "part_done"
+        if self.planned_passes and not self._walkable_left(untouched):
+            return "part_done"  # what is left of the part lies across a gap the agent may not walk
+        if mon.no_progress(count, k):
+            return "no_progress"
+        return None
+
+    def _step_with_relocations(self, moves: list[str | None], exact: bool) -> list:
+        """One step in which some agents relocate; the others (and those with nowhere to go) walk."""
+        out: list = [self._relocate(i, m) if m is not None else None for i, m in enumerate(moves)]
+        walking = [i for i, c in enumerate(out) if c is None]
+        if len(walking) == 1:
+            out[walking[0]] = self._step_agent(walking[0], exact)
+        elif walking:
+            for i, cmd in zip(walking, self._step_together(walking, exact), strict=True):
+                out[i] = cmd
+        return out
+
+    def _relocate(self, i: int, reason: str) -> RelocationCommand | None:
+        """Agent i lifts off, flies to the chosen untouched target and lands there at rest."""
+        untouched = self._untouched()
+        cand = self._tidx[untouched]
+        x = self._x[i].copy()
+        j = self._next_on_tour(i) if reason == "stall" else None
+        on_tour = j is not None
+        if j is None and reason == "stall" and self.planned_passes:
+            # A stall in the hunt touches down where the walks and hops from here still reach target: that side is
+            # finished before the flight to a part they do not reach, which is then the only one left (else the
+            # flight lands there, and another brings the agent back for the rest).
+            same = self._passes.reach_mask(self._tpos.item(self._near[i]), untouched & ~self._given_up)
+            if same.any():
+                j = choose_touch_down(self._points, self._tidx[same], self._p_t[same], x, self._r_a)
+        if j is None:
+            j = choose_touch_down(self._points, cand, self._p_t[untouched], x, self._r_a)
+        mon = self._monitors[i]
+        if j is None:
+            mon.restart(x, self.step_count, 0)
+            return None
+        end = self._points[j].copy()
+        n_end = self._touch_down_normal(j, np.array(self._nrm_t[i]))
+        n_start = np.array(self._nrm_t[i])
+        c = self.config.relocation_clearance_m
+        air = air_length(x, n_start, end, n_end, c)
+        self._x[i] = end
+        self._nrm_t[i] = tuple(n_end.tolist())
+        self._near[i] = j
+        self._agents[i].velocity = np.zeros(3)
+        self.air_path_lengths[i] += air
+        if self._passes is not None:
+            self._passes.drop_goal(abandon=reason == "stall", replan=not on_tour)
+            if reason == "stall" and self._leftover_goal >= 0:
+                self._given_up[self._leftover_goal] = True  # it stalled on the way: not a goal again
+            self._leftover_goal = -1
+        mon.restart(end, self.step_count, None)
+        t1, t2 = tangent_basis(n_end)
+        cmd = RelocationCommand(end.copy(), np.zeros(3), n_end, t1, t2, self.step_count, i, x, n_start, c, air, reason)
+        self.relocations.append(cmd)
+        _log.info("agent %d relocates (%s) from %s to %s m, %.3f m through the air", i, reason,
+                  np.round(x, 4).tolist(), np.round(end, 4).tolist(), air)
+        return cmd
+
+    def _touch_down_normal(self, j: int, current: np.ndarray) -> np.ndarray:
+        """Unit outward normal at cloud point j: the fitted patch's, oriented along the cloud's own normal
+        when it has normals, else away from the cloud's centroid (a closed object) or, where that is
+        ambiguous (an open sheet seen edge-on from its centroid), along the agent's current normal."""
+        end = self._points[j]
+        if self.cloud.normals is not None:
+            ref = self.cloud.normals[j]
+        else:
+            ref = current
+            radial = end - self._points.mean(axis=0)
+            rn = float(np.sqrt(radial @ radial))
+            if rn > 0.0:
+                probe = normal_at(self._points, self._tree, self._n_n, end, radial / rn)
+                if abs(float(probe @ radial)) > 0.3 * rn:
+                    ref = radial / rn
+        n = normal_at(self._points, self._tree, self._n_n, end, ref)
+        return n

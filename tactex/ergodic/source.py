@@ -14,7 +14,7 @@ the scalar pass that finds them, forms Σ s and the source values the gradient r
 1 ns a row compiled. The sums carry round-off from every update; the explorer rebuilds them from
 scratch every ``REBUILD_STEPS`` steps (tests compare against the direct sum).
 
-:func:`update_source` is the loop form (compiled with the explorer's step, :mod:`.kernel`);
+:func:`update_source` is the loop form (compiled with the explorer's step, :mod:`.compiled_step`);
 :func:`update_source_numpy` the vectorised one for the numpy step. Both leave the same state.
 """
 

@@ -1,4 +1,4 @@
-"""The compiled walking step (tactex.ergodic.kernel) against the numpy step it replaces.
+"""The compiled walking step (tactex.ergodic.compiled_step) against the numpy step it replaces.
 
 The numpy step is the reference. Each check runs two explorers side by side and, before every
 step, copies the numpy explorer's whole state into the compiled one, so every step starts from the
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from tactex.ergodic import HedacConfig, HedacExplorer
-from tactex.ergodic import kernel as ker
+from tactex.ergodic import compiled_step as cs
 from tactex.errors import ConfigError
 from tactex.experiments.explore import ExploreConfig, load_explore_cloud
 from tactex.pointcloud import SurfaceCloud
@@ -24,7 +24,7 @@ from tactex.spectral import build_basis
 from .conftest import gap_strips
 
 needs_numba = pytest.mark.skipif(
-    not ker.available(), reason="numba (the 'fast' extra) is not installed: the compiled step is not used"
+    not cs.available(), reason="numba (the 'fast' extra) is not installed: the compiled step is not used"
 )
 POS_TOL = 1e-12  # [m] on positions of ~0.1 m: round-off of a different summation order
 REL_TOL = 1e-10  # potential coefficients and velocities, relative to their largest entry
@@ -86,7 +86,7 @@ def _run_side_by_side(cloud, basis, x0, steps: int, measured_noise_m: float = 0.
                      nrm_tol: float = NRM_TOL, measured_offset_m: np.ndarray | None = None, **cfg) -> HedacExplorer:
     ex_c = HedacExplorer(cloud, basis, HedacConfig(n_eigen=basis.evecs.shape[1], **cfg))
     ex_n = ex_c.with_config(compiled=False)
-    assert ex_c._walk_kernel is not None and ex_n._walk_kernel is None
+    assert ex_c._walk_compiled is not None and ex_n._walk_compiled is None
     ex_c.reset(x0)
     ex_n.reset(x0)
     rng = np.random.default_rng(7)
@@ -127,7 +127,7 @@ def _start(cloud, frac: float = 0.3) -> np.ndarray:
 def test_compiled_step_equals_the_numpy_step(objects, name, cfg):
     cloud, basis = objects[name]
     ex = _run_side_by_side(cloud, basis, _start(cloud), steps=150, **cfg)
-    # The comparison means something only if the kernel did take the steps.
+    # The comparison means something only if the compiled step did take the steps.
     assert ex.compiled_steps >= 0.9 * 150
 
 
@@ -150,7 +150,7 @@ def test_several_agents_run_the_numpy_step(objects):
 
 @needs_numba
 def test_measured_positions_beyond_the_cloud_edge_are_pulled_back_alike(objects):
-    # 4 voxels off the plate's rim: the landing slides, is clamped back within max_off_cloud, the
+    # 4 voxels off the plate's rim: the landing slides, is clamped back within max_off_cloud_voxels, the
     # step is shortened and, when halving cannot get back, goes halfway to the nearest point.
     cloud, basis = objects["plate"]
     rim = cloud.points[np.argmax(cloud.points[:, 0])]
@@ -195,12 +195,12 @@ def test_unsynced_runs_follow_the_same_path_until_round_off_grows(objects):
 def test_scan_hole_hops_go_through_numpy_and_agree():
     cloud = gap_strips(0.012, 0.01, seed=3)
     basis = build_basis(cloud, n_eigen=40, n_neighbors=30, cache=False)
-    ex = _run_side_by_side(cloud, basis, cloud.points[20], steps=150, max_bridge=6.0)
+    ex = _run_side_by_side(cloud, basis, cloud.points[20], steps=150, max_bridge_voxels=6.0)
     assert ex.bridges_taken >= 1, "the scenario must make the agent hop"
     assert 0 < ex.compiled_steps < 150  # the hops ran in numpy, the walk compiled
 
 
-def _kernel_state(pts: np.ndarray, k: int = 8, seed: int = 0) -> dict:
+def _step_state(pts: np.ndarray, k: int = 8, seed: int = 0) -> dict:
     """Arguments of the compiled step on a bare cloud, every point a target point."""
     rng = np.random.default_rng(seed)
     n = len(pts)
@@ -214,10 +214,10 @@ def _kernel_state(pts: np.ndarray, k: int = 8, seed: int = 0) -> dict:
         tpos=np.arange(n, dtype=np.int64), p_t=np.full(n, 1.0 / n), phitm_t=rng.normal(size=(n, k)),
         coef=rng.normal(size=k), s_ext=rng.uniform(0.0, 1.0, n + 1), decay=np.full(k, 0.9), phi=phi,
         has=np.zeros(n, dtype=bool), n_n=8,
-        prm=ker.params(agent_radius_m=0.0075, eps2=(1 / 0.0075) ** 2, source_weight=1.0, max_acceleration=0.003,
+        prm=cs.params(agent_radius_m=0.0075, eps2=(1 / 0.0075) ** 2, source_weight=1.0, max_acceleration=0.003,
                        max_velocity=0.003, max_step_m=0.003, dt=1.0, max_off_m=0.003, edge_offset=0.25,
                        normalize_by_target=True, order=2),
-        out=np.zeros(ker.OUT_SIZE), c_used=np.zeros(n), active=np.zeros(n, dtype=np.uint8), sums=np.zeros((3, k)),
+        out=np.zeros(cs.OUT_SIZE), c_used=np.zeros(n), active=np.zeros(n, dtype=np.uint8), sums=np.zeros((3, k)),
         dcoef=np.zeros(k),
     )
 
@@ -232,20 +232,20 @@ def _grid(n_side: int = 9) -> np.ndarray:
 @pytest.mark.parametrize("case", ["degenerate", "edge_gap", "flat"])
 def test_a_case_left_to_numpy_changes_no_state(case):
     pts = _grid()
-    st = _kernel_state(pts)
-    expected = ker.FLAT
+    st = _step_state(pts)
+    expected = cs.FLAT
     if case == "degenerate":  # collinear points: the numpy fit's line patch
-        st = _kernel_state(np.c_[np.arange(12) * 0.003, np.zeros(12), np.zeros(12)])
-        expected = ker.DEGENERATE
+        st = _step_state(np.c_[np.arange(12) * 0.003, np.zeros(12), np.zeros(12)])
+        expected = cs.DEGENERATE
     elif case == "edge_gap":  # a corner of the grid, every point linked across a hole
         st["has"][:] = True
-        expected = ker.EDGE_GAP
+        expected = cs.EDGE_GAP
     else:  # no potential anywhere (Φ = 0) and no source left (p = 0): the gradient vanishes
         st["phi"] = np.zeros_like(st["phi"])
         st["phi"].setflags(write=False)
         st["p_t"][:] = 0.0
     before = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in st.items()}
-    status = ker.compiled_walk_step()(*st.values())
+    status = cs.compiled_walk_step()(*st.values())
     assert status == expected
     for key in ("cov", "coef", "s_ext", "x", "vel", "nrm"):
         np.testing.assert_array_equal(st[key], before[key], err_msg=key)
@@ -254,21 +254,21 @@ def test_a_case_left_to_numpy_changes_no_state(case):
 @needs_numba
 def test_the_fits_tolerances_come_from_the_parameters_not_the_compiled_code():
     # numba would keep constants imported from fit.py in its cache after fit.py changed
-    st = _kernel_state(_grid())
-    assert ker.compiled_walk_step()(*st.values()) == ker.OK  # a regular grid: a plane
-    st = _kernel_state(_grid())
-    st["prm"][ker._DEGENERACY] = 1.0  # every neighbourhood counts as degenerate
-    assert ker.compiled_walk_step()(*st.values()) == ker.DEGENERATE
+    st = _step_state(_grid())
+    assert cs.compiled_walk_step()(*st.values()) == cs.OK  # a regular grid: a plane
+    st = _step_state(_grid())
+    st["prm"][cs._DEGENERACY] = 1.0  # every neighbourhood counts as degenerate
+    assert cs.compiled_walk_step()(*st.values()) == cs.DEGENERATE
 
 
 @needs_numba
-def test_a_kernel_that_fails_to_build_falls_back_to_numpy_with_a_warning(objects, monkeypatch):
+def test_a_compiled_step_that_fails_to_build_falls_back_to_numpy_with_a_warning(objects, monkeypatch):
     def broken():
         raise RuntimeError("no compiler here")
 
-    real = ker.compiled_walk_step
-    monkeypatch.setattr(ker, "_failure", None)  # restored after the test: later tests compile again
-    monkeypatch.setattr(ker, "compiled_walk_step", broken)
+    real = cs.compiled_walk_step
+    monkeypatch.setattr(cs, "_failure", None)  # restored after the test: later tests compile again
+    monkeypatch.setattr(cs, "compiled_walk_step", broken)
     cloud, basis = objects["bowl"]
     with pytest.warns(RuntimeWarning, match="compiled exploration step is unavailable.*no compiler here"):
         ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
@@ -277,14 +277,14 @@ def test_a_kernel_that_fails_to_build_falls_back_to_numpy_with_a_warning(objects
         ex.step()
     assert ex.compiled_steps == 0 and ex.path_length > 0
     # The failure is remembered: the next explorer does not try again, and says why.
-    monkeypatch.setattr(ker, "compiled_walk_step", real)
+    monkeypatch.setattr(cs, "compiled_walk_step", real)
     with pytest.warns(RuntimeWarning, match="no compiler here"):
         again = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
     assert not again.compiled
 
 
 @needs_numba
-def test_a_kernel_that_fails_mid_run_hands_over_to_numpy(objects):
+def test_a_compiled_step_that_fails_mid_run_hands_over_to_numpy(objects):
     cloud, basis = objects["bowl"]
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
     ex.reset(_start(cloud))
@@ -294,7 +294,7 @@ def test_a_kernel_that_fails_mid_run_hands_over_to_numpy(objects):
     def broken(*args):
         raise TypeError("no matching definition")
 
-    ex._walk_kernel = broken
+    ex._walk_compiled = broken
     with pytest.warns(RuntimeWarning, match="runs numpy from now on.*no matching definition"):
         ex.step()
     for _ in range(3):
@@ -305,13 +305,13 @@ def test_a_kernel_that_fails_mid_run_hands_over_to_numpy(objects):
 def test_without_numba_or_when_switched_off_the_numpy_step_runs(objects, monkeypatch):
     cloud, basis = objects["bowl"]
     off = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, compiled=False))
-    monkeypatch.setattr(ker, "available", lambda: False)
+    monkeypatch.setattr(cs, "available", lambda: False)
     missing = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
     for ex in (off, missing):
         ex.reset(_start(cloud))
         for _ in range(5):
             ex.step()
-        assert ex._walk_kernel is None and ex.compiled_steps == 0 and ex.path_length > 0
+        assert ex._walk_compiled is None and ex.compiled_steps == 0 and ex.path_length > 0
 
 
 @needs_numba
@@ -320,16 +320,14 @@ def test_numba_with_its_jit_disabled_is_not_used(objects, monkeypatch):
 
     monkeypatch.setattr(numba.config, "DISABLE_JIT", True)
     # restored after the test: the compiled step, its helpers and the failure flag
-    for name in ("_compiled", "_failure", "_nearest", "_restore", "_land", "_sphere_beats_plane", "project_floats",
-                 "tangent_floats",
-                 "plane_slope", "transported_floats", "braked_direction"):
-        monkeypatch.setattr(ker, name, getattr(ker, name))
-    ker._compiled = None
+    for name in ("_compiled", "_failure", *cs.HELPERS):
+        monkeypatch.setattr(cs, name, getattr(cs, name))
+    cs._compiled = None
     cloud, basis = objects["bowl"]
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # quietly numpy: nothing failed
         ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60))
-    assert not ex.compiled and ker._failure is None
+    assert not ex.compiled and cs._failure is None
 
 
 @pytest.mark.parametrize("value", [1, "yes", None])
@@ -347,7 +345,7 @@ def test_the_small_sphere_check_decides_as_the_numpy_fit(rng):
 
     from .test_fit import RAGGED_EDGE_MM
 
-    ker.compiled_walk_step()  # compiles the helpers in place
+    cs.compiled_walk_step()  # compiles the helpers in place
     cases = [RAGGED_EDGE_MM * 1e-3]
     for _ in range(300):
         centre = rng.normal(size=3)
@@ -362,13 +360,13 @@ def test_the_small_sphere_check_decides_as_the_numpy_fit(rng):
         w = np.c_[q, -np.ones(len(q)), -0.5 * (q * q).sum(axis=1)]
         for c, r in ((rng.normal(size=3), rng.uniform(0.3, 3.0)),):
             want = fit_mod._sphere_beats_plane(w, *c, r)
-            got = ker._sphere_beats_plane(d, np.arange(len(d)), len(d), inv, *c, r)
+            got = cs._sphere_beats_plane(d, np.arange(len(d)), len(d), inv, *c, r)
             assert got == want, (d, c, r)
             verdicts.append(want)
         F = fit_mod.fit_local(q)  # the algebraic sphere itself, where the fit gave one
         if F.kind == "sphere":
             want = fit_mod._sphere_beats_plane(w, *F.center, F.radius)
-            assert ker._sphere_beats_plane(d, np.arange(len(d)), len(d), inv, *F.center, F.radius) == want
+            assert cs._sphere_beats_plane(d, np.arange(len(d)), len(d), inv, *F.center, F.radius) == want
             verdicts.append(want)
     assert 0.05 < np.mean(verdicts) < 0.95  # both verdicts occur
 
@@ -378,7 +376,7 @@ def test_the_command_frame_is_orthonormal_at_its_point(objects, compiled):
     """(tangent_u, tangent_v, normal) of a command are orthonormal at the command's point and its
     velocity is tangent (the tangent basis was the one before the move, up to 31° off the normal on
     the bunny, and the velocity the chord)."""
-    if compiled and not ker.available():
+    if compiled and not cs.available():
         pytest.skip("numba (the 'fast' extra) is not installed")
     cloud, basis = objects["bowl"]
     ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=60, compiled=compiled))
@@ -398,13 +396,20 @@ def test_compile_pending_says_whether_a_compile_or_cache_load_is_ahead(objects, 
     ex = HedacExplorer(cloud, basis, HedacConfig(agent_radius_m=0.015, n_eigen=basis.evecs.shape[1]))
     ex.reset(_start(cloud))
     ex.step()
-    assert ex.compiled_steps == 1 and not ker.compile_pending()  # machine code in hand
-    monkeypatch.setattr(ker, "_compiled", None)
-    assert ker.compile_pending()  # a fresh process: numba will compile or load its cache
+    assert ex.compiled_steps == 1 and not cs.compile_pending()  # machine code in hand
+    monkeypatch.setattr(cs, "_compiled", None)
+    assert cs.compile_pending()  # a fresh process: numba will compile or load its cache
     from numba import config
 
     monkeypatch.setattr(config, "DISABLE_JIT", True)
-    assert not ker.compile_pending()  # the step would run numpy: nothing to wait for
+    assert not cs.compile_pending()  # the step would run numpy: nothing to wait for
     monkeypatch.setattr(config, "DISABLE_JIT", False)
-    monkeypatch.setattr(ker, "_failure", "broken")
-    assert not ker.compile_pending()
+    monkeypatch.setattr(cs, "_failure", "broken")
+    assert not cs.compile_pending()
+
+
+def test_the_former_module_name_is_the_compiled_step_itself():
+    """``tactex.ergodic.kernel`` is the same module object: attributes set through it reach the step."""
+    from tactex.ergodic import kernel
+
+    assert kernel is cs
