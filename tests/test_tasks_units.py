@@ -540,8 +540,8 @@ def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> No
     assert move_s(chosen) < move_s(nearest_camera)  # from 45° above the wall the nearest dirt is its top
     calls = []
     plan = clean._hover_plan
-    monkeypatch.setattr(clean, "_hover_plan", lambda *a, **k: calls.append(1) or plan(*a, **k))
-    monkeypatch.setattr(clean, "START_CANDIDATES", 5)
+    monkeypatch.setattr(clean.motion, "_hover_plan", lambda *a, **k: calls.append(1) or plan(*a, **k))
+    monkeypatch.setattr(clean.motion, "START_CANDIDATES", 5)
     assert clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m) is not None
     assert 1 <= len(calls) <= 5
     bare = replace(cloud, normals=None)

@@ -1426,3 +1426,10 @@ class HedacExplorer:
         """A fresh explorer on the same cloud and basis with some parameters changed."""
         return HedacExplorer(self.cloud, self.basis, replace(self.config, **changes),
                              keep_out=self._keep_out if self._ko_idx.size else None)
+
+    # -- what a task follows (tactex.tasks.path_source.PathSource): reset, step, update_target, path_length and
+    # relocations above, and
+    @property
+    def done(self) -> bool:
+        """Never: the explorer has no end of its own; the task decides when to stop following it."""
+        return False

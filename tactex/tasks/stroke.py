@@ -1,4 +1,4 @@
-"""Straight strokes through small islands of dirt (issue 21).
+"""Straight strokes through small islands of dirt.
 
 An island of dirt smaller than the pad needs no ergodic coverage: one straight pass of the pad over it
 wipes every point of it, back and forth until the robot's wear model
@@ -46,7 +46,8 @@ def surface_line(cloud: SurfaceCloud, tree: cKDTree, a_m: np.ndarray, b_m: np.nd
 
 @dataclass
 class IslandStroke:
-    """A stroke in progress: ``path`` serves its commands; ``island`` are the cloud indices it wipes, between
+    """A stroke in progress: ``path`` serves its commands (a :class:`~tactex.tasks.path_source.PathSource`);
+    ``island`` are the cloud indices it wipes, between
     ``a`` and ``b`` (3,) [m], the ends of one pass (the same point for a transfer only)."""
 
     path: WaypointPath
