@@ -1,4 +1,4 @@
-"""A planned first sweep over the captured dirt (issue 21).
+"""A planned first sweep over the captured dirt.
 
 At the first touch-down the robot knows the whole view's dirt and nothing has been wiped yet, so the
 first stretch in contact can be planned instead of followed step by step: a polyline of a few straight

@@ -1,5 +1,5 @@
 """Where a cleaning run's time goes: contact on dirt, contact on clean surface, transit, vision trips,
-touch-downs (issue 21: time to clean is the figure users compare).
+touch-downs (time to clean is the figure users compare).
 
 The task names what the robot is doing (:data:`ACTIVITIES`); each control tick is added to one
 bucket (:data:`BUCKETS`). Contact ticks of the exploration are split by the ground-truth dirt of a

@@ -1,4 +1,4 @@
-"""The robot's own estimate of the dirt it has removed, from what it feels (issue 21).
+"""The robot's own estimate of the dirt it has removed, from what it feels.
 
 Between two camera views the cleaning program knows where the pad was, how hard it pressed and how
 fast it slid: Preston's law (dh/dt = k_p · p · v, with p = F_n / (π r²) on the pad disc) turns that
