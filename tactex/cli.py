@@ -64,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-# "HedacConfig.max_snap_distance" / "n_eigen=200" in library messages: the names a Python caller sets.
+# "HedacConfig.max_snap_distance_voxels" / "n_eigen=200" in library messages: the names a Python caller sets.
 # Only words that stand alone (after a space or "(") outside quotes: quoted spans are the user's own
 # paths and values ('runs/seed=3/x.ply'), which must come back as typed.
 _CONFIG_FIELD = re.compile(r"(?:^|(?<=[\s(]))[A-Z]\w*(?:Config|Params)\.([a-z_][a-z0-9_]*)\b")

@@ -211,6 +211,20 @@ def test_object_names_and_markings_in_any_case() -> None:
     assert info["name"] == "cup" and info["marking"] == "X" and cloud.n_target > 0
 
 
+def test_clean_takes_its_preston_estimate_by_the_old_name_too() -> None:
+    """clean's k_p is its wear model's estimate (--preston-estimate), the twin's --preston-coefficient the simulated
+    sponge's true one: clean's old spelling still works, hidden from its help."""
+    parser = build_parser()
+    from tactex.tasks.clean import CleanConfig
+
+    for flag in ("--preston-estimate", "--preston-coefficient"):
+        args = parser.parse_args(["clean", flag, "0.004", "--out", "o"])
+        assert dataclass_from_args(CleanConfig, args).preston_coefficient == 0.004
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    shown = {s for a in sub.choices["clean"]._actions if a.help != "==SUPPRESS==" for s in a.option_strings}
+    assert "--preston-estimate" in shown and "--preston-coefficient" not in shown
+
+
 def test_help_shows_each_default_once_as_typed(capsys) -> None:
     parser = build_parser()
     for command in ("explore", "sweep", "clean", "wipe", "demo", "twin"):

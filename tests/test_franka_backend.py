@@ -333,13 +333,13 @@ def test_clean_of_a_given_cloud_on_the_twin_plans_its_sweep_without_dropping_the
     # command comes too late and the run ends. The search is made slower here so that it always would.
     from tactex.tasks import clean
 
-    plan_sweep = clean.plan_sweep
+    plan_sweep = clean.legs.plan_sweep
 
     def slow_plan_sweep(*args, **kwargs):
         time.sleep(1.5)
         return plan_sweep(*args, **kwargs)
 
-    monkeypatch.setattr(clean, "plan_sweep", slow_plan_sweep)
+    monkeypatch.setattr(clean.legs, "plan_sweep", slow_plan_sweep)
     with TwinProcess("cup") as twin:
         cloud = tmp_path / "cup.ply"
         assert main(["twin", "--object", "cup", "--export-cloud", str(cloud)]) == 0

@@ -100,7 +100,7 @@ def test_model_and_ergodicity_reads_come_with_the_steps_that_use_them() -> None:
     cmd, reads = ahead.take()
     assert cmd.point[0] == pytest.approx(0.002)
     assert reads["predicted"].sum() == pytest.approx(1.0) and reads["island_left"] is True  # at x = 2 mm
-    assert "ergodicity" not in reads  # only a HedacExplorer has one
+    assert "ergodicity" not in reads  # only an explorer has one
     # the same reads for a step taken in place; none of the model's while a stroke drives the agent
     assert set(ahead.read(cmd, 2)) == {"predicted", "island_left"} and ahead.read(cmd, 2, model=False) == {}
 
@@ -115,7 +115,7 @@ def test_an_explorer_reads_its_ergodicity_ahead_every_few_steps(tmp_path) -> Non
     ex = HedacExplorer(cloud, build_basis(cloud, n_eigen=30, cache=False),
                        HedacConfig(n_eigen=30, agent_radius_m=0.015, compiled=False))
     ex.reset(cloud.points[np.flatnonzero(cloud.target > 0)[0]])
-    ahead = StepAhead(ex, 0.001, read_residual=True)
+    ahead = StepAhead(ex, 0.001, read_residual=True, explorer=ex)
     ahead.arm(0.002, ERGODICITY_EVERY_STEPS, True)
     ahead(_state(0.001))
     cmd, reads = ahead.take()

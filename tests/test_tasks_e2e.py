@@ -275,12 +275,12 @@ def test_the_cup_starts_with_a_planned_sweep_of_its_marking(monkeypatch: pytest.
                         lambda self, target: events.append(("update", float(target.sum()))) or update(self, target))
     monkeypatch.setattr(HedacExplorer, "step", lambda self, *a, **k: events.append(("step",)) or step(self, *a, **k))
     swept: list[float] = []  # the dirt mass the sweep was planned for
-    plan_sweep = clean.plan_sweep
-    monkeypatch.setattr(clean, "plan_sweep", lambda cloud, tree, target, *a, **k:
+    plan_sweep = clean.legs.plan_sweep
+    monkeypatch.setattr(clean.legs, "plan_sweep", lambda cloud, tree, target, *a, **k:
                         swept.append(float(np.sum(target))) or plan_sweep(cloud, tree, target, *a, **k))
     strokes: list = []  # the straight strokes planned through small islands (the sweep is none of them)
-    plan_stroke = clean.plan_stroke
-    monkeypatch.setattr(clean, "plan_stroke", lambda *a, **k: strokes.append(plan_stroke(*a, **k)) or strokes[-1])
+    plan_stroke = clean.legs.plan_stroke
+    monkeypatch.setattr(clean.legs, "plan_stroke", lambda *a, **k: strokes.append(plan_stroke(*a, **k)) or strokes[-1])
     cfg = CleanConfig(object_name="cup", marking="blobs", budget_s=9.0)
     m = run_clean(cfg, progress=False).metrics
     # the handover: the explorer restarts where the sweep ended and the model's target is queued at once, for the
@@ -315,7 +315,7 @@ def test_a_sweep_whose_touch_down_is_out_of_reach_is_not_reported_as_slid(monkey
 
     planned: list = []
     refused: list = []
-    plan_sweep, hover_plan = clean.plan_sweep, clean._hover_plan
+    plan_sweep, hover_plan = clean.legs.plan_sweep, clean.motion._hover_plan
 
     def record_plan(*args, **kwargs):
         plan = plan_sweep(*args, **kwargs)
@@ -328,8 +328,8 @@ def test_a_sweep_whose_touch_down_is_out_of_reach_is_not_reported_as_slid(monkey
             raise SimulationError("test: the sweep's first hover is out of reach")
         return hover_plan(loop, point_m, *args, **kwargs)
 
-    monkeypatch.setattr(clean, "plan_sweep", record_plan)
-    monkeypatch.setattr(clean, "_hover_plan", unreachable_sweep_start)
+    monkeypatch.setattr(clean.legs, "plan_sweep", record_plan)
+    monkeypatch.setattr(clean.motion, "_hover_plan", unreachable_sweep_start)
     with pytest.warns(RuntimeWarning, match="no hover pose"):
         m = run_clean(CleanConfig(object_name="cup", marking="blobs", budget_s=4.0), progress=False).metrics
     assert refused, "the sweep's hover was never asked for: the scenario does not test the drop"
@@ -345,14 +345,14 @@ def test_the_first_stroke_is_planned_once(tmp_path, monkeypatch: pytest.MonkeyPa
     from tactex.tasks import clean
 
     calls: list[tuple] = []  # each plan_stroke's island point, start and result
-    plan_stroke = clean.plan_stroke
+    plan_stroke = clean.legs.plan_stroke
 
     def record(cloud, tree, wear, island_point_m, from_m, *args, **kwargs):
         out = plan_stroke(cloud, tree, wear, island_point_m, from_m, *args, **kwargs)
         calls.append((tuple(np.round(island_point_m, 6)), tuple(np.round(from_m, 6)), out))
         return out
 
-    monkeypatch.setattr(clean, "plan_stroke", record)
+    monkeypatch.setattr(clean.legs, "plan_stroke", record)
     _, path, _, _, _ = _plate_with_keep_out(tmp_path, lambda x, y: np.hypot(x - 0.05, y) <= 0.005,
                                             lambda x, y: np.zeros_like(x, dtype=bool))
     cfg = CleanConfig(object_name="plate", budget_s=8.0, n_eigen=60, cloud=str(path), eigensolver="arpack")

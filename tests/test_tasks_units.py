@@ -540,8 +540,8 @@ def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> No
     assert move_s(chosen) < move_s(nearest_camera)  # from 45° above the wall the nearest dirt is its top
     calls = []
     plan = clean._hover_plan
-    monkeypatch.setattr(clean, "_hover_plan", lambda *a, **k: calls.append(1) or plan(*a, **k))
-    monkeypatch.setattr(clean, "START_CANDIDATES", 5)
+    monkeypatch.setattr(clean.motion, "_hover_plan", lambda *a, **k: calls.append(1) or plan(*a, **k))
+    monkeypatch.setattr(clean.motion, "START_CANDIDATES", 5)
     assert clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m) is not None
     assert 1 <= len(calls) <= 5
     bare = replace(cloud, normals=None)
@@ -671,3 +671,19 @@ def test_the_wipes_approach_gives_up_past_the_expected_surface():
     assert not approach.gave_up(state(-0.05, fz=2.0)) and not approach.searching
     with pytest.raises(ConfigError, match="approach_depth_m"):
         WipeConfig(approach_depth_m=-0.01)
+
+
+def test_the_clean_explorer_config_is_nested_and_follows_the_options() -> None:
+    """CleanConfig.explorer is CLEAN_EXPLORER (a robot in contact: no hops, no edge braking, the ergodic source)
+    with the options of the same names; max_velocity bounds the acceleration too; a replace() remakes it."""
+    from dataclasses import replace
+
+    from tactex.tasks.clean import CLEAN_EXPLORER
+
+    cfg = CleanConfig(alpha=5.0, cooling=0.1, max_velocity=0.5, agent_radius_m=0.03, seed=3)
+    ex = cfg.explorer
+    assert (ex.alpha, ex.cooling, ex.max_velocity, ex.max_acceleration, ex.agent_radius_m, ex.seed) == (
+        5.0, 0.1, 0.5, 0.5, 0.03, 3)
+    assert (ex.max_bridge_voxels, ex.edge_braking, ex.source_mode) == (0.0, False, "ergodic")
+    assert CleanConfig().explorer == replace(CLEAN_EXPLORER, seed=0)
+    assert replace(cfg, alpha=7.0).explorer.alpha == 7.0

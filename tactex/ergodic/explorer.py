@@ -531,6 +531,13 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         return HedacExplorer(self.cloud, self.basis, replace(self.config, **changes),
                              keep_out=self._keep_out if self._ko_idx.size else None)
 
+    # -- what a task follows (tactex.tasks.path_source.PathSource): reset, step, update_target, path_length and
+    # relocations above, and
+    @property
+    def done(self) -> bool:
+        """Never: the explorer has no end of its own; the task decides when to stop following it."""
+        return False
+
 
 class Exploration(NamedTuple):
     """One agent's run from :func:`explore`: the start and ``steps`` steps (world frame).

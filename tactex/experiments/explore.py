@@ -24,23 +24,23 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from tactex.config import param, to_jsonable
 from tactex.errors import ConfigError, ExplorationError, InputError, RunInterrupted
 from tactex.pointcloud import SurfaceCloud
-from tactex.pointcloud.io import SUPPORTED_SUFFIXES, read_cloud
+from tactex.pointcloud.io import SUPPORTED_SUFFIXES
 from tactex.pointcloud.keep_out import (
     DEFAULT_KEEP_OUT_THRESHOLD,
     check_keep_out_options,
-    keep_out_on_voxels,
     raw_keep_out,
 )
 from tactex.pointcloud.markings import marked_cloud, resolve_marking
 from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
-from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target, file_target
+from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target
+from tactex.pointcloud.target_file import load_target_file
 from tactex.report.outdir import prepare_out_dir
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
@@ -224,16 +224,12 @@ def load_explore_cloud_keep_out(
         raise InputError(f"point cloud file '{path}' does not exist")
     if cfg.marking is not None:
         raise ConfigError("--marking applies to built-in objects; a file's target comes from --target")
-    read = read_cloud(path, mesh_spacing_m=cfg.voxel_size_m or 0.003)
-    raw = read.cloud
-    voxel = 0.0 if read.n_faces else cfg.voxel_size_m  # a mesh is sampled at the voxel spacing already
-    keep_out = raw_keep_out(raw, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask, read)
-    cloud, rule = file_target(raw, voxel, cfg.target_rule(), src)
-    if keep_out is not None and voxel > 0:
-        keep_out = keep_out_on_voxels(raw.points, keep_out, voxel)
-    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(raw),
+    loaded = load_target_file(src, cfg.voxel_size_m, cfg.target_rule(), keep_out_channel=cfg.keep_out_channel,
+                              keep_out_threshold=cfg.keep_out_threshold, keep_out_mask=cfg.keep_out_mask)
+    read, cloud = loaded.read, loaded.cloud
+    return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(read.cloud),
                    "n_dropped_nonfinite": read.n_dropped, "n_mesh_faces": read.n_faces, "notes": list(read.notes),
-                   "target_rule": rule, "target_where": describe_target(cloud)}, keep_out
+                   "target_rule": loaded.target_rule, "target_where": describe_target(cloud)}, loaded.keep_out
 
 
 def _default_agent_radius(source_info: dict[str, Any]) -> float:
@@ -319,11 +315,6 @@ def run_explore(
     Raises:
         RunInterrupted: Ctrl-C during the steps, once the steps done are written (a partial run).
     """
-    from tactex.ergodic import HedacExplorer
-    from tactex.ergodic.kernel import compile_pending
-    from tactex.ergodic.sweep import sweeps
-    from tactex.spectral import build_basis
-
     cfg = config if config is not None else ExploreConfig()
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
@@ -339,54 +330,11 @@ def run_explore(
         say(f"cloud: {note}")
     say(f"cloud: {len(cloud)} points, spacing {cloud.spacing * 1e3:.2f} mm")
     say(f"target: {source_info['target_rule']}: {source_info['target_where']}")
-
-    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
-    t0 = time.perf_counter()
-    basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache,
-                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
-    basis_s = time.perf_counter() - t0
-    say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
-    # the sweep source steps in numpy (the explorer also leaves the keep-out zone's clearance band out; a target
-    # uniform outside the zone is uniform outside the band too)
-    if hcfg.compiled and not sweeps(hcfg.source_mode, cloud.target, keep_out) and compile_pending():
-        say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
-    t1 = time.perf_counter()
-    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
-    setup_s = time.perf_counter() - t1
-    preprocess_s = time.perf_counter() - t0
-    say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
-    if explorer.source_mode == "sweep" and explorer.planned_passes:
-        origin = "outer edge" if hcfg.sweep_pass_origin == "edge" else "start"
-        say(f"source: sweep (the target is the whole surface: every point passed over once) along planned passes "
-            f"{hcfg.sweep_pass_spacing:g} r_a apart from the {origin} (0.9 of it where a part's plan leaves fewer "
-            "gaps so), then a hunt along the surface and the potential over what they missed; "
-            "--sweep-pass-spacing 0 for the potential alone, "
-            "--source-mode ergodic for eq. 1–2")
-    elif explorer.source_mode == "sweep":
-        say("source: sweep (the target is the whole surface: every point passed over once, in passes along what "
-            "is covered; --source-mode ergodic for eq. 1–2)")
+    setup = _set_up(cloud, cfg, hcfg, keep_out, say)
+    explorer, basis = setup.explorer, setup.basis
     labels = basis.component_labels()
     sizes = np.bincount(labels)
-    if basis.n_components > 1:
-        if hcfg.relocate:
-            say(
-                f"the Laplacian sees {basis.n_components} separate parts (sizes {sorted(sizes.tolist())[::-1]}; heat "
-                "does not diffuse between them, TEC §VI-D): the agent lifts off and moves to the target left on "
-                "another part when its own is done"
-            )
-        else:
-            say(
-                f"warning: the Laplacian sees {basis.n_components} separate parts (sizes "
-                f"{sorted(sizes.tolist())[::-1]}); heat does not diffuse between them (TEC §VI-D) and relocation is "
-                f"off (--relocate): raise --n-neighbors (now {cfg.n_neighbors}) to join them"
-            )
-    if keep_out is not None:
-        say(f"keep-out zone: {int(keep_out.sum())} points; the footprint stays off them")
-        if explorer.target_near_keep_out:
-            clear_mm = explorer.keep_out_clearance_m * 1e3
-            say(f"{explorer.target_near_keep_out} target points lie within {clear_mm:.1f} mm of the zone (footprint "
-                "radius + ½ voxel), where the agent may not stand: left out of the target and of the coverage "
-                "residual (a footprint passing by may still touch them)")
+    _say_parts(cfg, hcfg, basis, sizes, explorer, keep_out, say)
 
     x0, x0_source = _start_position(cloud, cfg, source_info)
     start = explorer.reset(x0)[0].point
@@ -398,58 +346,16 @@ def run_explore(
             "warning: the start lies in a part without target and relocation is off (--relocate); "
             "the agent will not find any")
     n = cfg.steps
-    trajectory = np.empty((n, 3))
-    ergodicity = np.empty(n)
-    residual = np.empty(n)
-    path_length = np.empty(n)
-    air_length = np.empty(n)
-    step_s = np.empty(n)
-    every = max(1, n // 10)
-    t_loop = last_said = time.perf_counter()
-    done = 0  # steps recorded in full
-    try:
-        for k in range(n):
-            t = time.perf_counter()
-            cmd = explorer.step()
-            step_s[k] = time.perf_counter() - t
-            trajectory[k] = cmd.point
-            ergodicity[k] = explorer.ergodicity()
-            residual[k] = explorer.coverage_residual()
-            path_length[k] = explorer.path_length
-            air_length[k] = explorer.air_path_length
-            done = k + 1
-            now = time.perf_counter()
-            if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
-                last_said = now
-                eta = (now - t_loop) / (k + 1) * (n - k - 1)
-                say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
-                    + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
-    except KeyboardInterrupt:
-        if done == 0:
-            raise
-        # Ctrl-C on a long run: the steps done are written as a partial run, then the interrupt goes on
-        say(f"interrupted after {done} of {n} steps: writing them")
-        trajectory, ergodicity, residual = trajectory[:done], ergodicity[:done], residual[:done]
-        path_length, air_length, step_s = path_length[:done], air_length[:done], step_s[:done]
+    walk = _walk(explorer, n, say)
+    trajectory, ergodicity, residual = walk.trajectory, walk.ergodicity, walk.residual
+    path_length, air_length, step_s, done = walk.path_length, walk.air_length, walk.step_s, walk.done
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
         raise ExplorationError("the exploration produced NaN/inf values; please report this with the cloud and seed")
 
     stalled = _stalled_from(trajectory, explorer.spacing, hcfg.max_velocity)
     stalled_from = None if stalled is None or residual[-1] <= STALL_RESIDUAL else stalled + 1  # 1-based, as "step k/n"
     relocations = [r for r in explorer.relocations if r.step < done]  # not the step Ctrl-C cut
-    if relocations:
-        counts = collections.Counter(m.reason for m in relocations)
-        why = ", ".join(f"{r} {c}" for r, c in counts.items())
-        say(f"relocated {len(relocations)} time(s) ({why}): {air_length[-1]:.3f} m through the air, "
-            f"{path_length[-1]:.3f} m on the surface")
-    if stalled_from is not None:
-        say(
-            f"warning: the agent stayed in place from step {stalled_from} on, coverage residual {residual[-1]:.3f}"
-            + (f": {explorer.untouched_count()} target points left untouched, none the explorer may walk or fly "
-               "to (each attempt stalled); HEDAC revisits the surface in place" if hcfg.relocate else
-               ": the potential may rise only across gaps it may not leave the cloud to cross; let it relocate "
-               "(--relocate), or see --max-off-cloud, --max-bridge")
-        )
+    _say_outcome(explorer, hcfg, relocations, stalled_from, walk, say)
     coverage = explorer.coverage
     potential = explorer.potential
     metrics: dict[str, Any] = {
@@ -464,9 +370,9 @@ def run_explore(
         "component_sizes": sorted(sizes.tolist(), reverse=True),
         "start_part_has_target": start_part_target > 0,
         "load_time_s": load_s,
-        "basis_time_s": basis_s,
-        "explorer_setup_time_s": setup_s,
-        "preprocess_time_s": preprocess_s,
+        "basis_time_s": setup.basis_s,
+        "explorer_setup_time_s": setup.setup_s,
+        "preprocess_time_s": setup.preprocess_s,
         "step_kernel": "numba" if explorer.compiled else "numpy",
         "source_mode": explorer.source_mode,
         "planned_passes": explorer.planned_passes,
@@ -505,6 +411,145 @@ def run_explore(
         raise RunInterrupted(f"the {done} steps done (of {n}) are in {out}: metrics.json (\"partial\": true), "
                              "trajectory.npy, series.npz and the plots")
     return ExploreResult(out_dir=out, metrics=to_jsonable(metrics), trajectory=trajectory, files=files)
+
+
+class _SetUp(NamedTuple):
+    """The explorer of a run, its basis and the wall-clock times of making them [s]."""
+
+    explorer: Any
+    basis: Any
+    basis_s: float
+    setup_s: float
+    preprocess_s: float
+
+
+def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray | None, say: Progress) -> _SetUp:
+    """The Laplace basis of ``cloud`` and the HEDAC explorer on it, saying what they are."""
+    from tactex.ergodic import HedacExplorer
+    from tactex.ergodic.kernel import compile_pending
+    from tactex.ergodic.sweep import sweeps
+    from tactex.spectral import build_basis
+
+    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
+    t0 = time.perf_counter()
+    basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache,
+                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
+    basis_s = time.perf_counter() - t0
+    say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
+    # the sweep source steps in numpy (the explorer also leaves the keep-out zone's clearance band out; a target
+    # uniform outside the zone is uniform outside the band too)
+    if hcfg.compiled and not sweeps(hcfg.source_mode, cloud.target, keep_out) and compile_pending():
+        say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
+    t1 = time.perf_counter()
+    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
+    setup_s = time.perf_counter() - t1
+    preprocess_s = time.perf_counter() - t0
+    say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
+    if explorer.source_mode == "sweep" and explorer.planned_passes:
+        origin = "outer edge" if hcfg.sweep_pass_origin == "edge" else "start"
+        say(f"source: sweep (the target is the whole surface: every point passed over once) along planned passes "
+            f"{hcfg.sweep_pass_spacing:g} r_a apart from the {origin} (0.9 of it where a part's plan leaves fewer "
+            "gaps so), then a hunt along the surface and the potential over what they missed; "
+            "--sweep-pass-spacing 0 for the potential alone, "
+            "--source-mode ergodic for eq. 1–2")
+    elif explorer.source_mode == "sweep":
+        say("source: sweep (the target is the whole surface: every point passed over once, in passes along what "
+            "is covered; --source-mode ergodic for eq. 1–2)")
+    return _SetUp(explorer, basis, basis_s, setup_s, preprocess_s)
+
+
+def _say_parts(cfg: ExploreConfig, hcfg, basis, sizes: np.ndarray, explorer, keep_out: np.ndarray | None,
+               say: Progress) -> None:
+    """What the run should know before the steps: separate parts of the Laplacian, a keep-out zone."""
+    if basis.n_components > 1:
+        if hcfg.relocate:
+            say(
+                f"the Laplacian sees {basis.n_components} separate parts (sizes {sorted(sizes.tolist())[::-1]}; heat "
+                "does not diffuse between them, TEC §VI-D): the agent lifts off and moves to the target left on "
+                "another part when its own is done"
+            )
+        else:
+            say(
+                f"warning: the Laplacian sees {basis.n_components} separate parts (sizes "
+                f"{sorted(sizes.tolist())[::-1]}); heat does not diffuse between them (TEC §VI-D) and relocation is "
+                f"off (--relocate): raise --n-neighbors (now {cfg.n_neighbors}) to join them"
+            )
+    if keep_out is not None:
+        say(f"keep-out zone: {int(keep_out.sum())} points; the footprint stays off them")
+        if explorer.target_near_keep_out:
+            clear_mm = explorer.keep_out_clearance_m * 1e3
+            say(f"{explorer.target_near_keep_out} target points lie within {clear_mm:.1f} mm of the zone (footprint "
+                "radius + ½ voxel), where the agent may not stand: left out of the target and of the coverage "
+                "residual (a footprint passing by may still touch them)")
+
+
+class _Walk(NamedTuple):
+    """Per step of a run (the first ``done``): the agent's point [m], ergodicity, coverage residual, path on the
+    surface and through the air [m], and the step's wall-clock time [s]."""
+
+    trajectory: np.ndarray
+    ergodicity: np.ndarray
+    residual: np.ndarray
+    path_length: np.ndarray
+    air_length: np.ndarray
+    step_s: np.ndarray
+    done: int
+
+
+def _walk(explorer, n: int, say: Progress) -> _Walk:
+    """``n`` steps of ``explorer`` and their series; Ctrl-C keeps the steps done (and re-raises before any)."""
+    trajectory = np.empty((n, 3))
+    ergodicity = np.empty(n)
+    residual = np.empty(n)
+    path_length = np.empty(n)
+    air_length = np.empty(n)
+    step_s = np.empty(n)
+    every = max(1, n // 10)
+    t_loop = last_said = time.perf_counter()
+    done = 0  # steps recorded in full
+    try:
+        for k in range(n):
+            t = time.perf_counter()
+            cmd = explorer.step()
+            step_s[k] = time.perf_counter() - t
+            trajectory[k] = cmd.point
+            ergodicity[k] = explorer.ergodicity()
+            residual[k] = explorer.coverage_residual()
+            path_length[k] = explorer.path_length
+            air_length[k] = explorer.air_path_length
+            done = k + 1
+            now = time.perf_counter()
+            if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
+                last_said = now
+                eta = (now - t_loop) / (k + 1) * (n - k - 1)
+                say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
+                    + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
+    except KeyboardInterrupt:
+        if done == 0:
+            raise
+        # Ctrl-C on a long run: the steps done are written as a partial run, then the interrupt goes on
+        say(f"interrupted after {done} of {n} steps: writing them")
+        trajectory, ergodicity, residual = trajectory[:done], ergodicity[:done], residual[:done]
+        path_length, air_length, step_s = path_length[:done], air_length[:done], step_s[:done]
+    return _Walk(trajectory, ergodicity, residual, path_length, air_length, step_s, done)
+
+
+def _say_outcome(explorer, hcfg, relocations: list, stalled_from: int | None, walk: _Walk, say: Progress) -> None:
+    """The run's flights and a stall at its end, in words."""
+    if relocations:
+        counts = collections.Counter(m.reason for m in relocations)
+        why = ", ".join(f"{r} {c}" for r, c in counts.items())
+        say(f"relocated {len(relocations)} time(s) ({why}): {walk.air_length[-1]:.3f} m through the air, "
+            f"{walk.path_length[-1]:.3f} m on the surface")
+    if stalled_from is not None:
+        say(
+            f"warning: the agent stayed in place from step {stalled_from} on, coverage residual "
+            f"{walk.residual[-1]:.3f}"
+            + (f": {explorer.untouched_count()} target points left untouched, none the explorer may walk or fly "
+               "to (each attempt stalled); HEDAC revisits the surface in place" if hcfg.relocate else
+               ": the potential may rise only across gaps it may not leave the cloud to cross; let it relocate "
+               "(--relocate), or see --max-off-cloud-voxels, --max-bridge-voxels")
+        )
 
 
 def write_explore_report(

@@ -69,9 +69,10 @@ def tangent_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class WaypointPath:
-    """Serves a path of waypoints on a cloud as :class:`ExplorationCommand`s, like the explorer does (same
-    interface: ``reset(x0)``, ``step()``, ``done``), moving at most ``max_step_m`` per step along them; each
-    command's normal is that of the cloud point nearest to it.
+    """Serves a path of waypoints on a cloud as :class:`ExplorationCommand`s, like the explorer does (a
+    :class:`~tactex.tasks.path_source.PathSource`), moving at most ``max_step_m`` per step along them; each
+    command's normal is that of the cloud point nearest to it. It ignores the target and never leaves the
+    surface.
 
     ``tree``: a KD-tree of ``cloud.points`` built already (the wear model's): a path planned while the
     robot is in contact (a stroke) must not spend milliseconds building its own."""
@@ -99,6 +100,14 @@ class WaypointPath:
     @property
     def done(self) -> bool:
         return self._k >= len(self.waypoints) - 1
+
+    @property
+    def relocations(self) -> tuple:
+        """None: a waypoint path slides from one waypoint to the next on the surface."""
+        return ()
+
+    def update_target(self, mass: np.ndarray, keep_coverage: bool = False) -> None:
+        """Nothing changes: the path goes over its waypoints whatever the target."""
 
     @property
     def tree(self) -> cKDTree:

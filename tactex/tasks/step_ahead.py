@@ -22,6 +22,7 @@ import numpy as np
 
 from tactex.ergodic.explorer import HedacExplorer
 from tactex.ergodic.relocation import RelocationCommand
+from tactex.tasks.path_source import PathSource
 
 __all__ = ["ERGODICITY_EVERY_STEPS", "StepAhead"]
 
@@ -33,7 +34,7 @@ class StepAhead:
     """The explorer's next step and its reads, prepared in ``after_send`` (see the module docstring).
 
     Args:
-        source: the explorer (``HedacExplorer``) or a path (``RasterPath``) with ``step(measured)``.
+        source: what the agent follows (a :class:`~tactex.tasks.path_source.PathSource`).
         dt_s: the control period [s].
         wear: the wear model (None without one), read at model-update steps.
         settle: called first in every ``after_send`` (the wear accounting of the last tick), or None.
@@ -41,14 +42,17 @@ class StepAhead:
         read_residual: the coverage residual is read with the ergodicity (a given target cloud).
         model_update_steps: steps between wear-model updates.
         island_radius_m: the radius [m] within which ``island_left`` looks for dirt at the new point.
+        explorer: the HEDAC explorer when it is ``source``, whose ergodicity is read; None: none is.
 
     Before each tick, :meth:`arm` says when the next step is due and whether the explorer takes it;
     at a step tick, :meth:`take` hands over the prepared step, if any.
     """
 
-    def __init__(self, source, dt_s: float, *, wear=None, settle=None, agent_feedback: bool = False,
-                 read_residual: bool = False, model_update_steps: int = 10, island_radius_m: float = 0.05) -> None:
+    def __init__(self, source: PathSource, dt_s: float, *, wear=None, settle=None, agent_feedback: bool = False,
+                 read_residual: bool = False, model_update_steps: int = 10, island_radius_m: float = 0.05,
+                 explorer: HedacExplorer | None = None) -> None:
         self.source, self.dt_s, self.wear, self.settle = source, float(dt_s), wear, settle
+        self.explorer = explorer
         self.agent_feedback, self.read_residual = agent_feedback, read_residual
         self.model_update_steps, self.island_radius_m = int(model_update_steps), float(island_radius_m)
         self._next: tuple[Any, dict[str, Any]] | None = None
@@ -80,16 +84,16 @@ class StepAhead:
     def read(self, cmd, step_index: int, model: bool = True) -> dict[str, Any]:
         """What the decisions of the ``step_index``-th step since the last view read, after its command
         ``cmd``: ``ergodicity`` and ``residual`` (None unless ``read_residual``) every
-        :data:`ERGODICITY_EVERY_STEPS` steps of a :class:`HedacExplorer`; ``predicted`` (the wear model's
+        :data:`ERGODICITY_EVERY_STEPS` steps of the explorer; ``predicted`` (the wear model's
         remaining dirt, the last tick accounted first) and ``island_left`` at the model-update steps when
         ``model`` (the explorer drives the agent, not a stroke). Nothing after a relocation."""
         reads: dict[str, Any] = {}
         if isinstance(cmd, RelocationCommand):
             return reads
         k = step_index
-        if isinstance(self.source, HedacExplorer) and k % ERGODICITY_EVERY_STEPS == 0:
-            reads["ergodicity"] = self.source.ergodicity()
-            reads["residual"] = self.source.coverage_residual() if self.read_residual else None
+        if self.explorer is not None and k % ERGODICITY_EVERY_STEPS == 0:
+            reads["ergodicity"] = self.explorer.ergodicity()
+            reads["residual"] = self.explorer.coverage_residual() if self.read_residual else None
         if model and self.wear is not None and k % self.model_update_steps == 0:
             if self.settle is not None:
                 self.settle()

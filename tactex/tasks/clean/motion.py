@@ -1,0 +1,215 @@
+"""The clean's moves out of contact and onto the surface: where the camera looks from, the hover over a
+touch-down and the joint moves there, the first touch-down the arm reaches soonest, the approach speed,
+the pad kept above the table and the lift-off."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactex.ergodic.command import ExplorationCommand
+from tactex.errors import SimulationError
+from tactex.perception.acquisition import AcquisitionConfig
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.shapes import CylinderWallSurface
+from tactex.sim.scene import SceneConfig
+from tactex.tasks.clean.config import CleanConfig
+from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
+from tactex.tasks.vision import workspace_crop
+
+#: Lift-off distance along the tool axis before vision and at the end [m].
+RETRACT_M = 0.05
+#: Longest single step of a lift-off [m]: each step is one linearised joint move (ControlLoop.retract), whose
+#: error grows with the square of its length; on a curved wall a long step moves the tool along the wall,
+#: dragging the pad, instead of out of it.
+RETRACT_STEP_M = 0.025
+#: Height of the waypoints above the hover pose on the way from the capture pose, and above the
+#: retracted tool on the way back to it [m].
+CLEARANCE_M = 0.08
+#: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
+WAYPOINT_MAX_JOINT_RAD = 0.5
+#: Settling after the joint move to the hover pose, before the approach [s].
+HOVER_SETTLE_S = 0.1
+#: How fast the commanded approach speed falls with the height above the captured surface [1/s]: it reaches
+#: zero at CleanConfig.approach_slow_m over about 1 / APPROACH_GAIN_PER_S, time enough for the line's damping
+#: (D_z = 50 N·s/m on a few kg of tool) to brake.
+APPROACH_GAIN_PER_S = 10.0
+#: ... and rises from rest no faster than this [m/s²]: a step of D_z·v in the push shakes the tool, whose
+#: inertia the F/T reads as a force above the touch-down threshold.
+APPROACH_ACCEL_M_S2 = 1.0
+#: Height of the table top the simulated objects stand on [m] (tactex.sim.scene): the capture's crop cuts the
+#: table above it and the pad is kept above it.
+SUPPORT_Z_M = 0.0
+#: tactex's first touch-down (:func:`_quickest_touch_down`): candidates on the dirt one per cell of this grid
+#: [m] (at most START_CANDIDATES, the grid widened until so), each a joint-move plan from the capture posture
+#: (two IK solves).
+START_SPACING_M = 0.01
+START_CANDIDATES = 64
+#: Their IK stops once its steps are below this [rad]: the steps shrink geometrically to a fixed point, so the
+#: planned duration is then far closer to the full search's than the 10 ms the choice compares.
+START_SETTLED_STEP_RAD = 1e-5
+#: ... and gives up after this many steps: a reachable hover settles well within them, while one at the edge
+#: of the reach would chatter for the full search's 500 before it is refused.
+START_IK_STEPS = 150
+
+
+def _lag_m(tcp_m: np.ndarray, cmd: ExplorationCommand) -> float:
+    """How far the tool at ``tcp_m`` (3,) [m] is from the commanded point along the surface (its offset
+    along the normal left out) [m]."""
+    d = np.asarray(tcp_m, dtype=float) - cmd.point
+    d = d - float(d @ cmd.normal) * cmd.normal
+    return float(np.sqrt(d @ d))
+
+
+
+def _capture_pose(scene: SceneConfig, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Where the robot looks from: above a height field, beside a cylinder wall (camera ⟂ surface)."""
+    pos, rot = scene.object_pose()
+    surface = scene.sim_object.surface
+    if isinstance(surface, CylinderWallSurface):
+        out = rot @ np.array([0.0, -1.0, 0.0])  # the side the cup's marking faces
+        centre = pos + rot @ np.array([0.0, 0.0, surface.height_m / 2])
+        up = rot @ np.array([0.0, 0.0, 1.0])
+        el = np.radians(cfg.side_capture_elevation_deg)
+        view = np.cos(el) * out + np.sin(el) * up  # from the wall's mid-height towards the camera
+        return (centre + out * surface.radius_m + view * cfg.side_capture_distance_m,
+                tool_rotation_for_normal(view))
+    top = pos + rot @ np.array([0.0, 0.0, float(surface.bounds_m[1, 2])])
+    return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
+
+
+def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_seed: np.ndarray,
+                hover_height_m: float, q_from: np.ndarray | None = None, q_hover: np.ndarray | None = None,
+                settled_step_rad: float | None = None, max_iter: int | None = None,
+                ) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """The joint moves from ``q_from`` (default: the current posture) to the hover ``hover_height_m`` [m] above
+    ``point_m`` along ``normal``: ``(q_above, q_hover, move_s)``, ``q_above`` the waypoint :data:`CLEARANCE_M`
+    straight above the hover (None when it is not a short step from it) and ``move_s`` [s] the moves'
+    duration. IK is searched from ``q_seed`` (``q_hover``: the hover's posture when already solved;
+    ``settled_step_rad``: :meth:`ControlLoop.solve_pose`'s, ``max_iter`` its for the hover). Raises
+    SimulationError when the hover is out of the arm's reach."""
+    rot = tool_rotation_for_normal(normal)
+    hover = np.asarray(point_m, dtype=float) + hover_height_m * np.asarray(normal, dtype=float)
+    if q_hover is None:
+        q_hover = loop.solve_pose(hover, rot, q_seed=q_seed, settled_step_rad=settled_step_rad, max_iter=max_iter)
+    # Through a waypoint straight above the hover pose: a joint move from the high capture pose down to a
+    # hover inside a bowl can swing the tool through the rim on the way. The waypoint is solved from the hover
+    # (same IK branch) and dropped when it is not a short step from it.
+    try:
+        # never cut short by max_iter: a waypoint given up on would make the plan the (quicker) direct move
+        q_above: np.ndarray | None = loop.solve_pose(hover + np.array([0.0, 0.0, CLEARANCE_M]), rot, q_seed=q_hover,
+                                                     settled_step_rad=settled_step_rad)
+    except SimulationError:
+        q_above = None
+    if q_above is not None and float(np.max(np.abs(q_above - q_hover))) > WAYPOINT_MAX_JOINT_RAD:
+        q_above = None
+    if q_above is None:
+        return None, q_hover, loop.joint_move_duration(q_hover, q_from=q_from)
+    return q_above, q_hover, (loop.joint_move_duration(q_above, q_from=q_from)
+                              + loop.joint_move_duration(q_hover, q_from=q_above))
+
+
+def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.ndarray, q_capture: np.ndarray,
+                         cap_pos: np.ndarray, hover_height_m: float) -> np.ndarray | None:
+    """tactex's first touch-down [m]: of the dirty points ``targets`` (indices into ``cloud``), one per cell of a
+    grid (:data:`START_SPACING_M`, coarser until at most :data:`START_CANDIDATES` are left), the one whose hover
+    the arm reaches soonest from the capture posture ``q_capture`` (the moves :func:`_hover_plan` plans), and of
+    those equally quick (to 10 ms) the nearest to the camera at ``cap_pos`` [m]. None when the cloud has no
+    normals or no candidate's hover is within reach.
+
+    It is wall-clock work while the robot holds at the capture pose, so it is kept cheap: each candidate's hover
+    posture is solved once (the IK stops when its steps settle, :data:`START_SETTLED_STEP_RAD`, and gives up
+    after :data:`START_IK_STEPS`), and the direct joint move to it, a lower bound on the planned moves (the
+    min-jerk duration is subadditive), orders the candidates; the waypoint above the hover is solved only while
+    that bound can still beat the best plan."""
+    if cloud.normals is None or targets.size == 0:
+        return None
+    pts = cloud.points[targets]
+    spacing = START_SPACING_M
+    while True:
+        _, first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)
+        if first.size <= START_CANDIDATES:
+            break
+        spacing *= 1.5
+    bounded: list[tuple[tuple[float, float], int, np.ndarray]] = []
+    for j in np.sort(first):
+        normal = cloud.normals[targets[j]]
+        hover = pts[j] + hover_height_m * normal
+        try:
+            q_hover = loop.solve_pose(hover, tool_rotation_for_normal(normal), q_seed=q_capture,
+                                      settled_step_rad=START_SETTLED_STEP_RAD, max_iter=START_IK_STEPS)
+        except SimulationError:
+            continue
+        bound_s = loop.joint_move_duration(q_hover, q_from=q_capture)
+        bounded.append(((round(bound_s, 2), float(np.linalg.norm(pts[j] - cap_pos))), int(j), q_hover))
+    bounded.sort(key=lambda c: (c[0], c[1]))
+    best: tuple[float, float] | None = None
+    chosen = None
+    for bound_key, j, q_hover in bounded:
+        if best is not None and bound_key > best:
+            break  # this and every later candidate takes at least as long as the best plan
+        move_s = _hover_plan(loop, pts[j], cloud.normals[targets[j]], q_capture, hover_height_m, q_from=q_capture,
+                             q_hover=q_hover, settled_step_rad=START_SETTLED_STEP_RAD)[2]
+        key = (round(move_s, 2), bound_key[1])
+        if best is None or key < best:
+            best, chosen = key, pts[j].copy()
+    return chosen
+
+
+def _approach_speed(tcp_m: np.ndarray, cmd: ExplorationCommand, cfg: CleanConfig) -> float:
+    """The approach speed [m/s] commanded with the tool at ``tcp_m`` (3,) [m] over ``cmd``'s point: falling
+    in proportion to the height above the captured surface (:data:`APPROACH_GAIN_PER_S`) from
+    ``cfg.approach_speed_m_s`` to zero at ``cfg.approach_slow_m``, below which the force loop's own slow
+    approach touches down."""
+    height_m = float((np.asarray(tcp_m, dtype=float) - cmd.point) @ cmd.normal)
+    return float(np.clip(APPROACH_GAIN_PER_S * (height_m - cfg.approach_slow_m), 0.0, cfg.approach_speed_m_s))
+
+
+def _pad_over_support(point_m: np.ndarray, normal: np.ndarray, support_z_m: float, pad_radius_m: float) -> np.ndarray:
+    """The commanded line's point ``point_m`` (3,) [m], raised along world z where needed so that the pad, a disc
+    of ``pad_radius_m`` [m] centred there and ⟂ ``normal`` (3,), stays above the support plane z = ``support_z_m``
+    [m]: at the foot of a wall the line through the lowest captured ring would press the pad's rim into the
+    table, which would then hold the tool off the wall while the line drags it sideways."""
+    n = np.asarray(normal, dtype=float)
+    n_z2 = float(n[2] * n[2]) / max(float(n @ n), 1e-12)
+    low = support_z_m + pad_radius_m * float(np.sqrt(max(1.0 - n_z2, 0.0)))
+    if point_m[2] >= low:
+        return point_m
+    out = np.array(point_m, dtype=float)
+    out[2] = low
+    return out
+
+
+def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndarray:
+    """The cloud points ``indices`` a touch-down may be at (``touch_down_ok`` (N,) bool; None: all), or all of
+    them when none is (the dirt left lies only beside a keep-out zone)."""
+    if touch_down_ok is not None and touch_down_ok[indices].any():
+        return indices[touch_down_ok[indices]]
+    return indices
+
+
+def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4) -> None:
+    """Back along the tool axis by ``distance_m`` [m] in steps of at most :data:`RETRACT_STEP_M`, each
+    re-linearised where the last ended, taking ``duration_s`` [s] at least."""
+    n = max(int(np.ceil(distance_m / RETRACT_STEP_M - 1e-9)), 1)
+    for _ in range(n):
+        loop.retract(distance_m / n, duration_s=duration_s / n)
+
+def _acquisition(scene: SceneConfig) -> AcquisitionConfig:
+    pos, _ = scene.object_pose()
+    surface = scene.sim_object.surface
+    half = float(np.max(np.abs(surface.bounds_m[:, :2]))) + 0.01
+    if isinstance(surface, CylinderWallSurface):
+        # the wall only: a view from above the wall also sees the cup's top, which is not the surface to clean
+        # (2 mm below it, as the table is cut 2 mm above the table top)
+        lo, hi = workspace_crop(pos, half, table_z_m=SUPPORT_Z_M, height_m=surface.height_m - 0.002)
+    else:
+        lo, hi = workspace_crop(pos, half, table_z_m=SUPPORT_Z_M)
+    return AcquisitionConfig(crop_min_m=lo, crop_max_m=hi, voxel_size_m=0.0, sor_mean_k=20, sor_std_mul=2.0)
+
+
+
+def _cloud_capture_pose(cloud: SurfaceCloud, cfg: CleanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Above a user's cloud: its top, ``capture_distance_m`` higher, looking down."""
+    lo, hi = cloud.points.min(axis=0), cloud.points.max(axis=0)
+    top = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]])
+    return top + np.array([0.0, 0.0, cfg.capture_distance_m]), tool_rotation_for_normal(np.array([0.0, 0.0, 1.0]))
