@@ -63,7 +63,7 @@ class RegionRasterPath(WaypointPath):
         self._x = self.waypoints[0].copy()
         self.path_length = 0.0
         self.air_path_length = 0.0
-        self.relocations: list[RelocationCommand] = []
+        self._relocations: list[RelocationCommand] = []
 
     def _replan(self, start_m: np.ndarray, from_start: bool) -> None:
         plan = plan_region_raster(self.cloud.with_target(self.target), start_m=start_m, from_start=from_start,
@@ -97,9 +97,14 @@ class RegionRasterPath(WaypointPath):
             self.waypoints = here[None]
             self._k = 0
             return
-        path, air, relocations = self.path_length, self.air_path_length, self.relocations
+        path, air, relocations = self.path_length, self.air_path_length, self._relocations
         self._replan(here, from_start=True)
-        self.path_length, self.air_path_length, self.relocations = path, air, relocations
+        self.path_length, self.air_path_length, self._relocations = path, air, relocations
+
+    @property
+    def relocations(self) -> list[RelocationCommand]:
+        """The flights between islands and long gaps since the last ``reset``."""
+        return self._relocations
 
     def step(self, measured_position: np.ndarray | None = None) -> ExplorationCommand | RelocationCommand:
         """The next command: a step of at most ``max_step_m`` along the path, or the flight to the next touch-down
@@ -124,5 +129,5 @@ class RegionRasterPath(WaypointPath):
         self._k = k + 1
         self._x = down.copy()
         self.air_path_length += air
-        self.relocations.append(cmd)
+        self._relocations.append(cmd)
         return cmd
