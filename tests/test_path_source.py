@@ -17,6 +17,7 @@ from tactex.pointcloud.target_file import load_target_file
 from tactex.spectral import build_basis
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.raster import RasterPath, WaypointPath
+from tactex.tasks.region_raster_path import RegionRasterPath
 
 H = 0.006  # [m] cloud spacing of these small tests
 
@@ -30,10 +31,11 @@ def _sources(plate: SurfaceCloud) -> dict[str, PathSource]:
     explorer = HedacExplorer(plate, build_basis(plate, n_eigen=30, cache=False),
                              HedacConfig(n_eigen=30, agent_radius_m=0.015, compiled=False))
     stroke = WaypointPath(plate, plate.points[:5], H)
-    return {"explorer": explorer, "raster": RasterPath(plate, 0.03, H), "stroke": stroke}
+    region = RegionRasterPath(plate, 0.02, 0.03, 0.1, H)
+    return {"explorer": explorer, "raster": RasterPath(plate, 0.03, H), "stroke": stroke, "region_raster": region}
 
 
-def test_explorer_raster_and_stroke_are_path_sources(plate: SurfaceCloud) -> None:
+def test_explorer_rasters_and_stroke_are_path_sources(plate: SurfaceCloud) -> None:
     for name, path in _sources(plate).items():
         assert isinstance(path, PathSource), name
         x0 = plate.points[np.flatnonzero(plate.target > 0)[0]]

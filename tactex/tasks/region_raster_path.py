@@ -84,9 +84,10 @@ class RegionRasterPath(WaypointPath):
             self._use(self.plan, self._start)
         return self._command(0, np.zeros(3))
 
-    def update_target(self, mass: np.ndarray) -> None:
+    def update_target(self, mass: np.ndarray, keep_coverage: bool = False) -> None:
         """Plan again over the dirt ``mass`` (N,) ≥ 0 that is left, from where the agent is: the walk goes on from
-        here, sliding or flying to the new plan's first segment (nothing left: the path is done)."""
+        here, sliding or flying to the new plan's first segment (nothing left: the path is done).
+        ``keep_coverage`` is the protocol's and changes nothing: a raster keeps no coverage."""
         mass = np.asarray(mass, dtype=float)
         if mass.shape != (len(self.cloud),) or not np.isfinite(mass).all() or mass.min(initial=0.0) < 0:
             raise InputError(f"the dirt left must be ({len(self.cloud)},) finite values ≥ 0, one per cloud point; "
