@@ -493,7 +493,7 @@ def test_vision_process_killed_is_a_named_fault(panel, monkeypatch):
 def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel):
     """A transit's IK takes milliseconds: the backend hands the arm to the robot's own hold for it
     (motion_finished) and starts torque control again at the next tick, so no cycle is lost."""
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     try:
@@ -518,7 +518,7 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
 def test_a_states_model_terms_are_computed_before_it_arrives_from_the_state_answered_last(panel):
     """libfranka's model calls run while the robot executes a command: the next state carries J, M,
     C·dq and g of the state answered last (its pose and velocities are its own)."""
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     try:
@@ -550,7 +550,7 @@ def test_torque_is_sent_before_the_tasks_bookkeeping_runs(panel):
     """``ControlLoop.tick(after_send=...)``: the callback sees the torque already written to the
     robot (nothing pending) and the state that torque answered; the next state arrives after it."""
     from tactex.control.joint_impedance import JointTarget
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     try:
