@@ -27,10 +27,10 @@ from tactex.cli import main  # noqa: E402
 from tactex.errors import ConfigError, InputError, RobotError  # noqa: E402
 from tactex.robots.check import check_robot  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming, franka_model_terms  # noqa: E402
-from tactex.sim.twin_process import TwinProcess  # noqa: E402
 from tactex.tasks import robot as robot_mod  # noqa: E402
 from tactex.tasks.robot import RealRobotParams  # noqa: E402
 from tactex.tasks.wipe import WipeConfig, run_wipe  # noqa: E402
+from tactex.twin.process import TwinProcess  # noqa: E402
 
 pytestmark = pytest.mark.franka
 

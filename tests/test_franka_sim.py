@@ -26,7 +26,7 @@ from tactex.cli import main  # noqa: E402
 from tactex.errors import RobotError  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend  # noqa: E402
 from tactex.robots.loop import ControlLoop  # noqa: E402
-from tactex.sim.franka_sim_process import FrankaSimProcess, franka_sim_python  # noqa: E402
+from tactex.twin.franka_sim_process import FrankaSimProcess, franka_sim_python  # noqa: E402
 
 pytestmark = [pytest.mark.franka, pytest.mark.skipif(
     franka_sim_python() is None, reason="needs franka-sim's own environment: make franka-sim-env (CI builds it)")]
