@@ -341,7 +341,7 @@ def test_sweep_study_and_demo_take_over_only_their_own_folder(tmp_path) -> None:
     """sweep and study resume their own folder (the same command again) and the demo replaces its own
     (make demo twice in a row); a folder of another command's run is still refused."""
     from tactex.errors import InputError
-    from tactex.report.outdir import check_run_folder
+    from tactex.experiments.run_folder import check_run_folder
 
     for command in ("sweep", "study", "demo"):
         out = tmp_path / command
@@ -365,7 +365,7 @@ def test_a_study_killed_before_its_status_is_resumed_in_its_folder(tmp_path) -> 
     status.json: its files say whose folder it is, so the same command resumes there and another is
     refused."""
     from tactex.errors import InputError
-    from tactex.report.outdir import check_run_folder
+    from tactex.experiments.run_folder import check_run_folder
 
     for command, name in (("study", "runs.jsonl"), ("study", "study.json"), ("sweep", "sweep.json")):
         out = tmp_path / command / name

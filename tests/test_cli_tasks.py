@@ -11,10 +11,12 @@ import pytest
 
 from tactex.cli import main
 from tactex.errors import ConfigError, InputError
+from tactex.experiments.demo import DemoConfig
+from tactex.experiments.run import _try_video, run_compare, run_task
+from tactex.experiments.run_folder import prepare_out_dir
+from tactex.experiments.video import write_replay_video
 from tactex.report import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS
-from tactex.report.outdir import prepare_out_dir
 from tactex.report.run_report import RunReport
-from tactex.tasks.demo import DemoConfig, _try_video, run_compare, run_task, write_replay_video
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

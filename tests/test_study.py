@@ -262,13 +262,13 @@ def test_a_run_cut_by_ctrl_c_stops_the_study_instead_of_counting_as_done(monkeyp
     run was recorded as finished, the study went on, and a resumed study skipped it."""
     from types import SimpleNamespace
 
+    from tactex.experiments import tasks
     from tactex.experiments.study import run_study_task
-    from tactex.tasks import demo
 
-    spec = demo.task_spec("wipe")
+    spec = tasks.task_spec("wipe")
     outcome = {"aborted": "KeyboardInterrupt", "partial": True}
     stub = SimpleNamespace(config_cls=spec.config_cls, run=lambda cfg, progress: SimpleNamespace(metrics=outcome))
-    monkeypatch.setattr(demo, "task_spec", lambda kind: stub)
+    monkeypatch.setitem(tasks.TASKS, "wipe", lambda: stub)
     with pytest.raises(KeyboardInterrupt):
         run_study_task({"task": "wipe", "config": {}})
     outcome.update(aborted="RobotError: reflex", partial=True)  # a robot's stop is the run's result

@@ -33,9 +33,9 @@ from typing import Any
 from tactex.config import to_jsonable, write_json
 from tactex.errors import ConfigError
 from tactex.experiments.executor import Executor, LocalExecutor
+from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.study_files import pack_files
 from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
-from tactex.report.outdir import prepare_out_dir
 
 __all__ = ["StudyResult", "run_study", "run_study_task"]
 
@@ -60,7 +60,7 @@ def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
     which come in ``shared`` (:mod:`.study_files`: the worker's machine need not have them); no
     progress bar."""
     from tactex.experiments.study_files import local_config
-    from tactex.tasks.demo import task_spec
+    from tactex.experiments.tasks import task_spec
     from tactex.tasks.robot import stopped_by_user
 
     spec = task_spec(task["task"])

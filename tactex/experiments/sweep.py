@@ -46,7 +46,7 @@ from tactex.config import param, to_jsonable, write_json
 from tactex.errors import ConfigError, ExplorationError, RunInterrupted
 from tactex.experiments.executor import Executor, LocalExecutor
 from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
-from tactex.report.outdir import prepare_out_dir
+from tactex.experiments.run_folder import prepare_out_dir
 
 __all__ = ["SweepConfig", "SweepResult", "run_sweep", "sweep_starts"]
 

@@ -40,6 +40,7 @@ from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
 from tactex.report.metrics import write_metrics
 from tactex.report.series import plot_series
+from tactex.tasks.clean_phases import CLEAN_PHASES
 
 __all__ = [
     "CLEAN_METRIC_KEYS",
@@ -79,9 +80,6 @@ WIPE_METRIC_KEYS = (
     "explore_time_s",
     "contact_fraction",
 )
-#: Phase codes of the cleaning state machine, recorded in its series (tactex.tasks.clean uses these;
-#: they live here because the report must not import the tasks, which import the report).
-CLEAN_PHASES = {"move": 0, "capture": 1, "approach": 2, "explore": 3, "retract": 4}
 #: VA-UFIC Table I tank limits [J], used when the run's config does not carry VaUficParams.
 DEFAULT_TANK_LIMITS = {
     "impedance": (VaUficParams().tank_i_lower, VaUficParams().tank_i_upper),

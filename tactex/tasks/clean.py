@@ -59,12 +59,12 @@ from tactex.pointcloud.keep_out import (
 )
 from tactex.pointcloud.markings import resolve_marking
 from tactex.pointcloud.shapes import CylinderWallSurface
-from tactex.report.run_report import CLEAN_PHASES
 from tactex.sim.dirt import PrestonParams
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
+from tactex.tasks.clean_phases import CLEAN_PHASES
 from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath, WaypointPath
