@@ -322,7 +322,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
 
 def _write_table(path: Path, curves: dict[str, dict[str, np.ndarray]], failed: dict[tuple, str],
                  not_run: set[tuple] = frozenset()) -> Path:
-    from tactex.experiments.study_report import write_csv
+    from tactex.experiments.study_table import write_csv
 
     cols = ["cloud", "n_eigen", "alpha", "start", "status", "error", "final_ergodicity", "final_coverage_residual",
             "path_length_m"]
