@@ -24,7 +24,13 @@ pytest.importorskip("pylibfranka", reason=REASON)
 pytest.importorskip("franky_sim", reason=REASON)
 
 from tactex.cli import main  # noqa: E402
-from tactex.errors import ConfigError, InputError, RobotError  # noqa: E402
+from tactex.errors import (  # noqa: E402
+    ConfigError,
+    InputError,
+    RobotClosedError,
+    RobotCommunicationError,
+    RobotConnectionError,
+)
 from tactex.robots.check import check_robot  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming, franka_model_terms  # noqa: E402
 from tactex.tasks import robot as robot_mod  # noqa: E402
@@ -112,7 +118,7 @@ def test_loop_timing_statistics():
 
 def test_no_robot_there_is_one_line_and_names_the_address():
     # nothing listens on this loopback address: libfranka's TCP connect is refused at once
-    with pytest.raises(RobotError, match=r"127\.0\.0\.254"):
+    with pytest.raises(RobotConnectionError, match=r"127\.0\.0\.254"):
         LibfrankaBackend(FrankaConfig(robot_ip="127.0.0.254"))
 
 
@@ -172,7 +178,7 @@ def test_bare_hold_checks_its_input_and_hands_the_robot_back(panel):
         assert np.isfinite(backend.step().q).all()
     finally:
         backend.close()
-    with pytest.raises(RobotError, match="closed"):
+    with pytest.raises(RobotClosedError, match="closed"):
         backend.bare_hold(0.1)
     dry = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname, dry_run=True))
     try:
@@ -255,7 +261,7 @@ def test_bare_hold_ends_torque_control_on_a_libfranka_error(panel):
             if tick == 5:
                 raise RuntimeError("communication_constraints_violation")
 
-        with pytest.raises(RobotError, match="communication_constraints_violation"):
+        with pytest.raises(RobotCommunicationError, match="communication_constraints_violation"):
             _bare_hold_scripted(backend, script, duration_s=10.0)
         assert backend._control is None and not backend._pending_write and gc.isenabled()
         assert any("communication_constraints_violation" in e for e in backend.events)
@@ -365,7 +371,7 @@ def test_a_pause_after_a_late_tick_ends_torque_control_with_the_error(panel):
         backend.apply_torque(np.zeros(7))
         backend.step()  # torque control runs; this state waits for its answer
         time.sleep(0.05)
-        with pytest.raises(RobotError, match="ms late"):
+        with pytest.raises(RobotCommunicationError, match="ms late"):
             backend.pause()
         assert backend._control is None
     finally:
@@ -386,7 +392,7 @@ def test_the_late_answer_budget_is_the_configured_one(panel):
         backend.step()  # torque control starts again after the pause
         assert backend._control is not None
         time.sleep(0.3)
-        with pytest.raises(RobotError, match="ms late"):
+        with pytest.raises(RobotCommunicationError, match="ms late"):
             backend.pause()
         assert backend._control is None
     finally:
