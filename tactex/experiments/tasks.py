@@ -15,24 +15,26 @@ __all__ = ["TASKS", "TaskSpec", "baseline_names", "task_spec"]
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """A closed-loop task: its config class, its runner, its baselines ('' is tactex itself)."""
+    """A closed-loop task: its config class, its runner, its baselines ('' is tactex itself), and the
+    config field that bounds a run's simulated time [s] (what a short run shortens)."""
 
     name: str
     config_cls: type
     run: Callable[..., Any]
     baselines: tuple[str, ...]
+    budget_field: str
 
 
 def _clean() -> TaskSpec:
     from tactex.tasks.clean import CLEAN_BASELINES, CleanConfig, run_clean
 
-    return TaskSpec("clean", CleanConfig, run_clean, tuple(CLEAN_BASELINES))
+    return TaskSpec("clean", CleanConfig, run_clean, tuple(CLEAN_BASELINES), "budget_s")
 
 
 def _wipe() -> TaskSpec:
     from tactex.tasks.wipe import WIPE_BASELINES, WipeConfig, run_wipe
 
-    return TaskSpec("wipe", WipeConfig, run_wipe, tuple(WIPE_BASELINES))
+    return TaskSpec("wipe", WipeConfig, run_wipe, tuple(WIPE_BASELINES), "duration_s")
 
 
 #: Task name → the loader of its :class:`TaskSpec` (cleaning, TEC §V-A; wiping, VA-UFIC §III).
