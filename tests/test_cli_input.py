@@ -238,6 +238,8 @@ def test_one_vocabulary_across_commands() -> None:
         assert {"--object", "--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha", "--out",
                 "--quiet"} <= shown[command] | {"--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha"}
     assert "--object" in shown["twin"] and "--object" in shown["clean"]
+    assert "--pad-radius-m" in shown["twin"] and "--pad-radius-m" in shown["clean"]  # one sponge, one name
+    assert "--tool-pad-radius-m" not in shown["twin"]
     for command, options in shown.items():
         assert not {"--voxel-size", "--agent-radius", "--object-name", "--target-channel"} & options, command
 

@@ -29,7 +29,9 @@ class TwinConfig:
     tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness along the tool axis [N/m]")
     tool_damping_ratio: float = param(0.7, "sponge damping, fraction of critical [-]")
     tool_friction: float = param(0.4, "pad–surface Coulomb friction coefficient [-]")
-    tool_pad_radius_m: float = param(0.025, "sponge radius [m]")
+    # one sponge, one option: tactex clean's wear model takes the same radius as --pad-radius-m
+    tool_pad_radius_m: float = param(0.025, "sponge radius [m]", option="pad_radius_m",
+                                     aliases=("--tool-pad-radius-m",))
     tool_pad_shape: str = param("sphere", "pad shape: sphere (domed sponge) or cylinder (flat)")
     payload_mass_kg: float = param(0.0, "extra mass hung at the TCP, unknown to the F/T calibration [kg]")
     dirt_resolution_m: float = param(0.002, "dirt grid cell size [m]")
