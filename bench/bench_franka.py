@@ -64,7 +64,7 @@ def run(args) -> dict:
     if (os.cpu_count() or 1) < 2:
         print("   skipped: needs two cores (twin and control loop apart)")
         return {}
-    from tactex.sim.twin_process import TwinProcess
+    from tactex.twin.process import TwinProcess
 
     quick = getattr(args, "quick", False)
     out: dict = {}

@@ -3,7 +3,7 @@ how the basis and the exploration step scale from 3k to 150k points.
 
 Clouds: a gently curved panel sampled on a jittered 3 mm grid (0.9 × 0.6 m at 60k points; the same
 aspect, and so a larger area, at more points), the TEC bunny (3 mm voxels) for the comparison with
-the authors. Every solver runs with one BLAS thread (``tactex.spectral.eigen``); ratios are of
+the authors. Every solver runs with one BLAS thread (``tactex.spectral.exact``); ratios are of
 medians of calls interleaved in the same run (a, b, a, b, …; for three, a, b, c, a, c, b, … so that each
 call follows each of the others equally often), since this machine's speed swings.
 

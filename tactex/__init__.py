@@ -1,8 +1,9 @@
 """tactex: tactile exploration for torque-controlled robots.
 
-Stages (see DESIGN.md): ``pointcloud`` → ``perception`` → ``spectral`` → ``ergodic`` →
-``control`` → ``robots``/``sim`` → ``tasks`` → ``report``. Import from the stage packages; the
-top level re-exports the core types only.
+Stages (see DESIGN.md; a module imports only from its own stage or earlier ones): ``geometry`` →
+``pointcloud`` → ``perception``/``spectral``/``ergodic`` → ``control`` → ``sim`` → ``robots`` →
+``twin`` → ``tasks`` → ``report`` → ``experiments`` → ``commands``. Import from the stage packages;
+the top level re-exports the core types only.
 """
 
 from importlib import import_module

@@ -174,7 +174,7 @@ def _held_run(args: argparse.Namespace) -> None:
     or stopped by a bad option before its check, leaves the other run's status alone."""
     out = getattr(args, "out", None)
     if isinstance(out, str) and out and Path(out).expanduser().is_dir():
-        from tactex.report.outdir import run_in_folder
+        from tactex.experiments.run_folder import run_in_folder
 
         if run_in_folder(out) is not None:
             args._out_taken = False

@@ -18,7 +18,12 @@ __all__ = [
     "InputError",
     "MissingDependencyError",
     "PerceptionError",
+    "RobotClosedError",
+    "RobotCommunicationError",
+    "RobotConnectionError",
     "RobotError",
+    "RobotRealtimeError",
+    "RobotReflexError",
     "RunInterrupted",
     "SafetyFault",
     "SensorFault",
@@ -86,7 +91,30 @@ class ControllerFault(TactexError, RuntimeError):
 
 class RobotError(TactexError, RuntimeError):
     """The real robot (or its protocol twin) refused a command, raised a reflex, or the link to it
-    failed; the message names libfranka's error and what to check."""
+    failed; the message names libfranka's error and what to check. A subclass names the kind when it
+    is known, for a caller to catch by type; ``except RobotError`` catches every kind."""
+
+
+class RobotConnectionError(RobotError):
+    """The robot cannot be reached, or the link to it was lost (libfranka's ``NetworkException``)."""
+
+
+class RobotRealtimeError(RobotError):
+    """libfranka refuses to run without a real-time kernel (its ``RealtimeException``)."""
+
+
+class RobotCommunicationError(RobotError):
+    """Commands reached the robot late: libfranka's ``communication_constraints_violation``, or our
+    loop answered a state later than its budget and ended torque control as the robot would."""
+
+
+class RobotReflexError(RobotError):
+    """The robot stopped the motion: a libfranka reflex or refusal (``ControlException`` and the
+    like); Desk names the reflex that fired."""
+
+
+class RobotClosedError(RobotError):
+    """The backend was used after it was closed."""
 
 
 class SensorFault(TactexError, RuntimeError):

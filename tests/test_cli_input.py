@@ -252,6 +252,8 @@ def test_one_vocabulary_across_commands() -> None:
         assert {"--object", "--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha", "--out",
                 "--quiet"} <= shown[command] | {"--voxel-size-m", "--agent-radius-m", "--n-eigen", "--alpha"}
     assert "--object" in shown["twin"] and "--object" in shown["clean"]
+    assert "--pad-radius-m" in shown["twin"] and "--pad-radius-m" in shown["clean"]  # one sponge, one name
+    assert "--tool-pad-radius-m" not in shown["twin"]
     for command, options in shown.items():
         assert not {"--voxel-size", "--agent-radius", "--object-name", "--target-channel"} & options, command
 
@@ -355,7 +357,7 @@ def test_sweep_study_and_demo_take_over_only_their_own_folder(tmp_path) -> None:
     """sweep and study resume their own folder (the same command again) and the demo replaces its own
     (make demo twice in a row); a folder of another command's run is still refused."""
     from tactex.errors import InputError
-    from tactex.report.outdir import check_run_folder
+    from tactex.experiments.run_folder import check_run_folder
 
     for command in ("sweep", "study", "demo"):
         out = tmp_path / command
@@ -379,7 +381,7 @@ def test_a_study_killed_before_its_status_is_resumed_in_its_folder(tmp_path) -> 
     status.json: its files say whose folder it is, so the same command resumes there and another is
     refused."""
     from tactex.errors import InputError
-    from tactex.report.outdir import check_run_folder
+    from tactex.experiments.run_folder import check_run_folder
 
     for command, name in (("study", "runs.jsonl"), ("study", "study.json"), ("sweep", "sweep.json")):
         out = tmp_path / command / name

@@ -11,10 +11,12 @@ import pytest
 
 from tactex.cli import main
 from tactex.errors import ConfigError, InputError
+from tactex.experiments.demo import DemoConfig
+from tactex.experiments.run import _try_video, run_compare, run_task
+from tactex.experiments.run_folder import prepare_out_dir
+from tactex.experiments.video import write_replay_video
 from tactex.report import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS
-from tactex.report.outdir import prepare_out_dir
 from tactex.report.run_report import RunReport
-from tactex.tasks.demo import DemoConfig, _try_video, run_compare, run_task, write_replay_video
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -237,18 +239,18 @@ def test_safety_summary_says_how_often_and_why() -> None:
 def test_a_run_whose_safety_layer_stepped_in_says_so_in_its_last_lines(tmp_path, capsys, monkeypatch) -> None:
     """A clean at 60 N retreated 22 times and the terminal said only "dirt removed 43.6 %"."""
     from tactex.control.safety import SafetyLimits
-    from tactex.tasks import runner
+    from tactex.robots import loop
 
     argv = ["wipe", "--duration-s", "3", "--quiet", "--no-video"]
     assert main([*argv, "--out", str(tmp_path / "calm")]) == 0
     assert json.loads((tmp_path / "calm" / "metrics.json").read_text())["safety_counts"] == {}
     assert "safety layer" not in capsys.readouterr().out
-    real = runner.ControlLoop.__init__
+    real = loop.ControlLoop.__init__
 
     def low_cap(self, backend, limits=None, **kw) -> None:  # the layer trips below the wipe's 15 N set point
         real(self, backend, SafetyLimits(max_contact_force=8.0), **kw)
 
-    monkeypatch.setattr(runner.ControlLoop, "__init__", low_cap)
+    monkeypatch.setattr(loop.ControlLoop, "__init__", low_cap)
     out = tmp_path / "tripped"
     assert main([*argv, "--out", str(out)]) == 0
     lines = capsys.readouterr().out.strip().splitlines()

@@ -79,7 +79,7 @@ def test_shaping_leaves_heavy_modes_and_equilibria_alone(rng) -> None:
 
 @pytest.mark.slow
 def test_joint_move_behind_two_ticks_of_delay_is_stable_and_smooth() -> None:
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = MujocoBackend(SceneConfig(object_name="plane", command_delay_ticks=2))
     loop = ControlLoop(backend)

@@ -171,8 +171,8 @@ def test_a_lost_sensor_holds_a_real_arm_in_free_space():
 
     from tactex.control.joint_impedance import JointTarget
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     backend = MujocoBackend(SceneConfig(object_name="plane"))
     loop = ControlLoop(backend)

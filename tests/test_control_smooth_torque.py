@@ -123,8 +123,8 @@ def test_transit_has_no_torque_rate_clip_and_bounded_acceleration() -> None:
     """A 25 cm Cartesian transit through IK waypoints: one smooth motion. Rest-to-rest per 2 cm
     waypoint it shook the tool at ~8 Hz with TCP accelerations of 5–7 m/s²."""
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
     loop.hold(0.05)

@@ -24,13 +24,19 @@ pytest.importorskip("pylibfranka", reason=REASON)
 pytest.importorskip("franky_sim", reason=REASON)
 
 from tactex.cli import main  # noqa: E402
-from tactex.errors import ConfigError, InputError, RobotError  # noqa: E402
+from tactex.errors import (  # noqa: E402
+    ConfigError,
+    InputError,
+    RobotClosedError,
+    RobotCommunicationError,
+    RobotConnectionError,
+)
 from tactex.robots.check import check_robot  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming, franka_model_terms  # noqa: E402
-from tactex.sim.twin_process import TwinProcess  # noqa: E402
 from tactex.tasks import robot as robot_mod  # noqa: E402
 from tactex.tasks.robot import RealRobotParams  # noqa: E402
 from tactex.tasks.wipe import WipeConfig, run_wipe  # noqa: E402
+from tactex.twin.process import TwinProcess  # noqa: E402
 
 pytestmark = pytest.mark.franka
 
@@ -112,7 +118,7 @@ def test_loop_timing_statistics():
 
 def test_no_robot_there_is_one_line_and_names_the_address():
     # nothing listens on this loopback address: libfranka's TCP connect is refused at once
-    with pytest.raises(RobotError, match=r"127\.0\.0\.254"):
+    with pytest.raises(RobotConnectionError, match=r"127\.0\.0\.254"):
         LibfrankaBackend(FrankaConfig(robot_ip="127.0.0.254"))
 
 
@@ -172,7 +178,7 @@ def test_bare_hold_checks_its_input_and_hands_the_robot_back(panel):
         assert np.isfinite(backend.step().q).all()
     finally:
         backend.close()
-    with pytest.raises(RobotError, match="closed"):
+    with pytest.raises(RobotClosedError, match="closed"):
         backend.bare_hold(0.1)
     dry = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname, dry_run=True))
     try:
@@ -255,7 +261,7 @@ def test_bare_hold_ends_torque_control_on_a_libfranka_error(panel):
             if tick == 5:
                 raise RuntimeError("communication_constraints_violation")
 
-        with pytest.raises(RobotError, match="communication_constraints_violation"):
+        with pytest.raises(RobotCommunicationError, match="communication_constraints_violation"):
             _bare_hold_scripted(backend, script, duration_s=10.0)
         assert backend._control is None and not backend._pending_write and gc.isenabled()
         assert any("communication_constraints_violation" in e for e in backend.events)
@@ -365,7 +371,7 @@ def test_a_pause_after_a_late_tick_ends_torque_control_with_the_error(panel):
         backend.apply_torque(np.zeros(7))
         backend.step()  # torque control runs; this state waits for its answer
         time.sleep(0.05)
-        with pytest.raises(RobotError, match="ms late"):
+        with pytest.raises(RobotCommunicationError, match="ms late"):
             backend.pause()
         assert backend._control is None
     finally:
@@ -386,7 +392,7 @@ def test_the_late_answer_budget_is_the_configured_one(panel):
         backend.step()  # torque control starts again after the pause
         assert backend._control is not None
         time.sleep(0.3)
-        with pytest.raises(RobotError, match="ms late"):
+        with pytest.raises(RobotCommunicationError, match="ms late"):
             backend.pause()
         assert backend._control is None
     finally:
@@ -493,7 +499,7 @@ def test_vision_process_killed_is_a_named_fault(panel, monkeypatch):
 def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel):
     """A transit's IK takes milliseconds: the backend hands the arm to the robot's own hold for it
     (motion_finished) and starts torque control again at the next tick, so no cycle is lost."""
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     try:
@@ -518,7 +524,7 @@ def test_ik_between_ticks_pauses_torque_control_instead_of_missing_cycles(panel)
 def test_a_states_model_terms_are_computed_before_it_arrives_from_the_state_answered_last(panel):
     """libfranka's model calls run while the robot executes a command: the next state carries J, M,
     C·dq and g of the state answered last (its pose and velocities are its own)."""
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     try:
@@ -550,7 +556,7 @@ def test_torque_is_sent_before_the_tasks_bookkeeping_runs(panel):
     """``ControlLoop.tick(after_send=...)``: the callback sees the torque already written to the
     robot (nothing pending) and the state that torque answered; the next state arrives after it."""
     from tactex.control.joint_impedance import JointTarget
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
     try:

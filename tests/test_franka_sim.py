@@ -25,8 +25,8 @@ pytest.importorskip("franky_sim", reason=REASON)
 from tactex.cli import main  # noqa: E402
 from tactex.errors import RobotError  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend  # noqa: E402
-from tactex.sim.franka_sim_process import FrankaSimProcess, franka_sim_python  # noqa: E402
-from tactex.tasks.runner import ControlLoop  # noqa: E402
+from tactex.robots.loop import ControlLoop  # noqa: E402
+from tactex.twin.franka_sim_process import FrankaSimProcess, franka_sim_python  # noqa: E402
 
 pytestmark = [pytest.mark.franka, pytest.mark.skipif(
     franka_sim_python() is None, reason="needs franka-sim's own environment: make franka-sim-env (CI builds it)")]
@@ -225,7 +225,7 @@ def test_torque_control_restarts_from_the_robots_last_command(no_violation):
 @_judged
 def test_a_clean_stopped_before_its_first_touch_down_keeps_its_data(no_violation, capsys, tmp_path, monkeypatch):
     # a stop during the moves before the program's loop (here: the second joint move fails as a reflex would)
-    from tactex.tasks.runner import ControlLoop as Loop
+    from tactex.robots.loop import ControlLoop as Loop
 
     moves = []
     move_joints = Loop.move_joints

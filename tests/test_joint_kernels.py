@@ -218,7 +218,7 @@ def test_a_kernel_that_fails_to_build_warns_and_leaves_numpy(monkeypatch):
 def test_a_control_loop_builds_the_kernels_before_its_first_tick(monkeypatch):
     """Tasks build their controllers between moves, while a real robot's torque control runs: the
     kernels must already be there (building them takes seconds)."""
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     calls = []
     monkeypatch.setattr(joint_kernels, "kernels", lambda: calls.append("built"))

@@ -53,6 +53,30 @@ def test_dataclass_cli_round_trip() -> None:
         dataclass_from_args(_Demo, parser.parse_args(["--agent-radius-m", "-1"]))
 
 
+@dataclass(frozen=True)
+class _Renamed:
+    pad_radius: float = param(0.025, "sponge radius [m]", option="pad_radius_m", aliases=("--tool-pad-radius-m",))
+
+
+def test_an_option_renamed_keeps_its_old_spelling_hidden() -> None:
+    parser = argparse.ArgumentParser()
+    add_dataclass_arguments(parser, _Renamed)
+    for spelling in ("--pad-radius-m", "--tool-pad-radius-m"):
+        assert dataclass_from_args(_Renamed, parser.parse_args([spelling, "0.03"])) == _Renamed(pad_radius=0.03)
+    text = parser.format_help()
+    assert "--pad-radius-m" in text and "--tool-pad-radius-m" not in text and "--pad-radius " not in text
+
+
+def test_the_twin_takes_the_sponge_radius_under_the_clean_s_name() -> None:
+    from tactex.twin.config import TwinConfig
+
+    parser = argparse.ArgumentParser()
+    add_dataclass_arguments(parser, TwinConfig)
+    for spelling in ("--pad-radius-m", "--tool-pad-radius-m"):
+        assert dataclass_from_args(TwinConfig, parser.parse_args([spelling, "0.03"])).tool_pad_radius_m == 0.03
+    assert "--tool-pad-radius-m" not in parser.format_help()
+
+
 def test_write_json_maps_numpy_and_nan(tmp_path) -> None:
     path = write_json({"a": np.arange(3), "b": np.float32(1.5), "c": float("nan")}, tmp_path / "m.json")
     assert json.loads(path.read_text()) == {"a": [0, 1, 2], "b": 1.5, "c": None}

@@ -149,9 +149,10 @@ def test_plot_fixes_of_issue_22(tmp_path) -> None:
     end are separate legend entries, curvature is blue-low/red-high in the PNG and the page alike."""
     import matplotlib
 
+    from tactex.report.clean_report import _ergodicity
     from tactex.report.cloud import color_limits
     from tactex.report.html import cloud_html
-    from tactex.report.run_report import CURVATURE_COLORSCALE, _ergodicity
+    from tactex.report.wipe_report import CURVATURE_COLORSCALE
 
     assert color_limits(np.ones(5)) == (0.0, 1.0) and color_limits(np.array([0.2, 0.7])) == (0.2, 0.7)
     assert color_limits(np.zeros(3)) == (0.0, 1.0) and color_limits(np.full(3, -2.0)) == (-2.0, 0.0)

@@ -295,7 +295,7 @@ def test_vision_marks_prefer_recorded_times(tmp_path) -> None:
 
 
 def test_tank_limits_sources() -> None:
-    from tactex.report.run_report import DEFAULT_TANK_LIMITS, _tank_limits
+    from tactex.report.wipe_report import DEFAULT_TANK_LIMITS, _tank_limits
 
     from_metrics = _tank_limits(FakeWipeConfig(), {"tank_impedance_limits_j": [2, 30], "tank_force_limits_j": [1.5, 3]})
     assert from_metrics == {"impedance": (2.0, 30.0), "force": (1.5, 3.0)}
@@ -307,7 +307,7 @@ def test_tank_limits_sources() -> None:
 def test_phases_come_from_the_recorded_changes() -> None:
     """A capture takes no tick and an approach a few ms: the 100 Hz series misses both, the recorded
     phase changes do not (the plate run's phases.png showed empty approach and capture rows)."""
-    from tactex.report.run_report import _phase_spans
+    from tactex.report.clean_report import _phase_spans
 
     P = CLEAN_PHASES
     series = {"t": np.arange(0.0, 3.0, 0.01), "phase": np.zeros(300)}  # the samples saw "move" only
@@ -325,7 +325,7 @@ def test_phases_come_from_the_recorded_changes() -> None:
 
 
 def test_lift_offs_without_a_view_are_moves_and_contact_stretches_break_at_lift_offs() -> None:
-    from tactex.report.run_report import contact_stretches, trips_with_a_view
+    from tactex.report.clean_report import contact_stretches, trips_with_a_view
 
     trips = np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]])
     np.testing.assert_array_equal(trips_with_a_view(trips, [1.5, 5.9]), [True, False, True])

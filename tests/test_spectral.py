@@ -21,7 +21,7 @@ from tactex.spectral import (
     point_cloud_laplacian,
     save_basis,
 )
-from tactex.spectral import eigen as eigen_mod
+from tactex.spectral import exact as exact_mod
 
 EIG_RTOL = 0.05  # analytic vs discrete Neumann eigenvalues (brief: within 5 %)
 MASS_RTOL = 1e-9  # ∫u preserved by the Neumann diffusion
@@ -96,9 +96,9 @@ def test_eigenvectors_m_orthonormal_and_ascending(patch_basis) -> None:
 
 def test_sparse_and_dense_solvers_agree(monkeypatch: pytest.MonkeyPatch) -> None:
     L, M = point_cloud_laplacian(curved_patch(30))
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10_000)
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10_000)
     dense_vals, dense_vecs = laplace_eigenpairs(L, M, 20)
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10)
     sparse_vals, sparse_vecs = laplace_eigenpairs(L, M, 20)
     np.testing.assert_allclose(sparse_vals, dense_vals, rtol=1e-8, atol=1e-8 * dense_vals[-1])
     # Eigenvectors of simple eigenvalues agree up to sign (sign fixed by convention).
@@ -112,10 +112,10 @@ def test_restarted_lanczos_matches_dense_reference(monkeypatch: pytest.MonkeyPat
     # 100th pair needs, so the implicit restarts are exercised, as on the TEC clouds.
     L, M = point_cloud_laplacian(curved_patch(32, seed=3))
     k = 100
-    assert eigen_mod.lanczos_basis_size(k, L.shape[0]) < 2.5 * k
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10_000)
+    assert exact_mod.lanczos_basis_size(k, L.shape[0]) < 2.5 * k
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10_000)
     ref_vals, ref_vecs = laplace_eigenpairs(L, M, k)
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10)
     vals, vecs = laplace_eigenpairs(L, M, k)
     mass = M.diagonal()
     np.testing.assert_allclose(vals, ref_vals, rtol=1e-9, atol=1e-9 * ref_vals[-1])
@@ -131,7 +131,7 @@ def test_restarted_lanczos_matches_dense_reference(monkeypatch: pytest.MonkeyPat
 
 @pytest.mark.parametrize(("k", "n"), [(1, 5000), (10, 5000), (100, 5000), (200, 300), (3000, 4001), (4000, 4001)])
 def test_lanczos_basis_size_within_arpack_bounds(k: int, n: int) -> None:
-    ncv = eigen_mod.lanczos_basis_size(k, n)
+    ncv = exact_mod.lanczos_basis_size(k, n)
     assert k < ncv <= n
     assert ncv >= min(n, 20)
 
@@ -400,13 +400,13 @@ def test_zero_dt_is_identity_on_the_span(patch_basis, rng: np.random.Generator) 
 
 def test_near_full_spectrum_on_large_clouds_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
     L, M = point_cloud_laplacian(curved_patch(16))  # 256 points
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
-    monkeypatch.setattr(eigen_mod, "DENSE_LIMIT_POINTS", 100)
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10)
+    monkeypatch.setattr(exact_mod, "DENSE_LIMIT_POINTS", 100)
     with pytest.raises(SpectralError, match="n_eigen ≤ 128"):
         laplace_eigenpairs(L, M, 255)
     # Just below the limit ARPACK still runs, with as many Lanczos vectors as there are points.
     vals, _ = laplace_eigenpairs(L, M, 200)
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10_000)
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10_000)
     dense, _ = laplace_eigenpairs(L, M, 200)
     np.testing.assert_allclose(vals, dense, rtol=1e-7, atol=1e-7 * dense[-1])
 
@@ -423,28 +423,28 @@ def test_solver_runs_without_threadpoolctl(monkeypatch: pytest.MonkeyPatch) -> N
     import sys
 
     monkeypatch.setitem(sys.modules, "threadpoolctl", None)  # import now raises ImportError
-    eigen_mod._blas_controller.cache_clear()  # the controller is looked up once per process
+    exact_mod._blas_controller.cache_clear()  # the controller is looked up once per process
     try:
         L, M = point_cloud_laplacian(curved_patch(30))
-        monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+        monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10)
         vals, vecs = laplace_eigenpairs(L, M, 8)
-        assert eigen_mod._blas_controller() is None
+        assert exact_mod._blas_controller() is None
         assert vals.shape == (8,) and np.all(np.isfinite(vecs))
     finally:
-        eigen_mod._blas_controller.cache_clear()  # later tests find threadpoolctl again
+        exact_mod._blas_controller.cache_clear()  # later tests find threadpoolctl again
 
 
 def test_solver_pins_blas_to_one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
     threadpoolctl = pytest.importorskip("threadpoolctl")
     seen = []
-    real_eigsh = eigen_mod.sla.eigsh
+    real_eigsh = exact_mod.sla.eigsh
 
     def spy(*args, **kwargs):
         seen.extend(info["num_threads"] for info in threadpoolctl.threadpool_info() if info["user_api"] == "blas")
         return real_eigsh(*args, **kwargs)
 
-    monkeypatch.setattr(eigen_mod.sla, "eigsh", spy)
-    monkeypatch.setattr(eigen_mod, "DENSE_MAX_POINTS", 10)
+    monkeypatch.setattr(exact_mod.sla, "eigsh", spy)
+    monkeypatch.setattr(exact_mod, "DENSE_MAX_POINTS", 10)
     L, M = point_cloud_laplacian(curved_patch(30))
     laplace_eigenpairs(L, M, 8)
     assert seen and all(n == 1 for n in seen)

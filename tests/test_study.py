@@ -12,8 +12,8 @@ from tactex.cli import main
 from tactex.errors import ConfigError, InputError
 from tactex.experiments.executor import LocalExecutor, make_executor
 from tactex.experiments.study import run_study
-from tactex.experiments.study_report import t_interval, wilson_interval
 from tactex.experiments.study_spec import StudySpec, load_spec_file, spec_from_dict
+from tactex.experiments.study_table import t_interval, wilson_interval
 from tests.executor_tasks import die_once, square
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -145,7 +145,7 @@ def test_study_writes_table_summary_plots_and_records_the_failing_run(small_stud
     lines = (out / "table.csv").read_text().splitlines()
     assert lines[0].startswith("run,run_id,baseline,n_eigen,seed,status,success,error,")
     assert len(lines) == 5 and [line.split(",")[5] for line in lines[1:]] == ["ok", "failed", "ok", "ok"]
-    from tactex.experiments.study import WALL_CLOCK_METRICS
+    from tactex.experiments.study_table import WALL_CLOCK_METRICS
 
     assert "start_plan_time_s" in WALL_CLOCK_METRICS
     assert not any(k in lines[0] for k in WALL_CLOCK_METRICS)  # wall-clock values stay out of the table
@@ -246,9 +246,9 @@ def test_tune_space_file(tmp_path):
 
 
 def test_table_columns_leave_out_wall_clock_and_series_and_split_axes():
-    from tactex.experiments.study import _flat_scalars
+    from tactex.experiments.study_table import flat_scalars
 
-    flat = _flat_scalars({"dirt_removed_fraction": 0.5, "wall_time_s": 3.2, "basis_time_s": 1.0,
+    flat = flat_scalars({"dirt_removed_fraction": 0.5, "wall_time_s": 3.2, "basis_time_s": 1.0,
                           "ergodicity": [[0.0, 1.0]], "vision_update_times_s": [1.0, 2.0, 3.0],
                           "motion_rmse_m": [0.1, None, 0.3], "tank_force_energy_j": {"min": 1.0, "max": 2.0},
                           "baseline": "raster"})
@@ -262,13 +262,13 @@ def test_a_run_cut_by_ctrl_c_stops_the_study_instead_of_counting_as_done(monkeyp
     run was recorded as finished, the study went on, and a resumed study skipped it."""
     from types import SimpleNamespace
 
+    from tactex.experiments import tasks
     from tactex.experiments.study import run_study_task
-    from tactex.tasks import demo
 
-    spec = demo.task_spec("wipe")
+    spec = tasks.task_spec("wipe")
     outcome = {"aborted": "KeyboardInterrupt", "partial": True}
     stub = SimpleNamespace(config_cls=spec.config_cls, run=lambda cfg, progress: SimpleNamespace(metrics=outcome))
-    monkeypatch.setattr(demo, "task_spec", lambda kind: stub)
+    monkeypatch.setitem(tasks.TASKS, "wipe", lambda: stub)
     with pytest.raises(KeyboardInterrupt):
         run_study_task({"task": "wipe", "config": {}})
     outcome.update(aborted="RobotError: reflex", partial=True)  # a robot's stop is the run's result

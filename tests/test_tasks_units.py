@@ -356,8 +356,8 @@ def test_retract_lifts_straight_back_along_the_tool_axis() -> None:
     (within 1°), and moves no joint more than the lift needs (a full IK solve preferring home
     postures swung the elbow and dragged the tool across a bowl)."""
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
     loop.hold(0.05)
@@ -378,8 +378,8 @@ def test_retract_near_a_singular_posture_keeps_the_joint_limits_and_speed() -> N
     planner's 0.8 rad/s mean speed."""
     from tactex.control.safety import FRANKA_Q_MAX, FRANKA_Q_MIN
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
     loop.move_joints(np.array([0.0, 0.2, 0.0, -0.08, 0.0, 0.3, 0.785]), duration_s=1.5, settle_s=0.5)
@@ -398,7 +398,7 @@ def test_control_loop_resets_a_controller_once_then_resumes_it() -> None:
     """Switching back to a controller must not refill its energy tanks: the loop resets a controller
     the first time it is used and resumes it afterwards."""
     from tactex.control import VaUficController
-    from tactex.tasks.runner import ControlLoop
+    from tactex.robots.loop import ControlLoop
 
     loop = ControlLoop(_StillBackend())
     ctrl = VaUficController()
@@ -418,8 +418,8 @@ def test_move_cartesian_keeps_the_tool_on_the_line() -> None:
     """A transit through IK waypoints stays within a few mm of the straight line between the poses
     (a single joint move between far postures dipped a cleaning tool 7 cm back into a bowl)."""
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
     loop.hold(0.05)
@@ -440,8 +440,8 @@ def test_move_cartesian_keeps_the_tool_on_the_line() -> None:
 
 def test_retract_along_a_world_direction_and_its_check() -> None:
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
     loop.hold(0.05)
@@ -471,8 +471,8 @@ def test_move_cartesian_refuses_to_skip_many_waypoints_in_a_row() -> None:
     """Skipping every missed waypoint would end in the single long joint move the waypoints avoid."""
     from tactex.errors import SimulationError
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     loop = ControlLoop(MujocoBackend(SceneConfig(object_name="plane")))
     loop.hold(0.05)
@@ -499,8 +499,8 @@ def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> No
     from dataclasses import replace
 
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.tasks import clean
-    from tactex.tasks.runner import ControlLoop
 
     cfg = CleanConfig(object_name="cup", marking="X")
     scene = cfg.scene()
@@ -567,8 +567,8 @@ def test_approach_speed_falls_with_the_height_above_the_captured_surface() -> No
 
 def test_control_loop_joint_speed_sets_the_moves_duration_and_is_checked() -> None:
     from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     backend = MujocoBackend(SceneConfig(object_name="plane"))
     slow, fast = ControlLoop(backend), ControlLoop(backend, max_joint_speed=1.6)
@@ -601,8 +601,8 @@ def test_pause_calls_the_backends_optional_hook_and_passes_over_a_backend_withou
     protocol's optional hook); a backend without it is one that waits, and MuJoCo's hook leaves the
     simulation where it was."""
     from tactex.robots import MujocoBackend, RobotBackend
+    from tactex.robots.loop import ControlLoop
     from tactex.sim import SceneConfig
-    from tactex.tasks.runner import ControlLoop
 
     class Pausing(_StillBackend):
         def __init__(self) -> None:

@@ -22,8 +22,8 @@ pytest.importorskip("franky_sim", reason=REASON)
 
 from tactex.robots.netft import NetFTClient  # noqa: E402
 from tactex.sim.tool import ToolGeometry, flange_R_tool  # noqa: E402
-from tactex.sim.twin import TwinConfig  # noqa: E402
-from tactex.sim.twin_process import TwinProcess  # noqa: E402
+from tactex.twin.config import TwinConfig  # noqa: E402
+from tactex.twin.process import TwinProcess  # noqa: E402
 
 pytestmark = pytest.mark.franka
 
@@ -116,7 +116,7 @@ def test_tool_joints_do_not_inherit_frankys_arm_defaults():
 
     import mujoco
 
-    from tactex.sim.twin import Twin
+    from tactex.twin.twin import Twin
 
     twin = Twin(TwinConfig(object_name="plane"))
     m = mujoco.MjModel.from_xml_string(ET.tostring(twin.sim.scene, encoding="unicode"))
@@ -253,7 +253,7 @@ def test_sigterm_stops_the_twin_cleanly():
 
 def test_a_twin_ends_with_the_process_that_started_it(tmp_path):
     script = tmp_path / "killed.py"
-    script.write_text("import os, signal\nfrom tactex.sim.twin_process import TwinProcess\n"
+    script.write_text("import os, signal\nfrom tactex.twin.process import TwinProcess\n"
                       "t = TwinProcess('plane').start()\nprint(t.process.pid, flush=True)\n"
                       "os.kill(os.getpid(), signal.SIGKILL)\n")
     run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)

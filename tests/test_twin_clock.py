@@ -1,11 +1,11 @@
-"""The twin's cadence and its command success rate (tactex.sim.twin_clock), without franky-sim."""
+"""The twin's cadence and its command success rate (tactex.twin.clock), without franky-sim."""
 
 from __future__ import annotations
 
 import pytest
 
 from tactex.errors import ConfigError
-from tactex.sim.twin_clock import MIN_SPACING, CommandRate, TwinClock
+from tactex.twin.clock import MIN_SPACING, CommandRate, TwinClock
 
 
 def test_on_time_sends_stay_on_the_grid():

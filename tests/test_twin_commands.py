@@ -1,4 +1,4 @@
-"""The twin's wait for the client's answer (tactex.sim.twin._CommandChannel), on a real UDP socket
+"""The twin's wait for the client's answer (tactex.twin.command_channel.CommandChannel), on a real UDP socket
 with a stand-in for franky-sim's robot server (no franky-sim needed)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import time
 import pytest
 
 from tactex.errors import MissingDependencyError
-from tactex.sim.twin import _CommandChannel, check_franky_internals
+from tactex.twin.command_channel import CommandChannel, check_franky_internals
 
 
 class FakeServer:
@@ -65,7 +65,7 @@ def _send(client, server: FakeServer, answers: int) -> None:
 def test_the_answer_to_the_last_state_is_taken_at_once(client):
     server = FakeServer()
     server._FrankaServer__message_id = 8  # states 0..7 sent
-    channel = _CommandChannel(server)
+    channel = CommandChannel(server)
     assert channel.last_sent() == 7
     _send(client, server, 7)
     t0 = time.monotonic()
@@ -77,7 +77,7 @@ def test_the_answer_to_the_last_state_is_taken_at_once(client):
 def test_without_an_answer_the_window_closes_at_its_deadline(client):
     server = FakeServer()
     server._FrankaServer__message_id = 3
-    channel = _CommandChannel(server)
+    channel = CommandChannel(server)
     t0 = time.monotonic()
     channel.take([server], 2, deadline=t0 + 0.05)
     assert time.monotonic() - t0 >= 0.045 and server.processed == 1 and channel.answered == -1
@@ -86,7 +86,7 @@ def test_without_an_answer_the_window_closes_at_its_deadline(client):
 def test_a_stale_answer_is_processed_and_the_wait_goes_on(client):
     server = FakeServer()
     server._FrankaServer__message_id = 6
-    channel = _CommandChannel(server)
+    channel = CommandChannel(server)
     _send(client, server, 4)  # the client answers an older state
     t0 = time.monotonic()
     channel.take([server], 5, deadline=t0 + 0.05)
@@ -97,7 +97,7 @@ def test_a_stale_answer_is_processed_and_the_wait_goes_on(client):
 def test_a_client_that_leaves_mid_window_ends_the_wait_without_error(client):
     server = FakeServer(close_on_process=True)
     server._FrankaServer__message_id = 6
-    channel = _CommandChannel(server)
+    channel = CommandChannel(server)
     _send(client, server, 4)  # a stale answer wakes the wait; processing it finds the client gone
     t0 = time.monotonic()
     channel.take([server], 5, deadline=t0 + 0.2)
@@ -106,7 +106,7 @@ def test_a_client_that_leaves_mid_window_ends_the_wait_without_error(client):
 
 def test_out_of_a_motion_the_commands_are_taken_at_once(client):
     server = FakeServer()
-    channel = _CommandChannel(server)
+    channel = CommandChannel(server)
     t0 = time.monotonic()
     channel.take([server], 0, deadline=None)
     assert server.processed == 1 and time.monotonic() - t0 < WINDOW_S / 2
@@ -115,7 +115,7 @@ def test_out_of_a_motion_the_commands_are_taken_at_once(client):
 def test_a_new_client_restarts_the_count():
     server = FakeServer()
     server._FrankaServer__message_id = 100
-    channel = _CommandChannel(server)
+    channel = CommandChannel(server)
     channel.answered = 99
     server._FrankaServer__message_id = 2  # franky-sim numbers a new client's states from 0
     assert channel.last_sent() == 1 and channel.answered == -1

@@ -1,4 +1,4 @@
-"""The twin's contact wrench in libfranka's frames (tactex.sim.twin.wrench_about_k), without franky-sim."""
+"""The twin's contact wrench in libfranka's frames (tactex.twin.wrench.wrench_about_k), without franky-sim."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ def test_wrench_about_k_matches_the_matrix_form():
     import numpy as np
     from scipy.spatial.transform import Rotation
 
-    from tactex.sim.twin import wrench_about_k
+    from tactex.twin.wrench import wrench_about_k
 
     def pose(rng):
         t = np.eye(4)

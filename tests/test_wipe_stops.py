@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tactex.errors import RobotError, RunInterrupted
-from tactex.tasks.demo import run_task
+from tactex.experiments.run import run_task
 from tactex.tasks.runner import ControlLoop
 from tactex.tasks.wipe import WipeConfig
 

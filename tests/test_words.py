@@ -12,37 +12,9 @@ import ast
 import io
 import re
 import tokenize
-from fnmatch import fnmatch
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-
-#: Files being rewritten on other branches of the same renovation; their words are cleaned there.
-#: The lead empties this list when those branches are merged: from then on every file is checked.
-PENDING: tuple[str, ...] = (
-    "tactex/commands/*",
-    "tactex/config.py",
-    "tactex/control/joint_kernels.py",
-    "tactex/control/va_ufic.py",
-    "tactex/control/va_ufic_compiled.py",
-    "tactex/control/va_ufic_tick.py",
-    "tactex/ergodic/*",
-    "tactex/errors.py",
-    "tactex/experiments/explore.py",
-    "tactex/experiments/study*.py",
-    "tactex/perception/realsense.py",
-    "tactex/pointcloud/io.py",
-    "tactex/pointcloud/mesh.py",
-    "tactex/report/run_report.py",
-    "tactex/robots/check.py",
-    "tactex/sim/franka_sim_*.py",
-    "tactex/sim/twin*.py",
-    "tactex/spectral/eigen.py",
-    "tactex/spectral/hierarchy.py",
-    "tactex/tasks/clean.py",
-    "tactex/tasks/demo.py",
-    "tactex/tasks/runner.py",
-)
 
 #: An issue reference: "issue 21", "issues 21", "Issue #21", or "#18" standing alone (not an HTML
 #: character reference such as "&#39;", not part of a word or a colour such as "#1f77b4").
@@ -75,18 +47,13 @@ def word_problems(source: str, name: str) -> list[str]:
     return [f"{name}:{line}: {text}" for line, text in sorted(found)]
 
 
-def _is_pending(rel: str) -> bool:
-    return any(fnmatch(rel, pattern) for pattern in PENDING)
-
-
 def test_no_issue_numbers_in_comments_or_docstrings() -> None:
     files = sorted((ROOT / "tactex").rglob("*.py"))
     assert files, "no tactex/**/*.py found"
     problems: list[str] = []
     for path in files:
         rel = path.relative_to(ROOT).as_posix()
-        if not _is_pending(rel):
-            problems += word_problems(path.read_text(encoding="utf-8"), rel)
+        problems += word_problems(path.read_text(encoding="utf-8"), rel)
     assert not problems, (
         "comments and docstrings should give the reason, not an issue number "
         "(the history goes to the commit message):\n" + "\n".join(problems)
@@ -129,11 +96,3 @@ def test_word_problems_finds_issue_references_in_a_snippet() -> None:
 def test_word_problems_passes_a_clean_snippet() -> None:
     clean = '"""Clamp to the torque-rate limit: the robot stops on a faster change."""\n# phase 3a\nX = "#123"\n'
     assert word_problems(clean, "clean.py") == []
-
-
-def test_pending_is_only_for_other_branches() -> None:
-    # a file outside PENDING is always checked: only the listed patterns are skipped
-    assert _is_pending("tactex/ergodic/explorer.py")
-    assert _is_pending("tactex/sim/twin_clock.py")
-    assert not _is_pending("tactex/tasks/stroke.py")
-    assert not _is_pending("tactex/cli.py")

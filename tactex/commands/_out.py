@@ -24,7 +24,7 @@ def add_force_argument(parser: argparse.ArgumentParser, command: str) -> None:
 
 def check_out(args: argparse.Namespace, command: str) -> None:
     """Refuse ``args.out`` if it holds another run and ``--force`` was not given (before any work)."""
-    from tactex.report.outdir import check_run_folder
+    from tactex.experiments.run_folder import check_run_folder
 
     check_run_folder(args.out, command, force=args.force, own=command in _OWN)
     args._out_taken = True  # the folder is this run's now: status.json there says how it ended

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from pathlib import Path
 
 from tactex.commands._out import add_force_argument, check_out
 from tactex.config import add_dataclass_arguments, dataclass_from_args
@@ -46,9 +47,7 @@ def robot_params(args: argparse.Namespace) -> RealRobotParams | None:
 
 
 def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> int:
-    from tactex.report.outdir import prepare_out_dir
-    from tactex.report.run_report import safety_summary, summary_table
-    from tactex.tasks.demo import run_compare, run_task
+    from tactex.experiments.run import run_compare, run_task, task_summary
 
     cfg = dataclass_from_args(config_cls, args)
     robot = robot_params(args)
@@ -56,8 +55,8 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
         raise ConfigError(f"--compare runs tactex and every baseline; drop --baseline {cfg.baseline}")
     if args.compare and robot is not None:
         raise ConfigError("--compare runs in simulation only; on a robot run tactex and a --baseline one at a time")
-    check_out(args, kind)
-    out = prepare_out_dir(args.out)  # made only once the parameters are known to be good
+    check_out(args, kind)  # the run driver makes the folder, once the parameters are known to be good
+    out = Path(args.out).expanduser()
     if args.compare:
         reports = run_compare(kind, cfg, out, progress=not args.quiet, video=args.video)
         page = out / "index.html"
@@ -65,11 +64,7 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
         reports = [run_task(kind, cfg, out, progress=not args.quiet, video=args.video and robot is None,
                             robot=robot)]
         page = reports[0].html or out
-    print(summary_table([(r.label, r.metrics) for r in reports]))
-    for r in reports:
-        said = safety_summary(r.metrics)
-        if said:
-            print(f"safety layer ({r.label}): {said}")
+    print(task_summary(reports))
     print(f"report: {page}")
     aborted = [r.metrics.get("aborted") for r in reports if r.metrics.get("aborted")]
     if aborted:

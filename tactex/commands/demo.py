@@ -12,7 +12,7 @@ HELP = "short cleaning and wiping runs in simulation with a report (under 3 minu
 
 
 def register(parser: argparse.ArgumentParser) -> None:
-    from tactex.tasks.demo import DemoConfig
+    from tactex.experiments.demo import DemoConfig
 
     parser.add_argument("--out", default="runs/demo", metavar="DIR",
                         help="run folder (default: runs/demo); a previous demo there is replaced")
@@ -22,7 +22,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tactex.tasks.demo import DemoConfig, run_demo
+    from tactex.experiments.demo import DemoConfig, run_demo
 
     cfg = dataclass_from_args(DemoConfig, args)
     check_out(args, NAME)

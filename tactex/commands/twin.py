@@ -14,7 +14,7 @@ HELP = ("serve a simulated Franka (franky-sim, libfranka's protocol) with our ob
 
 
 def register(parser: argparse.ArgumentParser) -> None:
-    from tactex.sim.twin import TwinConfig
+    from tactex.twin.config import TwinConfig
 
     fields = TwinConfig.__dataclass_fields__
     parser.add_argument("--object", dest="object_name", default=None, metavar="NAME",
@@ -29,7 +29,9 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tactex.sim.twin import TwinConfig, export_marking_cloud, run_twin
+    from tactex.twin.config import TwinConfig
+    from tactex.twin.scene import export_marking_cloud
+    from tactex.twin.twin import run_twin
 
     cfg = dataclass_from_args(TwinConfig, args)
     if args.export_cloud:

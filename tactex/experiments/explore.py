@@ -30,6 +30,7 @@ import numpy as np
 
 from tactex.config import param, to_jsonable
 from tactex.errors import ConfigError, ExplorationError, InputError, RunInterrupted
+from tactex.experiments.run_folder import prepare_out_dir
 from tactex.pointcloud import SurfaceCloud
 from tactex.pointcloud.io import SUPPORTED_SUFFIXES
 from tactex.pointcloud.keep_out import (
@@ -41,7 +42,6 @@ from tactex.pointcloud.markings import marked_cloud, resolve_marking
 from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
 from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target
 from tactex.pointcloud.target_file import load_target_file
-from tactex.report.outdir import prepare_out_dir
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
 

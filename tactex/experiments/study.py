@@ -33,25 +33,15 @@ from typing import Any
 from tactex.config import to_jsonable, write_json
 from tactex.errors import ConfigError
 from tactex.experiments.executor import Executor, LocalExecutor
+from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.study_files import pack_files
+from tactex.experiments.study_report import write_study_outputs
 from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
-from tactex.report.outdir import prepare_out_dir
+from tactex.experiments.study_table import table_rows, write_csv
 
 __all__ = ["StudyResult", "run_study", "run_study_task"]
 
 Say = Callable[[str], None]
-
-#: Metrics measured on the wall clock: in ``runs.jsonl`` and ``study.json``, never in the table.
-WALL_CLOCK_METRICS = ("wall_time_s", "basis_time_s", "start_plan_time_s")
-#: Metrics the summary and the plots describe, per task.
-MAIN_METRICS = {
-    "clean": ("dirt_removed_fraction", "force_within_20pct_fraction", "max_contact_force_n", "sim_time_s",
-              "agent_path_length_m"),
-    "wipe": ("force_rmse_n", "force_mae_n", "contact_fraction_after_first_contact", "max_force_n"),
-}
-#: Metrics given per axis of the base frame as [x, y, z]: columns ``name.x``, ``name.y``, ``name.z``.
-PER_AXIS_METRICS = ("motion_mae_m", "motion_rmse_m", "motion_mae_tool_m", "motion_rmse_tool_m",
-                    "motion_mae_all_contact_m", "motion_rmse_all_contact_m")
 
 
 def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
@@ -60,7 +50,7 @@ def run_study_task(task: dict[str, Any], shared: Any = None) -> dict[str, Any]:
     which come in ``shared`` (:mod:`.study_files`: the worker's machine need not have them); no
     progress bar."""
     from tactex.experiments.study_files import local_config
-    from tactex.tasks.demo import task_spec
+    from tactex.experiments.tasks import task_spec
     from tactex.tasks.robot import stopped_by_user
 
     spec = task_spec(task["task"])
@@ -111,33 +101,6 @@ def _append_record(path: Path, rec: dict[str, Any]) -> None:
         os.fsync(f.fileno())
 
 
-def _flat_scalars(metrics: dict[str, Any]) -> dict[str, Any]:
-    """The table's metric columns: scalars, one level of dicts as ``name.key``, per-axis metrics as
-    ``name.x/y/z``; other lists (time series) stay in ``runs.jsonl``."""
-    out: dict[str, Any] = {}
-    for k, v in metrics.items():
-        if k in WALL_CLOCK_METRICS:
-            continue
-        if k in PER_AXIS_METRICS and isinstance(v, list) and len(v) == 3:
-            out.update({f"{k}.{axis}": x for axis, x in zip("xyz", v, strict=True)})
-        elif isinstance(v, dict):
-            for kk, vv in v.items():
-                if vv is None or isinstance(vv, (bool, int, float, str)):
-                    out[f"{k}.{kk}"] = vv
-        elif v is None or isinstance(v, (bool, int, float, str)):
-            out[k] = v
-    return out
-
-
-def is_success(rec: dict[str, Any], spec: StudySpec) -> bool:
-    """A run succeeds when it finished, did not abort, and its success metric reaches the threshold."""
-    if rec["status"] != "ok":
-        return False
-    m = rec.get("metrics") or {}
-    value = m.get(spec.success_metric)
-    return not m.get("aborted") and isinstance(value, (int, float)) and value >= spec.success_at_least
-
-
 # -- the driver ------------------------------------------------------------------------------------------
 class _Progress:
     """``study: 12/270 done, 1 failed, 2 running, 3.1 runs/min, ETA 14 min`` after every finished run."""
@@ -169,8 +132,6 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
     """Run every run of ``spec`` not yet in ``out_dir/runs.jsonl``, then write the table, the
     summary, the plots and ``study.json``. Ctrl-C stops the runs (what finished stays recorded:
     run the same study again to go on)."""
-    from tactex.experiments.study_report import write_study_outputs
-
     out = prepare_out_dir(out_dir)
     runs = spec.runs()
     if not runs:
@@ -229,28 +190,7 @@ def _record(spec: StudySpec, run: StudyRun, outcome) -> dict[str, Any]:
             "seconds": outcome.seconds, "attempt": outcome.attempt}
 
 
-def table_rows(spec: StudySpec, runs: list[StudyRun], known: dict[str, dict[str, Any]]) -> tuple[list[str], list]:
-    """Columns and rows (plan order, finished runs only) of the study table."""
-    recs = [known[r.run_id] for r in runs if r.run_id in known]
-    metric_cols: list[str] = []
-    for rec in recs:
-        for k in _flat_scalars(rec.get("metrics") or {}):
-            if k not in metric_cols:
-                metric_cols.append(k)
-    metric_cols = [c for c in metric_cols if c not in spec.factors]
-    cols = ["run", "run_id", *spec.factors, "status", "success", "error", *metric_cols]
-    rows = []
-    for rec in recs:
-        flat = _flat_scalars(rec.get("metrics") or {})
-        rows.append([rec["index"], rec["run_id"], *(rec["factors"][f] for f in spec.factors), rec["status"],
-                     is_success(rec, spec), rec["error"].splitlines()[0][:300] if rec["error"] else "",
-                     *(flat.get(c) for c in metric_cols)])
-    return cols, rows
-
-
 def _write_table(out: Path, spec: StudySpec, runs: list[StudyRun], known: dict[str, dict[str, Any]]) -> Path:
-    from tactex.experiments.study_report import write_csv
-
     return write_csv(out / "table.csv", *table_rows(spec, runs, known))
 
 

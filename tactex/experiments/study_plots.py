@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from tactex.experiments.study_spec import StudySpec, level_label
+from tactex.experiments.study_table import is_success, wilson_interval
 
 __all__ = ["plot_factors"]
 
@@ -26,9 +27,6 @@ def _figure(width: float, height: float):
 def plot_factors(out: Path, spec: StudySpec, records: list[dict[str, Any]],
                  metrics: tuple[str, ...]) -> dict[str, Path]:
     """``factor_<name>.png`` for every grid or random factor with more than one value."""
-    from tactex.experiments.study import is_success
-    from tactex.experiments.study_report import wilson_interval
-
     files: dict[str, Path] = {}
     factors = [f for f in spec.grid if len(spec.grid[f]) > 1] + list(spec.random)
     panels = 1 + len(metrics)

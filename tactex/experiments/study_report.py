@@ -9,45 +9,22 @@ from typing import Any
 import numpy as np
 
 from tactex.config import write_json
+from tactex.experiments.study_plots import plot_factors
 from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
+from tactex.experiments.study_table import (
+    MAIN_METRICS,
+    is_success,
+    t_interval,
+    table_rows,
+    wilson_interval,
+    write_csv,
+    write_parquet,
+)
 
-__all__ = ["summarize", "t_interval", "wilson_interval", "write_csv", "write_study_outputs"]
-
-#: Confidence level of the intervals in the summary.
-CONFIDENCE = 0.95
-
-
-def wilson_interval(successes: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
-    """Wilson score interval of a success rate (sound at 0 and n successes, unlike mean ± z·se)."""
-    if n == 0:
-        return (math.nan, math.nan)
-    from scipy.stats import norm
-
-    z = float(norm.ppf(0.5 + confidence / 2))
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """Mean, sample standard deviation and the half-width of the Student-t interval of the mean."""
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return (math.nan, math.nan, math.nan)
-    if v.size == 1:
-        return (float(v[0]), math.nan, math.nan)
-    from scipy.stats import t
-
-    std = float(v.std(ddof=1))
-    return (float(v.mean()), std, float(t.ppf(0.5 + confidence / 2, v.size - 1)) * std / math.sqrt(v.size))
-
+__all__ = ["summarize", "write_study_outputs"]
 
 def summarize(spec: StudySpec, records: list[dict[str, Any]], metrics: tuple[str, ...]) -> list[dict[str, Any]]:
     """One row per setting (every factor but the seed), in plan order."""
-    from tactex.experiments.study import is_success
-
     keys = [f for f in spec.factors if f != "seed"]
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for rec in records:
@@ -86,64 +63,14 @@ def _summary_text(spec: StudySpec, rows: list[dict[str, Any]], metrics: tuple[st
     return "\n".join([line(head), line(["-" * w for w in widths]), *(line(b) for b in body)])
 
 
-def _csv_value(v: Any) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ""  # repr: the shortest text that reads back to the same float
-    return str(v)
-
-
-def write_csv(path: Path, cols: list[str], rows: list[list[Any]]) -> Path:
-    """Written to a temporary file and renamed: a reader never sees half a table."""
-    import csv
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(cols)
-        for row in rows:
-            w.writerow([_csv_value(v) for v in row])
-    tmp.replace(path)
-    return path
-
-
-def _write_parquet(path: Path, cols: list[str], rows: list[list[Any]]) -> tuple[Path | None, str]:
-    """``table.parquet`` with pyarrow when it is installed (it comes with the distributed extra)."""
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError:
-        return None, "table.parquet skipped: pyarrow is not installed (pip install 'tactex[distributed]')"
-    data = {}
-    for j, c in enumerate(cols):
-        column = [row[j] for row in rows]
-        kinds = {type(v) for v in column if v is not None}
-        if kinds == {int, float} or kinds == {float}:
-            column = [None if v is None or (isinstance(v, float) and not math.isfinite(v)) else float(v)
-                      for v in column]
-        elif len(kinds) > 1:
-            column = [None if v is None else str(v) for v in column]
-        data[c] = column
-    try:
-        pq.write_table(pa.table(data), path)
-    except (pa.ArrowInvalid, pa.ArrowTypeError) as exc:
-        return None, f"table.parquet skipped: {exc}"
-    return path, ""
-
-
 def write_study_outputs(out: Path, spec: StudySpec, runs: list[StudyRun], records: list[dict[str, Any]], *,
                         executor: str, elapsed_s: float) -> tuple[dict[str, Path], list[dict[str, Any]]]:
     """Table (CSV + Parquet), summary (CSV + text), plots and study.json of the finished records."""
-    from tactex.experiments.study import MAIN_METRICS, table_rows
-
     known = {r["run_id"]: r for r in records}
     cols, rows = table_rows(spec, runs, known)
     files = {"table": write_csv(out / "table.csv", cols, rows)}
     notes = []
-    parquet, note = _write_parquet(out / "table.parquet", cols, rows)
+    parquet, note = write_parquet(out / "table.parquet", cols, rows)
     if parquet is not None:
         files["parquet"] = parquet
     if note:
@@ -156,8 +83,6 @@ def write_study_outputs(out: Path, spec: StudySpec, runs: list[StudyRun], record
         text = _summary_text(spec, summary, metrics)
         (out / "summary.txt").write_text(text + "\n")
         files["summary_text"] = out / "summary.txt"
-        from tactex.experiments.study_plots import plot_factors
-
         files.update(plot_factors(out, spec, records, metrics))
     n_ok = sum(r["status"] == "ok" for r in records)
     study = {"spec": spec.to_json(), "executor": executor, "elapsed_s": elapsed_s, "runs_planned": len(runs),

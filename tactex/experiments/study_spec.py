@@ -61,7 +61,7 @@ NOT_STUDY_FIELDS = ("seed",)
 
 
 def _config_cls(task: str) -> type:
-    from tactex.tasks.demo import task_spec
+    from tactex.experiments.tasks import task_spec
 
     return task_spec(task).config_cls
 

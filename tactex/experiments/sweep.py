@@ -46,7 +46,7 @@ from tactex.config import param, to_jsonable, write_json
 from tactex.errors import ConfigError, ExplorationError, RunInterrupted
 from tactex.experiments.executor import Executor, LocalExecutor
 from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
-from tactex.report.outdir import prepare_out_dir
+from tactex.experiments.run_folder import prepare_out_dir
 
 __all__ = ["SweepConfig", "SweepResult", "run_sweep", "sweep_starts"]
 
@@ -322,7 +322,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
 
 def _write_table(path: Path, curves: dict[str, dict[str, np.ndarray]], failed: dict[tuple, str],
                  not_run: set[tuple] = frozenset()) -> Path:
-    from tactex.experiments.study_report import write_csv
+    from tactex.experiments.study_table import write_csv
 
     cols = ["cloud", "n_eigen", "alpha", "start", "status", "error", "final_ergodicity", "final_coverage_residual",
             "path_length_m"]

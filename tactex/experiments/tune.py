@@ -164,9 +164,9 @@ def run_tune(sources: Sequence[str | Path], out_dir: str | Path, spec: TuneSpec,
     except ImportError as exc:
         raise MissingDependencyError("ray[tune]", "distributed", "tuning with --tune") from exc
     from tactex.experiments.executor import RayExecutor
-    from tactex.experiments.study_report import write_csv
+    from tactex.experiments.run_folder import prepare_out_dir
+    from tactex.experiments.study_table import write_csv
     from tactex.experiments.sweep import prepare_clouds
-    from tactex.report.outdir import prepare_out_dir
 
     say = progress or (lambda msg: None)
     out = prepare_out_dir(out_dir)

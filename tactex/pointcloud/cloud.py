@@ -1,4 +1,5 @@
-"""The :class:`SurfaceCloud` type: a point-sampled surface with an exploration target."""
+"""The :class:`SurfaceCloud` type: a point-sampled surface with an exploration target; and
+:class:`CloudFile`, a cloud as a reader returns it, with what reading the file did."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from tactex.errors import CloudError, UnitsError
 
-__all__ = ["MAX_EXTENT_M", "MAX_SPACING_M", "SurfaceCloud", "mean_spacing", "validate_points"]
+__all__ = ["MAX_EXTENT_M", "MAX_SPACING_M", "CloudFile", "SurfaceCloud", "mean_spacing", "validate_points"]
 
 #: A cloud wider than this is almost surely in millimetres (a robot workspace is ~1 m).
 MAX_EXTENT_M = 5.0
@@ -230,3 +231,23 @@ class SurfaceCloud:
             drop = np.unique(pairs.max(axis=1)) if len(pairs) else np.empty(0, dtype=int)
             keep = np.setdiff1d(np.arange(len(self)), drop)
         return self.subset(keep)
+
+
+@dataclass(frozen=True)
+class CloudFile:
+    """A cloud read from a file, with what reading it did.
+
+    Attributes:
+        cloud: the points (finite), in metres.
+        n_dropped: points left out for NaN/inf coordinates or normals.
+        n_faces: faces of a mesh file (0 for a point cloud); its points are samples of its surface.
+        notes: those facts in words, for the user.
+        kept: per row of a point cloud file (bool), whether it is in ``cloud``; None when every row is
+            (or for a mesh). A per-point array given for the file (a keep-out mask) is carried over by it.
+    """
+
+    cloud: SurfaceCloud
+    n_dropped: int = 0
+    n_faces: int = 0
+    notes: tuple[str, ...] = ()
+    kept: np.ndarray | None = None

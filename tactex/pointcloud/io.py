@@ -11,14 +11,13 @@ the CAD parts industrial users have — are sampled on their surface at the voxe
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tactex.errors import CloudError, InputError, MissingDependencyError, UnitsError
-from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.cloud import CloudFile, SurfaceCloud
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -41,26 +40,6 @@ SUPPORTED_SUFFIXES = (".ply", ".pcd", ".npz", ".stl", ".obj")
 MESH_SUFFIXES = (".stl", ".obj")
 #: Sampling spacing of a mesh when none is given: TEC's voxel size [m].
 DEFAULT_MESH_SPACING_M = 0.003
-
-
-@dataclass(frozen=True)
-class CloudFile:
-    """A cloud read from a file, with what reading it did.
-
-    Attributes:
-        cloud: the points (finite), in metres.
-        n_dropped: points left out for NaN/inf coordinates or normals.
-        n_faces: faces of a mesh file (0 for a point cloud); its points are samples of its surface.
-        notes: those facts in words, for the user.
-        kept: per row of a point cloud file (bool), whether it is in ``cloud``; None when every row is
-            (or for a mesh). A per-point array given for the file (a keep-out mask) is carried over by it.
-    """
-
-    cloud: SurfaceCloud
-    n_dropped: int = 0
-    n_faces: int = 0
-    notes: tuple[str, ...] = ()
-    kept: np.ndarray | None = None
 
 
 class _Finite:

@@ -21,8 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from tactex.errors import ConfigError, InputError
-from tactex.pointcloud.cloud import SurfaceCloud
-from tactex.pointcloud.io import CloudFile
+from tactex.pointcloud.cloud import CloudFile, SurfaceCloud
 from tactex.pointcloud.target import CHANNELS
 from tactex.pointcloud.voxel import voxel_indices
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from tactex.errors import CloudError, UnitsError
-from tactex.pointcloud.cloud import MAX_EXTENT_M, SurfaceCloud
+from tactex.pointcloud.cloud import MAX_EXTENT_M, CloudFile, SurfaceCloud
 
 __all__ = ["MAX_MESH_POINTS", "SAMPLES_PER_CELL", "read_mesh", "sample_mesh"]
 
@@ -30,10 +30,9 @@ MAX_MESH_POINTS = 200_000
 SAMPLE_SEED = 0
 
 
-def read_mesh(path: Path, spacing_m: float):
+def read_mesh(path: Path, spacing_m: float) -> CloudFile:
     """The cloud sampled from the mesh file at ``path`` every ``spacing_m`` [m], as a
-    :class:`tactex.pointcloud.io.CloudFile`."""
-    from tactex.pointcloud.io import CloudFile
+    :class:`tactex.pointcloud.cloud.CloudFile`."""
     from tactex.pointcloud.mesh_load import load_mesh
 
     mesh, load_notes = load_mesh(path)

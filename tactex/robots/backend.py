@@ -24,7 +24,7 @@ class RobotBackend(Protocol):
     two ticks (planning, a model build). A backend whose robot needs a command every cycle ends torque
     control there and starts it again at the next tick (:meth:`LibfrankaBackend.pause`); a simulated
     robot, which waits anyway, has a no-op (:meth:`MujocoBackend.pause`). A backend without it is
-    treated as one that waits (:meth:`tactex.tasks.runner.ControlLoop.pause`).
+    treated as one that waits (:meth:`tactex.robots.loop.ControlLoop.pause`).
     """
 
     dt: float

@@ -128,7 +128,7 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
             if bare:
                 backend.bare_hold(duration_s)
             else:
-                from tactex.tasks.runner import ControlLoop
+                from tactex.robots.loop import ControlLoop
 
                 ControlLoop(backend).hold(duration_s)
         except (RobotError, SensorFault) as exc:

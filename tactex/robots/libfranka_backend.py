@@ -18,10 +18,11 @@ Inverse kinematics (the tasks' transit moves) runs on tactex's MuJoCo model of t
 tool (the Panda's and FR3's kinematics are the same); the torque loop never uses it.
 
 Failure handling: a libfranka exception (a reflex, ``communication_constraints_violation``, a lost
-link) becomes :class:`~tactex.errors.RobotError` naming libfranka's message, after torque control
-has ended; with ``auto_recovery`` the backend calls ``automatic_error_recovery`` once and the
-error still ends the task. :meth:`close` ends torque control with ``motion_finished`` (idempotent;
-also run by Ctrl-C through the tasks' ``finally``). ``dry_run`` never starts torque control: it
+link) becomes the :class:`~tactex.errors.RobotError` of its kind (:func:`libfranka_error_kind`)
+naming libfranka's message, after torque control has ended; with ``auto_recovery`` the backend
+calls ``automatic_error_recovery`` once and the error still ends the task. :meth:`close` ends
+torque control with ``motion_finished`` (idempotent; also run by Ctrl-C through the tasks'
+``finally``). ``dry_run`` never starts torque control: it
 reads the state at 1 kHz with ``read_once`` and drops the torques, so the arm stays braked/idle.
 """
 
@@ -41,7 +42,17 @@ import numpy as np
 from tactex.config import param
 from tactex.control.safety import FRANKA_TAU_MAX, LIMIT_MARGIN
 from tactex.control.state import RobotState
-from tactex.errors import ConfigError, InputError, MissingDependencyError, RobotError
+from tactex.errors import (
+    ConfigError,
+    InputError,
+    MissingDependencyError,
+    RobotClosedError,
+    RobotCommunicationError,
+    RobotConnectionError,
+    RobotError,
+    RobotRealtimeError,
+    RobotReflexError,
+)
 from tactex.perception.frame import CameraFrame
 from tactex.robots.cpu_latency import CpuLatencyRequest, check_latency_us
 from tactex.robots.netft import NetFTClient, parse_netft_address
@@ -56,6 +67,7 @@ __all__ = [
     "flange_T_tcp",
     "franka_model_terms",
     "franka_state_to_robot_state",
+    "libfranka_error_kind",
     "pin_control_thread",
 ]
 
@@ -284,6 +296,28 @@ class LoopTiming:
         }
 
 
+#: What to check, per kind of libfranka error that ends torque control.
+_HINTS: dict[type[RobotError], str] = {
+    RobotConnectionError: "the link to the robot was lost: check the cable, the FCI address and that nothing else "
+                          "loads the PC",
+    RobotCommunicationError: "commands arrived late: use a PREEMPT_RT kernel, the performance CPU governor and a "
+                             "direct cable (docs/real_robot.md)",
+    RobotReflexError: "a libfranka reflex or refusal: see Desk for the error; clear it with the pilot buttons or "
+                      "--auto-recovery",
+}
+
+
+def libfranka_error_kind(exc: BaseException, plf: Any) -> type[RobotError]:
+    """The :class:`RobotError` kind of an exception raised by pylibfranka (module ``plf``) during
+    torque control. pylibfranka's exceptions carry no reflex field: a communication violation is
+    named only in the message, so this is the one place that reads it; callers match the type."""
+    if isinstance(exc, plf.NetworkException):
+        return RobotConnectionError
+    if "communication_constraints_violation" in str(exc):
+        return RobotCommunicationError
+    return RobotReflexError
+
+
 class LibfrankaBackend:
     """:class:`~tactex.robots.backend.RobotBackend` on a real Franka (or ``tactex twin``).
 
@@ -335,11 +369,11 @@ class LibfrankaBackend:
         try:
             self.robot = pylibfranka.Robot(config.robot_ip, rt)
         except pylibfranka.RealtimeException as exc:
-            raise RobotError(
+            raise RobotRealtimeError(
                 f"libfranka refuses to run without a real-time kernel ({exc}): install a PREEMPT_RT kernel "
                 "(docs/real_robot.md), or pass --realtime ignore for a test on a normal kernel") from exc
         except Exception as exc:
-            raise RobotError(
+            raise RobotConnectionError(
                 f"cannot connect to the Franka at {config.robot_ip} ({exc}): check the FCI address, that FCI is "
                 "activated in Desk, the brakes are open and no other program holds the robot") from exc
         try:
@@ -427,7 +461,7 @@ class LibfrankaBackend:
         a twin would keep the last torque on an arm nobody controls."""
         if late_us > self.config.late_abort_ms * 1e3:
             self.close()
-            raise RobotError(
+            raise RobotCommunicationError(
                 f"the control loop answered {late_us / 1e3:.0f} ms late (budget 1 ms): something slow ran between "
                 "two ticks while torque control was on (end it first: ControlLoop.pause); a real Franka stops "
                 "with communication_constraints_violation. Torque control ended")
@@ -436,7 +470,7 @@ class LibfrankaBackend:
         """Send the torque set by :meth:`apply_torque` (unless it went already) and wait for the next
         state (1 ms)."""
         if self._closed:
-            raise RobotError("the Franka backend is closed")
+            raise RobotClosedError("the Franka backend is closed")
         try:
             if self.config.dry_run:
                 if math.isnan(self._compute_us):  # the task stepped without a torque
@@ -537,15 +571,8 @@ class LibfrankaBackend:
                 recovered = " (automatic_error_recovery done: the robot is ready again)"
             except Exception as rec_exc:  # reported; the original error stands
                 recovered = f" (automatic_error_recovery failed: {rec_exc})"
-        if isinstance(exc, plf.NetworkException):
-            hint = "the link to the robot was lost: check the cable, the FCI address and that nothing else loads the PC"
-        elif "communication_constraints_violation" in detail:
-            hint = ("commands arrived late: use a PREEMPT_RT kernel, the performance CPU governor and a direct "
-                    "cable (docs/real_robot.md)")
-        else:
-            hint = "a libfranka reflex or refusal: see Desk for the error; clear it with the pilot buttons or " \
-                   "--auto-recovery"
-        return RobotError(f"libfranka {kind}: {detail}{recovered}; {hint}")
+        error = libfranka_error_kind(exc, plf)
+        return error(f"libfranka {kind}: {detail}{recovered}; {_HINTS[error]}")
 
     def camera_frame(self) -> CameraFrame | None:
         """None: on the real robot the wrist camera runs in the vision process."""
@@ -591,7 +618,7 @@ class LibfrankaBackend:
         non-finite state is answered with zero torque. Torque control ends (``motion_finished``) when it
         returns; the returned state is the last one answered. The wrench source is not read meanwhile."""
         if self._closed:
-            raise RobotError("the Franka backend is closed")
+            raise RobotClosedError("the Franka backend is closed")
         if self.config.dry_run:
             raise ConfigError("the bare hold commands torques: it cannot run in a dry run (drop --dry-run)")
         if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) \

@@ -50,6 +50,7 @@ from scipy.spatial import cKDTree
 
 from tactex.errors import ConfigError, SpectralError
 from tactex.spectral import block_lu
+from tactex.spectral.exact import exact_eigenpairs
 
 __all__ = [
     "COARSE_POINTS_PER_VECTOR",
@@ -421,8 +422,6 @@ def hierarchical_eigenpairs(
         (evals (k,), evecs (N, k)) M-orthonormal, unsorted signs; or None when the cloud is too small for a
         coarser level (the caller then solves exactly).
     """
-    from tactex.spectral.eigen import laplace_eigenpairs
-
     if not (isinstance(tol, (float, int)) and 0.0 < float(tol) < 1.0):
         raise ConfigError(f"eigen_tol must be a number in (0, 1), got {tol!r} (e.g. 5e-3)")
     if not (np.isfinite(spacing) and spacing > 0.0):
@@ -466,7 +465,7 @@ def hierarchical_eigenpairs(
         theta, W = theta[:p].astype(np.float64), W[:, :p]
         X = scale[:, None] * W.astype(np.float64)
     else:
-        theta, X = laplace_eigenpairs(Lc, mc, p, seed=seed, solver="arpack")
+        theta, X = exact_eigenpairs(Lc, mc, p, seed=seed)
     info.seconds["coarsest"] = time.perf_counter() - t0
     # A shift below the spectrum keeps L − σM positive definite whatever the null space.
     sigma = -1e-6 * float(np.mean(L.diagonal() / mass))

@@ -54,6 +54,7 @@ from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.voxel import voxel_indices
+from tactex.robots.loop import ControlLoop
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
@@ -66,7 +67,7 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
-from tactex.tasks.runner import TOOL_DOWN, ControlLoop
+from tactex.tasks.runner import TOOL_DOWN
 from tactex.tasks.world import SimWorldParams
 
 __all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 from tactex.errors import TactexError
-from tactex.sim.twin_clock import linux_prctl
+from tactex.twin.clock import linux_prctl
 
 __all__ = ["TwinProcess", "end_child", "free_loopback_address"]
 

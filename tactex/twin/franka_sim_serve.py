@@ -8,7 +8,7 @@ loop starts, then serves until SIGTERM/SIGINT. (franka-sim's own health check ca
 
 Usage: serve.py --host 127.0.0.X [--port 1337] [--no-enforce]. ``$FR3_MJCF`` names the arm model
 (tactex writes one from franky-sim's fr3.xml, optionally with a box in its world: no download). Run
-by :class:`tactex.sim.franka_sim_process.FrankaSimProcess`; imports nothing of tactex.
+by :class:`tactex.twin.franka_sim_process.FrankaSimProcess`; imports nothing of tactex.
 Every motion-limit violation and communication abort is logged by franka-sim on stderr.
 """
 
@@ -22,7 +22,7 @@ import sys
 
 
 def main() -> int:
-    # run by path: its folder (tactex/sim) heads sys.path, and nothing of tactex may shadow franka-sim's modules
+    # run by path: its folder (tactex/twin) heads sys.path, and nothing of tactex may shadow franka-sim's modules
     here = os.path.dirname(os.path.abspath(__file__))
     sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != here]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

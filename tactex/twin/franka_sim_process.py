@@ -7,7 +7,7 @@ robot's motion-limit checker (joint position/velocity/acceleration/jerk limits, 
 consecutive lost command cycles abort the motion, counted in cycles, so a stalled simulator is not
 counted against the client). It pins numpy 1.26 and mujoco < 3.3, so it lives in an environment of
 its own (``tools/franka-sim``: its pyproject and uv.lock; ``make franka-sim-env``) and runs as a
-separate process: :mod:`tactex.sim.franka_sim_serve`, run by that environment's Python, binds one
+separate process: :mod:`tactex.twin.franka_sim_serve`, run by that environment's Python, binds one
 loopback address (franka-sim's own launcher binds every interface).
 
 Its FR3 model is franky-sim's ``fr3.xml`` (the ``franka`` extra ships it; franka-sim would
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tactex.errors import InputError, MissingDependencyError, TactexError
-from tactex.sim.twin_process import _die_with_parent, end_child, free_loopback_address
+from tactex.twin.process import _die_with_parent, end_child, free_loopback_address
 
 __all__ = ["FRANKA_SIM_PYTHON_ENV", "Box", "FrankaSimProcess", "franka_sim_python", "write_fr3_mjcf"]
 
@@ -105,9 +105,9 @@ def _flange_as_link7(root) -> None:
     """Make the body franka-sim reports as the flange the FR3's flange. franka-sim takes the origin of the
     body ``<prefix>link7`` as the flange (``O_T_EE`` = link7 · F_T_EE), where the FR3's flange is 107 mm
     further along link7's z (libfranka's model, from the URDF franka-sim serves, puts it there): over
-    franky-sim's model every pose it reported was 107 mm short along the tool axis, and our TCP, 160 mm
-    from the flange, was reported 10.5 cm above where the arm held it. The link keeps its joint, mass and
-    meshes under another name; a massless body named ``fr3_link7`` at the flange carries the hand."""
+    franky-sim's model every pose it reports would be short by that offset along the tool axis. The link
+    keeps its joint, mass and meshes under another name; a massless body named ``fr3_link7`` at the
+    flange carries the hand."""
     import xml.etree.ElementTree as ET
 
     link7 = next((b for b in root.iter("body") if b.get("name") == "fr3_link7"), None)

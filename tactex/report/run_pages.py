@@ -1,0 +1,208 @@
+"""The pages and tables around the run folders: a run's metrics, notes and PNGs appended to its
+interactive page, the terminal summary of tactex beside its baselines, the safety layer's summary
+line, and one index page linking several runs."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactex.config import to_jsonable
+from tactex.control.safety import SafetyLimits
+from tactex.errors import InputError
+from tactex.report.run_common import RunReport
+
+__all__ = ["SUMMARY_COLUMNS", "append_sections", "safety_summary", "summary_table", "write_index_html"]
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value)
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return "nan" if not math.isfinite(value) else f"{value:.4g}"
+    if isinstance(value, Mapping):
+        return ", ".join(f"{k} {_fmt(v)}" for k, v in value.items())
+    if isinstance(value, (list, tuple)) and all(isinstance(v, (int, float, np.number)) for v in value):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    return str(value)
+
+
+def _metrics_table_html(metrics: Mapping[str, Any]) -> str:
+    rows = []
+    for k, v in metrics.items():
+        if isinstance(v, (list, tuple)) and len(v) > 6:
+            continue  # long series are in the plots and metrics.json
+        rows.append(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(_fmt(v))}</td></tr>")
+    return "<table class='tx'>" + "".join(rows) + "</table>"
+
+
+_CSS = ("<style>.tx{border-collapse:collapse;font:13px sans-serif}.tx td,.tx th{border:1px solid #ccc;"
+        "padding:3px 8px;text-align:left}.txs{font:14px sans-serif;margin:12px}.txs img{max-width:100%}</style>")
+
+
+def append_sections(page: Path, rep: RunReport) -> Path:
+    """Add the metrics, the notes and the PNGs (base64, so the page is one self-contained file)."""
+    parts = [_CSS, "<div class='txs'>", f"<h2>{html.escape(rep.kind)} — {html.escape(rep.label)}</h2>",
+             _metrics_table_html(rep.metrics)]
+    if rep.notes:
+        parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in rep.notes) + "</ul>")
+    for role, path in rep.files.items():
+        if role.endswith("_png"):
+            data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
+            parts.append(f"<h3>{html.escape(Path(path).name)}</h3><img alt='{html.escape(role)}' "
+                         f"src='data:image/png;base64,{data}'>")
+    parts.append("<p>Files: " + ", ".join(html.escape(Path(p).name) for r, p in rep.files.items()
+                                          if r != "html") + "</p></div>")
+    text = page.read_text()
+    cut = text.rfind("</body>")
+    section = "\n".join(parts)
+    page.write_text(text[:cut] + section + text[cut:] if cut >= 0 else text + section)
+    return page
+
+
+#: Columns of the summary table: (header, metric key, formatter).
+def _pct(v: Any) -> str:
+    return f"{100 * float(v):.1f} %"
+
+
+def _num(fmt: str):
+    return lambda v: format(float(v), fmt)
+
+
+def _xyz_mm(v: Any) -> str:
+    arr = np.asarray(v, dtype=np.float64)
+    return "–" if not np.isfinite(arr).any() else "/".join(f"{1e3 * x:.1f}" for x in arr)
+
+
+def _minmax(v: Any) -> str:
+    lo, hi = (float("nan") if v.get(k) is None else float(v[k]) for k in ("min", "max"))
+    return "–" if not (math.isfinite(lo) and math.isfinite(hi)) else f"{lo:.2f}–{hi:.2f}"
+
+
+SUMMARY_COLUMNS: tuple[tuple[str, str, Any], ...] = (
+    ("dirt removed", "dirt_removed_fraction", _pct),
+    ("force in ±20 %", "force_within_20pct_fraction", _pct),
+    ("max force [N]", "max_contact_force_n", _num(".1f")),
+    ("vision updates", "vision_updates", _num(".0f")),
+    ("95 % removed at [s]", "time_to_95pct_s", _num(".1f")),
+    ("force MAE [N]", "force_mae_n", _num(".2f")),
+    ("force RMSE [N]", "force_rmse_n", _num(".2f")),
+    # the same samples for every controller (all contact ticks): motion_mae_m is VA-UFIC's aligned
+    # subset (ρ_align = 1), which a baseline without ρ_align cannot have
+    ("motion MAE in contact x/y/z [mm]", "motion_mae_all_contact_m", _xyz_mm),
+    ("tank imp. [J]", "tank_impedance_energy_j", _minmax),
+    ("tank force [J]", "tank_force_energy_j", _minmax),
+    ("explore [s]", "explore_time_s", _num(".1f")),
+    ("contact", "contact_fraction", _pct),
+    ("sim time [s]", "sim_time_s", _num(".1f")),
+    ("wall [s]", "wall_time_s", _num(".1f")),
+)
+
+
+def _summary_cells(rows: Sequence[tuple[str, Mapping[str, Any]]]) -> tuple[list[str], list[list[str]]]:
+    cols = [c for c in SUMMARY_COLUMNS if any(c[1] in m and m[c[1]] is not None for _, m in rows)]
+    header = ["run"] + [c[0] for c in cols]
+    body = []
+    for name, m in rows:
+        cells = [str(name)]
+        for _, key, fmt in cols:
+            v = m.get(key)
+            try:
+                cells.append("–" if v is None else fmt(v))
+            except (TypeError, ValueError, KeyError):
+                cells.append(_fmt(v))
+        body.append(cells)
+    return header, body
+
+
+def _as_rows(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping[str, Any]]]):
+    items = list(rows.items()) if isinstance(rows, Mapping) else list(rows)
+    for item in items:
+        if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], Mapping)):
+            raise InputError(f"summary rows must be (name, metrics mapping) pairs, got {item!r:.80}")
+    return items
+
+
+def safety_summary(metrics: Mapping[str, Any]) -> str | None:
+    """What the safety layer did in a run, and why, as one line from ``metrics["safety_counts"]``
+    (None when it never stepped in): a run that retreated or was clipped must say so where its
+    results are read, not only in metrics.json."""
+    counts = {k: int(v) for k, v in (metrics.get("safety_counts") or {}).items() if v}
+    limits = metrics.get("safety_limits") or {}
+    cap = float(limits.get("max_contact_force_n", SafetyLimits.max_contact_force))
+    rate = float(limits.get("tau_rate_max_n_m_s", SafetyLimits.tau_rate_max))
+    peak = metrics.get("max_contact_force_n", metrics.get("max_force_n"))  # clean: the magnitude; wipe: the normal
+    peak_text = f", peak {float(peak):.1f} N" if isinstance(peak, (int, float)) and math.isfinite(peak) else ""
+    said = {
+        "force_limit": lambda n: f"retreated {n}× from a contact force above {cap:g} N{peak_text}",
+        "wrench_lost": lambda n: f"lost the F/T sensor {n}× (backed off, then held until it was back)",
+        "nan_wrench": lambda n: f"bridged {n} non-finite F/T reading(s) with the last finite one",
+        "nan_state": lambda n: f"held {n}× on a non-finite robot state",
+        "controller_fault": lambda n: f"held {n}× on a controller fault",
+        "nan_torque": lambda n: f"held {n}× on a non-finite controller torque",
+        "joint_limit": lambda n: f"pushed back from a joint limit {n}×",
+        "torque_limit": lambda n: f"saturated the torque at the joint limits on {n} tick(s)",
+        "torque_rate_limit": lambda n: f"clipped the torque rate ({rate:g} N·m/s) on {n} tick(s)",
+    }
+    parts = [say(counts[kind]) for kind, say in said.items() if counts.get(kind)]
+    parts += [f"{kind} {n}×" for kind, n in counts.items() if kind not in said and kind != "retreat_end"]
+    return "; ".join(parts) if parts else None
+
+
+def summary_table(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping[str, Any]]]) -> str:
+    """A fixed-width text table of runs side by side (tactex and its baselines).
+
+    ``rows``: {run name: metrics} or [(run name, metrics)]; the columns are the known metrics that at
+    least one run has (clean: dirt removed, force within ±20 %, max force, …; wipe: force MAE/RMSE,
+    motion MAE per axis, tank energy ranges, …); a run without a metric shows "–".
+    """
+    items = _as_rows(rows)
+    if not items:
+        raise InputError("summary_table needs at least one run")
+    header, body = _summary_cells(items)
+    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
+
+    def line(cells: list[str]) -> str:
+        pairs = enumerate(zip(cells, widths, strict=True))
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in pairs)
+
+    rule = "  ".join("-" * w for w in widths)
+    return "\n".join([line(header), rule, *(line(r) for r in body)])
+
+
+def write_index_html(path: str | Path, reports: Sequence[RunReport], *, title: str = "tactex runs") -> Path:
+    """One page linking the run folders' reports, with a summary table per kind of run."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>", f"<title>{html.escape(title)}</title>", _CSS,
+             "</head><body><div class='txs'>", f"<h1>{html.escape(title)}</h1>"]
+    for kind in dict.fromkeys(r.kind for r in reports):
+        group = [r for r in reports if r.kind == kind]
+        header, body = _summary_cells([(r.label, r.metrics) for r in group])
+        parts.append(f"<h2>{html.escape(kind)}</h2><table class='tx'><tr>"
+                     + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>")
+        for r, cells in zip(group, body, strict=True):
+            link = r.html.relative_to(out.parent).as_posix() if r.html and r.html.is_relative_to(out.parent) else None
+            first = f"<a href='{html.escape(link)}'>{html.escape(cells[0])}</a>" if link else html.escape(cells[0])
+            parts.append("<tr><td>" + first + "</td>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells[1:])
+                         + "</tr>")
+        parts.append("</table>")
+        for r in group:
+            if r.notes:
+                notes = "; ".join(html.escape(n) for n in r.notes)
+                parts.append(f"<p><b>{html.escape(r.label)}</b>: {notes}</p>")
+    parts.append("<h2>Metrics (JSON)</h2><pre>" + html.escape(json.dumps(
+        {f"{r.kind}/{r.label}": {k: v for k, v in to_jsonable(r.metrics).items() if k != "ergodicity"}
+         for r in reports}, indent=1)) + "</pre>")
+    parts.append("</div></body></html>\n")
+    out.write_text("\n".join(parts))
+    return out
