@@ -134,3 +134,18 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
             assert main(argv) == 2, argv
             err = capsys.readouterr().err.strip().splitlines()
             assert len(err) == 1 and err[0].startswith("tactex annotate: error:") and words in err[0], (argv, err)
+
+
+@pytest.mark.slow
+def test_explore_takes_the_painted_target_and_keep_out(tmp_path):
+    import json
+
+    a = Annotation(plane(31))
+    a.paint(centre_index(a.cloud), 0.008, "target")
+    a.paint(int(np.argmax(a.cloud.points[:, 0])), 0.006, "keep_out")
+    marked = write_marked_ply(a.cloud, a.target, a.keep_out, tmp_path / "marked.ply")
+    assert main(["explore", str(marked), "--out", str(tmp_path / "run"), "--steps", "200",
+                 "--voxel-size-m", "0"]) == 0
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    c = a.counts()
+    assert (m["n_target"], m["keep_out_points"], m["keep_out_contacts"]) == (c.n_target, c.n_keep_out, 0)

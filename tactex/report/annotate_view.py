@@ -115,7 +115,7 @@ class AnnotateView:
         save = gui.add_button("Save")
         self.status_md = gui.add_markdown(f"Saves to `{self.out}`")
         save.on_click(lambda _event: self._save_clicked())
-        scene.on_pointer_event("click")(self._clicked)
+        scene.on_click()(self._clicked)
 
     def colors(self) -> np.ndarray:
         """(N, 3) uint8 colours drawn: the cloud's own, the marks over them (target brighter with weight)."""
