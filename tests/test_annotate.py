@@ -46,6 +46,18 @@ def test_brush_marks_the_ball_of_its_radius_and_erase_clears_it():
     assert not a.keep_out[far].any() and not a.target[far].any()
 
 
+def test_stroke_covers_the_chord_within_its_radius():
+    cloud = plane()
+    a = Annotation(cloud)
+    start = int(np.argmin(np.linalg.norm(cloud.points - [-0.02, -0.01, 0], axis=1)))
+    end = int(np.argmin(np.linalg.norm(cloud.points - [0.02, 0.012, 0], axis=1)))
+    a.stroke(start, end, 0.003, "target")
+    p, q = cloud.points[start], cloud.points[end]
+    t = np.clip((cloud.points - p) @ (q - p) / ((q - p) @ (q - p)), 0, 1)
+    dist = np.linalg.norm(cloud.points - (p + t[:, None] * (q - p)), axis=1)
+    assert np.array_equal(a.target > 0, dist <= 0.003 + 1e-12)
+
+
 def test_counts_give_points_and_areas_in_cm2():
     a = Annotation(plane())
     a.paint(centre_index(a.cloud), 0.0051, "target")

@@ -1,7 +1,7 @@
 """tactex annotate in a real browser: Debian's Chromium driven by Playwright loads the viser page from
-the local server with every request off localhost aborted, the cloud is drawn, clicks on it paint a
-target and a keep-out zone, and the page's Save button writes them. Skipped where Playwright or
-Chromium is missing (.ci/run installs Chromium with apt)."""
+the local server with every request off localhost aborted, the cloud is drawn, a click and a
+Shift+click on it stroke a target, a click a keep-out zone, and the page's Save button writes them.
+Skipped where Playwright or Chromium is missing (.ci/run installs Chromium with apt)."""
 
 from __future__ import annotations
 
@@ -40,6 +40,12 @@ def _ball(points: np.ndarray, mask: np.ndarray, radius_m: float) -> float:
     """The radius of the smallest ball about a marked point holding every marked point [m]."""
     marked = points[mask]
     return float(min(np.linalg.norm(marked - p, axis=1).max() for p in marked)) if len(marked) else np.inf
+
+
+def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance [m] of each point to the segment from a to b."""
+    t = np.clip((points - a) @ (b - a) / float((b - a) @ (b - a)), 0.0, 1.0)
+    return np.linalg.norm(points - (a + t[:, None] * (b - a)), axis=1)
 
 
 def test_paint_in_chromium_then_save(tmp_path):
@@ -81,6 +87,13 @@ def test_paint_in_chromium_then_save(tmp_path):
             view.radius.value = 6.0
             page.mouse.click(cx, cy)
             _wait_for(lambda: view.annotation.counts().n_target > 0, "the click to paint a target")
+            start = view.last_index
+            dab = view.annotation.counts().n_target
+            page.keyboard.down("Shift")  # Shift+click: a stroke from the last click
+            page.mouse.click(cx - box["width"] / 8, cy + box["height"] / 10)
+            page.keyboard.up("Shift")
+            _wait_for(lambda: view.annotation.counts().n_target > dab, "the Shift+click to stroke the target")
+            end = view.last_index
             view.mark.value = "keep-out"
             page.mouse.click(cx + box["width"] / 8, cy)
             _wait_for(lambda: view.annotation.counts().n_keep_out > 0, "the click to paint a keep-out zone")
@@ -97,11 +110,16 @@ def test_paint_in_chromium_then_save(tmp_path):
     saved = read_cloud(out)
     t, k = saved.cloud.target > 0, saved.keep_out
     assert t.any() and k.any() and not (t & k).any()
-    r = 6e-3
-    # the target is one brush dab about the centre (± one brush radius), the keep-out one dab beside it
-    assert _ball(saved.cloud.points, t, r) <= r + 1e-9
-    centre = saved.cloud.points[t].mean(axis=0)
-    assert np.linalg.norm(centre) <= r
-    assert _ball(saved.cloud.points, k, r) <= r + 1e-9
-    assert saved.cloud.points[k].mean(axis=0)[0] > centre[0]
+    r, h = 6e-3, read.cloud.spacing
+    pts = saved.cloud.points
+    a, b = pts[start], pts[end]
+    # the stroke starts at the centre, where the camera looks, and is the brush dragged from there to the
+    # second click: every target point within a brush radius of the chord, and the chord covered
+    assert np.linalg.norm(a) <= h and np.linalg.norm(b - a) > 4 * r
+    assert _segment_distance(pts[t], a, b).max() <= r + 1e-9
+    along = a + np.linspace(0, 1, 50)[:, None] * (b - a)
+    assert all(np.linalg.norm(pts[t] - q, axis=1).min() <= h for q in along)
+    # the keep-out is one dab on the other side of the centre
+    assert _ball(pts, k, r) <= r + 1e-9
+    assert (pts[k].mean(axis=0) - a) @ (b - a) < 0
     assert np.array_equal(saved.cloud.target, view.annotation.target)

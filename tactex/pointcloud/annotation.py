@@ -2,9 +2,10 @@
 
 What ``tactex annotate``'s page does, as plain array operations on the cloud's points (world frame, m):
 a brush dab marks every point within its radius of the picked point (a KD-tree ball query, so the
-brush is a ball in space, not a disc on the screen); erasing clears both marks there; a fill marks
-the connected region of points that carry the same marks as the picked one, points being neighbours
-within :data:`FILL_LINK_SPACINGS` × the cloud's spacing h (so a closed stroke stops a fill, as a painted
+brush is a ball in space, not a disc on the screen), a stroke sweeps that ball along the chord from
+one picked point to another; erasing clears both marks there; a fill marks the connected region of
+points that carry the same marks as the picked one, points being neighbours within
+:data:`FILL_LINK_SPACINGS` × the cloud's spacing h (so a closed stroke stops a fill, as a painted
 outline does in an image editor). A point is target or kept out, never both: a mark replaces the
 other. Areas count h² per point (a point of a cloud of mean spacing h stands for that much surface).
 """
@@ -138,6 +139,27 @@ class Annotation:
     def paint(self, index: int, radius_m: float, kind: str, weight: float = 1.0) -> np.ndarray:
         """One brush dab of ``kind`` centred on point ``index``; the indices changed."""
         return self.mark(self.brush(index, radius_m), kind, weight)
+
+    def stroke_points(self, start: int, end: int, radius_m: float) -> np.ndarray:
+        """Indices of the points a brush of ``radius_m`` [m] covers moving straight from point ``start``
+        to point ``end``: those within the radius of the chord between them (a capsule). On a curved
+        surface the chord runs under it, by its sagitta: strokes shorter than the bend allows keep on it."""
+        a, b = self.cloud.points[self._index(start)], self.cloud.points[self._index(end)]
+        radius = max(float(radius_m), 0.0)
+        ab = b - a
+        length = float(np.linalg.norm(ab))
+        # candidates: the ball around the chord's middle holding the whole capsule
+        near = np.asarray(self._tree.query_ball_point((a + b) / 2.0, length / 2.0 + radius), dtype=np.intp)
+        rel = self.cloud.points[near] - a
+        t = np.clip(rel @ ab / (length * length), 0.0, 1.0) if length > 0 else np.zeros(len(near))
+        dist = np.linalg.norm(rel - t[:, None] * ab, axis=1)
+        return np.sort(near[dist <= radius])
+
+    def stroke(self, start: int, end: int, radius_m: float, kind: str, weight: float = 1.0) -> np.ndarray:
+        """A brush stroke of ``kind`` from point ``start`` to point ``end``; the indices changed."""
+        if not (np.isfinite(radius_m) and radius_m >= 0):
+            raise InputError(f"the brush radius must be ≥ 0 m, got {radius_m!r}")
+        return self.mark(self.stroke_points(start, end, radius_m), kind, weight)
 
     def _neighbours(self) -> list[np.ndarray]:
         if self._links is None:

@@ -3,7 +3,8 @@
 Served by viser on localhost: its client ships built in the viser wheel (no script, font or picture
 from the internet) and it draws point clouds and reports clicks on the scene as rays, which is all
 painting needs. A click paints (or fills from) the point under the cursor
-(:meth:`tactex.pointcloud.annotation.Annotation.pick`); a drag turns the view. The marks are kept
+(:meth:`tactex.pointcloud.annotation.Annotation.pick`), a Shift+click strokes the brush there from the
+point clicked before (as image editors draw a straight line); a drag turns the view. The marks are kept
 here, in Python (:class:`~tactex.pointcloud.annotation.Annotation`), and the page only shows them.
 """
 
@@ -83,6 +84,7 @@ class AnnotateView:
         self.out = Path(out)
         self.saved: Path | None = None
         self.unsaved = 0
+        self.last_index: int | None = None  # the point clicked last: a Shift+click strokes from it
         self._lock = threading.Lock()
         self._base = _base_colors(annotation)
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
@@ -105,7 +107,7 @@ class AnnotateView:
                                             point_size=float(cloud.spacing) * 1.2, point_shape="circle",
                                             precision="float32")
         gui.add_markdown(f"**{name or 'cloud'}**: {len(cloud)} points, spacing {h_mm:.2f} mm. "
-                         "Click the cloud to paint; drag to turn the view.")
+                         "Click the cloud to paint, Shift+click to stroke from the last click; drag to turn the view.")
         self.mark = gui.add_dropdown("Mark", tuple(MARK_LABELS), initial_value="target")
         self.tool = gui.add_dropdown("Tool", ("brush", "fill"), initial_value="brush")
         self.radius = gui.add_slider("Brush radius [mm]", min=1.0, max=100.0, step=1.0,
@@ -116,6 +118,7 @@ class AnnotateView:
         self.status_md = gui.add_markdown(f"Saves to `{self.out}`")
         save.on_click(lambda _event: self._save_clicked())
         scene.on_click()(self._clicked)
+        scene.on_click(modifier="shift")(lambda event: self._clicked(event, from_last=True))
 
     def colors(self) -> np.ndarray:
         """(N, 3) uint8 colours drawn: the cloud's own, the marks over them (target brighter with weight)."""
@@ -133,27 +136,31 @@ class AnnotateView:
         return (f"target: {c.n_target} points, {c.target_area_cm2:.1f} cm²  \n"
                 f"keep-out: {c.n_keep_out} points, {c.keep_out_area_cm2:.1f} cm²")
 
-    def apply(self, index: int) -> np.ndarray:
-        """What a click on point ``index`` does with the page's current settings; the indices changed."""
-        kind = MARK_LABELS[self.mark.value]
+    def apply(self, index: int, *, from_last: bool = False) -> np.ndarray:
+        """What a click on point ``index`` does with the page's current settings (``from_last``: a
+        Shift+click, a brush stroke from the point clicked before); the indices changed."""
+        kind, weight, radius_m = MARK_LABELS[self.mark.value], float(self.weight.value), float(self.radius.value) * 1e-3
         with self._lock:
+            last, self.last_index = self.last_index, index
             if self.tool.value == "fill":
-                changed = self.annotation.fill(index, kind, float(self.weight.value))
+                changed = self.annotation.fill(index, kind, weight)
+            elif from_last and last is not None:
+                changed = self.annotation.stroke(last, index, radius_m, kind, weight)
             else:
-                changed = self.annotation.paint(index, float(self.radius.value) * 1e-3, kind, float(self.weight.value))
+                changed = self.annotation.paint(index, radius_m, kind, weight)
             if changed.size:
                 self.unsaved += 1
                 self.points.colors = self.colors()
                 self.counts_md.content = self.counts_text()
         return changed
 
-    def _clicked(self, event: Any) -> None:
+    def _clicked(self, event: Any, from_last: bool = False) -> None:
         if event.ray_origin is None or event.ray_direction is None:
             return
         index = self.annotation.pick(np.asarray(event.ray_origin), np.asarray(event.ray_direction))
         if index is not None:
-            with contextlib.suppress(InputError):  # a weight typed as 0: nothing painted, the page shows it
-                self.apply(index)
+            with contextlib.suppress(InputError):  # a weight typed as 0: nothing painted
+                self.apply(index, from_last=from_last)
 
     def save(self) -> Path:
         """Write the marked cloud to ``out``."""
