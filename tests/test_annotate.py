@@ -114,8 +114,11 @@ def test_round_trip_paint_save_load(tmp_path):
         merged = raw_keep_out(read.cloud, "", 1.0, str(tmp_path / "m.npy"), read)
     assert np.array_equal(merged, a.keep_out | mask)
     # opening the marked file again starts from its marks
-    again = Annotation(read.cloud, read.cloud.target, read.keep_out)
-    assert again.counts() == a.counts()
+    from tactex.report.annotate_view import open_annotation
+
+    again, notes = open_annotation(path)
+    assert again.counts() == a.counts() and np.array_equal(again.keep_out, a.keep_out)
+    assert any("keep_out" in n for n in notes)
 
 
 def test_a_ply_without_keep_out_reads_as_before(tmp_path):
@@ -161,3 +164,35 @@ def test_explore_takes_the_painted_target_and_keep_out(tmp_path):
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())
     c = a.counts()
     assert (m["n_target"], m["keep_out_points"], m["keep_out_contacts"]) == (c.n_target, c.n_keep_out, 0)
+
+
+def test_the_command_serves_the_page_until_ctrl_c(tmp_path):
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    a = Annotation(plane(11))
+    a.paint(0, 0.003, "keep_out")
+    scan = write_marked_ply(a.cloud, a.target, a.keep_out, tmp_path / "scan.ply")
+    proc = subprocess.Popen([sys.executable, "-m", "tactex.cli", "annotate", str(scan), "--out",
+                             str(tmp_path / "o.ply"), "--no-browser", "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        line = proc.stdout.readline()  # hang guard: the test's timeout
+        url = re.search(r"open (http://127\.0\.0\.1:\d+/)", line)
+        assert url and f"{a.counts().n_keep_out} keep-out already" in line, line
+        with urllib.request.urlopen(url.group(1), timeout=60) as page:
+            assert page.status == 200 and b"<html" in page.read(2000).lower()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+    assert not (tmp_path / "o.ply").exists()  # nothing saved without the Save button

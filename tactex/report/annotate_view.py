@@ -11,6 +11,7 @@ here, in Python (:class:`~tactex.pointcloud.annotation.Annotation`), and the pag
 from __future__ import annotations
 
 import contextlib
+import io
 import socket
 import threading
 from pathlib import Path
@@ -87,7 +88,8 @@ class AnnotateView:
         self.last_index: int | None = None  # the point clicked last: a Shift+click strokes from it
         self._lock = threading.Lock()
         self._base = _base_colors(annotation)
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: the command prints the address itself
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
         if port and self.server.get_port() != port:  # viser moves to the next port when one is taken
             self.server.stop()
             raise InputError(f"--port {port} is in use on {host}; give another, or --port 0 for a free one")
@@ -180,4 +182,5 @@ class AnnotateView:
         self.status_md.content = f"saved `{path}`: {c.n_target} target, {c.n_keep_out} keep-out points"
 
     def stop(self) -> None:
-        self.server.stop()
+        with contextlib.redirect_stdout(io.StringIO()):
+            self.server.stop()
