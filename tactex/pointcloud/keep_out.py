@@ -3,15 +3,17 @@
 TEC §VII names on-surface constraints as future work. A user marks the zone as the target is
 marked: by a colour channel at or above a threshold (``--keep-out-channel``, ``--keep-out-threshold``),
 or by a boolean mask with one entry per point of the cloud file (``--keep-out-mask FILE.npy``; rows with
-NaN/inf coordinates included, as the file holds them), or painted with ``tactex annotate`` into the PLY's
-own ``keep_out`` property (:mod:`tactex.pointcloud.ply_marks`), which is merged with the options.
-The marking is read on the points of the file, before any voxel grid; a voxel is kept out when any of
-its points is (a zone only ever grows on the grid, never shrinks: the conservative side of a constraint).
-A channel level is the raw rule the target's ``--target-threshold`` uses, not the target's hue rule:
-white and light grey pass every channel's threshold, so a zone marked by colour on a white object needs
-a saturated colour and a threshold above the surface's level, or a mask; a marking that takes most of
-the cloud is warned about. The explorer then holds no target there and keeps its footprint off the zone
+NaN/inf coordinates included, as the file holds them). The marking is read on the points of the file,
+before any voxel grid; a voxel is kept out when any of its points is (a zone only ever grows on the
+grid, never shrinks: the conservative side of a constraint). A channel level is the raw rule the
+target's ``--target-threshold`` uses, not the target's hue rule: white and light grey pass every
+channel's threshold, so a zone marked by colour on a white object needs a saturated colour and a
+threshold above the surface's level, or a mask; a marking that takes most of the cloud is warned about.
+The explorer then holds no target there and keeps its footprint off the zone
 (:class:`tactex.ergodic.HedacExplorer`, ``keep_out``).
+
+A PLY's own ``keep_out`` property (painted with ``tactex annotate``, :mod:`tactex.pointcloud.ply_marks`)
+is a zone too, merged with the options.
 """
 
 from __future__ import annotations
