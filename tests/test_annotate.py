@@ -58,6 +58,19 @@ def test_stroke_covers_the_chord_within_its_radius():
     assert np.array_equal(a.target > 0, dist <= 0.003 + 1e-12)
 
 
+def test_undo_takes_back_the_marks_in_reverse_order():
+    a = Annotation(plane())
+    i = centre_index(a.cloud)
+    a.paint(i, 0.005, "target", weight=2.0)
+    first = (a.target.copy(), a.keep_out.copy())
+    a.paint(i, 0.003, "keep_out")
+    a.paint(i, 0.003, "keep_out")  # changes nothing: nothing to take back for it
+    assert a.undo().size > 0
+    assert np.array_equal(a.target, first[0]) and np.array_equal(a.keep_out, first[1])
+    assert a.undo().size > 0 and not a.target.any() and not a.keep_out.any()
+    assert a.undo().size == 0
+
+
 def test_counts_give_points_and_areas_in_cm2():
     a = Annotation(plane())
     a.paint(centre_index(a.cloud), 0.0051, "target")

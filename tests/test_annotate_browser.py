@@ -1,6 +1,7 @@
 """tactex annotate in a real browser: Debian's Chromium driven by Playwright loads the viser page from
 the local server with every request off localhost aborted, the cloud is drawn, a click and a
-Shift+click on it stroke a target, a click a keep-out zone, and the page's Save button writes them.
+Shift+click on it stroke a target, a click a keep-out zone (taken back with Undo and painted again),
+and the page's Save button writes them.
 Skipped where Playwright or Chromium is missing (.ci/run installs Chromium with apt)."""
 
 from __future__ import annotations
@@ -97,6 +98,10 @@ def test_paint_in_chromium_then_save(tmp_path):
             view.mark.value = "keep-out"
             page.mouse.click(cx + box["width"] / 8, cy)
             _wait_for(lambda: view.annotation.counts().n_keep_out > 0, "the click to paint a keep-out zone")
+            page.get_by_role("button", name="Undo").click()
+            _wait_for(lambda: view.annotation.counts().n_keep_out == 0, "the Undo button to take it back")
+            page.mouse.click(cx + box["width"] / 8, cy)
+            _wait_for(lambda: view.annotation.counts().n_keep_out > 0, "the click to paint it again")
             shot = page.screenshot(path=str(tmp_path / "annotate.png"))
             page.get_by_role("button", name="Save").click()
             _wait_for(lambda: out.is_file() and view.unsaved == 0, "the Save button to write the file")

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from tactex.errors import InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 
-__all__ = ["FILL_LINK_SPACINGS", "MARK_KINDS", "PICK_SPACINGS", "Annotation", "MarkCounts"]
+__all__ = ["FILL_LINK_SPACINGS", "MARK_KINDS", "PICK_SPACINGS", "UNDO_DEPTH", "Annotation", "MarkCounts"]
 
 #: What a brush or a fill puts down: target mass, a keep-out zone, or nothing (erase).
 MARK_KINDS = ("target", "keep_out", "erase")
@@ -30,6 +30,8 @@ FILL_LINK_SPACINGS = 1.5
 #: A click's ray picks among the points this many spacings h from it (points are drawn about h wide):
 #: the first of them along the ray, so a click never reaches through the surface to its far side.
 PICK_SPACINGS = 1.0
+#: How many marks :meth:`Annotation.undo` can take back.
+UNDO_DEPTH = 100
 #: A ray farther than this many spacings from every point picks nothing (a click beside the cloud).
 PICK_MISS_SPACINGS = 10.0
 
@@ -70,6 +72,7 @@ class Annotation:
         self.target[self.keep_out] = 0.0
         self._tree = cKDTree(cloud.points)
         self._links: list[np.ndarray] | None = None
+        self._history: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (indices, target, keep_out) before
 
     @property
     def point_area_m2(self) -> float:
@@ -134,7 +137,19 @@ class Annotation:
         else:
             raise InputError(f"unknown mark '{kind}'; valid: {', '.join(MARK_KINDS)}")
         changed = (self.target[idx] != before_t) | (self.keep_out[idx] != before_k)
+        if changed.any():
+            self._history.append((idx[changed], before_t[changed], before_k[changed]))
+            del self._history[:-UNDO_DEPTH]
         return np.unique(idx[changed])
+
+    def undo(self) -> np.ndarray:
+        """Take back the last mark that changed anything (up to :data:`UNDO_DEPTH` of them); the indices
+        restored (none when there is nothing to take back)."""
+        if not self._history:
+            return np.zeros(0, dtype=np.intp)
+        idx, target, keep_out = self._history.pop()
+        self.target[idx], self.keep_out[idx] = target, keep_out
+        return np.unique(idx)
 
     def paint(self, index: int, radius_m: float, kind: str, weight: float = 1.0) -> np.ndarray:
         """One brush dab of ``kind`` centred on point ``index``; the indices changed."""

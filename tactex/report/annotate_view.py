@@ -116,6 +116,8 @@ class AnnotateView:
                                      initial_value=float(min(100.0, max(5.0, round(3.0 * h_mm)))))
         self.weight = gui.add_number("Target weight", initial_value=1.0, min=0.01, max=1000.0, step=0.01)
         self.counts_md = gui.add_markdown(self.counts_text())
+        undo = gui.add_button("Undo")
+        undo.on_click(lambda _event: self.undo())
         save = gui.add_button("Save")
         self.status_md = gui.add_markdown(f"Saves to `{self.out}`")
         save.on_click(lambda _event: self._save_clicked())
@@ -152,9 +154,21 @@ class AnnotateView:
                 changed = self.annotation.paint(index, radius_m, kind, weight)
             if changed.size:
                 self.unsaved += 1
-                self.points.colors = self.colors()
-                self.counts_md.content = self.counts_text()
+                self._redraw()
         return changed
+
+    def undo(self) -> np.ndarray:
+        """Take back the last change (the Undo button); the indices restored."""
+        with self._lock:
+            restored = self.annotation.undo()
+            if restored.size:
+                self.unsaved += 1
+                self._redraw()
+        return restored
+
+    def _redraw(self) -> None:
+        self.points.colors = self.colors()
+        self.counts_md.content = self.counts_text()
 
     def _clicked(self, event: Any, from_last: bool = False) -> None:
         if event.ray_origin is None or event.ray_direction is None:
