@@ -251,3 +251,4 @@ class CloudFile:
     n_faces: int = 0
     notes: tuple[str, ...] = ()
     kept: np.ndarray | None = None
+    keep_out: np.ndarray | None = None  # per point of ``cloud``: a PLY's own keep_out property (ply_marks)

@@ -104,13 +104,14 @@ def load_ply(path: str | Path) -> SurfaceCloud:
 
 
 #: The vertex properties a PLY cloud is read from.
-_USED = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "target"})
+_USED = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "target", "keep_out"})
 
 
 def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     from plyfile import PlyListProperty
 
     from tactex.pointcloud.ply_check import read_ply
+    from tactex.pointcloud.ply_marks import file_keep_out, keep_out_note
 
     ply = read_ply(p)
     if "face" in ply and ply["face"].count > 0:
@@ -126,7 +127,7 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     lists = sorted(prop.name for prop in v.properties if isinstance(prop, PlyListProperty) and prop.name in _USED)
     if lists:
         raise CloudError(f"'{p}': its vertex properties {', '.join(lists)} are lists; a vertex's x, y, z, normal, "
-                         "colour and target are single numbers")
+                         "colour, target and keep_out are single numbers")
     points = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
     normals = (
         np.stack([v["nx"], v["ny"], v["nz"]], axis=1).astype(np.float64)
@@ -142,8 +143,9 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     target = np.asarray(v["target"], dtype=np.float64) if "target" in names else None
     cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors, target=finite(target),
                          spacing=_ply_spacing(ply))
-    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)),
-                     kept=finite.kept_rows())
+    keep_out = file_keep_out(v, finite)
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)) + keep_out_note(keep_out),
+                     kept=finite.kept_rows(), keep_out=keep_out)
 
 
 #: The comment save_ply writes so that a voxel-filtered cloud keeps its spacing h [m] through a PLY.

@@ -11,6 +11,9 @@ channel's threshold, so a zone marked by colour on a white object needs a satura
 threshold above the surface's level, or a mask; a marking that takes most of the cloud is warned about.
 The explorer then holds no target there and keeps its footprint off the zone
 (:class:`tactex.ergodic.HedacExplorer`, ``keep_out``).
+
+A PLY's own ``keep_out`` property (painted with ``tactex annotate``, :mod:`tactex.pointcloud.ply_marks`)
+is a zone too, merged with the options.
 """
 
 from __future__ import annotations
@@ -81,8 +84,8 @@ def load_keep_out_mask(path: str | Path, n_points: int, n_finite: int | None = N
 
 def raw_keep_out(cloud: SurfaceCloud, channel: str, threshold: float, mask_path: str,
                  read: CloudFile | None = None) -> np.ndarray | None:
-    """The kept-out points (N,) of a cloud as loaded (union of the channel and the mask), or None
-    when neither is given.
+    """The kept-out points (N,) of a cloud as loaded (union of the channel, the mask and the file's own
+    ``keep_out`` property), or None when none of them is given.
 
     Args:
         cloud: the cloud's points as loaded (finite rows only).
@@ -90,9 +93,10 @@ def raw_keep_out(cloud: SurfaceCloud, channel: str, threshold: float, mask_path:
             has one entry per row of the file, its NaN/inf rows included, and a mesh (whose points are
             samples of its faces at the run's spacing) takes no mask.
     """
+    from_file = None if read is None else read.keep_out  # a PLY's own keep_out property
     if not channel and not mask_path:
-        return None
-    mask = np.zeros(len(cloud), dtype=bool)
+        return None if from_file is None or not from_file.any() else from_file.copy()
+    mask = np.zeros(len(cloud), dtype=bool) if from_file is None else from_file.copy()
     if channel:
         if cloud.colors is None:
             raise InputError(f"the cloud has no colours, so --keep-out-channel {channel} marks nothing; "
@@ -114,6 +118,11 @@ def raw_keep_out(cloud: SurfaceCloud, channel: str, threshold: float, mask_path:
         file_mask = load_keep_out_mask(mask_path, len(cloud) if rows is None else rows.size,
                                        n_finite=None if rows is None else len(cloud))
         mask |= file_mask if rows is None else file_mask[rows]
+    if from_file is not None and from_file.any():
+        options = " and ".join(o for o, given in (("--keep-out-channel", channel), ("--keep-out-mask", mask_path))
+                               if given)
+        warnings.warn(f"the file's own keep-out zone ({int(from_file.sum())} points) is merged with {options}: "
+                      f"{int(mask.sum())} points kept out in all", RuntimeWarning, stacklevel=2)
     if not mask.any():
         if not channel:
             raise InputError(f"--keep-out-mask '{mask_path}' marks no point (no True entry): nothing is kept out")
