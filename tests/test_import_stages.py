@@ -234,6 +234,15 @@ def test_no_import_cycles() -> None:
     assert not problems, "modules that import each other:\n" + "\n".join(problems)
 
 
+def test_the_commands_call_experiments_not_the_report() -> None:
+    """DESIGN.md: ``cli`` only parses and calls ``experiments``; the pages a command shows are the
+    experiments' business, so a command never reaches into ``report`` itself."""
+    front = (f"{PACKAGE}.commands", f"{PACKAGE}.cli")
+    found = [f"{i.importer}:{i.line} imports {i.imported}" for i in all_imports(ROOT, PACKAGE)
+             if i.importer.startswith(front) and i.imported.startswith(f"{PACKAGE}.report")]
+    assert not found, "commands that import the report (call tactex.experiments instead):\n" + "\n".join(found)
+
+
 def test_every_module_has_a_stage() -> None:
     for name in collect_modules(ROOT, PACKAGE):
         stage_of(name, PACKAGE, STAGES)
