@@ -1,21 +1,28 @@
-"""Live Intel RealSense source (extra ``realsense``: pyrealsense2).
+"""Intel RealSense source, live or from a recording (extra ``realsense``: pyrealsense2).
 
-Opens the first (or a given) device, streams depth (z16) and colour (rgb8), aligns depth to
+Opens the first (or a given) device, or plays back a RealSense recording (``.db3``/``.bag``,
+``playback=``) through the same pipeline, streams depth (z16) and colour (rgb8), aligns depth to
 colour (as VA-UFIC does: "RGB and depth images are acquired ... precisely aligned"), and yields
 :class:`CameraFrame`s with the device's own intrinsics and depth scale. The camera pose comes
 from the robot: ``world_T_camera = world_T_tool(t) · tool_T_camera`` (eq. 22), with the tool
-pose read from ``tool_pose_provider`` when the frame arrives.
+pose read from ``tool_pose_provider`` when the frame arrives; the frame is the colour stream's
+optical frame (x right, y down, z forward), which the aligned depth shares.
+
+A recording plays as fast as it is read (not in real time), so every recorded frame is seen; once
+it has played to its end, :meth:`RealSenseSource.read` raises
+:class:`~tactex.errors.CameraStreamEnded`, as it does when a live stream stalls.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tactex.errors import MissingDependencyError, PerceptionError
+from tactex.errors import CameraStreamEnded, InputError, MissingDependencyError, PerceptionError
 from tactex.perception.frame import CameraFrame, CameraIntrinsics
 from tactex.perception.mount import CameraMount
 
@@ -40,7 +47,11 @@ def import_pyrealsense2() -> Any:
     try:
         import pyrealsense2 as rs
     except ImportError as exc:
-        raise MissingDependencyError("pyrealsense2", "realsense", "The live RealSense camera source") from exc
+        if "libusb" in str(exc):  # the wheel is there; the system library it links against is not
+            raise MissingDependencyError(
+                "libusb-1.0", "", "The RealSense camera source (pyrealsense2)",
+                fix="pyrealsense2 needs the system library libusb-1.0: apt-get install libusb-1.0-0") from exc
+        raise MissingDependencyError("pyrealsense2", "realsense", "The RealSense camera source") from exc
     return rs
 
 
@@ -55,6 +66,8 @@ class RealSenseSource:
         serial: device serial number, or None for the first device.
         timeout_ms: how long :meth:`read` waits for a frame.
         clock: timestamps of the produced frames [s] (the robot's clock, so ages compare).
+        playback: a RealSense recording (.db3 or .bag) to play instead of a device; its own stream
+            modes are used (``width``, ``height``, ``fps`` and ``serial`` are ignored).
     """
 
     def __init__(
@@ -68,39 +81,72 @@ class RealSenseSource:
         serial: str | None = None,
         timeout_ms: int = 1000,
         clock: Callable[[], float] = time.monotonic,
+        playback: str | Path | None = None,
     ) -> None:
+        if playback is not None:
+            playback = Path(playback)
+            if not playback.is_file():
+                raise InputError(f"RealSense recording '{playback}' is not a file (give a .db3 or .bag recording)")
         rs = import_pyrealsense2()
-        devices = rs.context().query_devices()
-        serials = [d.get_info(rs.camera_info.serial_number) for d in devices]
-        if not serials:
-            raise RealSenseNotFoundError("pyrealsense2 reports 0 devices")
-        if serial is not None and serial not in serials:
-            raise RealSenseNotFoundError(f"serial {serial} not among connected devices {serials}")
+        if playback is None:
+            devices = rs.context().query_devices()
+            serials = [d.get_info(rs.camera_info.serial_number) for d in devices]
+            if not serials:
+                raise RealSenseNotFoundError("pyrealsense2 reports 0 devices")
+            if serial is not None and serial not in serials:
+                raise RealSenseNotFoundError(f"serial {serial} not among connected devices {serials}")
         self._rs = rs
+        self.playback = playback
         self.mount = mount or CameraMount()
         self.tool_pose_provider = tool_pose_provider
         self.timeout_ms = int(timeout_ms)
         self.clock = clock
         self._pipe = rs.pipeline()
         cfg = rs.config()
-        if serial is not None:
-            cfg.enable_device(serial)
-        cfg.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
-        cfg.enable_stream(rs.stream.color, width, height, rs.format.rgb8, fps)
-        try:
-            profile = self._pipe.start(cfg)
-        except RuntimeError as exc:
-            raise PerceptionError(f"the RealSense device refused the {width}×{height}@{fps} streams: {exc}") from exc
+        self._player = None
+        if playback is not None:
+            profile = self._start_playback(cfg, playback)
+        else:
+            if serial is not None:
+                cfg.enable_device(serial)
+            cfg.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
+            cfg.enable_stream(rs.stream.color, width, height, rs.format.rgb8, fps)
+            try:
+                profile = self._pipe.start(cfg)
+            except RuntimeError as exc:
+                raise PerceptionError(f"the RealSense device refused the {width}×{height}@{fps} streams: {exc}") \
+                    from exc
         self.depth_scale = float(profile.get_device().first_depth_sensor().get_depth_scale())
         self._align = rs.align(rs.stream.color)
         self.intrinsics: CameraIntrinsics | None = None
 
+    def _start_playback(self, cfg: Any, path: Path) -> Any:
+        rs = self._rs
+        what = f"'{path}' is not a RealSense recording with depth (z16) and colour (rgb8) streams"
+        try:
+            cfg.enable_device_from_file(str(path), repeat_playback=False)
+            cfg.enable_stream(rs.stream.depth, rs.format.z16)
+            cfg.enable_stream(rs.stream.color, rs.format.rgb8)
+            profile = self._pipe.start(cfg)
+        except RuntimeError as exc:
+            raise InputError(f"{what} (record one with the RealSense Viewer or tactex.perception.rs_recording): "
+                             f"{str(exc).strip()[:160]}") from None
+        self._player = profile.get_device().as_playback()
+        # as fast as the frames are read: none is dropped for a slow reader
+        self._player.set_real_time(False)
+        return profile
+
     def read(self) -> CameraFrame | None:
-        """Wait for the next aligned frame pair (raises :class:`PerceptionError` on timeout)."""
+        """Wait for the next aligned frame pair (raises :class:`~tactex.errors.CameraStreamEnded`
+        when none comes within ``timeout_ms``, or a recording has played to its end)."""
         try:
             frames = self._pipe.wait_for_frames(self.timeout_ms)
         except RuntimeError as exc:
-            raise PerceptionError(f"no frame from the RealSense within {self.timeout_ms} ms: {exc}") from exc
+            if self._player is not None:
+                raise CameraStreamEnded(f"the RealSense recording '{self.playback}' ended: no frame within "
+                                        f"{self.timeout_ms} ms") from None
+            raise CameraStreamEnded(f"no frame from the RealSense within {self.timeout_ms} ms ({exc}): check its "
+                                    "USB 3 cable and that no other program holds the camera") from exc
         stamp = self.clock()
         world_T_tool = self.tool_pose_provider() if self.tool_pose_provider is not None else np.eye(4)
         aligned = self._align.process(frames)
@@ -120,7 +166,10 @@ class RealSenseSource:
         return CameraFrame(depth, self.intrinsics, self.mount.world_T_camera(world_T_tool), stamp, rgb)
 
     def close(self) -> None:
-        self._pipe.stop()
+        """Stop the streams (idempotent)."""
+        if self._pipe is not None:
+            pipe, self._pipe = self._pipe, None
+            pipe.stop()
 
     def __enter__(self) -> RealSenseSource:
         return self
