@@ -34,9 +34,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                       "tactex calibrate hand-eye writes it)")
     add_dataclass_arguments(parser, CaptureConfig, skip=("box_m",))
     lo = " ".join(f"{v:g}" for v in DEFAULT_BOX_M)
-    parser.add_argument("--box", type=float, nargs=6, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-                        default=None, help=f"workspace box in the robot base frame [m] (default: {lo}: in front "
-                        "of the robot, the surface it stands on cut away)")
+    parser.add_argument("--box", dest="box_m", type=float, nargs=6, default=None,
+                        metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                        help=f"workspace box in the robot base frame [m] (default: {lo}: in front of the robot, "
+                             "the surface it stands on cut away)")
 
 
 def _source(args: argparse.Namespace):
@@ -94,10 +95,9 @@ def _target_summary(path) -> str:
 def run(args: argparse.Namespace) -> int:
     from tactex.config import dataclass_from_args
     from tactex.errors import InputError, SensorFault
-    from tactex.tasks.capture import CaptureConfig, capture_cloud, write_capture
+    from tactex.tasks.capture import DEFAULT_BOX_M, CaptureConfig, capture_cloud, write_capture
 
-    box = {} if args.box is None else {"box_m": tuple(args.box)}
-    cfg = dataclass_from_args(CaptureConfig, args, **box)
+    cfg = dataclass_from_args(CaptureConfig, args, box_m=DEFAULT_BOX_M if args.box_m is None else tuple(args.box_m))
     if not args.out.lower().endswith(".ply"):
         raise InputError(f"--out '{args.out}': the capture is written as a PLY file (a name ending in .ply)")
     source, what = _source(args)

@@ -1,12 +1,12 @@
 """Intel RealSense source, live or from a recording (extra ``realsense``: pyrealsense2).
 
 Opens the first (or a given) device, or plays back a RealSense recording (``.db3``/``.bag``,
-``playback=``) through the same pipeline, streams depth (z16) and colour (rgb8), aligns depth to
-colour (as VA-UFIC does: "RGB and depth images are acquired ... precisely aligned"), and yields
-:class:`CameraFrame`s with the device's own intrinsics and depth scale. The camera pose comes
-from the robot: ``world_T_camera = world_T_tool(t) · tool_T_camera`` (eq. 22), with the tool
-pose read from ``tool_pose_provider`` when the frame arrives; the frame is the colour stream's
-optical frame (x right, y down, z forward), which the aligned depth shares.
+``playback=``: its sensors into a syncer, as librealsense's playback tests read one), streams depth
+(z16) and colour (rgb8), aligns depth to colour (as VA-UFIC does: "RGB and depth images are acquired
+... precisely aligned"), and yields :class:`CameraFrame`s with the device's own intrinsics and depth
+scale. The camera pose comes from the robot: ``world_T_camera = world_T_tool(t) · tool_T_camera``
+(eq. 22), with the tool pose read from ``tool_pose_provider`` when the frame arrives; the frame is
+the colour stream's optical frame (x right, y down, z forward), which the aligned depth shares.
 
 A recording plays as fast as it is read (not in real time), so every recorded frame is seen; once
 it has played to its end, :meth:`RealSenseSource.read` raises
@@ -101,12 +101,14 @@ class RealSenseSource:
         self.tool_pose_provider = tool_pose_provider
         self.timeout_ms = int(timeout_ms)
         self.clock = clock
-        self._pipe = rs.pipeline()
-        cfg = rs.config()
+        self._pipe = None
         self._player = None
+        self._sensors: list = []
         if playback is not None:
-            profile = self._start_playback(cfg, playback)
+            depth_sensor = self._start_playback(playback)
         else:
+            self._pipe = rs.pipeline()
+            cfg = rs.config()
             if serial is not None:
                 cfg.enable_device(serial)
             cfg.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
@@ -116,35 +118,54 @@ class RealSenseSource:
             except RuntimeError as exc:
                 raise PerceptionError(f"the RealSense device refused the {width}×{height}@{fps} streams: {exc}") \
                     from exc
-        self.depth_scale = float(profile.get_device().first_depth_sensor().get_depth_scale())
+            depth_sensor = profile.get_device().first_depth_sensor()
+        self.depth_scale = float(depth_sensor.get_depth_scale())
         self._align = rs.align(rs.stream.color)
         self.intrinsics: CameraIntrinsics | None = None
 
-    def _start_playback(self, cfg: Any, path: Path) -> Any:
+    def _start_playback(self, path: Path) -> Any:
+        """Open the recording as a device: its sensors stream into a syncer, as fast as they are read."""
         rs = self._rs
         what = f"'{path}' is not a RealSense recording with depth (z16) and colour (rgb8) streams"
         try:
-            cfg.enable_device_from_file(str(path), repeat_playback=False)
-            cfg.enable_stream(rs.stream.depth, rs.format.z16)
-            cfg.enable_stream(rs.stream.color, rs.format.rgb8)
-            profile = self._pipe.start(cfg)
+            device = rs.context().load_device(str(path))
         except RuntimeError as exc:
             raise InputError(f"{what} (record one with the RealSense Viewer or tactex.perception.rs_recording): "
                              f"{str(exc).strip()[:160]}") from None
-        self._player = profile.get_device().as_playback()
-        # as fast as the frames are read: none is dropped for a slow reader
+        self._device = device
+        self._player = device.as_playback()
+        # not in real time: the recording waits for its reader, so no frame is dropped for a slow one
         self._player.set_real_time(False)
-        return profile
+        sensors = device.query_sensors()
+        streams = {(p.stream_type(), p.format()) for s in sensors for p in s.get_stream_profiles()}
+        if not {(rs.stream.depth, rs.format.z16), (rs.stream.color, rs.format.rgb8)} <= streams:
+            raise InputError(f"{what}; it holds {sorted(f'{t} {f}' for t, f in streams)}")
+        self._sync = rs.syncer()
+        for sensor in sensors:
+            sensor.open(sensor.get_stream_profiles())
+        for sensor in sensors:
+            sensor.start(self._sync)
+        self._sensors = sensors
+        return device.first_depth_sensor()
+
+    def _next_frames(self) -> Any:
+        """The next frame set holding depth and colour."""
+        if self._player is None:
+            return self._pipe.wait_for_frames(self.timeout_ms)
+        while True:  # the syncer's first sets may hold one stream each, before it has matched them
+            ok, frames = self._sync.try_wait_for_frames(self.timeout_ms)
+            if not ok:
+                raise CameraStreamEnded(f"the RealSense recording '{self.playback}' ended: no frame within "
+                                        f"{self.timeout_ms} ms")
+            if frames.get_depth_frame() and frames.get_color_frame():
+                return frames
 
     def read(self) -> CameraFrame | None:
         """Wait for the next aligned frame pair (raises :class:`~tactex.errors.CameraStreamEnded`
         when none comes within ``timeout_ms``, or a recording has played to its end)."""
         try:
-            frames = self._pipe.wait_for_frames(self.timeout_ms)
+            frames = self._next_frames()
         except RuntimeError as exc:
-            if self._player is not None:
-                raise CameraStreamEnded(f"the RealSense recording '{self.playback}' ended: no frame within "
-                                        f"{self.timeout_ms} ms") from None
             raise CameraStreamEnded(f"no frame from the RealSense within {self.timeout_ms} ms ({exc}): check its "
                                     "USB 3 cable and that no other program holds the camera") from exc
         stamp = self.clock()
@@ -170,6 +191,28 @@ class RealSenseSource:
         if self._pipe is not None:
             pipe, self._pipe = self._pipe, None
             pipe.stop()
+        sensors, self._sensors = self._sensors, []
+        if sensors:
+            # A recording not played in real time waits until its frames are taken: stopping its
+            # sensors while the syncer holds unread ones can wait forever, so they are drained meanwhile.
+            import threading
+
+            done = threading.Event()
+
+            def drain() -> None:
+                while not done.is_set():
+                    self._sync.poll_for_frames()
+
+            drainer = threading.Thread(target=drain, daemon=True)
+            drainer.start()
+            try:
+                for sensor in sensors:
+                    sensor.stop()
+            finally:
+                done.set()
+                drainer.join()
+            for sensor in sensors:
+                sensor.close()
 
     def __enter__(self) -> RealSenseSource:
         return self
