@@ -267,6 +267,7 @@ def calibrate_in_simulation(
     mount_tilt_deg: Sequence[float] = (0.0, 0.0, 0.0),
     mount_shift_m: Sequence[float] = (0.0, 0.0, 0.0),
     tool_poses: Sequence[np.ndarray] | None = None,
+    scene_board: ChessBoard | None = None,
     note=None,
 ) -> HandEyeResult:
     """Calibrate the wrist camera of tactex's simulated scene: a board of geoms on the table, the arm
@@ -274,7 +275,8 @@ def calibrate_in_simulation(
 
     ``mount_tilt_deg`` (x, y, z Euler angles [deg]) and ``mount_shift_m`` [m] move the scene's camera
     off its nominal mount (in its optical frame): the poses are still planned with the nominal one,
-    as a user plans them, and the result is compared with the moved mount (``truth``)."""
+    as a user plans them, and the result is compared with the moved mount (``truth``). ``scene_board``
+    is the board lying in the scene when it is not the one searched for (``board``)."""
     import mujoco
 
     from tactex.sim.camera import optical_R_mujoco_camera
@@ -284,10 +286,11 @@ def calibrate_in_simulation(
 
     cfg = config or HandEyeConfig()
     board = board or ChessBoard()
+    seen = scene_board or board
     say = note or (lambda msg: None)
     scene_cfg = scene_config or SceneConfig(object_position=(0.45, -0.5, 0.0), camera_width=640, camera_height=480)
     scene = build_scene(scene_cfg)
-    model = board_model(scene.xml, board)
+    model = board_model(scene.xml, seen)
     data = mujoco.MjData(model)
     cam, tcp = scene.ids["camera"], scene.ids["tcp"]
 
@@ -327,7 +330,7 @@ def calibrate_in_simulation(
         data.qpos[:7] = q
         mujoco.mj_forward(model, data)
         tool, camera = poses()
-        corners = detect_board(render_colour(board, camera, intr), board)
+        corners = detect_board(render_colour(seen, camera, intr), board)
         if corners is None:
             skipped[i] = "board not found"
             continue
