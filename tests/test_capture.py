@@ -63,3 +63,24 @@ def test_the_tool_pose_from_a_franka_state() -> None:
     state = SimpleNamespace(O_T_EE=col_major(base_T_flange @ flange_T_ee), F_T_EE=col_major(flange_T_ee))
     tool = ToolGeometry()
     np.testing.assert_allclose(base_T_tool_from_state(state, tool), base_T_flange @ flange_T_tcp(tool), atol=1e-12)
+
+
+@pytest.mark.franka
+def test_the_tool_pose_read_from_the_twin_is_the_arms() -> None:
+    """The pose read from the twin's state (whatever end effector it reports) is where tactex's own
+    kinematics put the TCP at the twin's joint positions."""
+    pylibfranka = pytest.importorskip("pylibfranka", reason="needs the franka extra")
+    pytest.importorskip("franky_sim", reason="needs the franka extra")
+    from tactex.robots.mujoco_backend import MujocoBackend
+    from tactex.robots.read_pose import read_tool_pose
+    from tactex.sim.scene import SceneConfig
+    from tactex.sim.twin_process import TwinProcess
+
+    with TwinProcess("plate") as twin:
+        base_T_tool = read_tool_pose(twin.hostname)
+        q = np.asarray(pylibfranka.Robot(twin.hostname, pylibfranka.RealtimeConfig.kIgnore).read_once().q)
+    sim = MujocoBackend(SceneConfig(object_name="plate"))
+    fk = sim.reset(q0=q).ee_pose
+    sim.close()
+    np.testing.assert_allclose(base_T_tool[:3, 3], fk[:3, 3], atol=1e-3)
+    np.testing.assert_allclose(base_T_tool[:3, :3], fk[:3, :3], atol=1e-3)
