@@ -40,8 +40,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "the surface it stands on cut away)")
 
 
+#: Frames a live RealSense delivers before its auto-exposure has settled, read and dropped [-].
+WARM_UP_FRAMES = 15
+
+
 def _source(args: argparse.Namespace):
-    """The frame source and how to name it in messages."""
+    """The frame source, how to name it in messages, and how many of its first frames to drop."""
     from tactex.errors import ConfigError
     from tactex.tasks.hand_eye import load_hand_eye, load_pose_file
 
@@ -54,7 +58,7 @@ def _source(args: argparse.Namespace):
         from tactex.tasks.capture import SimCaptureSource
 
         scene = SceneConfig(object_name=args.object_name, camera_width=320, camera_height=240)
-        return SimCaptureSource(scene, base_T_camera=base_T_camera), "the simulated camera"
+        return SimCaptureSource(scene, base_T_camera=base_T_camera), "the simulated camera", 0
     if base_T_camera is not None and (args.robot_ip or args.hand_eye):
         raise ConfigError("give the camera pose either as --camera-pose or as --robot-ip with --hand-eye, not both")
     if base_T_camera is None and not (args.robot_ip and args.hand_eye):
@@ -73,11 +77,9 @@ def _source(args: argparse.Namespace):
         tool_pose = lambda: base_T_tool  # noqa: E731
     if args.playback:
         source = RealSenseSource(mount=mount, tool_pose_provider=tool_pose, playback=args.playback)
-        return source, f"the recording '{args.playback}'"
+        return source, f"the recording '{args.playback}'", 0
     source = RealSenseSource(mount=mount, tool_pose_provider=tool_pose, serial=args.serial)
-    for _ in range(15):  # the first frames of a live camera come before its auto-exposure settles
-        source.read()
-    return source, "the RealSense"
+    return source, "the RealSense", WARM_UP_FRAMES
 
 
 def _target_summary(path) -> str:
@@ -95,13 +97,14 @@ def _target_summary(path) -> str:
 def run(args: argparse.Namespace) -> int:
     from tactex.config import dataclass_from_args
     from tactex.errors import InputError, SensorFault
-    from tactex.tasks.capture import DEFAULT_BOX_M, CaptureConfig, capture_cloud, write_capture
+    from tactex.tasks.capture import DEFAULT_BOX_M, CaptureConfig, capture_cloud, read_views, write_capture
 
     cfg = dataclass_from_args(CaptureConfig, args, box_m=DEFAULT_BOX_M if args.box_m is None else tuple(args.box_m))
     if not args.out.lower().endswith(".ply"):
         raise InputError(f"--out '{args.out}': the capture is written as a PLY file (a name ending in .ply)")
-    source, what = _source(args)
+    source, what, warm_up = _source(args)
     try:
+        read_views(source, warm_up, what)
         cloud = capture_cloud(source, cfg, what)
     except SensorFault as exc:  # a stream that ended: nothing to write, and not the user's input
         print(f"tactex capture: error: {exc}", file=sys.stderr)
