@@ -84,3 +84,18 @@ def test_the_tool_pose_read_from_the_twin_is_the_arms() -> None:
     sim.close()
     np.testing.assert_allclose(base_T_tool[:3, 3], fk[:3, 3], atol=1e-3)
     np.testing.assert_allclose(base_T_tool[:3, :3], fk[:3, :3], atol=1e-3)
+
+
+def test_views_around_the_object_are_merged() -> None:
+    from tactex.sim.scene import SceneConfig
+    from tactex.tasks.capture import CaptureConfig, SimCaptureSource, capture_cloud
+
+    scene = SceneConfig(object_name="bowl", camera_width=320, camera_height=240)
+    one = capture_cloud(SimCaptureSource(scene), CaptureConfig(views=1))
+    three = capture_cloud(SimCaptureSource(scene), CaptureConfig(views=3))
+    assert len(three) > len(one)
+    # every point near the merged cloud's lies within a voxel of the single view's where they overlap
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(three.points).query(one.points)
+    assert np.median(d) < 0.003

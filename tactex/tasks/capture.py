@@ -151,7 +151,8 @@ class SimCaptureSource:
         if k == 0:
             look = np.array([0.0, 0.0, 1.0])
         else:
-            tilt, az = np.radians(self.tilt_deg), 2.0 * np.pi * (k - 1) / 4.0
+            # from the sides and the robot's side first: the far side is the hardest to reach
+            tilt, az = np.radians(self.tilt_deg), np.pi / 2.0 * (1 + (k - 1) % 4)
             look = np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)])
         return top + self.distance_m * look, tool_rotation_for_normal(look)
 
