@@ -36,7 +36,8 @@ class RealSenseNotFoundError(MissingDependencyError):
         ImportError.__init__(
             self,
             f"no Intel RealSense device found ({detail}); connect a D435i/D415 to a USB 3 port, "
-            "or use recorded frames (tactex.perception.RecordedFrameSource) or the simulator's camera",
+            "or play a recording (RealSenseSource(playback=...), tactex capture --playback) or use the simulator's "
+            "camera",
         )
         self.package = "pyrealsense2"
         self.extra = "realsense"
