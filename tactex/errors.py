@@ -152,3 +152,11 @@ class MissingDependencyError(TactexError, ImportError):
         self.package = package
         self.extra = extra
         self.fix = fix
+
+
+class CameraStreamEnded(SensorFault):
+    """The camera delivered no frame when one was needed: a recording played to its end, or a live
+    stream (a RealSense, the twin's camera) stalled or stopped. The message names the source."""
+
+
+__all__ += ["CameraStreamEnded"]  # beside the class, so that merges leave the list above alone

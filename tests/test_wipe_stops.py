@@ -11,7 +11,7 @@ import pytest
 
 from tactex.errors import RobotError, RunInterrupted
 from tactex.experiments.run import run_task
-from tactex.tasks.runner import ControlLoop
+from tactex.robots.loop import ControlLoop
 from tactex.tasks.wipe import WipeConfig
 
 

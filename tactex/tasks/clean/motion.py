@@ -11,9 +11,10 @@ from tactex.errors import SimulationError
 from tactex.perception.acquisition import AcquisitionConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import CylinderWallSurface
+from tactex.robots.loop import ControlLoop
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.clean.config import CleanConfig
-from tactex.tasks.runner import ControlLoop, tool_rotation_for_normal
+from tactex.tasks.runner import tool_rotation_for_normal
 from tactex.tasks.vision import workspace_crop
 
 #: Lift-off distance along the tool axis before vision and at the end [m].

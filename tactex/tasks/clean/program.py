@@ -20,6 +20,7 @@ from tactex.geometry.so3 import rotate_towards
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.keep_out import raw_keep_out
 from tactex.pointcloud.shapes import CylinderWallSurface
+from tactex.robots.loop import ControlLoop
 from tactex.sim.dirt import PrestonParams
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
@@ -49,7 +50,6 @@ from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, end_on_robot, open_backend, stop_reason
-from tactex.tasks.runner import ControlLoop
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import IslandStroke
