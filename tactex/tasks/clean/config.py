@@ -19,9 +19,11 @@ from tactex.spectral.eigen import check_eigensolver
 from tactex.tasks.sweep_plan import MAX_CORNERS
 from tactex.tasks.world import SimWorldParams
 
-__all__ = ["CLEAN_BASELINES", "CLEAN_EXPLORER", "CLEAN_OBJECTIVES", "SWEEP_GOAL", "CleanConfig"]
+__all__ = ["CLEAN_BASELINES", "CLEAN_EXPLORER", "CLEAN_OBJECTIVES", "RASTER_BASELINES", "SWEEP_GOAL", "CleanConfig"]
 
-CLEAN_BASELINES = ("", "raster", "no_feedback")
+CLEAN_BASELINES = ("", "raster", "region_raster", "no_feedback")
+#: The baselines that follow a planned raster instead of the explorer (no eigenbasis).
+RASTER_BASELINES = ("raster", "region_raster")
 #: What the HEDAC agent follows between camera views (see CleanConfig.objective).
 CLEAN_OBJECTIVES = ("clean", "ergodic")
 #: (CleanConfig.sweep_corners) [-]: above the 95 % mark, because the tool rounds the sweep's corners and turns
@@ -171,7 +173,9 @@ class CleanConfig(SimWorldParams):
         "fastest turn of the commanded normal line while in contact; on a sharp edge (a bowl's rim) the "
         "fitted normal jumps between the two faces from one exploration step to the next [deg/s]",
     )
-    baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' or 'no_feedback'")
+    baseline: str = param("", "'' (HEDAC with vision feedback), 'raster' (the whole surface, in order), "
+                              "'region_raster' (a plane-slicer raster over the captured dirt only, re-measured "
+                              "and rastered again like tactex) or 'no_feedback' (HEDAC without re-measurement)")
     cloud: str = param("", "a coloured point cloud or mesh (.ply/.pcd/.npz/.stl/.obj) in the robot base frame [m] "
                            "whose red marking "
                            "(or stored target) is the dirt: no camera capture, no re-measurement (a robot without a "
@@ -193,7 +197,8 @@ class CleanConfig(SimWorldParams):
         super().__post_init__()
         object.__setattr__(self, "marking", resolve_marking(self.marking))  # 'x' is X
         if self.baseline not in CLEAN_BASELINES:
-            raise ConfigError(f"unknown baseline '{self.baseline}'; valid: raster, no_feedback (or none)")
+            raise ConfigError(f"unknown baseline '{self.baseline}'; valid: "
+                              f"{', '.join(b for b in CLEAN_BASELINES if b)} (or none)")
         for name in ("approach_speed_m_s", "approach_slow_m"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
@@ -275,8 +280,9 @@ class CleanConfig(SimWorldParams):
         if self.keep_out_mask and not self.cloud:
             raise ConfigError("--keep-out-mask marks points of --cloud FILE: give --cloud too (a captured cloud's "
                               "points are not known in advance; mark the zone by colour with --keep-out-channel)")
-        if (self.keep_out_channel or self.keep_out_mask) and self.baseline == "raster":
-            raise ConfigError("the raster baseline has no keep-out zones; drop --keep-out-* or --baseline raster")
+        if (self.keep_out_channel or self.keep_out_mask) and self.baseline in RASTER_BASELINES:
+            raise ConfigError(f"the {self.baseline} baseline has no keep-out zones; drop --keep-out-* or "
+                              f"--baseline {self.baseline}")
         explorer = replace(CLEAN_EXPLORER, **{name: getattr(self, name) for name in EXPLORER_OPTIONS},
                            max_acceleration=self.max_velocity)
         object.__setattr__(self, "explorer", explorer)

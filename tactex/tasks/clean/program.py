@@ -26,7 +26,7 @@ from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.modes import auto_n_eigen
 from tactex.tasks.clean import legs, motion
-from tactex.tasks.clean.config import CleanConfig
+from tactex.tasks.clean.config import RASTER_BASELINES, CleanConfig
 from tactex.tasks.clean.legs import MAX_HOLD_STEPS, _after_stroke, _Legs, _WearTicks
 from tactex.tasks.clean.motion import (
     APPROACH_ACCEL_M_S2,
@@ -49,6 +49,7 @@ from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
+from tactex.tasks.region_raster_path import RegionRasterPath
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, end_on_robot, open_backend, stop_reason
 from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
@@ -66,6 +67,10 @@ VISION_TRIP_GUESS_S = 5.0
 ISLAND_MOVE_GUESS_S = 3.5
 #: Longest approach along the normal before the captured surface counts as missing [s].
 APPROACH_TIMEOUT_S = 6.0
+#: The region raster slides to its next line when it is closer than this, and lifts off to fly there when
+#: it is farther [m]: a lift-off, move and touch-down take about ISLAND_MOVE_GUESS_S, in which the sponge
+#: slides this far at the clean's speeds.
+REGION_RASTER_GAP_M = 0.2
 
 
 def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
@@ -279,7 +284,7 @@ class CleanProgram:
         cfg, cloud = self.cfg, self.cloud
         t_basis = time.perf_counter()
         self.basis = basis = None
-        if cfg.baseline != "raster":
+        if cfg.baseline not in RASTER_BASELINES:
             n_eigen = cfg.n_eigen
             if n_eigen is None:  # each point of the voxelised capture stands for about h² of surface
                 n_eigen = auto_n_eigen(len(cloud) * cloud.spacing**2, cfg.agent_radius_m, len(cloud))
@@ -292,9 +297,13 @@ class CleanProgram:
                                              eigen_tol=cfg.eigen_tol)
         self.basis_s = time.perf_counter() - t_basis
         self.explorer: HedacExplorer | None = None
-        if cfg.baseline == "raster":
+        if cfg.baseline in RASTER_BASELINES:  # lanes 1.5 agent radii apart: the explorer's footprints overlap as much
             step_m = cfg.max_velocity * cloud.spacing
-            self.path: PathSource = RasterPath(cloud, lane_spacing_m=1.5 * cfg.agent_radius_m, max_step_m=step_m)
+            if cfg.baseline == "raster":
+                self.path: PathSource = RasterPath(cloud, lane_spacing_m=1.5 * cfg.agent_radius_m, max_step_m=step_m)
+            else:
+                self.path = RegionRasterPath(cloud, cfg.pad_radius_m, 1.5 * cfg.agent_radius_m, REGION_RASTER_GAP_M,
+                                             step_m, start_m=self.cap_pos)
             return
         hcfg = replace(
             cfg.explorer, n_eigen=basis.evecs.shape[1], step_duration_s=self.dt_step,
@@ -614,7 +623,7 @@ class CleanProgram:
             self.wear_ticks.note(state_next, normal)
         if int(loop.t * 1000) % 250 == 0:
             self.bar.update(loop.t, dirt=self.dirt(), vision=self.vision_updates)
-        return not (ending or (cfg.baseline == "raster" and self.path.done and not c.ahead.pending))
+        return not (ending or (cfg.baseline in RASTER_BASELINES and self.path.done and not c.ahead.pending))
 
     def _end_stroke(self) -> None:
         """A stroke cut short by a new leg: its path so far counts in the agent's."""
@@ -630,7 +639,8 @@ class CleanProgram:
         cfg, loop, cloud = self.cfg, self.loop, self.cloud
         if cfg.baseline == "raster" and self.path.done:
             return False
-        if cfg.baseline != "" or self.given is not None or loop.t + self.vision_trip_s >= self.t_end:
+        if cfg.baseline not in ("", "region_raster") or self.given is not None \
+                or loop.t + self.vision_trip_s >= self.t_end:
             return False  # (a re-measurement that would end after the budget could not be used)
         t_trip = loop.t
         self.log.activity("retract", "vision")
