@@ -93,7 +93,8 @@ def test_run_task_and_compare_refuse_wrong_input(tmp_path) -> None:
 
     with pytest.raises(ConfigError, match="wipe needs a WipeConfig, got CleanConfig"):
         run_task("wipe", CleanConfig(), tmp_path / "x")
-    with pytest.raises(ConfigError, match="unknown clean baseline 'cartesian'; valid: raster, region_raster, no_feedback"):
+    with pytest.raises(ConfigError,
+                       match="unknown clean baseline 'cartesian'; valid: raster, region_raster, no_feedback"):
         run_compare("clean", CleanConfig(), tmp_path / "x", baselines=["cartesian"])
     with pytest.raises(ConfigError, match="unknown task 'sand'"):
         run_task("sand", CleanConfig(), tmp_path / "x")

@@ -10,7 +10,7 @@ from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.tasks.clean import CleanConfig, run_clean
-from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
+from tactex.tasks.clean.line_reference import LineLead, ToolNormal, blend_normals
 
 
 def _cup_cloud() -> SurfaceCloud:

@@ -1,4 +1,4 @@
-"""The clean's exploration step taken while the previous command executes (tactex.tasks.step_ahead)."""
+"""The clean's exploration step taken while the previous command executes (tactex.tasks.clean.step_ahead)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tactex.ergodic.explorer import HedacExplorer
-from tactex.tasks.step_ahead import ERGODICITY_EVERY_STEPS, StepAhead
+from tactex.tasks.clean.step_ahead import ERGODICITY_EVERY_STEPS, StepAhead
 
 
 class _Path:

@@ -11,10 +11,9 @@ from scipy.spatial import cKDTree
 
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.cloud import SurfaceCloud
-from tactex.tasks import sweep_plan
-from tactex.tasks.clean import SWEEP_MIN_SHARE, CleanConfig, _first_leg
+from tactex.tasks.clean import SWEEP_MIN_SHARE, CleanConfig, _first_leg, sweep_plan
+from tactex.tasks.clean.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.stroke import MAX_LINE_GAP_M
-from tactex.tasks.sweep_plan import MAX_CORNERS, dirt_island, plan_sweep
 from tactex.tasks.wear_model import WearModel
 
 K_P, R, STEP, FORCE = 5e-3, 0.025, 0.003, 10.0

@@ -266,7 +266,7 @@ def test_the_cup_starts_with_a_planned_sweep_of_its_marking(monkeypatch: pytest.
     band."""
     from tactex.ergodic.explorer import HedacExplorer
     from tactex.tasks import clean
-    from tactex.tasks.step_ahead import StepAhead
+    from tactex.tasks.clean.step_ahead import StepAhead
 
     events: list[tuple] = []  # the explorer's restarts, its target updates (the target's mass) and its steps
     restart, update, step = clean._Legs.restart, StepAhead.update_target_later, HedacExplorer.step

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tactex.errors import InputError
-from tactex.tasks.time_breakdown import BUCKETS, TimeBreakdown, time_to_fraction_removed
+from tactex.tasks.clean.time_breakdown import BUCKETS, TimeBreakdown, time_to_fraction_removed
 
 DT = 0.001
 

@@ -92,7 +92,7 @@ def _plot_dirt(s: Mapping[str, np.ndarray], trips: np.ndarray, times: np.ndarray
     return save_png(fig, path)
 
 
-#: Labels and colours of the time-breakdown buckets (tactex.tasks.time_breakdown.BUCKETS).
+#: Labels and colours of the time-breakdown buckets (tactex.tasks.clean.time_breakdown.BUCKETS).
 TIME_BUCKETS = {
     "contact_dirt": ("contact on dirt", "C3"),
     "contact_clean": ("contact on clean surface", "C1"),

@@ -23,7 +23,7 @@ captured dirt minus what the robot's own Preston wear model says it has removed
 that model says the dirt is gone or stops falling. An island of dirt smaller than the pad gets a
 straight stroke instead of the agent, and the robot slides in contact to the next island when that is
 quicker than a lift-off (:mod:`tactex.tasks.stroke`). Each tick is accounted in a time breakdown
-(:mod:`tactex.tasks.time_breakdown`).
+(:mod:`tactex.tasks.clean.time_breakdown`).
 
 Baselines (same controller, force and robot): ``raster`` — a boustrophedon path over the whole
 surface; ``no_feedback`` — HEDAC on the first capture only, never re-measuring.

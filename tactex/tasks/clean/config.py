@@ -16,7 +16,7 @@ from tactex.pointcloud.keep_out import DEFAULT_KEEP_OUT_THRESHOLD, check_keep_ou
 from tactex.pointcloud.markings import resolve_marking
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.eigen import check_eigensolver
-from tactex.tasks.sweep_plan import MAX_CORNERS
+from tactex.tasks.clean.sweep_plan import MAX_CORNERS
 from tactex.tasks.world import SimWorldParams
 
 __all__ = ["CLEAN_BASELINES", "CLEAN_EXPLORER", "CLEAN_OBJECTIVES", "RASTER_BASELINES", "SWEEP_GOAL", "CleanConfig"]

@@ -10,10 +10,10 @@ from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.explorer import HedacExplorer
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks.clean.config import SWEEP_GOAL, CleanConfig
+from tactex.tasks.clean.sweep_plan import SweepPlan, dirt_island, plan_sweep
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.raster import WaypointPath
 from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
-from tactex.tasks.sweep_plan import SweepPlan, dirt_island, plan_sweep
 from tactex.tasks.wear_model import WearModel
 
 __all__ = ["MAX_HOLD_STEPS", "SWEEP_MIN_SHARE", "plan_stroke", "plan_sweep"]

@@ -28,6 +28,7 @@ from tactex.spectral.modes import auto_n_eigen
 from tactex.tasks.clean import legs, motion
 from tactex.tasks.clean.config import RASTER_BASELINES, CleanConfig
 from tactex.tasks.clean.legs import MAX_HOLD_STEPS, _after_stroke, _Legs, _WearTicks
+from tactex.tasks.clean.line_reference import LineLead, ToolNormal, blend_normals
 from tactex.tasks.clean.motion import (
     APPROACH_ACCEL_M_S2,
     CLEARANCE_M,
@@ -44,18 +45,17 @@ from tactex.tasks.clean.motion import (
     _touchable,
 )
 from tactex.tasks.clean.records import CleanResult, Started, TickLog
+from tactex.tasks.clean.step_ahead import StepAhead
+from tactex.tasks.clean.sweep_plan import SweepPlan
 from tactex.tasks.clean.target import _dirt_from_cloud, load_target_cloud_keep_out
-from tactex.tasks.line_reference import LineLead, ToolNormal, blend_normals
+from tactex.tasks.clean.time_breakdown import time_to_fraction_removed
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.region_raster_path import RegionRasterPath
 from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, end_on_robot, open_backend, stop_reason
-from tactex.tasks.step_ahead import StepAhead
 from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import IslandStroke
-from tactex.tasks.sweep_plan import SweepPlan
-from tactex.tasks.time_breakdown import time_to_fraction_removed
 from tactex.tasks.vision import capture_target_cloud, remeasure_target
 from tactex.tasks.wear_model import WearModel
 

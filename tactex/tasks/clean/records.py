@@ -12,10 +12,10 @@ import numpy as np
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.robots.loop import ControlLoop
 from tactex.tasks.clean.config import CleanConfig
+from tactex.tasks.clean.time_breakdown import TimeBreakdown
 from tactex.tasks.clean_phases import CLEAN_PHASES
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import end_on_robot
-from tactex.tasks.time_breakdown import TimeBreakdown
 
 __all__ = ["PHASES", "CleanResult", "Started", "TickLog"]
 
