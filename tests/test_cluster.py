@@ -60,6 +60,10 @@ ft_noise_n = 0.5
 [grid]
 baseline = ["", "raster"]
 """
+# The study the worker node is killed in: eight longer runs (4 s of cleaning each), so that the worker node
+# runs several of them and each is long enough to be seen in progress there.
+KILL_STUDY_TOML = STUDY_TOML.replace("seeds = 2", "seeds = 4").replace("budget_s = 1.0", "budget_s = 4.0")
+KILL_STUDY_RUNS = 8
 # Six settings of a TEC cloud from ../shared/data: the cloud and its basis are the shared input.
 SWEEP = {"n_eigen": (10, 30), "alpha": (5.0, 10.0, 20.0), "starts": 2, "steps": 30}
 #: Sweeps submitted at most until the worker node runs two of the six settings.
@@ -115,22 +119,32 @@ def study_file(cluster) -> dict[str, Path]:
         folder = cluster.root / place
         folder.mkdir(exist_ok=True)
         (folder / "study.toml").write_text(STUDY_TOML)
+        (folder / "kill-study.toml").write_text(KILL_STUDY_TOML)
         _plate_cloud(folder / "plate.npz")
         out[place] = folder / "study.toml"
     return out
 
 
-@pytest.fixture(scope="module")
-def local_study(tmp_path_factory, study_file) -> Path:
-    """The study on the local executor (one process): the reference tables."""
+def _local(tmp_path_factory, spec_file: Path) -> Path:
+    """A study file run on the local executor (one process): the reference tables."""
     out = tmp_path_factory.mktemp("local-study")
     here = os.getcwd()
-    os.chdir(study_file["client"].parent)  # where its relative cloud path is
+    os.chdir(spec_file.parent)  # where its relative cloud path is
     try:
-        run_study(spec_from_dict(load_spec_file(study_file["client"])), out, LocalExecutor(1))
+        run_study(spec_from_dict(load_spec_file(spec_file)), out, LocalExecutor(1))
     finally:
         os.chdir(here)
     return out
+
+
+@pytest.fixture(scope="module")
+def local_study(tmp_path_factory, study_file) -> Path:
+    return _local(tmp_path_factory, study_file["client"])
+
+
+@pytest.fixture(scope="module")
+def local_kill_study(tmp_path_factory, study_file) -> Path:
+    return _local(tmp_path_factory, study_file["client"].with_name("kill-study.toml"))
 
 
 def _env(cluster: Cluster, place: str) -> dict[str, str]:
@@ -327,9 +341,10 @@ def test_a_client_disconnected_mid_study_resumes_from_runs_jsonl(cluster, study_
     _same_tables(local_study, out)
 
 
-def test_the_worker_node_killed_mid_study_loses_no_run(cluster, study_file, local_study):
+def test_the_worker_node_killed_mid_study_loses_no_run(cluster, study_file, local_kill_study):
     out = cluster.root / "head" / "killed"
-    proc = _tactex(cluster, "head", "study", "--spec", str(study_file["head"]), "--out", str(out),
+    spec = study_file["head"].with_name("kill-study.toml")
+    proc = _tactex(cluster, "head", "study", "--spec", str(spec), "--out", str(out),
                    "--ray-address", HEAD_ADDRESS)
     killed: list[int] = []
     deadline = time.monotonic() + HANG_GUARD_S
@@ -337,13 +352,14 @@ def test_the_worker_node_killed_mid_study_loses_no_run(cluster, study_file, loca
         if _busy_ray_workers(cluster.worker.pids()):  # a run in progress there: the node is lost mid-run
             killed = cluster.kill_host("worker")
         time.sleep(0.05)
-    assert killed, "the worker node never ran a run of the study"
+    assert killed, ("the worker node was never seen running a run of the study; the runs ran on "
+                    f"{[r['worker'] for r in _records(out)] if (out / 'runs.jsonl').is_file() else 'no node'}")
     done_at_kill = len(_records(out)) if (out / "runs.jsonl").is_file() else 0
     _finish(proc)
     records = _records(out)
     retried = [r for r in records if r["attempt"] > 0]
-    print(f"worker node killed ({len(killed)} processes) with {done_at_kill} of 4 runs done; "
+    print(f"worker node killed ({len(killed)} processes) with {done_at_kill} of {KILL_STUDY_RUNS} runs done; "
           f"retried: {[(r['index'], r['worker'], r['attempt']) for r in retried]}")
-    assert len(records) == 4 and all(r["status"] == "ok" for r in records)
+    assert len(records) == KILL_STUDY_RUNS and all(r["status"] == "ok" for r in records)
     assert retried and all(r["worker"].startswith(f"{HEAD_IP}:") for r in retried)
-    _same_tables(local_study, out)
+    _same_tables(local_kill_study, out)
