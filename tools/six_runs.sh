@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# The suite on a busy machine: six full CI runs (.ci/run) of this checkout's HEAD, each in its own fresh
+# clone beside this one (so ../shared is the same), three on a quiet machine, then three with two
+# processes spinning on both cores. One line per run in proof-summary.txt beside the checkout.
+set -u
+REPO=$(git rev-parse --show-toplevel)
+PARENT=$(dirname "$REPO")
+COMMIT=$(git -C "$REPO" rev-parse HEAD)
+summary="$PARENT/proof-summary.txt"
+echo "commit $COMMIT" > "$summary"
+run() {  # name, busy (0/1)
+    local name=$1 busy=$2 spin=() dir="$PARENT/proof-$1"
+    rm -rf "$dir" && git clone -q "$REPO" "$dir" && git -C "$dir" checkout -q "$COMMIT"
+    if [ "$busy" = 1 ]; then
+        for _ in 1 2; do (exec yes > /dev/null) & spin+=($!); done
+    fi
+    local t0 rc
+    t0=$(date +%s)
+    (cd "$dir" && CI=true bash .ci/run > "$PARENT/proof-$name.log" 2>&1)
+    rc=$?
+    for p in "${spin[@]}"; do kill "$p"; done
+    local line
+    line=$(grep -E "^[0-9]+ (passed|failed)" "$PARENT/proof-$name.log" | tail -1)
+    echo "$name busy=$busy exit=$rc wall=$(( $(date +%s) - t0 ))s :: $line" >> "$summary"
+    rm -rf "$dir"
+}
+run quiet-1 0; run quiet-2 0; run quiet-3 0
+run busy-1 1; run busy-2 1; run busy-3 1
+echo done >> "$summary"
