@@ -70,6 +70,35 @@ def test_rate_and_torque_limits():
     assert layer.counts["torque_limit"] > 200
 
 
+def test_a_restart_blends_in_from_the_robots_own_last_command():
+    # a torque held before a pause, then torque control restarts with the robot's tau_J_d at 0: the
+    # controller's torque comes back as a hand-over blend from 0, never a ramp at the rate limit (a
+    # late first command would make two of its steps one step for the robot)
+    layer, _ = _layer(np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    for k in range(200):
+        layer.torque(_state(k), None)
+    assert layer._tau_prev[0] == pytest.approx(3.0)
+    clips = layer.counts.get("torque_rate_limit", 0)
+    layer.reseed(np.zeros(N_JOINTS), t=0.2)
+    prev, steps = np.zeros(N_JOINTS), []
+    for k in range(200, 300):
+        tau = layer.torque(_state(k), None)
+        steps.append(np.abs(tau - prev).max())
+        prev = tau
+    assert tau[0] == pytest.approx(3.0)  # the blend ends at the controller's torque
+    assert max(steps) < 0.5 * KEEP * RATE_STEP  # two steps in one stay below the robot's limit
+    assert steps[0] < 0.01 and layer.counts.get("torque_rate_limit", 0) == clips
+
+
+def test_a_restart_from_a_non_finite_robot_value_starts_from_zero():
+    layer, _ = _layer(np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    for k in range(200):
+        layer.torque(_state(k), None)
+    layer.reseed(np.full(N_JOINTS, np.nan), t=0.2)
+    tau = layer.torque(_state(200), None)
+    assert np.isfinite(tau).all() and abs(tau[0]) < 0.01
+
+
 def test_nan_wrench_is_replaced_and_reported():
     layer, _ = _layer(np.ones(N_JOINTS))
     layer.torque(_state(0, wrench_tool=np.array([0, 0, 3.0, 0, 0, 0])), None)

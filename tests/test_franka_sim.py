@@ -219,7 +219,9 @@ def test_torque_control_restarts_from_the_robots_last_command(no_violation):
     finally:
         backend.close()
     assert held[0] == 3.0
-    assert abs(firsts[0]) < 1.0 and abs(firsts[1] - firsts[0]) < 1.0  # one rate step at a time from the robot's 0
+    # from the robot's 0, blended in: each step well under half the robot's rate limit per cycle, so a
+    # first command that comes a cycle late (the robot then differences the next one over one cycle) passes
+    assert abs(firsts[0]) < 0.5 and np.abs(np.diff([0.0, *firsts])).max() < 0.5
 
 
 @_judged

@@ -2,12 +2,14 @@
 # The suite on a busy machine: six full CI runs (.ci/run) of this checkout's HEAD, each in its own fresh
 # clone beside this one (so ../shared is the same), three on a quiet machine, then three with two
 # processes spinning on both cores. One line per run in proof-summary.txt beside the checkout.
+# Usage: tools/six_runs.sh [all|quiet|busy]   (default all; a set of three runs on its own appends to the summary)
 set -u
+WHICH=${1:-all}
 REPO=$(git rev-parse --show-toplevel)
 PARENT=$(dirname "$REPO")
 COMMIT=$(git -C "$REPO" rev-parse HEAD)
 summary="$PARENT/proof-summary.txt"
-echo "commit $COMMIT" > "$summary"
+echo "commit $COMMIT ($WHICH) from $(date -u +%FT%TZ)" >> "$summary"
 run() {  # name, busy (0/1)
     local name=$1 busy=$2 spin=() dir="$PARENT/proof-$1"
     rm -rf "$dir" && git clone -q "$REPO" "$dir" && git -C "$dir" checkout -q "$COMMIT"
@@ -24,6 +26,6 @@ run() {  # name, busy (0/1)
     echo "$name busy=$busy exit=$rc wall=$(( $(date +%s) - t0 ))s :: $line" >> "$summary"
     rm -rf "$dir"
 }
-run quiet-1 0; run quiet-2 0; run quiet-3 0
-run busy-1 1; run busy-2 1; run busy-3 1
-echo done >> "$summary"
+if [ "$WHICH" = all ] || [ "$WHICH" = quiet ]; then run quiet-1 0; run quiet-2 0; run quiet-3 0; fi
+if [ "$WHICH" = all ] || [ "$WHICH" = busy ]; then run busy-1 1; run busy-2 1; run busy-3 1; fi
+echo "done ($WHICH) $(date -u +%FT%TZ)" >> "$summary"

@@ -217,13 +217,18 @@ class SafetyLayer(Controller):
         self._blend_from = None
         self.inner.reset(state)
 
-    def reseed(self, tau_last: np.ndarray) -> None:
-        """Continue the rate limit from ``tau_last`` [N·m], the robot's own last command: when torque
+    def reseed(self, tau_last: np.ndarray, t: float) -> None:
+        """Continue from ``tau_last`` [N·m], the robot's own last command, at time ``t`` [s]: when torque
         control (re)starts after a pause the robot checks the first command against its ``tau_J_d``
         (0 at rest), not against the last one tactex sent before the pause, which may hold newtons of
-        torque (a mis-set load held in place). A non-finite value counts as 0."""
+        torque (a mis-set load held in place). The controller's torque is blended in from there over
+        ``handover_blend_s``, as at any hand-over, rather than reached at the rate limit: a restart's
+        first command may come a cycle late, and the robot then differences the next one against its
+        own value over a single cycle, so a ramp at the limit would be a double step there. A non-finite
+        value counts as 0."""
         tau = np.asarray(tau_last, dtype=float)
         self._tau_prev[:] = tau if tau.shape == self._tau_prev.shape and np.isfinite(tau).all() else 0.0
+        self._start_blend(t)
 
     def _state_finite(self, state: RobotState) -> bool:
         """Every number of the state is finite: the compiled check when there is one (a state of
