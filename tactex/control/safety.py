@@ -193,6 +193,9 @@ class SafetyLayer(Controller):
         self._last_inner: Controller = inner
         self._blend_from: list[float] | None = None  # the command a hand-over blends from
         self._blend_t0 = 0.0  # when the hand-over started [s]
+        #: (6,) [N, N·m] a wrench at the TCP, world frame, added to every inner controller's command: the
+        #: tool's weight the robot's own load setting misses (:mod:`tactex.control.load_error`); None: nothing
+        self.load_wrench_world: np.ndarray | None = None
         kernels = joint_kernels.kernels()  # compiled now, never inside a control loop
         self._finite_kernel = None if kernels is None else kernels.state_finite
         self._limit_kernel = None if kernels is None else kernels.limit_torque
@@ -216,6 +219,18 @@ class SafetyLayer(Controller):
         self._last_inner = self.inner
         self._blend_from = None
         self.inner.reset(state)
+
+    def compensate_load(self, wrench_world: np.ndarray | None, t: float) -> None:
+        """From time ``t`` [s] on, add ``wrench_world`` (6,) [N, N·m] at the TCP (world frame) to every inner
+        controller's command (None: nothing): the tool's weight the robot's load setting misses. Blended in
+        as a hand-over, never a step."""
+        self.load_wrench_world = None if wrench_world is None else np.asarray(wrench_world, dtype=float).copy()
+        self._start_blend(t)
+
+    @property
+    def last_command(self) -> np.ndarray:
+        """A copy of the last command [N·m] this layer returned."""
+        return self._tau_prev.copy()
 
     def reseed(self, tau_last: np.ndarray, t: float) -> None:
         """Continue from ``tau_last`` [N·m], the robot's own last command, at time ``t`` [s]: when torque
@@ -317,6 +332,8 @@ class SafetyLayer(Controller):
             tau = self.inner.torque(state, reference)
             if tau.__class__ is not np.ndarray or tau.dtype is not _F64:  # skip the keyword call when it is a no-op
                 tau = np.asarray(tau, dtype=float)
+            if self.load_wrench_world is not None and tau.shape == self._tau_max.shape:
+                tau = tau + state.jacobian.T @ self.load_wrench_world
         except TactexError as exc:
             self._event(state.t, "controller_fault", f"{type(exc).__name__}: {exc}")
             return self._finish(state, self._hold())

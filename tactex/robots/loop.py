@@ -16,6 +16,7 @@ import numpy as np
 from tactex.control import joint_kernels
 from tactex.control.controller import Controller
 from tactex.control.joint_impedance import JointImpedanceController, JointTarget
+from tactex.control.load_error import LoadErrorEstimator
 from tactex.control.safety import SafetyLayer, SafetyLimits
 from tactex.control.state import RobotState
 from tactex.errors import InputError, SimulationError
@@ -101,17 +102,21 @@ class ControlLoop:
         return self.state
 
     def move_joints(self, q_goal: np.ndarray, duration_s: float | None = None, settle_s: float = 0.2,
-                    max_joint_speed: float | None = None) -> RobotState:
+                    max_joint_speed: float | None = None,
+                    load_check: LoadErrorEstimator | None = None) -> RobotState:
         """Minimum-jerk joint move with joint impedance (TEC's capture/hover transitions).
 
         ``duration_s`` defaults to what keeps every joint under ``max_joint_speed`` [rad/s] (default: the
-        loop's; the min-jerk peak speed is 1.875 × the mean speed), at least 0.5 s.
+        loop's; the min-jerk peak speed is 1.875 × the mean speed), at least 0.5 s. ``load_check``
+        collects the commands of the settle, the arm held still in free space
+        (:mod:`tactex.control.load_error`).
         """
         self.use(self.joint)
         q_goal = np.asarray(q_goal, dtype=float)
         if duration_s is None:
             duration_s = self.joint_move_duration(q_goal, max_joint_speed)
-        return self._run_joint_target(JointTarget(self._q_from(), q_goal, self.t, float(duration_s)), settle_s)
+        return self._run_joint_target(JointTarget(self._q_from(), q_goal, self.t, float(duration_s)), settle_s,
+                                      load_check)
 
     def _q_from(self) -> np.ndarray:
         """Where a new joint move starts: the last commanded posture while the joint controller runs on
@@ -122,13 +127,19 @@ class ControlLoop:
             return self._q_commanded.copy()
         return self.state.q.copy()
 
-    def _run_joint_target(self, target: JointTarget, settle_s: float) -> RobotState:
-        """Track ``target`` with joint impedance until it ends, then ``settle_s`` [s] more."""
+    def _run_joint_target(self, target: JointTarget, settle_s: float,
+                          load_check: LoadErrorEstimator | None = None) -> RobotState:
+        """Track ``target`` with joint impedance until it ends, then ``settle_s`` [s] more; the settle's
+        commands go to ``load_check``."""
         self.use(self.joint)
-        t_end = target.t_start + target.duration_s + settle_s
+        t_move_end = target.t_start + target.duration_s
+        t_end = t_move_end + settle_s
         self._q_commanded = target.q_goal
         while self.t < t_end - 1e-9:
+            state = self.state
             self.tick(target)
+            if load_check is not None and state.t >= t_move_end:
+                load_check.add(state, self.safety.last_command)
         return self.state
 
     def joint_move_duration(self, q_goal: np.ndarray, max_joint_speed: float | None = None,

@@ -392,6 +392,12 @@ class MujocoBackend:
         self._v_tcp_pos, self._v_tcp_rot = d.site_xpos[ids["tcp"]], d.site_xmat[ids["tcp"]].reshape(3, 3)
         self._mass7 = self._mfull[:7, :7]
         self._jac7 = self._jac[:, :7]
+        # the weight the robot's gravity compensation misses (a tool heavier or lighter than its load setting:
+        # gravcomp below or above 1): its bodies and their uncompensated mass [kg]
+        m = self.model
+        self._unmodelled = [(b, (1.0 - float(m.body_gravcomp[b])) * float(m.body_mass[b])) for b in range(m.nbody)
+                            if m.body_gravcomp[b] != 1.0 and m.body_gravcomp[b] != 0.0]
+        self._jac_com = np.zeros((3, m.nv))
         self._tcp = ids["tcp"]
         self._force_threshold = self.scene.dirt.params.force_threshold_n
         self._object_rgb = np.asarray(self.scene.sim_object.rgb, dtype=float)
@@ -511,6 +517,20 @@ class MujocoBackend:
             raise SimulationError(f"non-finite robot state at t = {d.time:.4f} s; hint: the simulation diverged")
         # (t, q, dq, tau_measured, ee_position, ee_rotation, ee_twist, jacobian, mass_matrix, coriolis,
         # gravity, wrench_tool)
+        coriolis = np.subtract(self._v_bias7, gravity)
+        if self._unmodelled:
+            coriolis -= self._unmodelled_gravity()
         return RobotState(d.time, self._v_q.copy(), dq, tau, self._v_tcp_pos.copy(), self._v_tcp_rot.copy(),
-                          np.dot(jac, dq), jac, self._mass7.copy(), np.subtract(self._v_bias7, gravity), gravity,
-                          wrench)
+                          np.dot(jac, dq), jac, self._mass7.copy(), coriolis, gravity, wrench)
+
+    def _unmodelled_gravity(self) -> np.ndarray:
+        """(7,) [N·m] the gravity torque of the weight the robot does not compensate. A robot's model knows
+        only the load it was told: its Coriolis vector holds no part of the tool's true weight, which acts on
+        the arm as a disturbance its controllers must meet (MuJoCo's bias force holds all of it)."""
+        m, d, jac = self.model, self.data, self._jac_com
+        g = m.opt.gravity
+        out = np.zeros(7)
+        for body, mass in self._unmodelled:
+            mujoco.mj_jacBodyCom(m, d, jac, None, body)
+            out -= mass * (jac[:, :7].T @ g)
+        return out

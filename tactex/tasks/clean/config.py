@@ -145,6 +145,9 @@ class CleanConfig(SimWorldParams):
         0.5, "measured normal force that counts as contact [N]; below the force loop's approach equilibrium "
         "Kp·F_approach/(1 + Kp) = 1 N, so a touch-down is always detected")
     agent_feedback: bool = param(False, "use the measured TCP as the agent position (TEC eq. 22)")
+    load_check: bool = param(
+        True, "at the first still hold in free space, measure a tool weight the robot's load setting misses and "
+        "compensate it (tactex.control.load_error); off: the force loop's integrator alone removes it")
     touch_down_boost: float = param(
         0.4, "after a touch-down the force command rises above the set point by up to this fraction of it, a "
         "smooth pulse peaking --touch-down-boost-s after the touch-down, so that the force loop's integrator "

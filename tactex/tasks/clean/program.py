@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from tactex.control.ga_line_force import GaLineForceController, GaLineForceParams
+from tactex.control.load_error import LoadError, LoadErrorEstimator
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import LineForceReference
 from tactex.ergodic import kernel
@@ -158,6 +159,8 @@ class CleanProgram:
         # cloud's support is not known
         self.support_z = SUPPORT_Z_M if self.given is None else None
         self.t_end = cfg.budget_s
+        self.load_error: LoadError | None = None  # what the load check measured (None: not made)
+        self._load_checked = not cfg.load_check
         self.dt_step = 1.0 / cfg.explorer_rate_hz
         self.aborted = ""
 
@@ -202,11 +205,32 @@ class CleanProgram:
             except SimulationError as exc:  # the joint move below still reaches the camera
                 warnings.warn(f"clean: no straight way back to the camera ({exc}); moving in joint space",
                               RuntimeWarning, stacklevel=2)
-        loop.move_joints(self.q_capture, settle_s=0.3)
+        check = self._load_check()
+        loop.move_joints(self.q_capture, settle_s=0.3, load_check=check)
+        self._compensate_load(check)
         self.log.activity("capture", "vision")
         if self.given is not None:
             return self.given
         return capture_target_cloud(self.backend.render_depth(), self.acq)
+
+    def _load_check(self) -> LoadErrorEstimator | None:
+        """An estimator for the next still hold in free space, once per run (None: made, or turned off)."""
+        return None if self._load_checked else LoadErrorEstimator()
+
+    def _compensate_load(self, check: LoadErrorEstimator | None) -> None:
+        """Act on the load check of the hold just made: a tool weight the robot misses is added to every
+        command from now on, and said (an estimate from too few still ticks waits for the next hold)."""
+        if check is None:
+            return
+        found = check.estimate()
+        if found is None:
+            return
+        self._load_checked, self.load_error = True, found
+        if found.accepted:
+            self.loop.safety.compensate_load(found.wrench_world, self.loop.t)
+            self.bar.note(found.describe())
+        elif found.force_n >= check.deadband_n:  # large enough to mention, not a weight
+            self.bar.note(found.describe())
 
     # -- 1. capture -------------------------------------------------------------------------------------------
     def capture(self) -> None:
@@ -392,7 +416,9 @@ class CleanProgram:
             return False  # the move alone would use up the budget
         if q_above is not None:
             loop.move_joints(q_above, settle_s=0.0)
-        loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S)
+        check = self._load_check()
+        loop.move_joints(q_hover, settle_s=HOVER_SETTLE_S, load_check=check)
+        self._compensate_load(check)
         self.log.activity("approach", "touch_down")
         loop.use(self.ga)
         t_touch = None
@@ -749,6 +775,10 @@ class CleanProgram:
             "ergodicity": self.ergodicity,
             "robot": "franka" if self.robot is not None else "sim",
             "target_source": "cloud" if self.given is not None else "camera",
+            # [kg] the tool's weight the robot's load setting misses, from the load check (None: not made), and
+            # whether it was compensated
+            "load_error_kg": None if self.load_error is None else self.load_error.mass_kg,
+            "load_error_compensated": self.load_error is not None and self.load_error.accepted,
             "aborted": self.aborted,
             "partial": bool(self.aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
         }
