@@ -73,6 +73,8 @@ __all__ = ["CleanProgram", "run_clean"]
 VISION_TRIP_GUESS_S = 5.0
 #: Time of a lift-off, move and touch-down at the next island [s] before the first one is measured.
 ISLAND_MOVE_GUESS_S = 3.5
+#: Settling after the lift before the IK of the way back to the camera, on a robot [s].
+ROBOT_SETTLE_S = 0.2
 #: Longest approach along the normal before the captured surface counts as missing [s].
 APPROACH_TIMEOUT_S = 6.0
 #: The region raster slides to its next line when it is closer than this, and lifts off to fly there when
@@ -222,6 +224,11 @@ class CleanProgram:
             # From a retract inside a bowl a single joint move to the capture pose can dip the tool back into
             # the bowl: straight up first, then along a line of IK waypoints.
             loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=np.array([0.0, 0.0, 1.0]))
+            if self.robot is not None:
+                # the path's IK below pauses torque control: the robot holds the arm meanwhile, and one still
+                # moving at the end of the retract would be somewhere else when the next command comes (a step
+                # of the joint spring's torque, clipped by the torque-rate limit)
+                loop.hold(ROBOT_SETTLE_S)
             try:
                 loop.move_cartesian(self.cap_pos, self.cap_rot, settle_s=0.0, q_goal=self.q_capture)
             except SimulationError as exc:  # the joint move below still reaches the camera
