@@ -217,13 +217,18 @@ class SafetyLayer(Controller):
         self._blend_from = None
         self.inner.reset(state)
 
-    def reseed(self, tau_last: np.ndarray) -> None:
+    def reseed(self, tau_last: np.ndarray, t: float | None = None) -> None:
         """Continue the rate limit from ``tau_last`` [N·m], the robot's own last command: when torque
         control (re)starts after a pause the robot checks the first command against its ``tau_J_d``
         (0 at rest), not against the last one tactex sent before the pause, which may hold newtons of
-        torque (a mis-set load held in place). A non-finite value counts as 0."""
+        torque (a mis-set load held in place). A non-finite value counts as 0. With the restart's time
+        ``t`` [s] the controller's torque is blended in from that command over ``handover_blend_s``, as
+        at a hand-over: the robot's hold and the controller differ by more than the rate limit allows in
+        one tick."""
         tau = np.asarray(tau_last, dtype=float)
         self._tau_prev[:] = tau if tau.shape == self._tau_prev.shape and np.isfinite(tau).all() else 0.0
+        if t is not None:
+            self._start_blend(t)
 
     def _state_finite(self, state: RobotState) -> bool:
         """Every number of the state is finite: the compiled check when there is one (a state of

@@ -95,7 +95,7 @@ class ControlLoop:
         restart = getattr(self.backend, "torque_restart", None)
         if restart is not None:  # torque control (re)started: the robot's last command is where ours continue
             self.backend.torque_restart = None
-            self.safety.reseed(restart)
+            self.safety.reseed(restart, self.state.t)
         if self.on_tick is not None:
             self.on_tick(self.state, reference, self.safety.inner)
         return self.state
