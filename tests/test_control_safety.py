@@ -409,3 +409,23 @@ def test_no_command_ever_reaches_the_robots_limits(seed):
         assert (np.abs(tau - prev) / 1e-3 < 1000.0).all(), (k, tau - prev)
         prev = tau
     assert layer.counts.get("torque_rate_limit", 0) > 100 and layer.counts.get("torque_limit", 0) > 10
+
+
+def test_a_restart_blends_in_from_the_robots_own_command():
+    # torque control restarts after a pause: the robot's hold commanded 3 N·m on joint 1, the controller wants
+    # -2 N·m there; a step of 5 N·m in one tick is over the rate limit. Reseeded with the restart's time, the
+    # command ramps from the robot's over handover_blend_s, and nothing is clipped
+    want = np.array([-2.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0])
+    robot = np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    layer, _ = _layer(want)
+    for k in range(5):
+        layer.torque(_state(k), None)
+    layer.counts.clear()  # the start's own ramp from 0 is not what is tested
+    layer.reseed(robot, 5e-3)
+    prev = robot
+    for k in range(5, 200):
+        tau = layer.torque(_state(k), None)
+        assert (np.abs(tau - prev) <= KEEP * RATE_STEP + 1e-12).all()
+        prev = tau
+    np.testing.assert_allclose(prev, want)
+    assert "torque_rate_limit" not in layer.counts

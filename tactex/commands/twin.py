@@ -1,5 +1,6 @@
 """``tactex twin --object NAME``: our scene inside franky-sim on loopback, with the wrist F/T
-published over the Net F/T protocol, for rehearsing a real-robot run (see docs/twin.md)."""
+published over the Net F/T protocol and its wrist camera's RGB-D frames over TCP, for rehearsing a
+real-robot run (see docs/twin.md)."""
 
 from __future__ import annotations
 
@@ -41,7 +42,9 @@ def run(args: argparse.Namespace) -> int:
 
     def ready(twin) -> None:
         host, port = twin.netft.address
-        print(f"twin ready: robot {cfg.hostname}:1337, Net F/T udp {host}:{port}, object {cfg.object_name}",
+        camera = (f", camera tcp {cfg.hostname}:{twin.camera.address[1]} ({cfg.camera_width}×{cfg.camera_height} at "
+                  f"{cfg.camera_rate_hz:g} Hz)" if twin.camera is not None else "")
+        print(f"twin ready: robot {cfg.hostname}:1337, Net F/T udp {host}:{port}{camera}, object {cfg.object_name}",
               flush=True)
 
     twin = run_twin(cfg, ready=ready)

@@ -29,6 +29,11 @@ from tactex.perception.mount import CameraMount
 __all__ = ["RealSenseNotFoundError", "RealSenseSource", "import_pyrealsense2"]
 
 
+#: Longest wait for a recording's sensors to stop when the source closes [s]; a player that does not stop
+#: by then is left to the process's end rather than hang the run's report.
+STOP_TIMEOUT_S = 5.0
+
+
 class RealSenseNotFoundError(MissingDependencyError):
     """pyrealsense2 is installed but no RealSense device is connected."""
 
@@ -166,6 +171,8 @@ class RealSenseSource:
         when none comes within ``timeout_ms``, or a recording has played to its end)."""
         try:
             frames = self._next_frames()
+        except CameraStreamEnded:
+            raise
         except RuntimeError as exc:
             raise CameraStreamEnded(f"no frame from the RealSense within {self.timeout_ms} ms ({exc}): check its "
                                     "USB 3 cable and that no other program holds the camera") from exc
@@ -195,25 +202,23 @@ class RealSenseSource:
         sensors, self._sensors = self._sensors, []
         if sensors:
             # A recording not played in real time waits until its frames are taken: stopping its
-            # sensors while the syncer holds unread ones can wait forever, so they are drained meanwhile.
+            # sensors while the syncer holds unread ones can wait forever, so they are stopped in a
+            # thread while this one drains the syncer (with a pause between polls: a spinning drain
+            # starves the stopping thread of the GIL), for at most STOP_TIMEOUT_S.
             import threading
 
-            done = threading.Event()
-
-            def drain() -> None:
-                while not done.is_set():
-                    self._sync.poll_for_frames()
-
-            drainer = threading.Thread(target=drain, daemon=True)
-            drainer.start()
-            try:
+            def stop() -> None:
                 for sensor in sensors:
                     sensor.stop()
-            finally:
-                done.set()
-                drainer.join()
-            for sensor in sensors:
-                sensor.close()
+                for sensor in sensors:
+                    sensor.close()
+
+            stopper = threading.Thread(target=stop, daemon=True)
+            stopper.start()
+            deadline = time.monotonic() + STOP_TIMEOUT_S
+            while stopper.is_alive() and time.monotonic() < deadline:
+                self._sync.poll_for_frames()
+                stopper.join(0.005)
 
     def __enter__(self) -> RealSenseSource:
         return self

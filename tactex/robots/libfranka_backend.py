@@ -589,6 +589,11 @@ class LibfrankaBackend:
         return self._kinematics().solve_ik(position_world, rotation_world, q0, q_posture,
                                            settled_step_rad=settled_step_rad, max_iter=max_iter)
 
+    @property
+    def torque_paused(self) -> bool:
+        """Torque control is not running (paused, or not started yet): the robot holds its posture itself."""
+        return self._control is None and not self.config.dry_run
+
     def pause(self) -> None:
         """End torque control until the next :meth:`step` (which starts it again), so that work
         longer than a cycle can run between two ticks: the last torque is sent with

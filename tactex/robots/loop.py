@@ -122,8 +122,11 @@ class ControlLoop:
         """Where a new joint move starts: the last commanded posture while the joint controller runs on
         from an earlier move, else the measured one. At the end of a move q lags q_d by the tracking
         error, held by the joint spring; a move starting from the measured q would drop that spring
-        torque in one tick."""
-        if self.safety.inner is self.joint and self._q_commanded is not None:
+        torque in one tick. After a pause of torque control (a real robot's, :meth:`pause`) the robot's own hold
+        has already taken that torque over, and its rate check starts from its own command: the move starts
+        from the measured posture, so its first command holds no spring torque the robot would see as a jump."""
+        paused = bool(getattr(self.backend, "torque_paused", False))
+        if self.safety.inner is self.joint and self._q_commanded is not None and not paused:
             return self._q_commanded.copy()
         return self.state.q.copy()
 

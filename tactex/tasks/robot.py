@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import ConfigError, RobotError, SensorFault, SurfaceNotFound
+from tactex.errors import ConfigError, InputError, RobotError, SensorFault, SurfaceNotFound
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
+from tactex.perception.twin_camera import TWIN_CAMERA_PORT
 from tactex.robots.libfranka_backend import FrankaConfig
 from tactex.tasks.hand_eye import load_hand_eye
 
@@ -36,9 +37,11 @@ __all__ = [
     "end_on_robot",
     "load_hand_eye",
     "open_backend",
+    "open_capture_camera",
     "open_vision",
     "stop_reason",
     "stopped_by_user",
+    "twin_dirt_remaining",
 ]
 
 #: What ends a run on a robot early and keeps its data: a libfranka error or lost link, a lost
@@ -78,15 +81,36 @@ class RealRobotParams(FrankaConfig):
     """``--robot franka``: the robot (see FrankaConfig) and its camera."""
 
     robot_ip: str = param("", "the robot's FCI address, e.g. 172.16.0.2 (127.0.0.1 for tactex twin)")
-    camera: str = param("auto", "wrist camera: sim (tactex twin's simulated camera), realsense, none, or auto "
-                                "(sim on a loopback robot address, realsense otherwise)")
+    camera: str = param("auto", "wrist camera: twin (the frames tactex twin serves), realsense, sim (a vision process "
+                                "rendering its own copy of the twin's scene: the wipe's surface estimate), none, or "
+                                "auto (sim on a loopback robot address, realsense otherwise); tactex clean captures "
+                                "its target with twin or realsense")
+    camera_port: int = param(TWIN_CAMERA_PORT, "--camera twin: the twin's camera TCP port (tactex twin --port-camera)")
+    serial: str = param("", "--camera realsense: the RealSense's serial number (default: the first one connected)")
+    playback: str = param("", "--camera realsense: play this RealSense recording (.db3 or .bag) instead of a live "
+                              "camera")
+    capture_frames: int = param(3, "frames read at each capture; the last one is used (those before let the exposure "
+                                   "and the arm settle) [-]")
     hand_eye: str = param("", "hand-eye calibration: a .npy or .json 4×4 tool_T_camera (camera optical frame in the "
                               "tool frame, metres); empty: the nominal mount of the tactex tool")
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.camera not in ("auto", "sim", "realsense", "none"):
-            raise ConfigError(f"camera must be auto, sim, realsense or none, got {self.camera!r}")
+        if self.camera not in ("auto", "twin", "sim", "realsense", "none"):
+            raise ConfigError(f"camera must be auto, twin, sim, realsense or none, got {self.camera!r}")
+        if not (isinstance(self.camera_port, int) and 0 < self.camera_port < 65536):
+            raise ConfigError(f"camera_port must be a TCP port in 1..65535, got {self.camera_port!r}")
+        n = self.capture_frames
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 100:
+            raise ConfigError(f"capture_frames must be a whole number in 1..100, got {n!r}")
+        if self.playback and self.camera != "realsense":
+            raise ConfigError("--playback plays a RealSense recording: give it with --camera realsense")
+        if self.playback:
+            from pathlib import Path
+
+            if not Path(self.playback).is_file():
+                raise InputError(f"--playback '{self.playback}' is not a file (give a RealSense recording, .db3 "
+                                 "or .bag)")
         if self.hand_eye:
             load_hand_eye(self.hand_eye)
 
@@ -186,6 +210,9 @@ def open_vision(backend, estimator_config: SurfaceEstimatorConfig, scene_config,
     kind = robot.camera_kind
     if kind == "none":
         return NoVision()
+    if kind == "twin":
+        raise ConfigError("--camera twin serves tactex clean's captures; a surface estimate on the twin comes from "
+                          "--camera sim (a vision process rendering the twin's scene)")
     from dataclasses import asdict
 
     from tactex.robots.vision_process import VisionProcess
@@ -216,3 +243,39 @@ def nominal_tool_T_camera(scene_config) -> np.ndarray:
         return camera_mount(sim)
     finally:
         sim.close()
+
+
+def open_capture_camera(robot: RealRobotParams, scene_config, tool_pose):
+    """The frame source of the clean's captures on a robot (``--camera twin`` or ``realsense``), each frame posed
+    by the tool pose the robot reports (``tool_pose() -> world_T_tool``, read when the frame arrives: the arm
+    holds still meanwhile) and the hand-eye calibration (``--hand-eye``; the tactex tool's nominal mount without
+    one)."""
+    from tactex.perception.mount import CameraMount
+
+    kind = robot.camera
+    if kind not in ("twin", "realsense"):
+        raise ConfigError(f"clean on a robot captures its target with --camera twin (tactex twin's camera) or "
+                          f"--camera realsense, or takes it from --cloud FILE; got --camera {kind}")
+    tool_T_camera = load_hand_eye(robot.hand_eye) if robot.hand_eye else nominal_tool_T_camera(scene_config)
+    mount = CameraMount(tool_T_camera)
+    if kind == "twin":
+        from tactex.perception.twin_camera import TwinCameraSource
+
+        return TwinCameraSource(robot.robot_ip, robot.camera_port, mount=mount, tool_pose_provider=tool_pose)
+    from tactex.perception.realsense import RealSenseSource
+
+    return RealSenseSource(mount=mount, tool_pose_provider=tool_pose, serial=robot.serial or None,
+                           playback=robot.playback or None)
+
+
+def twin_dirt_remaining(robot: RealRobotParams):
+    """``f() -> the fraction of the marking left by the twin's own count`` for a run on tactex twin with its
+    camera (``--camera twin``), else None (a real robot does not know its dirt)."""
+    if robot.camera != "twin":
+        return None
+    from tactex.perception.twin_camera import twin_status
+
+    def remaining() -> float:
+        return float(twin_status(robot.robot_ip, robot.camera_port)["dirt_remaining_fraction"])
+
+    return remaining

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from tactex.config import param
 from tactex.errors import ConfigError
+from tactex.perception.twin_camera import TWIN_CAMERA_PORT
 from tactex.robots.netft import NETFT_PORT
 from tactex.sim.scene import SceneConfig
 from tactex.sim.tool import ToolGeometry
@@ -41,6 +42,11 @@ class TwinConfig:
     hostname: str = param("127.0.0.1", "address the robot (TCP 1337, gripper 1338) and the Net F/T serve on")
     ft_port: int = param(NETFT_PORT, "UDP port of the Net F/T stream")
     ft_rate_hz: float = param(1000.0, "Net F/T record rate [Hz]")
+    camera_port: int = param(TWIN_CAMERA_PORT, "TCP port of the wrist camera's RGB-D frames (0: no camera)",
+                             option="port_camera", aliases=("--camera-port",))
+    camera_width: int = param(640, "wrist camera image width [px] (a RealSense D435's colour stream: 640)")
+    camera_height: int = param(480, "wrist camera image height [px]")
+    camera_rate_hz: float = param(30.0, "wrist camera frame rate while a client streams [Hz]")
     status_file: str = param("", "JSON file rewritten every status_period_s with the twin's status ('' = none)")
     status_period_s: float = param(0.5, "period of the status file [s]")
     realtime_factor: float = param(1.0, "simulated seconds per wall-clock second the twin aims at (it paces "
@@ -64,6 +70,17 @@ class TwinConfig:
         self.scene_config()  # object, marking, tool and dirt checks
         if not (isinstance(self.ft_port, int) and 0 <= self.ft_port < 65536):
             raise ConfigError(f"ft_port must be a UDP port in 0..65535 (0: any free one), got {self.ft_port!r}")
+        if not (isinstance(self.camera_port, int) and 0 <= self.camera_port < 65536):
+            raise ConfigError(f"camera_port must be a TCP port in 0..65535 (0: no camera), got {self.camera_port!r}")
+        if self.camera_port in (1337, 1338):
+            raise ConfigError(f"camera_port {self.camera_port} is franky-sim's (1337 robot, 1338 gripper): pick "
+                              "another")
+        for name in ("camera_width", "camera_height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 8 <= v <= 4096:
+                raise ConfigError(f"{name} must be a whole number of pixels in 8..4096, got {v!r}")
+        if not (math.isfinite(self.camera_rate_hz) and 0.1 <= self.camera_rate_hz <= 120.0):
+            raise ConfigError(f"camera_rate_hz must be in [0.1, 120] Hz, got {self.camera_rate_hz!r}")
         if not self.hostname.strip():
             raise ConfigError("hostname must be an address, e.g. 127.0.0.1")
         for name, lo in (("ft_rate_hz", 1.0), ("status_period_s", 0.01)):

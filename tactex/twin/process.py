@@ -51,6 +51,16 @@ def _die_with_parent() -> None:
     linux_prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
+def _free_tcp_port(host: str) -> int:
+    """A TCP port free on ``host`` now (the twin binds it a moment later)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    try:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+    finally:
+        sock.close()
+
+
 def free_loopback_address(rng: random.Random | None = None, attempts: int = 50) -> tuple[str, int]:
     """(127.0.0.X with TCP 1337 and 1338 free, a free UDP port on it)."""
     rng = rng or random.Random()
@@ -95,14 +105,14 @@ class TwinProcess:
         args: further ``tactex twin`` options, e.g. ``["--marking", "full"]``.
         timeout_s: longest wait for the ready line [s]; then the child is killed and
             :class:`~tactex.errors.TactexError` raised with its stderr.
-        hostname, ft_port: fixed addresses instead of free ones.
+        hostname, ft_port, camera_port: fixed addresses instead of free ones (camera_port 0: no camera).
 
-    Attributes: ``hostname``, ``ft_port``, ``status_file``, ``ready_line``, ``process``.
+    Attributes: ``hostname``, ``ft_port``, ``camera_port``, ``status_file``, ``ready_line``, ``process``.
     """
 
     def __init__(self, object_name: str = "plate", args: list[str] | tuple[str, ...] = (), *,
                  timeout_s: float = 60.0, hostname: str | None = None, ft_port: int | None = None,
-                 python: str | None = None, cpus: set[int] | None = None) -> None:
+                 python: str | None = None, cpus: set[int] | None = None, camera_port: int | None = None) -> None:
         self.cpus = set(cpus) if cpus else None  # cores the twin may run on (None: any)
         if hostname is None or ft_port is None:
             host, port = free_loopback_address()
@@ -110,12 +120,16 @@ class TwinProcess:
             ft_port = ft_port if ft_port is not None else port
         self.hostname = hostname
         self.ft_port = int(ft_port)
+        if camera_port is None:
+            camera_port = _free_tcp_port(hostname)
+        self.camera_port = int(camera_port)
         self.object_name = object_name
         self._dir = tempfile.TemporaryDirectory(prefix="tactex-twin-")
         self.status_file = Path(self._dir.name) / "status.json"
         self._stderr_path = Path(self._dir.name) / "stderr.txt"
         self.command = [python or sys.executable, "-m", "tactex.cli", "twin", "--object", object_name,
-                        "--hostname", hostname, "--port-ft", str(self.ft_port), "--status-file",
+                        "--hostname", hostname, "--port-ft", str(self.ft_port),
+                        "--port-camera", str(self.camera_port), "--status-file",
                         str(self.status_file), *args]
         self.timeout_s = float(timeout_s)
         self.process: subprocess.Popen | None = None

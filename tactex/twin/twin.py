@@ -57,6 +57,8 @@ def _check_addresses(config: TwinConfig) -> None:
     tried = [(socket.SOCK_STREAM, port, "tcp") for port in FRANKA_PORTS]
     if config.ft_port:
         tried.append((socket.SOCK_DGRAM, config.ft_port, "udp"))
+    if config.camera_port:
+        tried.append((socket.SOCK_STREAM, config.camera_port, "tcp"))
     for kind, port, proto in tried:
         sock = socket.socket(socket.AF_INET, kind)
         if kind == socket.SOCK_STREAM:
@@ -64,7 +66,8 @@ def _check_addresses(config: TwinConfig) -> None:
         try:
             sock.bind((config.hostname, port))
         except OSError as exc:
-            what = "--port-ft" if proto == "udp" else "--hostname (e.g. 127.0.0.2)"
+            what = ("--port-ft" if proto == "udp" else "--port-camera" if port == config.camera_port
+                    else "--hostname (e.g. 127.0.0.2)")
             in_use = exc.errno == errno.EADDRINUSE
             reason = "is in use (another twin or franky-sim?)" if in_use else f"cannot be bound ({exc.strerror})"
             raise TactexError(f"{proto} {config.hostname}:{port} {reason}: stop what serves there, or pick another "
@@ -115,6 +118,11 @@ class Twin:
         self._rtf = float("nan")
         self.command_rate = CommandRate()
         self._wipe_due = False  # a wear update from the last step's contacts is pending
+        self.camera: Any = None  # the camera server (tactex.twin.camera_server), once serving
+        # a camera snapshot asked of the simulation thread, and the event it sets when taken
+        self._snap_wanted = False
+        self._snap_done = threading.Event()
+        self._snap: tuple | None = None
 
     # -- per-tick work (the simulation thread) -----------------------------------------------------
     def _setup_ids(self) -> None:
@@ -149,6 +157,7 @@ class Twin:
         self._dt = float(m.opt.timestep)
         self._mj_contact_force = mujoco.mj_contactForce
         self._mj_jac = mujoco.mj_jac
+        self._camera_id = m.camera("wrist_camera").id
 
     @staticmethod
     def _tool_bodies(m: Any) -> set[int]:
@@ -275,10 +284,42 @@ class Twin:
                 if self._wipe_due:  # the contacts of this step are still in MuJoCo's data
                     self._wipe_due = False
                     self._wipe()
+                if self._snap_wanted:
+                    self._take_snapshot()
         except BaseException as exc:
             if self._error is None:
                 self._error = exc
             self._stop.set()
+
+    def _take_snapshot(self) -> None:
+        """In the simulation thread, between two steps: what a camera frame depends on (the wrist camera's
+        optical pose in the base frame, the object's pose, the simulated time, a copy of the dirt)."""
+        from tactex.sim.camera import optical_R_mujoco_camera
+
+        d, i = self.data, self._camera_id
+        pose = np.eye(4)
+        pose[:3, :3] = d.cam_xmat[i].reshape(3, 3) @ optical_R_mujoco_camera
+        pose[:3, 3] = d.cam_xpos[i]
+        self._snap = (pose, self._object_pos.copy(), self._object_rot.copy(), float(d.time), self.dirt.level.copy())
+        self._snap_wanted = False
+        self._snap_done.set()
+
+    def camera_snapshot(self, timeout_s: float) -> tuple | None:
+        """(base_T_camera, object position, object rotation, t [s], dirt levels) taken by the simulation
+        thread at its next step; None when it takes no step within ``timeout_s`` [s]."""
+        self._snap_done.clear()
+        self._snap_wanted = True
+        if not self._snap_done.wait(timeout_s):
+            return None
+        return self._snap
+
+    def toggle_camera_stream(self) -> None:
+        """Stop the camera's frames (the connection stays open), or start them again."""
+        if self.camera is not None:
+            if self.camera.paused.is_set():
+                self.camera.paused.clear()
+            else:
+                self.camera.paused.set()
 
     def ft_reading(self) -> np.ndarray:
         """The latest raw wrist reading [N, N·m] (6,): sensor frame, the tool's weight included."""
@@ -316,6 +357,8 @@ class Twin:
             "object": self.config.object_name,
             "hostname": self.config.hostname,
             "ft_port": 0 if self.netft is None else int(self.netft.address[1]),
+            "camera_port": 0 if self.camera is None else int(self.camera.address[1]),
+            "camera_frames_sent": 0 if self.camera is None else self.camera.frames_sent,
         }
 
     def write_status(self) -> None:
@@ -376,6 +419,11 @@ class Twin:
                     raise TactexError(f"udp {cfg.hostname}:{cfg.ft_port}: {exc.strerror}; stop what serves there "
                                       "or pick another port with --port-ft") from None
                 self._ft_every = max(1, round(1.0 / (cfg.ft_rate_hz * self._dt)))
+                if cfg.camera_port:
+                    from tactex.twin.camera_server import TwinCameraServer
+
+                    self.camera = TwinCameraServer(self, cfg.hostname, cfg.camera_port, cfg.camera_width,
+                                                   cfg.camera_height, cfg.camera_rate_hz)
                 self.sim.register_post_step_callback(self._post_step)
                 period_s = 1e-3 / cfg.realtime_factor if cfg.realtime_factor > 0 else 0.0
                 # franky-sim's run_async loop, with the robot's cadence (tactex.twin.clock)
@@ -395,6 +443,8 @@ class Twin:
                 server.cleanup()
                 if self.netft is not None:
                     self.netft.close()
+                if self.camera is not None:
+                    self.camera.close()
         if self._error is not None:
             raise SimulationError(f"the twin's simulation loop failed: {self._error!r}") from self._error
         if server.async_thread is not None and not self._stop.is_set():
@@ -412,6 +462,8 @@ def run_twin(config: TwinConfig, *, ready=None, handle_signals: bool = True) -> 
             previous[sig] = signal.signal(sig, lambda *_: twin.stop())
         # a dead-sensor drill: SIGUSR1 stops the Net F/T stream, the next SIGUSR1 starts it again
         previous[signal.SIGUSR1] = signal.signal(signal.SIGUSR1, lambda *_: twin.toggle_ft_stream())
+        # and SIGUSR2 the camera's frames
+        previous[signal.SIGUSR2] = signal.signal(signal.SIGUSR2, lambda *_: twin.toggle_camera_stream())
     try:
         twin.run(ready)
     finally:

@@ -46,6 +46,7 @@ from tactex.tasks.clean.motion import (
     _touchable,
 )
 from tactex.tasks.clean.records import CleanResult, Started, TickLog
+from tactex.tasks.clean.robot_camera import RobotCapture
 from tactex.tasks.clean.step_ahead import StepAhead
 from tactex.tasks.clean.sweep_plan import SweepPlan
 from tactex.tasks.clean.target import _dirt_from_cloud, load_target_cloud_keep_out
@@ -54,7 +55,14 @@ from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
 from tactex.tasks.region_raster_path import RegionRasterPath
-from tactex.tasks.robot import ROBOT_STOPS, RealRobotParams, end_on_robot, open_backend, stop_reason
+from tactex.tasks.robot import (
+    ROBOT_STOPS,
+    RealRobotParams,
+    end_on_robot,
+    open_backend,
+    open_capture_camera,
+    stop_reason,
+)
 from tactex.tasks.step_hold import StepHold
 from tactex.tasks.stroke import IslandStroke
 from tactex.tasks.vision import capture_target_cloud, remeasure_target
@@ -66,6 +74,8 @@ __all__ = ["CleanProgram", "run_clean"]
 VISION_TRIP_GUESS_S = 5.0
 #: Time of a lift-off, move and touch-down at the next island [s] before the first one is measured.
 ISLAND_MOVE_GUESS_S = 3.5
+#: Settling after the lift before the IK of the way back to the camera, on a robot [s].
+ROBOT_SETTLE_S = 0.2
 #: Longest approach along the normal before the captured surface counts as missing [s].
 APPROACH_TIMEOUT_S = 6.0
 #: The region raster slides to its next line when it is closer than this, and lifts off to fly there when
@@ -82,14 +92,25 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
     A libfranka error, a lost sensor or Ctrl-C ends the program early: torque control stops and the
     result holds what was recorded, ``aborted`` naming the cause in its metrics."""
     cfg = config or CleanConfig()
-    if robot is not None and not cfg.cloud:
-        raise ConfigError("clean on a real robot takes its target from --cloud FILE (a coloured cloud in the robot "
-                          "base frame); capturing it with the wrist camera is done in simulation only")
+    if robot is not None and not cfg.cloud and robot.camera not in ("twin", "realsense"):
+        raise ConfigError("clean on a robot captures its target with --camera realsense (or --camera twin on tactex "
+                          f"twin), or takes it from --cloud FILE (a coloured cloud in the robot base frame); got "
+                          f"--camera {robot.camera}")
     scene_cfg = cfg.scene()
-    backend = open_backend(scene_cfg, robot)
+    opened: list = []  # the backend, once connected: the camera's frames are posed by its tool pose
+    # the camera first: a recording that is not one, or a missing pyrealsense2, is named before the robot moves
+    camera = (open_capture_camera(robot, scene_cfg, lambda: opened[0].state().ee_pose)
+              if robot is not None and not cfg.cloud else None)
+    try:
+        backend = open_backend(scene_cfg, robot)
+    except BaseException:
+        if camera is not None:
+            camera.close()
+        raise
+    opened.append(backend)
     started = Started()
     try:
-        return CleanProgram(cfg, backend, scene_cfg, robot, progress, started).run()
+        return CleanProgram(cfg, backend, scene_cfg, robot, progress, started, camera=camera).run()
     except TactexError as exc:  # a RobotError, a SensorFault, SurfaceNotFound, a failure of ours
         # on a robot, a stop outside the program's loop (the moves before its first touch-down, the final
         # lift-off) keeps what was recorded too; the loop's own stops are kept inside it
@@ -98,6 +119,8 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
             raise
         return result
     finally:
+        if camera is not None:
+            camera.close()
         backend.close()
 
 
@@ -133,8 +156,10 @@ class CleanProgram:
     """
 
     def __init__(self, cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
-                 progress: bool, started: Started | None = None) -> None:
+                 progress: bool, started: Started | None = None, camera=None) -> None:
         self.cfg, self.backend, self.scene_cfg, self.robot = cfg, backend, scene_cfg, robot
+        # the robot's wrist camera, None in simulation and with --cloud
+        self.camera = None if camera is None else RobotCapture(camera, robot)
         self.wall0 = time.perf_counter()
         self.log = log = TickLog(backend, cfg)
         self.loop = ControlLoop(backend, on_tick=log, max_joint_speed=cfg.joint_speed_rad_s)
@@ -155,6 +180,8 @@ class CleanProgram:
             raise ConfigError(f"the capture pose at {np.round(self.cap_pos, 3).tolist()} m is out of the arm's reach "
                               f"({exc}); lower {which} (now {getattr(cfg, which)} m)") from exc
         self.dirt = backend.dirt_remaining if log.truth else (lambda: float("nan"))
+        if self.camera is not None and self.camera.knows_dirt:  # the twin's own count
+            self.dirt = self.camera.dirt_remaining
         # [m] the table top the captured object stands on (the capture's crop cuts the table above it); a given
         # cloud's support is not known
         self.support_z = SUPPORT_Z_M if self.given is None else None
@@ -200,6 +227,11 @@ class CleanProgram:
             # From a retract inside a bowl a single joint move to the capture pose can dip the tool back into
             # the bowl: straight up first, then along a line of IK waypoints.
             loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=np.array([0.0, 0.0, 1.0]))
+            if self.robot is not None:
+                # the path's IK below pauses torque control: the robot holds the arm meanwhile, and one still
+                # moving at the end of the retract would be somewhere else when the next command comes (a step
+                # of the joint spring's torque, clipped by the torque-rate limit)
+                loop.hold(ROBOT_SETTLE_S)
             try:
                 loop.move_cartesian(self.cap_pos, self.cap_rot, settle_s=0.0, q_goal=self.q_capture)
             except SimulationError as exc:  # the joint move below still reaches the camera
@@ -211,7 +243,9 @@ class CleanProgram:
         self.log.activity("capture", "vision")
         if self.given is not None:
             return self.given
-        return capture_target_cloud(self.backend.render_depth(), self.acq)
+        if self.camera is None:
+            return capture_target_cloud(self.backend.render_depth(), self.acq)
+        return self.camera.capture(loop, self.acq)
 
     def _load_check(self) -> LoadErrorEstimator | None:
         """An estimator for the next still hold in free space, once per run (None: made, or turned off)."""
@@ -703,6 +737,8 @@ class CleanProgram:
         log.activity("retract", "lift_off")
         if not self.aborted and loop.state.wrench_tool[2] > cfg.contact_threshold_n:
             _lift_off(loop, RETRACT_M)
+        if self.camera is not None:
+            self.camera.refresh()
         self.bar.close(f"dirt removed {100 * (1 - self.dirt()):.1f} %" if log.truth
                        else "done (the dirt is not measured here)")
         series = log.rec.arrays()
@@ -784,4 +820,6 @@ class CleanProgram:
         }
         if self.robot is not None:
             metrics.update(self.backend.loop_metrics())
+            # the captures with the robot's camera (frames read and processed while torque control paused)
+            metrics.update(self.camera.metrics() if self.camera is not None else {"camera": "none", "captures": 0})
         return metrics
