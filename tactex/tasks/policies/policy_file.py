@@ -21,7 +21,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from tactex.errors import ConfigError, InputError, MissingDependencyError
+from tactex.errors import ConfigError, InputError, MissingDependencyError, PolicyFileError
 from tactex.tasks.policies.base import ForceRamp, PolicySegment
 from tactex.tasks.policies.circle import CirclePolicy
 from tactex.tasks.policies.figure8 import Figure8Policy
@@ -136,14 +136,14 @@ def load_policy_file(path: str | Path) -> PolicySequence:
                                          fix="pip install tomli") from exc
     p = Path(path).expanduser()
     if p.suffix.lower() != ".toml":
-        raise ConfigError(f"policy file '{p}': give a .toml file")
+        raise PolicyFileError(f"policy file '{p}': give a .toml file")
     if not p.is_file():
-        raise ConfigError(f"policy file '{p}' does not exist")
+        raise PolicyFileError(f"policy file '{p}' does not exist")
     try:
         data = tomllib.loads(p.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"policy file '{p}' is not valid TOML: {exc}") from None
+        raise PolicyFileError(f"policy file '{p}' is not valid TOML: {exc}") from None
     try:
         return policy_from_dict(data, p.parent)
     except ConfigError as exc:
-        raise ConfigError(f"policy file '{p}': {exc}") from None
+        raise PolicyFileError(f"policy file '{p}': {exc}") from None

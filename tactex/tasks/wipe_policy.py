@@ -1,0 +1,91 @@
+"""The wipe's force-motion policy: the §III sinusoid of its config, a policy file (``policy``), or a
+policy object from Python, checked against what the wipe allows before the arm moves.
+
+Reach: the wipe starts above the object's surface at (0, start_y_m) in the object frame with the
+tool's x along the object's x and its y along the object's −y (``TOOL_DOWN``). A policy's offsets
+laid flat on the object's footprint from there must stay on it; on a curved surface the tangent
+plane's offsets cover less ground than that, so the check errs on the safe side."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from tactex.control.safety import MAX_FORCE_SET_POINT_N
+from tactex.errors import ConfigError
+from tactex.pointcloud.shapes import HeightFieldSurface
+from tactex.sim.objects import get_object
+from tactex.tasks.policies import (
+    ForceMotionPolicy,
+    ForceRamp,
+    PolicyLimits,
+    SinusoidPolicy,
+    check_policy,
+    load_policy_file,
+)
+
+__all__ = ["check_wipe_policy", "policy_segments", "wipe_limits", "wipe_policy"]
+
+# ``cfg`` below is a ``tactex.tasks.wipe.WipeConfig`` (typed Any: wipe imports this module)
+
+
+def wipe_limits(cfg: Any) -> PolicyLimits:
+    """Speed, acceleration, force range and reach a wipe allows a policy."""
+    surface = get_object(cfg.object_name).surface
+    inside = None
+    if isinstance(surface, HeightFieldSurface):
+        y0 = cfg.start_y_m
+
+        def inside(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            return surface.inside(np.asarray(u), y0 - np.asarray(v))
+    return PolicyLimits(max_speed_m_s=cfg.policy_max_speed_m_s, max_accel_m_s2=cfg.policy_max_accel_m_s2,
+                        min_force_n=cfg.contact_threshold_n, max_force_n=MAX_FORCE_SET_POINT_N, inside=inside,
+                        reach_hint=f"the {cfg.object_name}'s surface")
+
+
+def wipe_policy(cfg: Any, policy: ForceMotionPolicy | None = None) -> ForceMotionPolicy:
+    """The policy a wipe runs: ``policy`` if given, else ``cfg.policy``'s file, else the §III
+    sinusoid of ``cfg`` (amplitude_m, omega_rad_s, drift_m_s at force_n) for the whole run."""
+    if policy is not None:
+        return policy
+    if cfg.policy:
+        return load_policy_file(cfg.policy)
+    return SinusoidPolicy(math.inf, ForceRamp(cfg.force_n, cfg.force_n), cfg.amplitude_m, cfg.omega_rad_s,
+                          cfg.drift_m_s)
+
+
+def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> None:
+    """Refuse (one-line :class:`ConfigError`) a policy the wipe does not allow: see :func:`wipe_limits`.
+    The surface must be a height field (the wipe starts above it, tool down)."""
+    if not isinstance(policy, ForceMotionPolicy):
+        raise ConfigError(f"policy must be a ForceMotionPolicy (tactex.tasks.policies), got {type(policy).__name__}")
+    if not isinstance(get_object(cfg.object_name).surface, HeightFieldSurface):
+        raise ConfigError(f"a policy wipe starts above a height-field surface, tool down; '{cfg.object_name}' is not "
+                          "one (the cup's wall needs a sideways start)")
+    check_policy(policy, wipe_limits(cfg), horizon_s=cfg.duration_s)
+
+
+def policy_segments(policy: ForceMotionPolicy, run_s: float, log: Any) -> list[dict]:
+    """Per segment of ``policy`` that started within ``run_s`` [s]: its kind and times [s], and over its
+    contact ticks (the wipe's log: forces, force_sets, segments, aligned_errors, aligned_segments) the
+    force MAE against the policy's own set point [N], the highest force over the set point [-], and
+    the aligned motion MAE per base axis [m]."""
+    kinds = [getattr(s, "kind", "") for s in getattr(policy, "segments", [policy])]
+    starts = [t for t in policy.segment_starts_s if t < run_s]
+    f, f_set, seg = np.asarray(log.forces), np.asarray(log.force_sets), np.asarray(log.segments, dtype=int)
+    err, seg_al = np.asarray(log.aligned_errors).reshape(-1, 3), np.asarray(log.aligned_segments, dtype=int)
+    out = []
+    for k, t0 in enumerate(starts):
+        t1 = starts[k + 1] if k + 1 < len(starts) else run_s
+        mask, mask_al = seg == k, seg_al == k
+        e = err[mask_al]
+        out.append({
+            "kind": kinds[k] if k < len(kinds) else "", "start_s": t0, "end_s": t1,
+            "contact_ticks": int(mask.sum()),
+            "force_mae_n": float(np.mean(np.abs(f[mask] - f_set[mask]))) if mask.any() else float("nan"),
+            "max_force_over_set_point": float(np.max(f[mask] / f_set[mask])) if mask.any() else float("nan"),
+            "motion_mae_m": np.mean(np.abs(e), axis=0).tolist() if len(e) else [float("nan")] * 3,
+        })
+    return out
