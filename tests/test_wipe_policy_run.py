@@ -54,3 +54,15 @@ def test_a_bad_policy_object_is_refused_before_the_run() -> None:
         run_wipe(WipeConfig(), policy=fast, progress=False)
     with pytest.raises(ConfigError, match="must be a ForceMotionPolicy"):
         run_wipe(WipeConfig(), policy="spiral", progress=False)  # type: ignore[arg-type]
+
+
+def test_the_report_draws_the_policy(result, tmp_path) -> None:
+    from tactex.report.policy_plots import _segment_spans
+    from tactex.report.wipe_report import write_wipe_report
+
+    rep = write_wipe_report(result, tmp_path / "run", html_page=False)
+    for role, name in (("policy_force_png", "policy_force.png"), ("policy_path_png", "policy_path.png")):
+        assert rep.files[role] == tmp_path / "run" / name and (tmp_path / "run" / name).stat().st_size > 10_000
+    spans = _segment_spans(result.series)
+    assert [k for k, _, _ in spans] == [0, 1]
+    assert spans[1][1] == pytest.approx(1.5, abs=2e-3)  # the circle starts where the policy says
