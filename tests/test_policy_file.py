@@ -151,6 +151,16 @@ def test_samples_file_is_found_beside_the_policy_file(tmp_path) -> None:
         load_policy_file(sub / "drawn.toml")
 
 
-def test_the_cup_wall_is_refused_for_now(tmp_path) -> None:
-    with pytest.raises(ConfigError, match="height-field"):
-        WipeConfig(object_name="cup", policy=str(EXAMPLES / "spiral.toml"))
+def test_the_cup_wall_reach_is_its_arc_and_height(monkeypatch) -> None:
+    WipeConfig(object_name="cup", policy=str(EXAMPLES / "spiral.toml"))  # 3.5 cm around mid-height: on the wall
+    # the sinusoid drifts 8 cm down the tool's −y, which beside the wall is up: above the 10 cm rim
+    with pytest.raises(ConfigError, match=r"segment 1 \(sinusoid\): amplitude_m/omega_rad_s: the path leaves the "
+                                          r"cup's surface"):
+        WipeConfig(object_name="cup", policy=str(EXAMPLES / "sinusoid.toml"))
+    import types
+
+    import tactex.tasks.wipe_policy as wp
+
+    monkeypatch.setattr(wp, "get_object", lambda name: types.SimpleNamespace(surface=object()))
+    with pytest.raises(ConfigError, match="neither"):
+        wp.check_wipe_policy(WipeConfig(), load_policy_file(EXAMPLES / "spiral.toml"))

@@ -66,3 +66,21 @@ def test_the_report_draws_the_policy(result, tmp_path) -> None:
     spans = _segment_spans(result.series)
     assert [k for k, _, _ in spans] == [0, 1]
     assert spans[1][1] == pytest.approx(1.5, abs=2e-3)  # the circle starts where the policy says
+
+
+def test_start_pose_above_a_height_field_and_beside_the_cup_wall() -> None:
+    from tactex.sim.objects import get_object
+    from tactex.tasks.runner import TOOL_DOWN
+    from tactex.tasks.wipe_policy import wipe_start_pose
+
+    cfg = WipeConfig(start_tilt_deg=0.0)
+    pos, rot = np.array([0.5, 0.0, 0.0]), np.eye(3)
+    p, r = wipe_start_pose(cfg, get_object("sine_panel").surface, pos, rot)
+    z = float(get_object("sine_panel").surface.project(np.array([[0.0, 0.08, 0.0]]))[0][0, 2])
+    assert np.array_equal(p, pos + np.array([0.0, 0.08, z + cfg.start_height_m])) and np.array_equal(r, TOOL_DOWN)
+    cup = get_object("cup").surface
+    p, r = wipe_start_pose(WipeConfig(object_name="cup", start_tilt_deg=0.0), cup, pos, rot)
+    assert np.allclose(p, pos + np.array([0.0, -cup.radius_m - cfg.start_height_m, 0.5 * cup.height_m]))
+    assert np.allclose(r[:, 2], [0.0, 1.0, 0.0])  # the tool axis into the wall
+    assert np.allclose(r[:, 0], [1.0, 0.0, 0.0]) and np.allclose(r[:, 1], [0.0, 0.0, -1.0])  # u along it, v down
+    assert np.isclose(np.linalg.det(r), 1.0)

@@ -67,8 +67,7 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
-from tactex.tasks.runner import TOOL_DOWN
-from tactex.tasks.wipe_policy import check_wipe_policy, policy_segments, wipe_policy
+from tactex.tasks.wipe_policy import check_wipe_policy, policy_segments, wipe_policy, wipe_start_pose
 from tactex.tasks.world import SimWorldParams
 
 __all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]
@@ -83,11 +82,6 @@ def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift
     """VA-UFIC §III-A position policy in the tool frame: x_d(t) [m] and its rate [m/s] (3,) each."""
     x0, x1, v0, v1 = sinusoid_xy(t, amplitude_m, omega, drift_m_s)
     return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
-
-
-def _rot_x(deg: float) -> np.ndarray:
-    a = np.deg2rad(deg)
-    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
 
 
 @dataclass(frozen=True)
@@ -468,9 +462,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     obj_pos, obj_rot = scene_cfg.object_pose()
 
     # start: above the surface at (0, start_y), tilted (not aligned), out of contact
-    z_surf = float(surface.project(np.array([[0.0, cfg.start_y_m, 0.0]]))[0][0, 2])
-    p_start = obj_pos + obj_rot @ np.array([0.0, cfg.start_y_m, z_surf]) + np.array([0.0, 0.0, cfg.start_height_m])
-    r_start = _rot_x(cfg.start_tilt_deg) @ TOOL_DOWN
+    p_start, r_start = wipe_start_pose(cfg, surface, obj_pos, obj_rot)
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
