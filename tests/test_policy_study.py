@@ -56,3 +56,26 @@ def test_the_last_record_of_a_run_counts(tmp_path) -> None:
     (tmp_path / "runs.jsonl").write_text("\n".join(json.dumps(r) for r in (b, a, retried)) + "\n")
     recs = load_records(tmp_path)
     assert [r["index"] for r in recs] == [0, 1] and recs[0]["metrics"]["force_mae_n"] == 0.9
+
+
+def test_a_study_varies_policies_and_refuses_a_bad_one_up_front(tmp_path) -> None:
+    from pathlib import Path
+
+    import pytest
+
+    from tactex.errors import ConfigError
+    from tactex.experiments.study_spec import StudySpec, level_label
+
+    examples = Path(__file__).resolve().parents[1] / "examples" / "policies"
+    files = [str(examples / "spiral.toml"), str(examples / "zigzag.toml")]
+    spec = StudySpec(task="wipe", grid={"policy": files, "object_name": ["sine_panel", "bowl"]},
+                     fixed={"start_y_m": 0.0})
+    runs = spec.runs()
+    assert [(r.config["policy"], r.config["object_name"]) for r in runs] == [
+        (files[0], "sine_panel"), (files[0], "bowl"), (files[1], "sine_panel"), (files[1], "bowl")]
+    assert len({r.run_id for r in runs}) == 4
+    assert level_label("policy", files[0]) == "spiral" and level_label("policy", "") == "sinusoid (built in)"
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[segment]]\nkind = "wobble"\n')
+    with pytest.raises(ConfigError, match="unknown kind 'wobble'"):  # the first run's config is checked at once
+        StudySpec(task="wipe", grid={"policy": [str(bad)]})
