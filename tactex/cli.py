@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from tactex import __version__
-from tactex.errors import RunInterrupted, TactexError
+from tactex.errors import PolicyFileError, RunInterrupted, TactexError
 
 __all__ = ["build_parser", "main"]
 
@@ -215,7 +215,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             code = int(args._run(args) or 0)
         except TactexError as exc:
-            message = _cli_words(str(exc), args, typed)
+            # a policy file's field names are the file's own, not options
+            message = str(exc) if isinstance(exc, PolicyFileError) else _cli_words(str(exc), args, typed)
             print(f"tactex {args.command}: error: {message}", file=sys.stderr)
             _write_status(args, argv, "failed", started, message)
             return 2

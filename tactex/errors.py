@@ -18,6 +18,7 @@ __all__ = [
     "InputError",
     "MissingDependencyError",
     "PerceptionError",
+    "PolicyFileError",
     "RobotClosedError",
     "RobotCommunicationError",
     "RobotConnectionError",
@@ -71,6 +72,10 @@ class PerceptionError(InputError):
 
 class ConfigError(InputError):
     """A parameter is out of its valid range, or an option name is unknown."""
+
+
+class PolicyFileError(ConfigError):
+    """A force-motion policy file is refused; the field names it gives are the file's own, not options."""
 
 
 class CacheError(TactexError, OSError):

@@ -271,6 +271,8 @@ def level_label(name: str, value: Any) -> str:
     """A factor's value as shown in summaries and plots (the baseline '' is tactex itself)."""
     if name == "baseline" and value == "":
         return "tactex"
+    if name == "policy":  # a policy file by its name; '' is the wipe's own §III sinusoid
+        return Path(value).stem if value else "sinusoid (built in)"
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 

@@ -1,5 +1,6 @@
 """The run folder of a wiping run (VA-UFIC §III): the curvature profile (Fig. 2), alignment, motion,
-force and tank plots (Fig. 3a–d), the explored contact points with their curvature, and the page."""
+force and tank plots (Fig. 3a–d), the explored contact points with their curvature, the policy's commanded
+and executed path on the surface and its force per segment (:mod:`.policy_plots`), and the page."""
 
 from __future__ import annotations
 
@@ -15,8 +16,10 @@ from tactex.control.va_ufic import VaUficParams
 from tactex.errors import InputError
 from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
+from tactex.report.policy_plots import plot_policy_force, plot_policy_path
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
 from tactex.report.run_pages import append_sections
+from tactex.sim.objects import get_object
 
 __all__ = ["CURVATURE_COLORSCALE", "DEFAULT_TANK_LIMITS", "write_wipe_report"]
 
@@ -111,6 +114,20 @@ def _plot_tanks(s: Mapping[str, np.ndarray], limits: Mapping[str, tuple[float, f
     return save_png(fig, path)
 
 
+def _policy_plots(result: Any, metrics: Mapping[str, Any], out: Path, rep: RunReport) -> None:
+    """The policy's figures (:mod:`.policy_plots`) when the run recorded its segments."""
+    raw, cfg = result.series, result.config
+    keys = ("t", "segment", "force_set_n", "force_z_n", "in_contact", "desired", "tcp_object")
+    if not all(k in raw for k in keys):
+        return
+    s = {k: np.asarray(raw[k], dtype=np.float64) for k in keys}
+    try_plot(rep, "policy_force_png", plot_policy_force, s, metrics, out / "policy_force.png")
+    if hasattr(cfg, "scene") and hasattr(cfg, "object_name"):
+        pos, rot = cfg.scene().object_pose()
+        try_plot(rep, "policy_path_png", plot_policy_path, s, get_object(cfg.object_name).surface, pos, rot,
+                 out / "policy_path.png")
+
+
 def write_wipe_report(
     result: Any, out_dir: str | Path, *, label: str | None = None, html_page: bool = True
 ) -> RunReport:
@@ -142,6 +159,7 @@ def write_wipe_report(
     rep.files["fig3b_png"] = _plot_motion(s, out / "fig3b_motion.png")
     rep.files["fig3c_png"] = _plot_wipe_force(s, out / "fig3c_force.png")
     rep.files["fig3d_png"] = _plot_tanks(s, _tank_limits(cfg, metrics), out / "fig3d_tanks.png")
+    _policy_plots(result, metrics, out, rep)
     if len(pts):
         try_plot(rep, "explored_png", plot_cloud, pts, {"curvature l_s [-]": curv}, out / "explored.png",
                   trajectory=tcp_contact if len(tcp_contact) else None,

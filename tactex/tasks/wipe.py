@@ -35,7 +35,6 @@ not the tool's force axis: with the tool tilted up to 18° on the sine panel the
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -49,13 +48,14 @@ from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import PoseForceReference
 from tactex.control.safety import MAX_FORCE_SET_POINT_N, SafetyLimits, check_force_set_point
 from tactex.control.va_ufic import VaUficController, VaUficParams
-from tactex.errors import ConfigError, SurfaceNotFound, TactexError
+from tactex.errors import ConfigError, PolicyFileError, SurfaceNotFound, TactexError
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.voxel import voxel_indices
 from tactex.robots.loop import ControlLoop
 from tactex.sim.scene import SceneConfig
+from tactex.tasks.policies import ForceMotionPolicy, sinusoid_xy
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import (
@@ -67,7 +67,7 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
-from tactex.tasks.runner import TOOL_DOWN
+from tactex.tasks.wipe_policy import check_wipe_policy, policy_segments, wipe_policy, wipe_start_pose
 from tactex.tasks.world import SimWorldParams
 
 __all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]
@@ -77,24 +77,11 @@ WIPE_BASELINES = ("", "cartesian")
 LIFT_OFF_M = 0.03
 
 
-def _policy_xy(t: float, amplitude_m: float, omega: float, drift_m_s: float) -> tuple[float, float, float, float]:
-    """:func:`wiping_policy`'s non-zero components as Python floats (the wipe evaluates it every tick):
-    x_d's x and y [m], then its rate's x and y [m/s]; both have z = 0."""
-    s, c = math.sin(omega * t), math.cos(omega * t)
-    return (amplitude_m * s, amplitude_m * (c - 1.0) - drift_m_s * t,
-            amplitude_m * omega * c, -amplitude_m * omega * s - drift_m_s)
-
-
 def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift_m_s: float = 0.005) -> tuple[
         np.ndarray, np.ndarray]:
     """VA-UFIC §III-A position policy in the tool frame: x_d(t) [m] and its rate [m/s] (3,) each."""
-    x0, x1, v0, v1 = _policy_xy(t, amplitude_m, omega, drift_m_s)
+    x0, x1, v0, v1 = sinusoid_xy(t, amplitude_m, omega, drift_m_s)
     return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
-
-
-def _rot_x(deg: float) -> np.ndarray:
-    a = np.deg2rad(deg)
-    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
 
 
 @dataclass(frozen=True)
@@ -125,6 +112,12 @@ class WipeConfig(SimWorldParams):
     friction_cutoff_hz: float = param(10.0, "low-pass cut-off on the measured tangential force [Hz]")
     baseline: str = param("", "'' (VA-UFIC) or 'cartesian' (fixed-orientation impedance, constant force)")
     camera_rate_hz: float = param(30.0, "wrist camera rate [Hz]")
+    policy: str = param("", "force-motion policy file (.toml: segments of sinusoid, line, zigzag, spiral, circle, "
+                            "figure8, samples; tactex.tasks.policies.policy_file), checked before the arm moves; "
+                            "'' runs the §III sinusoid (amplitude_m, omega_rad_s, drift_m_s at force_n). The run "
+                            "ends at the policy's end or at duration_s, whichever comes first")
+    policy_max_speed_m_s: float = param(0.15, "fastest in-plane speed a policy may command [m/s]")
+    policy_max_accel_m_s2: float = param(1.0, "largest in-plane acceleration a policy may command [m/s²]")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -148,6 +141,18 @@ class WipeConfig(SimWorldParams):
             raise ConfigError(f"start_tilt_deg must lie within ±60° (the camera must still see the surface), "
                               f"got {self.start_tilt_deg}")
         self.friction_params()  # validates friction_gain and friction_cutoff_hz
+        for name in ("policy_max_speed_m_s", "policy_max_accel_m_s2"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if not isinstance(self.policy, str):
+            raise ConfigError(f"policy must be the path of a .toml policy file, got {self.policy!r:.40}")
+        if self.policy:  # a bad file is refused before anything starts
+            loaded = wipe_policy(self)
+            try:
+                check_wipe_policy(self, loaded)
+            except ConfigError as exc:
+                raise PolicyFileError(f"policy file '{self.policy}': {exc}") from None
 
     def friction_params(self) -> FrictionCompensatorParams:
         return FrictionCompensatorParams(gain=self.friction_gain, cutoff_hz=self.friction_cutoff_hz)
@@ -208,13 +213,18 @@ class _WipeReferences:
     """
 
     def __init__(self, cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
-                 wrench_d: np.ndarray) -> None:
-        self.cfg, self.vision, self.r_start, self.wrench_d = cfg, vision, r_start, wrench_d
+                 policy: ForceMotionPolicy) -> None:
+        self.cfg, self.vision, self.r_start, self.policy = cfg, vision, r_start, policy
         self.pos_ref = p_start.copy()
         self.estimate: SurfaceEstimate | None = None
         self.estimates_total = self.estimates_valid = 0
         self.reference: PoseForceReference | None = None
-        self._x_prev = _policy_xy(0.0, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)[:2]
+        first = policy.at(0.0)
+        self._x_prev = (first.u_m, first.v_m)
+        self.force_set_n, self.segment, self.uv = first.force_n, 0, (first.u_m, first.v_m)
+        # a constant set point keeps one wrench array for the whole run
+        self._const = policy.constant_force_n
+        self.wrench_d = np.array([0.0, 0.0, first.force_n if self._const is None else self._const, 0.0, 0.0, 0.0])
 
     def advance(self, state, tau_t: float) -> None:
         """:attr:`reference` at policy time ``tau_t`` [s], with the newest surface estimate and
@@ -226,7 +236,10 @@ class _WipeReferences:
             self.estimates_total += 1
             self.estimates_valid += int(new_estimate.valid)
         # the policy's increment and rate (tool frame, z = 0), applied in the tool frame of ``state``
-        x0, x1, v0, v1 = _policy_xy(tau_t, cfg.amplitude_m, cfg.omega_rad_s, cfg.drift_m_s)
+        x0, x1, v0, v1, force = self.policy.at(tau_t)
+        if self._const is None:
+            self.wrench_d = np.array((0.0, 0.0, force, 0.0, 0.0, 0.0))
+        self.force_set_n, self.segment, self.uv = force, self.policy.segment_index(tau_t), (x0, x1)
         p0, p1 = self._x_prev
         d0, d1 = x0 - p0, x1 - p1
         self._x_prev = (x0, x1)
@@ -286,6 +299,12 @@ class _WipeLog:
         self.va = isinstance(inner, VaUficController)
         self.pos_ref = np.zeros(3)
         self.estimate: SurfaceEstimate | None = None
+        # the policy's set point [N], segment and in-plane offset (u, v) [m] of the tick about to be sent
+        self.force_set_n, self.segment, self.uv = cfg.force_n, 0, (0.0, 0.0)
+        self.force_sets: list[float] = []
+        self.segments: list[int] = []
+        self.aligned_force_sets: list[float] = []
+        self.aligned_segments: list[int] = []
         self.n_ticks = self.n_contact = self.first_contact_tick = 0
         self.first_contact: float | None = None
         self.t_aligned: float | None = None
@@ -315,12 +334,14 @@ class _WipeLog:
                 (state_ctrl.ee_rotation.T @ state_ctrl.ee_twist[:3]) @ comp_last[:3])
         offset = self.inner.position_offset if self.va else np.zeros(3)
         friction = comp_last[:2] if comp_last is not None else np.zeros(2)
-        self._pending = (state_ctrl, self.pos_ref + offset, tel, friction, self.estimate)
+        self._pending = (state_ctrl, self.pos_ref + offset, tel, friction, self.estimate,
+                         (self.force_set_n, self.segment, self.uv))
 
     def stopped_at(self, state) -> None:
         """A run that stopped before its policy ran: the state where the robot stopped is its one
         recorded row (no controller figures), so the run folder holds every series a report reads."""
-        self._pending = (state, state.ee_position.copy(), {}, np.zeros(2), None)
+        self._pending = (state, state.ee_position.copy(), {}, np.zeros(2), None,
+                         (self.force_set_n, self.segment, self.uv))
         self._complete(state)
         self._pending = None
 
@@ -332,7 +353,7 @@ class _WipeLog:
 
     def _complete(self, state) -> None:
         cfg = self.cfg
-        _, desired, tel, friction, estimate = self._pending
+        _, desired, tel, friction, estimate, (f_set, segment, uv) = self._pending
         self.n_ticks += 1
         t = state.t - self.t0
         fz = float(state.wrench_tool[2])
@@ -349,12 +370,16 @@ class _WipeLog:
             if self.first_contact is None:
                 self.first_contact, self.first_contact_tick = t, self.n_ticks
             self.forces.append(fz)
+            self.force_sets.append(f_set)
+            self.segments.append(segment)
             self.errors_world.append(err_world)
             if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
                 self.t_aligned = t if self.t_aligned is None else self.t_aligned
                 self.aligned_errors.append(err_world)
                 self.aligned_errors_tool.append(err_tool)
                 self.aligned_forces.append(fz)
+                self.aligned_force_sets.append(f_set)
+                self.aligned_segments.append(segment)
             if self.n_contact % 10 == 0:
                 self.contact_pts.append(state.ee_position.copy())
                 if estimate is not None and estimate.valid:
@@ -367,7 +392,8 @@ class _WipeLog:
             self.rec.add(
                 t=t, q=state.q, tcp=state.ee_position, desired=desired, motion_error_world=err_world,
                 motion_error_tool=err_tool, force_z_n=fz, wrench_tool=state.wrench_tool,
-                friction_comp_tool=friction, force_set_n=cfg.force_n, in_contact=float(in_contact),
+                friction_comp_tool=friction, force_set_n=f_set, segment=float(segment), policy_uv_m=uv,
+                in_contact=float(in_contact),
                 rho_align=tel.get("rho_align", np.nan), rho_frc=tel.get("rho_frc", np.nan),
                 tank_i_energy_j=tel.get("tank_i_energy_j", np.nan), tank_f_energy_j=tel.get("tank_f_energy_j", np.nan),
                 tcp_object=self._obj_rot.T @ (state.ee_position - self._obj_pos),
@@ -380,16 +406,22 @@ class _WipeLog:
 
 
 def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
-             robot: RealRobotParams | None = None) -> WipeResult:
+             robot: RealRobotParams | None = None, policy: ForceMotionPolicy | None = None) -> WipeResult:
     """Run the wiping exploration in simulation, or on a real Franka (``robot``); returns metrics, series
     and the explored surface.
 
     On a real robot the object's registry shape at ``object_position`` places the start above the
     surface (the controller never uses it), and a libfranka error, a lost sensor or Ctrl-C ends the
     policy early: torque control stops and the result holds what was recorded, with ``aborted``
-    naming the cause in its metrics."""
+    naming the cause in its metrics.
+
+    ``policy`` (a :class:`~tactex.tasks.policies.ForceMotionPolicy`) replaces the config's policy; it is
+    checked against the wipe's limits before anything starts."""
     cfg = config or WipeConfig()
     wall0 = time.perf_counter()
+    the_policy = wipe_policy(cfg, policy)
+    if policy is not None:
+        check_wipe_policy(cfg, the_policy)
     scene_cfg = cfg.scene()
     backend = open_backend(scene_cfg, robot)
     try:
@@ -400,7 +432,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
         vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
         try:
-            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0)
+            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy)
         finally:
             vision.close()
     finally:
@@ -423,15 +455,14 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot
 
 
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
-              progress: bool, wall0: float) -> WipeResult:
+              progress: bool, wall0: float, the_policy: ForceMotionPolicy) -> WipeResult:
     loop = ControlLoop(backend)
+    run_s = min(cfg.duration_s, the_policy.duration_s)
     surface = scene_cfg.sim_object.surface
     obj_pos, obj_rot = scene_cfg.object_pose()
 
     # start: above the surface at (0, start_y), tilted (not aligned), out of contact
-    z_surf = float(surface.project(np.array([[0.0, cfg.start_y_m, 0.0]]))[0][0, 2])
-    p_start = obj_pos + obj_rot @ np.array([0.0, cfg.start_y_m, z_surf]) + np.array([0.0, 0.0, cfg.start_height_m])
-    r_start = _rot_x(cfg.start_tilt_deg) @ TOOL_DOWN
+    p_start, r_start = wipe_start_pose(cfg, surface, obj_pos, obj_rot)
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
@@ -445,12 +476,11 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     controller = NullspacePosture(inner, q_posture=q_posture)
     loop.use(controller)
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
-    bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
+    bar = Progress(run_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
     t0 = loop.t
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
 
-    wrench_d = np.array([0.0, 0.0, cfg.force_n, 0.0, 0.0, 0.0])
-    policy = _WipeReferences(cfg, vision, p_start, r_start, wrench_d)
+    policy = _WipeReferences(cfg, vision, p_start, r_start, the_policy)
 
     approach = _Approach(cfg, p_start, r_start[:, 2])
 
@@ -464,6 +494,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         # and its command
         policy.advance(state_ctrl, state_ctrl.t + backend.dt - t0)
         log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
+        log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
 
     try:
         if aborted:
@@ -472,7 +503,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         else:
             policy.advance(loop.state, loop.t - t0)
             log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
-        while not aborted and loop.t - t0 < cfg.duration_s - 1e-9:
+            log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
+        while not aborted and loop.t - t0 < run_s - 1e-9:
             loop.tick(policy.reference, after_send=after_send)
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
@@ -495,17 +527,18 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         except ROBOT_STOPS as exc:
             aborted = f"during the lift-off: {stop_reason(exc)}"
 
-    f_err = np.asarray(forces) - cfg.force_n
+    f_set = np.asarray(log.force_sets)
+    f_err = np.asarray(forces) - f_set
     mae_all, rmse_all = _errors(np.asarray(log.errors_world).reshape(-1, 3))
     mae_m, rmse_m = _errors(np.asarray(log.aligned_errors).reshape(-1, 3))
     mae_tool, rmse_tool = _errors(np.asarray(log.aligned_errors_tool).reshape(-1, 3))
-    f_err_al = np.asarray(log.aligned_forces) - cfg.force_n
+    f_err_al = np.asarray(log.aligned_forces) - np.asarray(log.aligned_force_sets)
     after_first = n_ticks - log.first_contact_tick + 1 if first_contact is not None else 0  # ticks from the touch on
     va_params = VaUficParams()
     metrics: dict[str, Any] = {
         "force_mae_n": float(np.mean(np.abs(f_err))) if f_err.size else float("nan"),
         # share of the contact ticks whose force is within ±20 % of the set point (the clean reports the same)
-        "force_within_20pct_fraction": float(np.mean(np.abs(f_err) <= 0.2 * cfg.force_n)) if f_err.size else 0.0,
+        "force_within_20pct_fraction": float(np.mean(np.abs(f_err) <= 0.2 * f_set)) if f_err.size else 0.0,
         "force_rmse_n": float(np.sqrt(np.mean(f_err**2))) if f_err.size else float("nan"),
         "motion_mae_m": mae_m,
         "motion_rmse_m": rmse_m,
@@ -526,8 +559,11 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "contact_fraction_after_first_contact": n_contact / max(after_first, 1),
         "first_contact_s": first_contact,
         # time spent exploring in contact: from the first touch to the end of the policy
-        "explore_time_s": (cfg.duration_s - first_contact) if first_contact is not None else None,
+        "explore_time_s": (run_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
+        # the highest contact force as a multiple of the policy's set point at its tick
+        "max_force_over_set_point": float(np.max(np.asarray(forces) / f_set)) if f_set.size else float("nan"),
+        "policy": {"file": cfg.policy, "duration_s": run_s, "segments": policy_segments(the_policy, run_s, log)},
         "friction_compensation": compensator is not None,
         "friction_compensation_energy_j": log.comp_energy if compensator is not None else float("nan"),
         "vision_valid_fraction": policy.estimates_valid / max(policy.estimates_total, 1),

@@ -1,0 +1,116 @@
+"""Checking a policy against what the task allows, before the arm moves.
+
+Sampled every ``dt_s`` over the policy: the speed and acceleration in the tangent plane against the
+task's limits, the force set point within [contact threshold, safety maximum], the velocity at each
+join (a jump there must be blended: ``blend_s``), and the path within the object's reach (a
+predicate on the offsets). The first violation is raised as one line naming the segment and the
+field to change."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactex.errors import ConfigError
+from tactex.tasks.policies.base import ForceMotionPolicy, PolicySegment
+from tactex.tasks.policies.sequence import PolicySequence
+
+__all__ = ["PolicyLimits", "check_policy", "sample_policy"]
+
+#: A velocity change at a join above this, unblended, is refused [m/s].
+MAX_JOIN_JUMP_M_S = 0.01
+
+
+@dataclass(frozen=True)
+class PolicyLimits:
+    """What a task allows a policy: in-plane speed [m/s] and acceleration [m/s²], the force set
+    point's range [N], and optionally ``inside(u, v) -> bool array`` for the offsets [m] it can reach."""
+
+    max_speed_m_s: float
+    max_accel_m_s2: float
+    min_force_n: float
+    max_force_n: float
+    inside: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    reach_hint: str = "the object"
+
+
+def sample_policy(policy: ForceMotionPolicy, horizon_s: float, dt_s: float = 0.002) -> dict[str, np.ndarray]:
+    """The policy every ``dt_s`` [s] over [0, horizon_s]: t, u, v, du, dv, force, segment."""
+    t = np.arange(0.0, horizon_s + 0.5 * dt_s, dt_s)
+    pts = np.array([policy.at(float(x)) for x in t])
+    return {"t": t, "u": pts[:, 0], "v": pts[:, 1], "du": pts[:, 2], "dv": pts[:, 3], "force": pts[:, 4],
+            "segment": np.array([policy.segment_index(float(x)) for x in t])}
+
+
+def _segments(policy: ForceMotionPolicy) -> list[PolicySegment]:
+    if isinstance(policy, PolicySequence):
+        return policy.segments
+    return [policy] if isinstance(policy, PolicySegment) else []
+
+
+def _name(policy: ForceMotionPolicy, k: int) -> str:
+    segs = _segments(policy)
+    kind = segs[k].kind if k < len(segs) else type(policy).__name__
+    return f"segment {k + 1} ({kind})"
+
+
+def _shape_field(policy: ForceMotionPolicy, k: int) -> str:
+    segs = _segments(policy)
+    fields = segs[k].fields if k < len(segs) else ()
+    return "/".join(fields[:2]) or "the path"
+
+
+def check_policy(policy: ForceMotionPolicy, limits: PolicyLimits, horizon_s: float | None = None,
+                 dt_s: float = 0.002) -> None:
+    """Raise a :class:`ConfigError` on the first thing the task does not allow (module docstring)."""
+    horizon = policy.duration_s if horizon_s is None else min(horizon_s, policy.duration_s)
+    if not math.isfinite(horizon) or horizon <= 0:
+        raise ConfigError(f"the policy needs a finite, positive duration to be checked, got {horizon!r} s")
+    s = sample_policy(policy, horizon, dt_s)
+    seg = s["segment"]
+    f = s["force"]
+    bad = np.flatnonzero(~np.isfinite(f) | (f < limits.min_force_n - 1e-9) | (f > limits.max_force_n + 1e-9))
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(f"{_name(policy, seg[i])}: force_n = {f[i]:g} N at t = {s['t'][i]:.2f} s is outside "
+                          f"[{limits.min_force_n:g}, {limits.max_force_n:g}] N (the contact threshold and the "
+                          "safety maximum)")
+    if not (np.all(np.isfinite(s["u"])) and np.all(np.isfinite(s["v"]))
+            and np.all(np.isfinite(s["du"])) and np.all(np.isfinite(s["dv"]))):
+        i = int(np.flatnonzero(~np.isfinite(s["u"] + s["v"] + s["du"] + s["dv"]))[0])
+        raise ConfigError(f"{_name(policy, seg[i])}: the path is not a finite number at t = {s['t'][i]:.2f} s")
+    if isinstance(policy, PolicySequence) and policy.blend_s == 0.0:
+        for k, (a, b) in enumerate(zip(policy.segments[:-1], policy.segments[1:], strict=True), start=1):
+            ea, sb = a.at(a.duration_s), b.at(0.0)
+            jump = math.hypot(sb.du_m_s - ea.du_m_s, sb.dv_m_s - ea.dv_m_s)
+            if jump > MAX_JOIN_JUMP_M_S:
+                raise ConfigError(f"{_name(policy, k)}: duration_s: its velocity jumps by {jump:.3f} m/s from the "
+                                  f"segment before (more than {MAX_JOIN_JUMP_M_S:g}); set blend_s > 0 at the top of "
+                                  "the file to blend the join")
+    speed = np.hypot(s["du"], s["dv"])
+    bad = np.flatnonzero(speed > limits.max_speed_m_s)
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(f"{_name(policy, seg[i])}: duration_s: speed {speed[i]:.3f} m/s at t = {s['t'][i]:.2f} s "
+                          f"exceeds the task's {limits.max_speed_m_s:g} m/s; lengthen duration_s or shorten "
+                          f"{_shape_field(policy, seg[i])}")
+    acc = np.hypot(np.gradient(s["du"], dt_s), np.gradient(s["dv"], dt_s))
+    bad = np.flatnonzero(acc > limits.max_accel_m_s2)
+    if bad.size:
+        i = int(bad[0])
+        near_join = isinstance(policy, PolicySequence) and any(
+            abs(s["t"][i] - t0) <= 0.5 * policy.blend_s + 2 * dt_s for t0 in policy.segment_starts_s[1:])
+        fix = "lengthen blend_s" if near_join else f"lengthen duration_s or shorten {_shape_field(policy, seg[i])}"
+        raise ConfigError(f"{_name(policy, seg[i])}: {'blend_s' if near_join else 'duration_s'}: acceleration "
+                          f"{acc[i]:.2f} m/s² at t = {s['t'][i]:.2f} s exceeds the task's "
+                          f"{limits.max_accel_m_s2:g} m/s²; {fix}")
+    if limits.inside is not None:
+        ok = np.asarray(limits.inside(s["u"], s["v"]), dtype=bool)
+        if not np.all(ok):
+            i = int(np.flatnonzero(~ok)[0])
+            raise ConfigError(f"{_name(policy, seg[i])}: {_shape_field(policy, seg[i])}: the path leaves "
+                              f"{limits.reach_hint} at t = {s['t'][i]:.2f} s (offset u, v = {1e3 * s['u'][i]:.0f}, "
+                              f"{1e3 * s['v'][i]:.0f} mm from the start); make it smaller or move the start")
