@@ -13,6 +13,7 @@ from scipy.sparse.csgraph import connected_components
 from tactex.errors import CacheError, CloudError, ConfigError, SpectralError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.spectral.cache import basis_key, default_cache_dir, load_arrays, save_arrays
+from tactex.spectral.cache_store import cache_cap_bytes, enforce_cap, mark_used
 from tactex.spectral.eigen import check_eigensolver, laplace_eigenpairs, resolve_eigensolver
 from tactex.spectral.hierarchy import DEFAULT_TOL
 from tactex.spectral.laplacian import point_cloud_laplacian
@@ -232,7 +233,9 @@ def build_basis(
             (≈ relative eigenvalue error), in (0, 1). Part of the cache key.
 
     A corrupt or mismatching cache file is reported with a ``RuntimeWarning``, recomputed and
-    overwritten (use :func:`load_basis` to get a :class:`CacheError` instead).
+    overwritten (use :func:`load_basis` to get a :class:`CacheError` instead). The folder is capped at
+    ``$TACTEX_CACHE_MAX_GB`` (:mod:`tactex.spectral.cache_store`): a file read becomes the most recently
+    used one, and after a file is written the least recently used go until the folder fits again.
     """
     if not isinstance(cloud, SurfaceCloud):
         raise CloudError(f"build_basis needs a SurfaceCloud, got {type(cloud).__name__}")
@@ -243,12 +246,14 @@ def build_basis(
     key = basis_key(cloud.points, k, n_neighbors, mollify_factor, cloud.spacing, solver, tol)
     path = None
     if cache:
+        cap = cache_cap_bytes()  # a bad $TACTEX_CACHE_MAX_GB is said before the work, not after it
         path = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
         path = path / f"{key}.npz"
         if path.is_file():
             try:
                 basis = load_basis(path, expected_key=key)
                 if basis.n_points == len(cloud) and basis.n_eigen == k:
+                    mark_used(path)
                     return basis
                 raise CacheError(f"basis cache file '{path}' has {basis.n_points}×{basis.n_eigen} vectors")
             except CacheError as exc:
@@ -257,6 +262,12 @@ def build_basis(
     if path is not None:
         try:
             save_basis(basis, path)
+            removed = enforce_cap(path.parent, cap, keep=path)
         except OSError as exc:
             warnings.warn(f"could not write the basis cache '{path}': {exc}", RuntimeWarning, stacklevel=2)
+        else:
+            if any(e.path.resolve() == path.resolve() for e in removed):
+                warnings.warn(f"the basis ({removed[-1].size_bytes / 1e9:.2f} GB) is larger than the cache's cap "
+                              f"({cap / 1e9:.2f} GB) and was not kept; raise TACTEX_CACHE_MAX_GB to keep it",
+                              RuntimeWarning, stacklevel=2)
     return basis
