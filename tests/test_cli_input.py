@@ -107,7 +107,7 @@ def files(tmp_path):
         ("dir", [], ("is a directory",)),
         ("cube", [], ("--voxel-size-m 0.011",)),
         ("cube", ["--voxel-size", "0.003"], ("--voxel-size 0.011",)),
-        ("mm", [], ("millimetres", "1e-3")),
+        ("mm", [], ("millimetres", "give --units mm")),
         ("white", [], ("no point of", "red by hue", "--target-saturation", "--target-threshold")),
         ("white", ["--target", "green"], ("green by hue",)),
         ("white", ["--target-threshold", "1.0"], ("red channel ≥ 1", "lower --target-threshold")),

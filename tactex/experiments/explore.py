@@ -42,6 +42,7 @@ from tactex.pointcloud.markings import marked_cloud, resolve_marking
 from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
 from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target
 from tactex.pointcloud.target_file import load_target_file
+from tactex.pointcloud.units import check_units
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
 
@@ -121,6 +122,8 @@ class ExploreConfig:
         "", "a .npy file with one boolean per row of the cloud file, rows with NaN coordinates included (or per "
         "point of the sampled built-in); True = keep out; not for meshes (their points are samples)"
     )
+    units: str = param("m", "length unit of the cloud or mesh file: m, mm or in; its coordinates are converted to "
+                            "metres as it is read (every other option stays in metres)")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
     eigensolver: str = param(
         "auto", "eigensolver of the Laplace basis: arpack (exact, the papers'), hierarchical (hierarchical subspace "
@@ -160,6 +163,7 @@ class ExploreConfig:
         if self.marking is not None:
             object.__setattr__(self, "marking", resolve_marking(self.marking))
         check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
+        check_units(self.units)
 
     def target_rule(self) -> TargetRule:
         """How a cloud file's target is chosen (``target``, ``target_saturation``, ``target_threshold``)."""
@@ -209,6 +213,8 @@ def load_explore_cloud_keep_out(
         if cloud.n_target == 0:
             raise InputError(f"the marking '{marking}' leaves no target point on '{src}' at "
                              f"{cfg.voxel_size_m} m spacing")
+        if cfg.units != "m":
+            raise ConfigError(f"units={cfg.units} is the unit of a cloud file; the built-in '{src}' is in metres")
         keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
         return cloud, {"kind": "builtin", "name": src, "marking": marking, "target_rule": f"marking {marking}",
                        "target_where": describe_target(cloud), "notes": []}, keep_out
@@ -225,7 +231,8 @@ def load_explore_cloud_keep_out(
     if cfg.marking is not None:
         raise ConfigError("--marking applies to built-in objects; a file's target comes from --target")
     loaded = load_target_file(src, cfg.voxel_size_m, cfg.target_rule(), keep_out_channel=cfg.keep_out_channel,
-                              keep_out_threshold=cfg.keep_out_threshold, keep_out_mask=cfg.keep_out_mask)
+                              keep_out_threshold=cfg.keep_out_threshold, keep_out_mask=cfg.keep_out_mask,
+                              units=cfg.units)
     read, cloud = loaded.read, loaded.cloud
     return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(read.cloud),
                    "n_dropped_nonfinite": read.n_dropped, "n_mesh_faces": read.n_faces, "notes": list(read.notes),

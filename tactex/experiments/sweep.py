@@ -83,6 +83,7 @@ class SweepConfig:
     target_saturation: float = param(0.5, "least saturation of a marked colour, 0–1, as in `tactex explore`")
     target_threshold: float | None = param(
         None, "TEC's raw rule instead of hue: the --target colour's channel ≥ this level, 0–1")
+    units: str = param("m", "length unit of the cloud and mesh files: m, mm or in, as in `tactex explore`")
     workers: int = param(0, "worker processes; 0 = one per core [-]")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
 
@@ -118,7 +119,7 @@ class SweepConfig:
         return ExploreConfig(voxel_size_m=self.voxel_size_m, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
                              steps=self.steps, agent_radius_m=self.agent_radius_m, seed=self.seed, cache=self.cache,
                              target=self.target, target_saturation=self.target_saturation,
-                             target_threshold=self.target_threshold, html=False)
+                             target_threshold=self.target_threshold, units=self.units, html=False)
 
 
 @dataclass
