@@ -70,6 +70,8 @@ PROGRESS_EVERY_S = 3.0
 #: Per-step series kept in metrics.json's place: series.npz.
 SERIES = ("ergodicity", "coverage_residual", "path_length_m", "air_path_length_m")
 
+#: The colour bars' labels of the fields drawn (all three are dimensionless).
+FIELD_LABELS = {"target": "target p [-]", "coverage": "coverage c [-]", "potential": "potential u [-]"}
 #: Target in red on a grey surface (TEC Fig. 8 style); a white zero would hide the cloud.
 TARGET_COLORSCALE = [[0.0, "lightgrey"], [1.0, "red"]]
 
@@ -308,6 +310,7 @@ def run_explore(
     *,
     hedac=None,
     progress: Progress | None = None,
+    force: bool = False,
 ) -> ExploreResult:
     """Explore ``source`` (file or built-in object) for ``config.steps`` steps and write the report.
 
@@ -318,6 +321,8 @@ def run_explore(
         hedac: a :class:`tactex.ergodic.HedacConfig` for the explorer's other parameters; its
             alpha, n_eigen, agent radius, max velocity and seed are taken from ``config``.
         progress: called with one-line progress messages (e.g. print to stderr).
+        force: build the basis of a cloud over :data:`~tactex.spectral.estimate.MAX_BASIS_POINTS` points (refused
+            otherwise, before any work, with the voxel size that fits).
 
     Raises:
         RunInterrupted: Ctrl-C during the steps, once the steps done are written (a partial run).
@@ -337,7 +342,7 @@ def run_explore(
         say(f"cloud: {note}")
     say(f"cloud: {len(cloud)} points, spacing {cloud.spacing * 1e3:.2f} mm")
     say(f"target: {source_info['target_rule']}: {source_info['target_where']}")
-    setup = _set_up(cloud, cfg, hcfg, keep_out, say)
+    setup = _set_up(cloud, cfg, hcfg, keep_out, say, force)
     explorer, basis = setup.explorer, setup.basis
     labels = basis.component_labels()
     sizes = np.bincount(labels)
@@ -430,17 +435,23 @@ class _SetUp(NamedTuple):
     preprocess_s: float
 
 
-def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray | None, say: Progress) -> _SetUp:
-    """The Laplace basis of ``cloud`` and the HEDAC explorer on it, saying what they are."""
+def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray | None, say: Progress,
+            force: bool = False) -> _SetUp:
+    """The Laplace basis of ``cloud`` and the HEDAC explorer on it, saying what they are (and first what the basis
+    will cost; a cloud over the size cap is refused without ``force``)."""
     from tactex.ergodic import HedacExplorer
     from tactex.ergodic.kernel import compile_pending
     from tactex.ergodic.sweep import sweeps
-    from tactex.spectral import build_basis
+    from tactex.spectral import build_basis, estimate
+    from tactex.spectral.estimate import check_basis_size
 
-    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
+    est = check_basis_size(len(cloud), cfg.n_eigen, cloud.spacing, force=force, points=cloud.points)
+    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs of {len(cloud)} points: {est.describe()} (estimated"
+        + ("; a second or two when the cache holds it) ..." if cfg.cache else ") ..."))
     t0 = time.perf_counter()
     basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache,
-                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
+                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol,
+                        progress=say if len(cloud) >= estimate.PROGRESS_MIN_POINTS else None)
     basis_s = time.perf_counter() - t0
     say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
     # the sweep source steps in numpy (the explorer also leaves the keep-out zone's clearance band out; a target
@@ -449,6 +460,7 @@ def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray 
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
+    explorer.progress = say  # the pass plan of a large target, laid at the first step, takes a while
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
@@ -513,6 +525,7 @@ def _walk(explorer, n: int, say: Progress) -> _Walk:
     step_s = np.empty(n)
     every = max(1, n // 10)
     t_loop = last_said = time.perf_counter()
+    t_first = t_loop  # the end of the first step: the steps' rate is measured from there
     done = 0  # steps recorded in full
     try:
         for k in range(n):
@@ -526,11 +539,15 @@ def _walk(explorer, n: int, say: Progress) -> _Walk:
             air_length[k] = explorer.air_path_length
             done = k + 1
             now = time.perf_counter()
+            if k == 0:
+                t_first = now
             if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
                 last_said = now
-                eta = (now - t_loop) / (k + 1) * (n - k - 1)
+                # the first step may lay a pass plan (seconds to minutes): the rate of the others is what is left
+                eta = (now - t_first) / k * (n - k - 1) if k else None
                 say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
-                    + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
+                    + (f" (about {eta:.0f} s left)" if eta is not None and k + 1 < n else "")
+                    + (f" (the first step: {now - t_loop:.1f} s)" if k == 0 else ""))
     except KeyboardInterrupt:
         if done == 0:
             raise
@@ -622,6 +639,7 @@ def write_explore_report(
         **path_kw,
         title=title,
         cmaps={"target": target_cmap, "coverage": "viridis", "potential": "inferno"},
+        labels=FIELD_LABELS,
     )
     if not html:  # a reused run folder must not keep another run's page beside these metrics
         (out / "explore.html").unlink(missing_ok=True)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,13 +120,18 @@ def _count_components(L: sp.csr_matrix) -> int:
 
 def compute_basis(
     points: np.ndarray, spacing: float, n_eigen: int, n_neighbors: int, mollify_factor: float, key: str,
-    eigensolver: str = "arpack", eigen_tol: float = DEFAULT_TOL,
+    eigensolver: str = "arpack", eigen_tol: float = DEFAULT_TOL, progress: Callable[[str], None] | None = None,
 ) -> LaplaceBasis:
-    """Build a basis without any caching (see :func:`build_basis`)."""
+    """Build a basis without any caching (see :func:`build_basis`); ``progress`` gets a line per phase."""
+    say = progress or (lambda msg: None)
+    say(f"basis: Laplacian of {len(points)} points ...")
+    t0 = time.perf_counter()
     L, M = point_cloud_laplacian(points, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
     mass = M.diagonal().copy()
     solver = resolve_eigensolver(eigensolver, len(points))
-    evals, evecs = laplace_eigenpairs(L, mass, n_eigen, solver=solver, tol=eigen_tol, points=points, spacing=spacing)
+    say(f"basis: Laplacian {time.perf_counter() - t0:.1f} s; {n_eigen} eigenpairs ({solver} eigensolver) ...")
+    evals, evecs = laplace_eigenpairs(L, mass, n_eigen, solver=solver, tol=eigen_tol, points=points, spacing=spacing,
+                                      progress=progress)
     return LaplaceBasis(
         L=L,
         M=M,
@@ -216,6 +223,7 @@ def build_basis(
     mollify_factor: float = 1e-5,
     eigensolver: str = "auto",
     eigen_tol: float = DEFAULT_TOL,
+    progress: Callable[[str], None] | None = None,
 ) -> LaplaceBasis:
     """The Laplace basis of ``cloud``: L, M and the ``n_eigen`` smallest eigenpairs (TEC eq. 20).
 
@@ -231,6 +239,8 @@ def build_basis(
             (hierarchical from ``HIERARCHICAL_MIN_POINTS`` points on). Part of the cache key.
         eigen_tol: the hierarchical solver's bound on each pair's squared relative residual
             (≈ relative eigenvalue error), in (0, 1). Part of the cache key.
+        progress: called with a line per phase of a computed basis (Laplacian, eigensolver levels and
+            iterations); a basis read from the cache says nothing.
 
     A corrupt or mismatching cache file is reported with a ``RuntimeWarning``, recomputed and
     overwritten (use :func:`load_basis` to get a :class:`CacheError` instead). The folder is capped at
@@ -258,7 +268,8 @@ def build_basis(
                 raise CacheError(f"basis cache file '{path}' has {basis.n_points}×{basis.n_eigen} vectors")
             except CacheError as exc:
                 warnings.warn(f"{exc}; recomputing the basis", RuntimeWarning, stacklevel=2)
-    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key, solver, eigen_tol)
+    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key, solver, eigen_tol,
+                          progress=progress)
     if path is not None:
         try:
             save_basis(basis, path)
