@@ -234,5 +234,5 @@ def _metrics_table(reports: Sequence[RunReport], root: Path) -> str:
             href = (folder / "metrics.json").relative_to(root.resolve()).as_posix()
             links.append(f"<a href='{html.escape(href)}'>{html.escape(r.label)}</a>")
     where = f" Lists and nested records: each run's metrics.json ({', '.join(links)})." if links else ""
-    return (f"<details><summary><b>All metrics</b> ({len(keys)} per run)</summary><p>{where}</p>"
+    return (f"<details style='margin-top:1em'><summary><b>All metrics</b> ({len(keys)} per run)</summary><p>{where}</p>"
             f"<table class='tx'><tr><th>metric</th>{head}</tr>{rows}</table></details>")
