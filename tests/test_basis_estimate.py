@@ -119,3 +119,32 @@ def test_pass_plan_progress_on_a_large_part(monkeypatch) -> None:
     assert lines[-1].startswith("pass plan: laid in ")
     explorer.step()
     assert lines[-1].startswith("pass plan: laid in ")  # laid once
+
+
+def test_time_left_is_reckoned_from_the_steps_after_the_first(monkeypatch) -> None:
+    from types import SimpleNamespace
+
+    import tactex.experiments.explore as explore_mod
+
+    clock = [0.0]
+    monkeypatch.setattr(explore_mod, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
+
+    class Slow:  # a first step that lays a pass plan (100 s), then 10 ms steps
+        path_length = air_path_length = 0.0
+        k = 0
+
+        def step(self):
+            clock[0] += 100.0 if self.k == 0 else 0.01
+            self.k += 1
+            return SimpleNamespace(point=np.zeros(3))
+
+        def ergodicity(self) -> float:
+            return 0.5
+
+        def coverage_residual(self) -> float:
+            return 0.5
+
+    lines: list[str] = []
+    explore_mod._walk(Slow(), 20, lines.append)
+    assert lines[0].startswith("step 1/20:") and "(the first step: 100.0 s)" in lines[0] and "left" not in lines[0]
+    assert lines[1].startswith("step 2/20:") and "(about 0 s left)" in lines[1]  # 18 steps of 10 ms, not 900 s
