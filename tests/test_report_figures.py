@@ -41,12 +41,14 @@ def test_cloud_png_colour_bars_are_labelled_and_ticks_sparse(tmp_path, monkeypat
     plot_cloud(pts, fields, tmp_path / "c.png", trajectory=pts[:30], labels={"target": "target p [-]"})
     fig = seen[0]
     bars = [a for a in fig.axes if a.name != "3d"]
-    assert [b.get_ylabel() for b in bars] == ["target p [-]", "coverage"]  # given label, else the field's name
+    assert [b.get_xlabel() for b in bars] == ["target p [-]", "coverage"]  # given label, else the field's name
     for ax in (a for a in fig.axes if a.name == "3d"):
         assert ax.get_xlabel() == "x [m]" and ax.get_zlabel() == "z [m]"
         assert len(ax.xaxis.get_major_locator().tick_values(0.0, 0.2)) <= 5
     target_bar = bars[0]
-    assert target_bar.get_ylim() == (0.0, 1.0)  # a whole-surface target: 0..1, drawn in the top colour
+    assert target_bar.get_xlim() == (0.0, 1.0)  # a whole-surface target: 0..1, drawn in the top colour
+    for bar, ax in zip(bars, (a for a in fig.axes if a.name == "3d"), strict=True):  # the bar above its panel
+        assert bar.get_position().y0 >= ax.get_position().y1 - 1e-6
 
 
 def test_html_constant_target_on_a_zero_one_scale_and_no_si_prefixes(tmp_path) -> None:

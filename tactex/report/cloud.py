@@ -104,8 +104,9 @@ def plot_cloud(
             depthshade=False,
             zorder=1,
         )
-        if name != "cloud":  # beside the panel, labelled: under it the bar would cover the x and y axis titles
-            bar = fig.colorbar(sc, ax=ax, shrink=0.5, pad=0.2, location="right")
+        if name != "cloud":  # above the panel, labelled (it is the panel's title): under it the bar would cover the
+            # x and y axis titles, beside it the z axis title
+            bar = fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.02, location="top", aspect=30)
             bar.set_label((labels or {}).get(name, name), fontsize=8)
             bar.ax.tick_params(labelsize=7)
         if zone is not None and zone.shape[0]:
@@ -123,7 +124,8 @@ def plot_cloud(
             ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
         _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
         ax.view_init(*view)
-        ax.set_title(name)
+        if name == "cloud":
+            ax.set_title(name)
         for axis, label in ((ax.xaxis, "x [m]"), (ax.yaxis, "y [m]"), (ax.zaxis, "z [m]")):
             axis.set_major_locator(MaxNLocator(4))  # few ticks: 3-D axes crowd their labels together
             axis.set_label_text(label, fontsize=8)
