@@ -28,7 +28,7 @@ def test_estimate_grows_with_points_and_eigenpairs() -> None:
     big = estimate_basis(240_000, 1000)
     assert big.peak_bytes > 240_000 * 1000 * 8  # at least the eigenvectors themselves
     assert big.describe().startswith("about ") and big.describe().endswith(" GB") and "min" in big.describe()
-    assert "s and" in estimate_basis(5_000, 100).describe()
+    assert "s and" in estimate_basis(5_000, 100).describe() and estimate_basis(5_000, 100).describe().endswith(" MB")
 
 
 def test_fitting_voxel_leaves_the_cloud_under_the_cap() -> None:
@@ -83,7 +83,7 @@ def test_explore_refuses_a_cloud_over_the_cap_before_any_work(tmp_path, monkeypa
     assert main(["explore", str(tmp_path / "c.npz"), "--out", str(out), "--steps", "5", "--n-eigen", "20",
                  "--force", "--no-cache"]) == 0
     err = capsys.readouterr().err
-    assert "basis: Laplacian and 20 eigenpairs of 1600 points: about" in err and "GB (estimated) ..." in err
+    assert "basis: Laplacian and 20 eigenpairs of 1600 points: about" in err and "B (estimated) ..." in err
     assert "basis: Laplacian of 1600 points ..." in err and "eigensolver: iteration 1: largest η²" in err
 
 
@@ -148,3 +148,26 @@ def test_time_left_is_reckoned_from_the_steps_after_the_first(monkeypatch) -> No
     explore_mod._walk(Slow(), 20, lines.append)
     assert lines[0].startswith("step 1/20:") and "(the first step: 100.0 s)" in lines[0] and "left" not in lines[0]
     assert lines[1].startswith("step 2/20:") and "(about 0 s left)" in lines[1]  # 18 steps of 10 ms, not 900 s
+
+
+def test_clean_refuses_a_cloud_over_the_cap_before_the_run(tmp_path, monkeypatch, capsys) -> None:
+    import tactex.spectral.estimate as estimate
+    from tactex.commands._task import check_cloud_size
+    from tactex.tasks.clean.config import CleanConfig
+
+    monkeypatch.setattr(estimate, "MAX_BASIS_POINTS", 1_000)
+    g = np.arange(0.0, 0.12, 0.003)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([0.44 + x.ravel(), y.ravel() - 0.06, np.full(x.size, 0.05)])
+    colors = np.where(pts[:, :1] < 0.47, [1.0, 0.0, 0.0], [0.7, 0.7, 0.7])
+    np.savez(tmp_path / "c.npz", points=pts, colors=colors)
+    out = tmp_path / "clean"
+    assert main(["clean", "--cloud", str(tmp_path / "c.npz"), "--out", str(out), "--quiet", "--no-video"]) == 2
+    err = capsys.readouterr().err
+    assert "1,600 points, over the 1,000" in err and "give --voxel-size-m 0.00" in err and "or --force" in err
+    assert not (out / "metrics.json").exists()
+    cfg = CleanConfig(cloud=str(tmp_path / "c.npz"))
+    check_cloud_size(cfg, force=True)  # --force: no refusal
+    check_cloud_size(CleanConfig(cloud=str(tmp_path / "c.npz"), baseline="raster"), force=False)  # no basis
+    monkeypatch.setattr(estimate, "MAX_BASIS_POINTS", 2_000)
+    check_cloud_size(cfg, force=False)  # under the cap

@@ -50,7 +50,8 @@ class BasisEstimate(NamedTuple):
         """"about 8 min and 9.6 GB" (rounded: it is an estimate)."""
         s = self.seconds
         when = f"{s:.0f} s" if s < 120 else f"{s / 60:.0f} min"
-        return f"about {when} and {self.peak_bytes / 1e9:.1f} GB"
+        size = f"{self.peak_bytes / 1e9:.1f} GB" if self.peak_bytes >= 1e8 else f"{self.peak_bytes / 1e6:.0f} MB"
+        return f"about {when} and {size}"
 
 
 def estimate_basis(n_points: int, n_eigen: int) -> BasisEstimate:
