@@ -107,7 +107,7 @@ def files(tmp_path):
         ("dir", [], ("is a directory",)),
         ("cube", [], ("--voxel-size-m 0.011",)),
         ("cube", ["--voxel-size", "0.003"], ("--voxel-size 0.011",)),
-        ("mm", [], ("millimetres", "1e-3")),
+        ("mm", [], ("millimetres", "give --units mm")),
         ("white", [], ("no point of", "red by hue", "--target-saturation", "--target-threshold")),
         ("white", ["--target", "green"], ("green by hue",)),
         ("white", ["--target-threshold", "1.0"], ("red channel ≥ 1", "lower --target-threshold")),
@@ -410,7 +410,8 @@ def test_long_runs_keep_small_files_and_say_how_long(tmp_path, capsys, monkeypat
     assert _run(["explore", "cup", "--steps", "40", "--n-eigen", "8", "--no-cache", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     steps = [ln for ln in err.splitlines() if ": step " in ln]
-    assert len(steps) == 40 and "s left)" in steps[0] and "left" not in steps[-1]
+    # the first step says its own time (it may lay a pass plan); the time left comes from the steps after it
+    assert len(steps) == 40 and "(the first step: " in steps[0] and "s left)" in steps[1] and "left" not in steps[-1]
     metrics = json.loads((out / "metrics.json").read_text())
     assert "ergodicity" not in metrics and metrics["series_file"] == "series.npz"
     with np.load(out / "series.npz", allow_pickle=False) as z:

@@ -87,7 +87,7 @@ def test_millimetre_cloud_refused(tmp_path) -> None:
     with pytest.raises(UnitsError, match="millimetres"):
         SurfaceCloud(points=grid_cloud().points * 1000.0)
     np.savez(tmp_path / "mm.npz", points=grid_cloud().points * 1000.0)
-    with pytest.raises(UnitsError, match=r"mm\.npz'.*millimetres: convert it to metres"):
+    with pytest.raises(UnitsError, match=r"mm\.npz'.*probably in millimetres: give units=mm"):
         load_cloud(tmp_path / "mm.npz")
     # points in metres with a stored spacing in millimetres: the spacing is named, not the points
     np.savez(tmp_path / "h.npz", points=grid_cloud().points, spacing=3.0)

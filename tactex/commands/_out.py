@@ -12,6 +12,10 @@ _OWN = {
 }
 
 
+#: The commands whose --force also lifts the basis size cap (tactex.spectral.estimate).
+_BASIS_CAP = ("explore", "sweep", "clean")
+
+
 def add_force_argument(parser: argparse.ArgumentParser, command: str) -> None:
     """``--force``: write into an ``--out`` folder that holds another run (refused without it)."""
     own = _OWN.get(command)
@@ -19,7 +23,9 @@ def add_force_argument(parser: argparse.ArgumentParser, command: str) -> None:
         "--force", action="store_true",
         help="write into an --out folder that holds another run (its status.json or metrics.json); without --force "
              "such a folder is refused" + (f", except a {command}'s own, which is {own}" if own else "")
-             + "; files of the same name are replaced, others stay")
+             + "; files of the same name are replaced, others stay"
+             + ("; also builds the Laplace basis of a cloud over 200 000 points (refused without it, with its "
+                "estimated time and memory and the voxel size that fits)" if command in _BASIS_CAP else ""))
 
 
 def check_out(args: argparse.Namespace, command: str) -> None:

@@ -55,6 +55,8 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
         raise ConfigError(f"--compare runs tactex and every baseline; drop --baseline {cfg.baseline}")
     if args.compare and robot is not None:
         raise ConfigError("--compare runs in simulation only; on a robot run tactex and a --baseline one at a time")
+    if kind == "clean":
+        check_cloud_size(cfg, args.force)  # before the simulation starts, or the robot moves
     check_out(args, kind)  # the run driver makes the folder, once the parameters are known to be good
     out = Path(args.out).expanduser()
     if args.compare:
@@ -72,3 +74,22 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
               file=sys.stderr)
         return 1
     return 0
+
+
+def check_cloud_size(cfg, force: bool) -> None:
+    """A clean's ``--cloud`` over the basis size cap refused (unless ``force``) before the run starts, with the
+    basis's estimated cost and the voxel size that fits; the file is read once more for it, only then."""
+    from tactex.spectral.estimate import MAX_BASIS_POINTS, check_basis_size
+    from tactex.spectral.modes import auto_n_eigen
+    from tactex.tasks.clean.config import RASTER_BASELINES
+    from tactex.tasks.clean.target import load_target_cloud
+
+    if not cfg.cloud or cfg.baseline in RASTER_BASELINES or force:
+        return
+    from tactex.pointcloud.io import read_cloud
+
+    if len(read_cloud(cfg.cloud, mesh_spacing_m=cfg.voxel_size_m or 0.003, units=cfg.units).cloud) <= MAX_BASIS_POINTS:
+        return  # a voxel grid only thins a file: under the cap raw, under it voxelised
+    cloud = load_target_cloud(cfg.cloud, cfg.voxel_size_m, units=cfg.units)
+    n_eigen = cfg.n_eigen or auto_n_eigen(len(cloud) * cloud.spacing**2, cfg.agent_radius_m, len(cloud))
+    check_basis_size(len(cloud), n_eigen, cloud.spacing, points=cloud.points)

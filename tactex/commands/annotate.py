@@ -17,10 +17,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=8080, help="localhost port of the page (0: a free one)")
     parser.add_argument("--no-browser", action="store_true", help="print the page's address, open no browser")
     parser.add_argument("--force", action="store_true", help="let Save write over SCAN itself")
+    parser.add_argument("--units", choices=("m", "mm", "in"), default="m",
+                        help="length unit of SCAN; the saved PLY is in metres (default m)")
 
 
 def run(args: argparse.Namespace) -> int:
     from tactex.experiments.annotate import serve_annotation
 
-    serve_annotation(args.scan, args.out, port=args.port, open_browser=not args.no_browser, force=args.force)
+    serve_annotation(args.scan, args.out, port=args.port, open_browser=not args.no_browser, force=args.force,
+                     units=args.units)
     return 0

@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     def progress(msg: str) -> None:
         print(f"tactex explore: {msg}", file=sys.stderr, flush=True)
 
-    result = run_explore(args.cloud, args.out, cfg, hedac=hedac, progress=None if args.quiet else progress)
+    result = run_explore(args.cloud, args.out, cfg, hedac=hedac, progress=None if args.quiet else progress,
+                         force=args.force)
     m = result.metrics
     print(
         f"{m['n_points']} points, {m['n_target']} target; preprocessing {m['preprocess_time_s']:.3f} s; "

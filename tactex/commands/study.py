@@ -38,6 +38,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--random", metavar="NAME=DIST:A:B", action="append", default=[],
                         help="a randomly drawn factor: uniform:LOW:HIGH, loguniform:LOW:HIGH, integers:LOW:HIGH "
                              "or choice:A:B:C (with --draws)")
+    parser.add_argument("--units", choices=("m", "mm", "in"), default=None,
+                        help="length unit of the runs' --cloud file (the same as --set units=mm); default m")
     parser.add_argument("--draws", type=int, default=None, help="random draws per grid setting (default: 0)")
     parser.add_argument("--draw-seed", type=int, default=None, help="seed of the random draws (default: 0)")
     parser.add_argument("--seeds", metavar="N|S1,S2", default=None,
@@ -75,6 +77,8 @@ def spec_from_args(args: argparse.Namespace):
             except ValueError as exc:
                 raise ConfigError(f"--random {text}: {kind} needs numbers LOW:HIGH") from exc
         data["random"][name] = {kind: parts}
+    if args.units is not None:
+        data["fixed"]["units"] = args.units
     if args.task:
         data["task"] = args.task
     if args.draws is not None:

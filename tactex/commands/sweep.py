@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         return _tune(args, cfg, say)
     with make_executor(cfg.workers, ray=args.ray, ray_address=args.ray_address) as ex:
         try:
-            result = run_sweep(args.clouds, args.out, cfg, progress=say, executor=ex)
+            result = run_sweep(args.clouds, args.out, cfg, progress=say, executor=ex, force=args.force)
         except RunInterrupted:
             raise  # the settings done are written; its message says where
         except KeyboardInterrupt:

@@ -57,6 +57,7 @@ in contact, and a silent snap would hide it); nearer ones are projected onto the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -279,6 +280,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
             self._passes = RingPasses(self._points[self._tidx], links, cfg.sweep_pass_spacing * self._r_a,
                                       PASS_REACH * self.spacing, self.spacing, allowed=self._t_safe,
                                       origin=cfg.sweep_pass_origin, footprint_m=self._r_a, hops=self._target_hops())
+            self._passes.progress = getattr(self, "_progress", None)
         if hasattr(self, "_walk_compiled"):  # a new target may switch a running explorer between the sources
             if sweep:
                 self._walk_compiled = None
@@ -396,6 +398,18 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         """The source term in use: 'sweep' (:mod:`.sweep`) or 'ergodic' (eq. 1–2); HedacConfig.source_mode
         'auto' resolved for the current target."""
         return "sweep" if self._sweep is not None else "ergodic"
+
+    @property
+    def progress(self) -> Callable[[str], None] | None:
+        """Called with one-line messages during long work inside a step (the pass plan of a large target, laid
+        at the first step); None: silent."""
+        return getattr(self, "_progress", None)
+
+    @progress.setter
+    def progress(self, fn: Callable[[str], None] | None) -> None:
+        self._progress = fn
+        if self._passes is not None:
+            self._passes.progress = fn
 
     @property
     def planned_passes(self) -> bool:

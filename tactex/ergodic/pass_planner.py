@@ -37,6 +37,8 @@ the plan online (:mod:`.passes`).
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from itertools import pairwise
 
 import numpy as np
@@ -112,11 +114,20 @@ LEFTOVER = 1.0
 CLEAN_UP = 0.6
 
 
+#: A part with this many target points announces its plan before it starts (it takes seconds to minutes).
+PROGRESS_MIN_POINTS = 20_000
+#: Seconds between the planner's progress lines.
+PROGRESS_EVERY_S = 3.0
+
+
 class PassPlanner:
     """Laying a part's rings and planning the tour over their arcs (the planning half of
     :class:`~tactex.ergodic.passes.RingPasses`: it reads the target points, their walking graph and parts, the
     spacing and the footprint set there, and writes the plan into ``ring``, ``pending``, ``_tour``, ``_arc``,
-    ``_at``, ``spacing_m`` and ``_clean``)."""
+    ``_at``, ``spacing_m`` and ``_clean``). ``progress``, when set, is called with one-line messages while a
+    large part is planned (the first step of a whole-surface run waits for it)."""
+
+    progress: Callable[[str], None] | None = None
 
     def lay(self, start: int) -> None:
         """Lay the rings of target point ``start``'s part (once per part). With origin "edge" and the tour, the
@@ -128,6 +139,13 @@ class PassPlanner:
             return
         self._laid[part] = True
         members = np.flatnonzero(self._part == part)
+        t_start = time.perf_counter()
+        said = [t_start]  # when the last progress line went out
+
+        def say(msg: str, now: float | None = None) -> None:
+            if self.progress is not None:
+                said[0] = time.perf_counter() if now is None else now
+                self.progress(msg)
         sub = self._graph[members][:, members]
         s = int(np.searchsorted(members, start))
         seeds: list[np.ndarray] = []
@@ -139,6 +157,9 @@ class PassPlanner:
         if not seeds or self.order == "tour":  # no edge (closed), rings from the start asked for, or a candidate
             seeds.append(np.array([s]))
         plans = []  # (seed, share, cost of the origin, cost of the spacing, plan)
+        n_plans = len(seeds) * (len(SPACING_SHARES) if self.order == "tour" else 1)
+        if members.size >= PROGRESS_MIN_POINTS:
+            say(f"pass plan: {members.size} target points in this part, {n_plans} candidate plan(s) to compare ...")
         for n_seed, seed in enumerate(seeds):
             d = self._smooth(sub, dijkstra(sub, directed=False, indices=seed, min_only=True))
             for share in SPACING_SHARES if self.order == "tour" else SPACING_SHARES[:1]:
@@ -170,6 +191,9 @@ class PassPlanner:
                               (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
                 self.ring[way] = -1
                 self.pending[way] = False
+                now = time.perf_counter()
+                if now - said[0] >= PROGRESS_EVERY_S:
+                    say(f"pass plan: {len(plans)} of {n_plans} candidate plans ({now - t_start:.0f} s)", now)
         # The origin by its plan at the full spacing (tour and the hunt for what it leaves), then its spacing also by
         # the islands it leaves at risk: compared over origins, the islands would choose worse origins.
         origin = min((p for p in plans if p[1] == SPACING_SHARES[0]), key=lambda p: p[2])[0]
@@ -185,6 +209,8 @@ class PassPlanner:
             self.pending[extra] = True
             self._plan(part, self._points[start])
         self._at[part] = 0
+        if time.perf_counter() - t_start >= PROGRESS_EVERY_S or members.size >= PROGRESS_MIN_POINTS:
+            say(f"pass plan: laid in {time.perf_counter() - t_start:.1f} s")
 
     # ------------------------------------------------------------------ the tour over the arcs
     def _plan(self, part: int, x: np.ndarray) -> None:

@@ -24,14 +24,15 @@ def check_annotation_out(scan: str | Path, out: str | Path, force: bool = False)
 
 
 def serve_annotation(scan: str | Path, out: str | Path, *, port: int = 8080, open_browser: bool = True,
-                     force: bool = False) -> None:
+                     force: bool = False, units: str = "m") -> None:
     """Serve the page painting ``scan``'s target and keep-out on localhost ``port`` (0: a free one) until
-    Ctrl-C; its Save button writes ``out`` (a PLY). Says on stderr what was left unsaved."""
+    Ctrl-C; its Save button writes ``out`` (a PLY, in metres whatever the scan's ``units``). Says on stderr
+    what was left unsaved."""
     from tactex.report.annotate_view import AnnotateView, check_port, open_annotation
 
     check_annotation_out(scan, out, force)
     check_port("127.0.0.1", port)  # before the cloud is read: a taken port is said at once
-    annotation, notes = open_annotation(scan)
+    annotation, notes = open_annotation(scan, units)
     for note in notes:
         print(f"tactex annotate: {note}", file=sys.stderr)
     view = AnnotateView(annotation, out, port=port, source=scan)

@@ -42,6 +42,7 @@ from tactex.pointcloud.markings import marked_cloud, resolve_marking
 from tactex.pointcloud.shapes import get_surface, resolve_surface_name, surface_names
 from tactex.pointcloud.target import DEFAULT_MIN_SATURATION, TARGET_CHOICES, TargetRule, describe_target
 from tactex.pointcloud.target_file import load_target_file
+from tactex.pointcloud.units import check_units
 from tactex.spectral.eigen import check_eigensolver
 from tactex.spectral.modes import auto_n_eigen
 
@@ -69,6 +70,8 @@ PROGRESS_EVERY_S = 3.0
 #: Per-step series kept in metrics.json's place: series.npz.
 SERIES = ("ergodicity", "coverage_residual", "path_length_m", "air_path_length_m")
 
+#: The colour bars' labels of the fields drawn (all three are dimensionless).
+FIELD_LABELS = {"target": "target p [-]", "coverage": "coverage c [-]", "potential": "potential u [-]"}
 #: Target in red on a grey surface (TEC Fig. 8 style); a white zero would hide the cloud.
 TARGET_COLORSCALE = [[0.0, "lightgrey"], [1.0, "red"]]
 
@@ -121,6 +124,8 @@ class ExploreConfig:
         "", "a .npy file with one boolean per row of the cloud file, rows with NaN coordinates included (or per "
         "point of the sampled built-in); True = keep out; not for meshes (their points are samples)"
     )
+    units: str = param("m", "length unit of the cloud or mesh file: m, mm or in; its coordinates are converted to "
+                            "metres as it is read (every other option stays in metres)")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
     eigensolver: str = param(
         "auto", "eigensolver of the Laplace basis: arpack (exact, the papers'), hierarchical (hierarchical subspace "
@@ -160,6 +165,7 @@ class ExploreConfig:
         if self.marking is not None:
             object.__setattr__(self, "marking", resolve_marking(self.marking))
         check_keep_out_options(self.keep_out_channel, self.keep_out_threshold, self.keep_out_mask)
+        check_units(self.units)
 
     def target_rule(self) -> TargetRule:
         """How a cloud file's target is chosen (``target``, ``target_saturation``, ``target_threshold``)."""
@@ -209,6 +215,8 @@ def load_explore_cloud_keep_out(
         if cloud.n_target == 0:
             raise InputError(f"the marking '{marking}' leaves no target point on '{src}' at "
                              f"{cfg.voxel_size_m} m spacing")
+        if cfg.units != "m":
+            raise ConfigError(f"units={cfg.units} is the unit of a cloud file; the built-in '{src}' is in metres")
         keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, cfg.keep_out_mask)
         return cloud, {"kind": "builtin", "name": src, "marking": marking, "target_rule": f"marking {marking}",
                        "target_where": describe_target(cloud), "notes": []}, keep_out
@@ -225,7 +233,8 @@ def load_explore_cloud_keep_out(
     if cfg.marking is not None:
         raise ConfigError("--marking applies to built-in objects; a file's target comes from --target")
     loaded = load_target_file(src, cfg.voxel_size_m, cfg.target_rule(), keep_out_channel=cfg.keep_out_channel,
-                              keep_out_threshold=cfg.keep_out_threshold, keep_out_mask=cfg.keep_out_mask)
+                              keep_out_threshold=cfg.keep_out_threshold, keep_out_mask=cfg.keep_out_mask,
+                              units=cfg.units)
     read, cloud = loaded.read, loaded.cloud
     return cloud, {"kind": "file", "path": str(path.resolve()), "n_points_raw": len(read.cloud),
                    "n_dropped_nonfinite": read.n_dropped, "n_mesh_faces": read.n_faces, "notes": list(read.notes),
@@ -301,6 +310,7 @@ def run_explore(
     *,
     hedac=None,
     progress: Progress | None = None,
+    force: bool = False,
 ) -> ExploreResult:
     """Explore ``source`` (file or built-in object) for ``config.steps`` steps and write the report.
 
@@ -311,6 +321,8 @@ def run_explore(
         hedac: a :class:`tactex.ergodic.HedacConfig` for the explorer's other parameters; its
             alpha, n_eigen, agent radius, max velocity and seed are taken from ``config``.
         progress: called with one-line progress messages (e.g. print to stderr).
+        force: build the basis of a cloud over :data:`~tactex.spectral.estimate.MAX_BASIS_POINTS` points (refused
+            otherwise, before any work, with the voxel size that fits).
 
     Raises:
         RunInterrupted: Ctrl-C during the steps, once the steps done are written (a partial run).
@@ -330,7 +342,7 @@ def run_explore(
         say(f"cloud: {note}")
     say(f"cloud: {len(cloud)} points, spacing {cloud.spacing * 1e3:.2f} mm")
     say(f"target: {source_info['target_rule']}: {source_info['target_where']}")
-    setup = _set_up(cloud, cfg, hcfg, keep_out, say)
+    setup = _set_up(cloud, cfg, hcfg, keep_out, say, force)
     explorer, basis = setup.explorer, setup.basis
     labels = basis.component_labels()
     sizes = np.bincount(labels)
@@ -423,17 +435,23 @@ class _SetUp(NamedTuple):
     preprocess_s: float
 
 
-def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray | None, say: Progress) -> _SetUp:
-    """The Laplace basis of ``cloud`` and the HEDAC explorer on it, saying what they are."""
+def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray | None, say: Progress,
+            force: bool = False) -> _SetUp:
+    """The Laplace basis of ``cloud`` and the HEDAC explorer on it, saying what they are (and first what the basis
+    will cost; a cloud over the size cap is refused without ``force``)."""
     from tactex.ergodic import HedacExplorer
     from tactex.ergodic.kernel import compile_pending
     from tactex.ergodic.sweep import sweeps
-    from tactex.spectral import build_basis
+    from tactex.spectral import build_basis, estimate
+    from tactex.spectral.estimate import check_basis_size
 
-    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs ...")
+    est = check_basis_size(len(cloud), cfg.n_eigen, cloud.spacing, force=force, points=cloud.points)
+    say(f"basis: Laplacian and {cfg.n_eigen} eigenpairs of {len(cloud)} points: {est.describe()} (estimated"
+        + ("; a second or two when the cache holds it) ..." if cfg.cache else ") ..."))
     t0 = time.perf_counter()
     basis = build_basis(cloud, n_eigen=cfg.n_eigen, n_neighbors=cfg.n_neighbors, cache=cfg.cache,
-                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol)
+                        eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol,
+                        progress=say if len(cloud) >= estimate.PROGRESS_MIN_POINTS else None)
     basis_s = time.perf_counter() - t0
     say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
     # the sweep source steps in numpy (the explorer also leaves the keep-out zone's clearance band out; a target
@@ -442,6 +460,7 @@ def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray 
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
     t1 = time.perf_counter()
     explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
+    explorer.progress = say  # the pass plan of a large target, laid at the first step, takes a while
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
@@ -506,6 +525,7 @@ def _walk(explorer, n: int, say: Progress) -> _Walk:
     step_s = np.empty(n)
     every = max(1, n // 10)
     t_loop = last_said = time.perf_counter()
+    t_first = t_loop  # the end of the first step: the steps' rate is measured from there
     done = 0  # steps recorded in full
     try:
         for k in range(n):
@@ -519,11 +539,15 @@ def _walk(explorer, n: int, say: Progress) -> _Walk:
             air_length[k] = explorer.air_path_length
             done = k + 1
             now = time.perf_counter()
+            if k == 0:
+                t_first = now
             if (k + 1) % every == 0 or k + 1 == n or now - last_said >= PROGRESS_EVERY_S:
                 last_said = now
-                eta = (now - t_loop) / (k + 1) * (n - k - 1)
+                # the first step may lay a pass plan (seconds to minutes): the rate of the others is what is left
+                eta = (now - t_first) / k * (n - k - 1) if k else None
                 say(f"step {k + 1}/{n}: ergodicity {ergodicity[k]:.4f}, coverage residual {residual[k]:.4f}"
-                    + (f" (about {eta:.0f} s left)" if k + 1 < n else ""))
+                    + (f" (about {eta:.0f} s left)" if eta is not None and k + 1 < n else "")
+                    + (f" (the first step: {now - t_loop:.1f} s)" if k == 0 else ""))
     except KeyboardInterrupt:
         if done == 0:
             raise
@@ -615,6 +639,7 @@ def write_explore_report(
         **path_kw,
         title=title,
         cmaps={"target": target_cmap, "coverage": "viridis", "potential": "inferno"},
+        labels=FIELD_LABELS,
     )
     if not html:  # a reused run folder must not keep another run's page beside these metrics
         (out / "explore.html").unlink(missing_ok=True)

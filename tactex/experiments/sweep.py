@@ -83,6 +83,7 @@ class SweepConfig:
     target_saturation: float = param(0.5, "least saturation of a marked colour, 0–1, as in `tactex explore`")
     target_threshold: float | None = param(
         None, "TEC's raw rule instead of hue: the --target colour's channel ≥ this level, 0–1")
+    units: str = param("m", "length unit of the cloud and mesh files: m, mm or in, as in `tactex explore`")
     workers: int = param(0, "worker processes; 0 = one per core [-]")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
 
@@ -118,7 +119,7 @@ class SweepConfig:
         return ExploreConfig(voxel_size_m=self.voxel_size_m, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
                              steps=self.steps, agent_radius_m=self.agent_radius_m, seed=self.seed, cache=self.cache,
                              target=self.target, target_saturation=self.target_saturation,
-                             target_threshold=self.target_threshold, html=False)
+                             target_threshold=self.target_threshold, units=self.units, html=False)
 
 
 @dataclass
@@ -187,11 +188,12 @@ def _run_setting(task: tuple, clouds: dict[str, tuple]) -> dict[str, np.ndarray]
 
 
 # -- driver ----------------------------------------------------------------------------------------------
-def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progress) -> tuple[dict[str, tuple],
-                                                                                          dict[str, Any]]:
+def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progress, force: bool = False
+                   ) -> tuple[dict[str, tuple], dict[str, Any]]:
     """Per source: (cloud, basis of the largest n_K, starts, agent radius) — the runs' shared input —
-    and what ``sweep.json`` says about it."""
-    from tactex.spectral import build_basis
+    and what ``sweep.json`` says about it. A cloud over the basis size cap is refused unless ``force``."""
+    from tactex.spectral import build_basis, estimate
+    from tactex.spectral.estimate import check_basis_size
 
     ecfg = cfg.explore_config()
     clouds: dict[str, tuple] = {}
@@ -201,9 +203,13 @@ def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progres
         key = _cloud_key(str(source), info, set(clouds))
         if max(cfg.n_eigen) >= len(cloud):
             raise ConfigError(f"{key} has {len(cloud)} points; n_K = {max(cfg.n_eigen)} must be smaller")
-        say(f"{key}: {len(cloud)} points, {cloud.n_target} target; Laplacian and {max(cfg.n_eigen)} eigenpairs ...")
+        est = check_basis_size(len(cloud), max(cfg.n_eigen), cloud.spacing, force=force,
+                               points=cloud.points)
+        say(f"{key}: {len(cloud)} points, {cloud.n_target} target; Laplacian and {max(cfg.n_eigen)} eigenpairs: "
+            f"{est.describe()} (estimated) ...")
         t0 = time.perf_counter()
-        basis = build_basis(cloud, n_eigen=max(cfg.n_eigen), n_neighbors=cfg.n_neighbors, cache=cfg.cache)
+        basis = build_basis(cloud, n_eigen=max(cfg.n_eigen), n_neighbors=cfg.n_neighbors, cache=cfg.cache,
+                            progress=say if len(cloud) >= estimate.PROGRESS_MIN_POINTS else None)
         basis_s = time.perf_counter() - t0
         radius = cfg.agent_radius_m if cfg.agent_radius_m is not None else _default_agent_radius(info)
         starts, origin = sweep_starts(cloud, info, cfg.starts, cfg.seed)
@@ -218,18 +224,19 @@ def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progres
 
 
 def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepConfig | None = None, *,
-              progress: Progress | None = None, executor: Executor | None = None) -> SweepResult:
+              progress: Progress | None = None, executor: Executor | None = None, force: bool = False) -> SweepResult:
     """Run the grid of ``config`` on every source (cloud file or built-in object) and write the report.
 
     The settings run on ``executor`` (default: ``config.workers`` local processes), which gets the
     clouds and bases once as shared input. A setting that raises is listed under ``failed`` in
-    ``sweep.json`` with its error; its curves are NaN and the others are unaffected."""
+    ``sweep.json`` with its error; its curves are NaN and the others are unaffected. ``force`` builds the basis of a
+    cloud over :data:`~tactex.spectral.estimate.MAX_BASIS_POINTS` points (refused otherwise)."""
     cfg = config if config is not None else SweepConfig()
     say = progress or (lambda msg: None)
     if isinstance(sources, (str, Path)) or not sources:
         raise ConfigError("run_sweep needs a list of one or more clouds (files or built-in objects)")
     out = prepare_out_dir(out_dir)
-    clouds, info_out = prepare_clouds(sources, cfg, say)
+    clouds, info_out = prepare_clouds(sources, cfg, say, force)
     all_jobs = [(key, k, a) for key in clouds for k in cfg.n_eigen for a in cfg.alpha]
     store = _SettingStore(out / "settings", clouds, cfg)
     results: dict[tuple, dict[str, np.ndarray]] = {job: r for job in all_jobs if (r := store.load(job)) is not None}

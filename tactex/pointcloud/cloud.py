@@ -9,6 +9,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from tactex.errors import CloudError, UnitsError
+from tactex.pointcloud.units import millimetre_hint
 
 __all__ = ["MAX_EXTENT_M", "MAX_SPACING_M", "CloudFile", "SurfaceCloud", "mean_spacing", "validate_points"]
 
@@ -48,8 +49,7 @@ def validate_points(points: object, name: str = "points", min_points: int = 1) -
         if gap > MAX_GAP_M:
             raise UnitsError(
                 f"{'the cloud' if name == 'points' else name} spans {extent:.3g} m along one axis with points "
-                f"{gap:.3g} m apart; tactex works in metres "
-                "and such a surface is probably in millimetres: convert it to metres (× 1e-3) before use."
+                f"{gap:.3g} m apart; tactex works in metres and {millimetre_hint(extent)}"
             )
     return np.ascontiguousarray(arr)
 

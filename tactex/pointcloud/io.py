@@ -11,6 +11,7 @@ the CAD parts industrial users have — are sampled on their surface at the voxe
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from tactex.errors import CloudError, InputError, MissingDependencyError, UnitsError
 from tactex.pointcloud.cloud import CloudFile, SurfaceCloud
+from tactex.pointcloud.units import check_units, inch_hint, to_metres
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -107,7 +109,7 @@ def load_ply(path: str | Path) -> SurfaceCloud:
 _USED = frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "target", "keep_out"})
 
 
-def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
+def _read_ply(p: Path, mesh_spacing_m: float, units: str = "m") -> CloudFile:
     from plyfile import PlyListProperty
 
     from tactex.pointcloud.ply_check import read_ply
@@ -117,7 +119,7 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     if "face" in ply and ply["face"].count > 0:
         from tactex.pointcloud.mesh import read_mesh
 
-        return read_mesh(p, mesh_spacing_m)
+        return read_mesh(p, mesh_spacing_m, units)
     if "vertex" not in ply:
         raise CloudError(f"'{p}' has no 'vertex' element")
     v = ply["vertex"]
@@ -128,7 +130,7 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     if lists:
         raise CloudError(f"'{p}': its vertex properties {', '.join(lists)} are lists; a vertex's x, y, z, normal, "
                          "colour, target and keep_out are single numbers")
-    points = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64)
+    points = to_metres(np.stack([v["x"], v["y"], v["z"]], axis=1), units)
     normals = (
         np.stack([v["nx"], v["ny"], v["nz"]], axis=1).astype(np.float64)
         if {"nx", "ny", "nz"} <= names
@@ -142,7 +144,7 @@ def _read_ply(p: Path, mesh_spacing_m: float) -> CloudFile:
     )
     target = np.asarray(v["target"], dtype=np.float64) if "target" in names else None
     cloud = SurfaceCloud(points=finite(points), normals=finite(normals), colors=colors, target=finite(target),
-                         spacing=_ply_spacing(ply))
+                         spacing=float(to_metres(_ply_spacing(ply), units)))
     keep_out = file_keep_out(v, finite)
     return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)) + keep_out_note(keep_out),
                      kept=finite.kept_rows(), keep_out=keep_out)
@@ -207,7 +209,7 @@ def load_pcd(path: str | Path) -> SurfaceCloud:
     return _read_pcd(_check_file(path)).cloud
 
 
-def _read_pcd(p: Path) -> CloudFile:
+def _read_pcd(p: Path, units: str = "m") -> CloudFile:
     from tactex.pointcloud.pcd_header import read_pcd
 
     try:
@@ -219,7 +221,7 @@ def _read_pcd(p: Path) -> CloudFile:
     col = {name: np.atleast_1d(pc.pc_data[name]) for name in fields}
     if not {"x", "y", "z"} <= set(fields):
         raise CloudError(f"'{p}' lacks x/y/z fields (found {list(fields)})")
-    points = np.stack([col["x"], col["y"], col["z"]], axis=1).astype(np.float64)
+    points = to_metres(np.stack([col["x"], col["y"], col["z"]], axis=1), units)
     normals = None
     if {"normal_x", "normal_y", "normal_z"} <= set(fields):
         normals = np.stack([col["normal_x"], col["normal_y"], col["normal_z"]], axis=1).astype(np.float64)
@@ -270,7 +272,7 @@ def load_npz(path: str | Path) -> SurfaceCloud:
     return _read_npz(_check_file(path)).cloud
 
 
-def _read_npz(p: Path) -> CloudFile:
+def _read_npz(p: Path, units: str = "m") -> CloudFile:
     from tactex.pointcloud.npz_check import read_npz_arrays
 
     data = read_npz_arrays(p)
@@ -279,16 +281,17 @@ def _read_npz(p: Path) -> CloudFile:
     if "spacing" in data:
         if np.shape(data["spacing"]) != ():
             raise CloudError(f"'{p}': 'spacing' must be one number [m], got shape {np.shape(data['spacing'])}")
-        spacing = float(data["spacing"])
-    finite = _Finite(data["points"], data.get("normals"))
+        spacing = float(to_metres(data["spacing"], units))
+    points = to_metres(data["points"], units) if np.ndim(data["points"]) == 2 else data["points"]
+    finite = _Finite(points, data.get("normals"))
     cloud = SurfaceCloud(
-        points=finite(data["points"]),
+        points=finite(points),
         normals=finite(data.get("normals")),
         colors=finite(colors),
         target=finite(data.get("target")),
         spacing=spacing,
     )
-    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(data["points"])),
+    return CloudFile(cloud, finite.dropped, notes=_dropped_note(finite.dropped, len(points)),
                      kept=finite.kept_rows())
 
 
@@ -305,20 +308,22 @@ def save_npz(cloud: SurfaceCloud, path: str | Path) -> Path:
     return out
 
 
-def load_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING_M) -> SurfaceCloud:
+def load_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING_M, units: str = "m") -> SurfaceCloud:
     """Read a cloud, choosing the reader from the suffix (.ply, .pcd, .npz, .stl, .obj); points with
     NaN/inf coordinates are dropped (:func:`read_cloud` says how many)."""
-    return read_cloud(path, mesh_spacing_m=mesh_spacing_m).cloud
+    return read_cloud(path, mesh_spacing_m=mesh_spacing_m, units=units).cloud
 
 
-def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING_M) -> CloudFile:
+def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING_M, units: str = "m") -> CloudFile:
     """Read a cloud file and report what reading it did (points dropped, a mesh sampled).
 
     Args:
         path: .ply, .pcd, .npz, .stl or .obj file.
         mesh_spacing_m: sampling spacing of a mesh's surface [m] (the voxel size of the run).
+        units: the file's length unit, "m", "mm" or "in" (:mod:`tactex.pointcloud.units`): its coordinates
+            (and a stored spacing) are converted to metres before they are checked.
     """
-
+    units = check_units(units)
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
@@ -330,20 +335,27 @@ def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING
     # encountered in cast" when it is widened to float64; the point is dropped and counted by the
     # finite rule, so the warning would only add numpy's words to the CLI's output.
     with np.errstate(invalid="ignore"):
-        return _read_by_suffix(p, suffix, mesh_spacing_m)
+        read = _read_by_suffix(p, suffix, mesh_spacing_m, units)
+    points = read.cloud.points
+    extent = float(np.max(np.ptp(points, axis=0))) if len(points) else 0.0
+    hint = inch_hint(extent) if units == "m" else ""
+    if hint:  # a part this wide is beyond an arm's reach: more likely a file in inches
+        read = replace(read, notes=(*read.notes, f"it spans {extent:.3g} m, more than a robot arm reaches; "
+                                                 f"{hint}"))
+    return read
 
 
-def _read_by_suffix(p: Path, suffix: str, mesh_spacing_m: float) -> CloudFile:
+def _read_by_suffix(p: Path, suffix: str, mesh_spacing_m: float, units: str) -> CloudFile:
     from tactex.pointcloud.mesh import read_mesh
 
     try:
         if suffix == ".ply":
-            return _read_ply(p, mesh_spacing_m)
+            return _read_ply(p, mesh_spacing_m, units)
         if suffix == ".pcd":
-            return _read_pcd(p)
+            return _read_pcd(p, units)
         if suffix == ".npz":
-            return _read_npz(p)
-        return read_mesh(p, mesh_spacing_m)
+            return _read_npz(p, units)
+        return read_mesh(p, mesh_spacing_m, units)
     except (CloudError, UnitsError) as exc:
         if f"'{p}'" in str(exc):
             raise

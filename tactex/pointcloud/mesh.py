@@ -18,6 +18,7 @@ import numpy as np
 
 from tactex.errors import CloudError, UnitsError
 from tactex.pointcloud.cloud import MAX_EXTENT_M, CloudFile, SurfaceCloud
+from tactex.pointcloud.units import inch_hint, millimetre_hint, to_metres
 
 __all__ = ["MAX_MESH_POINTS", "SAMPLES_PER_CELL", "read_mesh", "sample_mesh"]
 
@@ -30,12 +31,14 @@ MAX_MESH_POINTS = 200_000
 SAMPLE_SEED = 0
 
 
-def read_mesh(path: Path, spacing_m: float) -> CloudFile:
+def read_mesh(path: Path, spacing_m: float, units: str = "m") -> CloudFile:
     """The cloud sampled from the mesh file at ``path`` every ``spacing_m`` [m], as a
-    :class:`tactex.pointcloud.cloud.CloudFile`."""
+    :class:`tactex.pointcloud.cloud.CloudFile`; the file's vertices are in ``units`` (m, mm, in)."""
     from tactex.pointcloud.mesh_load import load_mesh
 
     mesh, load_notes = load_mesh(path)
+    if units != "m":
+        mesh.vertices = to_metres(mesh.vertices, units)
     n_faces = len(mesh.faces)
     good = np.isfinite(mesh.vertices).all(axis=1)
     dropped = int((~good).sum())
@@ -67,8 +70,8 @@ def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
         raise CloudError(f"{name} holds no triangles")
     extent = float(np.max(np.ptp(mesh.vertices, axis=0)))
     if extent > MAX_EXTENT_M:
-        raise UnitsError(f"{name} spans {extent:.4g} along one axis; tactex works in metres and an object "
-                         f"over {MAX_EXTENT_M:g} m is probably in millimetres: scale it by 1e-3")
+        raise UnitsError(f"{name} spans {extent:.4g} along one axis; tactex works in metres, an object over "
+                         f"{MAX_EXTENT_M:g} m is out of reach, and {millimetre_hint(extent)}")
     area = float(mesh.area)
     if not (math.isfinite(area) and area > 0):
         raise CloudError(f"{name} has no surface area (all its triangles are degenerate)")
@@ -77,7 +80,8 @@ def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
         finest = math.sqrt(area / MAX_MESH_POINTS)
         raise CloudError(
             f"{name} has {area:.3g} m² of surface, {cells:,.0f} points at {spacing_m * 1e3:.3g} mm: more than the "
-            f"{MAX_MESH_POINTS:,} points tactex handles; give voxel_size_m={math.ceil(finest * 1e4) / 1e4:g} or more")
+            f"{MAX_MESH_POINTS:,} points tactex handles; give voxel_size_m={math.ceil(finest * 1e4) / 1e4:g} or more"
+            + (f"; {inch_hint(extent)}" if inch_hint(extent) else ""))
     count = max(math.ceil(SAMPLES_PER_CELL * cells), 16)
     points, faces, bary = trimesh.sample.sample_surface(mesh, count, return_barycentric=True, seed=SAMPLE_SEED)
     normals = np.asarray(mesh.face_normals[faces], dtype=np.float64)

@@ -41,7 +41,7 @@ class TargetFile:
 
 def load_target_file(path: str | Path, voxel_size_m: float, rule: TargetRule, *, keep_out_channel: str = "",
                      keep_out_threshold: float = DEFAULT_KEEP_OUT_THRESHOLD, keep_out_mask: str = "",
-                     label: str = "", unmarked_hint: str | None = None) -> TargetFile:
+                     label: str = "", unmarked_hint: str | None = None, units: str = "m") -> TargetFile:
     """Load the cloud or mesh file ``path`` as a target.
 
     Args:
@@ -54,11 +54,12 @@ def load_target_file(path: str | Path, voxel_size_m: float, rule: TargetRule, *,
         label: how messages name the file's option (``"--cloud "``), '' for none.
         unmarked_hint: when given, a file with neither colours nor a stored target is refused up front with
             this advice (for a caller whose rule cannot be the whole surface); None: the rule decides.
+        units: the file's length unit (m, mm, in), converted to metres as it is read.
 
     Raises:
         InputError: the file is unreadable, unmarked, or its keep-out options do not fit it.
     """
-    read = read_cloud(path, mesh_spacing_m=voxel_size_m or DEFAULT_MESH_SPACING_M)
+    read = read_cloud(path, mesh_spacing_m=voxel_size_m or DEFAULT_MESH_SPACING_M, units=units)
     raw = read.cloud
     voxel = 0.0 if read.n_faces else voxel_size_m  # a mesh is sampled at the voxel spacing already
     keep_out = raw_keep_out(raw, keep_out_channel, keep_out_threshold, keep_out_mask, read)

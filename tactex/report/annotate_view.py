@@ -34,10 +34,10 @@ KEEP_OUT_RGB = (0, 180, 255)
 MARK_LABELS = {"target": "target", "keep-out": "keep_out", "erase": "erase"}
 
 
-def open_annotation(path: str | Path) -> tuple[Annotation, tuple[str, ...]]:
-    """The cloud file's points with the marks it already holds (its ``target`` and ``keep_out``), and
-    what reading it did, in words."""
-    read = read_cloud(path)
+def open_annotation(path: str | Path, units: str = "m") -> tuple[Annotation, tuple[str, ...]]:
+    """The cloud file's points (in ``units``: m, mm, in; held in metres) with the marks it already holds (its
+    ``target`` and ``keep_out``), and what reading it did, in words."""
+    read = read_cloud(path, units=units)
     return Annotation(read.cloud, read.cloud.target, read.keep_out), read.notes
 
 

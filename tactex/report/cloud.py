@@ -52,6 +52,7 @@ def plot_cloud(
     keep_out: np.ndarray | None = None,
     title: str | None = None,
     cmaps: Mapping[str, Any] | None = None,
+    labels: Mapping[str, str] | None = None,
     point_size: float = 2.0,
     view: tuple[float, float] = (35.0, -60.0),
     dpi: int = 110,
@@ -68,12 +69,14 @@ def plot_cloud(
         keep_out: (N,) bool, kept-out points, drawn as blue crosses over every panel.
         title: figure title.
         cmaps: colour map (name or matplotlib Colormap) per field name (default "viridis").
+        labels: colour bar label per field name, with its unit (default the name).
         point_size: marker size [pt²].
         view: (elevation, azimuth) of the camera [deg].
         dpi: resolution.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     pts = as_points(points)
     data = as_fields(fields, pts.shape[0]) or {"cloud": np.zeros(pts.shape[0])}
@@ -82,7 +85,7 @@ def plot_cloud(
     zone = None if keep_out is None else pts[as_mask(keep_out, pts.shape[0], "keep_out")]
     cmaps = dict(cmaps or {})
     n = len(data)
-    fig = Figure(figsize=(4.6 * n, 4.6), dpi=dpi)
+    fig = Figure(figsize=(5.2 * n, 4.6), dpi=dpi)
     FigureCanvasAgg(fig)
     for i, (name, values) in enumerate(data.items()):
         ax = fig.add_subplot(1, n, i + 1, projection="3d")
@@ -101,8 +104,11 @@ def plot_cloud(
             depthshade=False,
             zorder=1,
         )
-        if name != "cloud":
-            fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.16, orientation="horizontal")
+        if name != "cloud":  # above the panel, labelled (it is the panel's title): under it the bar would cover the
+            # x and y axis titles, beside it the z axis title
+            bar = fig.colorbar(sc, ax=ax, shrink=0.6, pad=0.02, location="top", aspect=30)
+            bar.set_label((labels or {}).get(name, name), fontsize=8)
+            bar.ax.tick_params(labelsize=7)
         if zone is not None and zone.shape[0]:
             ax.scatter(zone[:, 0], zone[:, 1], zone[:, 2], color="dodgerblue", marker="x", s=6, lw=0.6,
                        depthshade=False, zorder=2, label="keep-out")
@@ -118,11 +124,13 @@ def plot_cloud(
             ax.legend(loc="upper left", fontsize=7, framealpha=0.8)
         _equal_aspect(ax, pts if traj is None else np.vstack([pts, traj]))
         ax.view_init(*view)
-        ax.set_title(name)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_zlabel("z [m]")
-        ax.tick_params(labelsize=6)
+        if name == "cloud":
+            ax.set_title(name)
+        for axis, label in ((ax.xaxis, "x [m]"), (ax.yaxis, "y [m]"), (ax.zaxis, "z [m]")):
+            axis.set_major_locator(MaxNLocator(4))  # few ticks: 3-D axes crowd their labels together
+            axis.set_label_text(label, fontsize=8)
+            axis.labelpad = 8
+        ax.tick_params(labelsize=6, pad=1)
     if title:
         fig.suptitle(title)
     out = Path(path)

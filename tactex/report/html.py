@@ -14,9 +14,17 @@ import numpy as np
 
 from tactex.errors import ConfigError
 from tactex.report._validate import as_fields, as_mask, as_path, as_points
+from tactex.report.cloud import color_limits
 from tactex.report.path_segments import flight_indices, split_flights
 
-__all__ = ["cloud_html"]
+__all__ = ["cloud_html", "tick_format"]
+
+
+def tick_format(lo: float, hi: float) -> str:
+    """A d3 tick format for a colour bar over [lo, hi]: plotly's default writes SI prefixes ("20μ"), which read
+    as a unit on a quantity without one; small or large magnitudes get an exponent ("2e-5"), others 3 digits."""
+    big = max(abs(lo), abs(hi))
+    return ".2~e" if 0 < big < 1e-2 or big >= 1e4 else ".3~g"
 
 
 def cloud_html(
@@ -70,6 +78,7 @@ def cloud_html(
     names = list(data)
     traces = []
     for i, name in enumerate(names):
+        lo, hi = color_limits(data[name])  # a constant (whole-surface) target in the scale's top colour
         traces.append(
             go.Scatter3d(
                 x=pts[:, 0],
@@ -82,7 +91,9 @@ def cloud_html(
                     "size": point_size,
                     "color": data[name],
                     "colorscale": scales.get(name, "Viridis"),
-                    "colorbar": {"title": {"text": name}},
+                    "cmin": lo,
+                    "cmax": hi,
+                    "colorbar": {"title": {"text": name}, "tickformat": tick_format(lo, hi)},
                 },
                 hovertemplate=f"{name}: %{{marker.color:.4g}}<extra></extra>",
             )

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -200,9 +199,40 @@ def write_index_html(path: str | Path, reports: Sequence[RunReport], *, title: s
             if r.notes:
                 notes = "; ".join(html.escape(n) for n in r.notes)
                 parts.append(f"<p><b>{html.escape(r.label)}</b>: {notes}</p>")
-    parts.append("<h2>Metrics (JSON)</h2><pre>" + html.escape(json.dumps(
-        {f"{r.kind}/{r.label}": {k: v for k, v in to_jsonable(r.metrics).items() if k != "ergodicity"}
-         for r in reports}, indent=1)) + "</pre>")
+    parts.append(_metrics_table(reports, out.parent))
     parts.append("</div></body></html>\n")
     out.write_text("\n".join(parts))
     return out
+
+
+def _cell(value: Any) -> str:
+    """A metric as a person reads it: 4 significant digits, yes/no, '–' for none."""
+    if value is None:
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):.4g}"
+    return str(value)
+
+
+def _metrics_table(reports: Sequence[RunReport], root: Path) -> str:
+    """Every run's scalar metrics side by side (one row per metric), folded under a heading; lists and nested
+    records stay in each run's metrics.json, which the table links."""
+    runs = [(r, to_jsonable(r.metrics)) for r in reports]
+    keys = list(dict.fromkeys(k for _, m in runs for k, v in m.items()
+                              if v is None or isinstance(v, (bool, int, float, str))))
+    head = "".join(f"<th>{html.escape(f'{r.kind}/{r.label}')}</th>" for r, _ in runs)
+    rows = "".join("<tr><td>" + html.escape(k) + "</td>"
+                   + "".join(f"<td>{html.escape(_cell(m.get(k)))}</td>" for _, m in runs) + "</tr>" for k in keys)
+    links = []
+    for r, _ in runs:
+        folder = Path(r.out_dir).resolve()
+        if (folder / "metrics.json").is_file() and folder.is_relative_to(root.resolve()):
+            href = (folder / "metrics.json").relative_to(root.resolve()).as_posix()
+            links.append(f"<a href='{html.escape(href)}'>{html.escape(r.label)}</a>")
+    where = f" Lists and nested records: each run's metrics.json ({', '.join(links)})." if links else ""
+    return (f"<details style='margin-top:1em'><summary><b>All metrics</b> ({len(keys)} per run)</summary><p>{where}</p>"
+            f"<table class='tx'><tr><th>metric</th>{head}</tr>{rows}</table></details>")

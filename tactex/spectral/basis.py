@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 from tactex.errors import CacheError, CloudError, ConfigError, SpectralError
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.spectral.cache import basis_key, default_cache_dir, load_arrays, save_arrays
+from tactex.spectral.cache_store import cache_cap_bytes, enforce_cap, mark_used
 from tactex.spectral.eigen import check_eigensolver, laplace_eigenpairs, resolve_eigensolver
 from tactex.spectral.hierarchy import DEFAULT_TOL
 from tactex.spectral.laplacian import point_cloud_laplacian
@@ -117,13 +120,18 @@ def _count_components(L: sp.csr_matrix) -> int:
 
 def compute_basis(
     points: np.ndarray, spacing: float, n_eigen: int, n_neighbors: int, mollify_factor: float, key: str,
-    eigensolver: str = "arpack", eigen_tol: float = DEFAULT_TOL,
+    eigensolver: str = "arpack", eigen_tol: float = DEFAULT_TOL, progress: Callable[[str], None] | None = None,
 ) -> LaplaceBasis:
-    """Build a basis without any caching (see :func:`build_basis`)."""
+    """Build a basis without any caching (see :func:`build_basis`); ``progress`` gets a line per phase."""
+    say = progress or (lambda msg: None)
+    say(f"basis: Laplacian of {len(points)} points ...")
+    t0 = time.perf_counter()
     L, M = point_cloud_laplacian(points, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
     mass = M.diagonal().copy()
     solver = resolve_eigensolver(eigensolver, len(points))
-    evals, evecs = laplace_eigenpairs(L, mass, n_eigen, solver=solver, tol=eigen_tol, points=points, spacing=spacing)
+    say(f"basis: Laplacian {time.perf_counter() - t0:.1f} s; {n_eigen} eigenpairs ({solver} eigensolver) ...")
+    evals, evecs = laplace_eigenpairs(L, mass, n_eigen, solver=solver, tol=eigen_tol, points=points, spacing=spacing,
+                                      progress=progress)
     return LaplaceBasis(
         L=L,
         M=M,
@@ -215,6 +223,7 @@ def build_basis(
     mollify_factor: float = 1e-5,
     eigensolver: str = "auto",
     eigen_tol: float = DEFAULT_TOL,
+    progress: Callable[[str], None] | None = None,
 ) -> LaplaceBasis:
     """The Laplace basis of ``cloud``: L, M and the ``n_eigen`` smallest eigenpairs (TEC eq. 20).
 
@@ -230,9 +239,13 @@ def build_basis(
             (hierarchical from ``HIERARCHICAL_MIN_POINTS`` points on). Part of the cache key.
         eigen_tol: the hierarchical solver's bound on each pair's squared relative residual
             (≈ relative eigenvalue error), in (0, 1). Part of the cache key.
+        progress: called with a line per phase of a computed basis (Laplacian, eigensolver levels and
+            iterations); a basis read from the cache says nothing.
 
     A corrupt or mismatching cache file is reported with a ``RuntimeWarning``, recomputed and
-    overwritten (use :func:`load_basis` to get a :class:`CacheError` instead).
+    overwritten (use :func:`load_basis` to get a :class:`CacheError` instead). The folder is capped at
+    ``$TACTEX_CACHE_MAX_GB`` (:mod:`tactex.spectral.cache_store`): a file read becomes the most recently
+    used one, and after a file is written the least recently used go until the folder fits again.
     """
     if not isinstance(cloud, SurfaceCloud):
         raise CloudError(f"build_basis needs a SurfaceCloud, got {type(cloud).__name__}")
@@ -243,20 +256,29 @@ def build_basis(
     key = basis_key(cloud.points, k, n_neighbors, mollify_factor, cloud.spacing, solver, tol)
     path = None
     if cache:
+        cap = cache_cap_bytes()  # a bad $TACTEX_CACHE_MAX_GB is said before the work, not after it
         path = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
         path = path / f"{key}.npz"
         if path.is_file():
             try:
                 basis = load_basis(path, expected_key=key)
                 if basis.n_points == len(cloud) and basis.n_eigen == k:
+                    mark_used(path)
                     return basis
                 raise CacheError(f"basis cache file '{path}' has {basis.n_points}×{basis.n_eigen} vectors")
             except CacheError as exc:
                 warnings.warn(f"{exc}; recomputing the basis", RuntimeWarning, stacklevel=2)
-    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key, solver, eigen_tol)
+    basis = compute_basis(cloud.points, cloud.spacing, k, n_neighbors, mollify_factor, key, solver, eigen_tol,
+                          progress=progress)
     if path is not None:
         try:
             save_basis(basis, path)
+            removed = enforce_cap(path.parent, cap, keep=path)
         except OSError as exc:
             warnings.warn(f"could not write the basis cache '{path}': {exc}", RuntimeWarning, stacklevel=2)
+        else:
+            if any(e.path.resolve() == path.resolve() for e in removed):
+                warnings.warn(f"the basis ({removed[-1].size_bytes / 1e9:.2f} GB) is larger than the cache's cap "
+                              f"({cap / 1e9:.2f} GB) and was not kept; raise TACTEX_CACHE_MAX_GB to keep it",
+                              RuntimeWarning, stacklevel=2)
     return basis

@@ -7,6 +7,8 @@ points on (the papers' clouds included).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -58,6 +60,7 @@ def laplace_eigenpairs(
     points: np.ndarray | None = None,
     spacing: float | None = None,
     info: HierarchyInfo | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The k smallest eigenpairs of L φ = λ M φ for a diagonal mass matrix M.
 
@@ -72,6 +75,7 @@ def laplace_eigenpairs(
         points: (N, 3) positions [m] of the cloud (hierarchical solver only).
         spacing: mean spacing h [m] of the points (hierarchical solver only).
         info: filled by the hierarchical solver with its levels, iterations and timings.
+        progress: called with one-line messages during the hierarchical solve (levels, iterations).
 
     Returns:
         (evals, evecs): (k,) ascending eigenvalues [1/m²] clipped at 0, (N, k) M-orthonormal vectors.
@@ -86,7 +90,7 @@ def laplace_eigenpairs(
                               "use --eigensolver arpack for a bare matrix")
         with single_threaded_blas():
             pairs = hierarchical_eigenpairs(L, mass, k, np.asarray(points, dtype=np.float64), float(spacing),
-                                            tol=tol, seed=seed, info=info)
+                                            tol=tol, seed=seed, info=info, progress=progress)
         if pairs is not None:  # None: too few points for a coarser level, the exact path below is as fast
             evals, evecs = pairs
             return canonical_pairs(evals, evecs, None)

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -405,6 +406,7 @@ def hierarchical_eigenpairs(
     tol: float = DEFAULT_TOL,
     seed: int = 0,
     info: HierarchyInfo | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The k smallest pairs of L φ = λ M φ (M = diag(mass)) by hierarchical subspace iteration.
 
@@ -417,6 +419,7 @@ def hierarchical_eigenpairs(
         tol: bound on η² (≈ relative eigenvalue error) of every wanted pair on the finest level, in (0, 1).
         seed: start vector of the exact solve on the coarsest level.
         info: filled with what the solve did, when given.
+        progress: called with a line per level and per iteration on the finest one (a large cloud takes minutes).
 
     Returns:
         (evals (k,), evecs (N, k)) M-orthonormal, unsorted signs; or None when the cloud is too small for a
@@ -448,6 +451,9 @@ def hierarchical_eigenpairs(
     info.level_points = [n] + [len(idx) for idx, _ in levels]
     info.subspace_size = p
     info.seconds["hierarchy"] = time.perf_counter() - t0
+    say = progress or (lambda msg: None)
+    say(f"eigensolver: {len(levels) + 1} levels of {', '.join(str(m) for m in info.level_points)} points, "
+        f"{p} vectors; the coarsest solved exactly ...")
 
     t0 = time.perf_counter()
     Lc, mc = ops[-1]
@@ -477,6 +483,8 @@ def hierarchical_eigenpairs(
             X, theta = X[:, :p_fine], theta[:p_fine]
         X = levels[level][1] @ X
         Lf, mf = ops[level]
+        say(f"eigensolver: level {len(levels) - level + 1} of {len(levels) + 1} ({Lf.shape[0]} points): factor and "
+            "refine ...")
         t0 = time.perf_counter()
         factor = _Factor(_shifted(Lf, mf, sigma), block=small and SMALL_BLOCK_LU)
         t1 = time.perf_counter()
@@ -490,6 +498,7 @@ def hierarchical_eigenpairs(
                 eta2 = _relative_residual2(L, mass, theta[:k], Xk, compiled=small and SMALL_BLOCK_LU)
                 info.fine_iterations = it
                 info.max_residual2 = float(eta2.max())
+                say(f"eigensolver: iteration {it}: largest η² {info.max_residual2:.1e} (done at ≤ {tol:g})")
                 _log.debug("hierarchical eigensolver: iteration %d, max η² %.2e", it, info.max_residual2)
                 if info.max_residual2 <= tol:
                     X = Xk

@@ -14,6 +14,7 @@ from tactex.ergodic.config import HedacConfig
 from tactex.errors import ConfigError
 from tactex.pointcloud.keep_out import DEFAULT_KEEP_OUT_THRESHOLD, check_keep_out_options
 from tactex.pointcloud.markings import resolve_marking
+from tactex.pointcloud.units import check_units
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.eigen import check_eigensolver
 from tactex.tasks.clean.sweep_plan import MAX_CORNERS
@@ -183,6 +184,8 @@ class CleanConfig(SimWorldParams):
                            "whose red marking "
                            "(or stored target) is the dirt: no camera capture, no re-measurement (a robot without a "
                            "camera; TEC: markings annotated by an expert). Needed with --robot franka")
+    units: str = param("m", "length unit of the --cloud file: m, mm or in; its coordinates are converted to metres "
+                            "as it is read")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
     seed: int = param(0, "seed of the sensor noise and of the explorer's random headings")
@@ -247,6 +250,9 @@ class CleanConfig(SimWorldParams):
                 f"{self.vision_max_steps} and {self.n_eigen}")
         if self.cloud and not Path(self.cloud).is_file():
             raise ConfigError(f"--cloud '{self.cloud}' is not a file (give a .ply/.pcd/.npz in the robot base frame)")
+        check_units(self.units)
+        if self.units != "m" and not self.cloud:
+            raise ConfigError(f"--units {self.units} is the unit of a --cloud FILE: give --cloud too")
         if self.cloud and self.baseline == "no_feedback":
             raise ConfigError("--cloud already runs without vision feedback; drop --baseline no_feedback")
         check_eigensolver(self.eigensolver, self.eigen_tol)

@@ -165,7 +165,8 @@ class CleanProgram:
         self.loop = ControlLoop(backend, on_tick=log, max_joint_speed=cfg.joint_speed_rad_s)
         self.bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
         self.given, self.keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
-                                                                cfg.keep_out_threshold, cfg.keep_out_mask)
+                                                                cfg.keep_out_threshold, cfg.keep_out_mask,
+                                                                units=cfg.units)
                                      if cfg.cloud else (None, None))
         if started is not None:
             started.log, started.loop, started.cloud = log, self.loop, self.given

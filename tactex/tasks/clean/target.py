@@ -22,21 +22,22 @@ __all__ = ["OFF_SURFACE_WARN", "load_target_cloud", "load_target_cloud_keep_out"
 OFF_SURFACE_WARN = 0.2
 
 
-def load_target_cloud(path: str | Path, voxel_size_m: float) -> SurfaceCloud:
+def load_target_cloud(path: str | Path, voxel_size_m: float, units: str = "m") -> SurfaceCloud:
     """A user's cloud (or mesh) in the robot base frame as the cleaning target: voxelised, its stored
     target or else its red marking (by hue and saturation: ``tactex explore --target auto``, white is
-    not dirt), with normals estimated (16 neighbours, oriented up) where the file has none."""
-    return load_target_cloud_keep_out(path, voxel_size_m)[0]
+    not dirt), with normals estimated (16 neighbours, oriented up) where the file has none. ``units``: the
+    file's length unit (m, mm, in)."""
+    return load_target_cloud_keep_out(path, voxel_size_m, units=units)[0]
 
 
 def load_target_cloud_keep_out(path: str | Path, voxel_size_m: float, keep_out_channel: str = "",
                                keep_out_threshold: float = DEFAULT_KEEP_OUT_THRESHOLD,
-                               keep_out_mask: str = "") -> tuple[SurfaceCloud, np.ndarray | None]:
+                               keep_out_mask: str = "", units: str = "m") -> tuple[SurfaceCloud, np.ndarray | None]:
     """:func:`load_target_cloud` and its keep-out zone (a boolean per returned point, None without one;
     see :mod:`tactex.pointcloud.keep_out`)."""
     loaded = load_target_file(path, voxel_size_m, TargetRule("auto"), keep_out_channel=keep_out_channel,
                               keep_out_threshold=keep_out_threshold, keep_out_mask=keep_out_mask, label="--cloud ",
-                              unmarked_hint="mark the dirt red (255, 0, 0)")
+                              unmarked_hint="mark the dirt red (255, 0, 0)", units=units)
     cloud, keep_out = loaded.cloud, loaded.keep_out
     if cloud.normals is None:
         field = knn_normals(cloud.points, 16, viewpoint=cloud.points.mean(axis=0) + np.array([0.0, 0.0, 1.0]))

@@ -1,0 +1,60 @@
+"""The length unit of a cloud or mesh file (``--units m|mm|in``), applied when the file is read, before the
+points are checked: tactex works in metres, CAD parts come in millimetres or inches.
+
+Also the hints for a file read in the wrong unit: one over :data:`~tactex.pointcloud.cloud.MAX_EXTENT_M`
+is refused as millimetres (or inches, when its size in inches is a part's); one between
+:data:`INCH_HINT_MIN_M` and that limit passes, with a note that it may be in inches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tactex.errors import ConfigError
+
+__all__ = ["INCH_HINT_MAX_UNITS", "INCH_HINT_MIN_M", "METRES_PER", "UNITS", "check_units", "inch_hint",
+           "millimetre_hint", "to_metres"]
+
+#: Metres per file unit.
+METRES_PER = {"m": 1.0, "mm": 1e-3, "in": 0.0254}
+#: The ``--units`` choices.
+UNITS = tuple(METRES_PER)
+#: Above this extent [m] a part read in metres is wider than a robot arm reaches (a Franka: 0.855 m), so a
+#: file in inches (a 5-inch part read as 5 m) is the likelier reading; the run still goes on, with a note.
+INCH_HINT_MIN_M = 2.0
+#: A file up to this many units wide may be in inches (2.5 m then); a wider one refused as too big is
+#: millimetres.
+INCH_HINT_MAX_UNITS = 100.0
+
+
+def check_units(units: object) -> str:
+    """``units`` if it is one of :data:`UNITS`, else :class:`ConfigError` naming them."""
+    if units not in METRES_PER:
+        raise ConfigError(f"units={units!r} is not a length unit; give one of {', '.join(UNITS)} (the file's unit: "
+                          "a CAD part is often in mm or in)")
+    return str(units)
+
+
+def to_metres(values: np.ndarray, units: str) -> np.ndarray:
+    """``values`` in ``units`` as metres (float64). Millimetres are divided by 1000 (exact for a value that is
+    a whole number of millimetres' worth of metres, so a file in mm gives the points of its twin in m)."""
+    arr = np.asarray(values, dtype=np.float64)
+    units = check_units(units)
+    if units == "m":
+        return arr
+    if units == "mm":
+        return arr / 1000.0
+    return arr * METRES_PER[units]
+
+
+def inch_hint(extent: float) -> str:
+    """For a file ``extent`` units wide read as metres: the clause suggesting inches, '' when implausible."""
+    if not INCH_HINT_MIN_M < extent <= INCH_HINT_MAX_UNITS:
+        return ""
+    return f"if it is in inches ({extent * METRES_PER['in']:.3g} m wide then), give units=in"
+
+
+def millimetre_hint(extent: float) -> str:
+    """What to do with a file ``extent`` units wide, refused as too wide for metres."""
+    inches = inch_hint(extent)
+    return "it is probably in millimetres: give units=mm (or convert it to metres)" + (f"; {inches}" if inches else "")
