@@ -30,6 +30,7 @@ from tactex.tasks.clean import legs, motion
 from tactex.tasks.clean.config import RASTER_BASELINES, CleanConfig
 from tactex.tasks.clean.legs import MAX_HOLD_STEPS, _after_stroke, _Legs, _WearTicks
 from tactex.tasks.clean.line_reference import LineLead, ToolNormal, blend_normals
+from tactex.tasks.clean.metrics import clean_metrics
 from tactex.tasks.clean.motion import (
     APPROACH_ACCEL_M_S2,
     CLEARANCE_M,
@@ -50,7 +51,6 @@ from tactex.tasks.clean.robot_camera import RobotCapture
 from tactex.tasks.clean.step_ahead import StepAhead
 from tactex.tasks.clean.sweep_plan import SweepPlan
 from tactex.tasks.clean.target import _dirt_from_cloud, load_target_cloud_keep_out
-from tactex.tasks.clean.time_breakdown import time_to_fraction_removed
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
@@ -748,79 +748,7 @@ class CleanProgram:
             ex = self.explorer
             fields.update(target=ex.target.copy(), coverage=ex.coverage.copy(), potential=ex.potential.copy())
         return CleanResult(
-            config=cfg, metrics=self._metrics(series), series=series, cloud=self.cloud, fields=fields,
+            config=cfg, metrics=clean_metrics(self, series), series=series, cloud=self.cloud, fields=fields,
             agent_path=np.asarray(self.agent_path).reshape(-1, 3), tcp_path=series.get("tcp", np.zeros((0, 3))),
             events=list(loop.safety.events),
         )
-
-    def _metrics(self, series: dict[str, np.ndarray]) -> dict:
-        """The run's figures (``metrics.json``)."""
-        cfg, loop, log, legs_, ex = self.cfg, self.loop, self.log, self.legs, self.explorer
-        contact = max(log.contact_ticks, 1)
-        t95 = (time_to_fraction_removed(series["t"], series["dirt_remaining"], 0.95)
-               if log.truth and len(series.get("t", ())) else None)
-        metrics = {
-            "dirt_removed_fraction": 1.0 - self.dirt(),
-            # the shares count the normal force while exploring in contact; the maximum is the force
-            # magnitude over every phase (a transit's or a sideways hit's too)
-            "force_within_20pct_fraction": log.within_ticks / contact,
-            "max_contact_force_n": log.max_force,
-            "force_over_2x_ticks": log.over_2x_ticks,
-            "contact_time_s": log.contact_ticks * self.backend.dt,
-            "sim_time_s": loop.t,
-            "explore_time_s": self.explore_time,
-            # where the time went, and when 95 % of the marking was off (None: never, or no ground truth)
-            "time_breakdown_s": log.time.seconds(),
-            # the same up to the 95 % mark (None when it never came or the dirt is not known): the time to 95 % split
-            "time_breakdown_to_95pct_s": log.time.seconds_to_mark(),
-            "time_to_95pct_s": t95,
-            "vision_updates": self.vision_updates,
-            "island_relocations": self.island_moves,
-            "island_strokes": self.n_strokes,
-            # [m] slid along the planned first sweep (0: none, or its touch-down was out of reach) and its slide to
-            # the goal as the wear model predicted it when planned (0: none planned)
-            "first_sweep_m": 0.0 if self.first_sweep is None else self.first_sweep.path.path_length,
-            "first_sweep_planned_m": 0.0 if self.first_plan is None else self.first_plan.length_m,
-            "contact_transfers": self.n_transfers,
-            "vision_update_times_s": self.vision_times,
-            "phase_changes": [[t, p] for t, p in log.phase_changes],
-            "vision_remaining_fraction": self.remaining_seen,
-            "basis_time_s": self.basis_s,
-            "start_plan_time_s": self.start_plan_s,  # [s] wall clock: choosing the first touch-down (IK per candidate)
-            "n_eigen": 0 if self.basis is None else self.basis.n_eigen,
-            "eigensolver": "" if self.basis is None else self.basis.eigensolver,
-            "wall_time_s": time.perf_counter() - self.wall0,
-            "n_points": len(self.cloud),
-            "n_target_initial": self.n_target0,
-            "agent_path_length_m": legs_.path_m + float(self.path.path_length),
-            "air_path_length_m": legs_.air_m + (float(ex.air_path_length) if ex is not None else 0.0),
-            "relocations": legs_.relocations + len(self.path.relocations),
-            "keep_out_points": int(self.keep_out.sum()) if self.keep_out is not None else 0,
-            "keep_out_contacts": legs_.keep_out_contacts + (int(ex.keep_out_contacts) if ex is not None else 0),
-            "target_near_keep_out": self.near_keep_out,
-            "force_set_point_n": cfg.force_n,
-            "baseline": cfg.baseline or "tactex",
-            "object": cfg.object_name,
-            "marking": "cloud" if cfg.cloud else cfg.marking,  # with --cloud the dirt is its target (simulated too)
-            "safety_events": len(loop.safety.events),
-            # per kind: events (force_limit: one per retreat), ticks for nan_wrench and the torque and rate limits
-            "safety_counts": dict(loop.safety.counts),
-            "safety_limits": {"max_contact_force_n": loop.safety.limits.max_contact_force,
-                              "tau_rate_max_n_m_s": loop.safety.limits.tau_rate_max},
-            # every tick the torque-rate limiter changed the command (an event marks only where a run of them starts)
-            "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
-            "ergodicity": self.ergodicity,
-            "robot": "franka" if self.robot is not None else "sim",
-            "target_source": "cloud" if self.given is not None else "camera",
-            # [kg] the tool's weight the robot's load setting misses, from the load check (None: not made), and
-            # whether it was compensated
-            "load_error_kg": None if self.load_error is None else self.load_error.mass_kg,
-            "load_error_compensated": self.load_error is not None and self.load_error.accepted,
-            "aborted": self.aborted,
-            "partial": bool(self.aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
-        }
-        if self.robot is not None:
-            metrics.update(self.backend.loop_metrics())
-            # the captures with the robot's camera (frames read and processed while torque control paused)
-            metrics.update(self.camera.metrics() if self.camera is not None else {"camera": "none", "captures": 0})
-        return metrics
