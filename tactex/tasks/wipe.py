@@ -97,6 +97,10 @@ def _rot_x(deg: float) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
 
 
+#: Spacing of the surface the live page draws [m].
+LIVE_SPACING_M = 0.004
+
+
 @dataclass(frozen=True)
 class WipeConfig(SimWorldParams):
     """Parameters of ``tactex wipe`` (VA-UFIC §III and Table I)."""
@@ -301,6 +305,7 @@ class _WipeLog:
         self.tank_i: list[float] = []
         self.tank_f: list[float] = []
         self._pending: tuple | None = None
+        self.live: _WipeLive | None = None  # the live page's part (--view)
 
     def sent(self, state_ctrl) -> None:
         """The torque computed from ``state_ctrl`` is on its way: complete the previous tick (whose
@@ -377,17 +382,47 @@ class _WipeLog:
             self.rec.add()
         if self.n_ticks % 250 == 0:
             self.bar.update(t, force=fz, contact=self.n_contact / self.n_ticks)
+        if self.live is not None and self.live.feed.due():
+            self.live.show(self, state, t, fz, in_contact)
+
+
+class _WipeLive:
+    """What the wipe shows on its live page (``--view``, :class:`~tactex.tasks.live_feed.LiveFeed`): the object's
+    surface (red where the pad has not been, green where it has), the TCP, the tool, the force against its set
+    point and where the time went. Called from :meth:`_WipeLog._complete`, while a command executes."""
+
+    def __init__(self, feed, surface, obj_pos: np.ndarray, obj_rot: np.ndarray, pad_radius_m: float) -> None:
+        from scipy.spatial import cKDTree
+
+        pts = obj_pos + surface.sample(LIVE_SPACING_M).points @ obj_rot.T
+        self.feed, self.radius = feed, float(pad_radius_m)
+        self.left = np.ones(len(pts))  # 1 where the pad has not been yet
+        self.tree = cKDTree(pts)
+        feed.set_cloud(pts, None, np.ones(len(pts)))
+
+    def show(self, log: _WipeLog, state, t: float, fz: float, in_contact: bool) -> None:
+        if in_contact:
+            self.left[self.tree.query_ball_point(state.ee_position, self.radius)] = 0.0
+        approach = log.first_contact if log.first_contact is not None else t
+        contact = log.n_contact * log.dt
+        self.feed.publish(
+            t, phase="approach" if log.first_contact is None else "wipe", force_n=fz, set_point_n=log.cfg.force_n,
+            tcp_m=state.ee_position, world_R_tool=state.ee_rotation, progress=t / log.cfg.duration_s, field=self.left,
+            breakdown_s={"approach": approach, "contact": contact, "no_contact_after_touch": max(0.0, t - approach -
+                                                                                               contact)},
+            figures={"surface touched [-]": 1.0 - float(self.left.mean())})
 
 
 def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
-             robot: RealRobotParams | None = None) -> WipeResult:
+             robot: RealRobotParams | None = None, live=None) -> WipeResult:
     """Run the wiping exploration in simulation, or on a real Franka (``robot``); returns metrics, series
     and the explored surface.
 
     On a real robot the object's registry shape at ``object_position`` places the start above the
     surface (the controller never uses it), and a libfranka error, a lost sensor or Ctrl-C ends the
     policy early: torque control stops and the result holds what was recorded, with ``aborted``
-    naming the cause in its metrics."""
+    naming the cause in its metrics. ``live``: a :class:`~tactex.tasks.live_feed.LiveFeed` the run shows itself
+    on (``--view``), or None."""
     cfg = config or WipeConfig()
     wall0 = time.perf_counter()
     scene_cfg = cfg.scene()
@@ -400,7 +435,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
         vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
         try:
-            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0)
+            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, live)
         finally:
             vision.close()
     finally:
@@ -423,7 +458,7 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot
 
 
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
-              progress: bool, wall0: float) -> WipeResult:
+              progress: bool, wall0: float, live=None) -> WipeResult:
     loop = ControlLoop(backend)
     surface = scene_cfg.sim_object.surface
     obj_pos, obj_rot = scene_cfg.object_pose()
@@ -432,6 +467,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     z_surf = float(surface.project(np.array([[0.0, cfg.start_y_m, 0.0]]))[0][0, 2])
     p_start = obj_pos + obj_rot @ np.array([0.0, cfg.start_y_m, z_surf]) + np.array([0.0, 0.0, cfg.start_height_m])
     r_start = _rot_x(cfg.start_tilt_deg) @ TOOL_DOWN
+    # the live page's surface is made before torque control starts (sampling it takes milliseconds)
+    shown = _WipeLive(live, surface, obj_pos, obj_rot, scene_cfg.tool.pad_radius_m) if live is not None else None
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
@@ -448,6 +485,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     bar = Progress(cfg.duration_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
     t0 = loop.t
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
+    log.live = shown
 
     wrench_d = np.array([0.0, 0.0, cfg.force_n, 0.0, 0.0, 0.0])
     policy = _WipeReferences(cfg, vision, p_start, r_start, wrench_d)
