@@ -146,3 +146,58 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
     assert metrics["partial"] and metrics["aborted"].startswith("KeyboardInterrupt"), metrics["aborted"]
     with np.load(out / "series.npz", allow_pickle=False) as z:
         assert len(z["t"]) > 0 and float(z["t"][-1]) > 1.0
+
+
+@pytest.mark.franka
+def test_stop_on_the_page_ends_a_twin_wipe_as_ctrl_c(tmp_path):
+    """On a robot (tactex twin over libfranka's protocol), Stop ends torque control as Ctrl-C does: the run
+    says it stopped, keeps what it recorded, exits 130, and the robot takes a new connection at once."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the dev extra)")
+    pytest.importorskip("pylibfranka", reason="needs the franka extra")
+    pytest.importorskip("franky_sim", reason="needs the franka extra")
+    from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend
+    from tactex.twin.process import TwinProcess
+
+    out = tmp_path / "run"
+    with TwinProcess("sine_panel") as twin:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "tactex.cli", "wipe", "--robot", "franka", "--robot-ip", twin.hostname,
+             "--late-abort-ms", "5000", "--camera", "none", "--duration-s", "20", "--no-video", "--out", str(out),
+             "--view", "--view-port", "0"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        said: list[str] = []
+        url_seen, contact, stopped = threading.Event(), threading.Event(), threading.Event()
+
+        def drain() -> None:
+            for line in proc.stderr:
+                said.append(line)
+                url_seen.set() if "live view at" in line else None
+                contact.set() if "contact=" in line else None
+                stopped.set() if "stopped early" in line else None
+
+        threading.Thread(target=drain, daemon=True).start()
+        try:
+            assert url_seen.wait(HANG_S), "".join(said)
+            url = re.search(r"live view at (http://127\.0\.0\.1:\d+/)", "".join(said)).group(1)
+            with sync_api.sync_playwright() as p:
+                browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+                page = browser.new_page(viewport={"width": 1100, "height": 720})
+                page.goto(url, timeout=HANG_S * 1000)
+                assert contact.wait(HANG_S), "".join(said)  # the policy runs on the robot, in contact
+                _wait_text(page, r"phase wipe", "the page to show the wipe", proc)
+                page.get_by_role("button", name="Stop").click()
+                assert stopped.wait(HANG_S), "".join(said)  # torque control has ended
+                code = proc.wait(timeout=HANG_S)
+                browser.close()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        text = "".join(said)
+        assert code == 130, text
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["aborted"].startswith("KeyboardInterrupt") and metrics["partial"] is True
+        assert metrics["loop_ticks"] > 100 and (out / "series.npz").is_file()
+        assert json.loads((out / "status.json").read_text())["status"] == "interrupted"
+        check = LibfrankaBackend(FrankaConfig(robot_ip=twin.hostname))  # the robot is free again
+        check.close()
