@@ -112,3 +112,24 @@ def test_bad_view_options_are_one_line_and_exit_2(tmp_path, capsys):
             err = capsys.readouterr().err.strip().splitlines()
             err = [line for line in err if "live view at" not in line]  # a page that started, then the refusal
             assert len(err) == 1 and err[0].startswith(f"tactex {argv[0]}: error:") and words in err[0], (argv, err)
+
+
+def test_a_run_killed_outright_leaves_no_feed_behind():
+    """SIGKILL gives the run no chance to close its page: the page's process sees it gone, ends and removes the
+    feed's folder (in /dev/shm)."""
+    import os
+    import time
+
+    pytest.importorskip("viser")
+    code = ("from tactex.experiments.live import open_live_page; import time; p = open_live_page(0, 't'); "
+            "print(p.feed.folder, flush=True); time.sleep(120)")
+    run = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    folder = run.stdout.readline().strip()
+    run.stdout.close()
+    assert folder and os.path.isdir(folder)
+    run.kill()
+    run.wait()
+    end = time.monotonic() + 60.0  # hang guard only
+    while os.path.isdir(folder) and time.monotonic() < end:
+        time.sleep(0.1)
+    assert not os.path.isdir(folder)

@@ -17,6 +17,7 @@ import contextlib
 import io
 import math
 import os
+import shutil
 import signal
 import sys
 import time
@@ -282,6 +283,8 @@ def serve_live(folder: str, port: int, title: str, parent_pid: int, force_set_po
             time.sleep(POLL_S)
     finally:
         view.close()
+        if os.getppid() != parent_pid:  # the run was killed outright: its feed's folder is left to this process
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 if __name__ == "__main__":
