@@ -173,3 +173,42 @@ def test_an_interrupted_sweep_keeps_its_settings_and_resumes(tmp_path, capsys, m
     capsys.readouterr()
     assert main([*argv[:-3], "--steps", "12", "--workers", "1", "--no-cache", "--out", str(out)]) == 0
     assert "resuming" not in capsys.readouterr().err
+
+
+def test_sweep_keeps_off_the_painted_keep_out_merged_with_the_options(tmp_path, capsys):
+    """A PLY's painted keep-out is honoured as explore honours it, merged with --keep-out-mask, and said."""
+    import json
+
+    from tactex.pointcloud.annotation import Annotation
+    from tactex.pointcloud.ply_marks import write_marked_ply
+
+    from .test_annotate import centre_index, plane
+
+    a = Annotation(plane(31))
+    a.paint(centre_index(a.cloud), 0.010, "target")
+    a.paint(int(np.argmax(a.cloud.points[:, 0])), 0.006, "keep_out")
+    marked = write_marked_ply(a.cloud, a.target, a.keep_out, tmp_path / "marked.ply")
+    mask = np.zeros(len(a.cloud), dtype=bool)
+    mask[int(np.argmin(a.cloud.points[:, 0]))] = True  # one more point, on the other side
+    np.save(tmp_path / "mask.npy", mask)
+    argv = ["sweep", str(marked), "--n-eigen", "10", "--alpha", "5", "--starts", "2", "--steps", "150",
+            "--workers", "1", "--voxel-size-m", "0"]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr()
+    n_file = a.counts().n_keep_out
+    assert f"{n_file} kept out (the file's keep_out property;" in out.out
+    summary = json.loads((tmp_path / "a" / "sweep.json").read_text())["clouds"]["marked"]
+    assert summary["keep_out_points"] == n_file and summary["n_target"] == a.counts().n_target
+    assert all(r["keep_out_contacts_max"] == 0 for r in summary["results"])
+    with np.load(tmp_path / "a" / "curves.npz") as z:
+        assert np.array_equal(z["marked.keep_out"], a.keep_out)
+        starts = z["marked.starts"]
+    assert not np.isin(starts, a.cloud.points[a.keep_out]).all(axis=1).any()  # no start drawn in the zone
+
+    assert main([*argv, "--keep-out-mask", str(tmp_path / "mask.npy"), "--out", str(tmp_path / "b")]) == 0
+    out = capsys.readouterr()
+    assert f"{n_file + 1} kept out (the file's keep_out property merged with --keep-out-mask" in out.out
+    assert "merged with --keep-out-mask" in out.err  # the loader's warning, with the total
+    summary = json.loads((tmp_path / "b" / "sweep.json").read_text())["clouds"]["marked"]
+    assert summary["keep_out_points"] == n_file + 1
+    assert all(r["keep_out_contacts_max"] == 0 for r in summary["results"])

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from tactex.commands._out import add_force_argument, check_out
+from tactex.commands._view import add_view_arguments, live_feed
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 from tactex.errors import ConfigError
 from tactex.tasks.robot import RealRobotParams
@@ -24,6 +25,7 @@ def register_task(parser: argparse.ArgumentParser, kind: str, config_cls: type) 
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     parser.add_argument("--no-video", dest="video", action="store_false",
                         help="skip the replay video (otherwise written when GL rendering works)")
+    add_view_arguments(parser)
     group = parser.add_argument_group(f"{kind} parameters")
     add_dataclass_arguments(group, config_cls)
     parser.add_argument("--robot", choices=("sim", "franka"), default="sim",
@@ -57,14 +59,17 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
         raise ConfigError("--compare runs in simulation only; on a robot run tactex and a --baseline one at a time")
     if kind == "clean":
         check_cloud_size(cfg, args.force)  # before the simulation starts, or the robot moves
+    if args.compare and args.view:
+        raise ConfigError("--view shows one run; drop --compare, or watch a --baseline run on its own")
     check_out(args, kind)  # the run driver makes the folder, once the parameters are known to be good
     out = Path(args.out).expanduser()
     if args.compare:
         reports = run_compare(kind, cfg, out, progress=not args.quiet, video=args.video)
         page = out / "index.html"
     else:
-        reports = [run_task(kind, cfg, out, progress=not args.quiet, video=args.video and robot is None,
-                            robot=robot)]
+        with live_feed(args, kind, cfg.force_n) as live:
+            reports = [run_task(kind, cfg, out, progress=not args.quiet, video=args.video and robot is None,
+                                robot=robot, live=live)]
         page = reports[0].html or out
     print(task_summary(reports))
     print(f"report: {page}")

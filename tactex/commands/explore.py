@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from tactex.commands._out import add_force_argument, check_out
+from tactex.commands._view import add_view_arguments, live_feed
 from tactex.config import add_dataclass_arguments, dataclass_from_args
 
 NAME = "explore"
@@ -32,6 +33,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     x0_help = ExploreConfig.__dataclass_fields__["x0"].metadata["help"]
     parser.add_argument("--x0", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None, help=x0_help)
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_view_arguments(parser)
     group = parser.add_argument_group("explorer (advanced)", "further HEDAC parameters (TEC Table II)")
     add_dataclass_arguments(group, HedacConfig, skip=_SHARED)
 
@@ -47,8 +49,9 @@ def run(args: argparse.Namespace) -> int:
     def progress(msg: str) -> None:
         print(f"tactex explore: {msg}", file=sys.stderr, flush=True)
 
-    result = run_explore(args.cloud, args.out, cfg, hedac=hedac, progress=None if args.quiet else progress,
-                         force=args.force)
+    with live_feed(args, NAME) as live:
+        result = run_explore(args.cloud, args.out, cfg, hedac=hedac, progress=None if args.quiet else progress,
+                             force=args.force, live=live)
     m = result.metrics
     print(
         f"{m['n_points']} points, {m['n_target']} target; preprocessing {m['preprocess_time_s']:.3f} s; "

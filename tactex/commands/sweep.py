@@ -57,7 +57,11 @@ def run(args: argparse.Namespace) -> int:
             raise
     alphas = cfg.alpha
     for key, cloud in result.summary["clouds"].items():
-        print(f"{key}: {cloud['n_points']} points, final ergodicity (eq. 48), mean of {cfg.starts} starts")
+        print(f"{key}: {cloud['n_points']} points, {cloud['n_target']} target"
+              + (f", {cloud['keep_out_points']} kept out ({_keep_out_from(cloud, cfg)}; most kept-out points "
+                 f"touched in a run: {max(r['keep_out_contacts_max'] for r in cloud['results']):g})"
+                 if cloud["keep_out_points"] else "")
+              + f"; final ergodicity (eq. 48), mean of {cfg.starts} starts")
         print("  n_K \\ α " + "".join(f"{a:>9g}" for a in alphas))
         for k in cfg.n_eigen:
             row = {r["alpha"]: r["final_ergodicity_mean"] for r in cloud["results"] if r["n_eigen"] == k}
@@ -68,6 +72,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"  failed: {f['cloud']} n_K = {f['n_eigen']}, α = {f['alpha']:g}: {f['error']}", file=sys.stderr)
     print(f"report: {result.out_dir} ({result.summary['sweep_time_s']:.1f} s)")
     return 0
+
+
+def _keep_out_from(cloud: dict, cfg) -> str:
+    """Where a cloud's keep-out zone came from, in words: the file's own property, the options, or both merged."""
+    from tactex.pointcloud.ply_marks import KEEP_OUT_PROPERTY
+
+    in_file = any(f"'{KEEP_OUT_PROPERTY}' property" in note for note in cloud["source"].get("notes", []))
+    options = [o for o, given in (("--keep-out-channel", cfg.keep_out_channel), ("--keep-out-mask", cfg.keep_out_mask))
+               if given]
+    if in_file and options:
+        return f"the file's {KEEP_OUT_PROPERTY} property merged with {' and '.join(options)}"
+    return f"the file's {KEEP_OUT_PROPERTY} property" if in_file else " and ".join(options)
 
 
 def _tune(args: argparse.Namespace, cfg, say) -> int:

@@ -311,6 +311,7 @@ def run_explore(
     hedac=None,
     progress: Progress | None = None,
     force: bool = False,
+    live=None,
 ) -> ExploreResult:
     """Explore ``source`` (file or built-in object) for ``config.steps`` steps and write the report.
 
@@ -323,6 +324,7 @@ def run_explore(
         progress: called with one-line progress messages (e.g. print to stderr).
         force: build the basis of a cloud over :data:`~tactex.spectral.estimate.MAX_BASIS_POINTS` points (refused
             otherwise, before any work, with the voxel size that fits).
+        live: a :class:`~tactex.tasks.live_feed.LiveFeed` the steps are shown on (``--view``), or None.
 
     Raises:
         RunInterrupted: Ctrl-C during the steps, once the steps done are written (a partial run).
@@ -358,7 +360,9 @@ def run_explore(
             "warning: the start lies in a part without target and relocation is off (--relocate); "
             "the agent will not find any")
     n = cfg.steps
-    walk = _walk(explorer, n, say)
+    if live is not None:
+        live.set_cloud(cloud.points, cloud.colors, explorer.target, keep_out)
+    walk = _walk(explorer, n, say, live, setup.preprocess_s)
     trajectory, ergodicity, residual = walk.trajectory, walk.ergodicity, walk.residual
     path_length, air_length, step_s, done = walk.path_length, walk.air_length, walk.step_s, walk.done
     if not (np.isfinite(trajectory).all() and np.isfinite(ergodicity).all() and np.isfinite(residual).all()):
@@ -515,8 +519,9 @@ class _Walk(NamedTuple):
     done: int
 
 
-def _walk(explorer, n: int, say: Progress) -> _Walk:
-    """``n`` steps of ``explorer`` and their series; Ctrl-C keeps the steps done (and re-raises before any)."""
+def _walk(explorer, n: int, say: Progress, live=None, preprocess_s: float = 0.0) -> _Walk:
+    """``n`` steps of ``explorer`` and their series; Ctrl-C keeps the steps done (and re-raises before any). Shown on
+    ``live`` (a LiveFeed) when given: the target no footprint touched yet, the agent, the time per stage."""
     trajectory = np.empty((n, 3))
     ergodicity = np.empty(n)
     residual = np.empty(n)
@@ -538,6 +543,8 @@ def _walk(explorer, n: int, say: Progress) -> _Walk:
             path_length[k] = explorer.path_length
             air_length[k] = explorer.air_path_length
             done = k + 1
+            if live is not None and live.due():
+                _show(live, explorer, cmd.point, done, n, time.perf_counter() - t_loop, preprocess_s)
             now = time.perf_counter()
             if k == 0:
                 t_first = now
@@ -556,6 +563,14 @@ def _walk(explorer, n: int, say: Progress) -> _Walk:
         trajectory, ergodicity, residual = trajectory[:done], ergodicity[:done], residual[:done]
         path_length, air_length, step_s = path_length[:done], air_length[:done], step_s[:done]
     return _Walk(trajectory, ergodicity, residual, path_length, air_length, step_s, done)
+
+
+def _show(live, explorer, point: np.ndarray, done: int, n: int, walk_s: float, preprocess_s: float) -> None:
+    """One snapshot of an exploration for the live page; its time is the wall-clock time of the steps [s]."""
+    live.publish(walk_s, phase="explore", agent_m=point, progress=done / n,
+                 field=np.where(explorer.coverage > 0.0, 0.0, explorer.target),
+                 breakdown_s={"basis_and_set_up": preprocess_s, "steps": walk_s},
+                 figures={"ergodicity (eq. 48)": explorer.ergodicity(), "step": done})
 
 
 def _say_outcome(explorer, hcfg, relocations: list, stalled_from: int | None, walk: _Walk, say: Progress) -> None:

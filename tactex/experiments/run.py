@@ -44,9 +44,10 @@ def _try_video(result: Any, rep: RunReport, enabled: bool) -> None:
 
 
 def run_task(kind: str, config: Any, out_dir: str | Path, *, label: str | None = None, progress: bool = True,
-             video: bool = True, note: Note | None = note_stderr, robot: Any = None) -> RunReport:
+             video: bool = True, note: Note | None = note_stderr, robot: Any = None, live: Any = None) -> RunReport:
     """Run one task with ``config`` and write its run folder; returns the report (metrics, files, notes).
     ``robot``: :class:`~tactex.tasks.robot.RealRobotParams` to run on a real Franka, None for simulation.
+    ``live``: a :class:`~tactex.tasks.live_feed.LiveFeed` the run shows itself on (``--view``), or None.
 
     Ctrl-C during the task's program writes what it recorded (metrics marked ``"partial": true``, no
     video), then raises :class:`~tactex.errors.RunInterrupted`."""
@@ -56,8 +57,13 @@ def run_task(kind: str, config: Any, out_dir: str | Path, *, label: str | None =
     from tactex.tasks.robot import stopped_by_user
 
     out = prepare_out_dir(out_dir)
-    result = spec.run(config, progress=progress) if robot is None else spec.run(config, progress=progress, robot=robot)
+    extra = {"robot": robot} if robot is not None else {}
+    if live is not None:
+        extra["live"] = live
+    result = spec.run(config, progress=progress, **extra)
     interrupted = stopped_by_user(result.metrics)
+    if live is not None:  # the program has ended: the page's Stop has nothing left to stop (not the report)
+        live.finish(stopped=interrupted)
     rep = write_run_report(result, out, label=label or (config.baseline or "tactex"))
     _try_video(result, rep, video and not interrupted)  # after Ctrl-C the user waits for the exit, not a replay
     if note is not None:

@@ -45,8 +45,14 @@ import numpy as np
 from tactex.config import param, to_jsonable, write_json
 from tactex.errors import ConfigError, ExplorationError, RunInterrupted
 from tactex.experiments.executor import Executor, LocalExecutor
-from tactex.experiments.explore import ExploreConfig, _default_agent_radius, authors_starts, load_explore_cloud
+from tactex.experiments.explore import (
+    ExploreConfig,
+    _default_agent_radius,
+    authors_starts,
+    load_explore_cloud_keep_out,
+)
 from tactex.experiments.run_folder import prepare_out_dir
+from tactex.pointcloud.keep_out import DEFAULT_KEEP_OUT_THRESHOLD
 
 __all__ = ["SweepConfig", "SweepResult", "run_sweep", "sweep_starts"]
 
@@ -84,6 +90,13 @@ class SweepConfig:
     target_threshold: float | None = param(
         None, "TEC's raw rule instead of hue: the --target colour's channel ≥ this level, 0–1")
     units: str = param("m", "length unit of the cloud and mesh files: m, mm or in, as in `tactex explore`")
+    keep_out_channel: str = param(
+        "", "colour channel marking a keep-out zone no footprint may touch, as in `tactex explore`: red, green or "
+        "blue ('' = none); a PLY's own keep_out property is kept out too, merged with these options")
+    keep_out_threshold: float = param(DEFAULT_KEEP_OUT_THRESHOLD, "with --keep-out-channel: the channel level at or "
+                                      "above which a point is kept out, 0–1 [-]")
+    keep_out_mask: str = param(
+        "", "a .npy file with one boolean per row of every cloud file given (True = keep out), as in `tactex explore`")
     workers: int = param(0, "worker processes; 0 = one per core [-]")
     cache: bool = param(True, "reuse/store the Laplace basis in the cache ($TACTEX_CACHE_DIR)")
 
@@ -119,7 +132,9 @@ class SweepConfig:
         return ExploreConfig(voxel_size_m=self.voxel_size_m, n_eigen=max(self.n_eigen), n_neighbors=self.n_neighbors,
                              steps=self.steps, agent_radius_m=self.agent_radius_m, seed=self.seed, cache=self.cache,
                              target=self.target, target_saturation=self.target_saturation,
-                             target_threshold=self.target_threshold, units=self.units, html=False)
+                             target_threshold=self.target_threshold, units=self.units,
+                             keep_out_channel=self.keep_out_channel, keep_out_threshold=self.keep_out_threshold,
+                             keep_out_mask=self.keep_out_mask, html=False)
 
 
 @dataclass
@@ -132,9 +147,11 @@ class SweepResult:
     files: dict[str, Path] = field(default_factory=dict)
 
 
-def sweep_starts(cloud, source_info: dict[str, Any], count: int, seed: int) -> tuple[np.ndarray, str]:
+def sweep_starts(cloud, source_info: dict[str, Any], count: int, seed: int,
+                 keep_out: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """(count, 3) start positions [m]: the authors' starts beside a cloud file (TEC data), topped
-    up with cloud points drawn with ``seed``; for built-in objects all drawn."""
+    up with cloud points drawn with ``seed`` (outside the ``keep_out`` zone, (N,) bool, when there is
+    one); for built-in objects all drawn."""
     starts = np.zeros((0, 3))
     origin = f"cloud points drawn with seed {seed}"
     found = authors_starts(source_info)
@@ -145,7 +162,8 @@ def sweep_starts(cloud, source_info: dict[str, Any], count: int, seed: int) -> t
     missing = count - len(starts)
     if missing > 0:
         rng = np.random.default_rng(seed)
-        idx = rng.choice(len(cloud), size=missing, replace=missing > len(cloud))
+        allowed = np.arange(len(cloud)) if keep_out is None else np.flatnonzero(~np.asarray(keep_out, dtype=bool))
+        idx = allowed[rng.choice(allowed.size, size=missing, replace=missing > allowed.size)]
         starts = np.vstack([starts, cloud.points[idx]])
     return starts, origin
 
@@ -165,13 +183,14 @@ def _run_setting(task: tuple, clouds: dict[str, tuple]) -> dict[str, np.ndarray]
     from tactex.ergodic import HedacConfig, HedacExplorer
 
     key, n_eigen, alpha, steps, normalization = task
-    cloud, basis, starts, radius = clouds[key]
+    cloud, basis, starts, radius, keep_out = clouds[key]
     # The paper's study measures eq. 1–2's HEDAC: no sweep source, even for a whole-surface target.
     hedac = HedacConfig(alpha=alpha, n_eigen=n_eigen, agent_radius_m=radius, coverage_normalization=normalization,
                         source_mode="ergodic")
-    explorer = HedacExplorer(cloud, basis, hedac)
+    explorer = HedacExplorer(cloud, basis, hedac, keep_out=keep_out)
     n = len(starts)
     erg, res, path = np.empty((n, steps)), np.empty((n, steps)), np.empty((n, steps))
+    contacts = np.zeros(n)  # kept-out points a footprint touched in each run (0 unless something is wrong)
     first_path = np.empty((steps, 3))
     for s, x0 in enumerate(starts):
         explorer.reset(x0)
@@ -182,16 +201,19 @@ def _run_setting(task: tuple, clouds: dict[str, tuple]) -> dict[str, np.ndarray]
             path[s, k] = explorer.path_length
             if s == 0:
                 first_path[k] = cmd.point
+        contacts[s] = explorer.keep_out_contacts
     if not (np.isfinite(erg).all() and np.isfinite(res).all() and np.isfinite(first_path).all()):
         raise ExplorationError(f"{key}: n_K={n_eigen}, α={alpha:g} produced NaN/inf; please report it with the cloud")
-    return {"ergodicity": erg, "coverage_residual": res, "path_length_m": path, "first_path": first_path}
+    return {"ergodicity": erg, "coverage_residual": res, "path_length_m": path, "first_path": first_path,
+            "keep_out_contacts": contacts}
 
 
 # -- driver ----------------------------------------------------------------------------------------------
 def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progress, force: bool = False
                    ) -> tuple[dict[str, tuple], dict[str, Any]]:
-    """Per source: (cloud, basis of the largest n_K, starts, agent radius) — the runs' shared input —
-    and what ``sweep.json`` says about it. A cloud over the basis size cap is refused unless ``force``."""
+    """Per source: (cloud, basis of the largest n_K, starts, agent radius, keep-out zone (N,) bool or
+    None) — the runs' shared input — and what ``sweep.json`` says about it. A cloud over the basis size cap is
+    refused unless ``force``."""
     from tactex.spectral import build_basis, estimate
     from tactex.spectral.estimate import check_basis_size
 
@@ -199,8 +221,10 @@ def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progres
     clouds: dict[str, tuple] = {}
     info_out: dict[str, Any] = {}
     for source in sources:
-        cloud, info = load_explore_cloud(source, ecfg)
+        cloud, info, keep_out = load_explore_cloud_keep_out(source, ecfg)
         key = _cloud_key(str(source), info, set(clouds))
+        for note in info.get("notes", []):
+            say(f"{key}: {note}")
         if max(cfg.n_eigen) >= len(cloud):
             raise ConfigError(f"{key} has {len(cloud)} points; n_K = {max(cfg.n_eigen)} must be smaller")
         est = check_basis_size(len(cloud), max(cfg.n_eigen), cloud.spacing, force=force,
@@ -212,9 +236,13 @@ def prepare_clouds(sources: Sequence[str | Path], cfg: SweepConfig, say: Progres
                             progress=say if len(cloud) >= estimate.PROGRESS_MIN_POINTS else None)
         basis_s = time.perf_counter() - t0
         radius = cfg.agent_radius_m if cfg.agent_radius_m is not None else _default_agent_radius(info)
-        starts, origin = sweep_starts(cloud, info, cfg.starts, cfg.seed)
-        clouds[key] = (cloud, basis, starts, radius)
+        starts, origin = sweep_starts(cloud, info, cfg.starts, cfg.seed, keep_out)
+        clouds[key] = (cloud, basis, starts, radius, keep_out)
+        n_keep_out = int(keep_out.sum()) if keep_out is not None else 0
+        if n_keep_out:
+            say(f"{key}: keep-out zone: {n_keep_out} points; the footprint stays off them")
         info_out[key] = {"source": info, "n_points": len(cloud), "n_target": cloud.n_target,
+                         "keep_out_points": n_keep_out,
                          "spacing_m": cloud.spacing, "n_components": basis.n_components, "basis_time_s": basis_s,
                          "agent_radius_m": radius, "starts": starts, "starts_from": origin}
         if basis.n_components > 1:
@@ -278,7 +306,8 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
         raise ExplorationError(f"every setting of the sweep failed; the first: {failed[0]['error']}")
     nan = {"ergodicity": np.full((cfg.starts, cfg.steps), np.nan),
            "coverage_residual": np.full((cfg.starts, cfg.steps), np.nan),
-           "path_length_m": np.full((cfg.starts, cfg.steps), np.nan), "first_path": np.full((cfg.steps, 3), np.nan)}
+           "path_length_m": np.full((cfg.starts, cfg.steps), np.nan), "first_path": np.full((cfg.steps, 3), np.nan),
+           "keep_out_contacts": np.full(cfg.starts, np.nan)}
     not_run = [job for job in all_jobs if job not in results and all(
         (f["cloud"], f["n_eigen"], f["alpha"]) != job for f in failed)]
     for job in all_jobs:
@@ -295,6 +324,7 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
         c = {name: np.empty((nk, na, cfg.starts, cfg.steps)) for name in ("ergodicity", "coverage_residual",
                                                                            "path_length_m")}
         c["first_path"] = np.empty((nk, na, cfg.steps, 3))
+        c["keep_out_contacts"] = np.empty((nk, na, cfg.starts))
         rows = []
         for i, k in enumerate(cfg.n_eigen):
             for j, a in enumerate(cfg.alpha):
@@ -306,11 +336,14 @@ def run_sweep(sources: Sequence[str | Path], out_dir: str | Path, config: SweepC
                              "final_ergodicity_mean": float(final.mean()), "final_ergodicity_std": float(final.std()),
                              "final_ergodicity": final,
                              "final_coverage_residual_mean": float(r["coverage_residual"][:, -1].mean()),
-                             "path_length_mean_m": float(r["path_length_m"][:, -1].mean())})
+                             "path_length_mean_m": float(r["path_length_m"][:, -1].mean()),
+                             "keep_out_contacts_max": float(np.max(r["keep_out_contacts"]))})
         c["n_eigen"] = np.asarray(cfg.n_eigen)
         c["alpha"] = np.asarray(cfg.alpha)
         c["agent_radius_m"] = np.asarray(clouds[key][3])
         c["starts"] = clouds[key][2]
+        if clouds[key][4] is not None:
+            c["keep_out"] = clouds[key][4]
         curves[key] = c
         best = min(rows, key=lambda row: (not np.isfinite(row["final_ergodicity_mean"]), row["final_ergodicity_mean"]))
         summary["clouds"][key] = {**info_out[key], "results": rows,
@@ -361,10 +394,12 @@ class _SettingStore:
     def __init__(self, folder: Path, clouds: dict[str, tuple], cfg: SweepConfig) -> None:
         self.folder = folder
         self.prints: dict[str, str] = {}
-        for key, (cloud, _basis, starts, radius) in clouds.items():
+        for key, (cloud, _basis, starts, radius, keep_out) in clouds.items():
             h = hashlib.sha256()
             for arr in (cloud.points, cloud.target, np.asarray(starts, dtype=float)):
                 h.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+            if keep_out is not None:  # a setting run without the zone is not one run with it
+                h.update(b"keep_out" + np.packbits(keep_out).tobytes())
             h.update(json.dumps([cfg.steps, cfg.n_neighbors, cfg.coverage_normalization, float(radius),
                                  float(cloud.spacing), max(cfg.n_eigen)]).encode())
             self.prints[key] = h.hexdigest()
@@ -385,7 +420,8 @@ class _SettingStore:
             with np.load(path, allow_pickle=False) as z:
                 if str(z["fingerprint"]) != self._print(job):
                     return None  # another cloud or other parameters: run it again
-                return {name: z[name] for name in ("ergodicity", "coverage_residual", "path_length_m", "first_path")}
+                return {name: z[name] for name in ("ergodicity", "coverage_residual", "path_length_m", "first_path",
+                                                   "keep_out_contacts")}
         except (OSError, ValueError, KeyError):  # a file cut short by the stop: run it again
             return None
 
@@ -487,6 +523,8 @@ def _plot_paths(c: dict[str, np.ndarray], cloud, path: Path, key: str) -> Path:
         ax.computed_zorder = False
         ax.scatter(*pts[~tgt].T, s=1, color="lightgrey", label="surface")
         ax.scatter(*pts[tgt].T, s=1.5, color="red", label="target")
+        if "keep_out" in c:
+            ax.scatter(*pts[c["keep_out"]].T, s=1.5, color="tab:blue", label="keep-out")
         p = c["first_path"][i, j]
         ax.plot(*p.T, color="black", lw=0.8, label="path")
         ax.scatter(*p[0], color="green", s=25, label="start")

@@ -127,12 +127,12 @@ def _trial(config: dict[str, Any], clouds: dict[str, tuple], steps: int, normali
 
     values = []
     with threadpool_limits(limits=1):
-        for cloud, basis, starts, radius in clouds.values():
+        for cloud, basis, starts, radius, keep_out in clouds.values():
             hedac = HedacConfig(alpha=float(config.get("alpha", defaults["alpha"])),
                                 n_eigen=int(config.get("n_eigen", defaults["n_eigen"])),
                                 agent_radius_m=float(config.get("agent_radius", radius)),
                                 coverage_normalization=normalization)
-            explorer = HedacExplorer(cloud, basis, hedac)
+            explorer = HedacExplorer(cloud, basis, hedac, keep_out=keep_out)
             for x0 in starts:
                 explorer.reset(x0)
                 for _ in range(steps):

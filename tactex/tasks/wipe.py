@@ -84,6 +84,10 @@ def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift
     return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
 
 
+#: Spacing of the surface the live page draws [m].
+LIVE_SPACING_M = 0.004
+
+
 @dataclass(frozen=True)
 class WipeConfig(SimWorldParams):
     """Parameters of ``tactex wipe`` (VA-UFIC §III and Table I)."""
@@ -320,6 +324,7 @@ class _WipeLog:
         self.tank_i: list[float] = []
         self.tank_f: list[float] = []
         self._pending: tuple | None = None
+        self.live: _WipeLive | None = None  # the live page's part (--view)
 
     def sent(self, state_ctrl) -> None:
         """The torque computed from ``state_ctrl`` is on its way: complete the previous tick (whose
@@ -403,10 +408,40 @@ class _WipeLog:
             self.rec.add()
         if self.n_ticks % 250 == 0:
             self.bar.update(t, force=fz, contact=self.n_contact / self.n_ticks)
+        if self.live is not None and self.live.feed.due():
+            self.live.show(self, state, t, fz, in_contact)
+
+
+class _WipeLive:
+    """What the wipe shows on its live page (``--view``, :class:`~tactex.tasks.live_feed.LiveFeed`): the object's
+    surface (red where the pad has not been, green where it has), the TCP, the tool, the force against its set
+    point and where the time went. Called from :meth:`_WipeLog._complete`, while a command executes."""
+
+    def __init__(self, feed, surface, obj_pos: np.ndarray, obj_rot: np.ndarray, pad_radius_m: float) -> None:
+        from scipy.spatial import cKDTree
+
+        pts = obj_pos + surface.sample(LIVE_SPACING_M).points @ obj_rot.T
+        self.feed, self.radius = feed, float(pad_radius_m)
+        self.left = np.ones(len(pts))  # 1 where the pad has not been yet
+        self.tree = cKDTree(pts)
+        feed.set_cloud(pts, None, np.ones(len(pts)))
+
+    def show(self, log: _WipeLog, state, t: float, fz: float, in_contact: bool) -> None:
+        if in_contact:
+            self.left[self.tree.query_ball_point(state.ee_position, self.radius)] = 0.0
+        approach = log.first_contact if log.first_contact is not None else t
+        contact = log.n_contact * log.dt
+        self.feed.publish(
+            t, phase="approach" if log.first_contact is None else "wipe", force_n=fz, set_point_n=log.cfg.force_n,
+            tcp_m=state.ee_position, world_R_tool=state.ee_rotation, progress=t / log.cfg.duration_s, field=self.left,
+            breakdown_s={"approach": approach, "contact": contact, "no_contact_after_touch": max(0.0, t - approach -
+                                                                                               contact)},
+            figures={"surface touched [-]": 1.0 - float(self.left.mean())})
 
 
 def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
-             robot: RealRobotParams | None = None, policy: ForceMotionPolicy | None = None) -> WipeResult:
+             robot: RealRobotParams | None = None, policy: ForceMotionPolicy | None = None,
+             live=None) -> WipeResult:
     """Run the wiping exploration in simulation, or on a real Franka (``robot``); returns metrics, series
     and the explored surface.
 
@@ -416,7 +451,8 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
     naming the cause in its metrics.
 
     ``policy`` (a :class:`~tactex.tasks.policies.ForceMotionPolicy`) replaces the config's policy; it is
-    checked against the wipe's limits before anything starts."""
+    checked against the wipe's limits before anything starts. ``live``: a
+    :class:`~tactex.tasks.live_feed.LiveFeed` the run shows itself on (``--view``), or None."""
     cfg = config or WipeConfig()
     wall0 = time.perf_counter()
     the_policy = wipe_policy(cfg, policy)
@@ -432,7 +468,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
         vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
         try:
-            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy)
+            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy, live)
         finally:
             vision.close()
     finally:
@@ -455,7 +491,7 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot
 
 
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
-              progress: bool, wall0: float, the_policy: ForceMotionPolicy) -> WipeResult:
+              progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None) -> WipeResult:
     loop = ControlLoop(backend)
     run_s = min(cfg.duration_s, the_policy.duration_s)
     surface = scene_cfg.sim_object.surface
@@ -463,6 +499,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
 
     # start: above the surface at (0, start_y), tilted (not aligned), out of contact
     p_start, r_start = wipe_start_pose(cfg, surface, obj_pos, obj_rot)
+    # the live page's surface is made before torque control starts (sampling it takes milliseconds)
+    shown = _WipeLive(live, surface, obj_pos, obj_rot, scene_cfg.tool.pad_radius_m) if live is not None else None
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
@@ -479,6 +517,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     bar = Progress(run_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
     t0 = loop.t
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
+    log.live = shown
 
     policy = _WipeReferences(cfg, vision, p_start, r_start, the_policy)
 

@@ -85,12 +85,13 @@ REGION_RASTER_GAP_M = 0.2
 
 
 def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
-              robot: RealRobotParams | None = None) -> CleanResult:
+              robot: RealRobotParams | None = None, live=None) -> CleanResult:
     """Run the cleaning program in simulation, or on a real Franka (``robot``, with ``config.cloud``),
     and return its metrics, series and fields.
 
     A libfranka error, a lost sensor or Ctrl-C ends the program early: torque control stops and the
-    result holds what was recorded, ``aborted`` naming the cause in its metrics."""
+    result holds what was recorded, ``aborted`` naming the cause in its metrics. ``live``: a
+    :class:`~tactex.tasks.live_feed.LiveFeed` the run shows itself on (``--view``), or None."""
     cfg = config or CleanConfig()
     if robot is not None and not cfg.cloud and robot.camera not in ("twin", "realsense"):
         raise ConfigError("clean on a robot captures its target with --camera realsense (or --camera twin on tactex "
@@ -110,7 +111,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
     opened.append(backend)
     started = Started()
     try:
-        return CleanProgram(cfg, backend, scene_cfg, robot, progress, started, camera=camera).run()
+        return CleanProgram(cfg, backend, scene_cfg, robot, progress, started, camera=camera, live=live).run()
     except TactexError as exc:  # a RobotError, a SensorFault, SurfaceNotFound, a failure of ours
         # on a robot, a stop outside the program's loop (the moves before its first touch-down, the final
         # lift-off) keeps what was recorded too; the loop's own stops are kept inside it
@@ -156,12 +157,13 @@ class CleanProgram:
     """
 
     def __init__(self, cfg: CleanConfig, backend, scene_cfg: SceneConfig, robot: RealRobotParams | None,
-                 progress: bool, started: Started | None = None, camera=None) -> None:
+                 progress: bool, started: Started | None = None, camera=None, live=None) -> None:
         self.cfg, self.backend, self.scene_cfg, self.robot = cfg, backend, scene_cfg, robot
         # the robot's wrist camera, None in simulation and with --cloud
         self.camera = None if camera is None else RobotCapture(camera, robot)
         self.wall0 = time.perf_counter()
         self.log = log = TickLog(backend, cfg)
+        log.live = self.live = live
         self.loop = ControlLoop(backend, on_tick=log, max_joint_speed=cfg.joint_speed_rad_s)
         self.bar = Progress(cfg.budget_s, f"clean {cfg.baseline or 'tactex'}", enabled=progress)
         self.given, self.keep_out = (load_target_cloud_keep_out(cfg.cloud, cfg.voxel_size_m, cfg.keep_out_channel,
@@ -219,6 +221,15 @@ class CleanProgram:
             self.aborted = end_on_robot(self.loop, exc)
             self.bar.note(f"stopped early: {self.aborted}")
         return self.finish()
+
+    def _left(self) -> np.ndarray:
+        """What the robot believes is left per cloud point (N,), in the target's units: the wear model's
+        prediction, else the target no footprint has touched yet (the live page's colours)."""
+        if self.wear is not None:
+            return self.wear.remaining()
+        if self.explorer is not None:
+            return np.where(self.explorer.coverage > 0.0, 0.0, self.explorer.target)
+        return self.cleanable_target
 
     def _view(self, lift: bool = False) -> SurfaceCloud:
         """To the capture pose (from contact: ``lift``) and the captured cloud (a given cloud as it is)."""
@@ -297,6 +308,8 @@ class CleanProgram:
             self._view()  # to the capture posture, as the camera path did
         # the set-up below (the wear model, the planned sweep: up to about a second) runs between two ticks
         self.loop.pause()
+        if self.live is not None:  # the live page's cloud (a file written while the robot holds itself)
+            self.live.set_cloud(self.cloud.points, self.cloud.colors, self.cleanable_target, self.keep_out)
         self.cmd = start(self.path, x0)
         # the robot's own estimate of what it has wiped off since the last view (tactex only: the baselines
         # keep TEC's coverage target)
@@ -337,6 +350,7 @@ class CleanProgram:
         self.ergodicity: list[tuple[float, float]] = []
         self.explore_time = 0.0
         self._plan_first_leg()
+        self.log.live_left = self._left
 
     def _build_path(self) -> None:
         """The eigenbasis (not for the raster) and the path source: the raster or the HEDAC explorer."""

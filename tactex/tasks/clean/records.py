@@ -21,6 +21,7 @@ __all__ = ["PHASES", "CleanResult", "Started", "TickLog"]
 
 #: Phase codes recorded in the time series (shared with the report).
 PHASES = CLEAN_PHASES
+_PHASE_NAMES = {code: name for name, code in PHASES.items()}
 
 
 @dataclass
@@ -58,6 +59,8 @@ class TickLog:
         self.max_force = 0.0
         self.set_point = cfg.force_n
         self.time = TimeBreakdown(backend.dt, cfg.contact_threshold_n, self.truth)
+        self.live = None  # the run's live page (--view, a LiveFeed) or None
+        self.live_left = None  # () -> what the robot believes is left per cloud point, once there is a cloud
 
     def activity(self, phase: str, activity: str) -> None:
         """Enter a phase of the state machine (:data:`PHASES`) doing ``activity`` (time breakdown)."""
@@ -97,6 +100,18 @@ class TickLog:
             )
         else:
             self.rec.add()
+        if self.live is not None and self.live.due():
+            self._show(state, fn)
+
+    def _show(self, state, fn: float) -> None:
+        """A snapshot for the live page (at most every :attr:`LiveFeed.period_s`)."""
+        explore = self.phase == PHASES["explore"]
+        dirt = self.backend.dirt_remaining() if self.truth else np.nan
+        self.live.publish(
+            self.t, phase=_PHASE_NAMES[self.phase], force_n=fn, set_point_n=self.set_point if explore else np.nan,
+            tcp_m=state.ee_position, agent_m=self.agent, world_R_tool=state.ee_rotation,
+            progress=self.t / self.cfg.budget_s, field=self.live_left() if self.live_left is not None else None,
+            breakdown_s=self.time.seconds(), figures={"dirt left (simulation) [-]": dirt} if self.truth else {})
 
 
 
