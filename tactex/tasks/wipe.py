@@ -490,6 +490,12 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot
     return ""
 
 
+def _profile(cfg: WipeConfig, surface) -> np.ndarray:
+    """(256, 3) [m] the surface's profile along y at x = 0, in the object frame (the report's cut)."""
+    ys = np.linspace(-0.255, 0.255, 256) if cfg.object_name == "sine_panel" else np.linspace(-0.1, 0.1, 256)
+    return surface.project(np.column_stack([np.zeros_like(ys), ys, np.zeros_like(ys)]))[0]
+
+
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
               progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None) -> WipeResult:
     loop = ControlLoop(backend)
@@ -625,8 +631,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     }
     if robot is not None:
         metrics.update(backend.loop_metrics())
-    ys = np.linspace(-0.255, 0.255, 256) if cfg.object_name == "sine_panel" else np.linspace(-0.1, 0.1, 256)
-    prof_pts, _ = surface.project(np.column_stack([np.zeros_like(ys), ys, np.zeros_like(ys)]))
+    prof_pts = _profile(cfg, surface)
     explored = None
     curv = np.zeros(0)
     if len(log.contact_pts) >= 2:
