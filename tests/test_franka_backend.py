@@ -33,6 +33,7 @@ from tactex.errors import (  # noqa: E402
 )
 from tactex.robots.check import check_robot  # noqa: E402
 from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, LoopTiming, franka_model_terms  # noqa: E402
+from tactex.robots.scheduling import Scheduling  # noqa: E402
 from tactex.tasks import robot as robot_mod  # noqa: E402
 from tactex.tasks.robot import RealRobotParams  # noqa: E402
 from tactex.tasks.wipe import WipeConfig, run_wipe  # noqa: E402
@@ -226,6 +227,27 @@ def _bare_hold_scripted(backend, script, duration_s=0.02):
     finally:
         backend.robot = robot
         state.q = q_real
+
+
+def test_closing_the_backend_gives_the_thread_its_scheduling_back(panel):
+    # libfranka raises the thread that starts torque control to SCHED_FIFO 99 (as root); after close the
+    # program goes on at its own priority, and so do the processes it starts
+    before = Scheduling.current()
+    backend = LibfrankaBackend(FrankaConfig(robot_ip=panel.hostname))
+    try:
+        for _ in range(50):
+            backend.apply_torque(np.zeros(7))
+            backend.step()
+        during = Scheduling.current()
+    finally:
+        backend.close()
+    if during == before:
+        pytest.skip("libfranka could not raise this thread's priority here (no permission for SCHED_FIFO)")
+    assert during.policy == os.SCHED_FIFO
+    assert Scheduling.current() == before
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.sched_getscheduler(0))"],
+                           capture_output=True, text=True, check=True)
+    assert int(child.stdout) == before.policy
 
 
 def test_bare_hold_sends_zero_torque_for_a_nan_state_and_clips_to_the_limits(panel):

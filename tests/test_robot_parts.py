@@ -379,3 +379,19 @@ def test_robot_check_passes_its_limits_to_the_check(monkeypatch, capsys):
     assert seen == {"max_lost_fraction": pytest.approx(0.02), "min_success_rate": 0.8, "bare": False}
     code = main(["robot", "check", "--robot-ip", "127.0.0.254", "--bare"])
     assert code == 2 and seen["bare"] is True
+
+
+def test_scheduling_is_given_back_as_it_was():
+    from tactex.robots.scheduling import Scheduling
+
+    before = Scheduling.current()
+    assert before is not None and before.cpus
+    try:
+        os.sched_setaffinity(0, {min(before.cpus)})
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+    except (PermissionError, OSError):
+        before.restore()
+        pytest.skip("needs permission for SCHED_FIFO (root or an rtprio limit)")
+    assert Scheduling.current() != before
+    assert before.restore() == []
+    assert Scheduling.current() == before

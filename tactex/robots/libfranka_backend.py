@@ -56,6 +56,7 @@ from tactex.errors import (
 from tactex.perception.frame import CameraFrame
 from tactex.robots.cpu_latency import CpuLatencyRequest, check_latency_us
 from tactex.robots.netft import NetFTClient, parse_netft_address
+from tactex.robots.scheduling import Scheduling
 from tactex.robots.wrench import FrankaWrenchSource, NetFTWrenchSource, WrenchSource
 from tactex.sim.tool import ToolGeometry, flange_R_tool
 
@@ -350,6 +351,8 @@ class LibfrankaBackend:
         self._ik = None
         self.timing = LoopTiming()
         self.events: list[str] = []
+        # what the thread had before libfranka and the pinning raise it to real time, given back on close
+        self._scheduling_before = Scheduling.current()
         self._control = None
         self._pending_write = False
         self._tau = np.zeros(7)
@@ -369,10 +372,12 @@ class LibfrankaBackend:
         try:
             self.robot = pylibfranka.Robot(config.robot_ip, rt)
         except pylibfranka.RealtimeException as exc:
+            self._restore_scheduling()
             raise RobotRealtimeError(
                 f"libfranka refuses to run without a real-time kernel ({exc}): install a PREEMPT_RT kernel "
                 "(docs/real_robot.md), or pass --realtime ignore for a test on a normal kernel") from exc
         except Exception as exc:
+            self._restore_scheduling()
             raise RobotConnectionError(
                 f"cannot connect to the Franka at {config.robot_ip} ({exc}): check the FCI address, that FCI is "
                 "activated in Desk, the brakes are open and no other program holds the robot") from exc
@@ -387,6 +392,7 @@ class LibfrankaBackend:
         except Exception as exc:
             self.cpu_latency.release()
             self.wrench.close()
+            self._restore_scheduling()
             if isinstance(exc, RobotError):
                 raise
             raise RobotError(f"setting up the Franka at {config.robot_ip} failed: {exc}") from exc
@@ -680,6 +686,13 @@ class LibfrankaBackend:
                 "dry_run": self.config.dry_run, "wrench_source": self.wrench.name,
                 "control_scheduling": f"{self.scheduling}; {self.cpu_latency.description}"}
 
+    def _restore_scheduling(self) -> None:
+        """The thread's scheduling as it was before this backend (libfranka raises it to SCHED_FIFO 99 when
+        control starts, :func:`pin_control_thread` pins it): a program that goes on after the robot must not
+        run, nor start processes, at real-time priority."""
+        if self._scheduling_before is not None:
+            self.events.extend(f"close: {p}" for p in self._scheduling_before.restore())
+
     def close(self) -> None:
         """End torque control (``motion_finished`` with zero torque) and close the streams; idempotent."""
         if self._closed:
@@ -700,6 +713,7 @@ class LibfrankaBackend:
             self.wrench.close()
             if self._ik is not None:
                 self._ik.close()
+            self._restore_scheduling()
             # dropping libfranka's Robot closes its connection: the robot (or twin) serves one client at
             # a time and a second one would wait forever
             self.robot = None
