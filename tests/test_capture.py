@@ -73,12 +73,16 @@ def test_the_tool_pose_read_from_the_twin_is_the_arms() -> None:
     pytest.importorskip("franky_sim", reason="needs the franka extra")
     from tactex.robots.mujoco_backend import MujocoBackend
     from tactex.robots.read_pose import read_tool_pose
+    from tactex.robots.scheduling import Scheduling, kept_scheduling
     from tactex.sim.scene import SceneConfig
     from tactex.twin.process import TwinProcess
 
     with TwinProcess("plate") as twin:
+        before = Scheduling.current()
         base_T_tool = read_tool_pose(twin.hostname)
-        q = np.asarray(pylibfranka.Robot(twin.hostname, pylibfranka.RealtimeConfig.kIgnore).read_once().q)
+        assert Scheduling.current() == before  # libfranka raised the thread to real time; it is given back
+        with kept_scheduling():
+            q = np.asarray(pylibfranka.Robot(twin.hostname, pylibfranka.RealtimeConfig.kIgnore).read_once().q)
     sim = MujocoBackend(SceneConfig(object_name="plate"))
     fk = sim.reset(q0=q).ee_pose
     sim.close()

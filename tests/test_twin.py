@@ -21,6 +21,7 @@ plf = pytest.importorskip("pylibfranka", reason=REASON)
 pytest.importorskip("franky_sim", reason=REASON)
 
 from tactex.robots.netft import NetFTClient  # noqa: E402
+from tactex.robots.scheduling import kept_scheduling  # noqa: E402
 from tactex.sim.tool import ToolGeometry, flange_R_tool  # noqa: E402
 from tactex.twin.config import TwinConfig  # noqa: E402
 from tactex.twin.process import TwinProcess  # noqa: E402
@@ -32,6 +33,14 @@ PLANE_TOP_Z = 0.41  # plane object at z = 0.40 (+ its 1 cm lift) [m]
 FORCE_TOLERANCE = 0.2  # relative agreement of the two wrench sources and the command [-]
 PRESS_N = 15.0  # commanded force [N] (VA-UFIC)
 STREAM_HANG_GUARD_S = 30.0  # a Net F/T stream that sends nothing for this long has stopped [s]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _scheduling_given_back():
+    """These tests drive libfranka directly, which raises the thread to SCHED_FIFO 99 when it connects and
+    starts control; the rest of the session (and every process it starts) must not run at that priority."""
+    with kept_scheduling():
+        yield
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ import numpy as np
 
 from tactex.errors import MissingDependencyError, RobotError
 from tactex.robots.libfranka_backend import flange_T_tcp
+from tactex.robots.scheduling import kept_scheduling
 from tactex.sim.tool import ToolGeometry
 
 __all__ = ["base_T_tool_from_state", "read_tool_pose"]
@@ -36,8 +37,10 @@ def read_tool_pose(robot_ip: str, tool: ToolGeometry | None = None) -> np.ndarra
     import pylibfranka
 
     try:
-        robot = pylibfranka.Robot(robot_ip, pylibfranka.RealtimeConfig.kIgnore)
-        state = robot.read_once()
+        with kept_scheduling():  # libfranka raises the thread to real time when it connects
+            robot = pylibfranka.Robot(robot_ip, pylibfranka.RealtimeConfig.kIgnore)
+            state = robot.read_once()
+            del robot  # the connection closes here, inside the block
     except Exception as exc:
         raise RobotError(f"cannot read the state of the Franka at {robot_ip} ({exc}): check the FCI address and "
                          "that FCI is activated in Desk") from exc

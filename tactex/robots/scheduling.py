@@ -4,16 +4,19 @@ A torque control raises the thread that runs it to SCHED_FIFO: libfranka does it
 (its highest priority, 99, whatever its RealtimeConfig), and :func:`~tactex.robots.libfranka_backend.
 pin_control_thread` pins it to a core. Both outlive the robot: a program that closes its backend and goes
 on (a notebook, a test session, a study) would run the rest of its work, and every process it starts,
-at real-time priority, where a busy loop starves the whole machine. :class:`Scheduling` keeps what the
-thread had before and gives it back.
+at real-time priority, where a busy loop starves the whole machine. Reading one state is enough:
+libfranka's ``Robot`` raises the thread when it connects. :class:`Scheduling` keeps what the thread had
+before and gives it back; :func:`kept_scheduling` does it around a block.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
-__all__ = ["Scheduling"]
+__all__ = ["Scheduling", "kept_scheduling"]
 
 
 @dataclass(frozen=True)
@@ -46,3 +49,14 @@ class Scheduling:
         except OSError as exc:
             problems.append(f"CPU affinity {sorted(self.cpus)}: {exc}")
         return problems
+
+
+@contextmanager
+def kept_scheduling() -> Iterator[None]:
+    """Run the block and give the calling thread back the scheduling it had before it."""
+    before = Scheduling.current()
+    try:
+        yield
+    finally:
+        if before is not None:
+            before.restore()
