@@ -65,7 +65,11 @@ def test_the_page_colours_what_is_left_and_stop_sends_sigint(feed):
     from tactex.report.annotate_view import KEEP_OUT_RGB
     from tactex.report.live_view import DONE_RGB, LEFT_RGB, LiveView
 
-    run = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # stands in for the run
+    # stands in for the run; ready once it says so (a SIGINT during the interpreter's start-up exits 1, not as
+    # an interrupted program)
+    run = subprocess.Popen([sys.executable, "-c", "import time; print('ready', flush=True); time.sleep(120)"],
+                           stdout=subprocess.PIPE, text=True)
+    assert run.stdout.readline().strip() == "ready"
     view = LiveView(feed, run.pid, port=0, force_set_point_n=10.0)
     try:
         target = np.array([1.0, 2.0, 0.0, 0.0])

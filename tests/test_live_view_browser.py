@@ -65,8 +65,10 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the dev extra)")
     out = tmp_path / "run"
     proc = subprocess.Popen(
+        # a slow agent over the whole plate: the run must outlast the page's checks on a quiet machine too (at
+        # the default speed the plate is clean after about 10 s of wall time, before Stop is pressed)
         [sys.executable, "-m", "tactex.cli", "clean", "--out", str(out), "--view", "--view-port", "0", "--no-video",
-         "--quiet", "--budget-s", "120", "--marking", "full"],
+         "--quiet", "--budget-s", "600", "--marking", "full", "--max-velocity", "0.25"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     said: list[str] = []
     url_seen = threading.Event()
