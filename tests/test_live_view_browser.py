@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tactex.report.live_view import FORCE_WINDOW_S
+
 from .test_annotate_browser import CHROMIUM, CHROMIUM_ARGS
 
 pytestmark = [
@@ -135,8 +137,11 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
     # every second the robot cleaned through (explore shown at both ends), new colours reached the page
     cleaning = [(a[0], b[0]) for a, b in itertools.pairwise(samples) if a[1] and b[1]]
     assert len(cleaning) >= 3 and all(b > a for a, b in cleaning), samples
-    # finite, and following the run: its right end within a second or two of the run time the page showed
-    assert len(plots) == 1 and plots[0][2] > 10 and plots[0][1] > plots[0][0] > 0.0, plots
+    # a line over at most the plot's window of run time, following the run: its right end within a second or two
+    # of the run time the page showed (the run publishes every 0.1 s of wall time and the simulation runs faster
+    # than that on a quiet machine, so the points in the window depend on the machine: a line, not a count)
+    assert len(plots) == 1 and plots[0][2] >= 3 and plots[0][1] > plots[0][0] > 0.0, plots
+    assert plots[0][1] - plots[0][0] <= FORCE_WINDOW_S + 0.5, plots
     assert plots[0][1] >= t_shown - 2.0, (plots, t_shown)
     assert _green_pixels(later) > _green_pixels(first), "the cloud drawn turned no greener while the robot cleaned"
     # Stop is Ctrl-C: the same exit, status and saved data
