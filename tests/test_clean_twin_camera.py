@@ -141,3 +141,27 @@ def test_a_recording_that_ends_mid_run_is_a_named_fault(tmp_path):
         _robot_free(twin)
     m = _fault_metrics(out, code, err, "CameraStreamEnded")
     assert "recording" in m["aborted"] and m["captures"] == 1 and m["contact_time_s"] > 0.0
+
+
+def test_a_recording_that_ends_in_the_first_capture_keeps_the_moves_to_the_camera(tmp_path):
+    try:
+        import pyrealsense2  # noqa: F401
+    except ImportError as exc:
+        pytest.skip(f"pyrealsense2 cannot be imported here: {exc}")
+    # two frames for a capture of three: the first capture runs out, before any cloud exists
+    recording = _recording_of_the_capture_view(tmp_path / "plate.db3", 2)
+    with TwinProcess("plate", camera_port=0) as twin:
+        out = tmp_path / "run"
+        code, err = _finish(_clean(twin, out, "--camera", "realsense", "--playback", str(recording),
+                                   "--capture-frames", "3"))
+        _robot_free(twin)
+    assert code == 1, err
+    assert "stopped early" in err and "CameraStreamEnded" in err, err
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["aborted"].startswith("CameraStreamEnded") and m["partial"] is True
+    assert m["captures"] == 0 and m["target_source"] == "camera" and m["n_points"] == 0
+    # the move to the capture pose is kept, and the report says why it has no cloud
+    with np.load(out / "series.npz", allow_pickle=False) as z:
+        assert len(z["t"]) > 0 and float(z["t"][-1]) > 0.5
+    assert not (out / "cloud.npz").exists()
+    assert "no cloud: the run stopped before its first capture" in (out / "report.html").read_text()

@@ -171,6 +171,17 @@ def test_clean_report_raster_baseline_notes_missing_ergodicity(tmp_path) -> None
     assert '"dirt (first capture)"' in rep.html.read_text()
 
 
+def test_clean_report_of_a_run_stopped_before_its_first_capture(tmp_path) -> None:
+    res = fake_clean()
+    res.cloud, res.fields, res.agent_path = None, {}, np.zeros((0, 3))
+    rep = write_run_report(res, tmp_path / "clean")
+    assert sorted(_pngs_ok(rep)) == sorted(["dirt.png", "force.png", "phases.png", "ergodicity.png"])
+    assert not (tmp_path / "clean" / "cloud.npz").exists() and (tmp_path / "clean" / "series.npz").is_file()
+    assert any("before its first capture" in n for n in rep.notes)
+    page = rep.html.read_text()
+    assert "plotly" not in page and page.count("src='data:image/png;base64,") == 4 and "before its first" in page
+
+
 def test_vision_round_trips_span_retract_to_next_approach() -> None:
     phase = _clean_phases()
     t = np.arange(len(phase)) * DT

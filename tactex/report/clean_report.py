@@ -13,7 +13,7 @@ from tactex.errors import InputError
 from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
-from tactex.report.run_pages import append_sections
+from tactex.report.run_pages import append_sections, plain_page
 from tactex.report.series import plot_series
 from tactex.tasks.clean_phases import CLEAN_PHASES
 
@@ -222,17 +222,6 @@ def write_clean_report(
     metrics, cfg, label = rep.metrics, result.config, rep.label
 
     cloud = result.cloud
-    fields = {k: np.asarray(v, dtype=np.float64) for k, v in (result.fields or {}).items()}
-    agent = finite_rows(result.agent_path)
-    explore = np.rint(s["phase"]) == CLEAN_PHASES["explore"]
-    tcp_contact, lifted = contact_stretches(s["tcp"], explore)
-    np.savez_compressed(
-        out / "cloud.npz", points=cloud.points, agent_path=agent, tcp_path_contact=tcp_contact,
-        tcp_path_contact_lifted=np.asarray(lifted, dtype=np.intp),  # rows that start a stretch after a lift-off
-        **{f"field_{k}": v for k, v in fields.items()},
-    )
-    rep.files["cloud_data"] = out / "cloud.npz"
-
     force_n = float(metrics.get("force_set_point_n", getattr(cfg, "force_n", np.nan)))
     ch = _phase_changes(metrics)  # exact phase boundaries; the 100 Hz series can miss a short approach
     trips = vision_round_trips(s["t"], s["phase"]) if ch is None else vision_round_trips(ch[:, 0], ch[:, 1])
@@ -248,16 +237,6 @@ def write_clean_report(
         try_plot(rep, "time_breakdown_png", _plot_time_breakdown, metrics["time_breakdown_s"],
                   metrics.get("time_to_95pct_s"), out / "time_breakdown.png",
                   to_95pct=metrics.get("time_breakdown_to_95pct_s"))
-    named = {"dirt (first capture)": fields.get("target_initial", cloud.target)}
-    for key, name in (("target", "dirt (last capture)"), ("coverage", "coverage"), ("potential", "potential")):
-        if key in fields:
-            named[name] = fields[key]
-    cmaps = {"dirt (first capture)": DIRT_CMAP, "dirt (last capture)": DIRT_CMAP}
-    try_plot(rep, "cloud_png", plot_cloud, cloud.points, named, out / "cloud.png",
-              trajectory=agent if len(agent) else None, title=f"{label}: fields with the agent path", cmaps=cmaps)
-    try_plot(rep, "tcp_png", plot_cloud, cloud.points, {"dirt (first capture)": named["dirt (first capture)"]},
-              out / "cloud_tcp.png", trajectory=tcp_contact if len(tcp_contact) else None, flights=lifted,
-              title=f"{label}: TCP path in contact (dashed: lifted between)", cmaps=cmaps)
     erg = _ergodicity(metrics)
     if len(erg):
         rep.files["ergodicity_png"] = plot_series(
@@ -268,10 +247,43 @@ def write_clean_report(
         why = ("the raster baseline has no target distribution to compare" if metrics.get("baseline") == "raster"
                else "the run ended before any exploration in contact")
         rep.notes.append(f"no ergodicity series ({why})")
-    if html_page:
-        scales = {"dirt (first capture)": DIRT_COLORSCALE, "dirt (last capture)": DIRT_COLORSCALE}
-        path = tcp_contact if len(tcp_contact) else (agent if len(agent) else None)
-        page = cloud_html(cloud.points, named, out / "report.html", trajectory=path, colorscales=scales,
-                          title=f"tactex clean — {label} ({metrics.get('object', getattr(cfg, 'object_name', ''))})")
+    title = f"tactex clean — {label} ({metrics.get('object', getattr(cfg, 'object_name', ''))})"
+    if cloud is None:  # a run on a robot stopped before its first capture was made
+        rep.notes.append("no cloud: the run stopped before its first capture was made (no cloud figures)")
+        page = plain_page(out / "report.html", title) if html_page else None
+    else:
+        page = _cloud_files(result, s, out, rep, label, title, html_page)
+    if page is not None:
         rep.files["html"] = append_sections(page, rep)
     return rep
+
+
+def _cloud_files(result: Any, s: Mapping[str, np.ndarray], out: Path, rep: RunReport, label: str, title: str,
+                 html_page: bool) -> Path | None:
+    """The captured cloud's files: cloud.npz, its fields and paths as PNGs, and the 3-D page (None: no page)."""
+    cloud = result.cloud
+    fields = {k: np.asarray(v, dtype=np.float64) for k, v in (result.fields or {}).items()}
+    agent = finite_rows(result.agent_path)
+    explore = np.rint(s["phase"]) == CLEAN_PHASES["explore"]
+    tcp_contact, lifted = contact_stretches(s["tcp"], explore)
+    np.savez_compressed(
+        out / "cloud.npz", points=cloud.points, agent_path=agent, tcp_path_contact=tcp_contact,
+        tcp_path_contact_lifted=np.asarray(lifted, dtype=np.intp),  # rows that start a stretch after a lift-off
+        **{f"field_{k}": v for k, v in fields.items()},
+    )
+    rep.files["cloud_data"] = out / "cloud.npz"
+    named = {"dirt (first capture)": fields.get("target_initial", cloud.target)}
+    for key, name in (("target", "dirt (last capture)"), ("coverage", "coverage"), ("potential", "potential")):
+        if key in fields:
+            named[name] = fields[key]
+    cmaps = {"dirt (first capture)": DIRT_CMAP, "dirt (last capture)": DIRT_CMAP}
+    try_plot(rep, "cloud_png", plot_cloud, cloud.points, named, out / "cloud.png",
+              trajectory=agent if len(agent) else None, title=f"{label}: fields with the agent path", cmaps=cmaps)
+    try_plot(rep, "tcp_png", plot_cloud, cloud.points, {"dirt (first capture)": named["dirt (first capture)"]},
+              out / "cloud_tcp.png", trajectory=tcp_contact if len(tcp_contact) else None, flights=lifted,
+              title=f"{label}: TCP path in contact (dashed: lifted between)", cmaps=cmaps)
+    if not html_page:
+        return None
+    scales = {"dirt (first capture)": DIRT_COLORSCALE, "dirt (last capture)": DIRT_COLORSCALE}
+    path = tcp_contact if len(tcp_contact) else (agent if len(agent) else None)
+    return cloud_html(cloud.points, named, out / "report.html", trajectory=path, colorscales=scales, title=title)

@@ -18,7 +18,7 @@ from tactex.control.safety import SafetyLimits
 from tactex.errors import InputError
 from tactex.report.run_common import RunReport
 
-__all__ = ["SUMMARY_COLUMNS", "append_sections", "safety_summary", "summary_table", "write_index_html"]
+__all__ = ["SUMMARY_COLUMNS", "append_sections", "plain_page", "safety_summary", "summary_table", "write_index_html"]
 
 
 def _fmt(value: Any) -> str:
@@ -46,6 +46,13 @@ def _metrics_table_html(metrics: Mapping[str, Any]) -> str:
 
 _CSS = ("<style>.tx{border-collapse:collapse;font:13px sans-serif}.tx td,.tx th{border:1px solid #ccc;"
         "padding:3px 8px;text-align:left}.txs{font:14px sans-serif;margin:12px}.txs img{max-width:100%}</style>")
+
+
+def plain_page(path: Path, title: str) -> Path:
+    """An empty page titled ``title`` for :func:`append_sections`: a run's report with no cloud to show in 3-D."""
+    path.write_text(f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title></head>"
+                    f"<body><h1>{html.escape(title)}</h1></body></html>\n")
+    return path
 
 
 def append_sections(page: Path, rep: RunReport) -> Path:

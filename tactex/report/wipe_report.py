@@ -5,7 +5,6 @@ and executed path on the surface and its force per segment (:mod:`.policy_plots`
 from __future__ import annotations
 
 import dataclasses
-import html
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
 from tactex.report.policy_plots import plot_policy_force, plot_policy_path
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
-from tactex.report.run_pages import append_sections
+from tactex.report.run_pages import append_sections, plain_page
 from tactex.sim.objects import get_object
 
 __all__ = ["CURVATURE_COLORSCALE", "DEFAULT_TANK_LIMITS", "write_wipe_report"]
@@ -173,9 +172,6 @@ def write_wipe_report(
                               trajectory=tcp_contact if len(tcp_contact) else None,
                               colorscales={"curvature l_s [-]": CURVATURE_COLORSCALE}, title=f"tactex wipe — {label}")
         else:
-            page = out / "report.html"
-            page.write_text(f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>tactex wipe — "
-                            f"{html.escape(label)}</title></head><body><h1>tactex wipe — {html.escape(label)}</h1>"
-                            "</body></html>\n")
+            page = plain_page(out / "report.html", f"tactex wipe — {label}")
         rep.files["html"] = append_sections(page, rep)
     return rep

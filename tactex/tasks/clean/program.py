@@ -170,8 +170,9 @@ class CleanProgram:
                                                                 cfg.keep_out_threshold, cfg.keep_out_mask,
                                                                 units=cfg.units)
                                      if cfg.cloud else (None, None))
+        self.started = started
         if started is not None:
-            started.log, started.loop, started.cloud = log, self.loop, self.given
+            started.log, started.loop, started.cloud, started.camera = log, self.loop, self.given, self.camera
         self.acq = replace(_acquisition(scene_cfg), voxel_size_m=cfg.voxel_size_m)
         self.cap_pos, self.cap_rot = (_capture_pose(scene_cfg, cfg) if self.given is None
                                       else _cloud_capture_pose(self.given, cfg))
@@ -284,6 +285,8 @@ class CleanProgram:
         before the arm moves, since on a real robot nothing slow may run while torque control is on."""
         cfg = self.cfg
         self.cloud = cloud = self._view() if self.given is None else self.given
+        if self.started is not None:  # a stop from here on keeps the capture
+            self.started.cloud = cloud
         if self.given is None and cfg.keep_out_channel:
             self.keep_out = raw_keep_out(cloud, cfg.keep_out_channel, cfg.keep_out_threshold, "")
         # dirt under a keep-out zone is never cleaned: it counts neither in the start nor in what is left

@@ -31,7 +31,7 @@ class CleanResult:
     config: CleanConfig
     metrics: dict[str, Any]
     series: dict[str, np.ndarray]
-    cloud: SurfaceCloud
+    cloud: SurfaceCloud | None  # None: a run on a robot that stopped before its first capture
     fields: dict[str, np.ndarray]
     agent_path: np.ndarray
     tcp_path: np.ndarray
@@ -122,14 +122,15 @@ class Started:
     def __init__(self) -> None:
         self.log: TickLog | None = None
         self.loop: ControlLoop | None = None
-        self.cloud: SurfaceCloud | None = None
+        self.cloud: SurfaceCloud | None = None  # the given cloud, or the first capture once made
+        self.camera = None  # the robot's camera (a RobotCapture) when the target comes from it
         self.t0 = time.perf_counter()
 
     def stopped(self, cfg: CleanConfig, exc: BaseException) -> CleanResult | None:
         """The run so far (torque control ended, ``aborted`` naming ``exc``, the series recorded), or
-        None when nothing was recorded yet."""
+        None when nothing was recorded yet (a stop before the first capture keeps the moves to it, with no cloud)."""
         log, loop, cloud = self.log, self.loop, self.cloud
-        if log is None or loop is None or cloud is None:
+        if log is None or loop is None:
             return None
         series = log.rec.arrays()
         if not len(series.get("t", ())):
@@ -138,6 +139,7 @@ class Started:
         backend = loop.backend
         metrics = {
             "aborted": aborted,
+            "partial": True,  # stopped before the program's end: aborted says why
             "robot": "franka",
             "sim_time_s": loop.t,
             "wall_time_s": time.perf_counter() - self.t0,
@@ -147,15 +149,17 @@ class Started:
             "force_set_point_n": cfg.force_n,
             "baseline": cfg.baseline or "tactex",
             "object": cfg.object_name,
-            "marking": "cloud",
-            "target_source": "cloud",
-            "n_points": len(cloud),
+            "marking": "cloud" if cfg.cloud else cfg.marking,
+            "target_source": "cloud" if cfg.cloud else "camera",
+            "n_points": 0 if cloud is None else len(cloud),
             "safety_events": len(loop.safety.events),
             "torque_rate_clip_ticks": loop.safety.counts.get("torque_rate_limit", 0),
             "phase_changes": [[t, p] for t, p in log.phase_changes],
             **backend.loop_metrics(),
+            **(self.camera.metrics() if self.camera is not None else {}),
         }
         return CleanResult(config=cfg, metrics=metrics, series=series, cloud=cloud,
-                           fields={"target_initial": cloud.target.copy()}, agent_path=np.zeros((0, 3)),
+                           fields={} if cloud is None else {"target_initial": cloud.target.copy()},
+                           agent_path=np.zeros((0, 3)),
                            tcp_path=series.get("tcp", np.zeros((0, 3))), events=list(loop.safety.events))
 
