@@ -129,7 +129,7 @@ def add_dataclass_arguments(
         elif typ in (int, float, str):
             kw = {"type": typ}
         elif origin is tuple and args and all(a in (int, float) for a in args if a is not Ellipsis):
-            kw = {"type": float, "nargs": "+" if Ellipsis in args else len(args)}
+            kw = {"type": _element_type(args), "nargs": "+" if Ellipsis in args else len(args)}
         elif origin in (typing.Union, getattr(__import__("types"), "UnionType", None)) and args:
             base = next(a for a in args if a is not type(None))
             base_args = typing.get_args(base)
@@ -137,7 +137,7 @@ def add_dataclass_arguments(
                 kw = {"type": base}
             elif (typing.get_origin(base) is tuple and base_args
                   and all(a in (int, float) for a in base_args if a is not Ellipsis)):
-                kw = {"type": float, "nargs": "+" if Ellipsis in base_args else len(base_args)}
+                kw = {"type": _element_type(base_args), "nargs": "+" if Ellipsis in base_args else len(base_args)}
         if kw is None:
             continue
         parser.add_argument(opt, dest=dest, default=None, help=help_text, **kw)
@@ -162,6 +162,11 @@ def dataclass_from_args(cls: type[T], args: argparse.Namespace, *, prefix: str =
         raise ConfigError(f"invalid parameters for {cls.__name__}: {exc}") from exc
     _check_unused(obj, args, prefix)
     return obj
+
+
+def _element_type(args: tuple) -> type:
+    """A numeric tuple's element type on the command line: int when every element is, else float."""
+    return int if all(a is int for a in args if a is not Ellipsis) else float
 
 
 def _check_unused(obj: Any, args: argparse.Namespace, prefix: str) -> None:

@@ -33,6 +33,28 @@ def test_a_moved_mount_is_recovered(method) -> None:
     assert all(r.position_mm < 2.0 and r.rotation_deg < 0.5 for r in result.residuals)
 
 
+def test_a_board_painted_into_a_frame_is_the_board_seen_where_nothing_hides_it() -> None:
+    from tactex.perception.frame import CameraIntrinsics
+    from tactex.sim.board import ChessBoard, overlay_board, render_colour
+
+    board = ChessBoard(centre_m=(0.35, 0.45, 0.0))
+    k = CameraIntrinsics(160, 120, 120.0, 120.0, 79.5, 59.5)
+    pose = np.eye(4)  # looking straight down at the board's centre from 0.3 m
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    pose[:3, 3] = [0.35, 0.45, 0.3]
+    alone = render_colour(board, pose, k)
+    table = np.full((k.height, k.width, 3), round(0.4 * 255), dtype=np.uint8)  # the table's grey, as render_colour
+    depth = np.full((k.height, k.width), 0.3, dtype=np.float32)  # the table 1 mm under the board's face
+    painted = overlay_board(table, depth, board, pose, k)
+    assert np.abs(painted.astype(int) - alone.astype(int)).max() <= 1
+    assert (painted < 30).mean() > 0.1 and (painted > 230).mean() > 0.1  # dark and light squares in view
+    # an object 5 cm in front of the board's left half hides it there, and the frame keeps the object's colour
+    front = depth.copy()
+    front[:, : k.width // 2] = 0.25
+    hidden = overlay_board(np.full_like(table, 200), front, board, pose, k)
+    assert (hidden[:, : k.width // 2 - 1] == 200).all() and (hidden[:, k.width // 2 + 1:] < 30).any()
+
+
 def test_the_command_writes_what_hand_eye_reads(tmp_path, capsys) -> None:
     from tactex.tasks.hand_eye import load_hand_eye
 

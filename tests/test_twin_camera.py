@@ -39,6 +39,11 @@ def test_a_frame_survives_the_wire():
     ({"camera_port": 70000}, "camera_port"),
     ({"camera_width": 4}, "camera_width"),
     ({"camera_rate_hz": 0.0}, "camera_rate_hz"),
+    ({"camera_mount_shift_mm": (0.0, 80.0, 0.0)}, "camera_mount_shift_mm"),
+    ({"camera_mount_tilt_deg": (float("nan"), 0.0, 0.0)}, "camera_mount_tilt_deg"),
+    ({"board": (9, 6), "camera_port": 0}, "board is seen only by the twin's camera"),
+    ({"board": (1, 6)}, "board cols"),
+    ({"board": (9, 6), "board_square_m": 0.5}, "square_m"),
 ])
 def test_twin_camera_settings_are_checked(kw, match):
     pytest.importorskip("franky_sim", reason="needs the franka extra")

@@ -44,6 +44,10 @@ def run(args: argparse.Namespace) -> int:
         host, port = twin.netft.address
         camera = (f", camera tcp {cfg.hostname}:{twin.camera.address[1]} ({cfg.camera_width}×{cfg.camera_height} at "
                   f"{cfg.camera_rate_hz:g} Hz)" if twin.camera is not None else "")
+        board = cfg.chess_board()
+        if board is not None and twin.camera is not None:
+            camera += (f", a {board.cols}×{board.rows} chessboard at {board.centre_m[0]:g} {board.centre_m[1]:g} m "
+                       f"({board.square_m * 1e3:g} mm squares)")
         print(f"twin ready: robot {cfg.hostname}:1337, Net F/T udp {host}:{port}{camera}, object {cfg.object_name}",
               flush=True)
 

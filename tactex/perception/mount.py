@@ -13,7 +13,7 @@ import numpy as np
 
 from tactex.perception.depth import check_pose
 
-__all__ = ["CameraMount"]
+__all__ = ["CameraMount", "mount_offset"]
 
 
 @dataclass(frozen=True)
@@ -46,3 +46,14 @@ class CameraMount:
     def world_T_tool(self, world_T_camera: np.ndarray) -> np.ndarray:
         """Tool pose from the camera pose."""
         return check_pose(world_T_camera, "world_T_camera") @ np.linalg.inv(self.tool_T_camera)
+
+
+def mount_offset(tilt_deg, shift_m) -> np.ndarray:
+    """(4, 4) a camera moved on its mount, in its own optical frame: turned by x-y-z Euler angles ``tilt_deg``
+    [deg], shifted by ``shift_m`` [m]; nominal_T_moved, so that tool_T_moved = tool_T_nominal · this."""
+    from scipy.spatial.transform import Rotation
+
+    offset = np.eye(4)
+    offset[:3, :3] = Rotation.from_euler("xyz", np.asarray(tilt_deg, dtype=float), degrees=True).as_matrix()
+    offset[:3, 3] = np.asarray(shift_m, dtype=float)
+    return offset

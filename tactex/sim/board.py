@@ -23,10 +23,13 @@ import numpy as np
 from tactex.errors import ConfigError, SimulationError
 from tactex.perception.frame import CameraIntrinsics
 
-__all__ = ["BOARD_GROUP", "ChessBoard", "board_model", "render_colour"]
+__all__ = ["BESIDE_OBJECTS_XY_M", "BOARD_GROUP", "ChessBoard", "board_model", "overlay_board", "render_colour"]
 
 #: The geom group of the board (seen with the table and the object in MuJoCo's own renderings).
 BOARD_GROUP = 0
+#: Where a board lies beside every object at its default placement (the door's edge is at y = 0.3 m) with all the
+#: default calibration poses within the arm's reach: its centre x y in the robot base frame [m].
+BESIDE_OBJECTS_XY_M = (0.35, 0.45)
 #: Brightness of what lies around the board (the table) in its images [0–1].
 _TABLE_GREY = 0.4
 
@@ -103,11 +106,11 @@ def board_model(scene_xml: str, board: ChessBoard) -> mujoco.MjModel:
         raise SimulationError(f"the scene with the board does not compile: {exc}") from exc
 
 
-def render_colour(board: ChessBoard, world_T_camera: np.ndarray, intrinsics: CameraIntrinsics, *,
-                  supersample: int = 2) -> np.ndarray:
-    """(H, W, 3) uint8 colour image of ``board`` seen from ``world_T_camera`` (optical frame): each
-    ray intersected with the board's plane (the geoms' top faces), black on a dark square, white on
-    the plate, the table's colour elsewhere; ``supersample``² rays per pixel, averaged."""
+def _board_rays(board: ChessBoard, world_T_camera: np.ndarray, intrinsics: CameraIntrinsics,
+                supersample: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each of the ``supersample``² rays per pixel met with the board's plane (the geoms' top faces):
+    its brightness (0 on a dark square, 1 on the plate), whether it lands on the plate, and its depth
+    along the optical axis [m] (inf: it never meets the plane); each (H, n, W, n)."""
     k, n = intrinsics, int(supersample)
     offsets = (np.arange(n) + 0.5) / n - 0.5
     u = (np.arange(k.width)[:, None] + offsets[None, :]).ravel()
@@ -118,7 +121,7 @@ def render_colour(board: ChessBoard, world_T_camera: np.ndarray, intrinsics: Cam
     dx = (uu - np.float32(k.cx)) / np.float32(k.fx)
     dy = (vv - np.float32(k.cy)) / np.float32(k.fy)
     r = rot.astype(np.float32)
-    dirs = [r[i, 0] * dx + r[i, 1] * dy + r[i, 2] for i in range(3)]  # in the board frame
+    dirs = [r[i, 0] * dx + r[i, 1] * dy + r[i, 2] for i in range(3)]  # in the board frame, unit optical depth
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -origin[2] / dirs[2]
     hit = np.isfinite(t) & (t > 0)
@@ -128,6 +131,33 @@ def render_colour(board: ChessBoard, world_T_camera: np.ndarray, intrinsics: Cam
     on_squares = (x >= -1) & (x < board.cols) & (y >= -1) & (y < board.rows)
     on_plate = (x >= -2) & (x < board.cols + 1) & (y >= -2) & (y < board.rows + 1)
     dark = on_squares & ((np.floor(x + 1) + np.floor(y + 1)) % 2 == 0)
-    grey = np.where(on_plate, 1.0, _TABLE_GREY)
-    grey = np.where(dark, 0.0, grey).reshape(k.height, n, k.width, n).mean(axis=(1, 3))
+    shape = (k.height, n, k.width, n)
+    return (np.where(dark, 0.0, 1.0).reshape(shape), on_plate.reshape(shape),
+            np.where(hit, t, np.inf).reshape(shape))
+
+
+def render_colour(board: ChessBoard, world_T_camera: np.ndarray, intrinsics: CameraIntrinsics, *,
+                  supersample: int = 2) -> np.ndarray:
+    """(H, W, 3) uint8 colour image of ``board`` seen from ``world_T_camera`` (optical frame): each
+    ray intersected with the board's plane (the geoms' top faces), black on a dark square, white on
+    the plate, the table's colour elsewhere; ``supersample``² rays per pixel, averaged."""
+    bright, on_plate, _ = _board_rays(board, world_T_camera, intrinsics, supersample)
+    grey = np.where(on_plate, bright, _TABLE_GREY).mean(axis=(1, 3))
     return np.repeat(np.rint(grey * 255.0).astype(np.uint8)[..., None], 3, axis=2)
+
+
+def overlay_board(rgb: np.ndarray, depth_m: np.ndarray, board: ChessBoard, world_T_camera: np.ndarray,
+                  intrinsics: CameraIntrinsics, *, supersample: int = 2, tolerance_m: float = 0.003) -> np.ndarray:
+    """``rgb`` (H, W, 3) uint8, a frame of the scene without the board, with ``board`` painted where the
+    camera sees it: a ray lands on the board's plate and nothing of the scene (``depth_m`` (H, W) [m], 0 where
+    nothing was met) lies more than ``tolerance_m`` in front of it. Edges are averaged over ``supersample``²
+    rays per pixel, as in :func:`render_colour`."""
+    bright, on_plate, t = _board_rays(board, world_T_camera, intrinsics, supersample)
+    scene = np.nan_to_num(np.asarray(depth_m, dtype=np.float32), nan=0.0, posinf=0.0)[:, None, :, None]
+    seen = on_plate & ((scene <= 0.0) | (t <= scene + np.float32(tolerance_m)))
+    if not seen.any():
+        return rgb
+    frac = seen.mean(axis=(1, 3))[..., None]  # (H, W, 1) share of a pixel's rays on the visible board
+    board_grey = np.where(seen, bright, 0.0).sum(axis=(1, 3))[..., None] / (seen.shape[1] * seen.shape[3])
+    out = (1.0 - frac) * rgb.astype(np.float64) + 255.0 * board_grey
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)

@@ -108,10 +108,12 @@ class CameraWorker:
         camera: the in-process camera (its intrinsics, depth noise and ray caster are mirrored).
         dirt: the object's dirt field (its grid and surface; the levels travel with each frame), or None.
         object_rgb: clean colour of the object in [0, 1].
+        board: a :class:`~tactex.sim.board.ChessBoard` on the table, painted into each frame, or None.
         timeout_s: longest wait for a frame (or the start) [s] before :class:`SimulationError`.
     """
 
-    def __init__(self, camera, dirt=None, object_rgb=None, timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+    def __init__(self, camera, dirt=None, object_rgb=None, timeout_s: float = DEFAULT_TIMEOUT_S, *,
+                 board=None) -> None:
         if camera.method != "analytic" or camera.caster is None:
             raise ConfigError("camera_worker needs the analytic ray caster (camera_raycast='analytic')")
         if not (np.isfinite(timeout_s) and timeout_s > 0):
@@ -138,6 +140,7 @@ class CameraWorker:
             "dirt": None if dirt is None else {"surface": _surface_spec(dirt.surface), "shape": list(dirt.shape)},
             "n_cells": 0 if dirt is None else int(dirt.level.size),
             "object_rgb": None if object_rgb is None else [float(c) for c in object_rgb],
+            "board": None if board is None else dataclasses.asdict(board),
         }
         layout, size = _layout(spec)
         spec["size"] = size
@@ -358,6 +361,7 @@ def _main() -> None:
 
 
 def _serve(spec: dict, fd: int, sock: socket.socket) -> None:
+    from tactex.sim.board import ChessBoard, overlay_board
     from tactex.sim.camera import RayCastCamera
     from tactex.sim.dirt import DirtLookup
     from tactex.sim.objects import SimObject
@@ -380,6 +384,8 @@ def _serve(spec: dict, fd: int, sock: socket.socket) -> None:
     d = spec["dirt"]
     dirt = None if d is None else DirtLookup(_surface_from_spec(d["surface"]), tuple(d["shape"]))
     rgb = None if spec["object_rgb"] is None else np.asarray(spec["object_rgb"], dtype=float)
+    board = None if spec.get("board") is None else ChessBoard(**{k: tuple(v) if isinstance(v, list) else v
+                                                                 for k, v in spec["board"].items()})
     pose, ints = v["pose"], v["ints"]
     level = v["level"] if dirt is not None else None
     depth_out, rgb_out = v["depth"], v["rgb"]
@@ -397,7 +403,9 @@ def _serve(spec: dict, fd: int, sock: socket.socket) -> None:
         frame = camera.render(p[0:16].reshape(4, 4), p[16:19], p[19:28].reshape(3, 3), float(p[28]), dirt=dirt,
                               dirt_level=level, object_rgb=rgb, rng=rng)
         depth_out[:] = frame.depth_m.reshape(-1)
-        rgb_out[:] = frame.rgb.reshape(-1)
+        shown = frame.rgb if board is None else overlay_board(frame.rgb, frame.depth_m, board, p[0:16].reshape(4, 4),
+                                                              camera.intrinsics)
+        rgb_out[:] = shown.reshape(-1)
         try:
             sock.send(_MSG_DONE)
         except OSError:  # closed while this frame was in flight: nobody wants it

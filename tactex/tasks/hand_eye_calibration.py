@@ -27,6 +27,7 @@ import numpy as np
 from tactex.config import param
 from tactex.errors import ConfigError, InputError, MissingDependencyError, SimulationError
 from tactex.perception.frame import CameraIntrinsics
+from tactex.perception.mount import mount_offset
 from tactex.sim.board import ChessBoard, board_model, render_colour
 
 __all__ = [
@@ -39,7 +40,9 @@ __all__ = [
     "calibrate_in_simulation",
     "check_motions",
     "detect_board",
+    "generated_tool_poses",
     "solve_hand_eye",
+    "solve_views",
     "write_hand_eye",
 ]
 
@@ -230,7 +233,7 @@ def _rot_z(deg: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _generated_tool_poses(board: ChessBoard, cfg: HandEyeConfig, tool_T_camera: np.ndarray) -> list[np.ndarray]:
+def generated_tool_poses(board: ChessBoard, cfg: HandEyeConfig, tool_T_camera: np.ndarray) -> list[np.ndarray]:
     """base_T_tool targets that put the camera (its nominal mount) ``distance_m`` from the board's
     centre, tilted up to ``max_tilt_deg`` in all directions and rolled up to ``max_roll_deg``."""
     from tactex.tasks.runner import tool_rotation_for_normal
@@ -248,15 +251,6 @@ def _generated_tool_poses(board: ChessBoard, cfg: HandEyeConfig, tool_T_camera: 
         pose[:3, 3] = centre + cfg.distance_m * look - rot @ tool_T_camera[:3, 3]
         out.append(pose)
     return out
-
-
-def _mount_error(tilt_deg: Sequence[float], shift_m: Sequence[float]) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    err = np.eye(4)
-    err[:3, :3] = Rotation.from_euler("xyz", tilt_deg, degrees=True).as_matrix()
-    err[:3, 3] = shift_m
-    return err
 
 
 def calibrate_in_simulation(
@@ -307,7 +301,7 @@ def calibrate_in_simulation(
     tool, camera = poses()
     nominal = np.linalg.inv(tool) @ camera
     # the camera moved on its mount, in its optical frame: body_T_cam' = body_T_cam · optical error
-    moved = nominal @ _mount_error(mount_tilt_deg, mount_shift_m)
+    moved = nominal @ mount_offset(mount_tilt_deg, mount_shift_m)
     body_T_tool = np.linalg.inv(_body_pose(data, model.cam_bodyid[cam])) @ tool
     body_T_cam = body_T_tool @ moved
     model.cam_pos[cam] = body_T_cam[:3, 3]
@@ -317,7 +311,7 @@ def calibrate_in_simulation(
     mujoco.mj_forward(model, data)
     tool, camera = poses()
     truth = np.linalg.inv(tool) @ camera
-    targets = list(tool_poses) if tool_poses is not None else _generated_tool_poses(board, cfg, nominal)
+    targets = list(tool_poses) if tool_poses is not None else generated_tool_poses(board, cfg, nominal)
     intr = scene_cfg.intrinsics
     tools, boards, skipped = [], [], {}
     qadr = dadr = np.arange(7)
@@ -336,17 +330,26 @@ def calibrate_in_simulation(
             continue
         tools.append(tool)
         boards.append(board_pose(corners, board, intr))
-    say(f"{len(tools)} of {len(targets)} poses with the board found"
+    return solve_views(tools, boards, len(targets), skipped, board, cfg.method, say, truth=truth)
+
+
+def solve_views(tools: Sequence[np.ndarray], boards: Sequence[np.ndarray], n_targets: int, skipped: dict[int, str],
+                board: ChessBoard, method: str, say, *, where: str = "", truth: np.ndarray | None = None
+                ) -> HandEyeResult:
+    """The calibration from the views taken (``tools``: base_T_tool, ``boards``: camera_T_board) of ``n_targets``
+    poses, ``skipped`` those without one (index → why); says how many found the board, and refuses too few with
+    what to check (``where``: how the user told where the board lies, e.g. an option)."""
+    say(f"{len(tools)} of {n_targets} poses with the board found"
         + (f" (skipped: {', '.join(f'{i + 1} {why}' for i, why in skipped.items())})" if skipped else ""))
     if len(tools) < MIN_POSES:
         raise InputError(
-            f"the board was found from {len(tools)} of {len(targets)} poses (needs {MIN_POSES}): check that its inner "
-            f"corners are --board {board.cols} {board.rows}, that it lies in the camera's view at the poses "
+            f"the board was found from {len(tools)} of {n_targets} poses (needs {MIN_POSES}): check that its inner "
+            f"corners are --board {board.cols} {board.rows}, that it lies{where} in the camera's view at the poses "
             "(--distance-m, --max-tilt-deg) and is evenly lit")
-    x, residuals = solve_hand_eye(tools, boards, cfg.method)
-    used = [i for i in range(len(targets)) if i not in skipped]
+    x, residuals = solve_hand_eye(tools, boards, method)
+    used = [i for i in range(n_targets) if i not in skipped]
     residuals = [r._replace(index=used[r.index]) for r in residuals]
-    return HandEyeResult(x, residuals, cfg.method, skipped, truth=truth)
+    return HandEyeResult(x, residuals, method, skipped, truth=truth)
 
 
 def _body_pose(data, body: int) -> np.ndarray:

@@ -66,8 +66,9 @@ class TwinCameraServer:
         self._listener = sock
         self.address = sock.getsockname()
         # the render worker starts with the first stream: a twin whose camera is never used pays nothing for it
-        self._make_worker = lambda: CameraWorker(camera, twin.dirt,
-                                                 object_rgb=np.asarray(scene.sim_object.rgb, dtype=float))
+        self._make_worker = lambda: CameraWorker(camera, twin.dirt, object_rgb=np.asarray(scene.sim_object.rgb,
+                                                                                          dtype=float),
+                                                 board=twin.config.chess_board())
         self.worker: Any = None
         self._thread = threading.Thread(target=self._accept, name="twin-camera", daemon=True)
         self._thread.start()

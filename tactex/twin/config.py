@@ -5,10 +5,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from tactex.config import param
 from tactex.errors import ConfigError
+from tactex.perception.mount import mount_offset
 from tactex.perception.twin_camera import TWIN_CAMERA_PORT
 from tactex.robots.netft import NETFT_PORT
+from tactex.sim.board import BESIDE_OBJECTS_XY_M, ChessBoard
 from tactex.sim.scene import SceneConfig
 from tactex.sim.tool import ToolGeometry
 
@@ -47,6 +51,18 @@ class TwinConfig:
     camera_width: int = param(640, "wrist camera image width [px] (a RealSense D435's colour stream: 640)")
     camera_height: int = param(480, "wrist camera image height [px]")
     camera_rate_hz: float = param(30.0, "wrist camera frame rate while a client streams [Hz]")
+    camera_mount_shift_mm: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), "the wrist camera moved off tactex's nominal mount, in its optical frame (x right, y down, z "
+        "forward) [mm]: a mount a client must calibrate (tactex calibrate hand-eye --robot franka)")
+    camera_mount_tilt_deg: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), "the wrist camera turned off tactex's nominal mount, x-y-z Euler angles in its optical frame "
+        "[deg]")
+    board: tuple[int, int] | None = param(
+        None, "a chessboard lying on the table, seen by the wrist camera (for tactex calibrate hand-eye): its inner "
+              "corners COLS ROWS, e.g. 9 6 (default: none)")
+    board_square_m: float = param(0.025, "the board's square edge [m]")
+    board_centre_m: tuple[float, float] = param(BESIDE_OBJECTS_XY_M, "where the board's centre lies on the table, x y "
+                                                                     "in the robot base frame [m] (beside the object)")
     status_file: str = param("", "JSON file rewritten every status_period_s with the twin's status ('' = none)")
     status_period_s: float = param(0.5, "period of the status file [s]")
     realtime_factor: float = param(1.0, "simulated seconds per wall-clock second the twin aims at (it paces "
@@ -92,8 +108,30 @@ class TwinConfig:
         if not (math.isfinite(self.command_window_ms) and 0.0 < self.command_window_ms < 1.0):
             raise ConfigError(f"command_window_ms must be in (0, 1) ms (the client's share of the 1 ms state "
                               f"period at real time), got {self.command_window_ms!r}")
+        for name, hi in (("camera_mount_shift_mm", 50.0), ("camera_mount_tilt_deg", 20.0)):
+            v = getattr(self, name)
+            if len(v) != 3 or not all(math.isfinite(x) and abs(x) <= hi for x in v):
+                raise ConfigError(f"{name} must be three numbers within ±{hi:g}, got {v!r}")
+        if self.board is not None:
+            if not self.camera_port:
+                raise ConfigError("the board is seen only by the twin's camera: give it a camera port (--port-camera)")
+            if len(self.board_centre_m) != 2 or not all(math.isfinite(x) for x in self.board_centre_m):
+                raise ConfigError(f"board_centre_m must be x y [m], got {self.board_centre_m!r}")
+            self.chess_board()  # its corners and square edge
         if not (math.isfinite(self.realtime_factor) and 0.0 <= self.realtime_factor <= 100.0):
             raise ConfigError(f"realtime_factor must be in [0, 100] (0: unpaced), got {self.realtime_factor!r}")
+
+    def chess_board(self) -> ChessBoard | None:
+        """The board on the twin's table (None: no board)."""
+        if self.board is None:
+            return None
+        cols, rows = self.board
+        return ChessBoard(cols=cols, rows=rows, square_m=self.board_square_m,
+                          centre_m=(float(self.board_centre_m[0]), float(self.board_centre_m[1]), 0.0))
+
+    def camera_mount_error(self) -> np.ndarray:
+        """(4, 4) the served camera's optical frame in the nominal one's: nominal_T_served [m]."""
+        return mount_offset(self.camera_mount_tilt_deg, np.asarray(self.camera_mount_shift_mm, dtype=float) * 1e-3)
 
     def scene_config(self) -> SceneConfig:
         """The :class:`SceneConfig` of the same object, tool and dirt (validates them)."""

@@ -123,6 +123,7 @@ class Twin:
         self._snap_wanted = False
         self._snap_done = threading.Event()
         self._snap: tuple | None = None
+        self._mount_error = config.camera_mount_error()
 
     # -- per-tick work (the simulation thread) -----------------------------------------------------
     def _setup_ids(self) -> None:
@@ -300,6 +301,7 @@ class Twin:
         pose = np.eye(4)
         pose[:3, :3] = d.cam_xmat[i].reshape(3, 3) @ optical_R_mujoco_camera
         pose[:3, 3] = d.cam_xpos[i]
+        pose = pose @ self._mount_error  # the camera as mounted, which a client calibrates
         self._snap = (pose, self._object_pos.copy(), self._object_rot.copy(), float(d.time), self.dirt.level.copy())
         self._snap_wanted = False
         self._snap_done.set()

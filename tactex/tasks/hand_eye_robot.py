@@ -1,0 +1,96 @@
+"""Hand-eye calibration on a robot (``tactex calibrate hand-eye --robot franka``): the arm visits poses around a
+chessboard lying on the table, and at each one the wrist camera's image and the robot's tool pose are read.
+
+The poses are those of the simulated calibration (:func:`~tactex.tasks.hand_eye_calibration.calibrate_in_simulation`:
+the camera, on its nominal mount, ``distance_m`` from the board's centre, tilted around it and rolled), reached
+by joint moves under torque control from the IK of tactex's arm model. At each pose torque control pauses, as
+for the clean's captures (the robot holds its posture itself, so the image and the pose read are of an arm at
+rest), ``capture_frames`` frames are read and the last one's board is detected. The views then go through the
+same solver and checks as in simulation. On tactex twin the board is the twin's (``tactex twin --board 9 6``)
+and its camera may sit off the nominal mount (``--camera-mount-shift-mm``, ``--camera-mount-tilt-deg``), a mount
+the calibration must find.
+
+Every error ends torque control (the backend closes); the views taken so far are in the error's message only as
+their count: a calibration is redone, not resumed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from tactex.errors import ConfigError, SimulationError
+from tactex.sim.board import ChessBoard
+from tactex.tasks.hand_eye_calibration import (
+    HandEyeConfig,
+    HandEyeResult,
+    board_pose,
+    detect_board,
+    generated_tool_poses,
+    solve_views,
+)
+
+__all__ = ["calibrate_on_robot"]
+
+#: Settling after each joint move before torque control pauses [s].
+SETTLE_S = 0.5
+
+
+def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene_config=None,
+                       note: Callable[[str], None] | None = None) -> HandEyeResult:
+    """Calibrate the wrist camera of ``robot`` (:class:`~tactex.tasks.robot.RealRobotParams` with ``camera``
+    twin or realsense) from views of ``board``, whose centre in the robot base frame aims the poses.
+    ``scene_config``: the tool whose kinematics and nominal camera mount plan the poses (tactex's by default).
+    Raises :class:`~tactex.errors.InputError` when too few views find the board."""
+    from tactex.robots.loop import ControlLoop
+    from tactex.sim.scene import SceneConfig
+    from tactex.tasks.capture import read_views
+    from tactex.tasks.robot import nominal_tool_T_camera, open_backend, open_capture_camera
+
+    if robot.camera not in ("twin", "realsense"):
+        raise ConfigError(f"the calibration reads the wrist camera: give --camera twin (tactex twin's camera) or "
+                          f"--camera realsense, got --camera {robot.camera}")
+    say = note or (lambda msg: None)
+    scene_cfg = scene_config or SceneConfig()
+    nominal = nominal_tool_T_camera(scene_cfg)
+    targets = generated_tool_poses(board, config, nominal)
+    # the frames are posed by the nominal mount; only their colour images and the tool poses read here are used
+    opened: list = []
+    camera = open_capture_camera(replace(robot, hand_eye=""), scene_cfg, lambda: opened[0].state().ee_pose)
+    try:
+        backend = open_backend(scene_cfg, robot)
+    except BaseException:
+        camera.close()
+        raise
+    opened.append(backend)
+    tools, boards, skipped = [], [], {}
+    try:
+        loop = ControlLoop(backend)
+        for i, target in enumerate(targets):
+            try:
+                q = backend.solve_ik(target[:3, 3], target[:3, :3])
+            except SimulationError:
+                skipped[i] = "out of the arm's reach"
+                continue
+            loop.move_joints(q, settle_s=SETTLE_S)
+            loop.pause()  # the robot holds itself: the image and the pose are of an arm at rest
+            try:
+                frame = read_views(camera, robot.capture_frames, getattr(camera, "what", "the camera"))[-1]
+            finally:
+                camera.stop()
+            tool = np.asarray(backend.state().ee_pose, dtype=float)
+            corners = None if frame.rgb is None else detect_board(frame.rgb, board)
+            if corners is None:
+                skipped[i] = "board not found"
+                say(f"pose {i + 1}/{len(targets)}: board not found")
+                continue
+            tools.append(tool)
+            boards.append(board_pose(corners, board, frame.intrinsics))
+            say(f"pose {i + 1}/{len(targets)}: board found")
+    finally:
+        camera.close()
+        backend.close()
+    where = f" at --board-centre-m {board.centre_m[0]:g} {board.centre_m[1]:g} in the robot base frame and"
+    return solve_views(tools, boards, len(targets), skipped, board, config.method, say, where=where)

@@ -1,0 +1,68 @@
+"""tactex calibrate hand-eye --robot franka against tactex twin: the twin's camera sits off tactex's nominal mount
+and a chessboard lies on its table; the arm visits the poses through libfranka's protocol, and the calibration
+finds the mount within 2 mm and 0.5° from at most 15 poses. Without a board on the table: one line, exit 2, and
+torque control ended (a new client takes the robot at once)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cv2", reason="opencv-python-headless is not installed (the realsense extra)")
+pytest.importorskip("pylibfranka", reason="needs the franka extra: EXTRAS='dev fast franka' make test")
+pytest.importorskip("franky_sim", reason="needs the franka extra: EXTRAS='dev fast franka' make test")
+
+from tactex.twin.process import TwinProcess
+
+pytestmark = [pytest.mark.franka, pytest.mark.timeout(900)]
+
+#: The late-answer guard's budget on a shared 2-core machine (see tests/test_franka_backend.py) [ms].
+TWIN_LATE = ["--late-abort-ms", "5000"]
+#: A hang guard on a calibration's end [s], not a time budget.
+RUN_WITHIN_S = 600.0
+SHIFT_MM = (4.0, -3.0, 6.0)
+TILT_DEG = (1.5, -1.0, 2.0)
+
+
+def _calibrate(twin: TwinProcess, out, *args: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "tactex.cli", "calibrate", "hand-eye", "--robot", "franka", "--robot-ip",
+           twin.hostname, "--camera", "twin", "--camera-port", str(twin.camera_port), *TWIN_LATE, "--out", str(out),
+           *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_WITHIN_S)
+
+
+def test_the_twins_camera_mount_is_recovered_through_the_robot(tmp_path):
+    from tactex.perception.mount import mount_offset
+    from tactex.sim.scene import SceneConfig
+    from tactex.tasks.hand_eye import load_hand_eye
+    from tactex.tasks.robot import nominal_tool_T_camera
+
+    args = ["--board", "9", "6", "--camera-mount-shift-mm", *map(str, SHIFT_MM),
+            "--camera-mount-tilt-deg", *map(str, TILT_DEG)]
+    with TwinProcess("plate", args) as twin:
+        done = _calibrate(twin, tmp_path / "cam.json", "--poses", "12")
+    assert done.returncode == 0, done.stderr
+    found = load_hand_eye(str(tmp_path / "cam.json"))
+    truth = nominal_tool_T_camera(SceneConfig(object_name="plate")) @ mount_offset(TILT_DEG, np.array(SHIFT_MM) / 1e3)
+    mm = float(np.linalg.norm(found[:3, 3] - truth[:3, 3]) * 1e3)
+    rel = truth[:3, :3].T @ found[:3, :3]
+    deg = float(np.degrees(np.arccos(np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0))))
+    print(f"twin mount recovered within {mm:.3f} mm and {deg:.4f}°\n{done.stdout}")
+    assert mm < 2.0 and deg < 0.5
+    poses = done.stdout.count("pose ")
+    assert 3 <= poses <= 15 and "board found" in done.stderr
+
+
+def test_no_board_on_the_twins_table_is_one_line_and_the_robot_is_free(tmp_path):
+    from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend
+
+    with TwinProcess("plate") as twin:
+        done = _calibrate(twin, tmp_path / "cam.json", "--poses", "3")
+        LibfrankaBackend(FrankaConfig(robot_ip=twin.hostname)).close()  # torque control ended: a new client connects
+    assert done.returncode == 2, done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert "the board was found from 0 of 3 poses" in last and "--board-centre-m" in last, done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "cam.json").exists()
