@@ -34,6 +34,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "--board-centre-m)")
     add_dataclass_arguments(parser, HandEyeConfig)
     robot = parser.add_argument_group("real robot (with --robot franka)")
+    robot.add_argument("--taught", action="store_true",
+                       help="you guide the arm by hand to each pose (the Franka's guiding mode) and press Enter where "
+                            "the camera sees the whole board, 'done' to solve (at most --poses views); without it the "
+                            "arm visits generated poses around --board-centre-m under torque control")
     add_dataclass_arguments(robot, RealRobotParams, skip=("hand_eye",))  # what this command makes
 
 
@@ -48,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = dataclass_from_args(HandEyeConfig, args)
     robot = robot_params(args)
+    if args.taught and robot is None:
+        raise InputError("--taught is for a real robot, whose arm you guide by hand: add --robot franka")
     centre = (0.55, 0.0, 0.0) if robot is None else (*args.board_centre_m, 0.0)
     board = ChessBoard(cols=args.board[0], rows=args.board[1], square_m=args.square_m, centre_m=centre)
     if not args.out.endswith((".json", ".npy")):
@@ -60,6 +66,17 @@ def run(args: argparse.Namespace) -> int:
 
     if robot is None:
         result = calibrate_in_simulation(cfg, board, note=note)
+    elif args.taught:
+        from tactex.tasks.hand_eye_robot import calibrate_taught
+
+        def ask(prompt: str) -> str:
+            print(prompt, end="", file=sys.stderr, flush=True)
+            line = sys.stdin.readline()
+            if not line:
+                raise EOFError
+            return line
+
+        result = calibrate_taught(cfg, board, robot, ask=ask, note=note)
     else:
         from tactex.tasks.hand_eye_robot import calibrate_on_robot
 

@@ -10,6 +10,10 @@ same solver and checks as in simulation. On tactex twin the board is the twin's 
 and its camera may sit off the nominal mount (``--camera-mount-shift-mm``, ``--camera-mount-tilt-deg``), a mount
 the calibration must find.
 
+Taught poses (:func:`calibrate_taught`, ``--taught``): the user guides the arm by hand (the Franka's guiding
+mode, torque control never started), and at each pose where the camera sees the board presses Enter; the tool
+pose is read once from the robot and the frames from the camera.
+
 Every error ends torque control (the backend closes); the views taken so far are in the error's message only as
 their count: a calibration is redone, not resumed.
 """
@@ -32,7 +36,7 @@ from tactex.tasks.hand_eye_calibration import (
     solve_views,
 )
 
-__all__ = ["calibrate_on_robot"]
+__all__ = ["calibrate_on_robot", "calibrate_taught"]
 
 #: Settling after each joint move before torque control pauses [s].
 SETTLE_S = 0.5
@@ -46,7 +50,6 @@ def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene
     Raises :class:`~tactex.errors.InputError` when too few views find the board."""
     from tactex.robots.loop import ControlLoop
     from tactex.sim.scene import SceneConfig
-    from tactex.tasks.capture import read_views
     from tactex.tasks.robot import nominal_tool_T_camera, open_backend, open_capture_camera
 
     if robot.camera not in ("twin", "realsense"):
@@ -76,21 +79,69 @@ def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene
                 continue
             loop.move_joints(q, settle_s=SETTLE_S)
             loop.pause()  # the robot holds itself: the image and the pose are of an arm at rest
-            try:
-                frame = read_views(camera, robot.capture_frames, getattr(camera, "what", "the camera"))[-1]
-            finally:
-                camera.stop()
+            corners, intrinsics = _view(camera, robot.capture_frames, board)
             tool = np.asarray(backend.state().ee_pose, dtype=float)
-            corners = None if frame.rgb is None else detect_board(frame.rgb, board)
             if corners is None:
                 skipped[i] = "board not found"
                 say(f"pose {i + 1}/{len(targets)}: board not found")
                 continue
             tools.append(tool)
-            boards.append(board_pose(corners, board, frame.intrinsics))
+            boards.append(board_pose(corners, board, intrinsics))
             say(f"pose {i + 1}/{len(targets)}: board found")
     finally:
         camera.close()
         backend.close()
     where = f" at --board-centre-m {board.centre_m[0]:g} {board.centre_m[1]:g} in the robot base frame and"
     return solve_views(tools, boards, len(targets), skipped, board, config.method, say, where=where)
+
+
+def _view(camera, frames: int, board: ChessBoard):
+    """The board's corners in the last of ``frames`` frames (None: not found) and the frame's intrinsics."""
+    from tactex.tasks.capture import read_views
+
+    try:
+        frame = read_views(camera, frames, getattr(camera, "what", "the camera"))[-1]
+    finally:
+        camera.stop()
+    return (None if frame.rgb is None else detect_board(frame.rgb, board)), frame.intrinsics
+
+
+def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Callable[[str], str] = input,
+                     scene_config=None, note: Callable[[str], None] | None = None) -> HandEyeResult:
+    """Calibrate from poses a person teaches: ``ask(prompt)`` returns when the arm, guided by hand, rests where
+    the camera sees the whole board ('' or anything else: take the view; ``done``: solve with the views taken;
+    end of input (EOFError) also solves). The tool pose is read once per view (torque control never starts: the
+    robot stays in its guiding mode). At most ``config.poses`` views are taken."""
+    from tactex.robots.read_pose import read_tool_pose
+    from tactex.sim.scene import SceneConfig
+    from tactex.tasks.robot import open_capture_camera
+
+    if robot.camera not in ("twin", "realsense"):
+        raise ConfigError(f"the calibration reads the wrist camera: give --camera twin (tactex twin's camera) or "
+                          f"--camera realsense, got --camera {robot.camera}")
+    say = note or (lambda msg: None)
+    tool = (scene_config or SceneConfig()).tool
+    camera = open_capture_camera(replace(robot, hand_eye=""), scene_config or SceneConfig(), lambda: np.eye(4))
+    tools, boards, skipped = [], [], {}
+    try:
+        for i in range(config.poses):
+            try:
+                answer = ask(f"pose {i + 1}/{config.poses}: guide the arm until the camera sees the whole board, let "
+                             "it rest, press Enter ('done' to solve now): ")
+            except EOFError:
+                break
+            if answer.strip().lower() == "done":
+                break
+            base_T_tool = read_tool_pose(robot.robot_ip, tool)
+            corners, intrinsics = _view(camera, robot.capture_frames, board)
+            if corners is None:
+                skipped[i] = "board not found"
+                say(f"pose {i + 1}: board not found (the whole board in view, evenly lit?)")
+                continue
+            tools.append(base_T_tool)
+            boards.append(board_pose(corners, board, intrinsics))
+            say(f"pose {i + 1}: board found")
+    finally:
+        camera.close()
+    return solve_views(tools, boards, len(tools) + len(skipped), skipped, board, config.method, say,
+                       where=" where the camera sees it whole at the poses you taught and")
