@@ -79,7 +79,7 @@ def test_a_restart_blends_in_from_the_robots_own_last_command():
         layer.torque(_state(k), None)
     assert layer._tau_prev[0] == pytest.approx(3.0)
     clips = layer.counts.get("torque_rate_limit", 0)
-    layer.reseed(np.zeros(N_JOINTS), t=0.2)
+    layer.reseed(np.zeros(N_JOINTS))
     prev, steps = np.zeros(N_JOINTS), []
     for k in range(200, 300):
         tau = layer.torque(_state(k), None)
@@ -94,7 +94,7 @@ def test_a_restart_from_a_non_finite_robot_value_starts_from_zero():
     layer, _ = _layer(np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
     for k in range(200):
         layer.torque(_state(k), None)
-    layer.reseed(np.full(N_JOINTS, np.nan), t=0.2)
+    layer.reseed(np.full(N_JOINTS, np.nan))
     tau = layer.torque(_state(200), None)
     assert np.isfinite(tau).all() and abs(tau[0]) < 0.01
 
@@ -421,11 +421,29 @@ def test_a_restart_blends_in_from_the_robots_own_command():
     for k in range(5):
         layer.torque(_state(k), None)
     layer.counts.clear()  # the start's own ramp from 0 is not what is tested
-    layer.reseed(robot, 5e-3)
+    layer.reseed(robot)
     prev = robot
     for k in range(5, 200):
         tau = layer.torque(_state(k), None)
         assert (np.abs(tau - prev) <= KEEP * RATE_STEP + 1e-12).all()
+        prev = tau
+    np.testing.assert_allclose(prev, want)
+    assert "torque_rate_limit" not in layer.counts
+
+
+def test_a_hand_over_blend_advances_a_period_per_command_across_a_stall():
+    # a restart's blend towards 5 N·m, then the loop stalls and the robot's clock runs on 25 ms between two
+    # commands: the blend goes on by one period's share, not by 25 ms of it (a step of several N·m)
+    want = np.array([5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    layer, _ = _layer(want)
+    for k in range(100):
+        layer.torque(_state(k), None)
+    layer.counts.clear()
+    layer.reseed(np.zeros(N_JOINTS))
+    prev = np.zeros(N_JOINTS)
+    for k in [*range(100, 110), *range(135, 200)]:  # 25 ms without a command after k = 109
+        tau = layer.torque(_state(k), None)
+        assert (np.abs(tau - prev) <= KEEP * RATE_STEP + 1e-12).all(), (k, tau - prev)
         prev = tau
     np.testing.assert_allclose(prev, want)
     assert "torque_rate_limit" not in layer.counts

@@ -62,10 +62,9 @@ def test_clean_under_model_mismatch_keeps_its_force(case: str) -> None:
 
 
 #: Not met yet, measured: the clean meets our clip (1 % below the robot's limit) for a few ticks in contact
-#: with the tool at half its declared mass (at one-tick dips of the pad's force as it slides) and with twice
-#: the joint friction.
-CLIPS_NOT_MET = {"tool_mass_x0.5": "10 clip ticks in 12 s: torque steps at one-tick dips of the sliding pad's force",
-                 "joint_friction_x2": "2 clip ticks in 12 s, in contact"}
+#: with the tool at half its declared mass, at two-tick dips of the pad's force as it slides (stick-slip), which
+#: the force loop's 3-tick median passes (a 5-tick median removes them but costs the force loop phase margin).
+CLIPS_NOT_MET = {"tool_mass_x0.5": "8 clip ticks in 12 s: torque steps at two-tick dips of the sliding pad's force"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.xfail(strict=True, reason=CLIPS_NOT_MET[c]))

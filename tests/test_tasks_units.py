@@ -687,3 +687,34 @@ def test_the_clean_explorer_config_is_nested_and_follows_the_options() -> None:
     assert (ex.max_bridge_voxels, ex.edge_braking, ex.source_mode) == (0.0, False, "ergodic")
     assert CleanConfig().explorer == replace(CLEAN_EXPLORER, seed=0)
     assert replace(cfg, alpha=7.0).explorer.alpha == 7.0
+
+
+def test_a_tick_after_a_pause_starts_torque_control_again_on_a_fresh_state():
+    # a real robot's backend while torque control is paused: the state it holds is from before the pause; the
+    # loop's next tick must read a fresh one (starting torque control) before it computes a command on it
+    from tactex.control.joint_impedance import JointTarget
+    from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
+    from tactex.sim import SceneConfig
+
+    class Paused(MujocoBackend):
+        torque_paused = True
+        torque_restart = None
+
+        def step(self):
+            if self.torque_paused:
+                self.torque_paused, self.torque_restart = False, np.zeros(7)
+            return super().step()
+
+    backend = Paused(SceneConfig(object_name="plate"))
+    try:
+        loop = ControlLoop(backend)
+        stale_t = loop.state.t
+        seen = []
+        loop.joint.torque = (lambda inner: lambda s, r: (seen.append(s.t), inner(s, r))[1])(loop.joint.torque)
+        loop.use(loop.joint)
+        q = loop.state.q.copy()
+        loop.tick(JointTarget(q, q, loop.t, 0.0))
+        assert not backend.torque_paused and seen and seen[0] > stale_t  # computed on the state read after it
+    finally:
+        backend.close()

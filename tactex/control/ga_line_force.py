@@ -41,7 +41,10 @@ from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault
 from tactex.geometry.motor import twist_to_wrench, z_line_motor_log_floats
 
-__all__ = ["GaLineForceController", "GaLineForceParams"]
+__all__ = ["APPROACH_FADE_BAND", "GaLineForceController", "GaLineForceParams"]
+
+#: The approach speed cap fades out between (1 − this) and (1 + this) × approach_below × the set point [-].
+APPROACH_FADE_BAND = 0.2
 
 @dataclass(frozen=True)
 class GaLineForceParams:
@@ -265,8 +268,14 @@ class GaLineForceController(Controller):
         if v_approach > 0.0:
             w_tool[2] += self._d_z * v_approach
         excess = v_tool[2] - max(p.approach_speed_max, v_approach)
-        if excess > 0.0 and w_meas[2] < p.approach_below * force_n:
-            w_tool[2] -= p.approach_damping_z * excess  # speed cap while approaching (not in eq. 47)
+        if excess > 0.0:  # speed cap while approaching (not in eq. 47)
+            # faded out across a band around approach_below × the set point, not switched: the pad compresses at
+            # centimetres per second while the force ramps up after touch-down, and a switch would drop
+            # approach_damping_z × excess (newtons) from the command in one tick
+            below = p.approach_below * force_n
+            fade = (1.0 + APPROACH_FADE_BAND - w_meas[2] / below) / (2.0 * APPROACH_FADE_BAND) if below > 0.0 else 0.0
+            if fade > 0.0:
+                w_tool[2] -= (fade if fade < 1.0 else 1.0) * p.approach_damping_z * excess
         self._w_line = w_line
         # τ = Jᵀ [R f; R m]: the rotation on floats, one (6,) · (6, 7) product
         f0, f1, f2, m0, m1, m2 = w_tool

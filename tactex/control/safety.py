@@ -192,7 +192,7 @@ class SafetyLayer(Controller):
         self._held = False
         self._last_inner: Controller = inner
         self._blend_from: list[float] | None = None  # the command a hand-over blends from
-        self._blend_t0 = 0.0  # when the hand-over started [s]
+        self._blend_ticks = 0  # commands blended since the hand-over started
         #: (6,) [N, N·m] a wrench at the TCP, world frame, added to every inner controller's command: the
         #: tool's weight the robot's own load setting misses (:mod:`tactex.control.load_error`); None: nothing
         self.load_wrench_world: np.ndarray | None = None
@@ -220,20 +220,20 @@ class SafetyLayer(Controller):
         self._blend_from = None
         self.inner.reset(state)
 
-    def compensate_load(self, wrench_world: np.ndarray | None, t: float) -> None:
-        """From time ``t`` [s] on, add ``wrench_world`` (6,) [N, N·m] at the TCP (world frame) to every inner
+    def compensate_load(self, wrench_world: np.ndarray | None) -> None:
+        """From the next command on, add ``wrench_world`` (6,) [N, N·m] at the TCP (world frame) to every inner
         controller's command (None: nothing): the tool's weight the robot's load setting misses. Blended in
         as a hand-over, never a step."""
         self.load_wrench_world = None if wrench_world is None else np.asarray(wrench_world, dtype=float).copy()
-        self._start_blend(t)
+        self._start_blend()
 
     @property
     def last_command(self) -> np.ndarray:
         """A copy of the last command [N·m] this layer returned."""
         return self._tau_prev.copy()
 
-    def reseed(self, tau_last: np.ndarray, t: float) -> None:
-        """Continue from ``tau_last`` [N·m], the robot's own last command, at time ``t`` [s]: when torque
+    def reseed(self, tau_last: np.ndarray) -> None:
+        """Continue from ``tau_last`` [N·m], the robot's own last command: when torque
         control (re)starts after a pause the robot checks the first command against its ``tau_J_d``
         (0 at rest), not against the last one tactex sent before the pause, which may hold newtons of
         torque (a mis-set load held in place). The controller's torque is blended in from there over
@@ -243,7 +243,7 @@ class SafetyLayer(Controller):
         value counts as 0."""
         tau = np.asarray(tau_last, dtype=float)
         self._tau_prev[:] = tau if tau.shape == self._tau_prev.shape and np.isfinite(tau).all() else 0.0
-        self._start_blend(t)
+        self._start_blend()
 
     def _state_finite(self, state: RobotState) -> bool:
         """Every number of the state is finite: the compiled check when there is one (a state of
@@ -321,13 +321,13 @@ class SafetyLayer(Controller):
                 self._retreat_until = None
                 self.inner.resume(state)  # integrators restart; tanks keep their (possibly low) energy
                 self._event(state.t, "retreat_end", "retreat finished; inner controller resumed")
-                self._start_blend(state.t)
+                self._start_blend()
             else:
                 return self._finish(state, self._retreat_torque(state).tolist())
 
         if self.inner is not self._last_inner:
             self._last_inner = self.inner
-            self._start_blend(state.t)
+            self._start_blend()
         try:
             tau = self.inner.torque(state, reference)
             if tau.__class__ is not np.ndarray or tau.dtype is not _F64:  # skip the keyword call when it is a no-op
@@ -346,19 +346,22 @@ class SafetyLayer(Controller):
             self._event(state.t, "nan_torque", f"inner controller returned {tau!r}; holding")
             return self._finish(state, self._hold())
         if self._blend_from is not None:
-            tau_l = self._blend(state.t, tau_l)
+            tau_l = self._blend(tau_l)
         return self._finish(state, tau_l)
 
-    def _start_blend(self, t: float) -> None:
+    def _start_blend(self) -> None:
         if self.limits.handover_blend_s > 0:
             self._blend_from = self._tau_prev.tolist()
-            self._blend_t0 = float(t)
+            self._blend_ticks = 0
 
-    def _blend(self, t: float, tau_l: list[float]) -> list[float]:
+    def _blend(self, tau_l: list[float]) -> list[float]:
         """(1 − w)·the command at the hand-over + w·``tau_l``, w a minimum-jerk ramp from 0 at the
-        hand-over's first tick to 1 after ``handover_blend_s``."""
+        hand-over's first tick to 1 after ``handover_blend_s``. The ramp advances a period per command, not with
+        the state's time: after a stall (a late tick, the robot's clock run on by tens of ms) the next command
+        still differs from the last one by one period's share, which is what the robot's rate check sees."""
         lim = self.limits
-        w, _ = min_jerk((t - self._blend_t0 + lim.dt) / lim.handover_blend_s)
+        self._blend_ticks += 1
+        w, _ = min_jerk(self._blend_ticks * lim.dt / lim.handover_blend_s)
         start = self._blend_from
         if w >= 1.0 or start is None:
             self._blend_from = None

@@ -87,19 +87,26 @@ class ControlLoop:
         state is read: on a real robot that is time the robot spends executing the command, so
         bookkeeping placed there stays out of the cycle's critical path (state read → command sent).
         It must not command the robot."""
+        if getattr(self.backend, "torque_paused", False):
+            # a real robot holds itself while torque control is paused: the state held is from before the pause,
+            # and a command computed on it would never be sent. Torque control starts again on a fresh state.
+            self._next_state()
         state = self.state
         tau = self.safety.torque(state, reference)
         self.backend.apply_torque(tau)
         if after_send is not None:
             after_send(state)
+        self._next_state()
+        if self.on_tick is not None:
+            self.on_tick(self.state, reference, self.safety.inner)
+        return self.state
+
+    def _next_state(self) -> None:
         self.state = self.backend.step()
         restart = getattr(self.backend, "torque_restart", None)
         if restart is not None:  # torque control (re)started: the robot's last command is where ours continue
             self.backend.torque_restart = None
-            self.safety.reseed(restart, self.state.t)
-        if self.on_tick is not None:
-            self.on_tick(self.state, reference, self.safety.inner)
-        return self.state
+            self.safety.reseed(restart)
 
     def move_joints(self, q_goal: np.ndarray, duration_s: float | None = None, settle_s: float = 0.2,
                     max_joint_speed: float | None = None,

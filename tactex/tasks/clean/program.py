@@ -274,7 +274,7 @@ class CleanProgram:
             return
         self._load_checked, self.load_error = True, found
         if found.accepted:
-            self.loop.safety.compensate_load(found.wrench_world, self.loop.t)
+            self.loop.safety.compensate_load(found.wrench_world)
             self.bar.note(found.describe())
         elif found.force_n >= check.deadband_n:  # large enough to mention, not a weight
             self.bar.note(found.describe())
