@@ -125,36 +125,33 @@ def _recording_of_the_capture_view(path, frames: int):
     return write_realsense_recording(path, [pair] * frames, frame.intrinsics, frame.intrinsics, np.eye(4))
 
 
-def test_a_recording_that_ends_mid_run_is_a_named_fault(tmp_path):
+def _clean_on_a_recording(tmp_path, frames: int, *args: str):
+    """``tactex clean --camera realsense`` on the twin's plate, playing a recording of ``frames`` frames of the
+    capture view; (run folder, exit code, stderr), the robot checked free afterwards."""
     try:
         import pyrealsense2  # noqa: F401
     except ImportError as exc:
         pytest.skip(f"pyrealsense2 cannot be imported here: {exc}")
-    # frames for one capture of three, and one more: the re-measurement's capture runs out
-    recording = _recording_of_the_capture_view(tmp_path / "plate.db3", 4)
+    recording = _recording_of_the_capture_view(tmp_path / "plate.db3", frames)
     with TwinProcess("plate", camera_port=0) as twin:
         out = tmp_path / "run"
         t0 = time.monotonic()
-        code, err = _finish(_clean(twin, out, "--camera", "realsense", "--playback", str(recording),
-                                   "--capture-frames", "3", "--vision-max-steps", "60"))
+        code, err = _finish(_clean(twin, out, "--camera", "realsense", "--playback", str(recording), *args))
         assert time.monotonic() - t0 < RUN_WITHIN_S
         _robot_free(twin)
+    return out, code, err
+
+
+def test_a_recording_that_ends_mid_run_is_a_named_fault(tmp_path):
+    # frames for one capture of three, and one more: the re-measurement's capture runs out
+    out, code, err = _clean_on_a_recording(tmp_path, 4, "--capture-frames", "3", "--vision-max-steps", "60")
     m = _fault_metrics(out, code, err, "CameraStreamEnded")
     assert "recording" in m["aborted"] and m["captures"] == 1 and m["contact_time_s"] > 0.0
 
 
 def test_a_recording_that_ends_in_the_first_capture_keeps_the_moves_to_the_camera(tmp_path):
-    try:
-        import pyrealsense2  # noqa: F401
-    except ImportError as exc:
-        pytest.skip(f"pyrealsense2 cannot be imported here: {exc}")
     # two frames for a capture of three: the first capture runs out, before any cloud exists
-    recording = _recording_of_the_capture_view(tmp_path / "plate.db3", 2)
-    with TwinProcess("plate", camera_port=0) as twin:
-        out = tmp_path / "run"
-        code, err = _finish(_clean(twin, out, "--camera", "realsense", "--playback", str(recording),
-                                   "--capture-frames", "3"))
-        _robot_free(twin)
+    out, code, err = _clean_on_a_recording(tmp_path, 2, "--capture-frames", "3")
     assert code == 1, err
     assert "stopped early" in err and "CameraStreamEnded" in err, err
     m = json.loads((out / "metrics.json").read_text())

@@ -54,12 +54,13 @@ def run(args: argparse.Namespace) -> int:
     robot = robot_params(args)
     if args.taught and robot is None:
         raise InputError("--taught is for a real robot, whose arm you guide by hand: add --robot franka")
-    centre = (0.55, 0.0, 0.0) if robot is None else (*args.board_centre_m, 0.0)
-    board = ChessBoard(cols=args.board[0], rows=args.board[1], square_m=args.square_m, centre_m=centre)
     if not args.out.endswith((".json", ".npy")):
         raise InputError(f"--out '{args.out}': the hand-eye file is .json or .npy (what --hand-eye reads)")
     if not all(math.isfinite(v) for v in args.board_centre_m):
         raise InputError(f"--board-centre-m must be two numbers [m], got {args.board_centre_m}")
+    # in simulation the board lies where the simulated calibration puts it (ChessBoard's default)
+    placed = {} if robot is None else {"centre_m": (*args.board_centre_m, 0.0)}
+    board = ChessBoard(cols=args.board[0], rows=args.board[1], square_m=args.square_m, **placed)
 
     def note(msg: str) -> None:
         print(f"tactex calibrate: {msg}", file=sys.stderr, flush=True)

@@ -42,6 +42,55 @@ __all__ = ["calibrate_on_robot", "calibrate_taught"]
 SETTLE_S = 0.5
 
 
+def _check_camera(robot) -> None:
+    if robot.camera not in ("twin", "realsense"):
+        raise ConfigError(f"the calibration reads the wrist camera: give --camera twin (tactex twin's camera) or "
+                          f"--camera realsense, got --camera {robot.camera}")
+
+
+def _wrist_camera(robot, scene_cfg, tool_pose: Callable[[], np.ndarray]):
+    """The robot's wrist camera (``--camera twin|realsense``). Its frames are posed by the nominal mount: only
+    their colour images are used, with the tool poses the calibration reads itself."""
+    from tactex.tasks.robot import open_capture_camera
+
+    _check_camera(robot)
+    return open_capture_camera(replace(robot, hand_eye=""), scene_cfg, tool_pose)
+
+
+class _Views:
+    """The views taken so far: base_T_tool and camera_T_board of each with the board found, and the poses
+    skipped (index → why)."""
+
+    def __init__(self, board: ChessBoard, say: Callable[[str], None]) -> None:
+        self.board, self.say = board, say
+        self.tools: list[np.ndarray] = []
+        self.boards: list[np.ndarray] = []
+        self.skipped: dict[int, str] = {}
+
+    def take(self, i: int, label: str, camera, frames: int, base_T_tool) -> None:
+        """View ``i`` (said as ``pose {label}``): the board in the last of ``frames`` frames of ``camera``, seen
+        with the tool at ``base_T_tool`` (a pose, or a callable read after the frames)."""
+        from tactex.tasks.capture import read_views
+
+        try:
+            frame = read_views(camera, frames, getattr(camera, "what", "the camera"))[-1]
+        finally:
+            camera.stop()
+        tool = np.asarray(base_T_tool() if callable(base_T_tool) else base_T_tool, dtype=float)
+        corners = None if frame.rgb is None else detect_board(frame.rgb, self.board)
+        if corners is None:
+            self.skipped[i] = "board not found"
+            self.say(f"pose {label}: board not found (the whole board in view, evenly lit?)")
+            return
+        self.tools.append(tool)
+        self.boards.append(board_pose(corners, self.board, frame.intrinsics))
+        self.say(f"pose {label}: board found")
+
+    def solve(self, n_targets: int, method: str, where: str) -> HandEyeResult:
+        return solve_views(self.tools, self.boards, n_targets, self.skipped, self.board, method, self.say,
+                           where=where)
+
+
 def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene_config=None,
                        note: Callable[[str], None] | None = None) -> HandEyeResult:
     """Calibrate the wrist camera of ``robot`` (:class:`~tactex.tasks.robot.RealRobotParams` with ``camera``
@@ -50,60 +99,36 @@ def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene
     Raises :class:`~tactex.errors.InputError` when too few views find the board."""
     from tactex.robots.loop import ControlLoop
     from tactex.sim.scene import SceneConfig
-    from tactex.tasks.robot import nominal_tool_T_camera, open_backend, open_capture_camera
+    from tactex.tasks.robot import nominal_tool_T_camera, open_backend
 
-    if robot.camera not in ("twin", "realsense"):
-        raise ConfigError(f"the calibration reads the wrist camera: give --camera twin (tactex twin's camera) or "
-                          f"--camera realsense, got --camera {robot.camera}")
-    say = note or (lambda msg: None)
+    _check_camera(robot)  # before the poses are planned
     scene_cfg = scene_config or SceneConfig()
-    nominal = nominal_tool_T_camera(scene_cfg)
-    targets = generated_tool_poses(board, config, nominal)
-    # the frames are posed by the nominal mount; only their colour images and the tool poses read here are used
+    targets = generated_tool_poses(board, config, nominal_tool_T_camera(scene_cfg))
     opened: list = []
-    camera = open_capture_camera(replace(robot, hand_eye=""), scene_cfg, lambda: opened[0].state().ee_pose)
+    camera = _wrist_camera(robot, scene_cfg, lambda: opened[0].state().ee_pose)
     try:
         backend = open_backend(scene_cfg, robot)
     except BaseException:
         camera.close()
         raise
     opened.append(backend)
-    tools, boards, skipped = [], [], {}
+    views = _Views(board, note or (lambda msg: None))
     try:
         loop = ControlLoop(backend)
         for i, target in enumerate(targets):
             try:
                 q = backend.solve_ik(target[:3, 3], target[:3, :3])
             except SimulationError:
-                skipped[i] = "out of the arm's reach"
+                views.skipped[i] = "out of the arm's reach"
                 continue
             loop.move_joints(q, settle_s=SETTLE_S)
             loop.pause()  # the robot holds itself: the image and the pose are of an arm at rest
-            corners, intrinsics = _view(camera, robot.capture_frames, board)
-            tool = np.asarray(backend.state().ee_pose, dtype=float)
-            if corners is None:
-                skipped[i] = "board not found"
-                say(f"pose {i + 1}/{len(targets)}: board not found")
-                continue
-            tools.append(tool)
-            boards.append(board_pose(corners, board, intrinsics))
-            say(f"pose {i + 1}/{len(targets)}: board found")
+            views.take(i, f"{i + 1}/{len(targets)}", camera, robot.capture_frames, lambda: backend.state().ee_pose)
     finally:
         camera.close()
         backend.close()
-    where = f" at --board-centre-m {board.centre_m[0]:g} {board.centre_m[1]:g} in the robot base frame and"
-    return solve_views(tools, boards, len(targets), skipped, board, config.method, say, where=where)
-
-
-def _view(camera, frames: int, board: ChessBoard):
-    """The board's corners in the last of ``frames`` frames (None: not found) and the frame's intrinsics."""
-    from tactex.tasks.capture import read_views
-
-    try:
-        frame = read_views(camera, frames, getattr(camera, "what", "the camera"))[-1]
-    finally:
-        camera.stop()
-    return (None if frame.rgb is None else detect_board(frame.rgb, board)), frame.intrinsics
+    return views.solve(len(targets), config.method,
+                       f" at --board-centre-m {board.centre_m[0]:g} {board.centre_m[1]:g} in the robot base frame and")
 
 
 def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Callable[[str], str] = input,
@@ -114,15 +139,10 @@ def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Ca
     robot stays in its guiding mode). At most ``config.poses`` views are taken."""
     from tactex.robots.read_pose import read_tool_pose
     from tactex.sim.scene import SceneConfig
-    from tactex.tasks.robot import open_capture_camera
 
-    if robot.camera not in ("twin", "realsense"):
-        raise ConfigError(f"the calibration reads the wrist camera: give --camera twin (tactex twin's camera) or "
-                          f"--camera realsense, got --camera {robot.camera}")
-    say = note or (lambda msg: None)
-    tool = (scene_config or SceneConfig()).tool
-    camera = open_capture_camera(replace(robot, hand_eye=""), scene_config or SceneConfig(), lambda: np.eye(4))
-    tools, boards, skipped = [], [], {}
+    scene_cfg = scene_config or SceneConfig()
+    camera = _wrist_camera(robot, scene_cfg, lambda: np.eye(4))
+    views = _Views(board, note or (lambda msg: None))
     try:
         for i in range(config.poses):
             try:
@@ -132,16 +152,8 @@ def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Ca
                 break
             if answer.strip().lower() == "done":
                 break
-            base_T_tool = read_tool_pose(robot.robot_ip, tool)
-            corners, intrinsics = _view(camera, robot.capture_frames, board)
-            if corners is None:
-                skipped[i] = "board not found"
-                say(f"pose {i + 1}: board not found (the whole board in view, evenly lit?)")
-                continue
-            tools.append(base_T_tool)
-            boards.append(board_pose(corners, board, intrinsics))
-            say(f"pose {i + 1}: board found")
+            views.take(i, f"{i + 1}", camera, robot.capture_frames, read_tool_pose(robot.robot_ip, scene_cfg.tool))
     finally:
         camera.close()
-    return solve_views(tools, boards, len(tools) + len(skipped), skipped, board, config.method, say,
-                       where=" where the camera sees it whole at the poses you taught and")
+    return views.solve(len(views.tools) + len(views.skipped), config.method,
+                       " where the camera sees it whole at the poses you taught and")
