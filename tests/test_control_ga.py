@@ -126,9 +126,10 @@ def test_force_integrator_frozen_in_free_flight():
     for k in range(100, 400):  # in contact, pressing 4 N: the integrator grows
         ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac, wrench_tool=w), ref)
     held = ctrl._integral[2]
-    # 6 N of error for 0.3 s, and 4 N more while the measurement catches up: the 3-tick median's tick and
-    # the 50 Hz wrench low-pass's time constant
-    assert held == pytest.approx(6.0 * 0.3 + 4.0 * (1e-3 + 1.0 / (2.0 * np.pi * 50.0)), rel=1e-3)
+    # 6 N of error for 0.3 s, and 4 N more while the measurement catches up: the two ticks a step takes
+    # through the medians (the 3-tick one's, and the 5-tick one's where they differ) and the 50 Hz wrench
+    # low-pass's time constant
+    assert held == pytest.approx(6.0 * 0.3 + 4.0 * (2e-3 + 1.0 / (2.0 * np.pi * 50.0)), rel=1e-4)
     for k in range(400, 600):  # contact lost for 0.2 s = one leak time constant
         ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac, **moving_in), ref)
     assert ctrl._integral[2] == pytest.approx(held * (1 - 1e-3 / (1e-3 + 0.2)) ** 200, rel=1e-9)
@@ -154,7 +155,9 @@ def test_wrong_reference_type_is_a_fault():
     ("kwargs", "match"),
     [({"stiffness_linear": (1.0, 2.0)}, "stiffness_linear"), ({"damping_angular": (-1.0, 0, 0)}, "damping_angular"),
      ({"kp": float("nan")}, "kp"), ({"dt": 0.0}, "dt"), ({"force_axes": (0, 0, 2, 0, 0, 0)}, "force_axes"),
-     ({"wrench_median_ticks": 2}, "wrench_median_ticks"), ({"wrench_median_ticks": True}, "wrench_median_ticks")],
+     ({"wrench_median_ticks": 2}, "wrench_median_ticks"), ({"wrench_median_ticks": True}, "wrench_median_ticks"),
+     ({"outlier_median_ticks": 4}, "outlier_median_ticks"), ({"outlier_n": -1.0}, "outlier_n"),
+     ({"outlier_n": float("inf")}, "outlier_n")],
 )
 def test_params_validation(kwargs, match):
     with pytest.raises(ConfigError, match=match):
@@ -264,3 +267,36 @@ def test_a_one_tick_wrench_dip_does_not_reach_the_torque():
             taus.append(ctrl.torque(state, ref))
         runs[name] = np.array(taus)
     np.testing.assert_allclose(runs["dip"], runs["steady"], atol=1e-12)
+
+
+def _pressing_torques(forces_n, **params) -> np.ndarray:
+    """Joint torques of a controller pressing 10 N at rest whose F/T reads ``forces_n`` along the tool axis."""
+    jac = np.hstack([np.eye(6), np.zeros((6, 1))])
+    ref = LineForceReference(np.array([0.5, 0.0, 0.3]), np.array([0.0, 0.0, 1.0]), 10.0)
+    ctrl = _ctrl(**params)
+    return np.array([ctrl.torque(make_state(t=k * 1e-3, rotation=DOWN, jacobian=jac,
+                                            wrench_tool=np.array([0, 0, fz, 0, 0, 0])), ref)
+                     for k, fz in enumerate(forces_n)])
+
+
+def test_a_two_tick_slip_and_rebound_does_not_step_the_torque():
+    """A sliding pad's F/T also dips for two ticks, a slip and its rebound (10 → 4 → 8.2 → 10 N measured in
+    the clean with a mis-set tool). The 3-tick median passes the rebound twice and K_d's high-frequency gain
+    turns it into a torque step of more than 1 N·m; the 5-tick median that replaces it where the two disagree
+    by more than outlier_n removes the dip."""
+    forces = [10.0] * 20 + [4.0, 8.2] + [10.0] * 20
+    steady = _pressing_torques([10.0] * len(forces))
+    short_only = _pressing_torques(forces, outlier_median_ticks=1)
+    assert np.abs(np.diff(short_only[:, 2])).max() > 1.0  # the failure the long median is there for
+    np.testing.assert_allclose(_pressing_torques(forces), steady, atol=1e-12)
+
+
+def test_a_force_step_passes_the_outlier_median_two_ticks_late():
+    """Where the two medians disagree only while a step is a tick old, the step reaches the command one
+    tick later than through the 3-tick median alone, and whole."""
+    forces = [10.0] * 20 + [14.0] * 20
+    short_only = _pressing_torques(forces, outlier_median_ticks=1, kd=0.0)
+    both = _pressing_torques(forces, kd=0.0)
+    first = lambda taus: int(np.flatnonzero(np.abs(taus[:, 2] - taus[0, 2]) > 1e-9)[0])  # noqa: E731
+    assert first(short_only) == 21 and first(both) == 22
+    np.testing.assert_allclose(both[23:, 2] - both[22, 2], short_only[22:-1, 2] - short_only[21, 2], atol=1e-6)

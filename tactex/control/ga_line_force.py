@@ -95,6 +95,14 @@ class GaLineForceParams:
         "pad's one-tick F/T dips would reach the joints through K_d's high-frequency gain (K_d/τ_d ≈ 6) as "
         "torque steps at the robot's torque-rate limit; a median drops single-tick outliers without the lag "
         "of a slew limit, which keeps the controller from recovering after a large spike")
+    outlier_median_ticks: int = param(
+        5, "a longer median [ticks] that replaces wrench_median_ticks' where the two differ by more than outlier_n "
+        "(1: off): a sliding pad's F/T also dips for two ticks (a slip and its rebound), which the short median "
+        "passes and K_d's high-frequency gain turns into torque steps at the robot's rate limit; where the two "
+        "agree the short median's lag stays, since the longer one's extra tick of delay on every sample costs the "
+        "force loop phase margin (the arm rings longer after a disturbance)")
+    outlier_n: float = param(
+        1.0, "difference between the short and the long median beyond which the long one is used [N, N·m]")
     latency_horizon_ticks: float = param(
         2.0, "horizon h of the implicit impedance in control periods [-]: τ = M (M + h·B + h²·K)⁻¹ τ_explicit "
         "with the line stiffness K and damping D mapped to the joints (tactex.control.damping), so that a "
@@ -123,14 +131,15 @@ class GaLineForceParams:
                      "latency_horizon_ticks",
                      "wrench_cutoff_hz", "contact_threshold_n",
                      "integral_leak_time", "approach_damping_z", "approach_below", "approach_speed_max",
-                     "approach_speed_min"):
+                     "approach_speed_min", "outlier_n"):
             v = getattr(self, name)
             positive = ("dt", "derivative_cutoff_hz", "wrench_cutoff_hz", "integral_leak_time")
             if not np.isfinite(v) or v < 0 or (name in positive and v == 0):
                 raise ConfigError(f"GaLineForceParams.{name} must be finite and ≥ 0 (> 0 for dt/cut-off), got {v!r}")
-        m = self.wrench_median_ticks
-        if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 15 or m % 2 == 0:
-            raise ConfigError(f"GaLineForceParams.wrench_median_ticks must be an odd integer in [1, 15], got {m!r}")
+        for name in ("wrench_median_ticks", "outlier_median_ticks"):
+            m = getattr(self, name)
+            if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 1 <= m <= 15 or m % 2 == 0:
+                raise ConfigError(f"GaLineForceParams.{name} must be an odd integer in [1, 15], got {m!r}")
         axes = np.asarray(self.force_axes, dtype=float)
         if axes.shape != (6,) or not np.isin(axes, (0.0, 1.0)).all():
             raise ConfigError(f"GaLineForceParams.force_axes must be six 0/1 flags, got {self.force_axes!r}")
@@ -156,13 +165,14 @@ class GaLineForceController(Controller):
         self._err_prev = [0.0] * 6
         self._derr = [0.0] * 6  # low-passed dW_e/dt
         self._t_prev: float | None = None
+        self._n_hist = max(p.wrench_median_ticks, p.outlier_median_ticks)
         self._ilim = p.integral_limit / p.ki if p.ki > 0 else 0.0
         self._tau_d = 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz)
         self._tau_w = 1.0 / (2.0 * np.pi * p.wrench_cutoff_hz)
         self._w_filt: list[float] | None = None  # low-passed measured wrench, tool frame
         self._w_line: tuple[float, ...] | None = None
         self._w_c2 = 0.0
-        self._w_hist: list[list[float]] = []  # the last wrench_median_ticks raw wrenches, oldest first
+        self._w_hist: list[list[float]] = []  # the last raw wrenches (as many as the longer median), oldest first
         self._err2 = 0.0
 
     def reset(self, state: RobotState) -> None:
@@ -216,15 +226,15 @@ class GaLineForceController(Controller):
         # eq. 39–41, per tool axis on floats; the clamp to ±lim keeps a NaN, as np.minimum/np.maximum do
         force_n = reference.force_n
         w_raw = state.wrench_tool.tolist()
-        w_med = w_raw
-        n_med = p.wrench_median_ticks
-        if n_med > 1:
-            hist = self._w_hist
-            hist.append(w_raw)
-            if len(hist) > n_med:
-                del hist[0]
-            if len(hist) == n_med:
-                w_med = [sorted(col)[n_med // 2] for col in zip(*hist, strict=True)]
+        hist = self._w_hist
+        hist.append(w_raw)
+        if len(hist) > self._n_hist:
+            del hist[0]
+        w_med = _column_medians(hist, p.wrench_median_ticks)
+        if p.outlier_median_ticks > p.wrench_median_ticks and len(hist) >= p.outlier_median_ticks:
+            w_long = _column_medians(hist, p.outlier_median_ticks)
+            thr = p.outlier_n
+            w_med = [b if (a - b > thr or b - a > thr) else a for a, b in zip(w_med, w_long, strict=True)]
         w_meas = self._w_filt
         if w_meas is None:
             w_meas = w_med
@@ -311,3 +321,10 @@ class GaLineForceController(Controller):
             "force_error_n": self._err2,
             "force_cmd_n": self._w_c2,
         }
+
+
+def _column_medians(hist: list[list[float]], n: int) -> list[float]:
+    """Per component, the median of the last ``n`` rows of ``hist`` (the newest row until there are ``n``)."""
+    if n <= 1 or len(hist) < n:
+        return hist[-1]
+    return [sorted(col)[n // 2] for col in zip(*hist[-n:], strict=True)]
