@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tactex.control.references import LineForceReference
 from tactex.ergodic.command import ExplorationCommand
 from tactex.errors import SimulationError
 from tactex.perception.acquisition import AcquisitionConfig
@@ -23,6 +24,11 @@ RETRACT_M = 0.05
 #: error grows with the square of its length; on a curved wall a long step moves the tool along the wall,
 #: dragging the pad, instead of out of it.
 RETRACT_STEP_M = 0.025
+#: Time over which the pressing force ramps to zero before a lift-off from contact [s]: the lift's joint
+#: controller then takes over an arm that no longer presses. Handed over while pressing, the pad's and the
+#: arm's compression springs back under the joint controller's blend, which on franky-sim's arm (the twin)
+#: rang at its shoulder.
+UNLOAD_S = 0.25
 #: Height of the waypoints above the hover pose on the way from the capture pose, and above the
 #: retracted tool on the way back to it [m].
 CLEARANCE_M = 0.08
@@ -188,9 +194,16 @@ def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndar
     return indices
 
 
-def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4) -> None:
+def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4,
+              pressing: LineForceReference | None = None) -> None:
     """Back along the tool axis by ``distance_m`` [m] in steps of at most :data:`RETRACT_STEP_M`, each
-    re-linearised where the last ended, taking ``duration_s`` [s] at least."""
+    re-linearised where the last ended, taking ``duration_s`` [s] at least. From contact (``pressing``: the
+    reference the pressing controller was last given), the force first ramps to zero along its line over
+    :data:`UNLOAD_S`."""
+    if pressing is not None and pressing.force_n > 0.0:
+        t0 = loop.t
+        while (left := 1.0 - (loop.t - t0) / UNLOAD_S) > 0.0:
+            loop.tick(LineForceReference(pressing.point_world, pressing.normal_world, pressing.force_n * left))
     n = max(int(np.ceil(distance_m / RETRACT_STEP_M - 1e-9)), 1)
     for _ in range(n):
         loop.retract(distance_m / n, duration_s=duration_s / n)

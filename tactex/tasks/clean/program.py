@@ -194,6 +194,7 @@ class CleanProgram:
         self._load_checked = not cfg.load_check
         self.dt_step = 1.0 / cfg.explorer_rate_hz
         self.aborted = ""
+        self.pressing: LineForceReference | None = None  # the contact's last reference, unloaded at a lift-off
 
     # -- the program ------------------------------------------------------------------------------------------
     def run(self) -> CleanResult:
@@ -551,13 +552,13 @@ class CleanProgram:
         if c.relocation is not None:
             # TEC §VI-B: lift off along the normal, then the hover and approach at the touch-down
             self.log.activity("retract", "transit")
-            _lift_off(loop, max(c.relocation.clearance_m, cfg.hover_height_m))
+            _lift_off(loop, max(c.relocation.clearance_m, cfg.hover_height_m), pressing=self.pressing)
             self.bar.note(f"relocating ({c.relocation.reason}): {c.relocation.air_length_m:.3f} m through the air")
             return True
         if c.relocate_to is not None:
             # to the next island through the air: lift off here, then the hover and approach
             self.log.activity("retract", "transit")
-            _lift_off(loop, RETRACT_M)
+            _lift_off(loop, RETRACT_M, pressing=self.pressing)
             self.island_moves += 1
             self.leg_from, self.new_leg, self.t_move = self.cmd.point, True, loop.t
             self._end_stroke()
@@ -696,7 +697,8 @@ class CleanProgram:
         ending = c.covered or (cfg.baseline == "" and self.given is None and c.steps >= self.vision_steps)
         # the explorer steps ahead only for a step it will take in this phase
         c.ahead.arm(c.next_step, c.steps + 1, enabled=self.stroke is None and not ending)
-        state_next = loop.tick(LineForceReference(point, normal, force), after_send=c.ahead)
+        self.pressing = LineForceReference(point, normal, force)
+        state_next = loop.tick(self.pressing, after_send=c.ahead)
         if self.wear_ticks is not None:
             self.wear_ticks.note(state_next, normal)
         if int(loop.t * 1000) % 250 == 0:
@@ -722,7 +724,7 @@ class CleanProgram:
             return False  # (a re-measurement that would end after the budget could not be used)
         t_trip = loop.t
         self.log.activity("retract", "vision")
-        _lift_off(loop, RETRACT_M)
+        _lift_off(loop, RETRACT_M, pressing=self.pressing)
         new_capture = self._view(lift=True)
         self.vision_trip_s = loop.t - t_trip  # the next trip's estimate
         self.vision_updates += 1
@@ -754,7 +756,7 @@ class CleanProgram:
             self.legs.path_m += self.stroke.path.path_length
         log.activity("retract", "lift_off")
         if not self.aborted and loop.state.wrench_tool[2] > cfg.contact_threshold_n:
-            _lift_off(loop, RETRACT_M)
+            _lift_off(loop, RETRACT_M, pressing=self.pressing)
         if self.camera is not None:
             self.camera.refresh()
         self.bar.close(f"dirt removed {100 * (1 - self.dirt()):.1f} %" if log.truth
