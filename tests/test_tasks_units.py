@@ -718,3 +718,36 @@ def test_a_tick_after_a_pause_starts_torque_control_again_on_a_fresh_state():
         assert not backend.torque_paused and seen and seen[0] > stale_t  # computed on the state read after it
     finally:
         backend.close()
+
+
+def test_a_joint_move_across_a_stall_of_the_loop_neither_steps_its_command_nor_ends_early():
+    # the robot's clock jumps 16 ms between two commands 30 ms into a joint move (the loop answered late; the
+    # arm went on under the last command meanwhile): the move's commands go on without a torque-rate clip
+    # (on the robot's clock the target would step by 1.5 N·m), and it runs until its target's clock, held back
+    # by the stall, reaches the end. (Later in a move the arm's own drift under the held command steps it too;
+    # the safety layer's rate limit is there for that.)
+    from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
+    from tactex.sim import SceneConfig
+
+    class Stalling(MujocoBackend):
+        ticks = 0
+
+        def step(self):
+            self.ticks += 1
+            if self.ticks == 30:
+                for _ in range(15):
+                    super().step()
+            return super().step()
+
+    backend = Stalling(SceneConfig(object_name="plate"))
+    try:
+        loop = ControlLoop(backend)
+        q_goal = loop.state.q + np.array([0.0, 0.15, 0.0, -0.15, 0.0, 0.1, 0.0])
+        t0 = loop.t
+        loop.move_joints(q_goal, duration_s=0.5, settle_s=0.0)
+        assert loop.safety.counts.get("torque_rate_limit", 0) == 0
+        assert loop.joint.lag_s == pytest.approx(0.015, abs=1e-6)
+        assert loop.t >= t0 + 0.5 + 0.015 - 1e-9
+    finally:
+        backend.close()

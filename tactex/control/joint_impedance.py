@@ -120,6 +120,10 @@ class JointTarget:
         return self.q_start + s * delta, ds * delta / self.duration_s
 
 
+#: A step of the robot's clock longer than this many control periods between two commands is a stall [-].
+STALL_TICKS = 1.5
+
+
 class JointImpedanceController(Controller):
     """τ = M (M + h·D + h²·K)⁻¹ (K (q_d − q) + D (dq_d − dq)) + C(q, dq)·dq on a :class:`JointTarget`
     (gravity by the robot), h = ``latency_horizon_ticks``·dt.
@@ -140,6 +144,12 @@ class JointImpedanceController(Controller):
         h = float(self.params.dt) * max(float(self.params.latency_horizon_ticks), 1.0)
         self._dt_d_mat = h * self._d_mat  # h·D, added to M every tick
         self._h_mat = self._dt_d_mat + np.diag(h * h * self._k)
+        self._target: JointTarget | None = None
+        self._t_prev = 0.0
+        self.lag_s = 0.0  # how far the target's clock runs behind the robot's [s]
+
+    def reset(self, state: RobotState) -> None:
+        self._target = None
 
     def damping_matrix(self, mass_matrix: np.ndarray) -> np.ndarray:
         """The effective damping M (M + h·D)⁻¹ D [N·m·s/rad] for the joint-space inertia ``mass_matrix`` [kg·m²]."""
@@ -152,7 +162,16 @@ class JointImpedanceController(Controller):
         if reference.q_goal.shape != state.q.shape or self._k.shape != state.q.shape:
             raise ControllerFault(f"joint target has shape {reference.q_goal.shape}, gains {self._k.shape}, "
                                   f"the robot {state.q.shape}")
-        q_d, dq_d = reference.at(state.t)
+        t = state.t
+        if reference is not self._target:
+            self._target, self.lag_s = reference, 0.0
+        elif t - self._t_prev > STALL_TICKS * self.params.dt:
+            # the loop answered late (a stall of the machine, or torque control paused): the target's clock
+            # advances one period, so the command continues from the last one instead of stepping by the
+            # stall's share of the move, which the robot's torque-rate check would see
+            self.lag_s += t - self._t_prev - self.params.dt
+        self._t_prev = t
+        q_d, dq_d = reference.at(t - self.lag_s)
         m = state.mass_matrix
         if self.params.latency_horizon_ticks <= 0:  # stiffness explicit, damping over one period
             accel = solve(m + self._dt_d_mat, self._d * (dq_d - state.dq))

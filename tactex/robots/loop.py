@@ -145,10 +145,10 @@ class ControlLoop:
         t_move_end = target.t_start + target.duration_s
         t_end = t_move_end + settle_s
         self._q_commanded = target.q_goal
-        while self.t < t_end - 1e-9:
+        while self.t - self.joint.lag_s < t_end - 1e-9:  # on the target's clock, which a stall holds back
             state = self.state
             self.tick(target)
-            if load_check is not None and state.t >= t_move_end:
+            if load_check is not None and state.t - self.joint.lag_s >= t_move_end:
                 load_check.add(state, self.safety.last_command)
         return self.state
 
