@@ -447,3 +447,23 @@ def test_a_hand_over_blend_advances_a_period_per_command_across_a_stall():
         prev = tau
     np.testing.assert_allclose(prev, want)
     assert "torque_rate_limit" not in layer.counts
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_joint_entering_its_limit_band_at_speed_gets_no_step_of_damping(compiled):
+    # joint 1 crosses into its repulsion band at 0.7 rad/s: the band's damping fades in with the depth, so the
+    # command changes by a few hundredths of a N·m per tick (switched on at the edge: 2 × 0.7 = 1.4 N·m at once)
+    layer, _ = _layer(np.zeros(N_JOINTS), tau_rate_max=1e6)
+    if not compiled:
+        layer._limit_kernel = None
+    edge = FRANKA_Q_MAX[0] - 0.1
+    taus = []
+    for k in range(60):
+        q = Q_MID.copy()
+        q[0] = edge - 0.01 + 0.7 * k * 1e-3
+        dq = np.zeros(N_JOINTS)
+        dq[0] = 0.7
+        taus.append(layer.torque(_state(k, q=q, dq=dq), None)[0])
+    assert np.abs(np.diff(taus)).max() < 0.1
+    depth = 0.7 * 59e-3 - 0.01  # past the ramp: the whole damping
+    assert taus[-1] == pytest.approx(-(50.0 * depth + 2.0 * 0.7), rel=1e-9)

@@ -166,6 +166,10 @@ def state_finite(t: float, q: np.ndarray, dq: np.ndarray, tau: np.ndarray, pos: 
 #: :func:`limit_torque`'s flags: the command was not finite (nothing changed), the torque limit,
 #: the rate limit acted; bit ``LIMIT_NEAR_SHIFT + j``: joint j within the margin of a limit.
 LIMIT_NOT_FINITE, LIMIT_TORQUE, LIMIT_RATE, LIMIT_NEAR_SHIFT = 1, 2, 4, 3
+#: Depth into a joint's repulsion band over which the repulsion's damping fades in [rad]: switched on at the
+#: band's edge, damping × speed would step the command there (2 N·m·s/rad at 0.7 rad/s: 1.4 N·m in one tick,
+#: over the robot's torque-rate limit).
+LIMIT_DAMPING_RAMP_RAD = 0.02
 
 
 def limit_torque(tau: np.ndarray, prev: np.ndarray, tau_max: np.ndarray, q: np.ndarray, dq: np.ndarray,
@@ -173,7 +177,8 @@ def limit_torque(tau: np.ndarray, prev: np.ndarray, tau_max: np.ndarray, q: np.n
                  rate_step: float) -> int:
     """The safety layer's last step (:meth:`tactex.control.safety.SafetyLayer._finish`) on the
     controller's command ``tau`` [N·m]: the joint-limit repulsion (``stiffness`` [N·m/rad],
-    ``damping`` [N·m·s/rad] beyond ``lo_margin``/``hi_margin`` [rad]), then the torque (``tau_max``)
+    ``damping`` [N·m·s/rad], faded in over :data:`LIMIT_DAMPING_RAMP_RAD`, beyond ``lo_margin``/``hi_margin``
+    [rad]), then the torque (``tau_max``)
     and torque-rate (``rate_step`` [N·m] per tick from ``prev``) saturation. The result replaces
     ``prev`` in place. Returns the flags above; with a non-finite ``tau`` (or one whose sum
     overflows) nothing is changed."""
@@ -189,9 +194,11 @@ def limit_torque(tau: np.ndarray, prev: np.ndarray, tau_max: np.ndarray, q: np.n
         if q[j] < lo_margin[j] or q[j] > hi_margin[j]:
             flags |= 1 << (LIMIT_NEAR_SHIFT + j)
             if q[j] < lo_margin[j]:
-                x += stiffness * (lo_margin[j] - q[j]) - damping * dq[j]
+                depth = lo_margin[j] - q[j]
+                x += stiffness * depth - damping * min(depth / LIMIT_DAMPING_RAMP_RAD, 1.0) * dq[j]
             if q[j] > hi_margin[j]:
-                x += -(stiffness * (q[j] - hi_margin[j]) + damping * dq[j])
+                depth = q[j] - hi_margin[j]
+                x += -(stiffness * depth + damping * min(depth / LIMIT_DAMPING_RAMP_RAD, 1.0) * dq[j])
         if not math.isfinite(x):
             x = 0.0
         lo = p - rate_step

@@ -89,7 +89,9 @@ class SafetyLimits:
     q_max: tuple[float, ...] = param(FRANKA_Q_MAX, "upper joint limits [rad]")
     joint_limit_margin: float = param(0.1, "repulsion starts this close to a joint limit [rad]")
     joint_limit_stiffness: float = param(50.0, "repulsion stiffness inside the margin [N·m/rad]")
-    joint_limit_damping: float = param(2.0, "joint damping inside the margin [N·m·s/rad]")
+    joint_limit_damping: float = param(
+        2.0, "joint damping inside the margin [N·m·s/rad], faded in over the first "
+        "joint_kernels.LIMIT_DAMPING_RAMP_RAD of it")
     max_contact_force: float = param(40.0, "contact force that trips the retreat [N]")
     force_trip_ticks: int = param(
         10, "consecutive ticks above the force limit before tripping: impacts and sensor glitches last less [-]")
@@ -392,6 +394,7 @@ class SafetyLayer(Controller):
         q = state.q.tolist() if finite_state else None
         lo_m, hi_m = self._q_lo_margin_l, self._q_hi_margin_l
         k, d = lim.joint_limit_stiffness, lim.joint_limit_damping
+        ramp = joint_kernels.LIMIT_DAMPING_RAMP_RAD
         dq = None
         near = []
         step = self._rate_step
@@ -404,10 +407,12 @@ class SafetyLayer(Controller):
                 near.append(j)
                 if dq is None:
                     dq = state.dq.tolist()
-                if q[j] < lo_m[j]:
-                    x += k * (lo_m[j] - q[j]) - d * dq[j]
+                if q[j] < lo_m[j]:  # the damping faded in with the depth, as in joint_kernels.limit_torque
+                    depth = lo_m[j] - q[j]
+                    x += k * depth - d * min(depth / ramp, 1.0) * dq[j]
                 if q[j] > hi_m[j]:
-                    x += -(k * (q[j] - hi_m[j]) + d * dq[j])
+                    depth = q[j] - hi_m[j]
+                    x += -(k * depth + d * min(depth / ramp, 1.0) * dq[j])
             if not math.isfinite(x):  # nothing non-finite leaves the layer
                 x = 0.0
             lo = p - step
