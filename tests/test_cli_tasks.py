@@ -17,6 +17,7 @@ from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.video import write_replay_video
 from tactex.report import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS
 from tactex.report.run_report import RunReport
+from tactex.tasks.clean.motion import UNLOAD_S
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -150,7 +151,8 @@ def test_clean_end_to_end(tmp_path, capsys) -> None:
     assert code == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(CLEAN_METRIC_KEYS) <= set(metrics)
-    assert 0.0 <= metrics["dirt_removed_fraction"] <= 1.0 and metrics["sim_time_s"] == pytest.approx(8.0, abs=0.5)
+    assert 0.0 <= metrics["dirt_removed_fraction"] <= 1.0
+    assert 8.0 <= metrics["sim_time_s"] <= 8.0 + UNLOAD_S + 0.45  # the budget, then the final unload and lift-off
     assert json.loads((out / "config.json").read_text())["budget_s"] == 8.0
     for name in ("dirt.png", "force.png", "phases.png", "cloud.png", "cloud_tcp.png"):
         assert (out / name).read_bytes()[:8] == PNG_MAGIC, name

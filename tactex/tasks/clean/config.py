@@ -121,7 +121,8 @@ class CleanConfig(SimWorldParams):
         "to the next; 0 = none (the authors' code) [1/step]")
     stop_remaining: float = param(0.02, "stop when vision sees less than this fraction of the first target [-]")
     budget_s: float = param(
-        120.0, "simulated time budget of the whole program; a final 0.4 s lift-off out of contact comes on top [s]")
+        120.0, "simulated time budget of the whole program; a final lift-off out of contact (the force unloaded in "
+        "0.25 s, then 0.4 s of lift) comes on top [s]")
     capture_distance_m: float = param(0.45, "TCP distance from the object at the capture pose, looking down [m]")
     side_capture_distance_m: float = param(
         0.2, "TCP distance from a wall at the capture pose beside it (the cup) [m]: the arm cannot hold the "
