@@ -166,6 +166,9 @@ class GaLineForceController(Controller):
         self._derr = [0.0] * 6  # low-passed dW_e/dt
         self._t_prev: float | None = None
         self._n_hist = max(p.wrench_median_ticks, p.outlier_median_ticks)
+        # the long median only where the measured wrench is read: the regulated axes, and the pressing force
+        # (contact, approach cap) on every setting
+        self._outlier_axes = tuple(sorted({2} | {i for i in range(6) if p.force_axes[i]}))
         self._ilim = p.integral_limit / p.ki if p.ki > 0 else 0.0
         self._tau_d = 1.0 / (2.0 * np.pi * p.derivative_cutoff_hz)
         self._tau_w = 1.0 / (2.0 * np.pi * p.wrench_cutoff_hz)
@@ -231,10 +234,14 @@ class GaLineForceController(Controller):
         if len(hist) > self._n_hist:
             del hist[0]
         w_med = _column_medians(hist, p.wrench_median_ticks)
-        if p.outlier_median_ticks > p.wrench_median_ticks and len(hist) >= p.outlier_median_ticks:
-            w_long = _column_medians(hist, p.outlier_median_ticks)
-            thr = p.outlier_n
-            w_med = [b if (a - b > thr or b - a > thr) else a for a, b in zip(w_med, w_long, strict=True)]
+        n_long = p.outlier_median_ticks
+        if n_long > p.wrench_median_ticks and len(hist) >= n_long:
+            window, thr = hist[-n_long:], p.outlier_n
+            w_med = list(w_med)  # (the newest row itself when there is no short median)
+            for i in self._outlier_axes:
+                b = sorted([row[i] for row in window])[n_long // 2]
+                if w_med[i] - b > thr or b - w_med[i] > thr:
+                    w_med[i] = b
         w_meas = self._w_filt
         if w_meas is None:
             w_meas = w_med
