@@ -76,11 +76,12 @@ def test_bad_period_and_shapes():
         ctrl.torque(make_state(), JointTarget(np.zeros(7), np.zeros(7), 0.0, 1.0))
 
 
-def _move_torques(times_s: list[float]) -> np.ndarray:
-    """Commands of a 0.4 s move of every joint by 0.3 rad, the arm held where it started, at ``times_s``."""
+def _move_torques(times_s: list[float]) -> tuple[np.ndarray, JointImpedanceController]:
+    """Commands of a 0.4 s move of every joint by 0.3 rad, the arm held where it started, at ``times_s``, and
+    the controller that gave them."""
     ctrl = JointImpedanceController()
     target = JointTarget(np.zeros(7), np.full(7, 0.3), t_start=0.0, duration_s=0.4)
-    return np.array([ctrl.torque(make_state(t=t, q=np.zeros(7), dq=np.zeros(7)), target) for t in times_s])
+    return np.array([ctrl.torque(make_state(t=t, q=np.zeros(7), dq=np.zeros(7)), target) for t in times_s]), ctrl
 
 
 def test_a_stall_of_the_loop_holds_the_targets_clock_back_instead_of_stepping_the_command():
@@ -88,12 +89,8 @@ def test_a_stall_of_the_loop_holds_the_targets_clock_back_instead_of_stepping_th
     from where it was, one period along the move, not 16 periods along it, and the move takes 15 ms longer."""
     smooth = [k * DT for k in range(200)]
     stalled = smooth[:100] + [t + 0.015 for t in smooth[100:]]
-    a, b = _move_torques(smooth), _move_torques(stalled)
+    (a, _), (b, ctrl) = _move_torques(smooth), _move_torques(stalled)
     np.testing.assert_allclose(b, a, atol=1e-12)
-    ctrl = JointImpedanceController()
-    target = JointTarget(np.zeros(7), np.full(7, 0.3), t_start=0.0, duration_s=0.4)
-    for t in stalled:
-        ctrl.torque(make_state(t=t), target)
     assert ctrl.lag_s == pytest.approx(0.015, abs=1e-12)
     ctrl.torque(make_state(t=stalled[-1] + DT), JointTarget(np.zeros(7), np.zeros(7), 0.0, 0.0))
     assert ctrl.lag_s == 0.0  # a new target runs on the robot's clock again
