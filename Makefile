@@ -43,7 +43,8 @@ bench: $(STAMP)
 	$(PY) bench/run.py --out bench/results.json
 	$(PY) tools/readme_status.py
 
-# The README's Status table from bench/results.json (make test fails when they differ).
+# The README's Status table from bench/results.json, and every figure marked <!-- fig KEY | STEPS --> in
+# README.md and docs/ from its committed source (make test fails when any of them differs).
 readme-status: $(STAMP)
 	$(PY) tools/readme_status.py
 

@@ -4,7 +4,7 @@ The values the keys select pass through the steps left to right:
 
 - ``%`` multiplies by 100 (a share as a percentage); ``*F`` multiplies by F and ``/F`` divides by F
   (``*1e3``: seconds as milliseconds);
-- ``min``, ``max``, ``sum``, ``mean``, ``median``, ``count`` reduce them to one value; ``div`` divides
+- ``min``, ``max``, ``sum``, ``prod``, ``mean``, ``median``, ``count`` reduce them to one value; ``div`` divides
   the first by the second (exactly two values);
 - ``range`` writes the smallest and the largest as ``a–b`` (one figure when both read the same);
   ``list`` writes every value, joined by ", ";
@@ -17,6 +17,7 @@ take no step.
 
 from __future__ import annotations
 
+import math
 import statistics
 from collections.abc import Callable
 from typing import Any
@@ -25,7 +26,7 @@ NOT_MEASURED = "not measured"
 
 _REDUCE: dict[str, Callable[[list[float]], float]] = {
     "min": min, "max": max, "sum": sum, "mean": statistics.fmean, "median": statistics.median,
-    "count": len,
+    "count": len, "prod": math.prod,
 }
 
 
