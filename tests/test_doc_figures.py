@@ -133,6 +133,7 @@ def test_keys_reach_nested_json_globs_other_files_and_study_csv_cells(tmp_path) 
     assert sources.values("summary.csv#object=plate,baseline=/removed") == [0.75]
     assert sources.values("summary.csv#object=plate/removed") == [0.75, 0.51]
     assert sources.values("summary.csv#object=cup/removed") is None  # an empty cell
+    assert sources.values("summary.csv#object=p*,baseline=r*/removed") == [0.51]
     assert sources.values("summary.csv#0/baseline") is None
     assert sources.values("summary.csv#-1/object") == ["cup"]
     # --results of readme_status: the default source read from another file

@@ -7,7 +7,8 @@ before selected:
 
 - on a dict, a key; with ``*`` in it, every key it matches (``fnmatch``), which makes a list;
 - on a list, an index (``0``, ``-1``), ``*`` for every element, or a filter ``col=value[,col=value]``
-  keeping the rows whose columns hold exactly that text (``baseline=`` is the empty cell);
+  keeping the rows whose columns hold that text (``baseline=`` is the empty cell; ``*`` in a value
+  matches any text, so ``policy=*spiral*`` reaches a cell that holds a path);
 - on a list of rows, a column name picks that column of each row.
 
 A step that finds nothing drops that branch; when nothing is left the figure is missing (``None``),
@@ -88,7 +89,7 @@ def _step(node: Any, step: str) -> list[Any]:
         if "=" in step:
             wanted = dict(part.split("=", 1) for part in step.split(","))
             return [row for row in node if isinstance(row, dict)
-                    and all(str(row.get(col)) == val for col, val in wanted.items())]
+                    and all(fnmatchcase(str(row.get(col)), val) for col, val in wanted.items())]
         try:
             return [node[int(step)]]
         except (ValueError, IndexError):
