@@ -50,7 +50,7 @@ def figure_text(spec: str, sources: Sources) -> str:
     values: list | None = []
     for key in keys:
         found = sources.values(key)
-        if found is None:  # one key missing leaves a range or a ratio meaningless: the whole figure is
+        if found is None:  # a range or a ratio over the keys found would mislead: none is written
             values = None
             break
         values.extend(found)

@@ -26,7 +26,7 @@ NOT_MEASURED = "not measured"
 
 _REDUCE: dict[str, Callable[[list[float]], float]] = {
     "min": min, "max": max, "sum": sum, "mean": statistics.fmean, "median": statistics.median,
-    "count": len, "prod": math.prod,
+    "prod": math.prod,
 }
 
 
@@ -54,6 +54,8 @@ def render(values: list[Any] | None, steps: list[str]) -> str:
         elif _apply([1.0, 1.0], step)[1]:
             raise FigureError(f"{step!r} must come before {join}: after it only a format spec")
         spec = _spec(step)
+    if any(isinstance(v, float) and math.isnan(v) for v in values):  # a ratio over a zero
+        return NOT_MEASURED
     if join == "range":
         low, high = _fmt(min(values), spec), _fmt(max(values), spec)
         return low if low == high else f"{low}–{high}"
@@ -71,12 +73,15 @@ def _apply(values: list[Any], step: str) -> tuple[list[Any], bool]:
     if step[:1] in ("*", "×", "/") and _is_float(step[1:]):
         factor = float(step[1:])
         return [_number(v) / factor if step[0] == "/" else _number(v) * factor for v in values], True
+    if step == "count":  # of anything the keys select, numbers or not
+        return [len(values)], True
     if step in _REDUCE:
         return [_REDUCE[step]([_number(v) for v in values])], True
     if step == "div":
         if len(values) != 2:
             raise FigureError(f"div needs exactly two values, the keys gave {len(values)}")
-        return [_number(values[0]) / _number(values[1])], True
+        num, den = _number(values[0]), _number(values[1])
+        return [num / den if den else math.nan], True
     return values, False
 
 
