@@ -147,3 +147,14 @@ def test_the_readme_says_how_figures_are_marked() -> None:
     readme = (REPO / "README.md").read_text()
     assert re.search(r"`<!-- fig [^`]*-->[^`]*<!-- /fig -->`", readme)
     assert "make readme-status" in readme
+
+
+def test_a_marker_inside_a_fenced_code_block_is_refused_as_it_would_show_its_comments() -> None:
+    sources = Sources(REPO)
+    spec = "tasks/clean_time/plate/X/ratio | .2f"
+    good = figure_text(spec, sources)
+    prose = f"ratio <!-- fig {spec} -->{good}<!-- /fig -->\n"
+    block = f"```bash\ntactex clean   # <!-- fig {spec} -->{good}<!-- /fig -->\n```\n"
+    findings = rewrite(prose + block + prose, sources, "page.md")[1]
+    assert len(findings) == 1 and findings[0].line == 3 and "fenced code block" in findings[0].error
+    assert rewrite(prose, sources, "page.md")[1] == []

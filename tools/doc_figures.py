@@ -61,10 +61,16 @@ def rewrite(text: str, sources: Sources, path: str = "") -> tuple[str, list[Find
     """``text`` with every figure written from ``sources``, and what differed (a broken marker is left as
     it is and reported)."""
     findings: list[Finding] = []
+    fences = _fenced_spans(text)
 
     def one(match: re.Match) -> str:
         spec, found = match["spec"], match["text"]
         line = text.count("\n", 0, match.start()) + 1
+        if any(a <= match.start() < b for a, b in fences):
+            findings.append(Finding(path, line, spec, found, None,
+                                    "a marker inside a fenced code block is shown as it is written, comments and all: "
+                                    "give the figure in the prose around the block"))
+            return match[0]
         try:
             expected = figure_text(spec, sources)
         except FigureError as exc:
@@ -75,6 +81,23 @@ def rewrite(text: str, sources: Sources, path: str = "") -> tuple[str, list[Find
         return f"<!-- fig {spec} -->{expected}<!-- /fig -->"
 
     return MARKER.sub(one, text), findings
+
+
+def _fenced_spans(text: str) -> list[tuple[int, int]]:
+    """The character spans of ``text``'s fenced code blocks (between lines that start with three backticks)."""
+    spans: list[tuple[int, int]] = []
+    start, pos = None, 0
+    for line in text.splitlines(keepends=True):
+        if line.lstrip().startswith("```"):
+            if start is None:
+                start = pos
+            else:
+                spans.append((start, pos + len(line)))
+                start = None
+        pos += len(line)
+    if start is not None:
+        spans.append((start, len(text)))
+    return spans
 
 
 def doc_files(root: Path) -> list[Path]:
