@@ -43,7 +43,8 @@ bench: $(STAMP)
 	$(PY) bench/run.py --out bench/results.json
 	$(PY) tools/readme_status.py
 
-# The README's Status table from bench/results.json (make test fails when they differ).
+# The README's Status table from bench/results.json, and every figure marked <!-- fig KEY | STEPS --> in
+# README.md and docs/ from its committed source (make test fails when any of them differs).
 readme-status: $(STAMP)
 	$(PY) tools/readme_status.py
 
@@ -92,7 +93,8 @@ test-franka-sim: $(STAMP) $(FS_STAMP)
 	$(PY) -m pytest -q tests/test_franka_sim.py
 
 # Fuzz the file readers (tools/fuzz/, atheris from the fuzz extra): each for FUZZ_SECONDS, under nice,
-# FUZZ_JOBS at a time. Crashes and the figures go to fuzz/ (fuzz/results.json is committed). Not in CI.
+# FUZZ_JOBS at a time. Crashes and the figures go to fuzz/ (fuzz/results.json is committed), and docs/fuzzing.md's
+# figures are written from it. Not in CI.
 FUZZ_SECONDS ?= 600
 FUZZ_JOBS ?= 1
 FUZZ_READERS ?= ply pcd_ascii pcd_binary pcd_binary_compressed npz obj stl hand_eye study_spec
@@ -102,6 +104,7 @@ fuzz:
 	printf '%s\n' $(FUZZ_READERS) | xargs -P $(FUZZ_JOBS) -I READER \
 		sh -c 'nice -n 10 $(PY) tools/fuzz/run.py READER --seconds $(FUZZ_SECONDS) --out fuzz > fuzz/READER.log 2>&1'
 	$(PY) tools/fuzz/summary.py fuzz
+	$(PY) tools/readme_status.py
 
 clean-venv:
 	rm -rf $(VENV) .tools .venv-latest $(FS_VENV)
