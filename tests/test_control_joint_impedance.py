@@ -94,3 +94,42 @@ def test_a_stall_of_the_loop_holds_the_targets_clock_back_instead_of_stepping_th
     assert ctrl.lag_s == pytest.approx(0.015, abs=1e-12)
     ctrl.torque(make_state(t=stalled[-1] + DT), JointTarget(np.zeros(7), np.zeros(7), 0.0, 0.0))
     assert ctrl.lag_s == 0.0  # a new target runs on the robot's clock again
+
+
+def test_a_move_from_a_moving_arm_starts_at_its_speed_and_ends_at_rest_on_the_goal():
+    q0, q1 = np.zeros(7), np.linspace(0.1, 0.4, 7)
+    v0 = np.array([1.3, 0.0, -1.3, 0.2, 0.0, 0.0, -0.5])
+    move = JointTarget(q0, q1, 2.0, 0.4, dq_start=v0)
+    q, dq = move.at(2.0)
+    np.testing.assert_allclose(q, q0, atol=1e-12)
+    np.testing.assert_allclose(dq, v0, atol=1e-12)
+    q, dq = move.at(2.4)
+    np.testing.assert_allclose(q, q1, atol=1e-12)
+    np.testing.assert_allclose(dq, 0.0, atol=1e-12)
+    # continuous: the desired velocity is the derivative of the desired position (no jump anywhere in the move)
+    ts = np.linspace(2.0, 2.4, 401)
+    qs = np.array([move.at(t)[0] for t in ts])
+    dqs = np.array([move.at(t)[1] for t in ts])
+    np.testing.assert_allclose(np.gradient(qs, ts, axis=0)[1:-1], dqs[1:-1], atol=2e-3)
+    # the start speed's acceleration starts at zero: the first millisecond changes the speed by a trace only
+    assert float(np.max(np.abs(move.at(2.001)[1] - v0))) < 1e-3
+    # a rest start is the plain minimum-jerk move
+    rest = JointTarget(q0, q1, 2.0, 0.4, dq_start=np.zeros(7))
+    assert rest.dq_start is None
+    np.testing.assert_allclose(rest.at(2.1)[0], JointTarget(q0, q1, 2.0, 0.4).at(2.1)[0])
+
+
+def test_the_start_speed_also_joins_a_move_through_via_postures():
+    q0, q1 = np.zeros(7), np.full(7, 0.3)
+    v0 = np.full(7, 0.8)
+    move = JointTarget(q0, q1, 0.0, 0.5, via=np.full((1, 7), 0.1), dq_start=v0)
+    np.testing.assert_allclose(move.at(0.0)[1], v0, atol=1e-12)
+    np.testing.assert_allclose(move.at(0.5)[0], q1, atol=1e-12)
+
+
+@pytest.mark.parametrize("dq_start", [np.zeros(6), np.array([np.nan, 0, 0, 0, 0, 0, 0])])
+def test_a_bad_start_speed_is_refused(dq_start):
+    from tactex.errors import InputError
+
+    with pytest.raises(InputError, match="dq_start"):
+        JointTarget(np.zeros(7), np.ones(7), 0.0, 1.0, dq_start=dq_start)

@@ -720,6 +720,39 @@ def test_a_tick_after_a_pause_starts_torque_control_again_on_a_fresh_state():
         backend.close()
 
 
+@pytest.mark.parametrize("from_speed", [True, False])
+def test_a_lift_off_from_an_arm_in_fast_motion_brakes_it_without_a_torque_rate_clip(monkeypatch, from_speed):
+    # another controller turns joints 1 and 3 against each other at about 1.3 rad/s (as a null-space motion can,
+    # with the tool on its line), then the lift-off's joint move takes over: started at the measured speed it
+    # brakes that motion along its trajectory; started at rest its damping would brake it at once, steps of
+    # torque the rate limit clips
+    from tactex.control.joint_impedance import JointImpedanceController, JointTarget
+    from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
+    from tactex.sim import SceneConfig
+
+    backend = MujocoBackend(SceneConfig(object_name="plate"))
+    try:
+        loop = ControlLoop(backend)
+        if not from_speed:
+            monkeypatch.setattr(loop, "_dq_from", lambda: None)
+        loop.use(JointImpedanceController())
+        swing = np.array([0.35, 0.0, -0.35, 0.0, 0.0, 0.0, 0.0])
+        target = JointTarget(loop.state.q.copy(), loop.state.q + swing, loop.t, 0.5)
+        for _ in range(250):
+            loop.tick(target)
+        assert np.abs(loop.state.dq[[0, 2]]).min() > 1.2
+        loop.retract(0.05)
+        clips = loop.safety.counts.get("torque_rate_limit", 0)
+        if from_speed:
+            assert clips == 0
+            assert np.abs(loop.state.dq).max() < 0.05  # and brought to rest within the lift
+        else:
+            assert clips > 10
+    finally:
+        backend.close()
+
+
 def test_a_joint_move_across_a_stall_of_the_loop_neither_steps_its_command_nor_ends_early():
     # the robot's clock jumps 16 ms between two commands 30 ms into a joint move (the loop answered late; the
     # arm went on under the last command meanwhile): the move's commands go on without a torque-rate clip

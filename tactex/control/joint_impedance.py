@@ -14,13 +14,22 @@ from tactex.control.linalg import solve
 from tactex.control.state import RobotState
 from tactex.errors import ConfigError, ControllerFault, InputError
 
-__all__ = ["JointImpedanceController", "JointImpedanceParams", "JointTarget", "min_jerk"]
+__all__ = ["JointImpedanceController", "JointImpedanceParams", "JointTarget", "min_jerk", "start_speed_decay"]
 
 
 def min_jerk(s: float) -> tuple[float, float]:
     """Minimum-jerk profile at normalised time s ∈ [0, 1]: (position fraction, d/ds)."""
     s = min(max(s, 0.0), 1.0)
     return 10 * s**3 - 15 * s**4 + 6 * s**5, 30 * s**2 - 60 * s**3 + 30 * s**4
+
+
+def start_speed_decay(s: float) -> tuple[float, float]:
+    """The quintic that carries a start speed into a move and brings it to rest, at normalised time
+    s ∈ [0, 1]: (value, d/ds), with value 0 at both ends, slope 1 at s = 0 and 0 at s = 1, and zero
+    curvature at both ends. ``v0 · T · value`` added to a rest-to-rest move of duration T starts it at
+    speed v0 with no jump of acceleration and still ends it at rest on the goal."""
+    s = min(max(s, 0.0), 1.0)
+    return s - 6 * s**3 + 8 * s**4 - 3 * s**5, 1 - 18 * s**2 + 32 * s**3 - 15 * s**4
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,12 @@ class JointTarget:
     with one minimum-jerk timing. Through IK waypoints of a Cartesian transit this is one smooth
     motion; a rest-to-rest move per waypoint would stop the arm at every waypoint and shake the tool
     at that rate (a force ripple on the wrist F/T).
+
+    ``dq_start`` [rad/s]: the joint speed the move starts at (default rest), brought to rest within the
+    move (:func:`start_speed_decay`). A move that starts from a moving arm (a lift-off while another
+    controller slid the tool or turned the elbow in its null space) would otherwise command rest at its
+    first tick: its damping brakes the whole speed at once, a torque step the robot's torque-rate
+    check sees.
     """
 
     q_start: np.ndarray
@@ -73,6 +88,7 @@ class JointTarget:
     t_start: float
     duration_s: float
     via: np.ndarray | None = None
+    dq_start: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         q0 = np.asarray(self.q_start, dtype=float)
@@ -86,6 +102,12 @@ class JointTarget:
                              f"{self.duration_s}")
         object.__setattr__(self, "q_start", q0)
         object.__setattr__(self, "q_goal", q1)
+        if self.dq_start is not None:
+            v0 = np.asarray(self.dq_start, dtype=float)
+            if v0.shape != q0.shape or not np.isfinite(v0).all():
+                raise InputError(f"JointTarget.dq_start must be finite joint speeds [rad/s] of shape {q0.shape}, "
+                                 f"got {np.asarray(self.dq_start).tolist()}")
+            object.__setattr__(self, "dq_start", None if not v0.any() else v0)
         spline = None
         if self.via is not None:
             via = np.asarray(self.via, dtype=float).reshape(-1, q0.shape[0]) if np.size(self.via) else None
@@ -113,11 +135,17 @@ class JointTarget:
         """Desired joint position [rad] and velocity [rad/s] at time t [s]."""
         if self.duration_s <= 0:
             return self.q_goal, np.zeros_like(self.q_goal)
-        s, ds = min_jerk((t - self.t_start) / self.duration_s)
+        tau = (t - self.t_start) / self.duration_s
+        s, ds = min_jerk(tau)
         if self._spline is not None:
-            return self._spline(s), self._spline(s, 1) * (ds / self.duration_s)
-        delta = self.q_goal - self.q_start
-        return self.q_start + s * delta, ds * delta / self.duration_s
+            q, dq = self._spline(s), self._spline(s, 1) * (ds / self.duration_s)
+        else:
+            delta = self.q_goal - self.q_start
+            q, dq = self.q_start + s * delta, ds * delta / self.duration_s
+        if self.dq_start is not None:
+            c, dc = start_speed_decay(tau)
+            q, dq = q + (c * self.duration_s) * self.dq_start, dq + dc * self.dq_start
+        return q, dq
 
 
 #: A step of the robot's clock longer than this many control periods between two commands is a stall [-].

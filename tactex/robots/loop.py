@@ -122,8 +122,8 @@ class ControlLoop:
         q_goal = np.asarray(q_goal, dtype=float)
         if duration_s is None:
             duration_s = self.joint_move_duration(q_goal, max_joint_speed)
-        return self._run_joint_target(JointTarget(self._q_from(), q_goal, self.t, float(duration_s)), settle_s,
-                                      load_check)
+        return self._run_joint_target(JointTarget(self._q_from(), q_goal, self.t, float(duration_s),
+                                                  dq_start=self._dq_from()), settle_s, load_check)
 
     def _q_from(self) -> np.ndarray:
         """Where a new joint move starts: the last commanded posture while the joint controller runs on
@@ -136,6 +136,16 @@ class ControlLoop:
         if self.safety.inner is self.joint and self._q_commanded is not None and not paused:
             return self._q_commanded.copy()
         return self.state.q.copy()
+
+    def _dq_from(self) -> np.ndarray | None:
+        """The speed a new joint move starts at [rad/s]: rest (None) where it continues the joint controller's
+        earlier move, which ended at rest, else the measured speed. A lift-off takes over an arm another
+        controller moves (the tool sliding, the elbow turning in the null space); a move that started at
+        rest would brake all of that speed in its first ticks, a step of torque the size of the damping
+        times the speed."""
+        if self._q_commanded is not None and self.safety.inner is self.joint:
+            return None
+        return self.state.dq.copy()
 
     def _run_joint_target(self, target: JointTarget, settle_s: float,
                           load_check: LoadErrorEstimator | None = None) -> RobotState:
@@ -229,7 +239,8 @@ class ControlLoop:
             # the recorded end posture is on another branch than the IK path (a wrist turned by π): a spline
             # through both swings far past them; join it with its own joint move, as a stop
             last_leg = path.pop()
-        target = JointTarget(self._q_from(), path[-1], self.t, 0.0, via=np.array(path[:-1]) if len(path) > 1 else None)
+        target = JointTarget(self._q_from(), path[-1], self.t, 0.0, via=np.array(path[:-1]) if len(path) > 1 else None,
+                             dq_start=self._dq_from())
         max_joint_speed = self.max_joint_speed if max_joint_speed is None else max_joint_speed
         duration_s = max(0.1, 1.875 * target.path_rate() / max_joint_speed)
         if last_leg is None:
