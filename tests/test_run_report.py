@@ -273,9 +273,13 @@ def test_summary_table_side_by_side() -> None:
     assert "62.0 %" in lines[2] and "40.0 %" in lines[3] and "91.0 %" in lines[2]
     assert "force MAE" not in text  # no wipe metric in these rows
     wipe = summary_table({"tactex": fake_wipe().metrics, "cartesian": {"force_mae_n": 2.5}})
-    # motion over all contact ticks, the same samples for every controller (not VA-UFIC's aligned subset)
-    assert "3.0/4.0/1.0" in wipe and "1.0/2.0/0.5" not in wipe and "5.20–30.10" in wipe and "2.50" in wipe
-    assert wipe.splitlines()[3].count("–") >= 3  # the baseline lacks motion and tank metrics
+    # VA-UFIC's aligned motion error (the paper's figure) and the one over all contact ticks (the same samples for
+    # every controller), each under its own header
+    head = wipe.splitlines()[0]
+    assert head.index("motion MAE aligned") < head.index("motion MAE in contact")
+    row = wipe.splitlines()[2]
+    assert row.index("1.0/2.0/0.5") < row.index("3.0/4.0/1.0") and "5.20–30.10" in wipe and "2.50" in wipe
+    assert wipe.splitlines()[3].count("–") >= 4  # the baseline lacks motion and tank metrics
     # A baseline without tanks (NaN energies, null in JSON) shows "–", not "nan–nan".
     no_tank = summary_table([("cartesian", {"tank_force_energy_j": {"min": None, "max": float("nan")},
                                             "motion_mae_all_contact_m": [float("nan")] * 3, "force_mae_n": 2.5})])
@@ -284,6 +288,31 @@ def test_summary_table_side_by_side() -> None:
         summary_table([])
     with pytest.raises(InputError, match="pairs"):
         summary_table([("a", 3)])  # type: ignore[list-item]
+
+
+def test_a_wipe_whose_motion_error_is_the_alignment_transient_says_so() -> None:
+    from tactex.report.run_report import alignment_summary
+
+    m = {"motion_mae_m": [0.002, 0.0018, 0.0024], "motion_mae_all_contact_m": [0.0121, 0.0094, 0.003],
+         "first_contact_s": 0.8, "aligned_at_s": 3.4}
+    said = alignment_summary(m)
+    assert said is not None and "12.1/9.4/3.0 mm includes the alignment transient" in said
+    assert "aligned at 3.4 s" in said and "first contact at 0.8 s" in said and "after alignment 2.0/1.8/2.4 mm" in said
+    # nothing to say when the two differ by less than a millimetre, or for a controller without a contact monitor
+    assert alignment_summary({**m, "motion_mae_all_contact_m": [0.0025, 0.002, 0.0028]}) is None
+    assert alignment_summary({"motion_mae_all_contact_m": [0.01, 0.01, 0.01], "force_mae_n": 2.0}) is None
+    never = alignment_summary({**m, "motion_mae_m": [float("nan")] * 3, "aligned_at_s": None})
+    assert never is not None and "never aligned" in never
+
+
+def test_a_commands_summary_carries_the_alignment_line() -> None:
+    from tactex.experiments.run import task_summary
+    from tactex.report.run_report import RunReport
+
+    metrics = {**fake_wipe().metrics, "motion_mae_all_contact_m": [0.0121, 0.0094, 0.003],
+               "motion_mae_m": [0.002, 0.0018, 0.0024], "first_contact_s": 0.8, "aligned_at_s": 3.4}
+    text = task_summary([RunReport(label="tactex", kind="wipe", out_dir=None, metrics=metrics)])
+    assert text.splitlines()[-1].startswith("motion (tactex): motion MAE in contact 12.1/9.4/3.0 mm includes")
 
 
 def test_index_links_runs(tmp_path) -> None:

@@ -16,7 +16,7 @@ from tactex.errors import ConfigError
 from tactex.experiments.run import Note, note_stderr, run_task
 from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.tasks import baseline_names, task_spec
-from tactex.report.run_report import RunReport, safety_summary, summary_table, write_index_html
+from tactex.report.run_report import RunReport, alignment_summary, safety_summary, summary_table, write_index_html
 
 __all__ = ["DemoConfig", "DemoResult", "run_demo"]
 
@@ -64,6 +64,8 @@ class DemoResult:
         text = "\n\n".join(f"{kind}:\n{table}" for kind, table in tables.items())
         safety = [f"safety layer ({kind} {r.label}): {said}" for kind, reps in self.reports.items() for r in reps
                   if (said := safety_summary(r.metrics))]
+        safety += [f"motion ({kind} {r.label}): {said}" for kind, reps in self.reports.items() for r in reps
+                   if (said := alignment_summary(r.metrics))]
         return "\n\n".join([text, "\n".join(safety)]) if safety else text
 
 

@@ -20,7 +20,14 @@ from tactex.errors import ConfigError, InputError, MissingDependencyError, RunIn
 from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.tasks import baseline_names, task_spec
 from tactex.experiments.video import write_replay_video
-from tactex.report.run_report import RunReport, safety_summary, summary_table, write_index_html, write_run_report
+from tactex.report.run_report import (
+    RunReport,
+    alignment_summary,
+    safety_summary,
+    summary_table,
+    write_index_html,
+    write_run_report,
+)
 
 __all__ = ["Note", "note_stderr", "run_compare", "run_task", "task_summary"]
 
@@ -101,4 +108,5 @@ def task_summary(reports: Sequence[RunReport]) -> str:
     safety layer stepped in."""
     lines = [summary_table([(r.label, r.metrics) for r in reports])]
     lines += [f"safety layer ({r.label}): {said}" for r in reports if (said := safety_summary(r.metrics))]
+    lines += [f"motion ({r.label}): {said}" for r in reports if (said := alignment_summary(r.metrics))]
     return "\n".join(lines)

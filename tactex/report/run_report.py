@@ -34,7 +34,7 @@ from tactex.report.clean_report import (
     write_clean_report,
 )
 from tactex.report.run_common import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS, RunReport, missing_metric_keys
-from tactex.report.run_pages import SUMMARY_COLUMNS, safety_summary, summary_table, write_index_html
+from tactex.report.run_pages import SUMMARY_COLUMNS, alignment_summary, safety_summary, summary_table, write_index_html
 from tactex.report.wipe_report import CURVATURE_COLORSCALE, DEFAULT_TANK_LIMITS, write_wipe_report
 from tactex.tasks.clean_phases import CLEAN_PHASES
 
@@ -49,6 +49,7 @@ __all__ = [
     "TIME_BUCKETS",
     "WIPE_METRIC_KEYS",
     "RunReport",
+    "alignment_summary",
     "contact_stretches",
     "missing_metric_keys",
     "run_kind",
