@@ -108,7 +108,8 @@ def test_units_of_a_millimetre_file(tmp_path, dome_stl):
         load_part(mm)
     a, b = load_part(mm, "mm"), load_part(dome_stl)
     assert np.allclose(a.heightfield()[2], b.heightfield()[2], atol=1e-6)
-    assert part_info(a).units == "mm" and part_info(a).target_share == pytest.approx(part_info(b).target_share, rel=0.01)
+    assert part_info(a).units == "mm"
+    assert part_info(a).target_share == pytest.approx(part_info(b).target_share, rel=0.01)
 
 
 def test_the_red_faces_are_the_dirt_where_they_are(dome_stl):
@@ -123,6 +124,30 @@ def test_the_red_faces_are_the_dirt_where_they_are(dome_stl):
     # the object stands on the table at the default place, its surface where the mesh has it
     pos, rot = scene.config.object_pose()
     assert np.allclose(pos, (0.5, 0.0, scene.sim_object.lift_m)) and np.allclose(rot, np.eye(3))
+
+
+def test_a_scan_given_as_cloud_and_object_is_simulated_where_it_lies(tmp_path):
+    """A scan in the robot base frame (its top surface, red where the dirt is), given as --cloud and --object:
+    the part stands where the scan has it, so the cloud's target lies on the simulated surface."""
+    from tactex.pointcloud import SurfaceCloud
+    from tactex.pointcloud.io import save_ply
+    from tactex.tasks.clean import CleanConfig
+
+    xs = np.arange(-0.1, 0.1 + 1e-9, 0.003)
+    gx, gy = (g.ravel() for g in np.meshgrid(xs, xs))
+    red = np.hypot(gx - PATCH_XY[0], gy - PATCH_XY[1]) <= PATCH_R
+    where = np.array([0.45, 0.05, 0.0])
+    pts = np.column_stack([gx, gy, dome_height(gx, gy)]) + where
+    colors = np.where(red[:, None], [1.0, 0.0, 0.0], [0.8, 0.8, 0.8])
+    scan = save_ply(SurfaceCloud(points=pts, colors=colors, spacing=0.003), tmp_path / "scan.ply")
+    cfg = CleanConfig(object_name=str(scan), cloud=str(scan))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)  # the part frame: its bounding box's centre, its lowest point
+    assert np.allclose(cfg.object_position, [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]], atol=1e-6)
+    scene = build_scene(cfg.scene())
+    pos, rot = scene.config.object_pose()
+    local = (pts - pos) @ rot
+    assert np.abs(scene.sim_object.surface.height(local[:, 0], local[:, 1]) - local[:, 2]).max() < 1.5e-3
+    assert scene.dirt.paint(local[red], 0.003 * np.sqrt(0.5)) > 0.9 * red.sum() * (0.003 / 0.002) ** 2
 
 
 def test_a_part_without_a_marking_takes_a_named_one(tmp_path, capsys):
