@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -155,16 +154,8 @@ def object_names() -> list[str]:
 
 
 def resolve_object_name(name: str) -> str:
-    """The registered name of object ``name``, in any case ('Plate' → 'plate'); the error lists them. A
-    part's file (a name with a mesh or scan suffix, see :mod:`tactex.sim.part`) is its absolute path."""
-    from tactex.sim.part import is_part_file
-
-    if is_part_file(name):
-        p = Path(str(name)).expanduser()
-        if not p.is_file():
-            raise ConfigError(f"--object '{name}' is not a file (give a part's .stl/.obj/.ply mesh or a .ply/.pcd/.npz "
-                              f"scan, or one of the objects {', '.join(object_names())})")
-        return str(p.resolve())
+    """The registered name of object ``name``, in any case ('Plate' → 'plate'); the error lists them (a part's
+    file is resolved by :func:`tactex.sim.part.resolve_object_or_part`)."""
     found = {n.lower(): n for n in OBJECTS}.get(str(name).lower())
     if found is None:
         raise ConfigError(f"unknown object '{name}'; registered objects: {', '.join(object_names())}, or a part's "
@@ -172,13 +163,8 @@ def resolve_object_name(name: str) -> str:
     return found
 
 
-def get_object(name: str, units: str = "m") -> SimObject:
-    """A registered object by name, in any case; the error lists the valid names. A part's file (see
-    :func:`tactex.sim.part.load_part`) is read with its coordinates in ``units`` (m, mm, in)."""
-    from tactex.sim.part import is_part_file, load_part
-
-    if is_part_file(name):
-        return load_part(resolve_object_name(name), units)
+def get_object(name: str) -> SimObject:
+    """A registered object by name, in any case; the error lists the valid names."""
     return OBJECTS[resolve_object_name(name)]
 
 

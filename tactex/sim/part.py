@@ -29,11 +29,11 @@ from tactex.errors import CloudError, ConfigError, InputError, UnitsError
 from tactex.pointcloud.cloud import MAX_EXTENT_M, SurfaceCloud
 from tactex.pointcloud.io import SUPPORTED_SUFFIXES
 from tactex.pointcloud.units import check_units, millimetre_hint, to_metres
-from tactex.sim.objects import SimObject, heightfield_object
+from tactex.sim.objects import SimObject, get_object, heightfield_object, object_names, resolve_object_name
 from tactex.sim.part_raster import HeightRaster, bilinear, raster_mesh, raster_points
 
 __all__ = ["FINE_SPACING_M", "HFIELD_TOLERANCE_M", "MAX_LOST_SHARE", "PART_POSITION_M", "PartInfo",
-           "check_reach", "is_part_file", "load_part", "part_info"]
+           "check_reach", "is_part_file", "load_part", "object_or_part", "part_info", "resolve_object_or_part"]
 
 #: Spacing of the raster the part's surface is read on [m] (its height function between the nodes).
 FINE_SPACING_M = 0.001
@@ -290,6 +290,23 @@ def load_part(path: str | Path, units: str = "m") -> SimObject:
         raise InputError(f"--object '{path}' is not a file (give a part's .stl/.obj/.ply mesh or a .ply/.pcd/.npz "
                          "scan, or a built-in object's name)")
     return _load(str(p.resolve()), units, p.stat().st_mtime_ns)[0]
+
+
+def resolve_object_or_part(name: str) -> str:
+    """A built-in object's registered name (in any case), or a part file's absolute path (a name with a mesh or
+    scan suffix, :func:`is_part_file`); the error says which is missing."""
+    if not is_part_file(name):
+        return resolve_object_name(name)
+    p = Path(str(name)).expanduser()
+    if not p.is_file():
+        raise ConfigError(f"--object '{name}' is not a file (give a part's .stl/.obj/.ply mesh or a .ply/.pcd/.npz "
+                          f"scan, or one of the objects {', '.join(object_names())})")
+    return str(p.resolve())
+
+
+def object_or_part(name: str, units: str = "m") -> SimObject:
+    """The built-in object ``name``, or the part in the file ``name`` read in ``units`` (:func:`load_part`)."""
+    return load_part(name, units) if is_part_file(name) else get_object(name)
 
 
 def part_info(obj: SimObject) -> PartInfo | None:

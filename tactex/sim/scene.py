@@ -18,8 +18,8 @@ from tactex.pointcloud.markings import MARKINGS
 from tactex.pointcloud.units import check_units
 from tactex.sim.dirt import DirtField, PrestonParams
 from tactex.sim.franka import FRANKA_TORQUE_LIMITS, franka_arm_xml
-from tactex.sim.objects import SimObject, get_object, rotation_from_rpy_deg
-from tactex.sim.part import check_reach
+from tactex.sim.objects import SimObject, rotation_from_rpy_deg
+from tactex.sim.part import check_reach, object_or_part
 from tactex.sim.tool import TOOL_SITE_NAMES, ToolGeometry, tool_xml
 
 __all__ = ["CAMERA_PRESETS", "Scene", "SceneConfig", "build_scene"]
@@ -82,7 +82,7 @@ class SceneConfig:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         check_units(self.object_units)
-        obj = get_object(self.object_name, self.object_units)
+        obj = object_or_part(self.object_name, self.object_units)
         if self.object_position is None:
             object.__setattr__(self, "object_position", tuple(float(v) for v in obj.position_m))
         if self.marking and self.marking not in MARKINGS:
@@ -155,7 +155,7 @@ class SceneConfig:
 
     @property
     def sim_object(self) -> SimObject:
-        return get_object(self.object_name, self.object_units)
+        return object_or_part(self.object_name, self.object_units)
 
     def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World position [m] and rotation of the object frame (scene pose ∘ intrinsic tilt)."""

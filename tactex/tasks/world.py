@@ -15,8 +15,7 @@ from typing import Any
 from tactex.config import param
 from tactex.errors import ConfigError
 from tactex.pointcloud.units import check_units
-from tactex.sim.objects import resolve_object_name
-from tactex.sim.part import is_part_file
+from tactex.sim.part import is_part_file, resolve_object_or_part
 from tactex.sim.scene import SceneConfig
 
 __all__ = ["JOINT_FRICTION_N_M", "SimWorldParams"]
@@ -60,7 +59,7 @@ class SimWorldParams:
                          "default 0 the seed changes nothing but what a task seeds itself)")
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "object_name", resolve_object_name(self.object_name))  # 'Plate' is plate
+        object.__setattr__(self, "object_name", resolve_object_or_part(self.object_name))  # 'Plate' is plate
         check_units(self.units)
         if is_part_file(self.object_name):  # the part's file read, its size, overhangs and place checked up front
             SceneConfig(object_name=self.object_name, object_position=self.object_position, object_units=self.units)

@@ -83,10 +83,9 @@ class TwinConfig:
                                              "libfranka's documented sign), for clients written that way")
 
     def __post_init__(self) -> None:
-        from tactex.sim.objects import resolve_object_name
-        from tactex.sim.part import is_part_file
+        from tactex.sim.part import is_part_file, resolve_object_or_part
 
-        object.__setattr__(self, "object_name", resolve_object_name(self.object_name))  # 'Plate' is plate
+        object.__setattr__(self, "object_name", resolve_object_or_part(self.object_name))  # 'Plate' is plate
         if self.marking is None:
             object.__setattr__(self, "marking", "" if is_part_file(self.object_name) else "X")
         self.scene_config()  # object, marking, tool and dirt checks

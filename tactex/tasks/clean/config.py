@@ -15,8 +15,7 @@ from tactex.errors import ConfigError
 from tactex.pointcloud.keep_out import DEFAULT_KEEP_OUT_THRESHOLD, check_keep_out_options
 from tactex.pointcloud.markings import resolve_marking
 from tactex.pointcloud.units import check_units
-from tactex.sim.objects import get_object, resolve_object_name
-from tactex.sim.part import is_part_file, part_info
+from tactex.sim.part import is_part_file, object_or_part, part_info, resolve_object_or_part
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.eigen import check_eigensolver
 from tactex.tasks.clean.sweep_plan import MAX_CORNERS
@@ -214,14 +213,14 @@ class CleanConfig(SimWorldParams):
             # the cloud is in the robot base frame, so is a part file given with it: the part stands where its
             # file has it (a scan and its marking are then one)
             check_units(self.units)
-            info = part_info(get_object(resolve_object_name(self.object_name), self.units))
+            info = part_info(object_or_part(resolve_object_or_part(self.object_name), self.units))
             object.__setattr__(self, "object_position", info.file_origin_m)
         super().__post_init__()
         if self.marking:
             object.__setattr__(self, "marking", resolve_marking(self.marking))  # 'x' is X
         elif not part:
             object.__setattr__(self, "marking", DEFAULT_MARKING)
-        elif not self.cloud and not part_info(get_object(self.object_name, self.units)).has_target:
+        elif not self.cloud and not part_info(object_or_part(self.object_name, self.units)).has_target:
             raise ConfigError(f"--object '{self.object_name}' marks no dirt (no red faces or vertices, no 'target' "
                               "property): colour the dirt red in the file, or give --marking NAME or --cloud FILE")
         if self.baseline not in CLEAN_BASELINES:
