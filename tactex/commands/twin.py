@@ -1,4 +1,4 @@
-"""``tactex twin --object NAME``: our scene inside franky-sim on loopback, with the wrist F/T
+"""``tactex twin --object NAME|FILE``: our scene inside franky-sim on loopback, with the wrist F/T
 published over the Net F/T protocol and its wrist camera's RGB-D frames over TCP, for rehearsing a
 real-robot run (see docs/twin.md)."""
 
@@ -18,7 +18,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     from tactex.twin.config import TwinConfig
 
     fields = TwinConfig.__dataclass_fields__
-    parser.add_argument("--object", dest="object_name", default=None, metavar="NAME",
+    parser.add_argument("--object", dest="object_name", default=None, metavar="NAME|FILE",
                         help=f"{fields['object_name'].metadata['help']} (default: {fields['object_name'].default})")
     parser.add_argument("--object-name", dest="object_name", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--port-ft", "--ft-port", dest="ft_port", type=int, default=None, metavar="P",

@@ -111,13 +111,15 @@ def resolve_marking(name: str) -> str:
     return found
 
 
-def marking_mask(name: str, uv: np.ndarray) -> np.ndarray:
-    """Boolean mask (N,) of the uv points (N, 2) covered by marking ``name``."""
-    name = resolve_marking(name)
+def marking_mask(name: str | Callable[[np.ndarray], np.ndarray], uv: np.ndarray) -> np.ndarray:
+    """Boolean mask (N,) of the uv points (N, 2) covered by marking ``name`` (or by a mask function uv → (N,),
+    a part's own marking)."""
     uv = np.asarray(uv, dtype=float)
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise InputError(f"uv must have shape (N, 2), got {uv.shape}")
-    return np.asarray(MARKINGS[name](uv), dtype=bool)
+    if callable(name):
+        return np.asarray(name(uv), dtype=bool).reshape(len(uv))
+    return np.asarray(MARKINGS[resolve_marking(name)](uv), dtype=bool)
 
 
 def mask_from_image(image: np.ndarray, uv: np.ndarray, threshold: float = 0.5) -> np.ndarray:

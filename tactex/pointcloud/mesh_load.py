@@ -6,6 +6,8 @@ its warnings are ignored (numerical noise of its own processing), and every exce
 :class:`~tactex.errors.CloudError` naming the file. A texture that cannot be loaded drops trimesh's
 vertex colours with it (it keeps the texture coordinates and no image); the mesh is then read again
 without the texture, from the same file, so that its vertex colours are kept, and a note says so.
+A binary STL's per-face colours (in the two attribute bytes of each triangle, VisCAM/SolidView's
+convention) become face colours.
 """
 
 from __future__ import annotations
@@ -100,6 +102,29 @@ def _without_texture(path: Path):
     return trimesh.Trimesh(vertices=kwargs["vertices"], faces=kwargs["faces"], vertex_colors=colors, process=True)
 
 
+#: An STL face's attribute bytes hold a colour when bit 15 is set (the VisCAM/SolidView convention):
+#: 5 bits each of red (bits 10–14), green (5–9) and blue (0–4).
+STL_COLOR_VALID = 0x8000
+#: The colour of an STL face without one when others have one.
+STL_DEFAULT_RGB = (200, 200, 200)
+
+
+def _stl_colors(mesh) -> bool:
+    """Give an STL mesh the face colours its attribute bytes hold (VisCAM/SolidView: bit 15 set), if any
+    face has one; True when it had."""
+    attrs = getattr(mesh, "face_attributes", {}).get("stl")
+    if attrs is None or len(attrs) != len(mesh.faces) or mesh.visual.defined:
+        return False
+    a = np.asarray(attrs, dtype=np.uint16)
+    valid = (a & STL_COLOR_VALID) != 0
+    if not valid.any():
+        return False
+    rgb = np.stack([(a >> 10) & 31, (a >> 5) & 31, a & 31], axis=1).astype(np.float64) * (255.0 / 31.0)
+    rgb = np.where(valid[:, None], np.rint(rgb), np.array(STL_DEFAULT_RGB, dtype=np.float64))
+    mesh.visual.face_colors = np.column_stack([rgb, np.full(len(rgb), 255.0)]).astype(np.uint8)
+    return True
+
+
 def load_mesh(path: Path):
     """The ``trimesh.Trimesh`` of the mesh file ``path`` and notes for the user (a texture that
     could not be loaded, replaced by the vertex colours).
@@ -131,6 +156,8 @@ def load_mesh(path: Path):
         raise CloudError(f"'{path}' is not a readable mesh: {_detail(exc)}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise CloudError(f"'{path}' holds no triangles (an empty or unreadable mesh file)")
+    if path.suffix.lower() == ".stl" and _stl_colors(mesh):
+        notes.append("face colours read from its attribute bytes (the VisCAM/SolidView convention)")
     faces, vertices = np.asarray(mesh.faces), np.asarray(mesh.vertices)
     if faces.ndim != 2 or faces.shape[1] != 3 or vertices.ndim != 2 or vertices.shape[1] != 3 \
             or faces.min() < 0 or faces.max() >= len(vertices):

@@ -18,7 +18,6 @@ from tactex.report.html import cloud_html
 from tactex.report.policy_plots import plot_policy_force, plot_policy_path
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
 from tactex.report.run_pages import append_sections, plain_page
-from tactex.sim.objects import get_object
 
 __all__ = ["CURVATURE_COLORSCALE", "DEFAULT_TANK_LIMITS", "write_wipe_report"]
 
@@ -122,8 +121,9 @@ def _policy_plots(result: Any, metrics: Mapping[str, Any], out: Path, rep: RunRe
     s = {k: np.asarray(raw[k], dtype=np.float64) for k in keys}
     try_plot(rep, "policy_force_png", plot_policy_force, s, metrics, out / "policy_force.png")
     if hasattr(cfg, "scene") and hasattr(cfg, "object_name"):
-        pos, rot = cfg.scene().object_pose()
-        try_plot(rep, "policy_path_png", plot_policy_path, s, get_object(cfg.object_name).surface, pos, rot,
+        scene = cfg.scene()
+        pos, rot = scene.object_pose()
+        try_plot(rep, "policy_path_png", plot_policy_path, s, scene.sim_object.surface, pos, rot,
                  out / "policy_path.png")
 
 

@@ -52,7 +52,8 @@ class SimObject:
         lift_m: height of the object frame above the table when placed [m] (a tilted plane is
             raised so that it does not cut the table).
         rgb: clean colour in [0, 1].
-        marking: default dirt pattern (a name of tactex.pointcloud.markings.MARKINGS).
+        marking: default dirt pattern (a name of tactex.pointcloud.markings.MARKINGS, or a part's own mask
+            function uv → (N,) bool: see tactex.sim.part).
         hfield_spacing_m: height-field grid spacing [m]. Contact cost grows with the number of grid
             cells under the pad, so it is as coarse as the curvature allows: the linear-interpolation
             error h''·s²/8 is 0.07 mm for the sine panel at 1 cm and ≤ 0.1 mm for the others at 5 mm.
@@ -66,7 +67,7 @@ class SimObject:
     intrinsic_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     lift_m: float = 0.0
     rgb: tuple[float, float, float] = (0.85, 0.85, 0.82)
-    marking: str = "X"
+    marking: str | Callable[[np.ndarray], np.ndarray] = "X"
     hfield_spacing_m: float = 0.005
     base_thickness_m: float = 0.01
     position_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
@@ -153,10 +154,12 @@ def object_names() -> list[str]:
 
 
 def resolve_object_name(name: str) -> str:
-    """The registered name of object ``name``, in any case ('Plate' → 'plate'); the error lists them."""
+    """The registered name of object ``name``, in any case ('Plate' → 'plate'); the error lists them (a part's
+    file is resolved by :func:`tactex.sim.part.resolve_object_or_part`)."""
     found = {n.lower(): n for n in OBJECTS}.get(str(name).lower())
     if found is None:
-        raise ConfigError(f"unknown object '{name}'; registered objects: {', '.join(object_names())}")
+        raise ConfigError(f"unknown object '{name}'; registered objects: {', '.join(object_names())}, or a part's "
+                          "file (.stl/.obj/.ply/.pcd/.npz)")
     return found
 
 

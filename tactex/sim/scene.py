@@ -15,9 +15,11 @@ from tactex.config import param
 from tactex.errors import ConfigError, SimulationError
 from tactex.perception.frame import CameraIntrinsics, D415_DEPTH_640x480, D435I_DEPTH_640x480
 from tactex.pointcloud.markings import MARKINGS
+from tactex.pointcloud.units import check_units
 from tactex.sim.dirt import DirtField, PrestonParams
 from tactex.sim.franka import FRANKA_TORQUE_LIMITS, franka_arm_xml
-from tactex.sim.objects import SimObject, get_object, rotation_from_rpy_deg
+from tactex.sim.objects import SimObject, rotation_from_rpy_deg
+from tactex.sim.part import check_reach, object_or_part
 from tactex.sim.tool import TOOL_SITE_NAMES, ToolGeometry, tool_xml
 
 __all__ = ["CAMERA_PRESETS", "Scene", "SceneConfig", "build_scene"]
@@ -30,7 +32,9 @@ CAMERA_PRESETS: dict[str, CameraIntrinsics] = {"d435i": D435I_DEPTH_640x480, "d4
 class SceneConfig:
     """Everything that defines a simulated scene (units in brackets)."""
 
-    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
+    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects), or a part's mesh or scan "
+                                           "file (tactex.sim.part)")
+    object_units: str = param("m", "length unit of a part's file (object_name a path): m, mm or in")
     object_position: tuple[float, float, float] | None = param(
         None, "object frame origin in the world [m]; default: the object's own placement (0.5 0 0; the cup 0.42 0 0)")
     object_rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "object orientation roll/pitch/yaw [deg]")
@@ -77,7 +81,8 @@ class SceneConfig:
     def __post_init__(self) -> None:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
-        obj = get_object(self.object_name)
+        check_units(self.object_units)
+        obj = object_or_part(self.object_name, self.object_units)
         if self.object_position is None:
             object.__setattr__(self, "object_position", tuple(float(v) for v in obj.position_m))
         if self.marking and self.marking not in MARKINGS:
@@ -130,6 +135,8 @@ class SceneConfig:
             v = np.asarray(getattr(self, name), dtype=float)
             if v.shape != (n,) or not np.isfinite(v).all():
                 raise ConfigError(f"{name} must be {n} finite numbers, got {getattr(self, name)!r}")
+        pos, rot = self.object_pose()
+        check_reach(obj, pos, rot)
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -148,7 +155,7 @@ class SceneConfig:
 
     @property
     def sim_object(self) -> SimObject:
-        return get_object(self.object_name)
+        return object_or_part(self.object_name, self.object_units)
 
     def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World position [m] and rotation of the object frame (scene pose ∘ intrinsic tilt)."""

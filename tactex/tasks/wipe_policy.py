@@ -17,7 +17,7 @@ import numpy as np
 from tactex.control.safety import MAX_FORCE_SET_POINT_N
 from tactex.errors import ConfigError
 from tactex.pointcloud.shapes import CylinderWallSurface, HeightFieldSurface
-from tactex.sim.objects import get_object
+from tactex.sim.part import object_or_part
 from tactex.tasks.policies import (
     ForceMotionPolicy,
     ForceRamp,
@@ -35,7 +35,7 @@ __all__ = ["check_wipe_policy", "policy_segments", "wipe_limits", "wipe_policy"]
 
 def wipe_limits(cfg: Any) -> PolicyLimits:
     """Speed, acceleration, force range and reach a wipe allows a policy."""
-    surface = get_object(cfg.object_name).surface
+    surface = object_or_part(cfg.object_name, cfg.units).surface
     inside = None
     if isinstance(surface, CylinderWallSurface):
         half_arc_m = np.deg2rad(min(surface.arc_deg, 360.0)) / 2 * surface.radius_m
@@ -70,7 +70,7 @@ def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> None:
     The surface must be a height field (the wipe starts above it, tool down)."""
     if not isinstance(policy, ForceMotionPolicy):
         raise ConfigError(f"policy must be a ForceMotionPolicy (tactex.tasks.policies), got {type(policy).__name__}")
-    if not isinstance(get_object(cfg.object_name).surface, (HeightFieldSurface, CylinderWallSurface)):
+    if not isinstance(object_or_part(cfg.object_name, cfg.units).surface, (HeightFieldSurface, CylinderWallSurface)):
         raise ConfigError(f"a policy wipe starts above a height-field surface or beside a cup's wall; "
                           f"'{cfg.object_name}' is neither")
     check_policy(policy, wipe_limits(cfg), horizon_s=cfg.duration_s)

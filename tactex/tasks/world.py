@@ -14,7 +14,8 @@ from typing import Any
 
 from tactex.config import param
 from tactex.errors import ConfigError
-from tactex.sim.objects import resolve_object_name
+from tactex.pointcloud.units import check_units
+from tactex.sim.part import is_part_file, resolve_object_or_part
 from tactex.sim.scene import SceneConfig
 
 __all__ = ["JOINT_FRICTION_N_M", "SimWorldParams"]
@@ -29,8 +30,9 @@ JOINT_FRICTION_N_M = 0.1
 class SimWorldParams:
     """Object, tool and camera of a simulated task (units in brackets)."""
 
-    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)", option="object",
-                             aliases=("--object-name",))
+    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects), or a part's mesh or scan "
+                             "file (.stl/.obj/.ply/.pcd/.npz) made a height-field object (tactex.sim.part)",
+                             option="object", aliases=("--object-name",))
     object_position: tuple[float, float, float] | None = param(
         None, "object position in the world [m]; default: the object's own placement (0.5 0 0; the cup 0.42 0 0, "
         "its marked wall well inside the arm's reach)")
@@ -51,11 +53,16 @@ class SimWorldParams:
     joint_friction_scale: float = param(
         1.0, "model mismatch: the arm's joint friction; 1 is the scene's own (viscous 0.1 N·m·s/rad, no dry "
         "friction), s ≠ 1 scales the viscous friction by s and adds s × 0.1 N·m of dry friction per joint [-]")
+    units: str = param("m", "length unit of the --object FILE: m, mm or in; its coordinates are converted to metres "
+                            "as it is read")
     seed: int = param(0, "seed of the sensor noise (the physics is deterministic: with the noise at its "
                          "default 0 the seed changes nothing but what a task seeds itself)")
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "object_name", resolve_object_name(self.object_name))  # 'Plate' is plate
+        object.__setattr__(self, "object_name", resolve_object_or_part(self.object_name))  # 'Plate' is plate
+        check_units(self.units)
+        if is_part_file(self.object_name):  # the part's file read, its size, overhangs and place checked up front
+            SceneConfig(object_name=self.object_name, object_position=self.object_position, object_units=self.units)
         for name in ("tool_stiffness_n_per_m", "record_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
@@ -74,7 +81,8 @@ class SimWorldParams:
             scene_fields.setdefault("joint_damping", nominal.joint_damping * self.joint_friction_scale)
             scene_fields.setdefault("joint_frictionloss", JOINT_FRICTION_N_M * self.joint_friction_scale)
         return SceneConfig(
-            object_name=self.object_name, object_position=self.object_position, camera_width=self.camera_width,
+            object_name=self.object_name, object_position=self.object_position, object_units=self.units,
+            camera_width=self.camera_width,
             camera_height=self.camera_height, seed=self.seed, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
             tool_pad_shape=self.tool_pad_shape, tool_friction=self.tool_friction, ft_noise_n=self.ft_noise_n,
             ft_noise_nm=self.ft_noise_nm, depth_noise_m=self.depth_noise_m,

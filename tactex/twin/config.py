@@ -23,13 +23,16 @@ __all__ = ["TwinConfig"]
 class TwinConfig:
     """The twin: object, tool, dirt and network addresses (units in brackets)."""
 
-    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects)")
+    object_name: str = param("sine_panel", "object from the registry (tactex.sim.objects), or a part's mesh or "
+                                           "scan file (.stl/.obj/.ply/.pcd/.npz) made a height-field object "
+                                           "(tactex.sim.part)")
+    units: str = param("m", "length unit of the --object FILE: m, mm or in")
     object_position: tuple[float, float, float] | None = param(
         None, "object position in the robot base frame [m]; default: the object's own placement (0.5 0 0; the cup "
         "0.42 0 0), as in tactex clean")
     object_rpy_deg: tuple[float, float, float] = param((0.0, 0.0, 0.0), "object orientation roll/pitch/yaw [deg]")
-    marking: str = param("X", "dirt pattern (X, RLI, blobs, shapes, full; tactex clean's default X); empty = the "
-                              "object's default")
+    marking: str | None = param(None, "dirt pattern (X, RLI, blobs, shapes, full); empty = the object's default; "
+                                      "default: tactex clean's (X on a built-in object, a part file's own marking)")
     # the tool of tactex clean and wipe (tactex.tasks.world.SimWorldParams): the client declares it
     tool_stiffness_n_per_m: float = param(2500.0, "sponge stiffness along the tool axis [N/m]")
     tool_damping_ratio: float = param(0.7, "sponge damping, fraction of critical [-]")
@@ -80,9 +83,11 @@ class TwinConfig:
                                              "libfranka's documented sign), for clients written that way")
 
     def __post_init__(self) -> None:
-        from tactex.sim.objects import resolve_object_name
+        from tactex.sim.part import is_part_file, resolve_object_or_part
 
-        object.__setattr__(self, "object_name", resolve_object_name(self.object_name))  # 'Plate' is plate
+        object.__setattr__(self, "object_name", resolve_object_or_part(self.object_name))  # 'Plate' is plate
+        if self.marking is None:
+            object.__setattr__(self, "marking", "" if is_part_file(self.object_name) else "X")
         self.scene_config()  # object, marking, tool and dirt checks
         if not (isinstance(self.ft_port, int) and 0 <= self.ft_port < 65536):
             raise ConfigError(f"ft_port must be a UDP port in 0..65535 (0: any free one), got {self.ft_port!r}")
@@ -136,7 +141,8 @@ class TwinConfig:
     def scene_config(self) -> SceneConfig:
         """The :class:`SceneConfig` of the same object, tool and dirt (validates them)."""
         return SceneConfig(
-            object_name=self.object_name, object_position=self.object_position, object_rpy_deg=self.object_rpy_deg,
+            object_name=self.object_name, object_units=self.units, object_position=self.object_position,
+            object_rpy_deg=self.object_rpy_deg,
             marking=self.marking, tool_stiffness_n_per_m=self.tool_stiffness_n_per_m,
             tool_damping_ratio=self.tool_damping_ratio, tool_friction=self.tool_friction,
             tool_pad_radius_m=self.tool_pad_radius_m, tool_pad_shape=self.tool_pad_shape,

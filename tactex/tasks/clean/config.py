@@ -15,14 +15,18 @@ from tactex.errors import ConfigError
 from tactex.pointcloud.keep_out import DEFAULT_KEEP_OUT_THRESHOLD, check_keep_out_options
 from tactex.pointcloud.markings import resolve_marking
 from tactex.pointcloud.units import check_units
+from tactex.sim.part import is_part_file, object_or_part, part_info, resolve_object_or_part
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.eigen import check_eigensolver
 from tactex.tasks.clean.sweep_plan import MAX_CORNERS
 from tactex.tasks.world import SimWorldParams
 
-__all__ = ["CLEAN_BASELINES", "CLEAN_EXPLORER", "CLEAN_OBJECTIVES", "RASTER_BASELINES", "SWEEP_GOAL", "CleanConfig"]
+__all__ = ["CLEAN_BASELINES", "CLEAN_EXPLORER", "CLEAN_OBJECTIVES", "DEFAULT_MARKING", "RASTER_BASELINES", "SWEEP_GOAL",
+           "CleanConfig"]
 
 CLEAN_BASELINES = ("", "raster", "region_raster", "no_feedback")
+#: The dirt on a built-in object when no --marking is given.
+DEFAULT_MARKING = "X"
 #: The baselines that follow a planned raster instead of the explorer (no eigenbasis).
 RASTER_BASELINES = ("raster", "region_raster")
 #: What the HEDAC agent follows between camera views (see CleanConfig.objective).
@@ -66,10 +70,13 @@ class CleanConfig(SimWorldParams):
     the same names (:data:`EXPLORER_OPTIONS`: the ones a user tunes, as flags, study parameters and keywords),
     made by the constructor."""
 
-    object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object)",
+    object_name: str = param("plate", "object to clean: plate, bowl or cup (any registered object), or your part's "
+                             "mesh or scan file (.stl/.obj/.ply/.pcd/.npz, in --units) as a height-field object whose "
+                             "red marking (or stored target) is the dirt (docs/own_part.md)",
                              option="object", aliases=("--object-name",))
-    marking: str = param("X", "dirt pattern: X, RLI, blobs, shapes, full (not with --cloud, whose target is the "
-                              "dirt)", unused_with=("cloud", "the cloud's target is the dirt"))
+    marking: str = param("", "dirt pattern: X, RLI, blobs, shapes, full; default X on a built-in object, a part "
+                             "file's own marking on --object FILE (not with --cloud, whose target is the dirt)",
+                         unused_with=("cloud", "the cloud's target is the dirt"))
     force_n: float = param(10.0, "pressing force set point along the tool axis, at most "
                                  f"{MAX_FORCE_SET_POINT_N:g}: contact peaks reach twice it, and the safety layer "
                                  f"retreats at {SafetyLimits.max_contact_force:g} [N]")
@@ -185,8 +192,8 @@ class CleanConfig(SimWorldParams):
                            "whose red marking "
                            "(or stored target) is the dirt: no camera capture, no re-measurement (a robot without a "
                            "camera; TEC: markings annotated by an expert). Needed with --robot franka")
-    units: str = param("m", "length unit of the --cloud file: m, mm or in; its coordinates are converted to metres "
-                            "as it is read")
+    units: str = param("m", "length unit of the --cloud and --object files: m, mm or in; their coordinates are "
+                            "converted to metres as they are read")
     camera_width: int = param(320, "capture image width [px]")
     camera_height: int = param(240, "capture image height [px]")
     seed: int = param(0, "seed of the sensor noise and of the explorer's random headings")
@@ -201,8 +208,21 @@ class CleanConfig(SimWorldParams):
     explorer: HedacConfig = field(init=False, repr=False, metadata={"cli": False})
 
     def __post_init__(self) -> None:
+        part = is_part_file(self.object_name)
+        if part and self.cloud and self.object_position is None:
+            # the cloud is in the robot base frame, so is a part file given with it: the part stands where its
+            # file has it (a scan and its marking are then one)
+            check_units(self.units)
+            info = part_info(object_or_part(resolve_object_or_part(self.object_name), self.units))
+            object.__setattr__(self, "object_position", info.file_origin_m)
         super().__post_init__()
-        object.__setattr__(self, "marking", resolve_marking(self.marking))  # 'x' is X
+        if self.marking:
+            object.__setattr__(self, "marking", resolve_marking(self.marking))  # 'x' is X
+        elif not part:
+            object.__setattr__(self, "marking", DEFAULT_MARKING)
+        elif not self.cloud and not part_info(object_or_part(self.object_name, self.units)).has_target:
+            raise ConfigError(f"--object '{self.object_name}' marks no dirt (no red faces or vertices, no 'target' "
+                              "property): colour the dirt red in the file, or give --marking NAME or --cloud FILE")
         if self.baseline not in CLEAN_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: "
                               f"{', '.join(b for b in CLEAN_BASELINES if b)} (or none)")
@@ -252,8 +272,8 @@ class CleanConfig(SimWorldParams):
         if self.cloud and not Path(self.cloud).is_file():
             raise ConfigError(f"--cloud '{self.cloud}' is not a file (give a .ply/.pcd/.npz in the robot base frame)")
         check_units(self.units)
-        if self.units != "m" and not self.cloud:
-            raise ConfigError(f"--units {self.units} is the unit of a --cloud FILE: give --cloud too")
+        if self.units != "m" and not self.cloud and not part:
+            raise ConfigError(f"--units {self.units} is the unit of a --cloud or --object FILE: give one")
         if self.cloud and self.baseline == "no_feedback":
             raise ConfigError("--cloud already runs without vision feedback; drop --baseline no_feedback")
         check_eigensolver(self.eigensolver, self.eigen_tol)

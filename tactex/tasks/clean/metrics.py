@@ -60,7 +60,8 @@ def clean_metrics(program: Any, series: dict[str, np.ndarray]) -> dict:
         "force_set_point_n": cfg.force_n,
         "baseline": cfg.baseline or "tactex",
         "object": cfg.object_name,
-        "marking": "cloud" if cfg.cloud else cfg.marking,  # with --cloud the dirt is its target (simulated too)
+        # with --cloud the dirt is its target (simulated too); a part file's own marking is "part"
+        "marking": "cloud" if cfg.cloud else (cfg.marking or "part"),
         "safety_events": len(loop.safety.events),
         # per kind: events (force_limit: one per retreat), ticks for nan_wrench and the torque and rate limits
         "safety_counts": dict(loop.safety.counts),

@@ -149,7 +149,7 @@ class Started:
             "force_set_point_n": cfg.force_n,
             "baseline": cfg.baseline or "tactex",
             "object": cfg.object_name,
-            "marking": "cloud" if cfg.cloud else cfg.marking,
+            "marking": "cloud" if cfg.cloud else (cfg.marking or "part"),
             "target_source": "cloud" if cfg.cloud else "camera",
             "n_points": 0 if cloud is None else len(cloud),
             "safety_events": len(loop.safety.events),
