@@ -34,6 +34,7 @@ path = np.array(path)
 fields = {"target": cloud.target, "coverage": explorer.coverage, "potential": explorer.potential}
 plot_series({"ergodicity ε": ergodicity}, out / "ergodicity.png")
 plot_cloud(cloud.points, fields, out / "cloud.png", trajectory=path)
-cloud_html(cloud.points, fields, out / "plate.html", trajectory=path, title="plate, 300 steps")
+cloud_html(cloud.points, fields, out / "plate.html", trajectory=path, title="plate, 300 steps", keep=cloud.target > 0,
+           normals=cloud.normals)
 write_metrics({"n_points": len(cloud), "ergodicity": ergodicity, "path_length_m": explorer.path_length}, out / "m.json")
 print(f"{len(cloud)} points, ergodicity {ergodicity[-1]:.3f} after 300 steps; report in {out}")

@@ -101,14 +101,20 @@ def test_cloud_html_offline_with_data_and_menu(tmp_path, cloud) -> None:
     # Inline plotly: no network needed to open it.
     assert "<script src=" not in html and len(html) > 1_000_000
     assert "explore demo" in html and '"target"' in html and '"coverage"' in html and '"path"' in html
-    # The coordinates and each colouring are in the page (plotly stores them as base64 float64).
-    arrays = [
-        np.frombuffer(base64.b64decode(b.replace("\\u002f", "/")), dtype="<f8")
-        for b in re.findall(r'"dtype":"f8","bdata":"([^"]+)"', html)
-    ]
-    for expected in (cloud[:, 0], cloud[:, 2], fields["target"], fields["coverage"], cloud[:10, 1]):
-        assert any(a.shape == expected.shape and np.array_equal(a, expected) for a in arrays)
+    # The coordinates and each colouring are in the page, as base64 float32 (a display needs no more).
+    arrays = [np.frombuffer(base64.b64decode(b), dtype="<f4")
+              for b in re.findall(r'"dtype":"f4","bdata":"([^"]+)"', html)]
+    assert "\\u002f" not in "".join(re.findall(r'"bdata":"([^"]+)"', html))  # "/" written as one character
+    for expected in (cloud[:, 0], cloud[:, 2], fields["target"], fields["coverage"]):
+        assert any(a.shape == expected.shape and np.array_equal(a, expected.astype(np.float32)) for a in arrays)
+    # the path, lifted off the surface to both sides (the cloud has no normals): two copies beside it
+    lift = 0.005 * np.linalg.norm(np.ptp(cloud, axis=0))
+    drawn = np.stack([a for a in arrays if a.shape == (21,)][:3], axis=1)  # the path's x, y, z
+    assert np.isnan(drawn[10]).all()
+    for copy in (drawn[:10], drawn[11:]):
+        np.testing.assert_allclose(np.linalg.norm(copy - cloud[:10], axis=1), lift, rtol=1e-4)
     assert html.count('"method":"restyle"') == 2 or html.count('"method": "restyle"') == 2
+    assert not re.search(r"showing [0-9 ]+ of", html)  # a small cloud is drawn whole
 
 
 def test_cloud_html_cdn_is_small(tmp_path, cloud) -> None:

@@ -57,7 +57,8 @@ def test_html_constant_target_on_a_zero_one_scale_and_no_si_prefixes(tmp_path) -
                       tmp_path / "p.html", include_plotlyjs="cdn").read_text()
     markers = re.findall(r'"cmax":([-0-9.e]+),"cmin":([-0-9.e]+),"color"', page)
     assert ("1.0", "0.0") in markers, markers
-    assert '"tickformat":".2~e"' in page  # 5e-6..2e-5 reads "5e-6", not "5μ"
+    # the menu's second colouring: 5e-6..2e-5 reads "5e-6", not "5μ"
+    assert '"marker.colorbar.tickformat":[".2~e"]' in page
 
 
 @pytest.mark.parametrize(("lo", "hi", "fmt"), [(5e-6, 2e-5, ".2~e"), (0.0, 1.0, ".3~g"), (0.0, 25.0, ".3~g"),

@@ -9,9 +9,9 @@ coverage residual and the path length after every step.
 Outputs in the run directory: ``metrics.json`` (scalars), ``series.npz`` (per step: ergodicity,
 coverage residual, path length [m], step time [s]), ``trajectory.npy`` (steps × 3 [m]),
 ``fields.npz`` (points, target, coverage, potential), ``metrics.png``, ``cloud.png`` and
-``explore.html`` (interactive, works offline; a long path is drawn decimated). Ctrl-C during the
-steps writes the steps done (``metrics.json`` with ``"partial": true`` and ``steps_done``), then
-raises :class:`~tactex.errors.RunInterrupted`.
+``explore.html`` (interactive, works offline; a long path is drawn decimated, a big cloud through an
+even subset of its points). Ctrl-C during the steps writes the steps done (``metrics.json`` with
+``"partial": true`` and ``steps_done``), then raises :class:`~tactex.errors.RunInterrupted`.
 """
 
 from __future__ import annotations
@@ -132,7 +132,8 @@ class ExploreConfig:
         "iteration, 2-6x faster, eigenvalues within about 1 %) or auto (hierarchical from 1000 points on)")
     eigen_tol: float = param(5e-3, "hierarchical eigensolver: bound on each pair's squared relative residual "
                                    "(≈ relative eigenvalue error) [-]")
-    html: bool = param(True, "write the interactive explore.html (inline plotly, ~5 MB)")
+    html: bool = param(True, "write the interactive explore.html (inline plotly: 5 MB for a small cloud, at most "
+                             "10 MB for a big one, drawn through 100 000 of its points)")
 
     def __post_init__(self) -> None:
         if int(self.seed) != self.seed or self.seed < 0:
@@ -666,5 +667,7 @@ def write_explore_report(
             **path_kw,
             title=title,
             colorscales={"target": TARGET_COLORSCALE, "coverage": "Viridis", "potential": "Inferno"},
+            keep=cloud.target > 0,
+            normals=cloud.normals,
         )
     return files

@@ -286,4 +286,8 @@ def _cloud_files(result: Any, s: Mapping[str, np.ndarray], out: Path, rep: RunRe
         return None
     scales = {"dirt (first capture)": DIRT_COLORSCALE, "dirt (last capture)": DIRT_COLORSCALE}
     path = tcp_contact if len(tcp_contact) else (agent if len(agent) else None)
-    return cloud_html(cloud.points, named, out / "report.html", trajectory=path, colorscales=scales, title=title)
+    dirty = named["dirt (first capture)"] > 0
+    if "dirt (last capture)" in named:
+        dirty |= named["dirt (last capture)"] > 0
+    return cloud_html(cloud.points, named, out / "report.html", trajectory=path, colorscales=scales, title=title,
+                      keep=dirty, normals=cloud.normals)

@@ -170,7 +170,8 @@ def write_wipe_report(
         if len(pts):
             page = cloud_html(pts, {"curvature l_s [-]": curv}, out / "report.html",
                               trajectory=tcp_contact if len(tcp_contact) else None,
-                              colorscales={"curvature l_s [-]": CURVATURE_COLORSCALE}, title=f"tactex wipe — {label}")
+                              colorscales={"curvature l_s [-]": CURVATURE_COLORSCALE}, title=f"tactex wipe — {label}",
+                              normals=explored.normals if explored is not None else None)
         else:
             page = plain_page(out / "report.html", f"tactex wipe — {label}")
         rep.files["html"] = append_sections(page, rep)
