@@ -119,7 +119,13 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
                 found = re.search(r"cloud colours sent (\d+) times", body)
                 samples.append((int(found.group(1)) if found else -1, "phase explore" in body))
                 time.sleep(1.0)
+            # the drawn cloud turns greener as the dirt goes; Chromium draws without a GPU here, and on a busy machine a
+            # frame can lag the colours it was sent by seconds: look again until it does (hang guard only)
+            deadline = time.monotonic() + HANG_S
             later = page.locator("canvas").first.screenshot()
+            while _green_pixels(later) <= _green_pixels(first) and time.monotonic() < deadline and proc.poll() is None:
+                time.sleep(1.0)
+                later = page.locator("canvas").first.screenshot()
             # the force plot (uPlot, through viser's test hook) spans the data it was sent
             t_shown = float(re.search(r"t = ([\d.]+) s", _body(page)).group(1))
             plots = page.evaluate("() => Object.values(window.__viserTestpoints?.uplots || {}).map(p => "
