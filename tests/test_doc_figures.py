@@ -25,7 +25,7 @@ def _copy_repo(tmp_path):
     """The pages and the sources their figures read, as committed."""
     shutil.copy(REPO / "README.md", tmp_path / "README.md")
     shutil.copytree(REPO / "docs", tmp_path / "docs")
-    for source in ("bench/results.json", "fuzz/results.json"):
+    for source in ("bench/results.json", "bench/suite_runs.json", "fuzz/results.json"):
         (tmp_path / source).parent.mkdir(exist_ok=True)
         shutil.copy(REPO / source, tmp_path / source)
     return tmp_path

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The suite on a busy machine: six full CI runs (.ci/run) of this checkout's HEAD, each in its own fresh
 # clone beside this one (so ../shared is the same), three on a quiet machine, then three with two
-# processes spinning on both cores. One line per run in proof-summary.txt beside the checkout.
+# processes spinning on both cores. One line per run in proof-summary.txt beside the checkout, and a record
+# in this checkout's bench/suite_runs.json (tools/suite_runs.py), which the README's test time reads.
 # Usage: tools/six_runs.sh [all|quiet|busy]   (default all; a set of three runs on its own appends to the summary)
 set -u
 WHICH=${1:-all}
@@ -24,6 +25,8 @@ run() {  # name, busy (0/1)
     local line
     line=$(grep -E "^[0-9]+ (passed|failed)" "$PARENT/proof-$name.log" | tail -1)
     echo "$name busy=$busy exit=$rc wall=$(( $(date +%s) - t0 ))s :: $line" >> "$summary"
+    python3 "$REPO/tools/suite_runs.py" "$PARENT/proof-$name.log" --name "$name" --busy "$busy" --commit "$COMMIT" \
+        --exit-code "$rc" --wall-s "$(( $(date +%s) - t0 ))"
     rm -rf "$dir"
 }
 if [ "$WHICH" = all ] || [ "$WHICH" = quiet ]; then run quiet-1 0; run quiet-2 0; run quiet-3 0; fi
