@@ -251,12 +251,22 @@ def summary_table(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Ma
     return "\n".join([line(header), rule, *(line(r) for r in body)])
 
 
-def write_index_html(path: str | Path, reports: Sequence[RunReport], *, title: str = "tactex runs") -> Path:
-    """One page linking the run folders' reports, with a summary table per kind of run."""
+def write_index_html(path: str | Path, reports: Sequence[RunReport], *, title: str = "tactex runs",
+                     figure: str | Path | None = None, figure_notes: Sequence[str] = ()) -> Path:
+    """One page linking the run folders' reports, with a summary table per kind of run.
+
+    ``figure``: a PNG shown first, above the tables (a compare's overlay of its methods), linked by its path
+    relative to the page; ``figure_notes``: one line each under it (the runs it could not draw)."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>", f"<title>{html.escape(title)}</title>", _CSS,
              "</head><body><div class='txs'>", f"<h1>{html.escape(title)}</h1>"]
+    if figure is not None:
+        fig = Path(figure).resolve()
+        root = out.parent.resolve()
+        href = fig.relative_to(root).as_posix() if fig.is_relative_to(root) else fig.as_uri()
+        parts.append(f"<p><img src='{html.escape(href)}' alt='{html.escape(fig.stem)}' style='max-width:100%'></p>")
+    parts += [f"<p class='note'>{html.escape(n)}</p>" for n in figure_notes]
     for kind in dict.fromkeys(r.kind for r in reports):
         group = [r for r in reports if r.kind == kind]
         links = [r.html.relative_to(out.parent).as_posix() if r.html and r.html.is_relative_to(out.parent) else None
