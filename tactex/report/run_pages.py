@@ -78,7 +78,8 @@ def add_sections(page: Path, rep: RunReport, title: str) -> Path:
     notes = [*rep.notes, *(f"safety layer: {said}" for said in [safety_summary(rep.metrics)] if said),
              *(f"motion: {said}" for said in [alignment_summary(rep.metrics)] if said)]
     top = [_CSS, "<div class='txs'>", f"<h1>{html.escape(title)}</h1>", _summary_html([(rep.label, rep.metrics)]),
-           f"<details><summary><b>All metrics</b></summary>{_metrics_table_html(rep.metrics)}</details>"]
+           "<details style='margin-top:6px'><summary><b>All metrics</b></summary>"
+           f"{_metrics_table_html(rep.metrics)}</details>"]
     if notes:
         top.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     top += _png_sections(rep)
