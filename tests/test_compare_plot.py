@@ -71,14 +71,17 @@ def test_wipe_overlay_force_and_motion_error_per_method(tmp_path, monkeypatch) -
     assert {"tactex", "cartesian"} <= {ln.get_label() for ln in force.get_lines()}
 
 
-def test_a_run_without_series_is_named_not_a_crash(tmp_path) -> None:
+def test_a_run_without_series_is_named_not_a_crash(tmp_path, monkeypatch) -> None:
+    seen = _figure_of(monkeypatch)
     runs = _clean_folders(tmp_path)
     (tmp_path / "empty").mkdir()
     (tmp_path / "raster" / "series.npz").write_bytes(b"not a zip")
-    out = plot_compare("clean", [*runs, ("no_feedback", tmp_path / "empty")], tmp_path / "compare.png")
+    out = plot_compare("clean", [("no_feedback", tmp_path / "empty"), *runs], tmp_path / "compare.png")
     assert out.drawn == ["tactex"] and out.path.is_file()
-    assert len(out.notes) == 2 and out.notes[0].startswith("raster: series.npz cannot be read")
-    assert out.notes[1].startswith("no_feedback: no series.npz") and "\n" not in "".join(out.notes)
+    assert len(out.notes) == 2 and out.notes[0].startswith("no_feedback: no series.npz")
+    assert out.notes[1].startswith("raster: series.npz cannot be read") and "\n" not in "".join(out.notes)
+    curve = next(ln for ln in seen[-1].axes[0].get_lines() if ln.get_label().startswith("tactex"))
+    assert curve.get_color() == "C1"  # its place in the compare's colours, whoever is left out
     none = plot_compare("clean", [("no_feedback", tmp_path / "empty")], tmp_path / "none.png")
     assert none.path is None and not (tmp_path / "none.png").exists() and len(none.notes) == 1
     with pytest.raises(InputError, match="valid: clean, wipe"):

@@ -25,7 +25,7 @@ __all__ = ["REMOVED_MARK", "CompareFigure", "plot_compare", "time_to_removed"]
 
 #: The removed share whose time each method's dirt curve marks (the summary's "95 % removed at [s]").
 REMOVED_MARK = 0.95
-#: Series each kind's figure reads, and the share of the set point the force band spans.
+#: Series each kind's figure reads, and the share of the set point the force band spans (grey, as no method is).
 _KEYS = {"clean": ("t", "dirt_remaining", "force_z_n", "set_point_n"), "wipe": ("t", "force_z_n", "force_set_n",
                                                                                   "in_contact", "tcp", "desired")}
 _BAND = 0.2
@@ -39,6 +39,17 @@ class CompareFigure:
     path: Path | None
     drawn: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """A method's series and metrics as read from its folder, and its colour: the one of its place in the
+    compare, so that a method keeps its colour when another is left out."""
+
+    label: str
+    s: Mapping[str, np.ndarray]
+    metrics: Mapping[str, Any]
+    colour: str
 
 
 def _load(label: str, folder: Path, keys: Sequence[str]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -76,12 +87,12 @@ def _when(t95: float | None, remaining: np.ndarray) -> str:
     return f"{mark} not reached ({100 * (1 - finite.min()):.0f} % removed)" if finite.size else "dirt not known"
 
 
-def _clean(runs: Sequence[tuple[str, Mapping[str, np.ndarray], Mapping[str, Any]]], path: Path) -> Path:
+def _clean(runs: Sequence[_Run], path: Path) -> Path:
     fig, (dirt, force) = figure(2, height=2.9, width=8.5)
     dirt.axhline(100 * (1 - REMOVED_MARK), color="0.4", ls=":", lw=1.0, label=f"{100 * REMOVED_MARK:.0f} % removed")
     set_points = []
-    for i, (label, s, m) in enumerate(runs):
-        colour = f"C{i}"
+    for run in runs:
+        label, s, m, colour = run.label, run.s, run.metrics, run.colour
         t95 = time_to_removed(s["t"], s["dirt_remaining"])
         dirt.plot(s["t"], 100 * s["dirt_remaining"], color=colour, lw=1.6,
                   label=f"{label}: {_when(t95, s['dirt_remaining'])}")
@@ -93,7 +104,7 @@ def _clean(runs: Sequence[tuple[str, Mapping[str, np.ndarray], Mapping[str, Any]
         set_points.append(float(m.get("force_set_point_n") or (np.median(active) if active.size else np.nan)))
     sp = next((f for f in set_points if np.isfinite(f) and f > 0), None)
     if sp is not None:  # one set point for all: a compare runs every method with the same parameters
-        force.axhspan((1 - _BAND) * sp, (1 + _BAND) * sp, color="C2", alpha=0.18, lw=0,
+        force.axhspan((1 - _BAND) * sp, (1 + _BAND) * sp, color="0.5", alpha=0.2, lw=0,
                       label=f"set point ±{100 * _BAND:.0f} %")
         force.axhline(sp, color="black", ls="--", lw=1.0, label=f"set point {sp:g} N")
         force.set_ylim(min(-1.0, force.get_ylim()[0]), max(2.2 * sp, min(force.get_ylim()[1], 3.0 * sp)))
@@ -114,15 +125,15 @@ def _motion_error_mm(s: Mapping[str, np.ndarray]) -> np.ndarray:
     return np.where(s["in_contact"] > 0.5, err, np.nan)
 
 
-def _wipe(runs: Sequence[tuple[str, Mapping[str, np.ndarray], Mapping[str, Any]]], path: Path) -> Path:
+def _wipe(runs: Sequence[_Run], path: Path) -> Path:
     fig, (force, motion) = figure(2, height=2.9, width=8.5)
-    ref = runs[0][1]
+    ref, first = runs[0].s, runs[0].label
     sp = np.where(ref["force_set_n"] > 0, ref["force_set_n"], np.nan)
-    force.fill_between(ref["t"], (1 - _BAND) * sp, (1 + _BAND) * sp, color="C2", alpha=0.18, lw=0,
-                       label=f"set point ±{100 * _BAND:.0f} % ({runs[0][0]})")
-    force.plot(ref["t"], sp, color="black", ls="--", lw=1.0, label=f"set point ({runs[0][0]})")
-    for i, (label, s, _) in enumerate(runs):
-        colour = f"C{i}"
+    force.fill_between(ref["t"], (1 - _BAND) * sp, (1 + _BAND) * sp, color="0.5", alpha=0.2, lw=0,
+                       label=f"set point ±{100 * _BAND:.0f} % ({first})")
+    force.plot(ref["t"], sp, color="black", ls="--", lw=1.0, label=f"set point ({first})")
+    for i, run in enumerate(runs):
+        label, s, colour = run.label, run.s, run.colour
         force.plot(s["t"], s["force_z_n"], color=colour, lw=0.9, alpha=0.85, label=label)
         if i and not np.allclose(s["force_set_n"], np.interp(s["t"], ref["t"], ref["force_set_n"]), atol=1e-6):
             force.plot(s["t"], np.where(s["force_set_n"] > 0, s["force_set_n"], np.nan), color=colour, ls="--",
@@ -162,14 +173,14 @@ def plot_compare(kind: str, runs: Sequence[tuple[str, str | Path]], path: str | 
         raise InputError("a compare figure needs at least one run")
     out = CompareFigure(path=None)
     loaded = []
-    for label, folder in runs:
+    for i, (label, folder) in enumerate(runs):
         try:
             s, metrics = _load(str(label), Path(folder), _KEYS[kind])
         except InputError as exc:
             out.notes.append(f"{exc}: not drawn in the compare figure")
             continue
-        loaded.append((str(label), s, metrics))
+        loaded.append(_Run(str(label), s, metrics, f"C{i % 10}"))
     if loaded:
         out.path = (_clean if kind == "clean" else _wipe)(loaded, Path(path))
-        out.drawn = [label for label, _, _ in loaded]
+        out.drawn = [run.label for run in loaded]
     return out
