@@ -177,6 +177,8 @@ def test_wipe_compare_end_to_end(tmp_path, capsys) -> None:
         assert (out / name / "fig3c_force.png").read_bytes()[:8] == PNG_MAGIC
     index = (out / "index.html").read_text()
     assert "href='tactex/report.html'" in index and "href='cartesian/report.html'" in index
+    assert (out / "compare.png").read_bytes()[:8] == PNG_MAGIC  # the overlay of the two, above the table
+    assert index.index("src='compare.png'") < index.index("<table")
     table = (out / "summary.txt").read_text().splitlines()
     assert [ln.split()[0] for ln in table[2:]] == ["tactex", "cartesian"] and "force MAE [N]" in table[0]
     assert stdout.strip().splitlines()[-1] == f"report: {out / 'index.html'}"

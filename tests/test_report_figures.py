@@ -78,3 +78,39 @@ def test_index_metrics_as_a_table_not_a_json_dump(tmp_path) -> None:
     assert "<td>time_to_95_s</td><td>19.86</td>" in page and "<td>aborted</td><td>–</td>" in page
     assert "<td>passive</td><td>yes</td>" in page and "<td>series</td>" not in page  # lists stay in metrics.json
     assert "href='clean/metrics.json'" in page
+
+
+def _positions(page: str, *marks: str) -> list[int]:
+    found = [page.find(m) for m in marks]
+    assert all(i >= 0 for i in found), dict(zip(marks, found, strict=True))
+    return found
+
+
+@pytest.mark.parametrize("kind", ["clean", "wipe"])
+def test_report_page_leads_with_the_summary_then_plots_then_the_3d_view(tmp_path, kind) -> None:
+    from tactex.report import write_run_report
+
+    from .test_run_report import fake_clean, fake_wipe
+
+    rep = write_run_report(fake_clean() if kind == "clean" else fake_wipe(), tmp_path / kind)
+    page = rep.html.read_text()
+    first_column = "dirt removed" if kind == "clean" else "force MAE [N]"
+    marks = ("<h1>", f"<th>{first_column}</th>", "<b>All metrics</b>", "src='data:image/png;base64,",
+             "<h2>3-D view</h2>", 'class="plotly-graph-div"', "<p>Files: ")
+    found = _positions(page, *marks)
+    assert found == sorted(found), dict(zip(marks, found, strict=True))
+    assert f"<title>tactex {kind} — tactex" in page and page.count("<body") == 1
+
+
+def test_report_page_without_a_3d_view_keeps_the_same_order(tmp_path) -> None:
+    from tactex.report import write_run_report
+
+    from .test_run_report import fake_clean
+
+    res = fake_clean()
+    res.cloud, res.fields, res.agent_path = None, {}, np.zeros((0, 3))
+    page = write_run_report(res, tmp_path / "clean").html.read_text()
+    marks = ("<h1>tactex clean — tactex", "<th>dirt removed</th>", "before its first capture",
+             "src='data:image/png;base64,", "<p>Files: ", "</body>")
+    found = _positions(page, *marks)
+    assert found == sorted(found) and "3-D view" not in page

@@ -3,7 +3,8 @@ with its report and replay video, or tactex beside its baselines with an index p
 
 ``run_task`` runs one closed-loop task (cleaning, TEC §V-A; wiping, VA-UFIC §III), writes its run
 folder (:func:`tactex.report.write_run_report`) and, when GL rendering works, a replay video.
-``run_compare`` runs tactex and its baselines into sub-folders with an index page. Each prepares
+``run_compare`` runs tactex and its baselines into sub-folders with an index page led by their
+overlay (``compare.png``, :mod:`tactex.report.compare_plot`). Each prepares
 the folder it writes (:func:`~tactex.experiments.run_folder.prepare_out_dir`); a command only
 checks, before any work, that ``--out`` holds no other run.
 """
@@ -20,6 +21,7 @@ from tactex.errors import ConfigError, InputError, MissingDependencyError, RunIn
 from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.tasks import baseline_names, task_spec
 from tactex.experiments.video import write_replay_video
+from tactex.report.compare_plot import plot_compare
 from tactex.report.run_report import (
     RunReport,
     alignment_summary,
@@ -84,7 +86,8 @@ def run_task(kind: str, config: Any, out_dir: str | Path, *, label: str | None =
 
 def run_compare(kind: str, config: Any, out_dir: str | Path, *, baselines: Sequence[str] | None = None,
                 progress: bool = True, video: bool = True, note: Note | None = note_stderr) -> list[RunReport]:
-    """tactex and its baselines with the same parameters, each in ``out_dir/<name>``, plus ``index.html``."""
+    """tactex and its baselines with the same parameters, each in ``out_dir/<name>``, plus ``compare.png`` (the
+    methods on shared axes) and ``index.html``."""
     names = tuple(baseline_names(kind) if baselines is None else baselines)
     valid = baseline_names(kind)
     for b in names:
@@ -98,7 +101,12 @@ def run_compare(kind: str, config: Any, out_dir: str | Path, *, baselines: Seque
             note(f"{kind}: running {label}")
         cfg = dataclasses.replace(config, baseline=b)
         reports.append(run_task(kind, cfg, out / label, label=label, progress=progress, video=video, note=note))
-    write_index_html(out / "index.html", reports, title=f"tactex {kind}: tactex vs baselines")
+    overlay = plot_compare(kind, [(r.label, r.out_dir) for r in reports], out / "compare.png")
+    if note is not None:
+        for n in overlay.notes:
+            note(f"{kind} compare: {n}")
+    write_index_html(out / "index.html", reports, title=f"tactex {kind}: tactex vs baselines", figure=overlay.path,
+                     figure_notes=overlay.notes)
     (out / "summary.txt").write_text(summary_table([(r.label, r.metrics) for r in reports]) + "\n")
     return reports
 

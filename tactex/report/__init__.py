@@ -1,6 +1,7 @@
 """Reports: metrics JSON, metric-vs-step plots, cloud plots (PNG) and interactive 3-D pages (HTML)."""
 
 from tactex.report.cloud import plot_cloud
+from tactex.report.compare_plot import plot_compare
 from tactex.report.html import cloud_html
 from tactex.report.metrics import read_metrics, write_metrics
 from tactex.report.run_report import (
@@ -19,6 +20,7 @@ __all__ = [
     "RunReport",
     "cloud_html",
     "plot_cloud",
+    "plot_compare",
     "plot_series",
     "read_metrics",
     "summary_table",

@@ -13,7 +13,7 @@ from tactex.errors import InputError
 from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
-from tactex.report.run_pages import append_sections, plain_page
+from tactex.report.run_pages import add_sections, plain_page
 from tactex.report.series import plot_series
 from tactex.tasks.clean_phases import CLEAN_PHASES
 
@@ -254,7 +254,7 @@ def write_clean_report(
     else:
         page = _cloud_files(result, s, out, rep, label, title, html_page)
     if page is not None:
-        rep.files["html"] = append_sections(page, rep)
+        rep.files["html"] = add_sections(page, rep, title)
     return rep
 
 

@@ -1,5 +1,5 @@
-"""The pages and tables around the run folders: a run's metrics, notes and PNGs appended to its
-interactive page, the terminal summary of tactex beside its baselines, the safety layer's summary
+"""The pages and tables around the run folders: a run's page (its summary, notes and PNGs above its
+interactive 3-D view), the terminal summary of tactex beside its baselines, the safety layer's summary
 line, and one index page linking several runs."""
 
 from __future__ import annotations
@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import html
 import math
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from tactex.control.safety import SafetyLimits
 from tactex.errors import InputError
 from tactex.report.run_common import RunReport
 
-__all__ = ["SUMMARY_COLUMNS", "append_sections", "plain_page", "safety_summary", "summary_table", "write_index_html"]
+__all__ = ["SUMMARY_COLUMNS", "add_sections", "plain_page", "safety_summary", "summary_table", "write_index_html"]
 
 
 def _fmt(value: Any) -> str:
@@ -49,29 +50,55 @@ _CSS = ("<style>.tx{border-collapse:collapse;font:13px sans-serif}.tx td,.tx th{
 
 
 def plain_page(path: Path, title: str) -> Path:
-    """An empty page titled ``title`` for :func:`append_sections`: a run's report with no cloud to show in 3-D."""
+    """An empty page titled ``title`` for :func:`add_sections`: a run's report with no cloud to show in 3-D."""
     path.write_text(f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title></head>"
-                    f"<body><h1>{html.escape(title)}</h1></body></html>\n")
+                    "<body></body></html>\n")
     return path
 
 
-def append_sections(page: Path, rep: RunReport) -> Path:
-    """Add the metrics, the notes and the PNGs (base64, so the page is one self-contained file)."""
-    parts = [_CSS, "<div class='txs'>", f"<h2>{html.escape(rep.kind)} — {html.escape(rep.label)}</h2>",
-             _metrics_table_html(rep.metrics)]
-    if rep.notes:
-        parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in rep.notes) + "</ul>")
+_BODY = re.compile(r"<body[^>]*>", re.IGNORECASE)
+_HEAD = re.compile(r"<head[^>]*>", re.IGNORECASE)
+
+
+def _png_sections(rep: RunReport) -> list[str]:
+    """The run's PNGs, each under its file name, inline (base64) so that the page is one self-contained file."""
+    parts = []
     for role, path in rep.files.items():
         if role.endswith("_png"):
             data = base64.b64encode(Path(path).read_bytes()).decode("ascii")
             parts.append(f"<h3>{html.escape(Path(path).name)}</h3><img alt='{html.escape(role)}' "
                          f"src='data:image/png;base64,{data}'>")
-    parts.append("<p>Files: " + ", ".join(html.escape(Path(p).name) for r, p in rep.files.items()
-                                          if r != "html") + "</p></div>")
-    text = page.read_text()
+    return parts
+
+
+def add_sections(page: Path, rep: RunReport, title: str) -> Path:
+    """Lay a run's page out in the order it is read: the title, the summary of its metrics (all of them folded
+    below), the notes, the PNGs, then the page's 3-D view (a window-filling figure: above the rest, it would
+    hide them behind a scroll), then the list of the run's files."""
+    notes = [*rep.notes, *(f"safety layer: {said}" for said in [safety_summary(rep.metrics)] if said),
+             *(f"motion: {said}" for said in [alignment_summary(rep.metrics)] if said)]
+    top = [_CSS, "<div class='txs'>", f"<h1>{html.escape(title)}</h1>", _summary_html([(rep.label, rep.metrics)]),
+           "<details style='margin-top:6px'><summary><b>All metrics</b></summary>"
+           f"{_metrics_table_html(rep.metrics)}</details>"]
+    if notes:
+        top.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
+    top += _png_sections(rep)
+    text = page.read_text(encoding="utf-8")
+    if "plotly-graph-div" in text:
+        top.append("<h2>3-D view</h2><p>Drag to turn, scroll to zoom; the menu at its top left changes the "
+                   "colouring.</p>")
+    top.append("</div>")
+    files = ", ".join(html.escape(Path(p).name) for r, p in rep.files.items() if r != "html")
+    bottom = f"<div class='txs'><p>Files: {files}</p></div>"
+    body = _BODY.search(text)
+    head = _HEAD.search(text[:body.start()] if body else "")
+    if head and "<title>" not in text[:body.start()]:  # the browser tab's name (plotly writes none)
+        text = f"{text[:head.end()]}<title>{html.escape(title)}</title>{text[head.end():]}"
+        body = _BODY.search(text)
+    start = body.end() if body else 0
     cut = text.rfind("</body>")
-    section = "\n".join(parts)
-    page.write_text(text[:cut] + section + text[cut:] if cut >= 0 else text + section)
+    cut = cut if cut >= start else len(text)
+    page.write_text(text[:start] + "\n".join(top) + text[start:cut] + bottom + text[cut:], encoding="utf-8")
     return page
 
 
@@ -129,6 +156,17 @@ def _summary_cells(rows: Sequence[tuple[str, Mapping[str, Any]]]) -> tuple[list[
                 cells.append(_fmt(v))
         body.append(cells)
     return header, body
+
+
+def _summary_html(rows: Sequence[tuple[str, Mapping[str, Any]]], links: Sequence[str | None] = ()) -> str:
+    """The summary table's columns (:data:`SUMMARY_COLUMNS`) as an HTML table, a run's name linked to ``links``."""
+    header, body = _summary_cells(rows)
+    parts = ["<table class='tx'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"]
+    for i, cells in enumerate(body):
+        link = links[i] if i < len(links) else None
+        first = f"<a href='{html.escape(link)}'>{html.escape(cells[0])}</a>" if link else html.escape(cells[0])
+        parts.append("<tr><td>" + first + "</td>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells[1:]) + "</tr>")
+    return "".join(parts) + "</table>"
 
 
 def _as_rows(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping[str, Any]]]):
@@ -214,23 +252,27 @@ def summary_table(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Ma
     return "\n".join([line(header), rule, *(line(r) for r in body)])
 
 
-def write_index_html(path: str | Path, reports: Sequence[RunReport], *, title: str = "tactex runs") -> Path:
-    """One page linking the run folders' reports, with a summary table per kind of run."""
+def write_index_html(path: str | Path, reports: Sequence[RunReport], *, title: str = "tactex runs",
+                     figure: str | Path | None = None, figure_notes: Sequence[str] = ()) -> Path:
+    """One page linking the run folders' reports, with a summary table per kind of run.
+
+    ``figure``: a PNG shown first, above the tables (a compare's overlay of its methods), linked by its path
+    relative to the page; ``figure_notes``: one line each under it (the runs it could not draw)."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>", f"<title>{html.escape(title)}</title>", _CSS,
              "</head><body><div class='txs'>", f"<h1>{html.escape(title)}</h1>"]
+    if figure is not None:
+        fig = Path(figure).resolve()
+        root = out.parent.resolve()
+        href = fig.relative_to(root).as_posix() if fig.is_relative_to(root) else fig.as_uri()
+        parts.append(f"<p><img src='{html.escape(href)}' alt='{html.escape(fig.stem)}' style='max-width:100%'></p>")
+    parts += [f"<p class='note'>{html.escape(n)}</p>" for n in figure_notes]
     for kind in dict.fromkeys(r.kind for r in reports):
         group = [r for r in reports if r.kind == kind]
-        header, body = _summary_cells([(r.label, r.metrics) for r in group])
-        parts.append(f"<h2>{html.escape(kind)}</h2><table class='tx'><tr>"
-                     + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>")
-        for r, cells in zip(group, body, strict=True):
-            link = r.html.relative_to(out.parent).as_posix() if r.html and r.html.is_relative_to(out.parent) else None
-            first = f"<a href='{html.escape(link)}'>{html.escape(cells[0])}</a>" if link else html.escape(cells[0])
-            parts.append("<tr><td>" + first + "</td>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells[1:])
-                         + "</tr>")
-        parts.append("</table>")
+        links = [r.html.relative_to(out.parent).as_posix() if r.html and r.html.is_relative_to(out.parent) else None
+                 for r in group]
+        parts.append(f"<h2>{html.escape(kind)}</h2>" + _summary_html([(r.label, r.metrics) for r in group], links))
         for r in group:
             if r.notes:
                 notes = "; ".join(html.escape(n) for n in r.notes)

@@ -17,7 +17,7 @@ from tactex.report.cloud import plot_cloud
 from tactex.report.html import cloud_html
 from tactex.report.policy_plots import plot_policy_force, plot_policy_path
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
-from tactex.report.run_pages import append_sections, plain_page
+from tactex.report.run_pages import add_sections, plain_page
 
 __all__ = ["CURVATURE_COLORSCALE", "DEFAULT_TANK_LIMITS", "write_wipe_report"]
 
@@ -167,12 +167,13 @@ def write_wipe_report(
     else:
         rep.notes.append("no explored points (the tool never touched the surface): no curvature plot")
     if html_page:
+        title = f"tactex wipe — {label}"
         if len(pts):
             page = cloud_html(pts, {"curvature l_s [-]": curv}, out / "report.html",
                               trajectory=tcp_contact if len(tcp_contact) else None,
-                              colorscales={"curvature l_s [-]": CURVATURE_COLORSCALE}, title=f"tactex wipe — {label}",
+                              colorscales={"curvature l_s [-]": CURVATURE_COLORSCALE}, title=title,
                               normals=explored.normals if explored is not None else None)
         else:
-            page = plain_page(out / "report.html", f"tactex wipe — {label}")
-        rep.files["html"] = append_sections(page, rep)
+            page = plain_page(out / "report.html", title)
+        rep.files["html"] = add_sections(page, rep, title)
     return rep
