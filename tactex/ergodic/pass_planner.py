@@ -39,18 +39,29 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from itertools import pairwise
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from tactex.ergodic.compiled_graph import SmallGraph
+from tactex.ergodic.pass_tour import (
+    EXACT_POINTS,
+    SURFACE_LIMIT,
+    TWO_OPT_PASSES,
+    Distances,
+    nearest_arcs,
+    surface_moves,
+    two_opt,
+)
+
 __all__ = [
     "AT_RISK",
     "CLEAN_UP",
     "EDGE_LINKS",
     "EDGE_OFFSET",
+    "EXACT_POINTS",
     "HUNT_FACTOR",
     "ISLAND_COST",
     "LEFTOVER",
@@ -61,6 +72,7 @@ __all__ = [
     "START_PENALTY",
     "SUBSAMPLE",
     "SURFACE_GAIN",
+    "SURFACE_LIMIT",
     "TWO_OPT_PASSES",
     "WINDOW",
     "PassPlanner",
@@ -101,8 +113,6 @@ AT_RISK = 0.9
 ISLAND_COST = 2.0
 #: Waypoints of an arc between two along which its length is measured [-] (see RingPasses._tour_length).
 SUBSAMPLE = 3
-#: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
-TWO_OPT_PASSES = 20
 #: The tour over the arcs planned by surface distance replaces the one planned by chord when its moves between arcs
 #: are shorter along the surface than this share of the chord tour's [-]: on a flat or gently curved part the two
 #: differ by the graph distance's zigzag, and the chord's tour is kept (see RingPasses._tour_of).
@@ -186,8 +196,9 @@ class PassPlanner:
                 length = self._tour_length(part)
                 if seed.size == 1 and len(seeds) > 1:
                     length *= START_PENALTY
-                length += self._hunt_length(members, way) / (HUNT_FACTOR if thin else 1.0)
-                plans.append((n_seed, share, length, length + self._island_cost(members, way),
+                gap = self._gap(members, way)
+                length += self._hunt_length(members, gap) / (HUNT_FACTOR if thin else 1.0)
+                plans.append((n_seed, share, length, length + self._island_cost(members, gap),
                               (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
                 self.ring[way] = -1
                 self.pending[way] = False
@@ -263,57 +274,22 @@ class PassPlanner:
     def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
         neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt,
-        once by the chords between the ends and once by the surface distances. The agent walks the moves down the
-        surface distance: round a fold or an ear's base the chord ranks them wrongly, so the surface's tour is kept
-        when its moves are shorter along the surface than ``SURFACE_GAIN`` times the chord's; on a flat part the
-        graph distance zigzags along the links and ranks straight moves wrongly, and the chord's tour is kept."""
-        p = self._points
+        once by the chords between the ends and once by the surface distances (:mod:`.pass_tour`). The agent walks
+        the moves down the surface distance: round a fold or an ear's base the chord ranks them wrongly, so the
+        surface's tour is kept when its moves are shorter along the surface than ``SURFACE_GAIN`` times the
+        chord's; on a flat part the graph distance zigzags along the links and ranks straight moves wrongly, and
+        the chord's tour is kept."""
         closed = [self._closed(a) for a in arcs]
         start = self._on_arcs(arcs, x)
-        ends = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in arcs]))
-        rows = dict(zip(ends.tolist(), dijkstra(self._graph, directed=False, indices=ends), strict=True))
-
-        def surface(v: int) -> np.ndarray:
-            if v not in rows:
-                rows[v] = dijkstra(self._graph, directed=False, indices=v)
-            return rows[v]
-
-        def chord(v: int) -> np.ndarray:
-            return np.linalg.norm(p - p[v], axis=1)
-
+        size = np.count_nonzero(self._part == self._part[start])
+        limit = np.inf if size <= EXACT_POINTS else SURFACE_LIMIT * self.pass_spacing_m
+        dist = Distances(self._points, self._graph, limit)
         tours = []
-        for way in (chord, surface):
-            walk = self._two_opt(self._nearest_arcs(arcs, closed, start, way), start, way)
-            moves = [(start, walk[0][0])] + [(a[-1], b[0]) for a, b in pairwise(walk)]
-            tours.append((walk, sum(float(surface(int(u))[v]) for u, v in moves)))
+        for way in (dist.chord, dist.surface):
+            walk = two_opt(nearest_arcs(arcs, closed, start, way), start, way)
+            tours.append((walk, surface_moves(walk, start, dist)))
         (by_chord, chord_m), (by_surface, surface_m) = tours
         return by_surface if surface_m < SURFACE_GAIN * chord_m else by_chord
-
-    @staticmethod
-    def _nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way) -> list[np.ndarray]:
-        """The arcs in nearest-neighbour order from target point ``start`` by the distances ``way(v)`` (T,) [m]
-        from target point v, each entered at its nearer end (a closed one at its nearest point)."""
-        left = list(range(len(arcs)))
-        here = start
-        walk: list[np.ndarray] = []
-        while left:
-            best, best_d, best_seq = -1, np.inf, None
-            r = way(here)
-            for i in left:
-                a = arcs[i]
-                if closed[i]:
-                    d = r[a]
-                    j = int(d.argmin())
-                    cand, dist = np.roll(a, -j), float(d[j])
-                else:
-                    d0, d1 = float(r[a[0]]), float(r[a[-1]])
-                    cand, dist = (a, d0) if d0 <= d1 else (a[::-1], d1)
-                if dist < best_d or best < 0:
-                    best, best_d, best_seq = i, dist, cand
-            left.remove(best)
-            walk.append(best_seq)
-            here = int(best_seq[-1])
-        return walk
 
     def _on_arcs(self, arcs: list[np.ndarray], x: np.ndarray) -> int:
         """The target point of the arcs' part nearest to x (3,) [m] (where the tour starts)."""
@@ -345,34 +321,43 @@ class PassPlanner:
         if left.size == 0:
             return left
         q = self._points[left]
-        balls = cKDTree(q).query_ball_point(q, CLEAN_UP * self.footprint_m)
+        balls = [np.asarray(b, dtype=np.intp) for b in cKDTree(q).query_ball_point(q, CLEAN_UP * self.footprint_m)]
         open_ = np.ones(left.size, dtype=bool)
+        gain = np.array([b.size for b in balls])  # open points per disc
+        n_open = left.size
         centres = []
-        while open_.any():
-            gain = np.array([np.count_nonzero(open_[b]) for b in balls])
+        while n_open:
             c = int(gain.argmax())
+            closing = balls[c][open_[balls[c]]]
             centres.append(left[c])
-            self._clean[int(left[c])] = left[np.asarray(balls[c], dtype=np.intp)[open_[balls[c]]]]
-            open_[balls[c]] = False
+            self._clean[int(left[c])] = left[closing]
+            open_[closing] = False
+            n_open -= closing.size
+            # a point closing leaves every disc that holds it: the discs centred within the radius of it
+            np.subtract.at(gain, np.concatenate([balls[j] for j in closing]), 1)
         return np.asarray(centres, dtype=np.intp)
 
-    def _hunt_length(self, members: np.ndarray, way: np.ndarray) -> float:
-        """Estimated path [m] of the hunt for the points of ``members`` a plan with waypoints ``way`` leaves: those
-        farther than the footprint radius from every waypoint, HUNT_FACTOR times their ideal path."""
-        if way.size:
-            gap = cKDTree(self._points[way]).query(self._points[members], distance_upper_bound=self.footprint_m)[0]
-            left = int(np.count_nonzero(~np.isfinite(gap)))
-        else:
-            left = members.size
+    def _gap(self, members: np.ndarray, way: np.ndarray) -> np.ndarray | None:
+        """Distance [m] (M,) from each point of ``members`` to the nearest of the waypoints ``way``, inf beyond the
+        footprint radius (what the hunt and the islands ask of a plan); None without waypoints."""
+        if way.size == 0:
+            return None
+        return cKDTree(self._points[way]).query(self._points[members], distance_upper_bound=self.footprint_m)[0]
+
+    def _hunt_length(self, members: np.ndarray, gap: np.ndarray | None) -> float:
+        """Estimated path [m] of the hunt for the points of ``members`` a plan leaves, given their distances ``gap``
+        to its waypoints (:meth:`_gap`): those farther than the footprint radius from every waypoint, HUNT_FACTOR
+        times their ideal path."""
+        left = members.size if gap is None else int(np.count_nonzero(~np.isfinite(gap)))
         voxel = 2.0 * self._half_line
         return HUNT_FACTOR * left * voxel * voxel / (2.0 * self.footprint_m)
 
-    def _island_cost(self, members: np.ndarray, way: np.ndarray) -> float:
-        """Estimated detours [m] of the hunt for the islands of points of ``members`` that a plan with waypoints
-        ``way`` leaves at risk (farther than AT_RISK footprint radii from every waypoint): ISLAND_COST radii each."""
-        if way.size == 0:
+    def _island_cost(self, members: np.ndarray, gap: np.ndarray | None) -> float:
+        """Estimated detours [m] of the hunt for the islands of points of ``members`` that a plan leaves at risk
+        (farther than AT_RISK footprint radii from every waypoint; ``gap``: see :meth:`_gap`): ISLAND_COST radii
+        each."""
+        if gap is None:
             return 0.0  # the hunt estimate already counts the whole part
-        gap = cKDTree(self._points[way]).query(self._points[members])[0]
         risk = self._points[members[gap > AT_RISK * self.footprint_m]]
         if len(risk) == 0:
             return 0.0
@@ -380,46 +365,12 @@ class PassPlanner:
         g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(risk), len(risk)))
         return ISLAND_COST * self.footprint_m * connected_components(g, directed=False)[0]
 
-    def _two_opt(self, walk: list[np.ndarray], start: int, row) -> list[np.ndarray]:
-        """2-opt on an open tour of arcs from target point ``start``, by the distances ``row(v)`` (T,) [m] from
-        target point v: reversing a run of arcs reverses each of them too."""
-        n = len(walk)
-        if n < 3:
-            return walk
-        nodes = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in walk]))
-        dist = np.array([row(int(v))[nodes] for v in nodes])  # between the ends (both ways: an arc may turn)
-        at = {int(v): k for k, v in enumerate(nodes)}
-        for _ in range(TWO_OPT_PASSES):
-            entry = np.array([at[int(a[0])] for a in walk])
-            out = np.array([at[int(a[-1])] for a in walk])
-            before = np.r_[at[start], out[:-1]]  # where the tour is before arc i
-            improved = False
-            for i in range(n - 1):
-                # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
-                # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
-                j = np.arange(i + 1, n)
-                old = dist[before[i], entry[i]]
-                new = dist[before[i], out[j]]
-                nxt = np.r_[entry[j[:-1] + 1], 0]
-                old_after = dist[out[j], nxt]
-                new_after = dist[entry[i], nxt]
-                old_after[-1] = new_after[-1] = 0.0
-                gain = old + old_after - new - new_after
-                k = int(gain.argmax())
-                if gain[k] > 1e-9:
-                    jj = int(j[k])
-                    walk[i:jj + 1] = [a[::-1] for a in walk[i:jj + 1][::-1]]
-                    improved = True
-                    break
-            if not improved:
-                break
-        return walk
-
     def _arcs(self, idx: np.ndarray) -> list[np.ndarray]:
         """Waypoints idx split into arcs: per ring, the connected runs of its middle line (links ≤ MAX_LINK
         voxels), each ordered along itself."""
         link = MAX_LINK * 2.0 * self._half_line
         arcs: list[np.ndarray] = []
+        large = idx.size > 0 and self._sizes[self._part[idx[0]]] > EXACT_POINTS  # see pass_tour.EXACT_POINTS
         for k in np.unique(self.ring[idx]):
             ring = idx[self.ring[idx] == k]
             if ring.size <= 2:
@@ -428,30 +379,30 @@ class PassPlanner:
             q = self._points[ring]
             pairs = cKDTree(q).query_pairs(link, output_type="ndarray")
             length = np.maximum(np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1), 1e-12)
-            g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size)).tocsr()
-            g = g.maximum(g.T)
+            g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size))
             n, label = connected_components(g, directed=False)
+            whole = SmallGraph(ring.size, pairs[:, 0], pairs[:, 1], length, compiled=large)
             for c in range(n):
                 m = np.flatnonzero(label == c)
-                arcs.append(ring[m[self._along(g[m][:, m], q[m])]])
+                arcs.append(ring[m[self._along(whole.sub(m), q[m])]])
         return arcs
 
-    def _along(self, g: csr_matrix, q: np.ndarray) -> np.ndarray:
+    def _along(self, g: SmallGraph, q: np.ndarray) -> np.ndarray:
         """The order along a connected run of a middle line (its graph g, points q): from one end by surface
         distance; a closed run is cut next to that end and walked round from one side of the cut to the other."""
         if len(q) <= 2:
             return np.arange(len(q))
-        a = int(np.nan_to_num(dijkstra(g, indices=0), posinf=-1.0).argmax())  # an end (the farthest from any point)
-        da = dijkstra(g, indices=a)
+        a = int(np.nan_to_num(g.distances(0), posinf=-1.0).argmax())  # an end (the farthest from any point)
+        da = g.distances(a)
         voxel = 2.0 * self._half_line
         cut = np.linalg.norm(q - q[a], axis=1) <= MAX_LINK * voxel
         rest = np.flatnonzero(~cut)
         if rest.size > 2:
-            sub = g[rest][:, rest]
-            n, _ = connected_components(sub, directed=False)
-            if n == 1:
-                e0 = int(np.nan_to_num(dijkstra(sub, indices=0), posinf=-1.0).argmax())
-                d0 = dijkstra(sub, indices=e0)
+            sub = g.sub(rest)
+            d_first = sub.distances(0)
+            if np.isfinite(d_first).all():  # the rest is connected
+                e0 = int(np.nan_to_num(d_first, posinf=-1.0).argmax())
+                d0 = sub.distances(e0)
                 e1 = int(np.nan_to_num(d0, posinf=-1.0).argmax())
                 near_a = np.linalg.norm(q[rest[[e0, e1]]] - q[a], axis=1) <= (MAX_LINK + 1.5) * voxel
                 if near_a.all() and d0[e1] > 2.0 * (MAX_LINK + 1.5) * voxel:  # a loop: both ends of the rest by a

@@ -1,0 +1,162 @@
+"""The tour over the arcs of a sweep's planned passes, and the distances it is planned by.
+
+The arcs (connected runs of the rings' middle lines, :mod:`.pass_planner`) are walked as an open tour from
+the agent: nearest neighbour over their ends (a closed arc is entered at its point nearest to where the
+tour is), then 2-opt, once by the chords between the ends and once by the surface distances; the planner
+keeps the surface's tour where its moves are clearly shorter along the surface.
+
+The surface distance is Dijkstra's over the walking graph (links between target points as long as their
+chords). On a part of at most ``EXACT_POINTS`` target points each row is the whole graph's (scipy). On a
+larger part, whose arcs number in the thousands and whose graph in the hundreds of thousands of links,
+that costs tens of milliseconds per arc end and minutes per plan, so there each row stops at
+``SURFACE_LIMIT`` pass spacings: pairs within it get their exact surface distance, pairs beyond it
+max(chord, limit), a lower bound that still ranks a move round a fold (a short chord, a long walk) far.
+The tour's moves are mostly between neighbouring rings, a pass spacing or two apart, and keep their
+exact distances. The limited search is compiled (:mod:`.compiled_graph`, numba) when the ``fast``
+extra is installed: it touches only the points it reaches, where scipy's touches every point of the
+graph once per row.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from itertools import pairwise
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from tactex.ergodic import compiled_graph
+
+__all__ = ["EXACT_POINTS", "SURFACE_LIMIT", "TWO_OPT_PASSES", "Distances", "nearest_arcs", "two_opt"]
+
+#: A part of at most this many target points plans its tour by exact surface distances between all arc ends [-].
+EXACT_POINTS = 20_000
+#: On a larger part the surface distances are searched this many pass spacings far (beyond: max(chord, limit)) [-].
+SURFACE_LIMIT = 4.0
+#: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
+TWO_OPT_PASSES = 20
+
+#: The distances from target point v to target points idx (an index array) [m].
+Way = Callable[[int, np.ndarray], np.ndarray]
+
+
+class Distances:
+    """Distances [m] from a target point to others by chord and along the walking graph, rows cached per source.
+
+    Args:
+        points: target points (T, 3) [m].
+        graph: the walking graph (T, T), symmetric CSR, each link as long as its chord [m].
+        limit_m: how far along the surface a row is searched [m]; inf: the whole graph (exact everywhere).
+    """
+
+    def __init__(self, points: np.ndarray, graph: csr_matrix, limit_m: float = np.inf) -> None:
+        self._p = points
+        self._graph = graph
+        self.limit_m = float(limit_m)
+        self._rows: dict[int, np.ndarray | tuple[np.ndarray, np.ndarray]] = {}
+        self._search = None
+        if np.isfinite(self.limit_m):
+            self._search = compiled_graph.limited_search(graph)
+            self._scratch = np.full(len(points), np.inf)
+
+    def chord(self, v: int, idx: np.ndarray) -> np.ndarray:
+        """Straight-line distances from point v to the points idx [m]."""
+        return np.linalg.norm(self._p[idx] - self._p[v], axis=1)
+
+    def surface(self, v: int, idx: np.ndarray) -> np.ndarray:
+        """Surface distances from point v to the points idx [m] (inf: another part); with a finite limit, a point
+        farther than it along the surface gets max(chord, limit)."""
+        row = self._rows.get(v)
+        if row is None:
+            if self._search is None:
+                # the graph is stored symmetric: a directed search gives the undirected distances, without
+                # scipy transposing the graph for every row
+                row = dijkstra(self._graph, directed=True, indices=v)
+            else:
+                row = self._search(v, self.limit_m)
+            self._rows[v] = row
+        if not isinstance(row, tuple):
+            return row[idx]
+        reached, dist = row
+        s = self._scratch
+        s[reached] = dist
+        out = s[idx]
+        s[reached] = np.inf
+        far = ~np.isfinite(out)
+        if far.any():
+            out[far] = np.maximum(self.chord(v, idx[far]), self.limit_m)
+        return out
+
+
+def nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way: Way) -> list[np.ndarray]:
+    """The arcs in nearest-neighbour order from target point ``start`` by the distances ``way``, each entered at its
+    nearer end (a closed one at its nearest point); of equally near arcs the first."""
+    n = len(arcs)
+    # where each arc may be entered: both ends of an open arc, every point of a closed one
+    entry = [a if c else a[[0, -1]] for a, c in zip(arcs, closed, strict=True)]
+    size = np.array([e.size for e in entry])
+    owner = np.repeat(np.arange(n), size)
+    flat = np.concatenate(entry)
+    left = np.ones(n, dtype=bool)
+    here = start
+    walk: list[np.ndarray] = []
+    for _ in range(n):
+        on = left[owner]
+        pts, own = flat[on], owner[on]
+        r = way(here, pts)
+        first = np.flatnonzero(np.r_[True, own[1:] != own[:-1]])
+        best = np.minimum.reduceat(r, first)
+        k = int(np.argmin(best))  # the first of the nearest (inf everywhere: the first arc left)
+        i = int(own[first[k]])
+        seg = r[first[k]:first[k] + size[i]]
+        j = int(np.argmin(seg))
+        a = arcs[i]
+        seq = np.roll(a, -j) if closed[i] else (a if seg[0] <= seg[1] else a[::-1])
+        left[i] = False
+        walk.append(seq)
+        here = int(seq[-1])
+    return walk
+
+
+def two_opt(walk: list[np.ndarray], start: int, way: Way) -> list[np.ndarray]:
+    """2-opt on an open tour of arcs from target point ``start`` by the distances ``way``: reversing a run of arcs
+    reverses each of them too."""
+    n = len(walk)
+    if n < 3:
+        return walk
+    nodes = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in walk]))
+    dist = np.array([way(int(v), nodes) for v in nodes])  # between the ends (both ways: an arc may turn)
+    at = {int(v): k for k, v in enumerate(nodes)}
+    for _ in range(TWO_OPT_PASSES):
+        entry = np.array([at[int(a[0])] for a in walk])
+        out = np.array([at[int(a[-1])] for a in walk])
+        before = np.r_[at[start], out[:-1]]  # where the tour is before arc i
+        improved = False
+        for i in range(n - 1):
+            # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
+            # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
+            j = np.arange(i + 1, n)
+            old = dist[before[i], entry[i]]
+            new = dist[before[i], out[j]]
+            nxt = np.r_[entry[j[:-1] + 1], 0]
+            old_after = dist[out[j], nxt]
+            new_after = dist[entry[i], nxt]
+            old_after[-1] = new_after[-1] = 0.0
+            gain = old + old_after - new - new_after
+            k = int(gain.argmax())
+            if gain[k] > 1e-9:
+                jj = int(j[k])
+                walk[i:jj + 1] = [a[::-1] for a in walk[i:jj + 1][::-1]]
+                improved = True
+                break
+        if not improved:
+            break
+    return walk
+
+
+def surface_moves(walk: list[np.ndarray], start: int, dist: Distances) -> float:
+    """Length [m] along the surface of the tour's moves between arcs (from ``start`` to the first arc, and from each
+    arc's end to the next one's start)."""
+    moves = [(start, walk[0][0])] + [(a[-1], b[0]) for a, b in pairwise(walk)]
+    return sum(float(dist.surface(int(u), np.array([v]))[0]) for u, v in moves)
