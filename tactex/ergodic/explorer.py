@@ -272,7 +272,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         cfg = self.config
         sweep = sweeps(cfg.source_mode, self._target, ~self._safe)
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
-                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
+                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base,
+                                  image_rows=self._phitm_t) if sweep else None
         self._passes = None
         if sweep and cfg.sweep_pass_spacing > 0.0:
             laplacian = getattr(self.basis, "L", None)
@@ -451,6 +452,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         self._update_decay()
         if self.step_count % REBUILD_STEPS == 0:
             self._src.clear()  # the running source sums restart from the direct sum: no drift builds up
+            if self._sweep is not None:
+                self._sweep.rebuild()
         exact = measured_positions is not None
         before = self._x.copy() if self._ko_tree is not None else None
         moves = None

@@ -333,7 +333,7 @@ class HedacStep:
         """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
         cov = self._cov
         if self._sweep is not None:
-            dcoef = self._s_t.dot(self._phitm_t) if self._sweep.source(self._s_t) > 0.0 else np.zeros_like(self._coef)
+            dcoef = self._sweep.image(self._s_t)
         else:
             norm = float(_sum(cov.take(self._tidx))) if self._norm_target else self._cov_sum
             dcoef = update_source_numpy(cov, self._tidx, self._p_t, norm, self._s_t, self._src, self._phitm_t)

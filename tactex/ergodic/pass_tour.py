@@ -121,7 +121,8 @@ def nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way: Wa
 
 def two_opt(walk: list[np.ndarray], start: int, way: Way) -> list[np.ndarray]:
     """2-opt on an open tour of arcs from target point ``start`` by the distances ``way``: reversing a run of arcs
-    reverses each of them too."""
+    reverses each of them too. Each pass takes the first arc i (in tour order) whose reversal with some later run
+    shortens the tour, with its best such run, and starts over."""
     n = len(walk)
     if n < 3:
         return walk
@@ -131,28 +132,41 @@ def two_opt(walk: list[np.ndarray], start: int, way: Way) -> list[np.ndarray]:
     for _ in range(TWO_OPT_PASSES):
         entry = np.array([at[int(a[0])] for a in walk])
         out = np.array([at[int(a[-1])] for a in walk])
-        before = np.r_[at[start], out[:-1]]  # where the tour is before arc i
-        improved = False
-        for i in range(n - 1):
-            # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
-            # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
-            j = np.arange(i + 1, n)
-            old = dist[before[i], entry[i]]
-            new = dist[before[i], out[j]]
-            nxt = np.r_[entry[j[:-1] + 1], 0]
-            old_after = dist[out[j], nxt]
-            new_after = dist[entry[i], nxt]
-            old_after[-1] = new_after[-1] = 0.0
-            gain = old + old_after - new - new_after
-            k = int(gain.argmax())
-            if gain[k] > 1e-9:
-                jj = int(j[k])
-                walk[i:jj + 1] = [a[::-1] for a in walk[i:jj + 1][::-1]]
-                improved = True
-                break
-        if not improved:
+        move = _first_gain(dist, at[start], entry, out)
+        if move is None:
             break
+        i, j = move
+        walk[i:j + 1] = [a[::-1] for a in walk[i:j + 1][::-1]]
     return walk
+
+
+def _first_gain(dist: np.ndarray, start: int, entry: np.ndarray, out: np.ndarray,
+                block_elements: int = 2_000_000) -> tuple[int, int] | None:
+    """The first arc i whose run i..j reversed shortens the tour (gain over 1e-9 m) and the j of its largest gain,
+    or None; the tour's arcs are entered at nodes ``entry`` and left at ``out`` (indices into ``dist``), from node
+    ``start``. Reversing i..j turns the edge (before_i → entry_i) into (before_i → out_j) and (out_j → entry_{j+1})
+    into (entry_i → entry_{j+1}); the last arc has no edge after it. Rows of i are scanned a block of about
+    ``block_elements`` gains at a time."""
+    n = entry.size
+    before = np.r_[start, out[:-1]]  # where the tour is before arc i
+    nxt = np.r_[entry[1:], 0]  # where it goes after arc j
+    old_after = dist[out, nxt]
+    old_after[-1] = 0.0
+    block = max(1, block_elements // n)
+    for i0 in range(0, n - 1, block):
+        i = np.arange(i0, min(i0 + block, n - 1))
+        old = dist[before[i], entry[i]][:, None]
+        new = dist[before[i][:, None], out[None, :]]
+        new_after = dist[entry[i][:, None], nxt[None, :]]
+        new_after[:, -1] = 0.0
+        gain = old + old_after - new - new_after
+        gain[np.arange(n)[None, :] <= i[:, None]] = -np.inf  # j > i only
+        best = gain.max(axis=1)
+        rows = np.flatnonzero(best > 1e-9)
+        if rows.size:
+            r = int(rows[0])
+            return int(i[r]), int(gain[r].argmax())
+    return None
 
 
 def surface_moves(walk: list[np.ndarray], start: int, dist: Distances) -> float:

@@ -1,0 +1,151 @@
+"""The pass plan and the sweep step on large parts: the limited surface distances, the compiled searches, the
+2-opt scan, the sweep source's running image, and a plan laid the large way on a small part (the same
+waypoints, every target point within the footprint's reach, a tour about as short as the exact one)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+import tactex.ergodic.pass_planner as planner_module
+import tactex.ergodic.sweep as sweep_module
+from tactex.ergodic import compiled_graph
+from tactex.ergodic.pass_tour import Distances, _first_gain
+from tactex.ergodic.passes import LEFTOVER, RingPasses
+from tactex.ergodic.sweep import SweepSource
+
+H = 0.003
+
+
+def _wavy(nx: int = 60, ny: int = 45, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.arange(nx) * H, np.arange(ny) * H)
+    u = u.ravel() + rng.uniform(-0.15, 0.15, u.size) * H
+    v = v.ravel() + rng.uniform(-0.15, 0.15, v.size) * H
+    return np.c_[u, v, 0.01 * np.sin(u / 0.02) * np.cos(v / 0.03)]
+
+
+def _graph(pts: np.ndarray):
+    pairs = cKDTree(pts).query_pairs(1.8 * H, output_type="ndarray")
+    length = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
+    g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(len(pts), len(pts))).tocsr()
+    return g.maximum(g.T), pairs, length
+
+
+def test_the_limited_search_equals_scipys_within_the_limit():
+    pts = _wavy()
+    g, _, _ = _graph(pts)
+    search = compiled_graph.limited_search(g)
+    for v in (0, 700, 2000):
+        exact = dijkstra(g, directed=False, indices=v)
+        reached, d = search(v, 0.02)
+        assert np.array_equal(np.sort(reached), np.flatnonzero(exact <= 0.02))
+        assert np.array_equal(d, exact[reached])  # the same sums: bit for bit
+        assert np.all(np.diff(d) >= 0.0)  # in order of distance
+
+
+def test_limited_surface_distances_are_exact_near_and_a_lower_bound_beyond():
+    pts = _wavy()
+    g, _, _ = _graph(pts)
+    limit = 0.02
+    dist = Distances(pts, g, limit)
+    idx = np.arange(len(pts))
+    for v in (5, 1500):
+        exact = dijkstra(g, directed=False, indices=v)
+        got = dist.surface(v, idx)
+        near = exact <= limit
+        assert np.array_equal(got[near], exact[near])
+        chord = np.linalg.norm(pts - pts[v], axis=1)
+        assert np.allclose(got[~near], np.maximum(chord[~near], limit))
+        assert np.all(got[~near] <= exact[~near])  # never more than the walk
+    assert np.array_equal(Distances(pts, g).surface(5, idx), dijkstra(g, directed=False, indices=5))
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_small_graph_search_equals_scipys(compiled):
+    pts = _wavy(30, 20)
+    g, pairs, length = _graph(pts)
+    small = compiled_graph.SmallGraph(len(pts), pairs[:, 0], pairs[:, 1], length, compiled=compiled)
+    assert np.array_equal(small.distances(3), dijkstra(g, directed=False, indices=3))
+    keep = np.flatnonzero(pts[:, 0] > 0.03)
+    sub = small.sub(keep)
+    assert np.array_equal(sub.distances(0), dijkstra(g[keep][:, keep], directed=False, indices=0))
+
+
+def _first_gain_loop(dist, start, entry, out):
+    """The 2-opt scan arc by arc (the reference the block scan must equal)."""
+    n = entry.size
+    before = np.r_[start, out[:-1]]
+    for i in range(n - 1):
+        j = np.arange(i + 1, n)
+        old = dist[before[i], entry[i]]
+        new = dist[before[i], out[j]]
+        nxt = np.r_[entry[j[:-1] + 1], 0]
+        old_after = dist[out[j], nxt]
+        new_after = dist[entry[i], nxt]
+        old_after[-1] = new_after[-1] = 0.0
+        gain = old + old_after - new - new_after
+        k = int(gain.argmax())
+        if gain[k] > 1e-9:
+            return i, int(j[k])
+    return None
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_block_scan_of_2_opt_finds_the_move_the_arc_by_arc_scan_finds(seed):
+    rng = np.random.default_rng(seed)
+    n = 40
+    p = rng.uniform(size=(2 * n + 1, 2))
+    dist = np.linalg.norm(p[:, None] - p[None], axis=2)
+    perm = rng.permutation(2 * n) + 1
+    entry, out = perm[:n], perm[n:]
+    assert _first_gain(dist, 0, entry, out) == _first_gain_loop(dist, 0, entry, out)
+    assert _first_gain(dist, 0, entry, out, block_elements=1) == _first_gain_loop(dist, 0, entry, out)  # a row a block
+    order = np.argsort(p[1:, 0])  # an already good tour: no move, or the same one
+    entry, out = order[0::2][:n] + 1, order[1::2][:n] + 1
+    assert _first_gain(dist, 0, entry, out) == _first_gain_loop(dist, 0, entry, out)
+
+
+def test_a_plan_laid_the_large_way_has_the_same_waypoints_covers_the_part_and_a_tour_as_short(monkeypatch):
+    pts = _wavy(70, 50)
+    start = len(pts) // 3
+
+    def lay() -> RingPasses:
+        passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H, footprint_m=2.5 * H)
+        passes.lay(start)
+        return passes
+
+    exact = lay()
+    monkeypatch.setattr(planner_module, "EXACT_POINTS", 100)  # this part counts as large
+    large = lay()
+    assert np.array_equal(np.sort(large._tour[0]), np.sort(exact._tour[0])) or (
+        abs(large._tour[0].size - exact._tour[0].size) <= 0.02 * exact._tour[0].size)
+    # every target point within the footprint's reach of a waypoint (what the clean-up guarantees)
+    gap = cKDTree(pts[large._tour[0]]).query(pts)[0]
+    assert gap.max() <= LEFTOVER * large.footprint_m + 1e-12
+    assert large._tour_length(0) <= 1.1 * exact._tour_length(0)
+
+
+def test_the_sweep_sources_running_image_equals_the_full_one(monkeypatch):
+    pts = _wavy(40, 30)
+    rng = np.random.default_rng(1)
+    rows = rng.normal(size=(len(pts), 12))
+    p = np.full(len(pts), 1.0 / len(pts))
+    full = SweepSource(pts, p, 2 * H, 3 * H, 0.02, image_rows=rows)
+    monkeypatch.setattr(sweep_module, "INCREMENTAL_POINTS", 0)
+    run = SweepSource(pts, p, 2 * H, 3 * H, 0.02, image_rows=rows)
+    assert run.incremental and not full.incremental
+    s_full, s_run = np.empty(len(pts)), np.empty(len(pts))
+    for k in range(300):
+        x = pts[(37 * k) % len(pts)]
+        full.mark(x)
+        run.mark(x)
+        if k % 100 == 99:
+            run.rebuild()
+        a, b = full.image(s_full), run.image(s_run)
+        assert np.allclose(s_run, s_full, rtol=1e-12, atol=1e-15)
+        assert np.allclose(b, a, rtol=1e-9, atol=1e-12)
+    assert np.array_equal(run.done, full.done)
