@@ -32,9 +32,10 @@ call follows each of the others equally often), since this machine's speed swing
   step_cpu_us_median, n_points, n_eigen, waypoints, arcs, ...}``: a whole-surface target (``--target all``: the
   sweep with planned passes) on the 100k panel, in a fresh process: the basis with ``WHOLE_N_EIGEN`` eigenpairs
   (the hierarchical solver; the basis is not what is measured), then the explorer's first step, which lays the
-  pass plan (``pass_plan_s``, wall and CPU), the time from the explorer's construction to its first progress line
-  (``first_progress_s``), and the median and 90th percentile of ``WHOLE_STEPS`` steps after it (wall, and CPU in
-  ``step_cpu_us_median``); ``load_avg_1min`` beside them.
+  pass plan (``pass_plan_s``, wall and CPU), the time from the start of that step to its first progress line
+  (``first_progress_s``; ``explorer_setup_s`` comes before it, and ``tactex explore`` announces it), and the
+  median and 90th percentile of ``WHOLE_STEPS`` steps after it (wall, and CPU in ``step_cpu_us_*``);
+  ``load_avg_1min`` beside them.
 * ``bench/large.png``: the scaling table as a plot.
 
 ``--quick`` runs the bunny comparison (2 repeats), the 3k and 18k sizes and no 60k/150k or coverage.
@@ -196,6 +197,7 @@ def measure_whole_surface(n_points: int = WHOLE_POINTS) -> dict:
     ex.progress = lambda msg: said.append(time.perf_counter())
     setup_s = time.perf_counter() - t0
     ex.reset(cloud.points[len(cloud) // 3])
+    said.clear()
     t1, c1 = time.perf_counter(), time.process_time()
     ex.step()
     plan_s, plan_cpu_s = time.perf_counter() - t1, time.process_time() - c1
@@ -212,7 +214,7 @@ def measure_whole_surface(n_points: int = WHOLE_POINTS) -> dict:
         "explorer_setup_s": setup_s,
         "pass_plan_s": plan_s,
         "pass_plan_cpu_s": plan_cpu_s,
-        "first_progress_s": (said[0] - t0) if said else None,
+        "first_progress_s": (said[0] - t1) if said else None,
         "step_us_median": float(np.median(wall) * 1e6),
         "step_us_p90": float(np.percentile(wall, 90) * 1e6),
         "step_cpu_us_median": float(np.median(cpu) * 1e6),
