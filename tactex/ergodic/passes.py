@@ -258,8 +258,11 @@ class RingPasses(PassPlanner):
         if idx.size == 0:
             return idx
         idx = idx[np.argsort(np.linalg.norm(self._points[idx] - x, axis=1), kind="stable")]
-        covered = [self.pending[b].any() for b in self._tree.query_ball_point(self._points[idx], self.footprint_m)]
-        return idx[~np.array(covered, dtype=bool)]
+        balls = self._tree.query_ball_point(self._points[idx], self.footprint_m)
+        size = np.fromiter(map(len, balls), dtype=np.intp, count=len(balls))  # ≥ 1: a ball holds its centre
+        pending = self.pending[np.concatenate(balls).astype(np.intp)]
+        covered = np.logical_or.reduceat(pending, np.r_[0, np.cumsum(size[:-1])])
+        return idx[~covered]
 
     @property
     def has_specks(self) -> bool:
