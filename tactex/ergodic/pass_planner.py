@@ -199,7 +199,7 @@ class PassPlanner:
                 gap = self._gap(members, way)
                 length += self._hunt_length(members, gap) / (HUNT_FACTOR if thin else 1.0)
                 plans.append((n_seed, share, length, length + self._island_cost(members, gap),
-                              (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
+                              (way, self.ring[way].copy(), self._tour[part], self._arc[part], w, self._last_arcs)))
                 self.ring[way] = -1
                 self.pending[way] = False
                 now = time.perf_counter()
@@ -208,7 +208,7 @@ class PassPlanner:
         # The origin by its plan at the full spacing (tour and the hunt for what it leaves), then its spacing also by
         # the islands it leaves at risk: compared over origins, the islands would choose worse origins.
         origin = min((p for p in plans if p[1] == SPACING_SHARES[0]), key=lambda p: p[2])[0]
-        way, ring, self._tour[part], self._arc[part], self.spacing_m[part] = min(
+        way, ring, self._tour[part], self._arc[part], self.spacing_m[part], arcs = min(
             (p for p in plans if p[0] == origin), key=lambda p: p[3])[4]
         self.ring[way] = ring
         self.pending[way] = True
@@ -218,28 +218,40 @@ class PassPlanner:
             # (only CLEAN_REACH marks it done)
             self.ring[extra] = ring.max() + 1 + np.arange(extra.size)
             self.pending[extra] = True
-            self._plan(part, self._points[start])
+            # the passes' own arcs and tour are the chosen plan's (the same waypoints, from the same start)
+            self._plan(part, self._points[start], known=(self._tour[part], self._arc[part], arcs))
         self._at[part] = 0
         if time.perf_counter() - t_start >= PROGRESS_EVERY_S or members.size >= PROGRESS_MIN_POINTS:
             say(f"pass plan: laid in {time.perf_counter() - t_start:.1f} s")
 
     # ------------------------------------------------------------------ the tour over the arcs
-    def _plan(self, part: int, x: np.ndarray) -> None:
+    def _plan(self, part: int, x: np.ndarray, known: tuple | None = None) -> None:
         """The part's pending waypoints as arcs (connected runs of one ring's middle line, each in order along it),
-        and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
+        and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of). ``known``: the tour, its
+        arc numbers and the arcs of the waypoints other than the clean-up ones, planned from x already."""
         idx = np.flatnonzero(self.pending & (self._part == part))
         clean = np.isin(idx, np.fromiter(self._clean, dtype=np.intp, count=len(self._clean)))
-        self._plan_arcs(part, idx[~clean], x)
+        if known is None:
+            self._plan_arcs(part, idx[~clean], x)
+        else:
+            self._tour[part], self._arc[part], self._last_arcs = known
+            self._at[part] = 0
         if clean.any():
             self._insert(part, idx[clean])
             inserted = self._tour[part], self._arc[part], self._tour_length(part)
-            self._plan_arcs(part, idx, x)
+            # a clean-up waypoint is a ring of its own, after the passes' rings: an arc of one (see _arcs)
+            arcs = None if known is None else list(known[2]) + [idx[clean][self.ring[idx[clean]] == k]
+                                                                for k in np.unique(self.ring[idx[clean]])]
+            self._plan_arcs(part, idx, x, arcs)
             if self._tour_length(part) >= inserted[2]:
                 self._tour[part], self._arc[part] = inserted[:2]
 
-    def _plan_arcs(self, part: int, idx: np.ndarray, x: np.ndarray) -> None:
-        """The waypoints idx as arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
-        arcs = self._arcs(idx)
+    def _plan_arcs(self, part: int, idx: np.ndarray, x: np.ndarray, arcs: list[np.ndarray] | None = None) -> None:
+        """The waypoints idx as arcs (``arcs`` when known) in the order of a short open tour from x (3,) [m] (see
+        _tour_of)."""
+        if arcs is None:
+            arcs = self._arcs(idx)
+        self._last_arcs = list(arcs)
         self._at[part] = 0
         if not arcs:
             self._tour[part] = np.zeros(0, dtype=np.intp)
