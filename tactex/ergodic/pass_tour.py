@@ -141,12 +141,12 @@ def two_opt(walk: list[np.ndarray], start: int, way: Way) -> list[np.ndarray]:
 
 
 def _first_gain(dist: np.ndarray, start: int, entry: np.ndarray, out: np.ndarray,
-                block_elements: int = 2_000_000) -> tuple[int, int] | None:
+                block_elements: int = 1 << 16) -> tuple[int, int] | None:
     """The first arc i whose run i..j reversed shortens the tour (gain over 1e-9 m) and the j of its largest gain,
     or None; the tour's arcs are entered at nodes ``entry`` and left at ``out`` (indices into ``dist``), from node
     ``start``. Reversing i..j turns the edge (before_i → entry_i) into (before_i → out_j) and (out_j → entry_{j+1})
     into (entry_i → entry_{j+1}); the last arc has no edge after it. Rows of i are scanned a block of about
-    ``block_elements`` gains at a time."""
+    ``block_elements`` gains at a time (the first improving arc is often early in the tour)."""
     n = entry.size
     before = np.r_[start, out[:-1]]  # where the tour is before arc i
     nxt = np.r_[entry[1:], 0]  # where it goes after arc j
@@ -159,7 +159,9 @@ def _first_gain(dist: np.ndarray, start: int, entry: np.ndarray, out: np.ndarray
         new = dist[before[i][:, None], out[None, :]]
         new_after = dist[entry[i][:, None], nxt[None, :]]
         new_after[:, -1] = 0.0
-        gain = old + old_after - new - new_after
+        gain = old + old_after
+        gain -= new
+        gain -= new_after
         gain[np.arange(n)[None, :] <= i[:, None]] = -np.inf  # j > i only
         best = gain.max(axis=1)
         rows = np.flatnonzero(best > 1e-9)
