@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 import tactex.ergodic.pass_planner as planner_module
 import tactex.ergodic.sweep as sweep_module
 from tactex.ergodic import compiled_graph
-from tactex.ergodic.pass_tour import Distances, _first_gain
+from tactex.ergodic.pass_tour import Distances, _first_gain, node_matrix
 from tactex.ergodic.passes import LEFTOVER, RingPasses
 from tactex.ergodic.sweep import SweepSource
 
@@ -149,3 +149,13 @@ def test_the_sweep_sources_running_image_equals_the_full_one(monkeypatch):
         assert np.allclose(s_run, s_full, rtol=1e-12, atol=1e-15)
         assert np.allclose(b, a, rtol=1e-9, atol=1e-12)
     assert np.array_equal(run.done, full.done)
+
+
+def test_the_node_matrix_equals_the_rows_it_stands_for():
+    pts = _wavy()
+    g, _, _ = _graph(pts)
+    dist = Distances(pts, g, 0.02)
+    nodes = np.arange(0, len(pts), 37)
+    for along, way in ((False, dist.chord), (True, dist.surface)):
+        rows = np.array([way(int(v), nodes) for v in nodes])
+        assert np.allclose(node_matrix(nodes, dist, along), rows, rtol=1e-15, atol=0.0)

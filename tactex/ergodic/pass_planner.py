@@ -52,6 +52,8 @@ from tactex.ergodic.pass_tour import (
     TWO_OPT_PASSES,
     Distances,
     nearest_arcs,
+    nearest_arcs_within,
+    node_matrix,
     surface_moves,
     two_opt,
 )
@@ -298,7 +300,12 @@ class PassPlanner:
         dist = Distances(self._points, self._graph, limit)
         tours = []
         for way in (dist.chord, dist.surface):
-            walk = two_opt(nearest_arcs(arcs, closed, start, way), start, way)
+            if np.isfinite(limit):
+                along = way == dist.surface
+                first = nearest_arcs_within(arcs, closed, start, dist, by_surface=along)
+                walk = two_opt(first, start, way, lambda nodes, along=along: node_matrix(nodes, dist, along))
+            else:
+                walk = two_opt(nearest_arcs(arcs, closed, start, way), start, way)
             tours.append((walk, surface_moves(walk, start, dist)))
         (by_chord, chord_m), (by_surface, surface_m) = tours
         return by_surface if surface_m < SURFACE_GAIN * chord_m else by_chord

@@ -25,10 +25,13 @@ from itertools import pairwise
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from tactex.ergodic import compiled_graph
 
-__all__ = ["EXACT_POINTS", "SURFACE_LIMIT", "TWO_OPT_PASSES", "Distances", "nearest_arcs", "two_opt"]
+__all__ = ["EXACT_POINTS", "SURFACE_LIMIT", "TWO_OPT_PASSES", "Distances", "nearest_arcs", "nearest_arcs_within",
+           "node_matrix", "two_opt"]
 
 #: A part of at most this many target points plans its tour by exact surface distances between all arc ends [-].
 EXACT_POINTS = 20_000
@@ -51,7 +54,7 @@ class Distances:
     """
 
     def __init__(self, points: np.ndarray, graph: csr_matrix, limit_m: float = np.inf) -> None:
-        self._p = points
+        self.points = self._p = points
         self._graph = graph
         self.limit_m = float(limit_m)
         self._rows: dict[int, np.ndarray | tuple[np.ndarray, np.ndarray]] = {}
@@ -63,6 +66,13 @@ class Distances:
     def chord(self, v: int, idx: np.ndarray) -> np.ndarray:
         """Straight-line distances from point v to the points idx [m]."""
         return np.linalg.norm(self._p[idx] - self._p[v], axis=1)
+
+    def reach(self, v: int) -> tuple[np.ndarray, np.ndarray]:
+        """With a finite limit: the points within it along the surface from point v and their distances [m]."""
+        row = self._rows.get(v)
+        if row is None:
+            row = self._rows[v] = self._search(v, self.limit_m)
+        return row
 
     def surface(self, v: int, idx: np.ndarray) -> np.ndarray:
         """Surface distances from point v to the points idx [m] (inf: another part); with a finite limit, a point
@@ -119,15 +129,88 @@ def nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way: Wa
     return walk
 
 
-def two_opt(walk: list[np.ndarray], start: int, way: Way) -> list[np.ndarray]:
+def node_matrix(nodes: np.ndarray, dist: Distances, by_surface: bool) -> np.ndarray:
+    """Distances [m] between the points ``nodes`` (all pairs, (M, M)) on a large part (``dist`` with a finite
+    limit): chords, or the surface distances within the limit and max(chord, limit) beyond it (as
+    :meth:`Distances.surface` gives them), formed at once instead of a row per node."""
+    q = dist.points[nodes]
+    out = cdist(q, q)
+    if not by_surface:
+        return out
+    np.maximum(out, dist.limit_m, out=out)
+    at = np.full(len(dist.points), -1, dtype=np.intp)
+    at[nodes] = np.arange(nodes.size)
+    for r, v in enumerate(nodes.tolist()):
+        reached, d = dist.reach(v)
+        c = at[reached]
+        ok = c >= 0
+        out[r, c[ok]] = d[ok]
+    return out
+
+
+def nearest_arcs_within(arcs: list[np.ndarray], closed: list[bool], start: int, dist: Distances,
+                        by_surface: bool) -> list[np.ndarray]:
+    """:func:`nearest_arcs` on a large part (``dist`` with a finite limit), by chord or by surface distance, without
+    a pass over every entry point per arc: the nearest by chord from a K-D tree of the entry points of the arcs left
+    (built again when half of its points are taken), the nearest along the surface among the entry points the
+    limited search from where the tour is reaches (none: the nearest by chord, as max(chord, limit) ranks them).
+    Of equally near entry points any may be taken."""
+    n = len(arcs)
+    entry = [a if c else a[[0, -1]] for a, c in zip(arcs, closed, strict=True)]
+    size = np.array([e.size for e in entry])
+    offs = np.r_[0, np.cumsum(size)[:-1]]
+    owner = np.repeat(np.arange(n), size)
+    flat = np.concatenate(entry)
+    pts = dist.points[flat]
+    alive = np.ones(flat.size, dtype=bool)
+    pos = np.full(len(dist.points), -1, dtype=np.intp)
+    pos[flat] = np.arange(flat.size)  # an arc of one point has it twice: either entry is the same
+    tree_idx = np.arange(flat.size)
+    tree = cKDTree(pts)
+    here = start
+    walk: list[np.ndarray] = []
+    for _ in range(n):
+        k = -1
+        if by_surface:
+            reached, d = dist.reach(here)
+            cand = pos[reached]
+            ok = cand >= 0
+            ok[ok] = alive[cand[ok]]
+            if ok.any():
+                k = int(cand[ok][np.argmin(d[ok])])
+        if k < 0:
+            if np.count_nonzero(alive[tree_idx]) * 2 < tree_idx.size:
+                tree_idx = np.flatnonzero(alive)
+                tree = cKDTree(pts[tree_idx])
+            m = 8
+            while k < 0:
+                m = min(m, tree_idx.size)
+                nb = np.atleast_1d(tree.query(dist.points[here], k=m)[1])
+                hit = np.flatnonzero(alive[tree_idx[nb]])
+                if hit.size:
+                    k = int(tree_idx[nb[hit[0]]])
+                m *= 4
+        i = int(owner[k])
+        a = arcs[i]
+        seq = np.roll(a, -(k - offs[i])) if closed[i] else (a if k == offs[i] else a[::-1])
+        alive[offs[i]:offs[i] + size[i]] = False
+        walk.append(seq)
+        here = int(seq[-1])
+    return walk
+
+
+def two_opt(walk: list[np.ndarray], start: int, way: Way,
+            matrix: Callable[[np.ndarray], np.ndarray] | None = None) -> list[np.ndarray]:
     """2-opt on an open tour of arcs from target point ``start`` by the distances ``way``: reversing a run of arcs
-    reverses each of them too. Each pass takes the first arc i (in tour order) whose reversal with some later run
+    reverses each of them too (``matrix``: the distances between given points at once, or None: row by row from
+    ``way``). Each pass takes the first arc i (in tour order) whose reversal with some later run
     shortens the tour, with its best such run, and starts over."""
     n = len(walk)
     if n < 3:
         return walk
     nodes = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in walk]))
-    dist = np.array([way(int(v), nodes) for v in nodes])  # between the ends (both ways: an arc may turn)
+    # between the ends (both ways: an arc may turn); ``matrix`` forms them at once where given
+    dist = matrix(nodes) if matrix is not None else np.array([way(int(v), nodes) for v in nodes])
     at = {int(v): k for k, v in enumerate(nodes)}
     for _ in range(TWO_OPT_PASSES):
         entry = np.array([at[int(a[0])] for a in walk])
