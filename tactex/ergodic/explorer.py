@@ -513,7 +513,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         """The potential u (N,) on the cloud as the agents see it (eq. 19, plus the source)."""
         self._require_state()
         u = self._phi @ self._coef
-        u[self._tidx] += self.config.source_weight * self._s_t
+        u[self._tidx] += self.config.source_weight * self._source_at(self._tidx)
         return u
 
     @property
@@ -521,7 +521,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         """The source s (N,) of the last step (eq. 1, scaled to unit sum; zero off the target)."""
         self._require_state()
         s = np.zeros(len(self.cloud))
-        s[self._tidx] = self._s_t
+        s[self._tidx] = self._source_at(self._tidx)
         return s
 
     def ergodicity(self, normalize: str = "l2") -> float:

@@ -321,6 +321,9 @@ class HedacStep:
 
     def _source_at(self, idx: np.ndarray) -> np.ndarray:
         """The source s of the last step at cloud points idx (zero off the target)."""
+        sweep = self._sweep
+        if sweep is not None and sweep.incremental:
+            return sweep.at(self._tpos.take(idx))
         return self._s_ext.take(self._tpos.take(idx))
 
     def _add_coverage(self, fp: np.ndarray, phi: np.ndarray) -> None:

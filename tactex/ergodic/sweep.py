@@ -94,16 +94,23 @@ class SweepSource:
     def reset(self) -> None:
         """Nothing done yet."""
         self.done = np.zeros(self._p.size, dtype=bool)
+        self._open = self._p.size  # points not done
+        self._all_done = self._open == 0
         self._done_near = self._missing.astype(np.float64)
         if self.incremental:
-            self._w = self._weights(np.arange(self._p.size))
+            self._dirty: list[np.ndarray] = []  # rows marked since the last image (see _flush)
+            self._w_ext = np.zeros(self._p.size + 1)  # with a trailing 0: w_ext[t] is 0 off the target (t = −1)
+            self._w = self._w_ext[:-1]
+            self._w[:] = self._weights(np.arange(self._p.size))
             self.rebuild()
 
     def rebuild(self) -> None:
         """The running sums (incremental mode) from scratch: their round-off does not build up."""
         if self.incremental:
+            self._flush()
             self._tot = float(self._w.sum())
             self._image = self._w.dot(self._rows)
+            self._inv = 1.0 / self._tot if self._tot > 0.0 else 0.0
 
     def _weights(self, rows: np.ndarray) -> np.ndarray:
         """The unnormalised source on the target rows ``rows`` (the arithmetic of :meth:`source`)."""
@@ -124,13 +131,24 @@ class SweepSource:
         if new.size == 0:
             return
         self.done[new] = True
+        self._open -= new.size
+        self._all_done = self._open == 0
         # the rows of the new points are their neighbourhoods (the relation is symmetric); each neighbour's count
         # goes up by one per new point next to it
         ptr, cols = self._near.indptr, self._near.indices
         near = np.concatenate([cols[ptr[r]:ptr[r + 1]] for r in new.tolist()])
         np.add.at(self._done_near, near, 1.0)
         if self.incremental:
-            rows = np.union1d(new, near)
+            self._dirty.append(new)
+            self._dirty.append(near)
+
+    def _flush(self) -> None:
+        """The running sums brought up to the marks since the last image: the rows whose weight changed (the new
+        points and their neighbours). Until then :meth:`at` reads the source of the last image, as the full
+        source in ``out`` is."""
+        if self._dirty:
+            rows = np.unique(np.concatenate(self._dirty))
+            self._dirty.clear()
             w = self._weights(rows)
             dw = w - self._w[rows]
             self._w[rows] = w
@@ -138,16 +156,20 @@ class SweepSource:
             self._image += dw.dot(self._rows[rows])
 
     def image(self, out: np.ndarray) -> np.ndarray:
-        """The source (T,) into ``out`` (scaled to unit sum, see :meth:`source`) and its spectral image Φᵀ M s (K,)
-        (zero when all is done); needs ``image_rows``."""
+        """The spectral image Φᵀ M s (K,) of the source (zero when all is done; needs ``image_rows``), and without
+        running sums the source itself (T,) into ``out`` (scaled to unit sum, see :meth:`source`); with them, read
+        the source with :meth:`at` (writing all T values each step would cost more than the step)."""
         if not self.incremental:
             return out.dot(self._rows) if self.source(out) > 0.0 else np.zeros(self._rows.shape[1])
-        if not self._tot > 0.0 or not self._w.any():
-            out[:] = 0.0
-            return np.zeros(self._rows.shape[1])
-        inv = 1.0 / self._tot
-        np.multiply(self._w, inv, out=out)
-        return self._image * inv
+        self._flush()
+        # all done: the sum's round-off is no source (the full path's sum is exactly 0 there)
+        self._inv = 1.0 / self._tot if self._tot > 0.0 and not self._all_done else 0.0
+        return self._image * self._inv
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        """With running sums: the source (scaled to unit sum as of the last :meth:`image`) at target rows ``t`` (−1:
+        off the target, 0 there)."""
+        return self._w_ext.take(t) * self._inv
 
     def source(self, out: np.ndarray) -> float:
         """The source (T,) into ``out``, scaled to unit sum; returns the sum before scaling (0: all done)."""
