@@ -182,3 +182,20 @@ def test_an_explorer_with_the_running_image_walks_as_the_one_without(monkeypatch
     assert np.allclose(u1, u0, rtol=1e-6, atol=1e-9)
     # the passes steer: round-off in the potential leaves the path where it is
     assert np.abs(p1 - p0).max() < 1e-6
+
+
+def test_the_compiled_ring_orders_equal_the_python_ones(monkeypatch):
+    pytest.importorskip("numba")
+    monkeypatch.setattr(planner_module, "EXACT_POINTS", 100)  # this part counts as large
+    pts = _wavy(70, 50)
+    arcs = {}
+    for compiled in (True, False):
+        passes = RingPasses(pts, None, pass_spacing_m=4.5 * H, reach_m=H, voxel_m=H, origin="start")
+        passes.compiled_arcs = compiled
+        passes.lay(len(pts) // 3)
+        idx = np.flatnonzero(passes.pending)
+        arcs[compiled] = passes._arcs(idx)
+    assert len(arcs[True]) == len(arcs[False]) > 10
+    assert any(a.size > 2 * 16 for a in arcs[True])  # loops and long runs among them
+    for a, b in zip(arcs[True], arcs[False], strict=True):
+        assert np.array_equal(a, b)

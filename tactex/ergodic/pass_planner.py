@@ -45,6 +45,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from tactex.ergodic.compiled_arcs import compiled_ring_orders
 from tactex.ergodic.compiled_graph import SmallGraph
 from tactex.ergodic.pass_tour import (
     EXACT_POINTS,
@@ -140,6 +141,8 @@ class PassPlanner:
     large part is planned (the first step of a whole-surface run waits for it)."""
 
     progress: Callable[[str], None] | None = None
+    #: Order the arcs of a large part's rings with :mod:`.compiled_arcs` when numba is there (False: in Python).
+    compiled_arcs: bool = True
 
     def lay(self, start: int) -> None:
         """Lay the rings of target point ``start``'s part (once per part). With origin "edge" and the tour, the
@@ -390,6 +393,7 @@ class PassPlanner:
         link = MAX_LINK * 2.0 * self._half_line
         arcs: list[np.ndarray] = []
         large = idx.size > 0 and self._sizes[self._part[idx[0]]] > EXACT_POINTS  # see pass_tour.EXACT_POINTS
+        compiled = compiled_ring_orders() if large and self.compiled_arcs else None
         for k in np.unique(self.ring[idx]):
             ring = idx[self.ring[idx] == k]
             if ring.size <= 2:
@@ -400,6 +404,13 @@ class PassPlanner:
             length = np.maximum(np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1), 1e-12)
             g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size))
             n, label = connected_components(g, directed=False)
+            if compiled is not None:  # every run of the ring in one compiled call (the same orders)
+                voxel = 2.0 * self._half_line
+                order, starts = compiled(ring.size, pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64),
+                                         length, label.astype(np.int64), n, q, MAX_LINK * voxel,
+                                         (MAX_LINK + 1.5) * voxel, 2.0 * (MAX_LINK + 1.5) * voxel)
+                arcs.extend(ring[order[starts[c]:starts[c + 1]]] for c in range(n))
+                continue
             whole = SmallGraph(ring.size, pairs[:, 0], pairs[:, 1], length, compiled=large)
             for c in range(n):
                 m = np.flatnonzero(label == c)
