@@ -14,7 +14,7 @@ import numpy as np
 
 from tactex.ergodic import compiled_graph
 
-__all__ = ["compiled_ring_orders", "ring_orders"]
+__all__ = ["compile_pending", "compiled_ring_orders", "ring_orders"]
 
 _compiled = None  # ring_orders compiled, made on first use
 _search = None  # compiled_graph.search_within compiled (what _distances calls once compiled)
@@ -137,6 +137,16 @@ def ring_orders(n, rows, cols, weights, label, n_comp, q, cut_r, near_r, loop_le
         local = _along_run(m.shape[0], pos[rows[es]], pos[cols[es]], weights[es], q[m], cut_r, near_r, loop_len)
         order[starts[c]:starts[c + 1]] = m[local]
     return order, starts
+
+
+def compile_pending() -> bool:
+    """Whether the next large plan makes (or loads from numba's cache) the compiled searches of
+    :mod:`.compiled_graph` and this module: numba is installed and enabled and this process holds them not yet."""
+    if _compiled is not None or not compiled_graph.compiled_step.available():
+        return False
+    from numba import config
+
+    return not config.DISABLE_JIT
 
 
 def compiled_ring_orders():

@@ -24,7 +24,11 @@ a closed or holed surface a ring's middle line breaks into several arcs (its con
 ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
 (a closed arc is entered anywhere), then 2-opt, by the chords and by the surface distances between the ends; the
 surface's tour is kept when its moves are clearly shorter along the surface (the agent walks them on the surface:
-round a fold or an ear's base the chord is a fraction of the walk).
+round a fold or an ear's base the chord is a fraction of the walk). The tour and its distances live in
+:mod:`.pass_tour`; on a part of over ``EXACT_POINTS`` target points the surface distances are searched only a few
+pass spacings far, and the nearest-neighbour tour, 2-opt's distances and the order along each run are formed
+without a pass over the whole part per arc (:mod:`.compiled_graph`, :mod:`.compiled_arcs`): the plan of a
+100k-point part takes seconds, not many minutes.
 
 d is Dijkstra's distance (scipy.sparse.csgraph) over the links of the cloud's Laplacian between
 target points, each as long as its chord: the same neighbourhoods the heat diffuses over, and the
@@ -45,6 +49,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from tactex.ergodic import compiled_arcs
 from tactex.ergodic.compiled_arcs import compiled_ring_orders
 from tactex.ergodic.compiled_graph import SmallGraph
 from tactex.ergodic.pass_tour import (
@@ -175,6 +180,9 @@ class PassPlanner:
         n_plans = len(seeds) * (len(SPACING_SHARES) if self.order == "tour" else 1)
         if members.size >= PROGRESS_MIN_POINTS:
             say(f"pass plan: {members.size} target points in this part, {n_plans} candidate plan(s) to compare ...")
+        if members.size > EXACT_POINTS and compiled_arcs.compile_pending():
+            say("pass plan: preparing its compiled searches (a second or two from numba's cache; the first time on a "
+                "machine numba compiles them, 10–20 s) ...")
         for n_seed, seed in enumerate(seeds):
             d = self._smooth(sub, dijkstra(sub, directed=False, indices=seed, min_only=True))
             for share in SPACING_SHARES if self.order == "tour" else SPACING_SHARES[:1]:
