@@ -11,6 +11,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 import tactex.ergodic.pass_planner as planner_module
+import tactex.ergodic.pass_tour as tour_module
 import tactex.ergodic.sweep as sweep_module
 from tactex.ergodic import compiled_graph
 from tactex.ergodic.pass_tour import Distances, _first_gain, node_matrix
@@ -199,3 +200,30 @@ def test_the_compiled_ring_orders_equal_the_python_ones(monkeypatch):
     assert any(a.size > 2 * 16 for a in arcs[True])  # loops and long runs among them
     for a, b in zip(arcs[True], arcs[False], strict=True):
         assert np.array_equal(a, b)
+
+
+def _two_opt_reference(walk, start, dist, at):
+    """2-opt with the arc-by-arc scan over every arc each pass (what two_opt must equal)."""
+    for _ in range(tour_module.TWO_OPT_PASSES):
+        entry = np.array([at[int(a[0])] for a in walk])
+        out = np.array([at[int(a[-1])] for a in walk])
+        move = _first_gain_loop(dist, at[start], entry, out)
+        if move is None:
+            break
+        i, j = move
+        walk[i:j + 1] = [a[::-1] for a in walk[i:j + 1][::-1]]
+    return walk
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_two_opt_with_its_known_rows_equals_the_full_scan(seed):
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(size=(121, 3))
+    arcs = [np.array([1 + 2 * k, 2 + 2 * k]) for k in range(60)]
+    chord = lambda v, idx: np.linalg.norm(p[idx] - p[v], axis=1)  # noqa: E731
+    nodes = np.arange(121)
+    dist = np.array([chord(v, nodes) for v in nodes])
+    at = {v: v for v in range(121)}
+    got = tour_module.two_opt([a.copy() for a in arcs], 0, chord)
+    want = _two_opt_reference([a.copy() for a in arcs], 0, dist, at)
+    assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))

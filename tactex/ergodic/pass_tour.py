@@ -204,7 +204,8 @@ def two_opt(walk: list[np.ndarray], start: int, way: Way,
     """2-opt on an open tour of arcs from target point ``start`` by the distances ``way``: reversing a run of arcs
     reverses each of them too (``matrix``: the distances between given points at once, or None: row by row from
     ``way``). Each pass takes the first arc i (in tour order) whose reversal with some later run
-    shortens the tour, with its best such run, and starts over."""
+    shortens the tour, with its best such run, and starts over. The arcs before i had no such run, and the move
+    changes their gains only for runs ending in i − 1 … j: the next pass looks there only for them."""
     n = len(walk)
     if n < 3:
         return walk
@@ -212,45 +213,53 @@ def two_opt(walk: list[np.ndarray], start: int, way: Way,
     # between the ends (both ways: an arc may turn); ``matrix`` forms them at once where given
     dist = matrix(nodes) if matrix is not None else np.array([way(int(v), nodes) for v in nodes])
     at = {int(v): k for k, v in enumerate(nodes)}
+    known, window = 0, (0, 0)  # arcs before ``known`` improve, if at all, only by runs ending in ``window``
     for _ in range(TWO_OPT_PASSES):
         entry = np.array([at[int(a[0])] for a in walk])
         out = np.array([at[int(a[-1])] for a in walk])
-        move = _first_gain(dist, at[start], entry, out)
+        move = _first_gain(dist, at[start], entry, out, known=known, window=window)
         if move is None:
             break
         i, j = move
         walk[i:j + 1] = [a[::-1] for a in walk[i:j + 1][::-1]]
+        known, window = i, (max(i - 1, 0), j)
     return walk
 
 
-def _first_gain(dist: np.ndarray, start: int, entry: np.ndarray, out: np.ndarray,
-                block_elements: int = 1 << 16) -> tuple[int, int] | None:
+def _first_gain(dist: np.ndarray, start: int, entry: np.ndarray, out: np.ndarray, block_elements: int = 1 << 16,
+                known: int = 0, window: tuple[int, int] = (0, 0)) -> tuple[int, int] | None:
     """The first arc i whose run i..j reversed shortens the tour (gain over 1e-9 m) and the j of its largest gain,
     or None; the tour's arcs are entered at nodes ``entry`` and left at ``out`` (indices into ``dist``), from node
     ``start``. Reversing i..j turns the edge (before_i → entry_i) into (before_i → out_j) and (out_j → entry_{j+1})
     into (entry_i → entry_{j+1}); the last arc has no edge after it. Rows of i are scanned a block of about
-    ``block_elements`` gains at a time (the first improving arc is often early in the tour)."""
+    ``block_elements`` gains at a time (the first improving arc is often early in the tour); the rows before
+    ``known`` only over the runs ending in ``window`` (j from window[0] to window[1]: their other gains are known
+    not to improve)."""
     n = entry.size
     before = np.r_[start, out[:-1]]  # where the tour is before arc i
     nxt = np.r_[entry[1:], 0]  # where it goes after arc j
     old_after = dist[out, nxt]
     old_after[-1] = 0.0
-    block = max(1, block_elements // n)
-    for i0 in range(0, n - 1, block):
-        i = np.arange(i0, min(i0 + block, n - 1))
-        old = dist[before[i], entry[i]][:, None]
-        new = dist[before[i][:, None], out[None, :]]
-        new_after = dist[entry[i][:, None], nxt[None, :]]
-        new_after[:, -1] = 0.0
-        gain = old + old_after
-        gain -= new
-        gain -= new_after
-        gain[np.arange(n)[None, :] <= i[:, None]] = -np.inf  # j > i only
-        best = gain.max(axis=1)
-        rows = np.flatnonzero(best > 1e-9)
-        if rows.size:
-            r = int(rows[0])
-            return int(i[r]), int(gain[r].argmax())
+    cols = np.arange(window[0], min(window[1], n - 1) + 1)
+    for rows, js in ((np.arange(min(known, n - 1)), cols), (np.arange(min(known, n - 1), n - 1), np.arange(n))):
+        if rows.size == 0 or js.size == 0:
+            continue
+        block = max(1, block_elements // js.size)
+        for b0 in range(0, rows.size, block):
+            i = rows[b0:b0 + block]
+            old = dist[before[i], entry[i]][:, None]
+            new = dist[before[i][:, None], out[js][None, :]]
+            new_after = dist[entry[i][:, None], nxt[js][None, :]]
+            new_after[:, js == n - 1] = 0.0
+            gain = old + old_after[js]
+            gain -= new
+            gain -= new_after
+            gain[js[None, :] <= i[:, None]] = -np.inf  # j > i only
+            best = gain.max(axis=1)
+            hit = np.flatnonzero(best > 1e-9)
+            if hit.size:
+                r = int(hit[0])
+                return int(i[r]), int(js[gain[r].argmax()])
     return None
 
 
