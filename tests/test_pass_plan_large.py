@@ -227,3 +227,26 @@ def test_two_opt_with_its_known_rows_equals_the_full_scan(seed):
     got = tour_module.two_opt([a.copy() for a in arcs], 0, chord)
     want = _two_opt_reference([a.copy() for a in arcs], 0, dist, at)
     assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
+
+
+def test_the_explorers_metrics_equal_the_metrics_modules():
+    from tactex.ergodic import HedacConfig, HedacExplorer
+    from tactex.ergodic.metrics import coverage_residual, normalized_ergodicity
+    from tactex.pointcloud import SurfaceCloud
+    from tactex.spectral import build_basis
+
+    pts = _wavy(30, 24)
+    rng = np.random.default_rng(3)
+    cloud = SurfaceCloud(pts, target=rng.uniform(0.0, 2.0, len(pts)) * (rng.uniform(size=len(pts)) > 0.3), spacing=H)
+    basis = build_basis(cloud, n_eigen=30, cache=False)
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=30))
+    ex.reset(pts[len(pts) // 2])
+    for k in range(60):
+        if k:
+            ex.step()
+        for normalize in ("l2", "integral"):
+            want = normalized_ergodicity(ex.target, ex.coverage, ex._mass, normalize)
+            assert ex.ergodicity(normalize) == pytest.approx(want, rel=1e-12, abs=1e-15)  # other sums' round-off
+        assert ex.coverage_residual() == pytest.approx(coverage_residual(ex.target, ex.coverage), rel=1e-12, abs=1e-15)
+    with pytest.raises(Exception, match="normalize"):
+        ex.ergodicity("max")

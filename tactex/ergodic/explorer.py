@@ -89,6 +89,7 @@ __all__ = ["EDGE_OFFSET", "KEEP_OUT_MARGIN", "PASS_REACH", "REBUILD_STEPS", "REP
            "SPECK_POINTS", "Exploration", "HedacExplorer", "explore"]
 
 _project_local = project_local
+_sum = np.add.reduce
 _plane_slope = plane_slope_checked
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -254,6 +255,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
             )
         self.target_near_keep_out = near_count
         self._target = p
+        self._metric_terms(p)
         self._tidx = np.flatnonzero(p > 0)
         self._p_t = p[self._tidx] / total
         self._tpos = np.full(len(p), -1, dtype=np.intp)
@@ -527,7 +529,24 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
     def ergodicity(self, normalize: str = "l2") -> float:
         """Normalised ergodicity ε of eq. 48 (see :func:`tactex.ergodic.metrics.normalized_ergodicity`)."""
         self._require_state()
-        return normalized_ergodicity(self._target, self._cov, self._mass, normalize)
+        pint, p_hat, p_norm, p_int = self._ergodicity_terms
+        if pint <= 0 or normalize not in ("l2", "integral"):
+            return normalized_ergodicity(self._target, self._cov, self._mass, normalize)  # its errors
+        # eq. 48 as normalized_ergodicity forms it, without its checks and temporaries and with numpy's sums
+        # instead of BLAS dot products (a large cloud's run computes it after every step: BLAS threads over 100k
+        # points cost more than the step, and spin on after it)
+        buf = self._metric_buf
+        np.multiply(self._mass, self._cov, out=buf)
+        cint = float(_sum(buf))
+        if cint > 0:
+            np.divide(self._cov, cint, out=buf)
+        else:
+            buf[:] = 0.0
+        np.subtract(p_hat, buf, out=buf)
+        np.maximum(buf, 0.0, out=buf)
+        np.multiply(buf, buf, out=buf)
+        err = float(np.sqrt(_sum(buf)))
+        return err / (p_norm if normalize == "l2" else p_int)
 
     def untouched_count(self) -> int:
         """Target points no footprint has touched yet that one may touch (clear of the keep-out zones)."""
@@ -537,7 +556,24 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
     def coverage_residual(self) -> float:
         """Coverage residual of the authors' code (√share of target never inside a footprint)."""
         self._require_state()
-        return coverage_residual(self._target, self._cov)
+        total, p_hat, p_norm = self._residual_terms
+        if total <= 0:
+            return coverage_residual(self._target, self._cov)  # its error
+        buf = self._metric_buf  # coverage_residual's, without its checks and temporaries, summed as ergodicity()
+        np.subtract(p_hat, self._cov, out=buf)
+        np.maximum(buf, 0.0, out=buf)
+        np.multiply(buf, buf, out=buf)
+        return float(np.sqrt(_sum(buf)) / p_norm)
+
+    def _metric_terms(self, p: np.ndarray) -> None:
+        """The target's parts of eq. 48 and of the coverage residual (see :mod:`.metrics`), formed once per target."""
+        self._metric_buf = np.empty(p.size)
+        pint = float(self._mass @ p)
+        p_hat = p / pint if pint > 0 else p
+        self._ergodicity_terms = (pint, p_hat, float(np.linalg.norm(p_hat)), float(self._mass @ p_hat))
+        total = float(p.sum())
+        p_hat = p / total if total > 0 else p
+        self._residual_terms = (total, p_hat, float(np.linalg.norm(p_hat)))
 
     def _require_state(self) -> None:
         if not hasattr(self, "_cov"):
