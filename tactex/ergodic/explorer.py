@@ -112,6 +112,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
             sensor): they hold no target, and every agent keeps its point at least r_a + ½ voxel
             from them (its step slides along the zone or stops; a stop is a stall, and the agent
             relocates). ``keep_out_contacts`` counts kept-out points a footprint touched anyway.
+        progress: called with one-line messages during long work (the set-up's neighbourhoods on a large
+            cloud, the pass plan of a large target), or None: silent (see the ``progress`` property).
 
     Relocation (``config.relocate``, :mod:`.relocation`): when walking makes no progress, ``step``
     returns a :class:`~tactex.ergodic.relocation.RelocationCommand` (lift off, fly, touch down)
@@ -125,7 +127,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
     """
 
     def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None,
-                 keep_out: np.ndarray | None = None) -> None:
+                 keep_out: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> None:
+        self._progress = progress
         self.config = config if config is not None else HedacConfig()
         if not isinstance(self.config, HedacConfig):
             raise ConfigError(f"config must be a HedacConfig, got {type(self.config).__name__}")
@@ -274,8 +277,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         cfg = self.config
         sweep = sweeps(cfg.source_mode, self._target, ~self._safe)
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
-                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base,
-                                  image_rows=self._phitm_t) if sweep else None
+                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base, image_rows=self._phitm_t,
+                                  progress=getattr(self, "_progress", None)) if sweep else None
         self._passes = None
         if sweep and cfg.sweep_pass_spacing > 0.0:
             laplacian = getattr(self.basis, "L", None)

@@ -24,6 +24,7 @@ from tactex.ergodic import compiled_step
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.compiled_step import tangent_floats
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, RIDGE_RTOL
+from tactex.ergodic.setup_progress import in_chunks
 from tactex.ergodic.source import update_source_numpy
 from tactex.ergodic.surface_fit import plane_slope_checked, project_on_patch, tangent_matrix_0uv
 from tactex.geometry.fit import SurfacePatch, fit_local_design
@@ -71,7 +72,13 @@ class HedacStep:
         h = self.spacing
         dk = self._tree.query(self._points, k=cfg.n_neighbors_fit)[0][:, -1]
         radius = np.maximum(self._r_a, dk) + (2.0 + cfg.max_velocity) * h
-        self._ball = [np.asarray(b, dtype=np.intp) for b in self._tree.query_ball_point(self._points, radius)]
+        balls: list[np.ndarray] = []
+
+        def chunk(lo: int, hi: int) -> None:
+            found = self._tree.query_ball_point(self._points[lo:hi], radius[lo:hi], return_sorted=True)
+            balls.extend(np.asarray(b, dtype=np.intp) for b in found)
+        in_chunks(len(self._points), chunk, getattr(self, "_progress", None), "explorer: neighbourhoods")
+        self._ball = balls
 
     def _candidates(self, i: int, x: np.ndarray, exact: bool) -> np.ndarray:
         if not exact:

@@ -146,6 +146,9 @@ class PassPlanner:
     large part is planned (the first step of a whole-surface run waits for it)."""
 
     progress: Callable[[str], None] | None = None
+    _tick_from: float | None = None  # when the plan being laid started, while it says how far it got (see _tick)
+    _said_at = 0.0
+    _tick_about = ""  # what the plan is at (the candidate), before the tick's own words
     #: Order the arcs of a large part's rings with :mod:`.compiled_arcs` when numba is there (False: in Python).
     compiled_arcs: bool = True
 
@@ -160,11 +163,12 @@ class PassPlanner:
         self._laid[part] = True
         members = np.flatnonzero(self._part == part)
         t_start = time.perf_counter()
-        said = [t_start]  # when the last progress line went out
+        self._said_at = t_start  # when the last progress line went out
+        self._tick_from = t_start if members.size >= PROGRESS_MIN_POINTS else None  # see _tick
 
         def say(msg: str, now: float | None = None) -> None:
             if self.progress is not None:
-                said[0] = time.perf_counter() if now is None else now
+                self._said_at = time.perf_counter() if now is None else now
                 self.progress(msg)
         sub = self._graph[members][:, members]
         s = int(np.searchsorted(members, start))
@@ -205,6 +209,8 @@ class PassPlanner:
                 if self.order != "tour":
                     self.spacing_m[part] = w
                     return
+                self._tick_about = f"candidate {len(plans) + 1} of {n_plans}: "
+                self._tick(f"{way.size} waypoints on its rings")
                 self._plan(part, self._points[start])
                 length = self._tour_length(part)
                 if seed.size == 1 and len(seeds) > 1:
@@ -216,7 +222,7 @@ class PassPlanner:
                 self.ring[way] = -1
                 self.pending[way] = False
                 now = time.perf_counter()
-                if now - said[0] >= PROGRESS_EVERY_S:
+                if now - self._said_at >= PROGRESS_EVERY_S:
                     say(f"pass plan: {len(plans)} of {n_plans} candidate plans ({now - t_start:.0f} s)", now)
         # The origin by its plan at the full spacing (tour and the hunt for what it leaves), then its spacing also by
         # the islands it leaves at risk: compared over origins, the islands would choose worse origins.
@@ -232,10 +238,22 @@ class PassPlanner:
             self.ring[extra] = ring.max() + 1 + np.arange(extra.size)
             self.pending[extra] = True
             # the passes' own arcs and tour are the chosen plan's (the same waypoints, from the same start)
+            self._tick_about = f"the chosen plan and {extra.size} clean-up waypoints: "
             self._plan(part, self._points[start], known=(self._tour[part], self._arc[part], arcs))
         self._at[part] = 0
         if time.perf_counter() - t_start >= PROGRESS_EVERY_S or members.size >= PROGRESS_MIN_POINTS:
             say(f"pass plan: laid in {time.perf_counter() - t_start:.1f} s")
+        self._tick_from = None
+
+    def _tick(self, what: str) -> None:
+        """A progress line "pass plan: <candidate>: ``what`` (t s)" while a large part's plan is laid, at most every
+        ``PROGRESS_EVERY_S`` (a candidate plan of a 100k-point part takes seconds)."""
+        if self.progress is None or self._tick_from is None:
+            return
+        now = time.perf_counter()
+        if now - self._said_at >= PROGRESS_EVERY_S:
+            self._said_at = now
+            self.progress(f"pass plan: {self._tick_about}{what} ({now - self._tick_from:.0f} s)")
 
     # ------------------------------------------------------------------ the tour over the arcs
     def _plan(self, part: int, x: np.ndarray, known: tuple | None = None) -> None:
@@ -264,6 +282,7 @@ class PassPlanner:
         _tour_of)."""
         if arcs is None:
             arcs = self._arcs(idx)
+            self._tick(f"{len(arcs)} arcs along the rings")
         self._last_arcs = list(arcs)
         self._at[part] = 0
         if not arcs:
@@ -318,6 +337,7 @@ class PassPlanner:
             else:
                 walk = two_opt(nearest_arcs(arcs, closed, start, way), start, way)
             tours.append((walk, surface_moves(walk, start, dist)))
+            self._tick(f"a tour over {len(arcs)} arcs by {'chord' if way == dist.chord else 'surface distance'}")
         (by_chord, chord_m), (by_surface, surface_m) = tours
         return by_surface if surface_m < SURFACE_GAIN * chord_m else by_chord
 

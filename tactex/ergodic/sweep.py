@@ -36,6 +36,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
+from tactex.ergodic.setup_progress import in_chunks
+
 __all__ = ["INCREMENTAL_POINTS", "SweepSource", "uniform_whole_target"]
 
 #: A target of more points than this keeps the sweep source's spectral image as running sums [-].
@@ -71,15 +73,20 @@ class SweepSource:
             (in (0, 1]: 1 = no frontier preference).
         image_rows: the rows (T, K) of Φᵀ M on the target points, or None; with them, ``image`` gives the source's
             spectral image, kept as running sums on a target of over ``INCREMENTAL_POINTS`` points.
+        progress: called with one-line messages while a large target's neighbourhoods are taken, or None.
     """
 
     def __init__(self, points: np.ndarray, p: np.ndarray, plan_radius_m: float, frontier_radius_m: float,
-                 base: float, image_rows: np.ndarray | None = None) -> None:
+                 base: float, image_rows: np.ndarray | None = None, progress=None) -> None:
         self._tree = cKDTree(points)
         self._p = np.asarray(p, dtype=np.float64)
         self.plan_radius_m = float(plan_radius_m)
         self.base = float(base)
-        balls = self._tree.query_ball_point(points, frontier_radius_m)
+        balls: list = []
+
+        def chunk(lo: int, hi: int) -> None:
+            balls.extend(self._tree.query_ball_point(points[lo:hi], frontier_radius_m, return_sorted=True))
+        in_chunks(len(points), chunk, progress, "explorer: the sweep's neighbourhoods")
         sizes = np.array([len(b) for b in balls])
         rows = np.repeat(np.arange(len(points)), sizes)
         cols = np.concatenate(balls).astype(np.intp) if len(balls) else np.zeros(0, dtype=np.intp)

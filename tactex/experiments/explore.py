@@ -465,8 +465,9 @@ def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray 
     if len(cloud) >= estimate.PROGRESS_MIN_POINTS:
         say(f"explorer: neighbourhoods of {len(cloud)} points (seconds on a large cloud) ...")
     t1 = time.perf_counter()
-    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
-    explorer.progress = say  # the pass plan of a large target, laid at the first step, takes a while
+    # the set-up's neighbourhoods on a large cloud and the pass plan of a large target (laid at the first step) take
+    # a while: both say how far they got
+    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out, progress=say)
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
