@@ -16,8 +16,8 @@ __all__ = ["CHUNK_POINTS", "PROGRESS_EVERY_S", "SETUP_PROGRESS_POINTS", "in_chun
 SETUP_PROGRESS_POINTS = 50_000
 #: Points per chunk [-].
 CHUNK_POINTS = 10_000
-#: Seconds between progress lines.
-PROGRESS_EVERY_S = 3.0
+#: Seconds between progress lines (the set-up has two such phases and lines before and after them: under 5 s of quiet).
+PROGRESS_EVERY_S = 2.0
 
 
 def in_chunks(n: int, work: Callable[[int, int], None], say: Callable[[str], None] | None, what: str) -> None:
