@@ -250,3 +250,17 @@ def test_the_explorers_metrics_equal_the_metrics_modules():
         assert ex.coverage_residual() == pytest.approx(coverage_residual(ex.target, ex.coverage), rel=1e-12, abs=1e-15)
     with pytest.raises(Exception, match="normalize"):
         ex.ergodicity("max")
+
+
+def test_the_explorers_metrics_are_exactly_one_before_any_coverage():
+    from tactex.ergodic import HedacConfig, HedacExplorer
+    from tactex.pointcloud import SurfaceCloud
+    from tactex.spectral import build_basis
+
+    pts = _wavy(30, 24)
+    rng = np.random.default_rng(4)
+    cloud = SurfaceCloud(pts, target=rng.uniform(0.1, 2.0, len(pts)), spacing=H)
+    ex = HedacExplorer(cloud, build_basis(cloud, n_eigen=30, cache=False), HedacConfig(n_eigen=30))
+    ex.reset(pts[0])
+    assert ex.coverage_residual() == 1.0
+    assert ex.ergodicity() == 1.0

@@ -573,10 +573,11 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         self._metric_buf = np.empty(p.size)
         pint = float(self._mass @ p)
         p_hat = p / pint if pint > 0 else p
-        self._ergodicity_terms = (pint, p_hat, float(np.linalg.norm(p_hat)), float(self._mass @ p_hat))
+        # the norms summed as ergodicity() and coverage_residual() sum theirs: untouched, they are exactly 1
+        self._ergodicity_terms = (pint, p_hat, float(np.sqrt(_sum(p_hat * p_hat))), float(self._mass @ p_hat))
         total = float(p.sum())
         p_hat = p / total if total > 0 else p
-        self._residual_terms = (total, p_hat, float(np.linalg.norm(p_hat)))
+        self._residual_terms = (total, p_hat, float(np.sqrt(_sum(p_hat * p_hat))))
 
     def _require_state(self) -> None:
         if not hasattr(self, "_cov"):
