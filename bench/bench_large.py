@@ -28,9 +28,18 @@ call follows each of the others equally often), since this machine's speed swing
 * ``large.tec_coverage``: coverage residual at 0.5/1/2 m of path on the TEC clouds (bench_ergodic's
   protocol and ten starts) with the ARPACK basis and with the hierarchical one, and the mean and
   standard error of their per-start difference.
+* ``large.whole_surface_100k.{pass_plan_s, pass_plan_cpu_s, first_progress_s, step_us_median, step_us_p90,
+  step_cpu_us_median, n_points, n_eigen, waypoints, arcs, ...}``: a whole-surface target (``--target all``: the
+  sweep with planned passes) on the 100k panel, in a fresh process: the basis with ``WHOLE_N_EIGEN`` eigenpairs
+  (the hierarchical solver; the basis is not what is measured), then the explorer's first step, which lays the
+  pass plan (``pass_plan_s``, wall and CPU), the time from the start of that step to its first progress line
+  (``first_progress_s``; ``explorer_setup_s`` comes before it, and ``tactex explore`` announces it), and the
+  median and 90th percentile of ``WHOLE_STEPS`` steps after it (wall, and CPU in ``step_cpu_us_*``);
+  ``load_avg_1min`` beside them.
 * ``bench/large.png``: the scaling table as a plot.
 
 ``--quick`` runs the bunny comparison (2 repeats), the 3k and 18k sizes and no 60k/150k or coverage.
+``--cases whole_surface`` (bench/run.py) runs only the whole-surface row.
 """
 
 from __future__ import annotations
@@ -59,7 +68,13 @@ WARMUP = 100
 TARGET_FRACTION = 0.3
 PANEL_ASPECT = (0.9, 0.6)  # [m] at 60k points
 
+WHOLE_POINTS = 100_000
+WHOLE_N_EIGEN = 100
+WHOLE_STEPS = 600
 TARGETS = {
+    "large.whole_surface_100k.pass_plan_s": ("<=", 10.0),
+    "large.whole_surface_100k.first_progress_s": ("<=", 5.0),
+    "large.whole_surface_100k.step_us_median": ("<=", 1000.0),
     "large.speedup_vs_authors_3k": (">=", 2.0),
     "large.speedup_vs_arpack_60k": (">=", 5.0),
     "large.eigenvalue_max_rel_error_60k": ("<=", 0.01),
@@ -166,8 +181,55 @@ def _step_times(ex, x0: np.ndarray) -> np.ndarray:
     return times
 
 
-def _size_in_subprocess(n_points: int) -> dict:
-    done = subprocess.run([sys.executable, __file__, "--size", str(n_points)], capture_output=True, text=True,
+def measure_whole_surface(n_points: int = WHOLE_POINTS) -> dict:
+    """The whole-surface row (see the module doc), in this process."""
+    from tactex.ergodic import HedacConfig, HedacExplorer
+    from tactex.spectral import build_basis
+
+    cloud = panel(n_points)
+    cloud = cloud.with_target(np.ones(len(cloud)))
+    t0 = time.perf_counter()
+    basis = build_basis(cloud, n_eigen=WHOLE_N_EIGEN, n_neighbors=30, cache=False)
+    basis_s = time.perf_counter() - t0
+    said: list[float] = []
+    t0 = time.perf_counter()
+    ex = HedacExplorer(cloud, basis, HedacConfig(n_eigen=WHOLE_N_EIGEN))
+    ex.progress = lambda msg: said.append(time.perf_counter())
+    setup_s = time.perf_counter() - t0
+    ex.reset(cloud.points[len(cloud) // 3])
+    said.clear()
+    t1, c1 = time.perf_counter(), time.process_time()
+    ex.step()
+    plan_s, plan_cpu_s = time.perf_counter() - t1, time.process_time() - c1
+    wall, cpu = np.empty(WHOLE_STEPS), np.empty(WHOLE_STEPS)
+    for i in range(WHOLE_STEPS):
+        a, b = time.perf_counter(), time.process_time()
+        ex.step()
+        wall[i], cpu[i] = time.perf_counter() - a, time.process_time() - b
+    passes = ex._passes
+    return {
+        "n_points": len(cloud),
+        "n_eigen": WHOLE_N_EIGEN,
+        "basis_s": basis_s,
+        "explorer_setup_s": setup_s,
+        "pass_plan_s": plan_s,
+        "pass_plan_cpu_s": plan_cpu_s,
+        "first_progress_s": (said[0] - t1) if said else None,
+        "step_us_median": float(np.median(wall) * 1e6),
+        "step_us_p90": float(np.percentile(wall, 90) * 1e6),
+        "step_cpu_us_median": float(np.median(cpu) * 1e6),
+        "step_cpu_us_p90": float(np.percentile(cpu, 90) * 1e6),
+        "steps": WHOLE_STEPS,
+        "waypoints": int(np.count_nonzero(passes.ring >= 0)),
+        "arcs": int(sum(np.unique(a).size for a in passes._arc.values())),
+        "coverage_residual": ex.coverage_residual(),
+        "path_length_m": ex.path_length,
+        "load_avg_1min": os.getloadavg()[0],
+    }
+
+
+def _size_in_subprocess(n_points: int, flag: str = "--size") -> dict:
+    done = subprocess.run([sys.executable, __file__, flag, str(n_points)], capture_output=True, text=True,
                           check=False, env={**os.environ, "PYTHONPATH": str(HERE.parent)})
     if done.returncode != 0:
         return {"error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else f"exit {done.returncode}"}
@@ -317,6 +379,13 @@ def _plot(sizes: dict) -> Path | None:
 
 def run(args) -> dict:
     quick = bool(getattr(args, "quick", False))
+    cases = tuple(getattr(args, "cases", None) or ())
+    if cases:  # --cases: the named rows only (whole_surface)
+        out_cases: dict = {}
+        if any("whole_surface".startswith(c) or c.startswith("whole") for c in cases):
+            out_cases["whole_surface_100k"] = _size_in_subprocess(WHOLE_POINTS, "--whole")
+            print(f"   whole surface: {out_cases['whole_surface_100k']}", flush=True)
+        return {"large": out_cases}
     out: dict = {"load_avg_1min": {"start": os.getloadavg()[0]}}
     out.update(_bunny_vs_authors(2 if quick else 7))
     print(f"   bunny vs authors: {({k: v for k, v in out.items() if '3k' in k})}", flush=True)
@@ -332,6 +401,8 @@ def run(args) -> dict:
     if plot is not None:
         print(f"   plot: {plot}")
     if not quick:
+        out["whole_surface_100k"] = _size_in_subprocess(WHOLE_POINTS, "--whole")
+        print(f"   whole surface: {out['whole_surface_100k']}", flush=True)
         out["tec_coverage"] = _tec_coverage()
     out["load_avg_1min"]["end"] = os.getloadavg()[0]
     return {"large": out}
@@ -340,3 +411,5 @@ def run(args) -> dict:
 if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "--size":
         print(json.dumps(measure_size(int(sys.argv[2]))))
+    elif len(sys.argv) == 3 and sys.argv[1] == "--whole":
+        print(json.dumps(measure_whole_surface(int(sys.argv[2]))))

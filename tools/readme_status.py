@@ -107,6 +107,13 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
           ("large/sizes/150000/peak_memory_gb", "large/sizes/150000/step_us_median",
            "large/sizes/150000/step_us_median_target_1pct"),
           lambda gb, us, us1: f"{gb:.2f} GB; {us:.0f} µs ({us1:.0f} µs)", lambda gb, us, us1: gb <= 4 and us <= 1000)
+    r.add("whole surface of a 100k-point panel (--target all, K = 100): pass plan, wall (CPU); its first progress "
+          "line; step median, wall (CPU); load average", "≤ 10 s; ≤ 5 s; ≤ 1 ms",
+          tuple(f"large/whole_surface_100k/{k}" for k in ("pass_plan_s", "pass_plan_cpu_s", "first_progress_s",
+                                                           "step_us_median", "step_cpu_us_median", "load_avg_1min")),
+          lambda s, cpu, first, us, us_cpu, load: f"{s:.1f} s ({cpu:.1f} s); {first:.2f} s; {us:.0f} µs "
+                                                  f"({us_cpu:.0f} µs); {load:.1f}",
+          lambda s, cpu, first, us, us_cpu, load: s <= 10 and first <= 5 and us <= 1000)
     r.add("explorer on untuned starts and surfaces (robustness study): runs reaching residual ≤ 0.05 within 3 m "
           "(over the cases 3 m can cover; the runs of the cases out of reach by area, all misses)", "every run",
           ("robustness",), _robustness_reached, lambda rob: rob["all"]["reached_share"] >= 1)

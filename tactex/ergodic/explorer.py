@@ -89,6 +89,7 @@ __all__ = ["EDGE_OFFSET", "KEEP_OUT_MARGIN", "PASS_REACH", "REBUILD_STEPS", "REP
            "SPECK_POINTS", "Exploration", "HedacExplorer", "explore"]
 
 _project_local = project_local
+_sum = np.add.reduce
 _plane_slope = plane_slope_checked
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -111,6 +112,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
             sensor): they hold no target, and every agent keeps its point at least r_a + ½ voxel
             from them (its step slides along the zone or stops; a stop is a stall, and the agent
             relocates). ``keep_out_contacts`` counts kept-out points a footprint touched anyway.
+        progress: called with one-line messages during long work (the set-up's neighbourhoods on a large
+            cloud, the pass plan of a large target), or None: silent (see the ``progress`` property).
 
     Relocation (``config.relocate``, :mod:`.relocation`): when walking makes no progress, ``step``
     returns a :class:`~tactex.ergodic.relocation.RelocationCommand` (lift off, fly, touch down)
@@ -124,7 +127,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
     """
 
     def __init__(self, cloud: SurfaceCloud, basis, config: HedacConfig | None = None,
-                 keep_out: np.ndarray | None = None) -> None:
+                 keep_out: np.ndarray | None = None, progress: Callable[[str], None] | None = None) -> None:
+        self._progress = progress
         self.config = config if config is not None else HedacConfig()
         if not isinstance(self.config, HedacConfig):
             raise ConfigError(f"config must be a HedacConfig, got {type(self.config).__name__}")
@@ -254,6 +258,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
             )
         self.target_near_keep_out = near_count
         self._target = p
+        self._metric_terms(p)
         self._tidx = np.flatnonzero(p > 0)
         self._p_t = p[self._tidx] / total
         self._tpos = np.full(len(p), -1, dtype=np.intp)
@@ -272,7 +277,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         cfg = self.config
         sweep = sweeps(cfg.source_mode, self._target, ~self._safe)
         self._sweep = SweepSource(self._points[self._tidx], self._p_t, cfg.sweep_plan_ratio * self._r_a,
-                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base) if sweep else None
+                                  cfg.sweep_frontier_ratio * self._r_a, cfg.sweep_base, image_rows=self._phitm_t,
+                                  progress=getattr(self, "_progress", None)) if sweep else None
         self._passes = None
         if sweep and cfg.sweep_pass_spacing > 0.0:
             laplacian = getattr(self.basis, "L", None)
@@ -451,6 +457,8 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         self._update_decay()
         if self.step_count % REBUILD_STEPS == 0:
             self._src.clear()  # the running source sums restart from the direct sum: no drift builds up
+            if self._sweep is not None:
+                self._sweep.rebuild()
         exact = measured_positions is not None
         before = self._x.copy() if self._ko_tree is not None else None
         moves = None
@@ -510,7 +518,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         """The potential u (N,) on the cloud as the agents see it (eq. 19, plus the source)."""
         self._require_state()
         u = self._phi @ self._coef
-        u[self._tidx] += self.config.source_weight * self._s_t
+        u[self._tidx] += self.config.source_weight * self._source_at(self._tidx)
         return u
 
     @property
@@ -518,13 +526,30 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         """The source s (N,) of the last step (eq. 1, scaled to unit sum; zero off the target)."""
         self._require_state()
         s = np.zeros(len(self.cloud))
-        s[self._tidx] = self._s_t
+        s[self._tidx] = self._source_at(self._tidx)
         return s
 
     def ergodicity(self, normalize: str = "l2") -> float:
         """Normalised ergodicity ε of eq. 48 (see :func:`tactex.ergodic.metrics.normalized_ergodicity`)."""
         self._require_state()
-        return normalized_ergodicity(self._target, self._cov, self._mass, normalize)
+        pint, p_hat, p_norm, p_int = self._ergodicity_terms
+        if pint <= 0 or normalize not in ("l2", "integral"):
+            return normalized_ergodicity(self._target, self._cov, self._mass, normalize)  # its errors
+        # eq. 48 as normalized_ergodicity forms it, without its checks and temporaries and with numpy's sums
+        # instead of BLAS dot products (a large cloud's run computes it after every step: BLAS threads over 100k
+        # points cost more than the step, and spin on after it)
+        buf = self._metric_buf
+        np.multiply(self._mass, self._cov, out=buf)
+        cint = float(_sum(buf))
+        if cint > 0:
+            np.divide(self._cov, cint, out=buf)
+        else:
+            buf[:] = 0.0
+        np.subtract(p_hat, buf, out=buf)
+        np.maximum(buf, 0.0, out=buf)
+        np.multiply(buf, buf, out=buf)
+        err = float(np.sqrt(_sum(buf)))
+        return err / (p_norm if normalize == "l2" else p_int)
 
     def untouched_count(self) -> int:
         """Target points no footprint has touched yet that one may touch (clear of the keep-out zones)."""
@@ -534,7 +559,25 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
     def coverage_residual(self) -> float:
         """Coverage residual of the authors' code (√share of target never inside a footprint)."""
         self._require_state()
-        return coverage_residual(self._target, self._cov)
+        total, p_hat, p_norm = self._residual_terms
+        if total <= 0:
+            return coverage_residual(self._target, self._cov)  # its error
+        buf = self._metric_buf  # coverage_residual's, without its checks and temporaries, summed as ergodicity()
+        np.subtract(p_hat, self._cov, out=buf)
+        np.maximum(buf, 0.0, out=buf)
+        np.multiply(buf, buf, out=buf)
+        return float(np.sqrt(_sum(buf)) / p_norm)
+
+    def _metric_terms(self, p: np.ndarray) -> None:
+        """The target's parts of eq. 48 and of the coverage residual (see :mod:`.metrics`), formed once per target."""
+        self._metric_buf = np.empty(p.size)
+        pint = float(self._mass @ p)
+        p_hat = p / pint if pint > 0 else p
+        # the norms summed as ergodicity() and coverage_residual() sum theirs: untouched, they are exactly 1
+        self._ergodicity_terms = (pint, p_hat, float(np.sqrt(_sum(p_hat * p_hat))), float(self._mass @ p_hat))
+        total = float(p.sum())
+        p_hat = p / total if total > 0 else p
+        self._residual_terms = (total, p_hat, float(np.sqrt(_sum(p_hat * p_hat))))
 
     def _require_state(self) -> None:
         if not hasattr(self, "_cov"):

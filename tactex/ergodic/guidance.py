@@ -34,6 +34,23 @@ EDGE_BLOCKED = 0.2
 PASS_REACH = 2.5
 
 
+class _Open:
+    """The target points no footprint touched yet that one may and that are not given up (nor in ``skip``, (T,)
+    bool), looked up by target index (an int or an index array): the guidance asks only around the agent, and a
+    whole (T,) mask each step costs more than the rest of the step on a 100k-point target."""
+
+    def __init__(self, explorer, skip: np.ndarray | None = None) -> None:
+        self._ex = explorer
+        self._skip = skip
+
+    def __getitem__(self, idx):
+        ex = self._ex
+        out = (ex._cov[ex._tidx[idx]] < ex._p_t[idx]) & ex._t_safe[idx] & ~ex._given_up[idx]
+        if self._skip is not None:
+            out = out & ~self._skip[idx]
+        return out
+
+
 class PassGuidance:
     """The explorer's guidance along the planned passes (mixed into :class:`~tactex.ergodic.explorer.HedacExplorer`;
     ``_passes`` is its :class:`~tactex.ergodic.passes.RingPasses` or None)."""
@@ -124,7 +141,7 @@ class PassGuidance:
             if wp is None:
                 return None
         else:
-            open_ = self._untouched() & ~self._given_up  # once per step: both look at it
+            open_ = _Open(self)  # both look at it, each only around the agent
             speck = self._speck(here, near, open_)
             if speck is not None:
                 wp = speck
@@ -136,16 +153,14 @@ class PassGuidance:
         to -= float(to.dot(nrm)) * nrm
         return to if float(to.dot(to)) > 0.0 else None
 
-    def _missed(self, here: np.ndarray, near: int, open_: np.ndarray | None = None) -> np.ndarray | None:
+    def _missed(self, here: np.ndarray, near: int, open_: _Open | None = None) -> np.ndarray | None:
         """On a pass: the nearest untouched target point [m] (3,) within ``REPAIR_RADIUS`` footprint radii of the agent
         at ``here`` that the passes walked past and none to come covers (the agent's tracking error left it
         at the footprint's edge), or None. The agent steps aside to touch it now, a detour of a fraction of a
         footprint radius; the hunt after the passes would come back for it from afar. A point it steered at for
         ``REPAIR_STEPS`` steps without touching it (across a fold, off an edge) is given up here and left to the
-        hunt. ``open_``: the untouched target not given up (T,) (bool), when the caller has it."""
-        if open_ is None:
-            open_ = self._untouched() & ~self._given_up
-        cand = open_ & ~self._repair_failed
+        hunt. ``open_``: unused (the open points are looked up around the agent)."""
+        cand = _Open(self, self._repair_failed)
         passes = self._passes
         for g in passes.missed(here, near, cand, REPAIR_RADIUS * self._r_a).tolist():
             p = passes.point(g)
@@ -165,11 +180,11 @@ class PassGuidance:
             self._on_speck = False
             self._leftover_goal = -1
 
-    def _speck(self, here: np.ndarray, near: int, open_: np.ndarray) -> np.ndarray | None:
+    def _speck(self, here: np.ndarray, near: int, open_: _Open) -> np.ndarray | None:
         """On a pass: where the agent steers [m] (3,) on its way to an untouched speck (a part of at most
         ``SPECK_POINTS`` footprint discs that the hops join to the agent's) within ``REPAIR_RADIUS`` footprint radii
         of the agent at ``here``, or None. The agent touches it as it passes: the hunt after the passes would walk
-        back for each speck from afar. ``open_``: the untouched target not given up (T,) (bool)."""
+        back for each speck from afar. ``open_``: the untouched target not given up, looked up by index."""
         passes = self._passes
         if not passes.has_specks:
             return None

@@ -24,6 +24,7 @@ from tactex.ergodic import compiled_step
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.compiled_step import tangent_floats
 from tactex.ergodic.gradient import CUBIC_EXPONENTS, RIDGE_RTOL
+from tactex.ergodic.setup_progress import in_chunks
 from tactex.ergodic.source import update_source_numpy
 from tactex.ergodic.surface_fit import plane_slope_checked, project_on_patch, tangent_matrix_0uv
 from tactex.geometry.fit import SurfacePatch, fit_local_design
@@ -71,7 +72,13 @@ class HedacStep:
         h = self.spacing
         dk = self._tree.query(self._points, k=cfg.n_neighbors_fit)[0][:, -1]
         radius = np.maximum(self._r_a, dk) + (2.0 + cfg.max_velocity) * h
-        self._ball = [np.asarray(b, dtype=np.intp) for b in self._tree.query_ball_point(self._points, radius)]
+        balls: list[np.ndarray] = []
+
+        def chunk(lo: int, hi: int) -> None:
+            found = self._tree.query_ball_point(self._points[lo:hi], radius[lo:hi], return_sorted=True)
+            balls.extend(np.asarray(b, dtype=np.intp) for b in found)
+        in_chunks(len(self._points), chunk, getattr(self, "_progress", None), "explorer: neighbourhoods")
+        self._ball = balls
 
     def _candidates(self, i: int, x: np.ndarray, exact: bool) -> np.ndarray:
         if not exact:
@@ -321,6 +328,9 @@ class HedacStep:
 
     def _source_at(self, idx: np.ndarray) -> np.ndarray:
         """The source s of the last step at cloud points idx (zero off the target)."""
+        sweep = self._sweep
+        if sweep is not None and sweep.incremental:
+            return sweep.at(self._tpos.take(idx))
         return self._s_ext.take(self._tpos.take(idx))
 
     def _add_coverage(self, fp: np.ndarray, phi: np.ndarray) -> None:
@@ -333,7 +343,7 @@ class HedacStep:
         """Source on the target rows (eq. 1–2) and one step of spectral diffusion (eq. 19)."""
         cov = self._cov
         if self._sweep is not None:
-            dcoef = self._s_t.dot(self._phitm_t) if self._sweep.source(self._s_t) > 0.0 else np.zeros_like(self._coef)
+            dcoef = self._sweep.image(self._s_t)
         else:
             norm = float(_sum(cov.take(self._tidx))) if self._norm_target else self._cov_sum
             dcoef = update_source_numpy(cov, self._tidx, self._p_t, norm, self._s_t, self._src, self._phitm_t)

@@ -24,7 +24,11 @@ a closed or holed surface a ring's middle line breaks into several arcs (its con
 ordered along itself, and the arcs are walked as an open tour from the agent: nearest neighbour over their ends
 (a closed arc is entered anywhere), then 2-opt, by the chords and by the surface distances between the ends; the
 surface's tour is kept when its moves are clearly shorter along the surface (the agent walks them on the surface:
-round a fold or an ear's base the chord is a fraction of the walk).
+round a fold or an ear's base the chord is a fraction of the walk). The tour and its distances live in
+:mod:`.pass_tour`; on a part of over ``EXACT_POINTS`` target points the surface distances are searched only a few
+pass spacings far, and the nearest-neighbour tour, 2-opt's distances and the order along each run are formed
+without a pass over the whole part per arc (:mod:`.compiled_graph`, :mod:`.compiled_arcs`): the plan of a
+100k-point part takes seconds, not many minutes.
 
 d is Dijkstra's distance (scipy.sparse.csgraph) over the links of the cloud's Laplacian between
 target points, each as long as its chord: the same neighbourhoods the heat diffuses over, and the
@@ -39,18 +43,33 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from itertools import pairwise
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from tactex.ergodic import compiled_arcs
+from tactex.ergodic.compiled_arcs import compiled_ring_orders
+from tactex.ergodic.compiled_graph import SmallGraph
+from tactex.ergodic.pass_tour import (
+    EXACT_POINTS,
+    SURFACE_LIMIT,
+    TWO_OPT_PASSES,
+    Distances,
+    nearest_arcs,
+    nearest_arcs_within,
+    node_matrix,
+    surface_moves,
+    two_opt,
+)
+
 __all__ = [
     "AT_RISK",
     "CLEAN_UP",
     "EDGE_LINKS",
     "EDGE_OFFSET",
+    "EXACT_POINTS",
     "HUNT_FACTOR",
     "ISLAND_COST",
     "LEFTOVER",
@@ -61,6 +80,7 @@ __all__ = [
     "START_PENALTY",
     "SUBSAMPLE",
     "SURFACE_GAIN",
+    "SURFACE_LIMIT",
     "TWO_OPT_PASSES",
     "WINDOW",
     "PassPlanner",
@@ -101,8 +121,6 @@ AT_RISK = 0.9
 ISLAND_COST = 2.0
 #: Waypoints of an arc between two along which its length is measured [-] (see RingPasses._tour_length).
 SUBSAMPLE = 3
-#: Passes of 2-opt over the tour of the arcs at most (each is O(n²) in the arcs; it converges in a few).
-TWO_OPT_PASSES = 20
 #: The tour over the arcs planned by surface distance replaces the one planned by chord when its moves between arcs
 #: are shorter along the surface than this share of the chord tour's [-]: on a flat or gently curved part the two
 #: differ by the graph distance's zigzag, and the chord's tour is kept (see RingPasses._tour_of).
@@ -128,6 +146,11 @@ class PassPlanner:
     large part is planned (the first step of a whole-surface run waits for it)."""
 
     progress: Callable[[str], None] | None = None
+    _tick_from: float | None = None  # when the plan being laid started, while it says how far it got (see _tick)
+    _said_at = 0.0
+    _tick_about = ""  # what the plan is at (the candidate), before the tick's own words
+    #: Order the arcs of a large part's rings with :mod:`.compiled_arcs` when numba is there (False: in Python).
+    compiled_arcs: bool = True
 
     def lay(self, start: int) -> None:
         """Lay the rings of target point ``start``'s part (once per part). With origin "edge" and the tour, the
@@ -140,11 +163,12 @@ class PassPlanner:
         self._laid[part] = True
         members = np.flatnonzero(self._part == part)
         t_start = time.perf_counter()
-        said = [t_start]  # when the last progress line went out
+        self._said_at = t_start  # when the last progress line went out
+        self._tick_from = t_start if members.size >= PROGRESS_MIN_POINTS else None  # see _tick
 
         def say(msg: str, now: float | None = None) -> None:
             if self.progress is not None:
-                said[0] = time.perf_counter() if now is None else now
+                self._said_at = time.perf_counter() if now is None else now
                 self.progress(msg)
         sub = self._graph[members][:, members]
         s = int(np.searchsorted(members, start))
@@ -160,6 +184,9 @@ class PassPlanner:
         n_plans = len(seeds) * (len(SPACING_SHARES) if self.order == "tour" else 1)
         if members.size >= PROGRESS_MIN_POINTS:
             say(f"pass plan: {members.size} target points in this part, {n_plans} candidate plan(s) to compare ...")
+        if members.size > EXACT_POINTS and compiled_arcs.compile_pending():
+            say("pass plan: preparing its compiled searches (a second or two from numba's cache; the first time on a "
+                "machine numba compiles them, 10–20 s) ...")
         for n_seed, seed in enumerate(seeds):
             d = self._smooth(sub, dijkstra(sub, directed=False, indices=seed, min_only=True))
             for share in SPACING_SHARES if self.order == "tour" else SPACING_SHARES[:1]:
@@ -182,22 +209,25 @@ class PassPlanner:
                 if self.order != "tour":
                     self.spacing_m[part] = w
                     return
+                self._tick_about = f"candidate {len(plans) + 1} of {n_plans}: "
+                self._tick(f"{way.size} waypoints on its rings")
                 self._plan(part, self._points[start])
                 length = self._tour_length(part)
                 if seed.size == 1 and len(seeds) > 1:
                     length *= START_PENALTY
-                length += self._hunt_length(members, way) / (HUNT_FACTOR if thin else 1.0)
-                plans.append((n_seed, share, length, length + self._island_cost(members, way),
-                              (way, self.ring[way].copy(), self._tour[part], self._arc[part], w)))
+                gap = self._gap(members, way)
+                length += self._hunt_length(members, gap) / (HUNT_FACTOR if thin else 1.0)
+                plans.append((n_seed, share, length, length + self._island_cost(members, gap),
+                              (way, self.ring[way].copy(), self._tour[part], self._arc[part], w, self._last_arcs)))
                 self.ring[way] = -1
                 self.pending[way] = False
                 now = time.perf_counter()
-                if now - said[0] >= PROGRESS_EVERY_S:
+                if now - self._said_at >= PROGRESS_EVERY_S:
                     say(f"pass plan: {len(plans)} of {n_plans} candidate plans ({now - t_start:.0f} s)", now)
         # The origin by its plan at the full spacing (tour and the hunt for what it leaves), then its spacing also by
         # the islands it leaves at risk: compared over origins, the islands would choose worse origins.
         origin = min((p for p in plans if p[1] == SPACING_SHARES[0]), key=lambda p: p[2])[0]
-        way, ring, self._tour[part], self._arc[part], self.spacing_m[part] = min(
+        way, ring, self._tour[part], self._arc[part], self.spacing_m[part], arcs = min(
             (p for p in plans if p[0] == origin), key=lambda p: p[3])[4]
         self.ring[way] = ring
         self.pending[way] = True
@@ -207,28 +237,53 @@ class PassPlanner:
             # (only CLEAN_REACH marks it done)
             self.ring[extra] = ring.max() + 1 + np.arange(extra.size)
             self.pending[extra] = True
-            self._plan(part, self._points[start])
+            # the passes' own arcs and tour are the chosen plan's (the same waypoints, from the same start)
+            self._tick_about = f"the chosen plan and {extra.size} clean-up waypoints: "
+            self._plan(part, self._points[start], known=(self._tour[part], self._arc[part], arcs))
         self._at[part] = 0
         if time.perf_counter() - t_start >= PROGRESS_EVERY_S or members.size >= PROGRESS_MIN_POINTS:
             say(f"pass plan: laid in {time.perf_counter() - t_start:.1f} s")
+        self._tick_from = None
+
+    def _tick(self, what: str) -> None:
+        """A progress line "pass plan: <candidate>: ``what`` (t s)" while a large part's plan is laid, at most every
+        ``PROGRESS_EVERY_S`` (a candidate plan of a 100k-point part takes seconds)."""
+        if self.progress is None or self._tick_from is None:
+            return
+        now = time.perf_counter()
+        if now - self._said_at >= PROGRESS_EVERY_S:
+            self._said_at = now
+            self.progress(f"pass plan: {self._tick_about}{what} ({now - self._tick_from:.0f} s)")
 
     # ------------------------------------------------------------------ the tour over the arcs
-    def _plan(self, part: int, x: np.ndarray) -> None:
+    def _plan(self, part: int, x: np.ndarray, known: tuple | None = None) -> None:
         """The part's pending waypoints as arcs (connected runs of one ring's middle line, each in order along it),
-        and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
+        and the arcs in the order of a short open tour from x (3,) [m] (see _tour_of). ``known``: the tour, its
+        arc numbers and the arcs of the waypoints other than the clean-up ones, planned from x already."""
         idx = np.flatnonzero(self.pending & (self._part == part))
         clean = np.isin(idx, np.fromiter(self._clean, dtype=np.intp, count=len(self._clean)))
-        self._plan_arcs(part, idx[~clean], x)
+        if known is None:
+            self._plan_arcs(part, idx[~clean], x)
+        else:
+            self._tour[part], self._arc[part], self._last_arcs = known
+            self._at[part] = 0
         if clean.any():
             self._insert(part, idx[clean])
             inserted = self._tour[part], self._arc[part], self._tour_length(part)
-            self._plan_arcs(part, idx, x)
+            # a clean-up waypoint is a ring of its own, after the passes' rings: an arc of one (see _arcs)
+            arcs = None if known is None else list(known[2]) + [idx[clean][self.ring[idx[clean]] == k]
+                                                                for k in np.unique(self.ring[idx[clean]])]
+            self._plan_arcs(part, idx, x, arcs)
             if self._tour_length(part) >= inserted[2]:
                 self._tour[part], self._arc[part] = inserted[:2]
 
-    def _plan_arcs(self, part: int, idx: np.ndarray, x: np.ndarray) -> None:
-        """The waypoints idx as arcs in the order of a short open tour from x (3,) [m] (see _tour_of)."""
-        arcs = self._arcs(idx)
+    def _plan_arcs(self, part: int, idx: np.ndarray, x: np.ndarray, arcs: list[np.ndarray] | None = None) -> None:
+        """The waypoints idx as arcs (``arcs`` when known) in the order of a short open tour from x (3,) [m] (see
+        _tour_of)."""
+        if arcs is None:
+            arcs = self._arcs(idx)
+            self._tick(f"{len(arcs)} arcs along the rings")
+        self._last_arcs = list(arcs)
         self._at[part] = 0
         if not arcs:
             self._tour[part] = np.zeros(0, dtype=np.intp)
@@ -263,57 +318,28 @@ class PassPlanner:
     def _tour_of(self, arcs: list[np.ndarray], x: np.ndarray) -> list[np.ndarray]:
         """The arcs, each in walking direction, in the order of a short open tour from x (3,) [m]: nearest
         neighbour over their ends (a closed arc is entered at its point nearest to where the tour is), then 2-opt,
-        once by the chords between the ends and once by the surface distances. The agent walks the moves down the
-        surface distance: round a fold or an ear's base the chord ranks them wrongly, so the surface's tour is kept
-        when its moves are shorter along the surface than ``SURFACE_GAIN`` times the chord's; on a flat part the
-        graph distance zigzags along the links and ranks straight moves wrongly, and the chord's tour is kept."""
-        p = self._points
+        once by the chords between the ends and once by the surface distances (:mod:`.pass_tour`). The agent walks
+        the moves down the surface distance: round a fold or an ear's base the chord ranks them wrongly, so the
+        surface's tour is kept when its moves are shorter along the surface than ``SURFACE_GAIN`` times the
+        chord's; on a flat part the graph distance zigzags along the links and ranks straight moves wrongly, and
+        the chord's tour is kept."""
         closed = [self._closed(a) for a in arcs]
         start = self._on_arcs(arcs, x)
-        ends = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in arcs]))
-        rows = dict(zip(ends.tolist(), dijkstra(self._graph, directed=False, indices=ends), strict=True))
-
-        def surface(v: int) -> np.ndarray:
-            if v not in rows:
-                rows[v] = dijkstra(self._graph, directed=False, indices=v)
-            return rows[v]
-
-        def chord(v: int) -> np.ndarray:
-            return np.linalg.norm(p - p[v], axis=1)
-
+        size = np.count_nonzero(self._part == self._part[start])
+        limit = np.inf if size <= EXACT_POINTS else SURFACE_LIMIT * self.pass_spacing_m
+        dist = Distances(self._points, self._graph, limit)
         tours = []
-        for way in (chord, surface):
-            walk = self._two_opt(self._nearest_arcs(arcs, closed, start, way), start, way)
-            moves = [(start, walk[0][0])] + [(a[-1], b[0]) for a, b in pairwise(walk)]
-            tours.append((walk, sum(float(surface(int(u))[v]) for u, v in moves)))
+        for way in (dist.chord, dist.surface):
+            if np.isfinite(limit):
+                along = way == dist.surface
+                first = nearest_arcs_within(arcs, closed, start, dist, by_surface=along)
+                walk = two_opt(first, start, way, lambda nodes, along=along: node_matrix(nodes, dist, along))
+            else:
+                walk = two_opt(nearest_arcs(arcs, closed, start, way), start, way)
+            tours.append((walk, surface_moves(walk, start, dist)))
+            self._tick(f"a tour over {len(arcs)} arcs by {'chord' if way == dist.chord else 'surface distance'}")
         (by_chord, chord_m), (by_surface, surface_m) = tours
         return by_surface if surface_m < SURFACE_GAIN * chord_m else by_chord
-
-    @staticmethod
-    def _nearest_arcs(arcs: list[np.ndarray], closed: list[bool], start: int, way) -> list[np.ndarray]:
-        """The arcs in nearest-neighbour order from target point ``start`` by the distances ``way(v)`` (T,) [m]
-        from target point v, each entered at its nearer end (a closed one at its nearest point)."""
-        left = list(range(len(arcs)))
-        here = start
-        walk: list[np.ndarray] = []
-        while left:
-            best, best_d, best_seq = -1, np.inf, None
-            r = way(here)
-            for i in left:
-                a = arcs[i]
-                if closed[i]:
-                    d = r[a]
-                    j = int(d.argmin())
-                    cand, dist = np.roll(a, -j), float(d[j])
-                else:
-                    d0, d1 = float(r[a[0]]), float(r[a[-1]])
-                    cand, dist = (a, d0) if d0 <= d1 else (a[::-1], d1)
-                if dist < best_d or best < 0:
-                    best, best_d, best_seq = i, dist, cand
-            left.remove(best)
-            walk.append(best_seq)
-            here = int(best_seq[-1])
-        return walk
 
     def _on_arcs(self, arcs: list[np.ndarray], x: np.ndarray) -> int:
         """The target point of the arcs' part nearest to x (3,) [m] (where the tour starts)."""
@@ -345,34 +371,43 @@ class PassPlanner:
         if left.size == 0:
             return left
         q = self._points[left]
-        balls = cKDTree(q).query_ball_point(q, CLEAN_UP * self.footprint_m)
+        balls = [np.asarray(b, dtype=np.intp) for b in cKDTree(q).query_ball_point(q, CLEAN_UP * self.footprint_m)]
         open_ = np.ones(left.size, dtype=bool)
+        gain = np.array([b.size for b in balls])  # open points per disc
+        n_open = left.size
         centres = []
-        while open_.any():
-            gain = np.array([np.count_nonzero(open_[b]) for b in balls])
+        while n_open:
             c = int(gain.argmax())
+            closing = balls[c][open_[balls[c]]]
             centres.append(left[c])
-            self._clean[int(left[c])] = left[np.asarray(balls[c], dtype=np.intp)[open_[balls[c]]]]
-            open_[balls[c]] = False
+            self._clean[int(left[c])] = left[closing]
+            open_[closing] = False
+            n_open -= closing.size
+            # a point closing leaves every disc that holds it: the discs centred within the radius of it
+            np.subtract.at(gain, np.concatenate([balls[j] for j in closing]), 1)
         return np.asarray(centres, dtype=np.intp)
 
-    def _hunt_length(self, members: np.ndarray, way: np.ndarray) -> float:
-        """Estimated path [m] of the hunt for the points of ``members`` a plan with waypoints ``way`` leaves: those
-        farther than the footprint radius from every waypoint, HUNT_FACTOR times their ideal path."""
-        if way.size:
-            gap = cKDTree(self._points[way]).query(self._points[members], distance_upper_bound=self.footprint_m)[0]
-            left = int(np.count_nonzero(~np.isfinite(gap)))
-        else:
-            left = members.size
+    def _gap(self, members: np.ndarray, way: np.ndarray) -> np.ndarray | None:
+        """Distance [m] (M,) from each point of ``members`` to the nearest of the waypoints ``way``, inf beyond the
+        footprint radius (what the hunt and the islands ask of a plan); None without waypoints."""
+        if way.size == 0:
+            return None
+        return cKDTree(self._points[way]).query(self._points[members], distance_upper_bound=self.footprint_m)[0]
+
+    def _hunt_length(self, members: np.ndarray, gap: np.ndarray | None) -> float:
+        """Estimated path [m] of the hunt for the points of ``members`` a plan leaves, given their distances ``gap``
+        to its waypoints (:meth:`_gap`): those farther than the footprint radius from every waypoint, HUNT_FACTOR
+        times their ideal path."""
+        left = members.size if gap is None else int(np.count_nonzero(~np.isfinite(gap)))
         voxel = 2.0 * self._half_line
         return HUNT_FACTOR * left * voxel * voxel / (2.0 * self.footprint_m)
 
-    def _island_cost(self, members: np.ndarray, way: np.ndarray) -> float:
-        """Estimated detours [m] of the hunt for the islands of points of ``members`` that a plan with waypoints
-        ``way`` leaves at risk (farther than AT_RISK footprint radii from every waypoint): ISLAND_COST radii each."""
-        if way.size == 0:
+    def _island_cost(self, members: np.ndarray, gap: np.ndarray | None) -> float:
+        """Estimated detours [m] of the hunt for the islands of points of ``members`` that a plan leaves at risk
+        (farther than AT_RISK footprint radii from every waypoint; ``gap``: see :meth:`_gap`): ISLAND_COST radii
+        each."""
+        if gap is None:
             return 0.0  # the hunt estimate already counts the whole part
-        gap = cKDTree(self._points[way]).query(self._points[members])[0]
         risk = self._points[members[gap > AT_RISK * self.footprint_m]]
         if len(risk) == 0:
             return 0.0
@@ -380,46 +415,13 @@ class PassPlanner:
         g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(risk), len(risk)))
         return ISLAND_COST * self.footprint_m * connected_components(g, directed=False)[0]
 
-    def _two_opt(self, walk: list[np.ndarray], start: int, row) -> list[np.ndarray]:
-        """2-opt on an open tour of arcs from target point ``start``, by the distances ``row(v)`` (T,) [m] from
-        target point v: reversing a run of arcs reverses each of them too."""
-        n = len(walk)
-        if n < 3:
-            return walk
-        nodes = np.unique(np.concatenate([[start]] + [a[[0, -1]] for a in walk]))
-        dist = np.array([row(int(v))[nodes] for v in nodes])  # between the ends (both ways: an arc may turn)
-        at = {int(v): k for k, v in enumerate(nodes)}
-        for _ in range(TWO_OPT_PASSES):
-            entry = np.array([at[int(a[0])] for a in walk])
-            out = np.array([at[int(a[-1])] for a in walk])
-            before = np.r_[at[start], out[:-1]]  # where the tour is before arc i
-            improved = False
-            for i in range(n - 1):
-                # reverse arcs i..j: the edge (before_i → entry_i) becomes (before_i → out_j), and
-                # (out_j → entry_{j+1}) becomes (entry_i → entry_{j+1}); the last arc has no edge after it
-                j = np.arange(i + 1, n)
-                old = dist[before[i], entry[i]]
-                new = dist[before[i], out[j]]
-                nxt = np.r_[entry[j[:-1] + 1], 0]
-                old_after = dist[out[j], nxt]
-                new_after = dist[entry[i], nxt]
-                old_after[-1] = new_after[-1] = 0.0
-                gain = old + old_after - new - new_after
-                k = int(gain.argmax())
-                if gain[k] > 1e-9:
-                    jj = int(j[k])
-                    walk[i:jj + 1] = [a[::-1] for a in walk[i:jj + 1][::-1]]
-                    improved = True
-                    break
-            if not improved:
-                break
-        return walk
-
     def _arcs(self, idx: np.ndarray) -> list[np.ndarray]:
         """Waypoints idx split into arcs: per ring, the connected runs of its middle line (links ≤ MAX_LINK
         voxels), each ordered along itself."""
         link = MAX_LINK * 2.0 * self._half_line
         arcs: list[np.ndarray] = []
+        large = idx.size > 0 and self._sizes[self._part[idx[0]]] > EXACT_POINTS  # see pass_tour.EXACT_POINTS
+        compiled = compiled_ring_orders() if large and self.compiled_arcs else None
         for k in np.unique(self.ring[idx]):
             ring = idx[self.ring[idx] == k]
             if ring.size <= 2:
@@ -428,30 +430,37 @@ class PassPlanner:
             q = self._points[ring]
             pairs = cKDTree(q).query_pairs(link, output_type="ndarray")
             length = np.maximum(np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1), 1e-12)
-            g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size)).tocsr()
-            g = g.maximum(g.T)
+            g = coo_matrix((length, (pairs[:, 0], pairs[:, 1])), shape=(ring.size, ring.size))
             n, label = connected_components(g, directed=False)
+            if compiled is not None:  # every run of the ring in one compiled call (the same orders)
+                voxel = 2.0 * self._half_line
+                order, starts = compiled(ring.size, pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64),
+                                         length, label.astype(np.int64), n, q, MAX_LINK * voxel,
+                                         (MAX_LINK + 1.5) * voxel, 2.0 * (MAX_LINK + 1.5) * voxel)
+                arcs.extend(ring[order[starts[c]:starts[c + 1]]] for c in range(n))
+                continue
+            whole = SmallGraph(ring.size, pairs[:, 0], pairs[:, 1], length, compiled=large)
             for c in range(n):
                 m = np.flatnonzero(label == c)
-                arcs.append(ring[m[self._along(g[m][:, m], q[m])]])
+                arcs.append(ring[m[self._along(whole.sub(m), q[m])]])
         return arcs
 
-    def _along(self, g: csr_matrix, q: np.ndarray) -> np.ndarray:
+    def _along(self, g: SmallGraph, q: np.ndarray) -> np.ndarray:
         """The order along a connected run of a middle line (its graph g, points q): from one end by surface
         distance; a closed run is cut next to that end and walked round from one side of the cut to the other."""
         if len(q) <= 2:
             return np.arange(len(q))
-        a = int(np.nan_to_num(dijkstra(g, indices=0), posinf=-1.0).argmax())  # an end (the farthest from any point)
-        da = dijkstra(g, indices=a)
+        a = int(np.nan_to_num(g.distances(0), posinf=-1.0).argmax())  # an end (the farthest from any point)
+        da = g.distances(a)
         voxel = 2.0 * self._half_line
         cut = np.linalg.norm(q - q[a], axis=1) <= MAX_LINK * voxel
         rest = np.flatnonzero(~cut)
         if rest.size > 2:
-            sub = g[rest][:, rest]
-            n, _ = connected_components(sub, directed=False)
-            if n == 1:
-                e0 = int(np.nan_to_num(dijkstra(sub, indices=0), posinf=-1.0).argmax())
-                d0 = dijkstra(sub, indices=e0)
+            sub = g.sub(rest)
+            d_first = sub.distances(0)
+            if np.isfinite(d_first).all():  # the rest is connected
+                e0 = int(np.nan_to_num(d_first, posinf=-1.0).argmax())
+                d0 = sub.distances(e0)
                 e1 = int(np.nan_to_num(d0, posinf=-1.0).argmax())
                 near_a = np.linalg.norm(q[rest[[e0, e1]]] - q[a], axis=1) <= (MAX_LINK + 1.5) * voxel
                 if near_a.all() and d0[e1] > 2.0 * (MAX_LINK + 1.5) * voxel:  # a loop: both ends of the rest by a

@@ -258,8 +258,16 @@ class RingPasses(PassPlanner):
         if idx.size == 0:
             return idx
         idx = idx[np.argsort(np.linalg.norm(self._points[idx] - x, axis=1), kind="stable")]
-        covered = [self.pending[b].any() for b in self._tree.query_ball_point(self._points[idx], self.footprint_m)]
-        return idx[~np.array(covered, dtype=bool)]
+        # the pending waypoints that may lie within a footprint radius of a candidate (a few along the passes), and
+        # each candidate's squared distances to them
+        around = np.asarray(self._tree.query_ball_point(x, radius_m + self.footprint_m), dtype=np.intp)
+        pend = self._points[around[self.pending[around]]]
+        if pend.shape[0] == 0:
+            return idx
+        d = self._points[idx][:, None, :] - pend[None, :, :]
+        d *= d
+        covered = ((d[:, :, 0] + d[:, :, 1] + d[:, :, 2]) <= self.footprint_m * self.footprint_m).any(axis=1)
+        return idx[~covered]
 
     @property
     def has_specks(self) -> bool:

@@ -463,9 +463,12 @@ def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray 
     # uniform outside the zone is uniform outside the band too)
     if hcfg.compiled and not sweeps(hcfg.source_mode, cloud.target, keep_out) and compile_pending():
         say("explorer: preparing the compiled step (the first time on a machine numba compiles it, ~10–15 s) ...")
+    if len(cloud) >= estimate.PROGRESS_MIN_POINTS:
+        say(f"explorer: neighbourhoods of {len(cloud)} points (seconds on a large cloud) ...")
     t1 = time.perf_counter()
-    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out)
-    explorer.progress = say  # the pass plan of a large target, laid at the first step, takes a while
+    # the set-up's neighbourhoods on a large cloud and the pass plan of a large target (laid at the first step) take
+    # a while: both say how far they got
+    explorer = HedacExplorer(cloud, basis, hcfg, keep_out=keep_out, progress=say)
     setup_s = time.perf_counter() - t1
     preprocess_s = time.perf_counter() - t0
     say(f"explorer: {setup_s:.3f} s, step {'compiled (numba)' if explorer.compiled else 'in numpy'}")
