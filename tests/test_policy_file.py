@@ -161,6 +161,6 @@ def test_the_cup_wall_reach_is_its_arc_and_height(monkeypatch) -> None:
 
     import tactex.tasks.wipe_policy as wp
 
-    monkeypatch.setattr(wp, "get_object", lambda name: types.SimpleNamespace(surface=object()))
+    monkeypatch.setattr(wp, "object_or_part", lambda name, units="m": types.SimpleNamespace(surface=object()))
     with pytest.raises(ConfigError, match="neither"):
         wp.check_wipe_policy(WipeConfig(), load_policy_file(EXAMPLES / "spiral.toml"))

@@ -107,7 +107,7 @@ def test_bad_units_are_refused(tmp_path, capsys) -> None:
         ExploreConfig(units="feet")
     with pytest.raises(ConfigError, match="not a length unit"):
         SweepConfig(units="km")
-    with pytest.raises(ConfigError, match="is the unit of a --cloud FILE: give --cloud too"):
+    with pytest.raises(ConfigError, match="is the unit of a --cloud or --object FILE: give one"):
         CleanConfig(units="mm")
     with pytest.raises(ConfigError, match="not a length unit"):
         CleanConfig(units="yd")
