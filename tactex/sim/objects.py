@@ -18,6 +18,7 @@ import numpy as np
 from tactex.errors import ConfigError, InputError
 from tactex.pointcloud.shapes import SURFACES, CylinderWallSurface, HeightFieldSurface, Surface
 from tactex.sim.franka import _fmt
+from tactex.sim.part_raster import bilinear
 
 __all__ = [
     "OBJECTS",
@@ -201,17 +202,11 @@ def heightfield_from_image(
         raise ConfigError(f"max_height_m must be in (0, 1] m, got {max_height_m}")
     rows, cols = img.shape
     flipped = img[::-1] * max_height_m  # row 0 → −y
+    xs = np.linspace(-size_x_m / 2, size_x_m / 2, cols)
+    ys = np.linspace(-size_y_m / 2, size_y_m / 2, rows)
 
     def height(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
-        c = np.clip((x / size_x_m + 0.5) * (cols - 1), 0, cols - 1)
-        r = np.clip((y / size_y_m + 0.5) * (rows - 1), 0, rows - 1)
-        c0 = np.minimum(np.floor(c).astype(int), cols - 2)
-        r0 = np.minimum(np.floor(r).astype(int), rows - 2)
-        fc, fr = c - c0, r - r0
-        top = flipped[r0, c0] * (1 - fc) + flipped[r0, c0 + 1] * fc
-        bot = flipped[r0 + 1, c0] * (1 - fc) + flipped[r0 + 1, c0 + 1] * fc
-        return top * (1 - fr) + bot * fr
+        return bilinear(xs, ys, flipped, x, y)
 
     return heightfield_object(name, height, size_x_m, size_y_m, **kw)
 
