@@ -29,6 +29,23 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe
 HANG_S = 60.0  # hang guard only
 
 
+def guard_page(page, allowed: tuple[str, ...], outside: list[str], errors: list[str]) -> None:
+    """Abort every request of ``page`` whose URL starts with none of ``allowed`` (recorded in ``outside``), and
+    collect the page's console errors and uncaught exceptions in ``errors``: a page that works offline asks for
+    nothing else, and one that renders says nothing in red."""
+
+    def route(r):
+        if r.request.url.startswith(allowed):
+            r.continue_()
+        else:
+            outside.append(r.request.url)
+            r.abort()
+
+    page.route("**/*", route)
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda e: errors.append(str(e)))
+
+
 def _wait_for(predicate, what: str) -> None:
     end = time.monotonic() + HANG_S
     while not predicate():
@@ -67,16 +84,7 @@ def test_paint_in_chromium_then_save(tmp_path):
             page = browser.new_page(viewport={"width": 1000, "height": 700})
             local = ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")
 
-            def route(r):
-                if r.request.url.startswith(local):
-                    r.continue_()
-                else:
-                    outside.append(r.request.url)
-                    r.abort()
-
-            page.route("**/*", route)
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: errors.append(str(e)))
+            guard_page(page, local, outside, errors)
             page.goto(view.url, timeout=HANG_S * 1000)
             page.get_by_text(f"{len(read.cloud)} points", exact=False).wait_for(timeout=HANG_S * 1000)
             canvas = page.locator("canvas").first

@@ -22,7 +22,7 @@ import pytest
 
 from tactex.report.live_view import FORCE_WINDOW_S
 
-from .test_annotate_browser import CHROMIUM, CHROMIUM_ARGS
+from .test_annotate_browser import CHROMIUM, CHROMIUM_ARGS, guard_page
 
 pytestmark = [
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium on PATH (Debian: apt-get install chromium)"),
@@ -95,16 +95,7 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
             page = browser.new_page(viewport={"width": 1100, "height": 720})
             local = ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")
 
-            def route(r):
-                if r.request.url.startswith(local):
-                    r.continue_()
-                else:
-                    outside.append(r.request.url)
-                    r.abort()
-
-            page.route("**/*", route)
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: errors.append(str(e)))
+            guard_page(page, local, outside, errors)
             page.goto(url, timeout=HANG_S * 1000)
             _wait_text(page, r"phase explore", "the robot to clean (phase explore)", proc)
             first = page.locator("canvas").first.screenshot()

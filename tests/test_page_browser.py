@@ -18,7 +18,7 @@ import pytest
 from tactex.report.html import PAGE_POINTS, cloud_html
 
 from .page_scene import people_scene
-from .test_annotate_browser import CHROMIUM, CHROMIUM_ARGS
+from .test_annotate_browser import CHROMIUM, CHROMIUM_ARGS, guard_page
 from .test_page_decimation import SHOWING, clean_like_fields
 
 pytestmark = [
@@ -92,16 +92,7 @@ def test_big_and_small_pages_fill_the_window_with_the_path_on_top(tmp_path):
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport=VIEWPORT)
 
-        def route(r):
-            if r.request.url.startswith(("file://", "data:", "blob:")):
-                r.continue_()
-            else:
-                outside.append(r.request.url)
-                r.abort()
-
-        page.route("**/*", route)
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.on("pageerror", lambda e: errors.append(str(e)))
+        guard_page(page, ("file://", "data:", "blob:"), outside, errors)
         added = {}
         for name, path in pages.items():
             _open(page, path)
