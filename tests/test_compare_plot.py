@@ -11,7 +11,7 @@ import pytest
 
 from tactex.errors import InputError
 from tactex.report import plot_compare, write_run_report
-from tactex.report.compare_plot import time_to_removed
+from tactex.tasks.clean.time_breakdown import time_to_fraction_removed
 
 from .test_report_figures import _figure_of
 from .test_run_report import PNG_MAGIC, FakeCleanConfig, fake_clean, fake_wipe
@@ -38,7 +38,7 @@ def test_clean_overlay_one_dirt_curve_per_method_with_the_time_to_95_marked(tmp_
     curves = [ln for ln in dirt.get_lines() if ln.get_label().split(":")[0] in ("tactex", "raster")]
     assert [ln.get_label().split(":")[0] for ln in curves] == ["tactex", "raster"]
     t = fake_clean().series["t"]
-    t95 = time_to_removed(t, np.linspace(1.0, 0.0, len(t)))
+    t95 = time_to_fraction_removed(t, np.linspace(1.0, 0.0, len(t)))
     assert t95 is not None and f"95 % removed at {t95:.1f} s" in curves[0].get_label()
     assert "not reached (50 % removed)" in curves[1].get_label()
     marks = [ln for ln in dirt.get_lines() if list(ln.get_xdata()) == [t95, t95]]  # the dashed line at t95

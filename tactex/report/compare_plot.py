@@ -20,8 +20,9 @@ import numpy as np
 from tactex.errors import InputError
 from tactex.report.metrics import read_metrics
 from tactex.report.run_common import figure, save_png
+from tactex.tasks.clean.time_breakdown import time_to_fraction_removed
 
-__all__ = ["REMOVED_MARK", "CompareFigure", "plot_compare", "time_to_removed"]
+__all__ = ["REMOVED_MARK", "CompareFigure", "plot_compare"]
 
 #: The removed share whose time each method's dirt curve marks (the summary's "95 % removed at [s]").
 REMOVED_MARK = 0.95
@@ -72,12 +73,6 @@ def _load(label: str, folder: Path, keys: Sequence[str]) -> tuple[dict[str, np.n
     return s, dict(metrics)
 
 
-def time_to_removed(t: np.ndarray, remaining: np.ndarray, removed: float = REMOVED_MARK) -> float | None:
-    """The first time [s] at which ``1 − remaining`` reaches ``removed`` (None: never, or no dirt known)."""
-    hit = np.flatnonzero(np.isfinite(remaining) & (remaining <= 1.0 - removed + 1e-12))
-    return float(t[hit[0]]) if hit.size else None
-
-
 def _when(t95: float | None, remaining: np.ndarray) -> str:
     """A method's legend text on the dirt axis: when it reached the mark, or how far it got."""
     mark = f"{100 * REMOVED_MARK:.0f} %"
@@ -93,7 +88,7 @@ def _clean(runs: Sequence[_Run], path: Path) -> Path:
     set_points = []
     for run in runs:
         label, s, m, colour = run.label, run.s, run.metrics, run.colour
-        t95 = time_to_removed(s["t"], s["dirt_remaining"])
+        t95 = time_to_fraction_removed(s["t"], s["dirt_remaining"], REMOVED_MARK)
         dirt.plot(s["t"], 100 * s["dirt_remaining"], color=colour, lw=1.6,
                   label=f"{label}: {_when(t95, s['dirt_remaining'])}")
         if t95 is not None:
