@@ -13,10 +13,10 @@ import numpy as np
 
 from tactex.config import param, write_json
 from tactex.errors import ConfigError
-from tactex.experiments.run import Note, note_stderr, run_task
+from tactex.experiments.run import Note, note_stderr, remark_lines, run_task
 from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.tasks import baseline_names, task_spec
-from tactex.report.run_report import RunReport, alignment_summary, safety_summary, summary_table, write_index_html
+from tactex.report.run_report import RunReport, summary_table, write_index_html
 
 __all__ = ["DemoConfig", "DemoResult", "run_demo"]
 
@@ -59,14 +59,11 @@ class DemoResult:
     wall_time_s: float = 0.0
 
     def summary(self) -> str:
-        """The tables of the runs per task, then a line per run whose safety layer stepped in."""
+        """The tables of the runs per task, then the runs' remarks (the safety layer, the alignment transient)."""
         tables = {k: summary_table([(r.label, r.metrics) for r in reps]) for k, reps in self.reports.items() if reps}
         text = "\n\n".join(f"{kind}:\n{table}" for kind, table in tables.items())
-        safety = [f"safety layer ({kind} {r.label}): {said}" for kind, reps in self.reports.items() for r in reps
-                  if (said := safety_summary(r.metrics))]
-        safety += [f"motion ({kind} {r.label}): {said}" for kind, reps in self.reports.items() for r in reps
-                   if (said := alignment_summary(r.metrics))]
-        return "\n\n".join([text, "\n".join(safety)]) if safety else text
+        remarks = remark_lines([(f"{kind} {r.label}", r.metrics) for kind, reps in self.reports.items() for r in reps])
+        return "\n\n".join([text, "\n".join(remarks)]) if remarks else text
 
 
 def run_demo(out_dir: str | Path = "runs/demo", config: DemoConfig | None = None, *, progress: bool = True,

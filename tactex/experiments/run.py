@@ -22,16 +22,9 @@ from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.tasks import baseline_names, task_spec
 from tactex.experiments.video import write_replay_video
 from tactex.report.compare_plot import plot_compare
-from tactex.report.run_report import (
-    RunReport,
-    alignment_summary,
-    safety_summary,
-    summary_table,
-    write_index_html,
-    write_run_report,
-)
+from tactex.report.run_report import RunReport, run_remarks, summary_table, write_index_html, write_run_report
 
-__all__ = ["Note", "note_stderr", "run_compare", "run_task", "task_summary"]
+__all__ = ["Note", "note_stderr", "remark_lines", "run_compare", "run_task", "task_summary"]
 
 Note = Callable[[str], None]
 
@@ -111,10 +104,16 @@ def run_compare(kind: str, config: Any, out_dir: str | Path, *, baselines: Seque
     return reports
 
 
+def remark_lines(runs: Sequence[tuple[str, Any]]) -> list[str]:
+    """The runs' remarks (:func:`~tactex.report.run_report.run_remarks`), a line each, grouped by topic."""
+    said = [(topic, name, line) for name, metrics in runs for topic, line in run_remarks(metrics)]
+    topics = list(dict.fromkeys(topic for topic, _, _ in said))
+    return [f"{topic} ({name}): {line}" for t in topics for topic, name, line in said if topic == t]
+
+
 def task_summary(reports: Sequence[RunReport]) -> str:
     """What a command prints after its runs: the table of their metrics, then a line per run whose
     safety layer stepped in."""
     lines = [summary_table([(r.label, r.metrics) for r in reports])]
-    lines += [f"safety layer ({r.label}): {said}" for r in reports if (said := safety_summary(r.metrics))]
-    lines += [f"motion ({r.label}): {said}" for r in reports if (said := alignment_summary(r.metrics))]
+    lines += remark_lines([(r.label, r.metrics) for r in reports])
     return "\n".join(lines)

@@ -19,7 +19,8 @@ from tactex.control.safety import SafetyLimits
 from tactex.errors import InputError
 from tactex.report.run_common import RunReport
 
-__all__ = ["SUMMARY_COLUMNS", "add_sections", "plain_page", "safety_summary", "summary_table", "write_index_html"]
+__all__ = ["SUMMARY_COLUMNS", "add_sections", "plain_page", "run_remarks", "safety_summary", "summary_table",
+           "write_index_html"]
 
 
 def _fmt(value: Any) -> str:
@@ -75,8 +76,7 @@ def add_sections(page: Path, rep: RunReport, title: str) -> Path:
     """Lay a run's page out in the order it is read: the title, the summary of its metrics (all of them folded
     below), the notes, the PNGs, then the page's 3-D view (a window-filling figure: above the rest, it would
     hide them behind a scroll), then the list of the run's files."""
-    notes = [*rep.notes, *(f"safety layer: {said}" for said in [safety_summary(rep.metrics)] if said),
-             *(f"motion: {said}" for said in [alignment_summary(rep.metrics)] if said)]
+    notes = [*rep.notes, *(f"{topic}: {said}" for topic, said in run_remarks(rep.metrics))]
     top = [_CSS, "<div class='txs'>", f"<h1>{html.escape(title)}</h1>", _summary_html([(rep.label, rep.metrics)]),
            "<details style='margin-top:6px'><summary><b>All metrics</b></summary>"
            f"{_metrics_table_html(rep.metrics)}</details>"]
@@ -229,6 +229,14 @@ def alignment_summary(metrics: Mapping[str, Any]) -> str | None:
     return (f"motion MAE in contact {_xyz_mm(every)} mm includes the alignment transient ({when}aligned at "
             f"{float(at):.1f} s); after alignment {_xyz_mm(aligned)} mm, the figure the paper (§IV) and the bench "
             "report")
+
+
+def run_remarks(metrics: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """What a run's last lines say beside its table, as (topic, line): the safety layer's interventions
+    (:func:`safety_summary`) and the wipe's alignment transient (:func:`alignment_summary`), each only when
+    there is something to say."""
+    said = (("safety layer", safety_summary(metrics)), ("motion", alignment_summary(metrics)))
+    return [(topic, line) for topic, line in said if line]
 
 
 def summary_table(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping[str, Any]]]) -> str:

@@ -34,7 +34,14 @@ from tactex.report.clean_report import (
     write_clean_report,
 )
 from tactex.report.run_common import CLEAN_METRIC_KEYS, WIPE_METRIC_KEYS, RunReport, missing_metric_keys
-from tactex.report.run_pages import SUMMARY_COLUMNS, alignment_summary, safety_summary, summary_table, write_index_html
+from tactex.report.run_pages import (
+    SUMMARY_COLUMNS,
+    alignment_summary,
+    run_remarks,
+    safety_summary,
+    summary_table,
+    write_index_html,
+)
 from tactex.report.wipe_report import CURVATURE_COLORSCALE, DEFAULT_TANK_LIMITS, write_wipe_report
 from tactex.tasks.clean_phases import CLEAN_PHASES
 
@@ -53,6 +60,7 @@ __all__ = [
     "contact_stretches",
     "missing_metric_keys",
     "run_kind",
+    "run_remarks",
     "safety_summary",
     "summary_table",
     "trips_with_a_view",
