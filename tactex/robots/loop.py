@@ -132,8 +132,7 @@ class ControlLoop:
         torque in one tick. After a pause of torque control (a real robot's, :meth:`pause`) the robot's own hold
         has already taken that torque over, and its rate check starts from its own command: the move starts
         from the measured posture, so its first command holds no spring torque the robot would see as a jump."""
-        paused = bool(getattr(self.backend, "torque_paused", False))
-        if self.safety.inner is self.joint and self._q_commanded is not None and not paused:
+        if self._continues_joint_move():
             return self._q_commanded.copy()
         return self.state.q.copy()
 
@@ -142,10 +141,13 @@ class ControlLoop:
         earlier move, which ended at rest, else the measured speed. A lift-off takes over an arm another
         controller moves (the tool sliding, the elbow turning in the null space); a move that started at
         rest would brake all of that speed in its first ticks, a step of torque the size of the damping
-        times the speed."""
-        if self._q_commanded is not None and self.safety.inner is self.joint:
-            return None
-        return self.state.dq.copy()
+        times the speed. After a pause the robot has held the arm itself, so the measured speed is its rest."""
+        return None if self._continues_joint_move() else self.state.dq.copy()
+
+    def _continues_joint_move(self) -> bool:
+        """Whether a new joint move continues the joint controller's last one (running, not paused since)."""
+        paused = bool(getattr(self.backend, "torque_paused", False))
+        return self.safety.inner is self.joint and self._q_commanded is not None and not paused
 
     def _run_joint_target(self, target: JointTarget, settle_s: float,
                           load_check: LoadErrorEstimator | None = None) -> RobotState:
