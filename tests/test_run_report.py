@@ -156,9 +156,12 @@ def test_clean_report_shows_the_time_breakdown(tmp_path) -> None:
     rep = write_run_report(res, tmp_path / "clean")
     assert "time_breakdown.png" in _pngs_ok(rep)
     assert "time_breakdown_s" in json.loads((tmp_path / "clean" / "metrics.json").read_text())
-    table = summary_table([("tactex", res.metrics), ("raster", {**res.metrics, "time_to_95pct_s": None})])
+    res.metrics.update(ideal_time_s=2.0, time_to_95pct_over_ideal=1.6)
+    table = summary_table([("tactex", res.metrics), ("raster", {**res.metrics, "time_to_95pct_s": None,
+                                                                "time_to_95pct_over_ideal": None})])
     header, _, tactex_row, raster_row = table.splitlines()
     assert "95 % removed at [s]" in header and "3.2" in tactex_row.split() and "–" in raster_row.split()
+    assert "95 % / bound" in header and "1.60" in tactex_row.split() and "2.0" in raster_row.split()
     res.metrics["time_breakdown_s"] = {"vision": 0.0}  # nothing accounted: a note, not a crash
     rep = write_run_report(res, tmp_path / "empty")
     assert "time_breakdown.png" not in _pngs_ok(rep) and any("time breakdown" in n for n in rep.notes)

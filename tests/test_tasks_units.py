@@ -518,8 +518,11 @@ def test_tactex_touches_down_first_where_the_arm_gets_soonest(monkeypatch) -> No
         return clean._hover_plan(loop, cloud.points[j], cloud.normals[j], q_capture, cfg.hover_height_m,
                                  q_from=q_capture)[2]
 
-    chosen = clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m)
-    assert chosen is not None and np.min(np.linalg.norm(cloud.points[targets] - chosen, axis=1)) == 0.0
+    quickest = clean._quickest_touch_down(loop, cloud, targets, q_capture, cap_pos, cfg.hover_height_m)
+    assert quickest is not None
+    chosen, chosen_move_s = quickest
+    assert np.min(np.linalg.norm(cloud.points[targets] - chosen, axis=1)) == 0.0
+    assert chosen_move_s == pytest.approx(move_s(chosen), abs=0.01)  # the duration the bound's transit counts
     # the quick search (settled IK, the waypoint only while the bound can win) picks what planning every
     # candidate with the full IK picks
     pts = cloud.points[targets]

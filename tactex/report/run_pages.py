@@ -127,6 +127,9 @@ SUMMARY_COLUMNS: tuple[tuple[str, str, Any], ...] = (
     ("max force [N]", "max_contact_force_n", _num(".1f")),
     ("vision updates", "vision_updates", _num(".0f")),
     ("95 % removed at [s]", "time_to_95pct_s", _num(".1f")),
+    # the least time any method could take (tactex.tasks.clean.bound), and the time to 95 % over it
+    ("bound [s]", "ideal_time_s", _num(".1f")),
+    ("95 % / bound", "time_to_95pct_over_ideal", _num(".2f")),
     ("force MAE [N]", "force_mae_n", _num(".2f")),
     ("force RMSE [N]", "force_rmse_n", _num(".2f")),
     # VA-UFIC's aligned contact (ρ_align = 1), the paper's §IV figure; a baseline without ρ_align has none

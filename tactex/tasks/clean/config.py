@@ -55,6 +55,10 @@ CLEAN_EXPLORER = HedacConfig(
 EXPLORER_OPTIONS = ("alpha", "agent_radius_m", "max_velocity", "cooling", "seed")
 
 
+#: The rasters' lanes apart, in agent radii (CleanConfig.lane_spacing_m).
+LANE_SPACING_RADII = 1.5
+
+
 def _approach_too_weak(cfg: CleanConfig) -> bool:
     """True when the wrench PID (Kp = 0.5, integrator off until contact) would stall before the
     touch-down threshold: out of contact it pushes with Kp·(F − f), balancing at Kp·F/(1 + Kp)."""
@@ -319,4 +323,10 @@ class CleanConfig(SimWorldParams):
 
     def scene(self) -> SceneConfig:
         return super().scene(marking=self.marking)
+
+    @property
+    def lane_spacing_m(self) -> float:
+        """The rasters' lane spacing [m]: 1.5 agent radii, as far apart as the explorer's footprints overlap
+        on its passes; the stripe one pass of the pad wipes clean, the pad's effective width of the bound."""
+        return LANE_SPACING_RADII * self.agent_radius_m
 

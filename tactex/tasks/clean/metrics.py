@@ -33,6 +33,11 @@ def clean_metrics(program: Any, series: dict[str, np.ndarray]) -> dict:
         # the same up to the 95 % mark (None when it never came or the dirt is not known): the time to 95 % split
         "time_breakdown_to_95pct_s": log.time.seconds_to_mark(),
         "time_to_95pct_s": t95,
+        # [s] the least time any method could take (tactex.tasks.clean.bound), its parts, and this run over it
+        "ideal_time_s": program.bound.time_s,
+        "ideal_time_parts_s": program.bound.parts_s(),
+        "dirty_area_m2": program.bound.dirty_area_m2,
+        "time_to_95pct_over_ideal": None if t95 is None else t95 / program.bound.time_s,
         "vision_updates": program.vision_updates,
         "island_relocations": program.island_moves,
         "island_strokes": program.n_strokes,

@@ -116,12 +116,12 @@ def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_se
 
 
 def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.ndarray, q_capture: np.ndarray,
-                         cap_pos: np.ndarray, hover_height_m: float) -> np.ndarray | None:
-    """tactex's first touch-down [m]: of the dirty points ``targets`` (indices into ``cloud``), one per cell of a
-    grid (:data:`START_SPACING_M`, coarser until at most :data:`START_CANDIDATES` are left), the one whose hover
-    the arm reaches soonest from the capture posture ``q_capture`` (the moves :func:`_hover_plan` plans), and of
-    those equally quick (to 10 ms) the nearest to the camera at ``cap_pos`` [m]. None when the cloud has no
-    normals or no candidate's hover is within reach.
+                         cap_pos: np.ndarray, hover_height_m: float) -> tuple[np.ndarray, float] | None:
+    """tactex's first touch-down [m] and the planned moves' duration to its hover [s]: of the dirty points
+    ``targets`` (indices into ``cloud``), one per cell of a grid (:data:`START_SPACING_M`, coarser until at most
+    :data:`START_CANDIDATES` are left), the one whose hover the arm reaches soonest from the capture posture
+    ``q_capture`` (the moves :func:`_hover_plan` plans), and of those equally quick (to 10 ms) the nearest to
+    the camera at ``cap_pos`` [m]. None when the cloud has no normals or no candidate's hover is within reach.
 
     It is wall-clock work while the robot holds at the capture pose, so it is kept cheap: each candidate's hover
     posture is solved once (the IK stops when its steps settle, :data:`START_SETTLED_STEP_RAD`, and gives up
@@ -150,7 +150,7 @@ def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.nda
         bounded.append(((round(bound_s, 2), float(np.linalg.norm(pts[j] - cap_pos))), int(j), q_hover))
     bounded.sort(key=lambda c: (c[0], c[1]))
     best: tuple[float, float] | None = None
-    chosen = None
+    chosen: tuple[np.ndarray, float] | None = None
     for bound_key, j, q_hover in bounded:
         if best is not None and bound_key > best:
             break  # this and every later candidate takes at least as long as the best plan
@@ -158,7 +158,7 @@ def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.nda
                              q_hover=q_hover, settled_step_rad=START_SETTLED_STEP_RAD)[2]
         key = (round(move_s, 2), bound_key[1])
         if best is None or key < best:
-            best, chosen = key, pts[j].copy()
+            best, chosen = key, (pts[j].copy(), move_s)
     return chosen
 
 

@@ -27,6 +27,7 @@ from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.modes import auto_n_eigen
 from tactex.tasks.clean import legs, motion
+from tactex.tasks.clean.bound import CleanBound
 from tactex.tasks.clean.config import RASTER_BASELINES, CleanConfig
 from tactex.tasks.clean.legs import MAX_HOLD_STEPS, _after_stroke, _Legs, _WearTicks
 from tactex.tasks.clean.line_reference import LineLead, ToolNormal, blend_normals
@@ -51,6 +52,7 @@ from tactex.tasks.clean.robot_camera import RobotCapture
 from tactex.tasks.clean.step_ahead import StepAhead
 from tactex.tasks.clean.sweep_plan import SweepPlan
 from tactex.tasks.clean.target import _dirt_from_cloud, load_target_cloud_keep_out
+from tactex.tasks.ideal_time import dirty_area_m2
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
@@ -374,12 +376,12 @@ class CleanProgram:
                                              eigen_tol=cfg.eigen_tol)
         self.basis_s = time.perf_counter() - t_basis
         self.explorer: HedacExplorer | None = None
-        if cfg.baseline in RASTER_BASELINES:  # lanes 1.5 agent radii apart: the explorer's footprints overlap as much
+        if cfg.baseline in RASTER_BASELINES:  # lanes as far apart as the explorer's footprints overlap on its passes
             step_m = cfg.max_velocity * cloud.spacing
             if cfg.baseline == "raster":
-                self.path: PathSource = RasterPath(cloud, lane_spacing_m=1.5 * cfg.agent_radius_m, max_step_m=step_m)
+                self.path: PathSource = RasterPath(cloud, lane_spacing_m=cfg.lane_spacing_m, max_step_m=step_m)
             else:
-                self.path = RegionRasterPath(cloud, cfg.pad_radius_m, 1.5 * cfg.agent_radius_m, REGION_RASTER_GAP_M,
+                self.path = RegionRasterPath(cloud, cfg.pad_radius_m, cfg.lane_spacing_m, REGION_RASTER_GAP_M,
                                              step_m, start_m=self.cap_pos)
             return
         hcfg = replace(
@@ -419,11 +421,19 @@ class CleanProgram:
         # the raster from its waypoint nearest the dirt nearest the camera; tactex where the arm gets soonest
         x0 = cloud.points[targets[np.argmin(np.linalg.norm(cloud.points[targets] - self.cap_pos, axis=1))]]
         t_plan = time.perf_counter()
-        if explorer is not None:  # wall-clock work while the robot holds, like the basis
-            quickest = motion._quickest_touch_down(self.loop, cloud, targets, self.q_capture, self.cap_pos,
-                                                   cfg.hover_height_m)
-            x0 = x0 if quickest is None else quickest
-        self.start_plan_s = time.perf_counter() - t_plan
+        # wall-clock work while the robot holds, like the basis; a baseline plans it for the bound only
+        quickest = motion._quickest_touch_down(self.loop, cloud, targets, self.q_capture, self.cap_pos,
+                                               cfg.hover_height_m)
+        if explorer is not None:
+            x0 = x0 if quickest is None else quickest[0]
+            self.start_plan_s = time.perf_counter() - t_plan
+        else:
+            self.start_plan_s = 0.0
+        self.bound = CleanBound(
+            dirty_area_m2=dirty_area_m2(cloud.with_target(self.cleanable_target)),
+            pad_effective_width_m=cfg.lane_spacing_m, speed_m_s=cfg.max_velocity * cloud.spacing * cfg.explorer_rate_hz,
+            capture_s=self.loop.t, transit_s=0.0 if quickest is None else quickest[1],
+            touch_down_s=cfg.hover_height_m / cfg.approach_speed_m_s)
         return x0
 
     def _plan_first_leg(self) -> None:
