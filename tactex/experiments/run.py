@@ -114,6 +114,11 @@ def remark_lines(runs: Sequence[tuple[str, Any]]) -> list[str]:
 def task_summary(reports: Sequence[RunReport]) -> str:
     """What a command prints after its runs: the table of their metrics, then a line per run whose
     safety layer stepped in."""
-    lines = [summary_table([(r.label, r.metrics) for r in reports])]
+    rows = [(r.label, r.metrics) for r in reports]
+    for r in reports:  # a re-planned wipe: the first pass it re-planned from beside it
+        first = (r.metrics.get("replan") or {}).get("first_pass")
+        if first:
+            rows.insert(0, (f"first pass ({Path(r.metrics['replan']['from']).name})", first))
+    lines = [summary_table(rows)]
     lines += remark_lines([(r.label, r.metrics) for r in reports])
     return "\n".join(lines)

@@ -35,8 +35,11 @@ not the tool's force axis: with the tool tilted up to 18° on the sine panel the
 
 from __future__ import annotations
 
+import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,7 +50,7 @@ from tactex.control.friction import FrictionCompensator, FrictionCompensatorPara
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.references import PoseForceReference
 from tactex.control.safety import MAX_FORCE_SET_POINT_N, SafetyLimits, check_force_set_point
-from tactex.control.va_ufic import VaUficController, VaUficParams
+from tactex.control.va_ufic import VaUficController, VaUficParams, desired_rotation_from_normal
 from tactex.errors import ConfigError, PolicyFileError, SurfaceNotFound, TactexError
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimatorConfig
@@ -55,6 +58,7 @@ from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.voxel import voxel_indices
 from tactex.robots.loop import ControlLoop
 from tactex.sim.scene import SceneConfig
+from tactex.tasks.explored_surface import ExploredSurface
 from tactex.tasks.policies import ForceMotionPolicy, sinusoid_xy
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
@@ -84,6 +88,12 @@ def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift
     return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
 
 
+#: A re-plan puts the reference on the explored surface only this close to a contact point of the first pass
+#: [m]: farther, the first pass never touched there. Its tracking error reaches a centimetre or two while
+#: VA-UFIC is still compliant, and the local plane there is off a 10 cm sphere by d²/2R = 2 mm at 2 cm.
+REPLAN_GAP_M = 0.02
+#: ... and that far into it along the normal [m].
+REPLAN_DEPTH_M = 0.01
 #: Spacing of the surface the live page draws [m].
 LIVE_SPACING_M = 0.004
 
@@ -122,6 +132,11 @@ class WipeConfig(SimWorldParams):
                             "ends at the policy's end or at duration_s, whichever comes first")
     policy_max_speed_m_s: float = param(0.15, "fastest in-plane speed a policy may command [m/s]")
     policy_max_accel_m_s2: float = param(1.0, "largest in-plane acceleration a policy may command [m/s²]")
+    replan_from: str = param(
+        "", "run folder of an earlier wipe of the same part and policy: its explored surface puts the motion "
+        "reference on the part and feeds the normal ahead to the controller, and the start is aligned with it "
+        "(tactex.tasks.explored_surface); '' plans in the tangent plane at the tool", option="replan-from")
+    replan_lead_s: float = param(0.25, "how far ahead along the reference the re-plan's normal is taken [s]")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -149,6 +164,13 @@ class WipeConfig(SimWorldParams):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        if not isinstance(self.replan_from, str):
+            raise ConfigError(f"replan_from must be the path of a wipe's run folder, got {self.replan_from!r:.40}")
+        if self.replan_from:
+            _check_replan_from(self)
+        v = float(self.replan_lead_s)
+        if not (np.isfinite(v) and 0.0 <= v <= 2.0):
+            raise ConfigError(f"replan_lead_s must lie in [0, 2] s, got {self.replan_lead_s!r}")
         if not isinstance(self.policy, str):
             raise ConfigError(f"policy must be the path of a .toml policy file, got {self.policy!r:.40}")
         if self.policy:  # a bad file is refused before anything starts
@@ -163,6 +185,22 @@ class WipeConfig(SimWorldParams):
 
     def scene(self) -> SceneConfig:
         return super().scene(camera_rate_hz=self.camera_rate_hz)
+
+
+def _check_replan_from(cfg: WipeConfig) -> None:
+    """The re-plan's run folder exists, holds an explored surface, and wiped the same part."""
+    run = Path(cfg.replan_from).expanduser()
+    if not (run / "explored.ply").is_file():
+        why = "no such folder" if not run.is_dir() else "no explored.ply in it"
+        raise ConfigError(f"--replan-from {run}: {why}; give the --out folder of an earlier wipe that touched the "
+                          "surface")
+    if cfg.baseline:
+        raise ConfigError(f"--replan-from feeds VA-UFIC's alignment; the {cfg.baseline} baseline has none: drop "
+                          "--baseline")
+    first = ExploredSurface.run_object(run)
+    if first is not None and first != cfg.object_name:
+        raise ConfigError(f"--replan-from {run} explored '{first}', this wipe is on '{cfg.object_name}': re-plan "
+                          "from a wipe of the same part")
 
 
 @dataclass
@@ -217,10 +255,16 @@ class _WipeReferences:
     """
 
     def __init__(self, cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
-                 policy: ForceMotionPolicy) -> None:
+                 policy: ForceMotionPolicy, explored: ExploredSurface | None = None,
+                 offset: Callable[[], np.ndarray] | None = None) -> None:
         self.cfg, self.vision, self.r_start, self.policy = cfg, vision, r_start, policy
         self.pos_ref = p_start.copy()
-        self.estimate: SurfaceEstimate | None = None
+        self.estimate: SurfaceEstimate | None = None  # the camera's newest
+        # with a re-plan: the explored surface, and how many references it placed
+        self.explored, self.on_explored, self.advances = explored, 0, 0
+        # the controller's position offset [m] (VA-UFIC's, fed back while compliant): the desired position is
+        # the reference plus it
+        self.offset = offset
         self.estimates_total = self.estimates_valid = 0
         self.reference: PoseForceReference | None = None
         first = policy.at(0.0)
@@ -253,7 +297,32 @@ class _WipeReferences:
         self.pos_ref = np.array((px + r00 * d0 + r01 * d1, py + r10 * d0 + r11 * d1, pz + r20 * d0 + r21 * d1))
         twist_d = np.array((r00 * v0 + r01 * v1, r10 * v0 + r11 * v1, r20 * v0 + r21 * v1, 0.0, 0.0, 0.0))
         rot_ref = self.r_start if cfg.baseline == "cartesian" else rot
-        self.reference = PoseForceReference(self.pos_ref, rot_ref, self.wrench_d, twist_d, self.estimate)
+        surface = self.estimate
+        self.advances += 1
+        if self.explored is not None:
+            surface = self._on_explored(state.t, twist_d)
+        self.reference = PoseForceReference(self.pos_ref, rot_ref, self.wrench_d, twist_d, surface)
+
+    def _on_explored(self, t: float, twist_d: np.ndarray) -> SurfaceEstimate | None:
+        """Where the first pass touched: the reference moved along the explored surface's normal so that the
+        desired position (reference plus the controller's offset) lies on it, and the normal the desired position
+        reaches ``replan_lead_s`` ahead as the controller's surface (the camera's curvature where the first pass
+        had none). Elsewhere the camera's estimate, and the reference where the tangent plane put it."""
+        assert self.explored is not None
+        desired = self.pos_ref + (self.offset() if self.offset is not None else 0.0)
+        here = self.explored.near(desired)
+        if here.gap_m > REPLAN_GAP_M:
+            return self.estimate
+        self.on_explored += 1
+        # into the surface by REPLAN_DEPTH_M: VA-UFIC fades the force once the tool is past the desired
+        # position along its axis (eq. 30), which a tool pressing a little deeper than the first pass would be
+        self.pos_ref = self.pos_ref + (here.point_m - REPLAN_DEPTH_M * here.normal - desired)
+        ahead = self.explored.near(here.point_m + self.cfg.replan_lead_s * twist_d[:3])
+        curvature = ahead.curvature
+        if not np.isfinite(curvature):
+            est = self.estimate
+            curvature = float(est.curvature) if est is not None and est.valid else 0.0
+        return SurfaceEstimate(valid=True, timestamp=t, normal_world=ahead.normal, curvature=curvature)
 
 
 class _Approach:
@@ -458,6 +527,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
     the_policy = wipe_policy(cfg, policy)
     if policy is not None:
         check_wipe_policy(cfg, the_policy)
+    explored = ExploredSurface.from_run(Path(cfg.replan_from).expanduser()) if cfg.replan_from else None
     scene_cfg = cfg.scene()
     backend = open_backend(scene_cfg, robot)
     try:
@@ -468,7 +538,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
         vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
         try:
-            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy, live)
+            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy, live, explored)
         finally:
             vision.close()
     finally:
@@ -490,6 +560,24 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot
     return ""
 
 
+#: The first pass's figures a re-planned wipe's metrics repeat beside its own.
+FIRST_PASS_KEYS = ("force_mae_n", "force_within_20pct_fraction", "motion_mae_m", "motion_mae_tool_m", "aligned_at_s",
+                   "max_force_over_set_point", "torque_rate_clip_ticks")
+
+
+def _replan_metrics(cfg: WipeConfig, explored: ExploredSurface, refs: _WipeReferences) -> dict:
+    """What the re-plan used (the first pass's folder, its contact points, the share of references it placed)
+    and the first pass's figures, for the side-by-side comparison."""
+    first: dict = {}
+    try:
+        loaded = json.loads((Path(cfg.replan_from).expanduser() / "metrics.json").read_text(encoding="utf-8"))
+        first = {k: loaded.get(k) for k in FIRST_PASS_KEYS} if isinstance(loaded, dict) else {}
+    except (OSError, ValueError):
+        pass  # a folder without metrics still re-plans; the comparison is then empty
+    return {"from": cfg.replan_from, "explored_points": len(explored),
+            "on_explored_fraction": refs.on_explored / max(refs.advances, 1), "first_pass": first}
+
+
 def _profile(cfg: WipeConfig, surface) -> np.ndarray:
     """(256, 3) [m] the surface's profile along y at x = 0, in the object frame (the report's cut)."""
     ys = np.linspace(-0.255, 0.255, 256) if cfg.object_name == "sine_panel" else np.linspace(-0.1, 0.1, 256)
@@ -497,14 +585,18 @@ def _profile(cfg: WipeConfig, surface) -> np.ndarray:
 
 
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
-              progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None) -> WipeResult:
+              progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None,
+              explored: ExploredSurface | None = None) -> WipeResult:
     loop = ControlLoop(backend)
     run_s = min(cfg.duration_s, the_policy.duration_s)
     surface = scene_cfg.sim_object.surface
     obj_pos, obj_rot = scene_cfg.object_pose()
 
-    # start: above the surface at (0, start_y), tilted (not aligned), out of contact
+    # start: above the surface at (0, start_y), tilted (not aligned), out of contact; a re-plan aligns the tool
+    # with the surface the first pass explored below it
     p_start, r_start = wipe_start_pose(cfg, surface, obj_pos, obj_rot)
+    if explored is not None:
+        r_start = desired_rotation_from_normal(r_start, -explored.near(p_start).normal)
     # the live page's surface is made before torque control starts (sampling it takes milliseconds)
     shown = _WipeLive(live, surface, obj_pos, obj_rot, scene_cfg.tool.pad_radius_m) if live is not None else None
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
@@ -525,7 +617,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
     log.live = shown
 
-    policy = _WipeReferences(cfg, vision, p_start, r_start, the_policy)
+    policy = _WipeReferences(cfg, vision, p_start, r_start, the_policy, explored,
+                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None)
 
     approach = _Approach(cfg, p_start, r_start[:, 2])
 
@@ -629,20 +722,28 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "partial": bool(aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
         **vision.stats(),
     }
+    if explored is not None:
+        metrics["replan"] = _replan_metrics(cfg, explored, policy)
     if robot is not None:
         metrics.update(backend.loop_metrics())
     prof_pts = _profile(cfg, surface)
-    explored = None
-    curv = np.zeros(0)
-    if len(log.contact_pts) >= 2:
-        pts = np.asarray(log.contact_pts)
-        inv, counts = voxel_indices(pts, 0.003)
-        first = np.full(counts.size, -1)
-        first[inv[::-1]] = np.arange(inv.size)[::-1]  # one contact point per 3 mm voxel
-        explored = SurfaceCloud(points=pts[first], normals=np.asarray(log.contact_normals)[first], spacing=0.003)
-        curv = np.asarray(log.contact_curv)[first]
-        metrics.update(_exploration_accuracy(explored, surface, obj_pos, obj_rot))
+    found, curv = _explored_cloud(log)
+    if found is not None:
+        metrics.update(_exploration_accuracy(found, surface, obj_pos, obj_rot))
     return WipeResult(
         config=cfg, metrics=metrics, series=log.rec.arrays(), profile={"y_m": prof_pts[:, 1], "z_m": prof_pts[:, 2]},
-        explored=explored, explored_curvature=curv, events=list(loop.safety.events),
+        explored=found, explored_curvature=curv, events=list(loop.safety.events),
     )
+
+
+def _explored_cloud(log: _WipeLog) -> tuple[SurfaceCloud | None, np.ndarray]:
+    """The contact points of a run, one per 3 mm voxel, with their normals, and their curvatures l_s (None and
+    none with fewer than two)."""
+    if len(log.contact_pts) < 2:
+        return None, np.zeros(0)
+    pts = np.asarray(log.contact_pts)
+    inv, counts = voxel_indices(pts, 0.003)
+    first = np.full(counts.size, -1)
+    first[inv[::-1]] = np.arange(inv.size)[::-1]  # the first contact point in each voxel
+    cloud = SurfaceCloud(points=pts[first], normals=np.asarray(log.contact_normals)[first], spacing=0.003)
+    return cloud, np.asarray(log.contact_curv)[first]

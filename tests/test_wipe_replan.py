@@ -1,0 +1,114 @@
+"""``tactex wipe --replan-from RUN_DIR``: the explored surface of an earlier wipe puts the motion reference on the
+part and feeds the normal ahead to VA-UFIC (tactex.tasks.explored_surface)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tactex.errors import ConfigError, InputError
+from tactex.experiments.run import run_task, task_summary
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.pointcloud.io import save_ply
+from tactex.tasks.explored_surface import MIN_EXPLORED_POINTS, ExploredSurface
+from tactex.tasks.wipe import REPLAN_DEPTH_M, WipeConfig
+
+RADIUS_M = 0.1
+
+
+def _sphere_band(n: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """Contact points along an arc of a 10 cm sphere (a first pass's path, 3 mm apart) and their normals."""
+    a = np.linspace(-0.9, 0.9, n)  # [rad]
+    normals = np.column_stack([np.sin(a), np.zeros(n), np.cos(a)])
+    return RADIUS_M * normals, normals
+
+
+def test_the_local_plane_lies_on_the_explored_surface_near_the_path() -> None:
+    pts, nrm = _sphere_band()
+    surface = ExploredSurface(pts, nrm, np.full(len(pts), 0.05), spacing_m=0.003)
+    for a, off_y in ((0.2, 0.0), (-0.5, 0.004), (0.7, 0.01)):
+        on = RADIUS_M * np.array([np.sin(a), 0.0, np.cos(a)]) + np.array([0.0, off_y, 0.0])
+        query = on + 0.012 * np.array([np.sin(a), 0.0, np.cos(a)])  # 12 mm above the surface
+        near = surface.near(query)
+        # the plane through the nearest contact points: on the sphere to its sagitta over the offset
+        assert abs(np.linalg.norm(near.point_m) - RADIUS_M) < 1e-3 + off_y**2 / RADIUS_M
+        assert np.degrees(np.arccos(np.clip(near.normal @ [np.sin(a), 0.0, np.cos(a)], -1, 1))) < 3.0
+        assert near.gap_m == pytest.approx(off_y, abs=2e-3)
+        assert near.curvature == pytest.approx(0.05)
+    nan_curv = ExploredSurface(pts, nrm, np.full(len(pts), np.nan), spacing_m=0.003)
+    assert np.isnan(nan_curv.near(pts[10]).curvature)
+
+
+def test_bad_explored_surfaces_are_refused_in_one_line(tmp_path) -> None:
+    pts, nrm = _sphere_band()
+    with pytest.raises(InputError, match="usable contact points"):
+        ExploredSurface(pts[: MIN_EXPLORED_POINTS - 1], nrm[: MIN_EXPLORED_POINTS - 1],
+                        np.zeros(MIN_EXPLORED_POINTS - 1), 0.003)
+    with pytest.raises(InputError, match=r"\(N, 3\) points"):
+        ExploredSurface(pts, nrm[:, :2], np.zeros(len(pts)), 0.003)
+    with pytest.raises(InputError, match="no such run folder"):
+        ExploredSurface.from_run(tmp_path / "missing")
+    with pytest.raises(InputError, match=r"no explored\.ply"):
+        ExploredSurface.from_run(tmp_path)
+    save_ply(SurfaceCloud(points=pts, spacing=0.003), tmp_path / "explored.ply")
+    with pytest.raises(InputError, match="no normals"):
+        ExploredSurface.from_run(tmp_path)
+
+
+def test_a_replan_needs_a_wipe_of_the_same_part(tmp_path) -> None:
+    with pytest.raises(ConfigError, match="no such folder"):
+        WipeConfig(replan_from=str(tmp_path / "nothing"))
+    with pytest.raises(ConfigError, match=r"no explored\.ply in it"):
+        WipeConfig(replan_from=str(tmp_path))
+    pts, nrm = _sphere_band()
+    save_ply(SurfaceCloud(points=pts, normals=nrm, spacing=0.003), tmp_path / "explored.ply")
+    (tmp_path / "config.json").write_text(json.dumps({"object_name": "bowl"}))
+    with pytest.raises(ConfigError, match="explored 'bowl', this wipe is on 'sine_panel'"):
+        WipeConfig(replan_from=str(tmp_path))
+    with pytest.raises(ConfigError, match="drop --baseline"):
+        WipeConfig(object_name="bowl", replan_from=str(tmp_path), baseline="cartesian")
+    with pytest.raises(ConfigError, match="replan_lead_s"):
+        WipeConfig(replan_lead_s=-1.0)
+    assert WipeConfig(object_name="bowl", replan_from=str(tmp_path)).replan_from == str(tmp_path)
+
+
+def _depths(surface: ExploredSurface, desired_m: np.ndarray) -> np.ndarray:
+    """How far into the explored surface each 20th desired position lies, along its normal [m]."""
+    return np.array([(surface.near(p).point_m - p) @ surface.near(p).normal for p in desired_m[::20]])
+
+
+@pytest.fixture(scope="module")
+def two_passes(tmp_path_factory):
+    out = tmp_path_factory.mktemp("replan")
+    base = dict(object_name="bowl", policy="examples/policies/zigzag.toml", start_y_m=0.0, duration_s=8.0)
+    first = run_task("wipe", WipeConfig(**base), out / "first", progress=False, video=False)
+    second = run_task("wipe", WipeConfig(**base, replan_from=str(out / "first")), out / "second", progress=False,
+                      video=False)
+    return first, second
+
+
+def test_the_second_pass_follows_the_explored_surface(two_passes) -> None:
+    first, second = two_passes
+    replan = second.metrics["replan"]
+    assert replan["explored_points"] >= MIN_EXPLORED_POINTS
+    assert replan["on_explored_fraction"] > 0.8  # the same policy runs where the first pass touched
+    assert replan["first_pass"]["force_mae_n"] == pytest.approx(first.metrics["force_mae_n"])
+    # the desired position sits REPLAN_DEPTH_M into the explored surface wherever the re-plan placed it
+    surface = ExploredSurface.from_run(first.out_dir)
+    s = np.load(second.out_dir / "series.npz", allow_pickle=False)
+    contact = s["in_contact"] > 0.5
+    assert np.median(_depths(surface, s["desired"][contact])) == pytest.approx(REPLAN_DEPTH_M, abs=2e-3)
+    # the first pass's own reference, planned in the tangent plane, lies farther from it
+    s1 = np.load(first.out_dir / "series.npz", allow_pickle=False)
+    depth1 = _depths(surface, s1["desired"][s1["in_contact"] > 0.5])
+    assert np.median(np.abs(np.asarray(depth1) - REPLAN_DEPTH_M)) > 2e-3
+    for m in (first.metrics, second.metrics):
+        assert m["torque_rate_clip_ticks"] == 0 and m["max_force_over_set_point"] < 2.0
+
+
+def test_the_terminal_shows_the_first_pass_beside_the_second(two_passes) -> None:
+    _, second = two_passes
+    lines = task_summary([second]).splitlines()
+    assert lines[2].startswith("first pass (first)") and lines[3].startswith(second.label)
