@@ -3,6 +3,7 @@ same touch-down, controller, force and speeds as tactex, and the same re-measure
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from tactex.errors import ConfigError
@@ -47,3 +48,24 @@ def test_a_clean_reports_its_physical_bound(plate_metrics) -> None:
     # no method beats it: the raster's own time to 95 % lies above it
     assert m["ideal_time_s"] < m["time_to_95pct_s"]
     assert m["time_to_95pct_over_ideal"] == pytest.approx(m["time_to_95pct_s"] / m["ideal_time_s"])
+
+
+def test_a_raster_touch_down_out_of_reach_goes_on_along_the_path(monkeypatch) -> None:
+    """A raster's hover the arm cannot reach (a bowl's rim beside the robot) is passed by: the raster goes on
+    along its path and touches down where the arm reaches, instead of ending the run with an IK error."""
+    from tactex.errors import SimulationError
+    from tactex.tasks.clean import motion
+
+    plan = motion._hover_plan
+    refused: list[np.ndarray] = []
+
+    def hover_plan(loop, point_m, *args, **kwargs):
+        if not refused and "q_hover" not in kwargs:  # the approach's first hover (not the bound's planning)
+            refused.append(np.asarray(point_m, dtype=float).copy())
+            raise SimulationError("IK did not reach the target")
+        return plan(loop, point_m, *args, **kwargs)
+
+    monkeypatch.setattr(motion, "_hover_plan", hover_plan)
+    with pytest.warns(RuntimeWarning, match="the region raster goes on at"):
+        m = run_clean(CleanConfig(object_name="plate", baseline="region_raster", budget_s=8.0), progress=False).metrics
+    assert refused and m["contact_time_s"] > 2.0 and m["dirt_removed_fraction"] > 0.2

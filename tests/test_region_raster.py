@@ -79,6 +79,22 @@ def test_two_separated_squares_are_two_islands_rastered_at_the_asked_spacing() -
     assert covered(plan, cloud).all()
 
 
+def test_a_sliver_shorter_than_the_shortest_segment_is_left_out_and_counted() -> None:
+    """A strip of dirt 1.2 cm long across the lines (a rim seen from outside) would be a segment shorter than the
+    pad radius: dropped, like Noether's segments under min_segment_size, its points counted in ``uncovered``."""
+    cloud = with_squares(plate(), [(-0.08, 0.0)], 0.06)
+    sliver = (np.abs(cloud.points[:, 0] - 0.12) <= 0.006) & (np.abs(cloud.points[:, 1]) <= 0.003)
+    cloud = cloud.with_target(np.maximum(cloud.target, sliver))
+    plan = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.03, overrun_m=0.0)
+    assert len(plan.islands) == 1 and plan.uncovered == int(sliver.sum())
+    assert covered(plan, cloud)[~sliver[cloud.target > 0]].all()
+    kept = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.03, overrun_m=0.0, min_segment_m=0.0)
+    assert len(kept.islands) == 2 and kept.uncovered == 0 and covered(kept, cloud).all()
+    # a cloud that is all slivers is rastered all the same
+    alone = plate().with_target(sliver.astype(float))
+    assert plan_region_raster(alone, PAD_R, SPACING, gap_m=0.03, overrun_m=0.0).uncovered == 0
+
+
 def test_every_dirty_point_is_within_the_pad_radius_and_a_dropped_lane_shows() -> None:
     cloud = with_squares(plate(), [(0.0, 0.0)], 0.1)
     plan = plan_region_raster(cloud, PAD_R, SPACING, gap_m=0.05)
@@ -205,6 +221,7 @@ def test_update_target_replans_over_only_what_is_left() -> None:
         ({"clearance_m": np.nan}, ConfigError, "clearance_m"),
         ({"link_factor": 0.0}, ConfigError, "link_factor"),
         ({"overrun_m": -0.01}, ConfigError, "overrun_m"),
+        ({"min_segment_m": -0.01}, ConfigError, "min_segment_m"),
         ({"start_m": [np.nan, 0, 0]}, InputError, "start_m"),
         ({"start_m": [0.0, 0.0]}, InputError, "start_m"),
         ({"from_start": True}, InputError, "from_start needs start_m"),

@@ -14,7 +14,7 @@ from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks import raster
 from tactex.tasks.clean import CleanConfig
 from tactex.tasks.raster import WaypointPath, boustrophedon
-from tactex.tasks.stroke import MAX_LINE_GAP_M, MAX_PASSES, plan_stroke, surface_line
+from tactex.tasks.stroke import MAX_LINE_GAP_M, MAX_PASSES, STROKE_OVERRUN_RADII, plan_stroke, surface_line
 from tactex.tasks.wear_model import WearModel
 
 K_P, R, STEP = 5e-3, 0.025, 0.003
@@ -61,11 +61,12 @@ def test_a_small_island_gets_a_stroke_through_its_centre_that_cleans_it() -> Non
     assert stroke is not None and not stroke.transfer_only and not stroke.transfer
     assert stroke.path.tree is tree  # planned in contact: the path reads the given tree, builds none
     assert set(stroke.island) == set(np.flatnonzero(cloud.target > 0))
-    # along the direction from where the robot comes (x here), a pad radius plus the spot's radius each side
+    # along the direction from where the robot comes (x here), half a pad radius plus the spot's radius each side
     assert stroke.a[0] < stroke.b[0] and np.allclose([stroke.a[1], stroke.b[1]], 0.01, atol=cloud.spacing)
-    assert np.linalg.norm(stroke.b - stroke.a) == pytest.approx(2 * (R + 0.005), abs=2 * cloud.spacing)
-    # back and forth until the model calls it clean: one pass gives the edge points a chord of ≥ 4.6 cm,
-    # k_p·F/(π r²)·0.046 ≈ 1.2 < the margin 1.5; a second pass does it
+    assert np.linalg.norm(stroke.b - stroke.a) == pytest.approx(2 * (STROKE_OVERRUN_RADII * R + 0.005),
+                                                                abs=2 * cloud.spacing)
+    # back and forth until the model calls it clean: one pass keeps every spot point under the pad for 1.37 pad
+    # radii or more, k_p·F/(π r²)·1.37 r < the margin 1.5; a second pass does it
     wiped = 0  # waypoints walked so far
     while True:
         _wipe_along(wear, stroke.path.waypoints[wiped:])

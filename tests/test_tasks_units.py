@@ -591,6 +591,8 @@ def test_the_commanded_point_keeps_the_pad_above_the_table() -> None:
     wall = np.array([0.0, -1.0, 0.0])
     low = np.array([0.4, -0.04, 0.005])
     np.testing.assert_allclose(_pad_over_support(low, wall, 0.0, 0.025), [0.4, -0.04, 0.025])
+    # a touch-down keeps its rim a clearance above the table: the move down to the hover undershoots
+    np.testing.assert_allclose(_pad_over_support(low, wall, 0.0, 0.025, 0.005), [0.4, -0.04, 0.030])
     high = np.array([0.4, -0.04, 0.06])
     assert _pad_over_support(high, wall, 0.0, 0.025) is high
     plate = np.array([0.4, 0.0, 0.001])

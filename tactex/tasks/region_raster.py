@@ -166,9 +166,11 @@ def _island_frame(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, 
 
 
 def _slices(points: np.ndarray, normals: np.ndarray, dirty_xyz: np.ndarray, t: np.ndarray, d: np.ndarray,
-            centre: np.ndarray, spacing_m: float, h: float, overrun_m: float) -> list[_Segment]:
+            centre: np.ndarray, spacing_m: float, h: float, overrun_m: float,
+            min_segment_m: float = 0.0) -> list[_Segment]:
     """The island's line segments for lines along ``t`` spaced along ``d`` (3,) each, forward along ``t``,
-    trimmed to the dirt assigned to them (see the module's description)."""
+    trimmed to the dirt assigned to them (see the module's description); those shorter than ``min_segment_m`` [m]
+    dropped."""
     v_dirt = (dirty_xyz - centre) @ d
     v0, v1 = float(v_dirt.min()), float(v_dirt.max())
     n_lines = max(int(np.ceil((v1 - v0) / spacing_m - 1e-9)), 1)
@@ -201,7 +203,8 @@ def _slices(points: np.ndarray, normals: np.ndarray, dirty_xyz: np.ndarray, t: n
             along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
             a = int(np.searchsorted(along, along[hit.min()] - overrun_m - 1e-12, side="left"))
             b = int(np.searchsorted(along, along[hit.max()] + overrun_m + 1e-12, side="right")) - 1
-            segments.append(_Segment(p[a:b + 1], nrm[a:b + 1], k))
+            if along[b] - along[a] >= min_segment_m:
+                segments.append(_Segment(p[a:b + 1], nrm[a:b + 1], k))
     return segments
 
 
@@ -224,8 +227,8 @@ def _snake(segments: list[_Segment], flip_first: bool, gap_m: float = np.inf,
 
 
 def _raster_island(cloud: SurfaceCloud, island: np.ndarray, spacing_m: float, angle_step_deg: float, gap_m: float,
-                   clearance_m: float, reach_m: float,
-                   overrun_m: float) -> tuple[list[_Segment], np.ndarray, float, int]:
+                   clearance_m: float, reach_m: float, overrun_m: float,
+                   min_segment_m: float = 0.0) -> tuple[list[_Segment], np.ndarray, float, int]:
     """The island's raster along the candidate direction with the shortest path (fewest turns on a tie) among
     those whose lines pass within ``reach_m`` [m] of every dirty point (if none does, those that leave the fewest
     out): its segments (each forward along the line direction), that direction (3,), its angle from the first
@@ -238,14 +241,17 @@ def _raster_island(cloud: SurfaceCloud, island: np.ndarray, spacing_m: float, an
     for ang in angles:
         a = np.radians(ang)
         t = np.cos(a) * e1 + np.sin(a) * e2
-        segs = _slices(pts, nrm, dirty_xyz, t, np.cross(n, t), centre, spacing_m, cloud.spacing, overrun_m)
+        segs = _slices(pts, nrm, dirty_xyz, t, np.cross(n, t), centre, spacing_m, cloud.spacing, overrun_m,
+                       min_segment_m)
         if segs:
             _, length, turns = _snake(segs, False, gap_m, clearance_m)
             # on a strongly bent island the cutting planes lie farther apart on the surface where it turns away
             # from them: such a direction drops strips
             missed = int(np.count_nonzero(_lines_distance(segs, dirty_xyz, cloud.spacing) > reach_m))
             results.append((missed, length, turns, ang, t, segs))
-    if not results:  # cannot happen with dirt in the island: every dirty point lies near some line
+    if not results:  # every segment shorter than min_segment_m (with 0, every dirty point lies near some line)
+        if min_segment_m > 0.0:
+            return [], e1, 0.0, len(dirty_xyz)
         raise ExplorationError("no raster line crosses an island of dirt; check the cloud's spacing")
     fewest_missed = min(r[0] for r in results)
     results = [r for r in results if r[0] == fewest_missed]
@@ -293,7 +299,7 @@ def _number(name: str, value: object) -> float:
 
 def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float, angle_step_deg: float,
            clearance_m: float, link_factor: float, start_m: np.ndarray | None, from_start: bool,
-           overrun_m: float) -> None:
+           overrun_m: float, min_segment_m: float) -> None:
     if not isinstance(cloud, SurfaceCloud):
         raise InputError(f"the region raster plans on a SurfaceCloud, got {type(cloud).__name__}")
     if cloud.normals is None:
@@ -308,7 +314,8 @@ def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_
               ("angle_step_deg", angle_step_deg, 1e-9, 90.0, "in (0, 90] degrees"),
               ("clearance_m", clearance_m, 0.0, np.inf, "the flights' height, ≥ 0 m"),
               ("link_factor", link_factor, 1e-9, np.inf, "cloud spacings, > 0"),
-              ("overrun_m", overrun_m, 0.0, np.inf, "the lines' run past the dirt, ≥ 0 m"))
+              ("overrun_m", overrun_m, 0.0, np.inf, "the lines' run past the dirt, ≥ 0 m"),
+              ("min_segment_m", min_segment_m, 0.0, np.inf, "the shortest segment kept, ≥ 0 m"))
     for name, value, low, high, what in limits:
         v = _number(name, value)
         if not (np.isfinite(v) and low <= v <= high):
@@ -327,7 +334,7 @@ def _check(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_
 def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m: float, gap_m: float, *,
                        start_m: np.ndarray | None = None, from_start: bool = False, angle_step_deg: float = 15.0,
                        link_factor: float = 1.5, clearance_m: float = 0.02,
-                       overrun_m: float | None = None) -> RegionRasterPlan:
+                       overrun_m: float | None = None, min_segment_m: float | None = None) -> RegionRasterPlan:
     """The raster over ``cloud``'s dirt (see the module's description).
 
     Args:
@@ -347,13 +354,25 @@ def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m:
             under the pad's whole length, as in a raster over the whole dilated region. At 0 the pad's centre
             stops over the last dirty point, which passes under half of it, and an island shorter than the pad
             under a fraction.
+        min_segment_m: segments shorter than this are dropped [m], as Noether's plane slicer drops segments under
+            its ``min_segment_size``: a sliver of the region (a rim the capture sees from outside, a strip between
+            holes) would cost a touch-down and a lift-off for a few millimetres of wiping; the dirt only such a
+            segment reached counts in ``uncovered``, and the camera's next look decides whether it matters.
+            Default: the pad radius.
     """
     overrun_m = pad_radius_m if overrun_m is None else overrun_m
+    min_segment_m = pad_radius_m if min_segment_m is None else min_segment_m
     _check(cloud, pad_radius_m, line_spacing_m, gap_m, angle_step_deg, clearance_m, link_factor, start_m, from_start,
-           overrun_m)
+           overrun_m, min_segment_m)
     islands = dirty_islands(cloud, pad_radius_m, link_factor)
-    rasters = [_raster_island(cloud, isl, line_spacing_m, angle_step_deg, gap_m, clearance_m, pad_radius_m, overrun_m)
-               for isl in islands]
+    rasters = [_raster_island(cloud, isl, line_spacing_m, angle_step_deg, gap_m, clearance_m, pad_radius_m, overrun_m,
+                              min_segment_m) for isl in islands]
+    if not any(r[0] for r in rasters):  # all slivers: rastered all the same rather than not at all
+        rasters = [_raster_island(cloud, isl, line_spacing_m, angle_step_deg, gap_m, clearance_m, pad_radius_m,
+                                  overrun_m) for isl in islands]
+    kept = [i for i, r in enumerate(rasters) if r[0]]
+    dropped = sum(r[3] for r in rasters if not r[0])
+    islands, rasters = [islands[i] for i in kept], [rasters[i] for i in kept]
     here = cloud.points[islands[0]].mean(axis=0) if start_m is None else np.asarray(start_m, dtype=float)
     pending = list(range(len(islands)))
     order: list[int] = []
@@ -382,7 +401,7 @@ def plan_region_raster(cloud: SurfaceCloud, pad_radius_m: float, line_spacing_m:
         directions=np.array([rasters[i][1] for i in order]).reshape(-1, 3),
         angles_deg=np.array([rasters[i][2] for i in order]),
         islands=tuple(islands[i][cloud.target[islands[i]] > 0] for i in order), line_spacing_m=float(line_spacing_m),
-        uncovered=int(sum(r[3] for r in rasters)))
+        uncovered=int(sum(r[3] for r in rasters) + dropped))
 
 
 def _join(cloud: SurfaceCloud, walk: list[_Segment], gap_m: float,

@@ -27,6 +27,11 @@ __all__ = ["IslandStroke", "plan_stroke", "surface_line"]
 
 #: Most passes of a stroke before the island is handed to the explorer [-].
 MAX_PASSES = 4
+#: How far a stroke's pass runs past the island on each side, in pad radii [-]. Half a radius: every island
+#: point stays under the pad for 1.37 radii of each pass or more (an island is at most half a radius across
+#: from its centre, the worst point on its rim beside the line), and the pass turns back soon after the pad has
+#: left the island, where a full radius slides a third of each pass over clean surface.
+STROKE_OVERRUN_RADII = 0.5
 #: Farthest a straight line may leave the captured surface and still count as a line on it [m].
 MAX_LINE_GAP_M = 0.004
 
@@ -84,8 +89,8 @@ def plan_stroke(cloud: SurfaceCloud, tree: cKDTree, wear: WearModel, island_poin
 
     The island is the dirt the wear model calls dirty within two pad radii of ``island_point_m``; it is small
     when it lies within half a pad radius of its centroid. The pass runs through the centroid along the
-    surface, in the direction from ``from_m`` towards it, one pad radius plus the island's spread beyond
-    each side (every island point gets the pad's full chord). With ``transfer_from_m`` (the pad's position,
+    surface, in the direction from ``from_m`` towards it, half a pad radius plus the island's spread beyond
+    each side (:data:`STROKE_OVERRUN_RADII`). With ``transfer_from_m`` (the pad's position,
     in contact) the stroke starts there and slides to the pass's start, or to ``island_point_m`` for an
     island the explorer covers (a transfer only: ``island`` is empty); None when that line leaves the
     surface.
@@ -107,7 +112,7 @@ def plan_stroke(cloud: SurfaceCloud, tree: cKDTree, wear: WearModel, island_poin
         if np.linalg.norm(d) < 1e-6:  # straight above it: any tangent will do
             d = np.cross(normal, [0.0, 1.0, 0.0] if abs(normal[0]) > 0.9 else [1.0, 0.0, 0.0])
         d /= np.linalg.norm(d)
-        half = pad_radius_m + spread
+        half = STROKE_OVERRUN_RADII * pad_radius_m + spread
         line, _ = surface_line(cloud, tree, centre - half * d, centre + half * d, step_m)
     elif transfer_from_m is None:
         return None

@@ -43,6 +43,9 @@ APPROACH_GAIN_PER_S = 10.0
 #: ... and rises from rest no faster than this [m/s²]: a step of D_z·v in the push shakes the tool, whose
 #: inertia the F/T reads as a force above the touch-down threshold.
 APPROACH_ACCEL_M_S2 = 1.0
+#: A touch-down low on a wall is raised so the pad's rim clears the support by this much [m]: the joint move
+#: down to the hover undershoots it by a millimetre or two, and a rim on the table stops the tool with a jolt.
+TOUCH_DOWN_CLEARANCE_M = 0.005
 #: Height of the table top the simulated objects stand on [m] (tactex.sim.scene): the capture's crop cuts the
 #: table above it and the pad is kept above it.
 SUPPORT_Z_M = 0.0
@@ -171,14 +174,15 @@ def _approach_speed(tcp_m: np.ndarray, cmd: ExplorationCommand, cfg: CleanConfig
     return float(np.clip(APPROACH_GAIN_PER_S * (height_m - cfg.approach_slow_m), 0.0, cfg.approach_speed_m_s))
 
 
-def _pad_over_support(point_m: np.ndarray, normal: np.ndarray, support_z_m: float, pad_radius_m: float) -> np.ndarray:
+def _pad_over_support(point_m: np.ndarray, normal: np.ndarray, support_z_m: float, pad_radius_m: float,
+                      clearance_m: float = 0.0) -> np.ndarray:
     """The commanded line's point ``point_m`` (3,) [m], raised along world z where needed so that the pad, a disc
-    of ``pad_radius_m`` [m] centred there and ⟂ ``normal`` (3,), stays above the support plane z = ``support_z_m``
-    [m]: at the foot of a wall the line through the lowest captured ring would press the pad's rim into the
-    table, which would then hold the tool off the wall while the line drags it sideways."""
+    of ``pad_radius_m`` [m] centred there and ⟂ ``normal`` (3,), stays ``clearance_m`` [m] above the support plane
+    z = ``support_z_m`` [m]: at the foot of a wall the line through the lowest captured ring would press the pad's
+    rim into the table, which would then hold the tool off the wall while the line drags it sideways."""
     n = np.asarray(normal, dtype=float)
     n_z2 = float(n[2] * n[2]) / max(float(n @ n), 1e-12)
-    low = support_z_m + pad_radius_m * float(np.sqrt(max(1.0 - n_z2, 0.0)))
+    low = support_z_m + clearance_m + pad_radius_m * float(np.sqrt(max(1.0 - n_z2, 0.0)))
     if point_m[2] >= low:
         return point_m
     out = np.array(point_m, dtype=float)

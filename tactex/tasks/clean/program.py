@@ -84,6 +84,13 @@ APPROACH_TIMEOUT_S = 6.0
 #: it is farther [m]: a lift-off, move and touch-down take about ISLAND_MOVE_GUESS_S, in which the sponge
 #: slides this far at the clean's speeds.
 REGION_RASTER_GAP_M = 0.2
+#: A raster whose touch-down is out of the arm's reach goes on along its path this far before trying again [m].
+RASTER_SKIP_M = 0.02
+
+
+def cfg_name(cfg: CleanConfig) -> str:
+    """The method a clean runs, for messages."""
+    return {"raster": "raster", "region_raster": "region raster"}.get(cfg.baseline, cfg.baseline or "tactex")
 
 
 def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
@@ -345,8 +352,10 @@ class CleanProgram:
         self.stroke: IslandStroke | None = None
         self.stroke_step_m = cfg.max_velocity * cloud.spacing  # the agent's speed limit
         self.hold_force_n = cfg.hold_force_ratio * cfg.force_n if cfg.hold_force_ratio > 0 else np.inf
-        self.island_move_s = ISLAND_MOVE_GUESS_S  # measured after the first island move
-        self.t_move: float | None = None  # when the island move in progress started
+        # [s] a lift-off, move and touch-down, measured from the first approach on (the move from the capture pose
+        # to the first touch-down is the first measure: no island is chosen before it), then after each island move
+        self.island_move_s = ISLAND_MOVE_GUESS_S
+        self.t_move: float | None = self.loop.t  # when the move in progress started
         self.counted: IslandStroke | None = None  # the last stroke counted in n_strokes / n_transfers
         self.n_strokes = self.n_transfers = 0  # strokes through small islands; slides in contact to the next island
         self.new_leg = True  # the next touch-down starts a leg (the first, after an island move or a camera view)
@@ -469,9 +478,10 @@ class CleanProgram:
         """Hover over the agent and approach along its normal line until the tool touches: True in contact,
         False when the program ends (the budget, nothing left in reach), None when the hover is out of reach and
         the program moves on to other dirt."""
-        cfg, loop, cmd = self.cfg, self.loop, self.cmd
+        cfg, loop = self.cfg, self.loop
         self.log.activity("move", "transit")
         plan = self._hover_or_elsewhere()
+        cmd = self.cmd  # the touch-down, raised where the pad's disc would meet the support (as in contact)
         if not plan:
             return plan
         q_above, q_hover, move_s = plan
@@ -512,6 +522,9 @@ class CleanProgram:
         reach (the far side of the cup), False with no other dirt the wear model knows of (TEC's loop has no
         other to offer: it raises) or None after a restart at the nearest other dirt."""
         cfg, cmd = self.cfg, self.cmd
+        if self.support_z is not None:  # low on a wall the pad's rim would touch down on the table first
+            cmd = self.cmd = cmd._replace(point=_pad_over_support(cmd.point, cmd.normal, self.support_z,
+                                                                  cfg.pad_radius_m, motion.TOUCH_DOWN_CLEARANCE_M))
         try:
             return motion._hover_plan(self.loop, cmd.point, cmd.normal, self.q_capture, cfg.hover_height_m)
         except SimulationError:
@@ -521,7 +534,9 @@ class CleanProgram:
                 island = self.wear.next_island(cmd.point, self.islands_tried, 2.0 * cfg.pad_radius_m,
                                                self.touch_down_ok)
             if self.wear is None:
-                raise
+                if cfg.baseline not in RASTER_BASELINES:
+                    raise
+                return self._skip_along_raster()
             if island is None:
                 warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach and "
                               "no other dirt left to the wear model; ending the program", RuntimeWarning,
@@ -534,6 +549,23 @@ class CleanProgram:
             self.stroke, self.new_leg = None, True
             self.cmd = self.legs.restart(island)
             return None
+
+    def _skip_along_raster(self) -> bool | None:
+        """A raster's touch-down out of the arm's reach (a bowl's rim beside the robot): on along its path to the
+        first point :data:`RASTER_SKIP_M` away, or to its next flight, where the approach tries again (None);
+        False at the path's end."""
+        unreachable = self.cmd.point.copy()
+        while not self.path.done:
+            cmd = self.path.step()
+            if isinstance(cmd, RelocationCommand) or np.linalg.norm(cmd.point - unreachable) >= RASTER_SKIP_M:
+                warnings.warn(f"clean: no hover pose over {np.round(unreachable, 3).tolist()} m within reach; the "
+                              f"{cfg_name(self.cfg)} goes on at {np.round(cmd.point, 3).tolist()} m", RuntimeWarning,
+                              stacklevel=3)
+                self.cmd, self.new_leg = cmd, True
+                return None
+        warnings.warn(f"clean: no hover pose over {np.round(unreachable, 3).tolist()} m within reach and the "
+                      f"{cfg_name(self.cfg)} ends there; ending the program", RuntimeWarning, stacklevel=3)
+        return False
 
     # -- 3b. explore ------------------------------------------------------------------------------------------
     def explore(self) -> bool:
