@@ -79,3 +79,16 @@ def test_a_study_varies_policies_and_refuses_a_bad_one_up_front(tmp_path) -> Non
     bad.write_text('[[segment]]\nkind = "wobble"\n')
     with pytest.raises(ConfigError, match="unknown kind 'wobble'"):  # the first run's config is checked at once
         StudySpec(task="wipe", grid={"policy": [str(bad)]})
+
+
+def test_runs_of_two_passes_get_a_table_of_first_against_re_planned() -> None:
+    recs = [
+        _record(0, "spiral", "bowl", replan={"first_pass": {"force_mae_n": 0.5, "motion_mae_m": [0.004, 0.002, 0.01]}}),
+        _record(1, "zigzag", "bowl", replan={"first_pass": {"force_mae_n": 0.2, "motion_mae_m": [0.001] * 3}}),
+        _record(2, "drawn", "bowl"),  # one pass: not in the comparison
+    ]
+    text = policy_table_markdown(policy_rows(recs))
+    assert "| spiral | bowl | 0.50 → 0.30 | 4.0/2.0/10.0 → 1.0/2.0/2.5 | ✓ |" in text
+    assert "| zigzag | bowl | 0.20 → 0.30 | 1.0/1.0/1.0 → 1.0/2.0/2.5 | ✗ |" in text
+    assert "The re-plan lowered the force MAE in 1 of 2 runs." in text
+    assert sum("→" in line for line in text.splitlines()) == 3  # the header and the two runs of two passes

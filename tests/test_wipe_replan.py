@@ -13,7 +13,7 @@ from tactex.experiments.run import run_task, task_summary
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.io import save_ply
 from tactex.tasks.explored_surface import MIN_EXPLORED_POINTS, ExploredSurface
-from tactex.tasks.wipe import REPLAN_DEPTH_M, WipeConfig
+from tactex.tasks.wipe import REPLAN_DEPTH_M, WipeConfig, run_wipe
 
 RADIUS_M = 0.1
 
@@ -71,6 +71,12 @@ def test_a_replan_needs_a_wipe_of_the_same_part(tmp_path) -> None:
         WipeConfig(object_name="bowl", replan_from=str(tmp_path), baseline="cartesian")
     with pytest.raises(ConfigError, match="replan_lead_s"):
         WipeConfig(replan_lead_s=-1.0)
+    with pytest.raises(ConfigError, match="passes must be 1 or 2"):
+        WipeConfig(passes=3)
+    with pytest.raises(ConfigError, match="drop --replan-from"):
+        WipeConfig(object_name="bowl", replan_from=str(tmp_path), passes=2)
+    with pytest.raises(ConfigError, match="drop --baseline"):
+        WipeConfig(passes=2, baseline="cartesian")
     assert WipeConfig(object_name="bowl", replan_from=str(tmp_path)).replan_from == str(tmp_path)
 
 
@@ -79,10 +85,12 @@ def _depths(surface: ExploredSurface, desired_m: np.ndarray) -> np.ndarray:
     return np.array([(surface.near(p).point_m - p) @ surface.near(p).normal for p in desired_m[::20]])
 
 
+BASE = dict(object_name="bowl", policy="examples/policies/zigzag.toml", start_y_m=0.0, duration_s=8.0)
+
+
 @pytest.fixture(scope="module")
 def two_passes(tmp_path_factory):
-    out = tmp_path_factory.mktemp("replan")
-    base = dict(object_name="bowl", policy="examples/policies/zigzag.toml", start_y_m=0.0, duration_s=8.0)
+    out, base = tmp_path_factory.mktemp("replan"), BASE
     first = run_task("wipe", WipeConfig(**base), out / "first", progress=False, video=False)
     second = run_task("wipe", WipeConfig(**base, replan_from=str(out / "first")), out / "second", progress=False,
                       video=False)
@@ -112,3 +120,13 @@ def test_the_terminal_shows_the_first_pass_beside_the_second(two_passes) -> None
     _, second = two_passes
     lines = task_summary([second]).splitlines()
     assert lines[2].startswith("first pass (first)") and lines[3].startswith(second.label)
+
+
+def test_two_passes_in_one_run_re_plan_the_second_on_the_first(two_passes) -> None:
+    """``passes = 2`` (what a study varies: its runs keep no folder to re-plan from) runs the first pass and the
+    second planned on it, and reports the second with the first's figures, the same as the two runs above."""
+    first, second = two_passes
+    both = run_wipe(WipeConfig(**BASE, passes=2), progress=False).metrics
+    assert both["replan"]["from"] == "the first pass"
+    assert both["replan"]["first_pass"]["force_mae_n"] == pytest.approx(first.metrics["force_mae_n"])
+    assert both["force_mae_n"] == pytest.approx(second.metrics["force_mae_n"], rel=1e-6)

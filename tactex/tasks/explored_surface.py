@@ -51,10 +51,11 @@ class ExploredSurface:
         curvature: (N,) l_s [-] (NaN allowed).
         spacing_m: the points' spacing [m]: the local fit's width.
         source: where they came from (messages).
+        metrics: the figures of the pass that explored them (its ``metrics.json``; empty when not known).
     """
 
     def __init__(self, points_m: np.ndarray, normals: np.ndarray, curvature: np.ndarray, spacing_m: float,
-                 source: str = "") -> None:
+                 source: str = "", metrics: dict | None = None) -> None:
         pts = np.asarray(points_m, dtype=float)
         nrm = np.asarray(normals, dtype=float)
         curv = np.asarray(curvature, dtype=float).reshape(-1)
@@ -71,6 +72,7 @@ class ExploredSurface:
             raise InputError(f"spacing_m must be > 0 [m], got {spacing_m!r}")
         self.points_m, self.normals = pts[keep], nrm[keep] / length[keep, None]
         self.curvature, self.spacing_m, self.source = curv[keep], float(spacing_m), source
+        self.metrics = dict(metrics or {})
         self.tree = cKDTree(self.points_m)
 
     def __len__(self) -> int:
@@ -95,7 +97,12 @@ class ExploredSurface:
             with np.load(npz, allow_pickle=False) as data:
                 if "explored_curvature" in data.files and data["explored_curvature"].shape == (len(cloud),):
                     curvature = np.asarray(data["explored_curvature"], dtype=float)
-        return cls(cloud.points, cloud.normals, curvature, cloud.spacing, source=str(run))
+        try:
+            metrics = json.loads((run / "metrics.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            metrics = {}  # a folder without its figures still re-plans; the comparison is then empty
+        return cls(cloud.points, cloud.normals, curvature, cloud.spacing, source=str(run),
+                   metrics=metrics if isinstance(metrics, dict) else {})
 
     @staticmethod
     def run_object(run_dir: str | Path) -> str | None:

@@ -35,10 +35,9 @@ not the tool's force axis: with the tool tilted up to 18° on the sine panel the
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -137,6 +136,9 @@ class WipeConfig(SimWorldParams):
         "reference on the part and feeds the normal ahead to the controller, and the start is aligned with it "
         "(tactex.tasks.explored_surface); '' plans in the tangent plane at the tool", option="replan-from")
     replan_lead_s: float = param(0.25, "how far ahead along the reference the re-plan's normal is taken [s]")
+    passes: int = param(
+        1, "1: the policy once; 2: once, then once more planned on the surface the first pass explored (as "
+        "--replan-from it; the result is the second pass's, with the first's figures in its metrics' replan)")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -166,6 +168,12 @@ class WipeConfig(SimWorldParams):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
         if not isinstance(self.replan_from, str):
             raise ConfigError(f"replan_from must be the path of a wipe's run folder, got {self.replan_from!r:.40}")
+        if self.passes not in (1, 2) or isinstance(self.passes, bool):
+            raise ConfigError(f"passes must be 1 or 2, got {self.passes!r}")
+        if self.passes == 2 and (self.replan_from or self.baseline):
+            raise ConfigError("passes = 2 re-plans the second pass on the first's surface for VA-UFIC: drop "
+                              + ("--replan-from (the first pass is this run's own)" if self.replan_from
+                                 else "--baseline"))
         if self.replan_from:
             _check_replan_from(self)
         v = float(self.replan_lead_s)
@@ -528,6 +536,12 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
     if policy is not None:
         check_wipe_policy(cfg, the_policy)
     explored = ExploredSurface.from_run(Path(cfg.replan_from).expanduser()) if cfg.replan_from else None
+    if cfg.passes == 2:
+        first = run_wipe(replace(cfg, passes=1), progress=progress, robot=robot, policy=policy, live=live)
+        if first.metrics.get("aborted") or first.explored is None:
+            return first  # stopped, or never touched: nothing to re-plan on, and the first pass says why
+        explored = ExploredSurface(first.explored.points, first.explored.normals, first.explored_curvature,
+                                   first.explored.spacing, source="the first pass", metrics=first.metrics)
     scene_cfg = cfg.scene()
     backend = open_backend(scene_cfg, robot)
     try:
@@ -566,15 +580,10 @@ FIRST_PASS_KEYS = ("force_mae_n", "force_within_20pct_fraction", "motion_mae_m",
 
 
 def _replan_metrics(cfg: WipeConfig, explored: ExploredSurface, refs: _WipeReferences) -> dict:
-    """What the re-plan used (the first pass's folder, its contact points, the share of references it placed)
-    and the first pass's figures, for the side-by-side comparison."""
-    first: dict = {}
-    try:
-        loaded = json.loads((Path(cfg.replan_from).expanduser() / "metrics.json").read_text(encoding="utf-8"))
-        first = {k: loaded.get(k) for k in FIRST_PASS_KEYS} if isinstance(loaded, dict) else {}
-    except (OSError, ValueError):
-        pass  # a folder without metrics still re-plans; the comparison is then empty
-    return {"from": cfg.replan_from, "explored_points": len(explored),
+    """What the re-plan used (the first pass's folder, or "the first pass" of this run's two, its contact points,
+    the share of references it placed) and the first pass's figures, for the side-by-side comparison."""
+    first = {k: explored.metrics.get(k) for k in FIRST_PASS_KEYS} if explored.metrics else {}
+    return {"from": cfg.replan_from or explored.source, "explored_points": len(explored),
             "on_explored_fraction": refs.on_explored / max(refs.advances, 1), "first_pass": first}
 
 
