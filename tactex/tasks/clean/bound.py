@@ -11,8 +11,10 @@ says how far that method is from the physics.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
-from tactex.tasks.ideal_time import ideal_time_s
+from tactex.pointcloud.cloud import SurfaceCloud
+from tactex.tasks.ideal_time import dirty_area_m2, ideal_time_s
 
 __all__ = ["CleanBound"]
 
@@ -38,6 +40,15 @@ class CleanBound:
     capture_s: float
     transit_s: float
     touch_down_s: float
+
+    @classmethod
+    def of(cls, cfg: Any, dirt: SurfaceCloud, capture_s: float, transit_s: float) -> CleanBound:
+        """The bound of a clean with ``cfg`` (a :class:`~tactex.tasks.clean.config.CleanConfig`) on the captured
+        ``dirt`` (its target: the dirt the methods are asked to clean), ``capture_s`` [s] into the run at the
+        end of the capture and ``transit_s`` [s] from the capture posture to the quickest hover over dirt."""
+        return cls(dirty_area_m2=dirty_area_m2(dirt), pad_effective_width_m=cfg.lane_spacing_m,
+                   speed_m_s=cfg.max_velocity * dirt.spacing * cfg.explorer_rate_hz, capture_s=capture_s,
+                   transit_s=transit_s, touch_down_s=cfg.hover_height_m / cfg.approach_speed_m_s)
 
     @property
     def sliding_s(self) -> float:

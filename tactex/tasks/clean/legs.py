@@ -8,6 +8,7 @@ import numpy as np
 
 from tactex.ergodic.command import ExplorationCommand
 from tactex.ergodic.explorer import HedacExplorer
+from tactex.ergodic.relocation import RelocationCommand
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks.clean.config import SWEEP_GOAL, CleanConfig
 from tactex.tasks.clean.sweep_plan import SweepPlan, dirt_island, plan_sweep
@@ -16,7 +17,20 @@ from tactex.tasks.raster import WaypointPath
 from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
 from tactex.tasks.wear_model import WearModel
 
-__all__ = ["MAX_HOLD_STEPS", "SWEEP_MIN_SHARE", "plan_stroke", "plan_sweep"]
+__all__ = ["MAX_HOLD_STEPS", "RASTER_SKIP_M", "SWEEP_MIN_SHARE", "plan_stroke", "plan_sweep", "skip_along"]
+
+#: A raster whose touch-down is out of the arm's reach goes on along its path this far before trying again [m].
+RASTER_SKIP_M = 0.02
+
+
+def skip_along(path: PathSource, point_m: np.ndarray) -> ExplorationCommand | RelocationCommand | None:
+    """The next command of a raster's ``path`` at least :data:`RASTER_SKIP_M` from ``point_m`` (3,) [m], or its
+    next flight, whichever comes first; None when the path ends before."""
+    while not path.done:
+        cmd = path.step()
+        if isinstance(cmd, RelocationCommand) or np.linalg.norm(cmd.point - point_m) >= RASTER_SKIP_M:
+            return cmd
+    return None
 
 #: Most exploration steps in a row the agent waits for a lagging or dragged tool (CleanConfig.max_lag_m,
 #: CleanConfig.hold_force_ratio): a point the tool cannot reach must not hold the program [-].

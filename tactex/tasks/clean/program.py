@@ -52,7 +52,6 @@ from tactex.tasks.clean.robot_camera import RobotCapture
 from tactex.tasks.clean.step_ahead import StepAhead
 from tactex.tasks.clean.sweep_plan import SweepPlan
 from tactex.tasks.clean.target import _dirt_from_cloud, load_target_cloud_keep_out
-from tactex.tasks.ideal_time import dirty_area_m2
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.progress import Progress
 from tactex.tasks.raster import RasterPath
@@ -84,13 +83,6 @@ APPROACH_TIMEOUT_S = 6.0
 #: it is farther [m]: a lift-off, move and touch-down take about ISLAND_MOVE_GUESS_S, in which the sponge
 #: slides this far at the clean's speeds.
 REGION_RASTER_GAP_M = 0.2
-#: A raster whose touch-down is out of the arm's reach goes on along its path this far before trying again [m].
-RASTER_SKIP_M = 0.02
-
-
-def cfg_name(cfg: CleanConfig) -> str:
-    """The method a clean runs, for messages."""
-    return {"raster": "raster", "region_raster": "region raster"}.get(cfg.baseline, cfg.baseline or "tactex")
 
 
 def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
@@ -352,8 +344,8 @@ class CleanProgram:
         self.stroke: IslandStroke | None = None
         self.stroke_step_m = cfg.max_velocity * cloud.spacing  # the agent's speed limit
         self.hold_force_n = cfg.hold_force_ratio * cfg.force_n if cfg.hold_force_ratio > 0 else np.inf
-        # [s] a lift-off, move and touch-down, measured from the first approach on (the move from the capture pose
-        # to the first touch-down is the first measure: no island is chosen before it), then after each island move
+        # [s] a lift-off, move and touch-down: first the move from the capture pose to the first touch-down (no
+        # island is chosen before it), then each island move
         self.island_move_s = ISLAND_MOVE_GUESS_S
         self.t_move: float | None = self.loop.t  # when the move in progress started
         self.counted: IslandStroke | None = None  # the last stroke counted in n_strokes / n_transfers
@@ -438,11 +430,8 @@ class CleanProgram:
             self.start_plan_s = time.perf_counter() - t_plan
         else:
             self.start_plan_s = 0.0
-        self.bound = CleanBound(
-            dirty_area_m2=dirty_area_m2(cloud.with_target(self.cleanable_target)),
-            pad_effective_width_m=cfg.lane_spacing_m, speed_m_s=cfg.max_velocity * cloud.spacing * cfg.explorer_rate_hz,
-            capture_s=self.loop.t, transit_s=0.0 if quickest is None else quickest[1],
-            touch_down_s=cfg.hover_height_m / cfg.approach_speed_m_s)
+        self.bound = CleanBound.of(cfg, cloud.with_target(self.cleanable_target), self.loop.t,
+                                   0.0 if quickest is None else quickest[1])
         return x0
 
     def _plan_first_leg(self) -> None:
@@ -551,21 +540,17 @@ class CleanProgram:
             return None
 
     def _skip_along_raster(self) -> bool | None:
-        """A raster's touch-down out of the arm's reach (a bowl's rim beside the robot): on along its path to the
-        first point :data:`RASTER_SKIP_M` away, or to its next flight, where the approach tries again (None);
-        False at the path's end."""
-        unreachable = self.cmd.point.copy()
-        while not self.path.done:
-            cmd = self.path.step()
-            if isinstance(cmd, RelocationCommand) or np.linalg.norm(cmd.point - unreachable) >= RASTER_SKIP_M:
-                warnings.warn(f"clean: no hover pose over {np.round(unreachable, 3).tolist()} m within reach; the "
-                              f"{cfg_name(self.cfg)} goes on at {np.round(cmd.point, 3).tolist()} m", RuntimeWarning,
-                              stacklevel=3)
-                self.cmd, self.new_leg = cmd, True
-                return None
-        warnings.warn(f"clean: no hover pose over {np.round(unreachable, 3).tolist()} m within reach and the "
-                      f"{cfg_name(self.cfg)} ends there; ending the program", RuntimeWarning, stacklevel=3)
-        return False
+        """A raster's touch-down out of reach (a bowl's rim): on along its path (None), or False at its end."""
+        out, name = np.round(self.cmd.point, 3).tolist(), self.cfg.baseline.replace("_", " ")
+        cmd = legs.skip_along(self.path, self.cmd.point)
+        if cmd is None:
+            warnings.warn(f"clean: no hover pose over {out} m within reach and the {name} ends there; ending the "
+                          "program", RuntimeWarning, stacklevel=3)
+            return False
+        warnings.warn(f"clean: no hover pose over {out} m within reach; the {name} goes on at "
+                      f"{np.round(cmd.point, 3).tolist()} m", RuntimeWarning, stacklevel=3)
+        self.cmd, self.new_leg = cmd, True
+        return None
 
     # -- 3b. explore ------------------------------------------------------------------------------------------
     def explore(self) -> bool:
