@@ -177,12 +177,14 @@ def _approach_speed(tcp_m: np.ndarray, cmd: ExplorationCommand, cfg: CleanConfig
 def _pad_over_support(point_m: np.ndarray, normal: np.ndarray, support_z_m: float, pad_radius_m: float,
                       clearance_m: float = 0.0) -> np.ndarray:
     """The commanded line's point ``point_m`` (3,) [m], raised along world z where needed so that the pad, a disc
-    of ``pad_radius_m`` [m] centred there and ⟂ ``normal`` (3,), stays ``clearance_m`` [m] above the support plane
-    z = ``support_z_m`` [m]: at the foot of a wall the line through the lowest captured ring would press the pad's
-    rim into the table, which would then hold the tool off the wall while the line drags it sideways."""
+    of ``pad_radius_m`` [m] centred there and ⟂ ``normal`` (3,), stays above the support plane z = ``support_z_m``
+    [m], by ``clearance_m`` [m] on a wall (less as the disc tilts towards level, where its rim does not dip): at
+    the foot of a wall the line through the lowest captured ring would press the pad's rim into the table, which
+    would then hold the tool off the wall while the line drags it sideways."""
     n = np.asarray(normal, dtype=float)
     n_z2 = float(n[2] * n[2]) / max(float(n @ n), 1e-12)
-    low = support_z_m + clearance_m + pad_radius_m * float(np.sqrt(max(1.0 - n_z2, 0.0)))
+    tilt = float(np.sqrt(max(1.0 - n_z2, 0.0)))  # how far the disc's rim dips below its centre, per radius
+    low = support_z_m + (pad_radius_m + clearance_m) * tilt
     if point_m[2] >= low:
         return point_m
     out = np.array(point_m, dtype=float)
