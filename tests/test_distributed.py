@@ -151,3 +151,14 @@ def test_tune_returns_the_best_configuration_and_the_trial_table(local_ray, tmp_
     saved = json.loads((tmp_path / "tune.json").read_text())
     assert saved["best"] == result.best and saved["best"]["n_eigen"] in (10, 20)
     assert (tmp_path / "tune_alpha.png").is_file()
+
+
+def test_local_ray_workers_run_at_our_nice_level(local_ray):
+    """Ray lowers its workers to nice 15 by default: on a machine busy with anything else they would crawl."""
+    import os
+
+    @ray.remote
+    def niceness() -> int:
+        return os.nice(0)
+
+    assert ray.get(niceness.remote(), timeout=300) == os.nice(0)
