@@ -3,7 +3,8 @@
 # clone beside this one (so ../shared is the same), three on a quiet machine, then three with two
 # processes spinning on both cores. One line per run in proof-summary.txt beside the checkout, and a record
 # in this checkout's bench/suite_runs.json (tools/suite_runs.py), which the README's test time reads.
-# Usage: tools/six_runs.sh [all|quiet|busy]   (default all; a set of three runs on its own appends to the summary)
+# Usage: tools/six_runs.sh [all|quiet|busy|quiet-N|busy-N]   (default all; a set of three, or one named run,
+# on its own appends to the summary)
 set -u
 WHICH=${1:-all}
 REPO=$(git rev-parse --show-toplevel)
@@ -31,4 +32,8 @@ run() {  # name, busy (0/1)
 }
 if [ "$WHICH" = all ] || [ "$WHICH" = quiet ]; then run quiet-1 0; run quiet-2 0; run quiet-3 0; fi
 if [ "$WHICH" = all ] || [ "$WHICH" = busy ]; then run busy-1 1; run busy-2 1; run busy-3 1; fi
+case "$WHICH" in
+    quiet-[0-9]*) run "$WHICH" 0 ;;
+    busy-[0-9]*) run "$WHICH" 1 ;;
+esac
 echo "done ($WHICH) $(date -u +%FT%TZ)" >> "$summary"
