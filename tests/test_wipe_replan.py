@@ -58,7 +58,7 @@ def test_bad_explored_surfaces_are_refused_in_one_line(tmp_path) -> None:
 
 
 def test_a_replan_needs_a_wipe_of_the_same_part(tmp_path) -> None:
-    with pytest.raises(ConfigError, match="no such folder"):
+    with pytest.raises(ConfigError, match="no such run folder"):
         WipeConfig(replan_from=str(tmp_path / "nothing"))
     with pytest.raises(ConfigError, match=r"no explored\.ply in it"):
         WipeConfig(replan_from=str(tmp_path))

@@ -78,16 +78,25 @@ class ExploredSurface:
     def __len__(self) -> int:
         return len(self.points_m)
 
+    @staticmethod
+    def folder_problem(run_dir: str | Path) -> str:
+        """Why ``run_dir`` holds no explored surface to read, or ``""``: one line, for a config check or a refusal."""
+        run = Path(run_dir)
+        if not run.is_dir():
+            return f"--replan-from {run}: no such run folder (give the --out folder of an earlier wipe)"
+        if not (run / "explored.ply").is_file():
+            return (f"--replan-from {run}: no explored.ply in it: is it a wipe's run folder, and did that wipe touch "
+                    "the surface?")
+        return ""
+
     @classmethod
     def from_run(cls, run_dir: str | Path) -> ExploredSurface:
         """The explored surface of the wipe whose run folder is ``run_dir`` (``explored.ply`` and ``cloud.npz``)."""
         run = Path(run_dir)
-        if not run.is_dir():
-            raise InputError(f"--replan-from {run}: no such run folder (give the --out folder of an earlier wipe)")
+        problem = cls.folder_problem(run)
+        if problem:
+            raise InputError(problem)
         ply = run / "explored.ply"
-        if not ply.is_file():
-            raise InputError(f"--replan-from {run}: no explored.ply in it: is it a wipe's run folder, and did "
-                             "that wipe touch the surface?")
         cloud = load_ply(ply)
         if cloud.normals is None:
             raise InputError(f"--replan-from {run}: explored.ply has no normals (nx ny nz)")

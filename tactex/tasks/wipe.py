@@ -198,10 +198,9 @@ class WipeConfig(SimWorldParams):
 def _check_replan_from(cfg: WipeConfig) -> None:
     """The re-plan's run folder exists, holds an explored surface, and wiped the same part."""
     run = Path(cfg.replan_from).expanduser()
-    if not (run / "explored.ply").is_file():
-        why = "no such folder" if not run.is_dir() else "no explored.ply in it"
-        raise ConfigError(f"--replan-from {run}: {why}; give the --out folder of an earlier wipe that touched the "
-                          "surface")
+    problem = ExploredSurface.folder_problem(run)
+    if problem:
+        raise ConfigError(problem)
     if cfg.baseline:
         raise ConfigError(f"--replan-from feeds VA-UFIC's alignment; the {cfg.baseline} baseline has none: drop "
                           "--baseline")

@@ -80,8 +80,8 @@ ROBOT_SETTLE_S = 0.2
 #: Longest approach along the normal before the captured surface counts as missing [s].
 APPROACH_TIMEOUT_S = 6.0
 #: The region raster slides to its next line when it is closer than this, and lifts off to fly there when
-#: it is farther [m]: a lift-off, move and touch-down take about ISLAND_MOVE_GUESS_S, in which the sponge
-#: slides this far at the clean's speeds.
+#: it is farther [m]: a lift-off, move and touch-down take seconds (ISLAND_MOVE_GUESS_S before the first is
+#: measured), in which the sponge slides this far at the clean's speeds.
 REGION_RASTER_GAP_M = 0.2
 
 
