@@ -255,6 +255,13 @@ def test_table_columns_leave_out_wall_clock_and_series_and_split_axes():
     assert flat == {"dirt_removed_fraction": 0.5, "motion_rmse_m.x": 0.1, "motion_rmse_m.y": None,
                     "motion_rmse_m.z": 0.3, "tank_force_energy_j.min": 1.0, "tank_force_energy_j.max": 2.0,
                     "baseline": "raster"}
+    # a re-planned wipe's first pass: nested dicts and per-axis lists inside them get columns too
+    nested = flat_scalars({"replan": {"from": "the first pass", "first_pass": {
+        "force_mae_n": 0.3, "motion_mae_tangent_m": [0.001, 0.002, 0.0], "aligned_at_s": None}}})
+    assert nested == {"replan.from": "the first pass", "replan.first_pass.force_mae_n": 0.3,
+                      "replan.first_pass.motion_mae_tangent_m.x": 0.001,
+                      "replan.first_pass.motion_mae_tangent_m.y": 0.002,
+                      "replan.first_pass.motion_mae_tangent_m.z": 0.0, "replan.first_pass.aligned_at_s": None}
 
 
 def test_a_run_cut_by_ctrl_c_stops_the_study_instead_of_counting_as_done(monkeypatch) -> None:

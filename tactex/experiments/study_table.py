@@ -37,7 +37,8 @@ MAIN_METRICS = {
 }
 #: Metrics given per axis of the base frame as [x, y, z]: columns ``name.x``, ``name.y``, ``name.z``.
 PER_AXIS_METRICS = ("motion_mae_m", "motion_rmse_m", "motion_mae_tool_m", "motion_rmse_tool_m",
-                    "motion_mae_all_contact_m", "motion_rmse_all_contact_m")
+                    "motion_mae_tangent_m", "motion_rmse_tangent_m", "motion_mae_all_contact_m",
+                    "motion_rmse_all_contact_m")
 #: Confidence level of the intervals in the summary.
 CONFIDENCE = 0.95
 
@@ -70,8 +71,9 @@ def t_interval(values: np.ndarray, confidence: float = CONFIDENCE) -> tuple[floa
 
 
 def flat_scalars(metrics: dict[str, Any]) -> dict[str, Any]:
-    """The table's metric columns: scalars, one level of dicts as ``name.key``, per-axis metrics as
-    ``name.x/y/z``; other lists (time series) stay in ``runs.jsonl``."""
+    """The table's metric columns: scalars, dicts as ``name.key`` (nested ones too, e.g. a re-planned wipe's
+    ``replan.first_pass.force_mae_n``), per-axis metrics as ``name.x/y/z``; other lists (time series) stay in
+    ``runs.jsonl``."""
     out: dict[str, Any] = {}
     for k, v in metrics.items():
         if k in WALL_CLOCK_METRICS:
@@ -79,9 +81,7 @@ def flat_scalars(metrics: dict[str, Any]) -> dict[str, Any]:
         if k in PER_AXIS_METRICS and isinstance(v, list) and len(v) == 3:
             out.update({f"{k}.{axis}": x for axis, x in zip("xyz", v, strict=True)})
         elif isinstance(v, dict):
-            for kk, vv in v.items():
-                if vv is None or isinstance(vv, (bool, int, float, str)):
-                    out[f"{k}.{kk}"] = vv
+            out.update({f"{k}.{kk}": vv for kk, vv in flat_scalars(v).items()})
         elif v is None or isinstance(v, (bool, int, float, str)):
             out[k] = v
     return out
