@@ -142,3 +142,40 @@ def test_two_passes_in_one_run_re_plan_the_second_on_the_first(two_passes) -> No
     assert both["replan"]["from"] == "the first pass"
     assert both["replan"]["first_pass"]["force_mae_n"] == pytest.approx(first.metrics["force_mae_n"])
     assert both["force_mae_n"] == pytest.approx(second.metrics["force_mae_n"], rel=1e-6)
+
+
+class _CountingPlane:
+    """An explored surface that is the plane z = 0 (normal +z), counting how often it is read."""
+
+    def __init__(self, gap_m: float = 0.0) -> None:
+        self.reads, self.gap_m = 0, gap_m
+
+    def near(self, query_m):
+        from tactex.tasks.explored_surface import SurfacePoint
+
+        self.reads += 1
+        q = np.asarray(query_m, dtype=float)
+        return SurfacePoint(np.array([q[0], q[1], 0.0]), np.array([0.0, 0.0, 1.0]), 0.0, self.gap_m)
+
+
+def test_the_re_plan_reads_the_explored_surface_every_10_ms_and_projects_between() -> None:
+    from tactex.tasks.wipe import REPLAN_READ_EVERY_S, _WipeReferences
+    from tactex.tasks.wipe_policy import wipe_policy
+
+    cfg = WipeConfig()
+    plane = _CountingPlane()
+    refs = _WipeReferences(cfg, None, np.array([0.0, 0.0, 0.01]), np.eye(3), wipe_policy(cfg, None), plane)
+    twist = np.array([0.05, 0.0, 0.0, 0.0, 0.0, 0.0])
+    dt, n = 0.001, 100
+    for i in range(n):
+        refs.pos_ref = np.array([0.001 * i, 0.0, 0.01 + 0.001 * (i % 3)])  # wherever the policy moved it
+        surface = refs._on_explored(i * dt, twist)
+        # every tick: the desired position REPLAN_DEPTH_M into the plane, read or not
+        assert refs.pos_ref[2] == pytest.approx(-REPLAN_DEPTH_M) and refs.pos_ref[0] == pytest.approx(0.001 * i)
+        assert surface is not None and surface.valid and np.allclose(surface.normal_world, [0.0, 0.0, 1.0])
+    assert plane.reads == 2 * round(n * dt / REPLAN_READ_EVERY_S)  # here and ahead, once per read
+    assert refs.on_explored == n
+    # off the explored surface (farther than REPLAN_GAP_M from any contact): the camera's estimate, no shift
+    far = _CountingPlane(gap_m=1.0)
+    refs = _WipeReferences(cfg, None, np.array([0.0, 0.0, 0.01]), np.eye(3), wipe_policy(cfg, None), far)
+    assert refs._on_explored(0.0, twist) is None and refs.pos_ref[2] == pytest.approx(0.01) and far.reads == 1
