@@ -63,6 +63,11 @@ def _wait_text(page, pattern: str, what: str, proc) -> re.Match:
         time.sleep(0.2)
 
 
+def _cleaning_seconds(samples: list[tuple[int, bool]]) -> list[tuple[int, int]]:
+    """The colour-update counts at both ends of each sampled second the page showed cleaning (explore) throughout."""
+    return [(a[0], b[0]) for a, b in itertools.pairwise(samples) if a[1] and b[1]]
+
+
 def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the dev extra)")
     out = tmp_path / "run"
@@ -104,8 +109,10 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
                 with contextlib.suppress(sync_api.Error):  # the page's note that Chromium draws without a GPU
                     page.locator("button.mantine-Notification-closeButton").first.click(timeout=2000)
                 page.screenshot(path=str(Path(SHOT_DIR) / "live_clean.png"))
-            # once a second: the count of colour updates the page shows, and the phase
-            for _ in range(8):
+            # once a second: the count of colour updates the page shows, and the phase; the run leaves explore for
+            # each camera look, so sample until three seconds were seen cleaning from end to end (hang guard only)
+            deadline = time.monotonic() + HANG_S
+            while len(_cleaning_seconds(samples)) < 3 and time.monotonic() < deadline and proc.poll() is None:
                 body = _body(page)
                 found = re.search(r"cloud colours sent (\d+) times", body)
                 samples.append((int(found.group(1)) if found else -1, "phase explore" in body))
@@ -132,7 +139,7 @@ def test_a_live_clean_updates_its_colours_and_stop_ends_it_as_ctrl_c(tmp_path):
     assert outside == [], f"the page asked for something off localhost: {outside}"
     assert not errors, errors
     # every second the robot cleaned through (explore shown at both ends), new colours reached the page
-    cleaning = [(a[0], b[0]) for a, b in itertools.pairwise(samples) if a[1] and b[1]]
+    cleaning = _cleaning_seconds(samples)
     assert len(cleaning) >= 3 and all(b > a for a, b in cleaning), samples
     # a line over at most the plot's window of run time, following the run: its right end within a second or two
     # of the run time the page showed (the run publishes every 0.1 s of wall time and the simulation runs faster
