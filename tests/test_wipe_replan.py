@@ -13,7 +13,8 @@ from tactex.experiments.run import run_task, task_summary
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.io import save_ply
 from tactex.tasks.explored_surface import MIN_EXPLORED_POINTS, ExploredSurface
-from tactex.tasks.wipe import REPLAN_DEPTH_M, WipeConfig, run_wipe
+from tactex.tasks.wipe import WipeConfig, run_wipe
+from tactex.tasks.wipe_references import REPLAN_DEPTH_M
 
 RADIUS_M = 0.1
 
@@ -159,12 +160,12 @@ class _CountingPlane:
 
 
 def test_the_re_plan_reads_the_explored_surface_every_10_ms_and_projects_between() -> None:
-    from tactex.tasks.wipe import REPLAN_READ_EVERY_S, _WipeReferences
     from tactex.tasks.wipe_policy import wipe_policy
+    from tactex.tasks.wipe_references import REPLAN_READ_EVERY_S, WipeReferences
 
     cfg = WipeConfig()
     plane = _CountingPlane()
-    refs = _WipeReferences(cfg, None, np.array([0.0, 0.0, 0.01]), np.eye(3), wipe_policy(cfg, None), plane)
+    refs = WipeReferences(cfg, None, np.array([0.0, 0.0, 0.01]), np.eye(3), wipe_policy(cfg, None), plane)
     twist = np.array([0.05, 0.0, 0.0, 0.0, 0.0, 0.0])
     dt, n = 0.001, 100
     for i in range(n):
@@ -177,5 +178,43 @@ def test_the_re_plan_reads_the_explored_surface_every_10_ms_and_projects_between
     assert refs.on_explored == n
     # off the explored surface (farther than REPLAN_GAP_M from any contact): the camera's estimate, no shift
     far = _CountingPlane(gap_m=1.0)
-    refs = _WipeReferences(cfg, None, np.array([0.0, 0.0, 0.01]), np.eye(3), wipe_policy(cfg, None), far)
+    refs = WipeReferences(cfg, None, np.array([0.0, 0.0, 0.01]), np.eye(3), wipe_policy(cfg, None), far)
     assert refs._on_explored(0.0, twist) is None and refs.pos_ref[2] == pytest.approx(0.01) and far.reads == 1
+
+
+class _NoCamera:
+    def update(self, state):
+        return None
+
+
+class _State:
+    def __init__(self, t: float, rotation: np.ndarray) -> None:
+        self.t, self.ee_rotation = t, rotation
+
+
+def test_a_learned_correction_moves_the_commands_not_what_the_run_is_measured_against() -> None:
+    """The second pass commands the policy plus what the first pass's errors call for; the position and force
+    the run's figures compare with (``pos_ref``, ``force_set_n``) stay the policy's own."""
+    from tactex.tasks.pass_learning import PassCorrection
+    from tactex.tasks.wipe_policy import wipe_policy
+    from tactex.tasks.wipe_references import WipeReferences
+
+    cfg = WipeConfig()
+    t = 0.01 * np.arange(200)
+    # +2 N and (1, −2) mm in the tool's x/y all along, except −20 N from 1 s on (below the contact threshold)
+    force = np.where(t < 1.0, 2.0, -20.0)
+    learned = PassCorrection(t, force, np.tile([0.001, -0.002], (len(t), 1)), 0.8)
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # tool x along world y
+    p0 = np.array([0.1, 0.2, 0.3])
+    plain = WipeReferences(cfg, _NoCamera(), p0, rot, wipe_policy(cfg, None))
+    taught = WipeReferences(cfg, _NoCamera(), p0, rot, wipe_policy(cfg, None), learned=learned)
+    for tau in (0.2, 0.5):
+        plain.advance(_State(tau, rot), tau)
+        taught.advance(_State(tau, rot), tau)
+        assert taught.pos_ref == pytest.approx(plain.pos_ref) and taught.force_set_n == plain.force_set_n
+        shift = taught.reference.position_world - plain.reference.position_world
+        assert shift == pytest.approx(rot @ [0.001, -0.002, 0.0])
+        assert taught.reference.wrench_tool[2] == pytest.approx(plain.reference.wrench_tool[2] + 2.0)
+    taught.advance(_State(1.5, rot), 1.5)
+    assert taught.reference.wrench_tool[2] == pytest.approx(cfg.contact_threshold_n)  # never below contact
+    assert taught.force_set_n == pytest.approx(cfg.force_n)

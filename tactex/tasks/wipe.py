@@ -36,7 +36,6 @@ not the tool's force axis: with the tool tilted up to 18° on the sine panel the
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -47,7 +46,6 @@ from tactex.config import param
 from tactex.control.cartesian_impedance import CartesianImpedanceController
 from tactex.control.friction import FrictionCompensator, FrictionCompensatorParams
 from tactex.control.nullspace import NullspacePosture
-from tactex.control.references import PoseForceReference
 from tactex.control.safety import MAX_FORCE_SET_POINT_N, SafetyLimits, check_force_set_point
 from tactex.control.va_ufic import VaUficController, VaUficParams, desired_rotation_from_normal
 from tactex.errors import ConfigError, PolicyFileError, SurfaceNotFound, TactexError
@@ -58,6 +56,7 @@ from tactex.pointcloud.voxel import voxel_indices
 from tactex.robots.loop import ControlLoop
 from tactex.sim.scene import SceneConfig
 from tactex.tasks.explored_surface import ExploredSurface
+from tactex.tasks.pass_learning import PassCorrection
 from tactex.tasks.policies import ForceMotionPolicy, sinusoid_xy
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
@@ -71,6 +70,7 @@ from tactex.tasks.robot import (
     stop_reason,
 )
 from tactex.tasks.wipe_policy import check_wipe_policy, policy_segments, wipe_policy, wipe_start_pose
+from tactex.tasks.wipe_references import WipeReferences
 from tactex.tasks.world import SimWorldParams
 
 __all__ = ["WIPE_BASELINES", "WipeConfig", "WipeResult", "run_wipe", "wiping_policy"]
@@ -87,16 +87,6 @@ def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift
     return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
 
 
-#: A re-plan puts the reference on the explored surface only this close to a contact point of the first pass
-#: [m]: farther, the first pass never touched there. Its tracking error reaches a centimetre or two while
-#: VA-UFIC is still compliant, and the local plane there is off a 10 cm sphere by d²/2R = 2 mm at 2 cm.
-REPLAN_GAP_M = 0.02
-#: ... and that far into it along the normal [m].
-REPLAN_DEPTH_M = 0.01
-#: How often a re-plan reads the explored surface [s]. A read (two KD-tree queries and a weighted plane fit)
-#: costs a sizeable part of a 1 kHz tick; between reads the desired position is projected on the plane last
-#: read, which the tool leaves by a fraction of a millimetre in that time.
-REPLAN_READ_EVERY_S = 0.01
 #: Spacing of the surface the live page draws [m].
 LIVE_SPACING_M = 0.004
 
@@ -140,6 +130,9 @@ class WipeConfig(SimWorldParams):
         "reference on the part and feeds the normal ahead to the controller, and the start is aligned with it "
         "(tactex.tasks.explored_surface); '' plans in the tangent plane at the tool", option="replan-from")
     replan_lead_s: float = param(0.25, "how far ahead along the reference the re-plan's normal is taken [s]")
+    replan_learn_gain: float = param(
+        0.8, "share of the first pass's force and in-plane errors a re-plan corrects in advance at the same policy "
+        "time (one step of iterative learning control, tactex.tasks.pass_learning); 0: the surface only [-]")
     passes: int = param(
         1, "1: the policy once; 2: once, then once more planned on the surface the first pass explored (as "
         "--replan-from it; the result is the second pass's, with the first's figures in its metrics' replan)")
@@ -183,6 +176,9 @@ class WipeConfig(SimWorldParams):
         v = float(self.replan_lead_s)
         if not (np.isfinite(v) and 0.0 <= v <= 2.0):
             raise ConfigError(f"replan_lead_s must lie in [0, 2] s, got {self.replan_lead_s!r}")
+        v = float(self.replan_learn_gain)
+        if not (np.isfinite(v) and 0.0 <= v <= 1.0):
+            raise ConfigError(f"replan_learn_gain must lie in [0, 1], got {self.replan_learn_gain!r}")
         if not isinstance(self.policy, str):
             raise ConfigError(f"policy must be the path of a .toml policy file, got {self.policy!r:.40}")
         if self.policy:  # a bad file is refused before anything starts
@@ -253,102 +249,6 @@ def _exploration_accuracy(explored: SurfaceCloud, surface, obj_pos: np.ndarray, 
         "explored_inclination_span_deg": float(incline.max() - incline.min()),
     }
 
-
-
-class _WipeReferences:
-    """The VA-UFIC §III policy as the controller's references, one per tick.
-
-    :meth:`advance` makes :attr:`reference` the one for the tick that answers the next state, from
-    the state just answered: on a real robot it runs while that command executes (``ControlLoop.tick``'s
-    ``after_send``), so only the controller stands between a state and its command. The policy lives
-    in the tool frame; its increments are applied in the tool frame of the state it is given (one
-    tick, about a milliradian, before the state the torque answers).
-    """
-
-    def __init__(self, cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
-                 policy: ForceMotionPolicy, explored: ExploredSurface | None = None,
-                 offset: Callable[[], np.ndarray] | None = None) -> None:
-        self.cfg, self.vision, self.r_start, self.policy = cfg, vision, r_start, policy
-        self.pos_ref = p_start.copy()
-        self.estimate: SurfaceEstimate | None = None  # the camera's newest
-        # with a re-plan: the explored surface, and how many references it placed
-        self.explored, self.on_explored, self.advances = explored, 0, 0
-        # the plane last read from it: (time [s], point [m], unit normal, the controller's surface) or, off
-        # the explored surface, (time, None, None, None)
-        self._plane: tuple | None = None
-        # the controller's position offset [m] (VA-UFIC's, fed back while compliant): the desired position is
-        # the reference plus it
-        self.offset = offset
-        self.estimates_total = self.estimates_valid = 0
-        self.reference: PoseForceReference | None = None
-        first = policy.at(0.0)
-        self._x_prev = (first.u_m, first.v_m)
-        self.force_set_n, self.segment, self.uv = first.force_n, 0, (first.u_m, first.v_m)
-        # a constant set point keeps one wrench array for the whole run
-        self._const = policy.constant_force_n
-        self.wrench_d = np.array([0.0, 0.0, first.force_n if self._const is None else self._const, 0.0, 0.0, 0.0])
-
-    def advance(self, state, tau_t: float) -> None:
-        """:attr:`reference` at policy time ``tau_t`` [s], with the newest surface estimate and
-        ``state``'s tool frame."""
-        cfg = self.cfg
-        new_estimate = self.vision.update(state)
-        if new_estimate is not None:
-            self.estimate = new_estimate
-            self.estimates_total += 1
-            self.estimates_valid += int(new_estimate.valid)
-        # the policy's increment and rate (tool frame, z = 0), applied in the tool frame of ``state``
-        x0, x1, v0, v1, force = self.policy.at(tau_t)
-        if self._const is None:
-            self.wrench_d = np.array((0.0, 0.0, force, 0.0, 0.0, 0.0))
-        self.force_set_n, self.segment, self.uv = force, self.policy.segment_index(tau_t), (x0, x1)
-        p0, p1 = self._x_prev
-        d0, d1 = x0 - p0, x1 - p1
-        self._x_prev = (x0, x1)
-        rot = state.ee_rotation
-        (r00, r01, _), (r10, r11, _), (r20, r21, _) = rot.tolist()
-        px, py, pz = self.pos_ref.tolist()
-        self.pos_ref = np.array((px + r00 * d0 + r01 * d1, py + r10 * d0 + r11 * d1, pz + r20 * d0 + r21 * d1))
-        twist_d = np.array((r00 * v0 + r01 * v1, r10 * v0 + r11 * v1, r20 * v0 + r21 * v1, 0.0, 0.0, 0.0))
-        rot_ref = self.r_start if cfg.baseline == "cartesian" else rot
-        surface = self.estimate
-        self.advances += 1
-        if self.explored is not None:
-            surface = self._on_explored(state.t, twist_d)
-        self.reference = PoseForceReference(self.pos_ref, rot_ref, self.wrench_d, twist_d, surface)
-
-    def _on_explored(self, t: float, twist_d: np.ndarray) -> SurfaceEstimate | None:
-        """Where the first pass touched: the reference moved along the explored surface's normal so that the
-        desired position (reference plus the controller's offset) lies on it, and the normal the desired position
-        reaches ``replan_lead_s`` ahead as the controller's surface (the camera's curvature where the first pass
-        had none). Elsewhere the camera's estimate, and the reference where the tangent plane put it."""
-        assert self.explored is not None
-        desired = self.pos_ref + (self.offset() if self.offset is not None else 0.0)
-        if self._plane is None or t - self._plane[0] >= REPLAN_READ_EVERY_S - 1e-9:
-            self._plane = self._read_plane(t, desired, twist_d)
-        _, point, normal, surface = self._plane
-        if point is None:
-            return self.estimate
-        self.on_explored += 1
-        # into the surface by REPLAN_DEPTH_M: VA-UFIC fades the force once the tool is past the desired
-        # position along its axis (eq. 30), which a tool pressing a little deeper than the first pass would be
-        depth = float((desired - point) @ normal) + REPLAN_DEPTH_M
-        self.pos_ref = self.pos_ref - depth * normal
-        return surface
-
-    def _read_plane(self, t: float, desired: np.ndarray, twist_d: np.ndarray) -> tuple:
-        """The explored surface's local plane at ``desired`` [m] and the controller's surface: the normal the
-        reference reaches ``replan_lead_s`` ahead (the camera's curvature where the first pass had none)."""
-        here = self.explored.near(desired)
-        if here.gap_m > REPLAN_GAP_M:
-            return (t, None, None, None)
-        ahead = self.explored.near(here.point_m + self.cfg.replan_lead_s * twist_d[:3])
-        curvature = ahead.curvature
-        if not np.isfinite(curvature):
-            est = self.estimate
-            curvature = float(est.curvature) if est is not None and est.valid else 0.0
-        surface = SurfaceEstimate(valid=True, timestamp=t, normal_world=ahead.normal, curvature=curvature)
-        return (t, here.point_m, here.normal, surface)
 
 
 class _Approach:
@@ -558,12 +458,15 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
     if policy is not None:
         check_wipe_policy(cfg, the_policy)
     explored = ExploredSurface.from_run(Path(cfg.replan_from).expanduser()) if cfg.replan_from else None
+    learned = (PassCorrection.from_run(Path(cfg.replan_from).expanduser(), cfg.replan_learn_gain)
+               if cfg.replan_from else None)
     if cfg.passes == 2:
         first = run_wipe(replace(cfg, passes=1), progress=progress, robot=robot, policy=policy, live=live)
         if first.metrics.get("aborted") or first.explored is None:
             return first  # stopped, or never touched: nothing to re-plan on, and the first pass says why
         explored = ExploredSurface(first.explored.points, first.explored.normals, first.explored_curvature,
                                    first.explored.spacing, source="the first pass", metrics=first.metrics)
+        learned = PassCorrection.from_series(first.series, cfg.replan_learn_gain, "the first pass")
     scene_cfg = cfg.scene()
     backend = open_backend(scene_cfg, robot)
     try:
@@ -574,7 +477,8 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         estimator_cfg = SurfaceEstimatorConfig(max_grid_cells=2000, axis_start_m=-(compression + 0.005))
         vision = open_vision(backend, estimator_cfg, scene_cfg, robot, cfg.camera_rate_hz)
         try:
-            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy, live, explored)
+            return _run_wipe(cfg, backend, vision, scene_cfg, robot, progress, wall0, the_policy, live, explored,
+                             learned)
         finally:
             vision.close()
     finally:
@@ -612,7 +516,7 @@ def _motion_figures(log: _WipeLog) -> dict[str, list[float]]:
     return out
 
 
-def _replan_metrics(cfg: WipeConfig, explored: ExploredSurface, refs: _WipeReferences) -> dict:
+def _replan_metrics(cfg: WipeConfig, explored: ExploredSurface, refs: WipeReferences) -> dict:
     """What the re-plan used (the first pass's folder, or "the first pass" of this run's two, its contact points,
     the share of references it placed) and the first pass's figures, for the side-by-side comparison."""
     first = {k: explored.metrics.get(k) for k in FIRST_PASS_KEYS} if explored.metrics else {}
@@ -628,7 +532,7 @@ def _profile(cfg: WipeConfig, surface) -> np.ndarray:
 
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
               progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None,
-              explored: ExploredSurface | None = None) -> WipeResult:
+              explored: ExploredSurface | None = None, learned: PassCorrection | None = None) -> WipeResult:
     loop = ControlLoop(backend)
     run_s = min(cfg.duration_s, the_policy.duration_s)
     surface = scene_cfg.sim_object.surface
@@ -659,8 +563,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
     log.live = shown
 
-    policy = _WipeReferences(cfg, vision, p_start, r_start, the_policy, explored,
-                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None)
+    policy = WipeReferences(cfg, vision, p_start, r_start, the_policy, explored,
+                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned)
 
     approach = _Approach(cfg, p_start, r_start[:, 2])
 
@@ -758,6 +662,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     }
     if explored is not None:
         metrics["replan"] = _replan_metrics(cfg, explored, policy)
+        metrics["replan"]["learned"] = learned.summary() if learned is not None else None
     if robot is not None:
         metrics.update(backend.loop_metrics())
     prof_pts = _profile(cfg, surface)
