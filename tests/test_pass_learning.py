@@ -53,19 +53,31 @@ def test_the_correction_undoes_a_share_of_the_first_pass_errors_where_they_were_
     # nothing outside the pass's span
     assert c.at(-1.0) == (0.0, 0.0, 0.0, 0.0, 0.0) and c.at(t[-1] + 1.0) == (0.0, 0.0, 0.0, 0.0, 0.0)
     summary = c.summary()
-    assert summary["gain"] == 0.8 and summary["from"] == "a test"
+    assert summary["gain"] == 0.8 and summary["from"] == "a test" and summary["note"] == ""
     assert summary["force_rms_n"] > 0.3 and 0.0 < summary["offset_max_abs_m"] <= MAX_OFFSET_M
 
 
 def test_the_correction_is_bounded_and_a_zero_gain_learns_nothing() -> None:
-    big = PassCorrection.from_series(_series(force_amp_n=20.0, motion_amp_m=0.05), 1.0)
-    assert big is not None
+    s = _series(motion_amp_m=0.05)
+    s["force_z_n"] = np.where((s["t"] > 8.0) & (s["t"] < 8.7), 40.0, s["force_z_n"])  # 0.7 s pressed 25 N over
+    big = PassCorrection.from_series(s, 1.0)
+    assert big is not None and big.note == ""  # held within ±20 % for 95 % of the contact: it teaches
     assert np.abs(big.force_n).max() == pytest.approx(MAX_FORCE_SHARE * 15.0)
     assert np.abs(big.uv_m).max() == pytest.approx(MAX_OFFSET_M)
     assert PassCorrection.from_series(_series(), 0.0) is None
     never = _series()
     never["in_contact"] = np.zeros_like(never["t"])
     assert PassCorrection.from_series(never, 0.8) is None  # a pass that never touched has nothing to teach
+
+
+def test_a_pass_that_lost_its_contact_teaches_nothing() -> None:
+    """Held within ±20 % for less than 90 % of its contact (it slipped or lost the part): where it erred, the
+    next pass on the explored surface will not be at that moment."""
+    s = _series(force_amp_n=6.0)  # a 6 N swing on 15 N: outside ±3 N for about half the time
+    c = PassCorrection.from_series(s, 0.8, "a slipping pass")
+    assert c is not None and "held its force within ±20 %" in c.note and "< 90 %" in c.note
+    assert not np.any(c.force_n) and not np.any(c.uv_m)
+    assert c.at(8.0) == (0.0, 0.0, 0.0, 0.0, 0.0) and c.summary()["note"] == c.note
 
 
 def test_a_series_that_cannot_teach_is_refused_in_one_line(tmp_path) -> None:

@@ -72,6 +72,8 @@ def test_a_replan_needs_a_wipe_of_the_same_part(tmp_path) -> None:
         WipeConfig(object_name="bowl", replan_from=str(tmp_path), baseline="cartesian")
     with pytest.raises(ConfigError, match="replan_lead_s"):
         WipeConfig(replan_lead_s=-1.0)
+    with pytest.raises(ConfigError, match=r"replan_learn_gain must lie in \[0, 1\]"):
+        WipeConfig(replan_learn_gain=1.5)
     with pytest.raises(ConfigError, match="passes must be 1 or 2"):
         WipeConfig(passes=3)
     with pytest.raises(ConfigError, match="drop --replan-from"):
@@ -133,6 +135,23 @@ def test_the_terminal_shows_the_first_pass_beside_the_second(two_passes) -> None
     _, second = two_passes
     lines = task_summary([second]).splitlines()
     assert lines[2].startswith("first pass (first)") and lines[3].startswith(second.label)
+    # and what it learned from the first pass, in its own line
+    learned = second.metrics["replan"]["learned"]
+    said = [line for line in lines if line.startswith(f"re-plan ({second.label}): ")]
+    assert len(said) == 1, lines
+    assert (learned["note"] in said[0]) if learned["note"] else f"{learned['force_rms_n']:.2f} N RMS" in said[0]
+
+
+def test_the_re_plan_line_says_what_was_learned_or_why_not() -> None:
+    from tactex.report.run_pages import learning_summary
+
+    learned = {"gain": 0.8, "note": "", "force_rms_n": 0.123, "force_max_abs_n": 0.9, "offset_rms_m": [0.0012, 0.0004]}
+    line = learning_summary({"replan": {"learned": learned}})
+    assert line == ("learned from the first pass (gain 0.8): force corrections 0.12 N RMS (largest 0.90 N), "
+                    "in-plane 1.2/0.4 mm RMS (tool x/y)")
+    assert learning_summary({"replan": {"learned": {**learned, "note": "it slipped"}}}) == (
+        "learned nothing from the first pass: it slipped")
+    assert learning_summary({"replan": {"learned": None}}) is None and learning_summary({}) is None
 
 
 def test_two_passes_in_one_run_re_plan_the_second_on_the_first(two_passes) -> None:
@@ -218,3 +237,22 @@ def test_a_learned_correction_moves_the_commands_not_what_the_run_is_measured_ag
     taught.advance(_State(1.5, rot), 1.5)
     assert taught.reference.wrench_tool[2] == pytest.approx(cfg.contact_threshold_n)  # never below contact
     assert taught.force_set_n == pytest.approx(cfg.force_n)
+
+
+def test_the_correction_waits_for_this_pass_to_align_and_fades_in() -> None:
+    """Learned where the first pass was aligned, applied from where this one is (ρ_align = 1), faded in."""
+    from tactex.tasks.pass_learning import PassCorrection
+    from tactex.tasks.wipe_policy import wipe_policy
+    from tactex.tasks.wipe_references import LEARN_FADE_IN_S, WipeReferences
+
+    cfg = WipeConfig()
+    t = 0.01 * np.arange(400)
+    learned = PassCorrection(t, np.full(len(t), 2.0), np.zeros((len(t), 2)), 0.8)
+    is_aligned = [False]
+    refs = WipeReferences(cfg, _NoCamera(), np.zeros(3), np.eye(3), wipe_policy(cfg, None), learned=learned,
+                          aligned=lambda: is_aligned[0])
+    for tau, aligned, extra in ((0.5, False, 0.0), (1.0, False, 0.0), (1.5, True, 0.0),
+                                (1.5 + LEARN_FADE_IN_S / 2, False, 1.0), (3.0, False, 2.0)):
+        is_aligned[0] = aligned  # once aligned, it stays on whatever ρ_align does later
+        refs.advance(_State(tau, np.eye(3)), tau)
+        assert refs.reference.wrench_tool[2] == pytest.approx(refs.force_set_n + extra), tau

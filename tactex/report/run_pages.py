@@ -234,11 +234,29 @@ def alignment_summary(metrics: Mapping[str, Any]) -> str | None:
             "report")
 
 
+def learning_summary(metrics: Mapping[str, Any]) -> str | None:
+    """One line on what a re-planned wipe learned from its first pass (``replan.learned``), None for any other
+    run: the size of the force and in-plane corrections it fed forward, or why it learned nothing."""
+    learned = (metrics.get("replan") or {}).get("learned")
+    if not isinstance(learned, Mapping):
+        return None
+    if learned.get("note"):
+        return f"learned nothing from the first pass: {learned['note']}"
+    try:
+        rms = np.asarray(learned["offset_rms_m"], dtype=np.float64).reshape(2) * 1e3
+        return (f"learned from the first pass (gain {float(learned['gain']):g}): force corrections "
+                f"{float(learned['force_rms_n']):.2f} N RMS (largest {float(learned['force_max_abs_n']):.2f} N), "
+                f"in-plane {rms[0]:.1f}/{rms[1]:.1f} mm RMS (tool x/y)")
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def run_remarks(metrics: Mapping[str, Any]) -> list[tuple[str, str]]:
     """What a run's last lines say beside its table, as (topic, line): the safety layer's interventions
-    (:func:`safety_summary`) and the wipe's alignment transient (:func:`alignment_summary`), each only when
-    there is something to say."""
-    said = (("safety layer", safety_summary(metrics)), ("motion", alignment_summary(metrics)))
+    (:func:`safety_summary`), the wipe's alignment transient (:func:`alignment_summary`) and what a re-planned
+    wipe learned (:func:`learning_summary`), each only when there is something to say."""
+    said = (("safety layer", safety_summary(metrics)), ("motion", alignment_summary(metrics)),
+            ("re-plan", learning_summary(metrics)))
     return [(topic, line) for topic, line in said if line]
 
 

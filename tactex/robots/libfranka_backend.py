@@ -335,6 +335,9 @@ class LibfrankaBackend:
 
     n_joints = 7
     dt = 0.001
+    #: The next state's model terms are evaluated ahead, at the state answered last, only while that state is
+    #: younger than this [s] (one cycle: the joints have moved by at most dq·1 ms).
+    model_ahead_max_age_s = 0.001
 
     def __init__(self, config: FrankaConfig, tool: ToolGeometry | None = None, ik_scene=None) -> None:
         if not isinstance(config, FrankaConfig):
@@ -528,7 +531,7 @@ class LibfrankaBackend:
         tick), and the next state's own terms are evaluated with it. Within a cycle the joints move by
         at most dq·1 ms (under 2.6 mrad at the Franka's joint speed limits, far less in contact),
         which changes J, M, C and g by a fraction of a percent."""
-        if time.perf_counter() - self._t_read >= self.dt:
+        if time.perf_counter() - self._t_read >= self.model_ahead_max_age_s:
             return None
         return franka_model_terms(self._franka_state, self.model)
 

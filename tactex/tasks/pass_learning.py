@@ -43,6 +43,13 @@ SETTLE_S = 1.0
 MAX_FORCE_SHARE = 0.3
 #: Largest in-plane correction, per axis [m].
 MAX_OFFSET_M = 0.006
+#: A pass teaches only if its force stayed within ±HELD_BAND of the set point for at least LEARN_MIN_HELD of its
+#: contact ticks (the wipe's own ±20 % figure): one that slipped or lost the part erred where the next pass, on
+#: the explored surface, will not be at that moment.
+HELD_BAND = 0.2
+LEARN_MIN_HELD = 0.9
+#: The correction fades out over the last this long of the pass [s].
+TAPER_S = 0.5
 #: ρ_align from which a first-pass tick counts as aligned [-].
 ALIGNED_RHO = 1.0 - 1e-6
 #: The series a first pass must hold.
@@ -60,7 +67,9 @@ class PassCorrection:
         source: where the pass came from (messages, metrics).
     """
 
-    def __init__(self, t_s: np.ndarray, force_n: np.ndarray, uv_m: np.ndarray, gain: float, source: str = "") -> None:
+    def __init__(self, t_s: np.ndarray, force_n: np.ndarray, uv_m: np.ndarray, gain: float, source: str = "",
+                 note: str = "") -> None:
+        self.note = note  # why nothing was learned ("" when something was)
         self.t_s = np.asarray(t_s, dtype=float)
         self.force_n = np.asarray(force_n, dtype=float)
         self.uv_m = np.asarray(uv_m, dtype=float).reshape(-1, 2)
@@ -97,18 +106,27 @@ class PassCorrection:
         contact = (np.asarray(series["in_contact"], dtype=float) > 0.5) & np.isfinite(err_f)
         if not contact.any():
             return None
-        aligned = contact & (np.asarray(series["rho_align"], dtype=float) >= ALIGNED_RHO)
+        f_set = np.abs(np.asarray(series["force_set_n"], dtype=float))
         dt = float(np.median(step))
+        grid = t[0] + dt * np.arange(len(t))
+        held = float(np.mean(np.abs(err_f[contact]) <= HELD_BAND * f_set[contact]))
+        if held < LEARN_MIN_HELD:
+            return cls(grid, np.zeros(len(t)), np.zeros((len(t), 2)), gain, source, note=(
+                f"the pass held its force within ±{100 * HELD_BAND:.0f} % of the set point for {100 * held:.0f} % of "
+                f"its contact (< {100 * LEARN_MIN_HELD:.0f} %): it slipped or lost the part, so its errors do not "
+                "repeat"))
+        aligned = contact & (np.asarray(series["rho_align"], dtype=float) >= ALIGNED_RHO)
         settled = aligned & (t >= t[np.argmax(contact)] + SETTLE_S)
         force = -gain * _low_pass(dt, FORCE_CUTOFF_HZ)(np.where(settled, err_f, 0.0))
         tracked = aligned & np.isfinite(err_xy).all(axis=1)
         uv = -gain * _low_pass(dt, MOTION_CUTOFF_HZ)(np.where(tracked[:, None], err_xy, 0.0))
-        f_set = np.abs(np.asarray(series["force_set_n"], dtype=float))
         bound = MAX_FORCE_SHARE * np.where(np.isfinite(f_set), f_set, 0.0)
         force = np.clip(np.nan_to_num(force), -bound, bound)
         uv = np.clip(np.nan_to_num(uv), -MAX_OFFSET_M, MAX_OFFSET_M)
-        grid = t[0] + dt * np.arange(len(t))
-        return cls(grid, force, uv, gain, source)
+        # faded out over the pass's last TAPER_S: the run ends with the policy and lifts the tool off, and a
+        # correction cut there would step the commands
+        taper = np.clip((t[-1] - t) / TAPER_S, 0.0, 1.0)
+        return cls(grid, force * taper, uv * taper[:, None], gain, source)
 
     @classmethod
     def from_run(cls, run_dir: Path, gain: float) -> PassCorrection | None:
@@ -140,8 +158,8 @@ class PassCorrection:
 
     def summary(self) -> dict:
         """The correction's size, for the run's metrics."""
-        return {"gain": self.gain, "cutoff_hz": {"force": FORCE_CUTOFF_HZ, "motion": MOTION_CUTOFF_HZ},
-                "from": self.source,
+        return {"gain": self.gain, "note": self.note, "from": self.source,
+                "cutoff_hz": {"force": FORCE_CUTOFF_HZ, "motion": MOTION_CUTOFF_HZ},
                 "force_rms_n": float(np.sqrt(np.mean(self.force_n**2))),
                 "force_max_abs_n": float(np.max(np.abs(self.force_n))),
                 "offset_rms_m": [float(x) for x in np.sqrt(np.mean(self.uv_m**2, axis=0))],

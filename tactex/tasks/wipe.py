@@ -564,7 +564,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     log.live = shown
 
     policy = WipeReferences(cfg, vision, p_start, r_start, the_policy, explored,
-                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned)
+                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned,
+                             lambda: inner.tick_telemetry().get("rho_align", 0.0) >= 1.0 - 1e-9)
 
     approach = _Approach(cfg, p_start, r_start[:, 2])
 

@@ -20,6 +20,9 @@ from tactex.tasks.robot import SurfaceVision
 if TYPE_CHECKING:
     from tactex.tasks.wipe import WipeConfig
 
+#: A learned correction fades in over this long from where the pass aligned [s].
+LEARN_FADE_IN_S = 0.5
+
 __all__ = ["REPLAN_DEPTH_M", "REPLAN_GAP_M", "REPLAN_READ_EVERY_S", "WipeReferences"]
 
 #: A re-plan puts the reference on the explored surface only this close to a contact point of the first pass
@@ -46,11 +49,15 @@ class WipeReferences:
 
     def __init__(self, cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
                  policy: ForceMotionPolicy, explored: ExploredSurface | None = None,
-                 offset: Callable[[], np.ndarray] | None = None, learned: PassCorrection | None = None) -> None:
+                 offset: Callable[[], np.ndarray] | None = None, learned: PassCorrection | None = None,
+                 aligned: Callable[[], bool] | None = None) -> None:
         self.cfg, self.vision, self.r_start, self.policy = cfg, vision, r_start, policy
         # with a re-plan: what the first pass's errors call for at each policy time (the policy's own set point
         # and path stay what the run is measured against)
         self.learned = learned
+        # whether the controller has aligned (ρ_align = 1): the correction, learned where the first pass was
+        # aligned, is applied from where this one is, faded in over LEARN_FADE_IN_S; None: from the start
+        self.aligned, self.learn_from_s = aligned, (None if aligned is not None else -LEARN_FADE_IN_S)
         self.pos_ref = p_start.copy()
         self.estimate: SurfaceEstimate | None = None  # the camera's newest
         # with a re-plan: the explored surface, and how many references it placed
@@ -99,7 +106,10 @@ class WipeReferences:
             surface = self._on_explored(state.t, twist_d)
         position = self.pos_ref
         if self.learned is not None:
-            df, du, dv, vu, vv = self.learned.at(tau_t)
+            if self.learn_from_s is None and self.aligned():
+                self.learn_from_s = tau_t
+            share = 0.0 if self.learn_from_s is None else min(1.0, (tau_t - self.learn_from_s) / LEARN_FADE_IN_S)
+            df, du, dv, vu, vv = (share * x for x in self.learned.at(tau_t))
             self.wrench_d = np.array((0.0, 0.0, min(max(force + df, cfg.contact_threshold_n), MAX_FORCE_SET_POINT_N),
                                       0.0, 0.0, 0.0))
             position = self.pos_ref + np.array((r00 * du + r01 * dv, r10 * du + r11 * dv, r20 * du + r21 * dv))
