@@ -14,9 +14,11 @@ what repeats is slow (the policy's own rates), what is faster is noise the next 
 Both are learned over the first pass's aligned contact ticks (ρ_align = 1), where the controller tracks what it is
 given: while the alignment monitor keeps VA-UFIC compliant it yields on purpose, and a re-planned pass, started
 aligned, meets a different contact there. Elsewhere the error counts as zero, so the correction fades in and out
-through the filter. Both corrections are bounded
-(:data:`MAX_FORCE_SHARE`, :data:`MAX_OFFSET_M`). The second pass's figures stay measured against the policy's
-own set point and path, not the corrected commands.
+through the filter; the wipe applies it from the moment the second pass aligns
+(:class:`~tactex.tasks.wipe_references.WipeReferences`). A first pass that did not hold its force
+(:data:`LEARN_MIN_HELD`) teaches nothing. Both corrections are bounded (:data:`MAX_FORCE_SHARE`,
+:data:`MAX_OFFSET_M`). The second pass's figures stay measured against the policy's own set point and path,
+not the corrected commands.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ errors call for (:mod:`tactex.tasks.pass_learning`)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -16,9 +16,6 @@ from tactex.tasks.explored_surface import ExploredSurface
 from tactex.tasks.pass_learning import PassCorrection
 from tactex.tasks.policies import ForceMotionPolicy
 from tactex.tasks.robot import SurfaceVision
-
-if TYPE_CHECKING:
-    from tactex.tasks.wipe import WipeConfig
 
 #: A learned correction fades in over this long from where the pass aligned [s].
 LEARN_FADE_IN_S = 0.5
@@ -37,6 +34,14 @@ REPLAN_DEPTH_M = 0.01
 REPLAN_READ_EVERY_S = 0.01
 
 
+class WipeSettings(Protocol):
+    """What the references read of the wipe's configuration (:class:`~tactex.tasks.wipe.WipeConfig`)."""
+
+    baseline: str
+    contact_threshold_n: float
+    replan_lead_s: float
+
+
 class WipeReferences:
     """The VA-UFIC §III policy as the controller's references, one per tick.
 
@@ -47,7 +52,7 @@ class WipeReferences:
     tick, about a milliradian, before the state the torque answers).
     """
 
-    def __init__(self, cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
+    def __init__(self, cfg: WipeSettings, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
                  policy: ForceMotionPolicy, explored: ExploredSurface | None = None,
                  offset: Callable[[], np.ndarray] | None = None, learned: PassCorrection | None = None,
                  aligned: Callable[[], bool] | None = None) -> None:
