@@ -87,6 +87,8 @@ def wiping_policy(t: float, amplitude_m: float = 0.04, omega: float = 2.0, drift
     return np.array([x0, x1, 0.0]), np.array([v0, v1, 0.0])
 
 
+#: ρ_align from which a tick counts as aligned: VA-UFIC committed to tracking its reference (eq. 20–21 clip at 1).
+ALIGNED_RHO = 1.0 - 1e-9
 #: Spacing of the surface the live page draws [m].
 LIVE_SPACING_M = 0.004
 
@@ -375,7 +377,7 @@ class _WipeLog:
             self.force_sets.append(f_set)
             self.segments.append(segment)
             self.errors_world.append(err_world)
-            if cfg.baseline or tel.get("rho_align", 0.0) >= 1.0 - 1e-9:
+            if cfg.baseline or tel.get("rho_align", 0.0) >= ALIGNED_RHO:
                 self.t_aligned = t if self.t_aligned is None else self.t_aligned
                 self.aligned_errors.append(err_world)
                 self.aligned_errors_tool.append(err_tool)
@@ -516,12 +518,15 @@ def _motion_figures(log: _WipeLog) -> dict[str, list[float]]:
     return out
 
 
-def _replan_metrics(cfg: WipeConfig, explored: ExploredSurface, refs: WipeReferences) -> dict:
+def _replan_metrics(cfg: WipeConfig, explored: ExploredSurface, refs: WipeReferences,
+                    learned: PassCorrection | None) -> dict:
     """What the re-plan used (the first pass's folder, or "the first pass" of this run's two, its contact points,
-    the share of references it placed) and the first pass's figures, for the side-by-side comparison."""
+    the share of references it placed, what it learned from the first pass's errors) and the first pass's
+    figures, for the side-by-side comparison."""
     first = {k: explored.metrics.get(k) for k in FIRST_PASS_KEYS} if explored.metrics else {}
     return {"from": cfg.replan_from or explored.source, "explored_points": len(explored),
-            "on_explored_fraction": refs.on_explored / max(refs.advances, 1), "first_pass": first}
+            "on_explored_fraction": refs.on_explored / max(refs.advances, 1), "first_pass": first,
+            "learned": learned.summary() if learned is not None else None}
 
 
 def _profile(cfg: WipeConfig, surface) -> np.ndarray:
@@ -564,8 +569,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     log.live = shown
 
     policy = WipeReferences(cfg, vision, p_start, r_start, the_policy, explored,
-                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned,
-                             lambda: inner.tick_telemetry().get("rho_align", 0.0) >= 1.0 - 1e-9)
+                            (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned,
+                            lambda: inner.tick_telemetry().get("rho_align", 0.0) >= ALIGNED_RHO)
 
     approach = _Approach(cfg, p_start, r_start[:, 2])
 
@@ -662,8 +667,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         **vision.stats(),
     }
     if explored is not None:
-        metrics["replan"] = _replan_metrics(cfg, explored, policy)
-        metrics["replan"]["learned"] = learned.summary() if learned is not None else None
+        metrics["replan"] = _replan_metrics(cfg, explored, policy, learned)
     if robot is not None:
         metrics.update(backend.loop_metrics())
     prof_pts = _profile(cfg, surface)
