@@ -61,3 +61,21 @@ def test_ctrl_c_on_the_way_to_the_start_keeps_the_run_and_says_so(tmp_path, monk
         run_task("wipe", WipeConfig(duration_s=1.0), tmp_path / "run", progress=False, video=False, note=None)
     metrics, _ = _read(tmp_path / "run")
     assert metrics["aborted"] == "KeyboardInterrupt" and metrics["partial"] is True
+
+
+def test_a_robot_stop_on_the_policys_first_tick_keeps_the_run(tmp_path, monkeypatch) -> None:
+    # the robot stops the control on the first command of the policy, before any state came back from it:
+    # the run still holds the state where it stopped (the report reads every series from it)
+    real_tick = ControlLoop.tick
+
+    def tick(self, reference, after_send=None):
+        if after_send is not None and after_send.__name__ == "after_send":  # the wipe's own ticks
+            raise RobotError("communication_constraints_violation")
+        return real_tick(self, reference, after_send)
+
+    monkeypatch.setattr(ControlLoop, "tick", tick)
+    run_task("wipe", WipeConfig(duration_s=1.0), tmp_path / "run", progress=False, video=False, note=None)
+    metrics, names = _read(tmp_path / "run")
+    assert metrics["aborted"].startswith("RobotError: communication_constraints_violation")
+    assert metrics["partial"] is True and metrics["first_contact_s"] is None
+    assert {"t", "tcp", "force_z_n"} <= set(names)

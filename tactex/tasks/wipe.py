@@ -350,10 +350,13 @@ class _WipeLog:
         self._pending = None
 
     def finish(self, state) -> None:
-        """After the loop: complete the last tick sent, if the state it produced arrived."""
+        """After the loop: complete the last tick sent, if the state it produced arrived. A run that stopped
+        before any tick came back keeps the state where it stopped, as :meth:`stopped_at`."""
         if self._pending is not None and state is not self._pending[0]:
             self._complete(state)
         self._pending = None
+        if self.n_ticks == 0:
+            self.stopped_at(state)
 
     def _complete(self, state) -> None:
         cfg = self.cfg

@@ -34,7 +34,9 @@ from pathlib import Path
 from tactex.errors import InputError, MissingDependencyError, TactexError
 from tactex.twin.process import _die_with_parent, end_child, free_loopback_address
 
-__all__ = ["FRANKA_SIM_PYTHON_ENV", "Box", "FrankaSimProcess", "franka_sim_python", "write_fr3_mjcf"]
+__all__ = [
+    "DEFAULT_PRIORITY", "FRANKA_SIM_PYTHON_ENV", "Box", "FrankaSimProcess", "franka_sim_python", "write_fr3_mjcf",
+]
 
 #: Names the Python of franka-sim's environment (default: ``.venv-franka-sim/bin/python`` in the checkout).
 FRANKA_SIM_PYTHON_ENV = "TACTEX_FRANKA_SIM_PYTHON"
@@ -122,6 +124,22 @@ def _flange_as_link7(root) -> None:
         flange.append(child)
 
 
+#: franka-sim's SCHED_FIFO priority: under the control loop's (80 where tactex pins it, 99 where libfranka
+#: raises it), over everything at the normal priority.
+DEFAULT_PRIORITY = 70
+
+
+def _scheduling_of(pid: int) -> str:
+    """A process's scheduling policy and priority, one line ("SCHED_FIFO 80")."""
+    try:
+        policy = os.sched_getscheduler(pid)
+        priority = os.sched_getparam(pid).sched_priority
+    except (OSError, AttributeError):
+        return "unknown"
+    name = {getattr(os, n, None): n for n in ("SCHED_OTHER", "SCHED_FIFO", "SCHED_RR", "SCHED_BATCH")}.get(policy)
+    return f"{name or policy} {priority}"
+
+
 class FrankaSimProcess:
     """franka-sim on a loopback address of its own (context manager).
 
@@ -131,8 +149,13 @@ class FrankaSimProcess:
         box: a box in its world (None: nothing but its ground plane).
         python: franka-sim's interpreter (default :func:`franka_sim_python`).
         timeout_s: longest wait for the ready line [s].
+        priority: SCHED_FIFO priority franka-sim runs at where the system allows it (root, or an rtprio
+            limit); None: the normal priority. The robot's controller has a computer of its own and keeps
+            its 1 kHz whatever ours does; an emulator sharing our cores keeps it only if nothing else runs
+            first. Below the control loop's, so the loop is never preempted
+            by its robot; franka-sim sleeps between its steps, so it takes only the CPU it needs.
 
-    Attributes: ``hostname``, ``process``, ``ready_line``.
+    Attributes: ``hostname``, ``process``, ``ready_line``, ``scheduling`` (what franka-sim runs at, one line).
 
     Raises:
         MissingDependencyError: no franka-sim environment (``make franka-sim-env``).
@@ -140,7 +163,7 @@ class FrankaSimProcess:
     """
 
     def __init__(self, *, enforce: bool = True, box: Box | None = None, python: str | Path | None = None,
-                 timeout_s: float = 90.0) -> None:
+                 timeout_s: float = 90.0, priority: int | None = DEFAULT_PRIORITY) -> None:
         py = Path(python) if python is not None else franka_sim_python()
         if py is None or not py.is_file():
             raise MissingDependencyError(
@@ -154,6 +177,8 @@ class FrankaSimProcess:
         serve = Path(__file__).resolve().parent / "franka_sim_serve.py"
         self.command = [str(py), str(serve), "--host", self.hostname, *([] if enforce else ["--no-enforce"])]
         self.timeout_s = float(timeout_s)
+        self.priority = priority
+        self.scheduling = "not started"
         self.process: subprocess.Popen | None = None
         self.ready_line = ""
         self._lines: queue.Queue[str | None] = queue.Queue()
@@ -163,7 +188,8 @@ class FrankaSimProcess:
         env.pop("PYTHONPATH", None)  # its own environment only
         self._stderr = open(self._stderr_path, "w")
         self.process = subprocess.Popen(self.command, stdout=subprocess.PIPE, stderr=self._stderr, text=True, env=env,
-                                        start_new_session=True, preexec_fn=_die_with_parent)
+                                        start_new_session=True, preexec_fn=self._in_child)
+        self.scheduling = _scheduling_of(self.process.pid)
         threading.Thread(target=self._read_stdout, daemon=True).start()
         deadline = time.monotonic() + self.timeout_s
         while True:
@@ -178,6 +204,16 @@ class FrankaSimProcess:
                 why = "exited" if line is None else f"was not ready within {self.timeout_s:g} s"
                 self.close()
                 raise TactexError(f"franka-sim ({' '.join(self.command)}) {why}; its stderr:\n{self.stderr()[-4000:]}")
+
+    def _in_child(self) -> None:
+        """Before franka-sim starts: die with us, and take the real-time priority if allowed (every thread
+        franka-sim starts inherits it). Without the permission it runs at the normal priority."""
+        _die_with_parent()
+        if self.priority is not None and hasattr(os, "sched_setscheduler"):
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+            except OSError:
+                pass
 
     def _read_stdout(self) -> None:
         assert self.process is not None and self.process.stdout is not None
