@@ -10,6 +10,7 @@ the tests pass or fail. The tests run in file order: the last one kills the work
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pickle
@@ -66,8 +67,6 @@ KILL_STUDY_TOML = STUDY_TOML.replace("seeds = 2", "seeds = 4").replace("budget_s
 KILL_STUDY_RUNS = 8
 # Six settings of a TEC cloud from ../shared/data: the cloud and its basis are the shared input.
 SWEEP = {"n_eigen": (10, 30), "alpha": (5.0, 10.0, 20.0), "starts": 2, "steps": 30}
-#: Sweeps submitted at most until the worker node runs two of the six settings.
-SWEEP_ATTEMPTS = 3
 SWEEP_ARGS = ["--n-eigen", "10", "30", "--alpha", "5", "10", "20", "--starts", "2", "--steps", "30"]
 
 
@@ -188,6 +187,50 @@ def _same_tables(a: Path, b: Path, names=("table.csv", "summary.csv")) -> None:
         assert (a / name).read_bytes() == (b / name).read_bytes(), f"{name} differs between {a} and {b}"
 
 
+#: A Ray job that holds one CPU of the head node until its release file appears (run in the client's place).
+_HOLD_HEAD = """
+import pathlib, sys, time
+import ray
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+ray.init(address=sys.argv[1])
+head = next(n["NodeID"] for n in ray.nodes() if n["Alive"] and n["NodeManagerAddress"] == sys.argv[2])
+
+@ray.remote(num_cpus=1)
+def hold(holding, release):
+    pathlib.Path(holding).touch()
+    while not pathlib.Path(release).exists():
+        time.sleep(0.05)
+
+ray.get(hold.options(scheduling_strategy=NodeAffinitySchedulingStrategy(head, soft=False)).remote(*sys.argv[3:5]))
+"""
+
+
+@contextlib.contextmanager
+def _head_cpu_held(cluster: Cluster):
+    """Within the block another job holds the head node's one CPU, so every task of ours runs on the worker."""
+    folder = cluster.root / "client"
+    holding, release = folder / "head-held", folder / "head-release"
+    for f in (holding, release):
+        f.unlink(missing_ok=True)
+    log = folder / "hold-head.log"
+    with log.open("w") as f:
+        proc = subprocess.Popen([sys.executable, "-c", _HOLD_HEAD, CLIENT_ADDRESS, HEAD_IP, str(holding), str(release)],
+                                cwd=folder, env=_env(cluster, "client"), stdout=f, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + HANG_GUARD_S
+        while not holding.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert holding.exists(), f"the job holding the head's CPU never started:\n{log.read_text()[-3000:]}"
+        yield
+    finally:
+        release.touch()
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
 def _store_counts(ip: str) -> tuple[int, int]:
     """Objects and bytes ever created in a node's object store (copies fetched from another node included)."""
     from ray._private.internal_api import node_stats
@@ -290,24 +333,21 @@ def test_a_sweep_through_the_client_gives_the_local_table_and_sends_the_inputs_o
     mine.mkdir(parents=True, exist_ok=True)
     for f in cloud.parent.glob("cup_X*"):
         shutil.copy(f, mine / f.name)
-    # once per node is told apart from once per run only by a node with two runs or more; how Ray shares
-    # six settings between two one-CPU nodes depends on what else the machine runs, so the sweep is
-    # submitted again (to a new folder) until the worker node gets two
-    for attempt in range(1, SWEEP_ATTEMPTS + 1):
+    # once per node is told apart from once per run only by a node with two runs or more; how Ray shares six
+    # short settings between two one-CPU nodes depends on which node starts its worker process first (5/1 or 1/5
+    # seen on a quiet machine), so another job holds the head's CPU meanwhile: every setting runs on the worker
+    with _head_cpu_held(cluster):
         before = {ip: _store_counts(ip) for ip in (HEAD_IP, WORKER_IP)}
-        out = cluster.root / "client" / f"sweep-{attempt}"
+        out = cluster.root / "client" / "sweep"
         _finish(_tactex(cluster, "client", "sweep", str(mine / cloud.name), "--out", str(out), *SWEEP_ARGS,
                         "--ray-address", CLIENT_ADDRESS))
         after = {ip: _store_counts(ip) for ip in (HEAD_IP, WORKER_IP)}
-        assert (local / "table.csv").read_bytes() == (out / "table.csv").read_bytes()
-        ran_on = json.loads((out / "sweep.json").read_text())["ran_on"]
-        per_node = {ip: sum(r["worker"].startswith(f"{ip}:") for r in ran_on) for ip in (HEAD_IP, WORKER_IP)}
-        created = {ip: (after[ip][0] - before[ip][0], after[ip][1] - before[ip][1]) for ip in after}
-        print(f"sweep {attempt}: settings per node {per_node}; objects, bytes created per node {created}")
-        assert sum(per_node.values()) == len(ran_on) == 6 and per_node[WORKER_IP] >= 1
-        if per_node[WORKER_IP] >= 2:
-            break
-    assert per_node[WORKER_IP] >= 2, f"the worker node ran fewer than two settings in {SWEEP_ATTEMPTS} sweeps"
+    assert (local / "table.csv").read_bytes() == (out / "table.csv").read_bytes()
+    ran_on = json.loads((out / "sweep.json").read_text())["ran_on"]
+    per_node = {ip: sum(r["worker"].startswith(f"{ip}:") for r in ran_on) for ip in (HEAD_IP, WORKER_IP)}
+    created = {ip: (after[ip][0] - before[ip][0], after[ip][1] - before[ip][1]) for ip in after}
+    print(f"sweep: settings per node {per_node}; objects, bytes created per node {created}")
+    assert per_node == {HEAD_IP: 0, WORKER_IP: 6} and len(ran_on) == 6
     # the shared input (cloud, basis, starts) as Ray stores it: pickle protocol 5, the arrays' buffers aligned
     clouds, _ = prepare_clouds([cloud], SweepConfig(**SWEEP), lambda msg: None)
     size = len(pickle.dumps(clouds, protocol=5))
