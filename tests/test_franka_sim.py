@@ -16,6 +16,8 @@ from __future__ import annotations
 import functools
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -122,6 +124,8 @@ def _judged(test):
             except (AssertionError, RobotError):
                 verdict(watch)
                 raise
+            finally:
+                emulator.loop_watch = None
         new = verdict(watch)
         assert new == [], (f"franka-sim's real-time factor meanwhile: {emulator.realtime_factors()[paced:] or '≥ 1'}; "
                            f"our loop's longest gap between two states: {watch.longest_gap_ms:.1f} ms")
@@ -157,8 +161,6 @@ def test_the_emulator_runs_at_real_time_priority_where_the_machine_allows_it(emu
 
 def _can_raise_to_fifo() -> bool:
     """Whether this process may take SCHED_FIFO (tried on a short-lived child, not on the test process)."""
-    import subprocess
-    import sys
     probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
     return subprocess.run([sys.executable, "-c", probe], capture_output=True).returncode == 0
 

@@ -342,16 +342,17 @@ class _WipeLog:
                          (self.force_set_n, self.segment, self.uv))
 
     def stopped_at(self, state) -> None:
-        """A run that stopped before its policy ran: the state where the robot stopped is its one
-        recorded row (no controller figures), so the run folder holds every series a report reads."""
+        """A run that stopped before any tick came back (on the way to the start pose, or on the policy's first
+        command): the state where the robot stopped is its one recorded row (no controller figures), so the run
+        folder holds every series a report reads."""
         self._pending = (state, state.ee_position.copy(), {}, np.zeros(2), None,
                          (self.force_set_n, self.segment, self.uv))
         self._complete(state)
         self._pending = None
 
     def finish(self, state) -> None:
-        """After the loop: complete the last tick sent, if the state it produced arrived. A run that stopped
-        before any tick came back keeps the state where it stopped, as :meth:`stopped_at`."""
+        """After the loop: complete the last tick sent, if the state it produced arrived; a run with no tick
+        recorded gets :meth:`stopped_at`."""
         if self._pending is not None and state is not self._pending[0]:
             self._complete(state)
         self._pending = None
@@ -590,9 +591,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
 
     try:
-        if aborted:
+        if aborted:  # log.finish keeps the state where the robot stopped as the run's one row
             bar.note(f"stopped on the way to the start pose: {aborted}")
-            log.stopped_at(loop.state)
         else:
             policy.advance(loop.state, loop.t - t0)
             log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
