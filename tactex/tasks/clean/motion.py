@@ -34,6 +34,12 @@ UNLOAD_S = 0.25
 CLEARANCE_M = 0.08
 #: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
 WAYPOINT_MAX_JOINT_RAD = 0.5
+#: Largest joint difference [rad] of a joint move that starts low over the object (after a lift-off); a farther
+#: one goes up to the capture posture first (:func:`_detour_via_capture`).
+LOW_MOVE_MAX_JOINT_RAD = 0.5
+#: A posture this close to the capture posture in every joint [rad] is at the capture pose (the joint move's
+#: tracking error, a real arm's measurement noise): its moves start high above the object.
+AT_CAPTURE_JOINT_RAD = 0.05
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
 #: How fast the commanded approach speed falls with the height above the captured surface [1/s]: it reaches
@@ -116,6 +122,19 @@ def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_se
         return None, q_hover, loop.joint_move_duration(q_hover, q_from=q_from)
     return q_above, q_hover, (loop.joint_move_duration(q_above, q_from=q_from)
                               + loop.joint_move_duration(q_hover, q_from=q_above))
+
+
+def _detour_via_capture(loop: ControlLoop, q_first: np.ndarray, q_capture: np.ndarray) -> float | None:
+    """The extra time [s] of a joint move to ``q_first`` (7,) [rad] that goes up to the capture posture ``q_capture``
+    first, or None for the direct move: a move that starts low over the object (away from the capture posture,
+    after a lift-off) and turns a joint by more than :data:`LOW_MOVE_MAX_JOINT_RAD` swings the tool's tip, a tool
+    length from the wrist, through the object (down a bowl's far wall); from high above the object it clears it."""
+    q_now = loop.state.q
+    if (float(np.max(np.abs(q_now - q_capture))) <= AT_CAPTURE_JOINT_RAD
+            or float(np.max(np.abs(q_first - q_now))) <= LOW_MOVE_MAX_JOINT_RAD):
+        return None
+    return (loop.joint_move_duration(q_capture) + loop.joint_move_duration(q_first, q_from=q_capture)
+            - loop.joint_move_duration(q_first))
 
 
 def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.ndarray, q_capture: np.ndarray,
