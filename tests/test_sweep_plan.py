@@ -303,19 +303,47 @@ def test_a_sweep_over_an_x_in_a_bowl_follows_the_bowl_s_floor() -> None:
     assert tree.query(plan.waypoints)[0].max() <= cloud.spacing
 
 
-def test_no_straight_leg_dives_across_a_deep_hollow() -> None:
-    """A leg from rim to rim of a hemisphere (5 cm radius): its path on the surface is 1.35 times its chord (more than
-    MAX_SURFACE_DETOUR), so the leg is refused; across a shallow bowl (30 cm sphere) the same leg slides on its
-    floor."""
-    for sphere_m, slides in ((0.05, False), (0.3, True)):
-        cloud = _bowl(lambda p: np.ones(len(p)), sphere_m=sphere_m, rim_m=0.049, spacing=0.002)
+def test_a_leg_slides_over_a_smooth_hollow_and_not_round_a_deep_one_or_across_a_jump() -> None:
+    """The rule for a chord above the surface: its path on the surface must have no jump (a step over three times the
+    median) and be at most MAX_SURFACE_DETOUR times the chord."""
+    chord, n = 0.1, 40
+    smooth = np.full(n, 1.1 * chord / n)
+    assert sweep_plan._follows_surface(smooth, chord)
+    assert not sweep_plan._follows_surface(np.full(n, (sweep_plan.MAX_SURFACE_DETOUR + 0.1) * chord / n), chord)
+    jump = smooth.copy()
+    jump[n // 2] = 4.0 * smooth[0]
+    assert not sweep_plan._follows_surface(jump, chord)
+
+
+def test_a_leg_across_a_bowl_follows_its_floor_and_one_round_a_deep_hemisphere_is_refused() -> None:
+    """A leg from rim to rim of a 15 cm sphere cut 8.5 cm from its axis: its chord runs 26 mm above the floor (the
+    old rule refused any leg more than 4 mm above the surface), its path along the floor 1.06 times the chord: the
+    leg slides on the floor. Round a hemisphere of 5 cm from rim to rim the path is 1.4 times the chord: refused."""
+    for sphere_m, rim_m, slides in ((0.15, 0.0865, True), (0.05, 0.0499, False)):
+        cloud = _bowl(lambda p: np.ones(len(p)), sphere_m=sphere_m, rim_m=rim_m, spacing=0.002)
         tree = cKDTree(cloud.points)
-        i, j = (int(np.argmin(np.linalg.norm(cloud.points[:, :2] - [x, 0.0], axis=1))) for x in (-0.048, 0.048))
+        ends = [int(np.argmin(np.linalg.norm(cloud.points[:, :2] - [x, 0.0], axis=1))) for x in (-rim_m, rim_m)]
+        a, b = cloud.points[ends]
+        half = np.arcsin(0.5 * np.linalg.norm(a - b) / sphere_m)
+        arc_over_chord = half / np.sin(half)
+        assert (arc_over_chord <= sweep_plan.MAX_SURFACE_DETOUR) == slides, arc_over_chord  # the case's premise
         pred = sweep_plan._Predictor(cloud, tree, cloud.target, R, PER_M, STEP, None)
-        leg = pred.leg(i, j)
+        leg = pred.leg(*ends)
         assert (leg is not None) == slides, sphere_m
         if leg is not None:
             assert tree.query(leg[0])[0].max() <= cloud.spacing  # on the floor, not on the chord
+            assert leg[1].sum() == pytest.approx(arc_over_chord * np.linalg.norm(a - b), rel=0.05)
+
+
+def test_a_stroke_along_the_cloud_s_edge_is_still_a_stroke() -> None:
+    """A strip 2 cm wide along the capture's edge: its points have no clean point beyond the edge, which counts as
+    clean surface; a 6 cm square at the edge is a blob."""
+    cloud = _plane(lambda p: np.zeros(len(p)))
+    edge_x = cloud.points[:, 0].max()
+    strip = (cloud.points[:, 0] >= edge_x - 0.02) & (np.abs(cloud.points[:, 1]) <= 0.08)
+    assert sweep_plan.stroke_like(cloud.points, strip, R, cloud.spacing)
+    square = (cloud.points[:, 0] >= edge_x - 0.06) & (np.abs(cloud.points[:, 1]) <= 0.03)
+    assert not sweep_plan.stroke_like(cloud.points, square, R, cloud.spacing)
 
 
 @pytest.mark.parametrize(("marking", "strokes"), [(_x, True), (_strip, True),
@@ -326,9 +354,17 @@ def test_strokes_get_a_planned_sweep_and_a_blob_the_explorer(marking, strokes: b
     radius, wider than the pad, with the explorer, and the choice is said in one line."""
     cloud = _plane(marking)
     cfg = CleanConfig()
-    assert sweep_plan.stroke_like(cloud.points, cloud.target > 0, cfg.pad_radius_m) == strokes
+    assert sweep_plan.stroke_like(cloud.points, cloud.target > 0, cfg.pad_radius_m, cloud.spacing) == strokes
     wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
     here = cloud.points[np.flatnonzero(cloud.target > 0)[0]]
     stroke, plan, choice = _first_leg(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
     assert (plan is not None) == strokes and (stroke is not None) == strokes
     assert choice.startswith("a planned sweep over strokes" if strokes else "the explorer (the dirt is a blob")
+
+
+def test_with_no_dirt_the_first_leg_is_the_explorer_and_says_why() -> None:
+    cloud = _plane(lambda p: np.zeros(len(p)))
+    cfg = CleanConfig()
+    wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
+    assert _first_leg(cloud, wear, np.zeros(3), np.array([0.0, -0.3, 0.3]), cfg, STEP, None) == (
+        None, None, "the explorer (the wear model sees no dirt left)")

@@ -10,12 +10,12 @@ set -u
 WHICH=${1:-all}
 REPO=$(git rev-parse --show-toplevel)
 PARENT=$(dirname "$REPO")
-COMMIT=$(git -C "$REPO" rev-parse "${2:-HEAD}") || exit 2
+COMMIT=$(git -C "$REPO" rev-parse --verify "${2:-HEAD}^{commit}") || exit 2
 summary="$PARENT/proof-summary.txt"
 echo "commit $COMMIT ($WHICH) from $(date -u +%FT%TZ)" >> "$summary"
 run() {  # name, busy (0/1)
     local name=$1 busy=$2 spin=() dir="$PARENT/proof-$1"
-    rm -rf "$dir" && git clone -q "$REPO" "$dir" && git -C "$dir" checkout -q "$COMMIT"
+    rm -rf "$dir" && git clone -q "$REPO" "$dir" && git -C "$dir" checkout -q "$COMMIT" || return 1
     if [ "$busy" = 1 ]; then
         for _ in 1 2; do (exec yes > /dev/null) & spin+=($!); done
     fi

@@ -26,9 +26,9 @@ RASTER_SKIP_M = 0.02
 
 
 def skip_along(path: PathSource, point_m: np.ndarray, name: str) -> ExplorationCommand | RelocationCommand | None:
-    """The next command of a raster's ``path`` at least :data:`RASTER_SKIP_M` from ``point_m`` (3,) [m], whose
-    hover is out of reach, or its next flight, whichever comes first; None when the path ends before. Either is
-    said in a warning naming the raster (``name``)."""
+    """Past a touch-down ``point_m`` (3,) [m] whose hover is out of reach: the next command of a raster's ``path``
+    at least :data:`RASTER_SKIP_M` from it, or its next flight, whichever comes first; None when the path ends
+    before. Either is said in a warning naming the raster (``name``)."""
     out = np.round(point_m, 3).tolist()
     while not path.done:
         cmd = path.step()
@@ -117,23 +117,25 @@ def _first_leg(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m:
     pose: ``(stroke, plan, choice)``, ``choice`` one line saying what was chosen and why. When the wear model's
     island of dirt there is smaller than the pad, its straight stroke (coming from ``from_m`` (3,) [m]) and None.
     Else, with ``cfg.sweep_corners`` > 0 and an island of strokes (:func:`stroke_like`), the planned sweep over that
-    island (dirt joined within two pad radii) as a stroke, and its plan; but (None, None), the explorer from the
-    touch-down, when the island is a blob as wide as the pad (passes side by side: the explorer's feedback does as
-    well), holds less than :data:`SWEEP_MIN_SHARE` of the view's dirt (after a sweep of one island among several the
-    explorer's route over the others is longer than from its own start) or no polyline of ``cfg.sweep_corners``
-    legs reaches :data:`SWEEP_GOAL` within the camera's steps of ``step_m`` [m]. ``support_z_m`` [m]: the plane
-    the object stands on (None: none)."""
+    island (dirt joined within two pad radii) as a stroke, and its plan; but no stroke and no plan (the explorer
+    from the touch-down) when the model sees no dirt, when the island is a blob as wide as the pad (passes side by
+    side: the explorer's feedback does as well), holds less than :data:`SWEEP_MIN_SHARE` of the view's dirt (after
+    a sweep of one island among several the explorer's route over the others is longer than from its own start)
+    or no polyline of ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of
+    ``step_m`` [m]. ``support_z_m`` [m]: the plane the object stands on (None: none)."""
     stroke = plan_stroke(cloud, wear.tree, wear, here_m, from_m, cfg.pad_radius_m, step_m)
     if stroke is not None:
         return stroke, None, "a stroke over a small island"
     if cfg.sweep_corners == 0:
         return None, None, "the explorer (no planned sweep: sweep_corners = 0)"
     view_dirt = wear.remaining()
+    if not float(view_dirt.sum()) > 0.0:
+        return None, None, "the explorer (the wear model sees no dirt left)"
     island = dirt_island(cloud.points, view_dirt, here_m, 2.0 * cfg.pad_radius_m, spacing_m=cloud.spacing)
     share = float(view_dirt[island].sum()) / float(view_dirt.sum())
     if share < SWEEP_MIN_SHARE:
         return None, None, f"the explorer (the island there holds {100 * share:.0f} % of the dirt, one of several)"
-    if not stroke_like(cloud.points, island, cfg.pad_radius_m):
+    if not stroke_like(cloud.points, island, cfg.pad_radius_m, cloud.spacing):
         return None, None, "the explorer (the dirt is a blob as wide as the pad or wider)"
     plan = plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
                       cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m, goal=SWEEP_GOAL,

@@ -44,10 +44,10 @@ def clean_metrics(program: Any, series: dict[str, np.ndarray]) -> dict:
         # (motion.LOW_MOVE_MAX_JOINT_RAD)
         "moves_via_capture": program.moves_via_capture,
         "island_strokes": program.n_strokes,
-        # [m] slid along the planned first sweep (0: none, or its touch-down was out of reach) and its slide to
-        # the goal as the wear model predicted it when planned (0: none planned)
         # what the first leg in contact was and why (legs._first_leg: a stroke, a planned sweep or the explorer)
         "first_leg": program.first_leg_choice,
+        # [m] slid along the planned first sweep (0: none, or its touch-down was out of reach) and its slide to
+        # the goal as the wear model predicted it when planned (0: none planned)
         "first_sweep_m": 0.0 if program.first_sweep is None else program.first_sweep.path.path_length,
         "first_sweep_planned_m": 0.0 if program.first_plan is None else program.first_plan.length_m,
         "contact_transfers": program.n_transfers,

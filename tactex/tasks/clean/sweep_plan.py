@@ -57,8 +57,11 @@ N_REFINE = 1500
 #: and two more (at most 720 orderings of five).
 N_EXTREMES = 6
 #: How far the sweep's path runs past the point where the wear model reaches its goal [pad radii].
-END_BEYOND_RADII = 1.0
-#: Hill climbs, from the best random polylines [-].
+END_BEYOND_RADII = 0.5
+#: A point with fewer neighbours than this share of the median count is on the cloud's edge (stroke_like) [-]:
+#: within two spacings a point on a grid's straight edge has about 60 % of an interior point's, a corner 40 %.
+EDGE_NEIGHBOUR_SHARE = 0.75
+#: Hill climbs, from the best random polylines (and one more from the best ordering of the dirt's extremes) [-].
 N_CLIMBS = 3
 #: Most candidate corners (cloud points near the dirt, thinned evenly) [-].
 MAX_CANDIDATES = 400
@@ -104,15 +107,20 @@ class SweepPlan:
 #: a concave part: a bowl's side) [-]: a leg over a gentle hollow follows its floor; across a deep one (from one
 #: side of a bowl to the other) the path dives and climbs, and a lift-off is the quicker way.
 MAX_SURFACE_DETOUR = 1.3
+#: A step of a leg's path on the surface longer than this many times the path's median step is a jump [-]: the
+#: nearest surface point skipped to another part of the cloud (across a gap). Over a smooth hollow the steps grow
+#: smoothly towards its deepest part, by about the hollow's radius over the chord's distance from its centre.
+MAX_STEP_OVER_MEDIAN = 3.0
 
 
 def _follows_surface(ds_m: np.ndarray, chord_m: float) -> bool:
     """Whether a leg whose chord runs above the surface may slide on the surface below it: its path's steps
-    ``ds_m`` [m] (chord samples brought onto the surface) have no jump (each at most twice the chord's own step,
-    so the nearest surface point never skips to another part of the cloud) and add up to at most
-    :data:`MAX_SURFACE_DETOUR` times the chord ``chord_m`` [m]."""
-    step = chord_m / max(len(ds_m), 1)
-    return bool(ds_m.max(initial=0.0) <= 2.0 * step + 1e-9 and ds_m.sum() <= MAX_SURFACE_DETOUR * chord_m)
+    ``ds_m`` [m] (chord samples brought onto the surface) have no jump (none over :data:`MAX_STEP_OVER_MEDIAN`
+    times their median) and add up to at most :data:`MAX_SURFACE_DETOUR` times the chord ``chord_m`` [m]."""
+    if ds_m.size == 0:
+        return True
+    return bool(ds_m.max() <= MAX_STEP_OVER_MEDIAN * float(np.median(ds_m)) + 1e-12
+                and ds_m.sum() <= MAX_SURFACE_DETOUR * chord_m)
 
 
 class _Predictor:
@@ -264,16 +272,29 @@ def _extreme_orderings(pred: _Predictor, cloud: SurfaceCloud, near: np.ndarray, 
     return [[start, *map(int, order)] for order in itertools.permutations(corners.tolist(), k)]
 
 
-def stroke_like(points_m: np.ndarray, island: np.ndarray, pad_radius_m: float) -> bool:
-    """Whether the dirt ``island`` (N,) (bool over ``points_m`` (N, 3) [m]) is made of strokes a pad of radius
-    ``pad_radius_m`` [m] wipes in one pass along each: 90 % of its points lie within half a pad radius of the
-    clean surface around it, so a pass along a stroke's middle slides at least 1.7 pad radii of the disc over
+def stroke_like(points_m: np.ndarray, island: np.ndarray, pad_radius_m: float, spacing_m: float) -> bool:
+    """Whether the dirt ``island`` (N,) (bool over ``points_m`` (N, 3) [m], spaced ``spacing_m`` [m]) is made of
+    strokes a pad of radius ``pad_radius_m`` [m] wipes in one pass along each: 90 % of its points lie within half a
+    pad radius of the clean surface around it or of the cloud's edge (a stroke along the view's edge or a hole in
+    the capture is still a stroke), so a pass along a stroke's middle slides at least 1.7 pad radii of the disc over
     each of them. Then a few long legs are the quickest way (a planned sweep); over a blob as wide as the pad or
-    wider, passes side by side overlap, and the explorer's feedback does as well without a plan."""
+    wider, passes side by side overlap, and the explorer's feedback does as well without a plan. The work is done
+    on the cloud within a pad radius of the island."""
+    points_m = np.asarray(points_m, dtype=float)
     island = np.asarray(island, dtype=bool)
-    if not island.any() or island.all():
+    if not island.any():
         return False
-    depth, _ = cKDTree(points_m[~island]).query(points_m[island])
+    lo, hi = points_m[island].min(axis=0) - pad_radius_m, points_m[island].max(axis=0) + pad_radius_m
+    reach = 2.0 * spacing_m
+    wide = np.all((points_m >= lo - reach) & (points_m <= hi + reach), axis=1)
+    around = np.flatnonzero(np.all((points_m >= lo) & (points_m <= hi), axis=1))
+    # the cloud's edge: points with clearly fewer neighbours within two spacings than the cloud's interior has
+    counts = cKDTree(points_m[wide]).query_ball_point(points_m[around], reach, return_length=True)
+    edge = counts < EDGE_NEIGHBOUR_SHARE * float(np.median(counts))
+    clean_or_edge = ~island[around] | edge
+    if not clean_or_edge.any():
+        return False
+    depth, _ = cKDTree(points_m[around][clean_or_edge]).query(points_m[island])
     return bool(np.percentile(depth, 90) <= 0.5 * pad_radius_m)
 
 
