@@ -304,21 +304,22 @@ def test_a_sweep_over_an_x_in_a_bowl_follows_the_bowl_s_floor() -> None:
 
 
 def test_a_leg_slides_over_a_smooth_hollow_and_not_round_a_deep_one_or_across_a_jump() -> None:
-    """The rule for a chord above the surface: its path on the surface must have no jump (a step over three times the
-    median) and be at most MAX_SURFACE_DETOUR times the chord."""
+    """The rule for a chord above the surface: its path on the surface must have no step over MAX_STEP_OVER_CHORD_STEP
+    of the chord's (a jump, or a deep hollow) and be at most MAX_SURFACE_DETOUR times the chord."""
     chord, n = 0.1, 40
     smooth = np.full(n, 1.1 * chord / n)
     assert sweep_plan._follows_surface(smooth, chord)
     assert not sweep_plan._follows_surface(np.full(n, (sweep_plan.MAX_SURFACE_DETOUR + 0.1) * chord / n), chord)
     jump = smooth.copy()
-    jump[n // 2] = 4.0 * smooth[0]
+    jump[n // 2] = (sweep_plan.MAX_STEP_OVER_CHORD_STEP + 0.2) * chord / n
     assert not sweep_plan._follows_surface(jump, chord)
 
 
 def test_a_leg_across_a_bowl_follows_its_floor_and_one_round_a_deep_hemisphere_is_refused() -> None:
     """A leg from rim to rim of a 15 cm sphere cut 8.5 cm from its axis: its chord runs 26 mm above the floor (the
     old rule refused any leg more than 4 mm above the surface), its path along the floor 1.06 times the chord: the
-    leg slides on the floor. Round a hemisphere of 5 cm from rim to rim the path is 1.4 times the chord: refused."""
+    leg slides on the floor. Round a hemisphere of 5 cm from rim to rim the path is 1.4 times the chord: refused (its
+    steps near the floor are several chord steps long)."""
     for sphere_m, rim_m, slides in ((0.15, 0.0865, True), (0.05, 0.0499, False)):
         cloud = _bowl(lambda p: np.ones(len(p)), sphere_m=sphere_m, rim_m=rim_m, spacing=0.002)
         tree = cKDTree(cloud.points)

@@ -16,9 +16,10 @@ A leg is the chord between two corners brought onto the surface along the neares
 a convex wall: the arc; over a concave one: its floor), raised where the pad's disc would touch the support
 the object stands on. A leg whose chord runs beside the surface by more than
 :data:`~tactex.tasks.stroke.MAX_LINE_GAP_M` (across a hole in the capture) is not used, nor one whose chord
-runs above it by more and whose path on the surface jumps or is more than :data:`MAX_SURFACE_DETOUR` times
-the chord (down into a deep hollow and up again). None when no polyline of at most ``max_corners`` legs
-reaches the goal: the explorer then starts from the touch-down without a planned sweep.
+runs above it by more and whose path on the surface has a step over :data:`MAX_STEP_OVER_CHORD_STEP` of the
+chord's or is more than :data:`MAX_SURFACE_DETOUR` times the chord (down into a deep hollow and up again). None
+when no polyline of at most ``max_corners`` legs reaches the goal: the explorer then starts from the touch-down
+without a planned sweep.
 
 The sweep is planned for the island of dirt the touch-down is on (dirt joined within two pad radii), not
 for islands far apart, between which a lift-off and a flight are quicker than a slide, and only where that
@@ -107,20 +108,23 @@ class SweepPlan:
 #: a concave part: a bowl's side) [-]: a leg over a gentle hollow follows its floor; across a deep one (from one
 #: side of a bowl to the other) the path dives and climbs, and a lift-off is the quicker way.
 MAX_SURFACE_DETOUR = 1.3
-#: A step of a leg's path on the surface longer than this many times the path's median step is a jump [-]: the
-#: nearest surface point skipped to another part of the cloud (across a gap). Over a smooth hollow the steps grow
-#: smoothly towards its deepest part, by about the hollow's radius over the chord's distance from its centre.
-MAX_STEP_OVER_MEDIAN = 3.0
+#: Longest step of a leg's path on the surface, in steps of its chord [-]. Over a hollow of radius ρ the steps grow
+#: by about ρ over the chord's distance from the hollow's centre, so this refuses a chord nearer the centre than
+#: half the radius (a leg over more than 120° of a bowl's arc, whose path is 1.2 times the chord): on the bench's
+#: bowl such legs turned the tool faster than it follows, and a sweep allowed them was slower to clean. It also
+#: refuses a jump of the nearest surface point to another part of the cloud (across a gap).
+MAX_STEP_OVER_CHORD_STEP = 2.0
 
 
 def _follows_surface(ds_m: np.ndarray, chord_m: float) -> bool:
     """Whether a leg whose chord runs above the surface may slide on the surface below it: its path's steps
-    ``ds_m`` [m] (chord samples brought onto the surface) have no jump (none over :data:`MAX_STEP_OVER_MEDIAN`
-    times their median) and add up to at most :data:`MAX_SURFACE_DETOUR` times the chord ``chord_m`` [m]."""
+    ``ds_m`` [m] (one per chord sample, the chord's samples ``chord_m`` [m] / ``len(ds_m)`` apart, brought onto the
+    surface) are none longer than :data:`MAX_STEP_OVER_CHORD_STEP` chord steps and add up to at most
+    :data:`MAX_SURFACE_DETOUR` times the chord."""
     if ds_m.size == 0:
         return True
-    return bool(ds_m.max() <= MAX_STEP_OVER_MEDIAN * float(np.median(ds_m)) + 1e-12
-                and ds_m.sum() <= MAX_SURFACE_DETOUR * chord_m)
+    step = chord_m / ds_m.size
+    return bool(ds_m.max() <= MAX_STEP_OVER_CHORD_STEP * step + 1e-12 and ds_m.sum() <= MAX_SURFACE_DETOUR * chord_m)
 
 
 class _Predictor:
