@@ -240,6 +240,15 @@ def test_safety_summary_says_how_often_and_why() -> None:
                     "clipped the torque rate (1000 N·m/s) on 310 tick(s)")
 
 
+def test_a_clean_says_what_its_first_leg_was_and_why() -> None:
+    from tactex.experiments.run import remark_lines
+
+    sweep = "a planned sweep over strokes (3 legs, 0.40 m)"
+    lines = remark_lines([("tactex", {"first_leg": sweep}), ("region raster", {"first_leg": ""}),
+                          ("wipe", {})])
+    assert lines == [f"first leg (tactex): {sweep}"]
+
+
 @pytest.mark.slow
 def test_a_run_whose_safety_layer_stepped_in_says_so_in_its_last_lines(tmp_path, capsys, monkeypatch) -> None:
     """A clean at 60 N retreated 22 times and the terminal said only "dirt removed 43.6 %"."""

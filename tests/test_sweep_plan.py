@@ -205,17 +205,21 @@ def test_the_planner_s_work_does_not_grow_with_the_cloud_s_density(monkeypatch: 
 
 def test_the_sweep_uses_only_the_corners_its_goal_needs() -> None:
     """Five corners are allowed; the strip needs fewer: the corners after the one on whose leg the goal is reached
-    are not driven (the plan ends at that corner)."""
+    are not driven, and that leg ends half a pad radius past the point where the goal is reached (or at its
+    corner), not beyond over what is already clean."""
     cloud = _plane(_strip)
     plan = plan_sweep(cloud, cKDTree(cloud.points), cloud.target, np.zeros(3), R, PER_M, STEP, goal=0.95,
                       max_corners=5, seed=1)
     assert plan is not None
     assert 2 <= len(plan.corners) < 1 + 5  # the start and some of the five corners
-    np.testing.assert_allclose(plan.waypoints[-1], plan.corners[-1], atol=1e-9)
     # the goal is reached on the last leg: the slide to the corner before it is shorter than the plan's
     slide = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(plan.waypoints, axis=0), axis=1))])
     before_last = int(np.argmin(np.linalg.norm(plan.waypoints - plan.corners[-2], axis=1)))
     assert slide[before_last] < plan.length_m <= slide[-1] + 1e-9
+    end = plan.length_m + sweep_plan.END_BEYOND_RADII * R
+    at_corner = np.allclose(plan.waypoints[-1], plan.corners[-1], atol=1e-9)
+    assert at_corner or end <= slide[-1] <= end + 2 * STEP
+    assert slide[-1] <= end + 2 * STEP
 
 
 def test_no_leg_beside_the_surface_across_a_hole() -> None:
@@ -254,8 +258,114 @@ def test_the_first_sweep_needs_the_touch_down_s_island_to_hold_nearly_all_the_di
     island = dirt_island(cloud.points, view, here, 2 * cfg.pad_radius_m, spacing_m=cloud.spacing)
     share = view[island].sum() / view.sum()
     assert (share >= SWEEP_MIN_SHARE) == planned  # the scenario straddles the gate
-    stroke, plan = _first_leg(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
+    stroke, plan, choice = _first_leg(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
     assert (plan is not None) == planned and (stroke is not None) == planned  # the strip is no small island
+    assert choice.startswith("a planned sweep over strokes" if planned else "the explorer (the island there holds")
     if plan is not None:  # over the touch-down's island only, driven as planned
         np.testing.assert_array_equal(stroke.path.waypoints, plan.waypoints)
         assert np.all(np.abs(plan.corners[:, 1]) <= 0.006 + R)
+
+
+def _bowl(target, sphere_m: float, rim_m: float, spacing: float = 0.003) -> SurfaceCloud:
+    """The inside of a spherical bowl of radius ``sphere_m`` [m] cut at ``rim_m`` [m] from its axis, lowest point
+    at the origin, normals up into the bowl."""
+    g = np.arange(-rim_m, rim_m + 1e-9, spacing)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    keep = x**2 + y**2 <= rim_m**2
+    x, y = x[keep], y[keep]
+    z = sphere_m - np.sqrt(sphere_m**2 - x**2 - y**2)
+    pts = np.column_stack([x, y, z])
+    normals = (np.array([0.0, 0.0, sphere_m]) - pts) / sphere_m
+    return SurfaceCloud(points=pts, normals=normals, target=target(pts), spacing=spacing)
+
+
+def _x(p: np.ndarray) -> np.ndarray:
+    """An X of two 14 cm strokes, 14 mm wide, crossing at the origin on the diagonals."""
+    u, v = (p[:, 0] + p[:, 1]) / np.sqrt(2), (p[:, 0] - p[:, 1]) / np.sqrt(2)
+    arm = lambda a, b: (np.abs(a) <= 0.07) & (np.abs(b) <= 0.007)  # noqa: E731
+    return (arm(u, v) | arm(v, u)).astype(float)
+
+
+def test_a_sweep_over_an_x_in_a_bowl_follows_the_bowl_s_floor() -> None:
+    """The X on the bowl (15 cm sphere): each arm's chord runs up to 17 mm above the floor it crosses, and the
+    planner used to refuse every leg more than 4 mm above the surface, so no sweep: now a leg whose path brought
+    onto the surface is smooth and at most MAX_SURFACE_DETOUR longer than its chord slides along the floor, and the
+    arms' tips seed the search (random corners seldom land on all four)."""
+    cloud = _bowl(_x, sphere_m=0.15, rim_m=0.09)
+    tree = cKDTree(cloud.points)
+    tip = cloud.points[np.argmin(np.linalg.norm(cloud.points[:, :2] - [0.045, 0.045], axis=1))]
+    plan = plan_sweep(cloud, tree, cloud.target, tip, R, PER_M, STEP, goal=0.97, seed=0)
+    assert plan is not None
+    assert _wiped_share(cloud, plan.waypoints) >= 0.97 - 0.01
+    # along both arms once (2 × 14 cm, a little beyond their tips) and across between them: no loop
+    assert plan.length_m <= 0.55
+    # the path lies on the bowl, not on the chords above it
+    assert tree.query(plan.waypoints)[0].max() <= cloud.spacing
+
+
+def test_a_leg_slides_over_a_smooth_hollow_and_not_round_a_deep_one_or_across_a_jump() -> None:
+    """The rule for a chord above the surface: its path on the surface must have no step over MAX_STEP_OVER_CHORD_STEP
+    of the chord's (a jump, or a deep hollow) and be at most MAX_SURFACE_DETOUR times the chord."""
+    chord, n = 0.1, 40
+    smooth = np.full(n, 1.1 * chord / n)
+    assert sweep_plan._follows_surface(smooth, chord)
+    assert not sweep_plan._follows_surface(np.full(n, (sweep_plan.MAX_SURFACE_DETOUR + 0.1) * chord / n), chord)
+    jump = smooth.copy()
+    jump[n // 2] = (sweep_plan.MAX_STEP_OVER_CHORD_STEP + 0.2) * chord / n
+    assert not sweep_plan._follows_surface(jump, chord)
+
+
+def test_a_leg_across_a_bowl_follows_its_floor_and_one_round_a_deep_hemisphere_is_refused() -> None:
+    """A leg from rim to rim of a 15 cm sphere cut 8.5 cm from its axis: its chord runs 26 mm above the floor (the
+    old rule refused any leg more than 4 mm above the surface), its path along the floor 1.06 times the chord: the
+    leg slides on the floor. Round a hemisphere of 5 cm from rim to rim the path is 1.4 times the chord: refused (its
+    steps near the floor are several chord steps long)."""
+    for sphere_m, rim_m, slides in ((0.15, 0.0865, True), (0.05, 0.0499, False)):
+        cloud = _bowl(lambda p: np.ones(len(p)), sphere_m=sphere_m, rim_m=rim_m, spacing=0.002)
+        tree = cKDTree(cloud.points)
+        ends = [int(np.argmin(np.linalg.norm(cloud.points[:, :2] - [x, 0.0], axis=1))) for x in (-rim_m, rim_m)]
+        a, b = cloud.points[ends]
+        half = np.arcsin(0.5 * np.linalg.norm(a - b) / sphere_m)
+        arc_over_chord = half / np.sin(half)
+        assert (arc_over_chord <= sweep_plan.MAX_SURFACE_DETOUR) == slides, arc_over_chord  # the case's premise
+        pred = sweep_plan._Predictor(cloud, tree, cloud.target, R, PER_M, STEP, None)
+        leg = pred.leg(*ends)
+        assert (leg is not None) == slides, sphere_m
+        if leg is not None:
+            assert tree.query(leg[0])[0].max() <= cloud.spacing  # on the floor, not on the chord
+            assert leg[1].sum() == pytest.approx(arc_over_chord * np.linalg.norm(a - b), rel=0.05)
+
+
+def test_a_stroke_along_the_cloud_s_edge_is_still_a_stroke() -> None:
+    """A strip 2 cm wide along the capture's edge: its points have no clean point beyond the edge, which counts as
+    clean surface; a 6 cm square at the edge is a blob."""
+    cloud = _plane(lambda p: np.zeros(len(p)))
+    edge_x = cloud.points[:, 0].max()
+    strip = (cloud.points[:, 0] >= edge_x - 0.02) & (np.abs(cloud.points[:, 1]) <= 0.08)
+    assert sweep_plan.stroke_like(cloud.points, strip, R, cloud.spacing)
+    square = (cloud.points[:, 0] >= edge_x - 0.06) & (np.abs(cloud.points[:, 1]) <= 0.03)
+    assert not sweep_plan.stroke_like(cloud.points, square, R, cloud.spacing)
+
+
+@pytest.mark.parametrize(("marking", "strokes"), [(_x, True), (_strip, True),
+                                                  (lambda p: (np.linalg.norm(p[:, :2], axis=1) <= 0.03).astype(float),
+                                                   False)])
+def test_strokes_get_a_planned_sweep_and_a_blob_the_explorer(marking, strokes: bool) -> None:
+    """An island of strokes narrower than a pad radius (an X, a strip) starts with a planned sweep; a blob of 3 cm
+    radius, wider than the pad, with the explorer, and the choice is said in one line."""
+    cloud = _plane(marking)
+    cfg = CleanConfig()
+    assert sweep_plan.stroke_like(cloud.points, cloud.target > 0, cfg.pad_radius_m, cloud.spacing) == strokes
+    wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
+    here = cloud.points[np.flatnonzero(cloud.target > 0)[0]]
+    stroke, plan, choice = _first_leg(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
+    assert (plan is not None) == strokes and (stroke is not None) == strokes
+    assert choice.startswith("a planned sweep over strokes" if strokes else "the explorer (the dirt is a blob")
+
+
+def test_with_no_dirt_the_first_leg_is_the_explorer_and_says_why() -> None:
+    cloud = _plane(lambda p: np.zeros(len(p)))
+    cfg = CleanConfig()
+    wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
+    assert _first_leg(cloud, wear, np.zeros(3), np.array([0.0, -0.3, 0.3]), cfg, STEP, None) == (
+        None, None, "the explorer (the wear model sees no dirt left)")

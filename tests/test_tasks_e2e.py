@@ -110,6 +110,21 @@ def test_bowl_with_the_rli_marking_stays_within_the_force_band() -> None:
     assert kinds.count(PHASES["capture"]) == m["vision_updates"] + 1  # the first capture and each update
 
 
+def test_a_far_joint_move_after_a_lift_off_goes_up_to_the_capture_posture_first(monkeypatch) -> None:
+    """The bowl's RLI, seed 1, with the planned sweep run to its last corner: after the lift-off low in the bowl the
+    hover over the next dirt is an IK posture 1.4 rad away in the wrist, and the straight joint move there swung the
+    tool down the bowl's far wall (24.5 N against a 10 N set point, during a move). Such a move now goes up to the
+    capture posture first."""
+    from tactex.tasks.clean import sweep_plan
+
+    monkeypatch.setattr(sweep_plan, "END_BEYOND_RADII", np.inf)  # the scenario: the sweep to its last corner
+    cfg = CleanConfig(object_name="bowl", marking="RLI", seed=1)
+    m = run_clean(cfg, progress=False).metrics
+    assert m["moves_via_capture"] >= 1, "no far move from low over the bowl: the scenario does not test the rule"
+    assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
+    assert m["dirt_removed_fraction"] > 0.95
+
+
 def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
     """`clean --object-name cup` failed at once: the side capture pose 0.45 m out was out of reach."""
     # TEC's loop: with the default objective the trip to the camera starts where the wear model calls the
@@ -293,6 +308,7 @@ def test_the_cup_starts_with_a_planned_sweep_of_its_marking(monkeypatch: pytest.
     # what the sweep left by the model (which calls a point clean at --wear-margin 1.5 times its dirt wiped: a
     # third of the view's mass where the plan, at margin 1, wiped 97 %), not the view's whole marking
     assert events[handover + 1][1] < 0.5 * swept[0], (events[handover + 1], swept)
+    assert m["first_leg"].startswith("a planned sweep over strokes"), m["first_leg"]
     planned = m["first_sweep_planned_m"]
     assert 0.05 < planned < 0.25  # planned, and shorter than the explorer's 0.23 m to the 95 % mark
     # slid: to its last corner, a little beyond the goal's mark

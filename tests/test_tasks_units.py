@@ -789,3 +789,36 @@ def test_a_joint_move_across_a_stall_of_the_loop_neither_steps_its_command_nor_e
         assert loop.t >= t0 + 0.5 + 0.015 - 1e-9
     finally:
         backend.close()
+
+
+def test_a_far_wrist_bend_from_low_over_the_object_goes_up_to_the_capture_posture_first() -> None:
+    """A joint move that starts away from the capture posture (after a lift-off) and bends the wrist (joints 5, 6)
+    by more than LOW_MOVE_MAX_JOINT_RAD goes through the capture posture, and says how much longer that takes;
+    from the capture posture, or turning only the base, the last joint or the wrist a little, it goes direct."""
+    from types import SimpleNamespace
+
+    from tactex.robots.loop import ControlLoop
+    from tactex.tasks.clean import motion
+
+    q_capture = np.array([0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.8])
+    low = q_capture + np.array([0.4, 0.6, 0.1, -0.3, -0.8, 1.5, 0.2])  # the arm down at the object, wrist bent
+
+    def loop_at(q: np.ndarray):
+        state = SimpleNamespace(q=np.asarray(q, dtype=float))
+        fake = SimpleNamespace(state=state, max_joint_speed=1.5)
+        fake.joint_move_duration = lambda q_goal, max_joint_speed=None, q_from=None, min_duration_s=0.5: (
+            ControlLoop.joint_move_duration(fake, q_goal, max_joint_speed, q_from, min_duration_s))
+        return fake
+
+    bend = np.zeros(7)
+    bend[5] = motion.LOW_MOVE_MAX_JOINT_RAD + 0.2
+    detour = motion._detour_via_capture(loop_at(low), low + bend, q_capture)
+    assert detour is not None and detour > 0.0
+    loop = loop_at(low)
+    direct = loop.joint_move_duration(low + bend)
+    via = loop.joint_move_duration(q_capture) + loop.joint_move_duration(low + bend, q_from=q_capture)
+    assert detour == pytest.approx(via - direct)
+    for turn in ([1.5, 0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0, 2.0], [0, 0, 0, 0, 0.5, -0.5, 0]):
+        assert motion._detour_via_capture(loop_at(low), low + np.array(turn), q_capture) is None, turn
+    near_capture = q_capture + 0.01
+    assert motion._detour_via_capture(loop_at(near_capture), near_capture + bend, q_capture) is None

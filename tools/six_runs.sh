@@ -3,18 +3,19 @@
 # clone beside this one (so ../shared is the same), three on a quiet machine, then three with two
 # processes spinning on both cores. One line per run in proof-summary.txt beside the checkout, and a record
 # in this checkout's bench/suite_runs.json (tools/suite_runs.py), which the README's test time reads.
-# Usage: tools/six_runs.sh [all|quiet|busy|quiet-N|busy-N]   (default all; a set of three, or one named run,
-# on its own appends to the summary)
+# Usage: tools/six_runs.sh [all|quiet|busy|quiet-N|busy-N] [COMMIT]   (default all; a set of three, or one named
+# run, on its own appends to the summary; COMMIT, default HEAD: the commit to clone, so that a set begun in one
+# session can be finished on the same commit in the next)
 set -u
 WHICH=${1:-all}
 REPO=$(git rev-parse --show-toplevel)
 PARENT=$(dirname "$REPO")
-COMMIT=$(git -C "$REPO" rev-parse HEAD)
+COMMIT=$(git -C "$REPO" rev-parse --verify "${2:-HEAD}^{commit}") || exit 2
 summary="$PARENT/proof-summary.txt"
 echo "commit $COMMIT ($WHICH) from $(date -u +%FT%TZ)" >> "$summary"
 run() {  # name, busy (0/1)
     local name=$1 busy=$2 spin=() dir="$PARENT/proof-$1"
-    rm -rf "$dir" && git clone -q "$REPO" "$dir" && git -C "$dir" checkout -q "$COMMIT"
+    rm -rf "$dir" && git clone -q "$REPO" "$dir" && git -C "$dir" checkout -q "$COMMIT" || return 1
     if [ "$busy" = 1 ]; then
         for _ in 1 2; do (exec yes > /dev/null) & spin+=($!); done
     fi

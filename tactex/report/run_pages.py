@@ -253,10 +253,11 @@ def learning_summary(metrics: Mapping[str, Any]) -> str | None:
 
 def run_remarks(metrics: Mapping[str, Any]) -> list[tuple[str, str]]:
     """What a run's last lines say beside its table, as (topic, line): the safety layer's interventions
-    (:func:`safety_summary`), the wipe's alignment transient (:func:`alignment_summary`) and what a re-planned
-    wipe learned (:func:`learning_summary`), each only when there is something to say."""
+    (:func:`safety_summary`), the wipe's alignment transient (:func:`alignment_summary`), what a re-planned
+    wipe learned (:func:`learning_summary`) and a clean's first leg in contact (a planned sweep over strokes, the
+    explorer over a blob: ``first_leg``), each only when there is something to say."""
     said = (("safety layer", safety_summary(metrics)), ("motion", alignment_summary(metrics)),
-            ("re-plan", learning_summary(metrics)))
+            ("re-plan", learning_summary(metrics)), ("first leg", metrics.get("first_leg") or ""))
     return [(topic, line) for topic, line in said if line]
 
 

@@ -4,6 +4,8 @@ path figures summed over the legs, and the wear model fed tick by tick."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from tactex.ergodic.command import ExplorationCommand
@@ -11,7 +13,7 @@ from tactex.ergodic.explorer import HedacExplorer
 from tactex.ergodic.relocation import RelocationCommand
 from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.tasks.clean.config import SWEEP_GOAL, CleanConfig
-from tactex.tasks.clean.sweep_plan import SweepPlan, dirt_island, plan_sweep
+from tactex.tasks.clean.sweep_plan import SweepPlan, dirt_island, plan_sweep, stroke_like
 from tactex.tasks.path_source import PathSource, start
 from tactex.tasks.raster import WaypointPath
 from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
@@ -23,13 +25,19 @@ __all__ = ["MAX_HOLD_STEPS", "RASTER_SKIP_M", "SWEEP_MIN_SHARE", "plan_stroke", 
 RASTER_SKIP_M = 0.02
 
 
-def skip_along(path: PathSource, point_m: np.ndarray) -> ExplorationCommand | RelocationCommand | None:
-    """The next command of a raster's ``path`` at least :data:`RASTER_SKIP_M` from ``point_m`` (3,) [m], or its
-    next flight, whichever comes first; None when the path ends before."""
+def skip_along(path: PathSource, point_m: np.ndarray, name: str) -> ExplorationCommand | RelocationCommand | None:
+    """Past a touch-down ``point_m`` (3,) [m] whose hover is out of reach: the next command of a raster's ``path``
+    at least :data:`RASTER_SKIP_M` from it, or its next flight, whichever comes first; None when the path ends
+    before. Either is said in a warning naming the raster (``name``)."""
+    out = np.round(point_m, 3).tolist()
     while not path.done:
         cmd = path.step()
         if isinstance(cmd, RelocationCommand) or np.linalg.norm(cmd.point - point_m) >= RASTER_SKIP_M:
+            warnings.warn(f"clean: no hover pose over {out} m within reach; the {name} goes on at "
+                          f"{np.round(cmd.point, 3).tolist()} m", RuntimeWarning, stacklevel=4)
             return cmd
+    warnings.warn(f"clean: no hover pose over {out} m within reach and the {name} ends there; ending the program",
+                  RuntimeWarning, stacklevel=4)
     return None
 
 #: Most exploration steps in a row the agent waits for a lagging or dragged tool (CleanConfig.max_lag_m,
@@ -104,32 +112,42 @@ class _WearTicks:
 
 
 def _first_leg(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m: np.ndarray, cfg: CleanConfig,
-               step_m: float, support_z_m: float | None) -> tuple[IslandStroke | None, SweepPlan | None]:
+               step_m: float, support_z_m: float | None) -> tuple[IslandStroke | None, SweepPlan | None, str]:
     """The first leg in contact from the touch-down ``here_m`` (3,) [m], planned while the arm holds at the capture
-    pose: ``(stroke, plan)``. When the wear model's island of dirt there is smaller than the pad, its straight
-    stroke (coming from ``from_m`` (3,) [m]) and None. Else, with ``cfg.sweep_corners`` > 0, the planned sweep over
-    that island (dirt joined within two pad radii) as a stroke, and its plan; but (None, None), the explorer from
-    the touch-down, when the island holds less than :data:`SWEEP_MIN_SHARE` of the view's dirt (after a sweep of one
-    island among several the explorer's route over the others is longer than from its own start) or no polyline of
-    ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of ``step_m`` [m].
-    ``support_z_m`` [m]: the plane the object stands on (None: none)."""
+    pose: ``(stroke, plan, choice)``, ``choice`` one line saying what was chosen and why. When the wear model's
+    island of dirt there is smaller than the pad, its straight stroke (coming from ``from_m`` (3,) [m]) and None.
+    Else, with ``cfg.sweep_corners`` > 0 and an island of strokes (:func:`stroke_like`), the planned sweep over that
+    island (dirt joined within two pad radii) as a stroke, and its plan; but no stroke and no plan (the explorer
+    from the touch-down) when the model sees no dirt, when the island is a blob as wide as the pad (passes side by
+    side: the explorer's feedback does as well), holds less than :data:`SWEEP_MIN_SHARE` of the view's dirt (after
+    a sweep of one island among several the explorer's route over the others is longer than from its own start)
+    or no polyline of ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of
+    ``step_m`` [m]. ``support_z_m`` [m]: the plane the object stands on (None: none)."""
     stroke = plan_stroke(cloud, wear.tree, wear, here_m, from_m, cfg.pad_radius_m, step_m)
-    if stroke is not None or cfg.sweep_corners == 0:
-        return stroke, None
+    if stroke is not None:
+        return stroke, None, "a stroke over a small island"
+    if cfg.sweep_corners == 0:
+        return None, None, "the explorer (no planned sweep: sweep_corners = 0)"
     view_dirt = wear.remaining()
+    if not float(view_dirt.sum()) > 0.0:
+        return None, None, "the explorer (the wear model sees no dirt left)"
     island = dirt_island(cloud.points, view_dirt, here_m, 2.0 * cfg.pad_radius_m, spacing_m=cloud.spacing)
-    if float(view_dirt[island].sum()) < SWEEP_MIN_SHARE * float(view_dirt.sum()):
-        return None, None
+    share = float(view_dirt[island].sum()) / float(view_dirt.sum())
+    if share < SWEEP_MIN_SHARE:
+        return None, None, f"the explorer (the island there holds {100 * share:.0f} % of the dirt, one of several)"
+    if not stroke_like(cloud.points, island, cfg.pad_radius_m, cloud.spacing):
+        return None, None, "the explorer (the dirt is a blob as wide as the pad or wider)"
     plan = plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
                       cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m, goal=SWEEP_GOAL,
                       max_corners=cfg.sweep_corners, support_z_m=support_z_m,
                       max_length_m=cfg.vision_max_steps * step_m, seed=cfg.seed)
     if plan is None:
-        return None, None
+        return None, None, (f"the explorer (strokes, but no sweep of {cfg.sweep_corners} legs takes "
+                            f"{100 * SWEEP_GOAL:.0f} % of them off)")
     # the whole view's dirt is its island: not clean when the sweep ends, so the explorer goes on from there
     sweep = IslandStroke(WaypointPath(cloud, plan.waypoints, step_m, tree=wear.tree), np.flatnonzero(wear.dirty()),
                          plan.waypoints[0], plan.waypoints[-1], passes=MAX_PASSES)
-    return sweep, plan
+    return sweep, plan, f"a planned sweep over strokes ({len(plan.corners) - 1} legs, {plan.length_m:.2f} m)"
 
 
 def _after_stroke(stroke: IslandStroke, cmd: ExplorationCommand, wear: WearModel, cfg: CleanConfig,

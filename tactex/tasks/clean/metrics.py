@@ -40,7 +40,12 @@ def clean_metrics(program: Any, series: dict[str, np.ndarray]) -> dict:
         "time_to_95pct_over_ideal": None if t95 is None else t95 / program.bound.time_s,
         "vision_updates": program.vision_updates,
         "island_relocations": program.island_moves,
+        # far joint moves from low over the object that went up to the capture posture first
+        # (motion.LOW_MOVE_MAX_JOINT_RAD)
+        "moves_via_capture": program.moves_via_capture,
         "island_strokes": program.n_strokes,
+        # what the first leg in contact was and why (legs._first_leg: a stroke, a planned sweep or the explorer)
+        "first_leg": program.first_leg_choice,
         # [m] slid along the planned first sweep (0: none, or its touch-down was out of reach) and its slide to
         # the goal as the wear model predicted it when planned (0: none planned)
         "first_sweep_m": 0.0 if program.first_sweep is None else program.first_sweep.path.path_length,

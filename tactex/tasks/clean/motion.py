@@ -34,6 +34,17 @@ UNLOAD_S = 0.25
 CLEARANCE_M = 0.08
 #: Largest joint difference [rad] between the waypoint and the hover for the waypoint to be used.
 WAYPOINT_MAX_JOINT_RAD = 0.5
+#: Largest turn [rad] of a joint of :data:`WRIST_BEND_JOINTS` in a joint move that starts low over the object (after a
+#: lift-off); a farther one goes up to the capture posture first (:func:`_detour_via_capture`). In the bench's
+#: cleans the moves that bent the wrist by 1.3-1.5 rad in a bowl swung the tool against its wall or near it, those
+#: of about 0.6 rad passed clear of the cup and the bowl.
+LOW_MOVE_MAX_JOINT_RAD = 1.0
+#: The Franka's joints that swing the tool's tip about the wrist: the forearm's roll and the wrist's pitch (joints 5
+#: and 6; indices into q).
+WRIST_BEND_JOINTS = [4, 5]
+#: A posture this close to the capture posture in every joint [rad] is at the capture pose (the joint move's
+#: tracking error, a real arm's measurement noise): its moves start high above the object.
+AT_CAPTURE_JOINT_RAD = 0.05
 #: Settling after the joint move to the hover pose, before the approach [s].
 HOVER_SETTLE_S = 0.1
 #: How fast the commanded approach speed falls with the height above the captured surface [1/s]: it reaches
@@ -116,6 +127,21 @@ def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_se
         return None, q_hover, loop.joint_move_duration(q_hover, q_from=q_from)
     return q_above, q_hover, (loop.joint_move_duration(q_above, q_from=q_from)
                               + loop.joint_move_duration(q_hover, q_from=q_above))
+
+
+def _detour_via_capture(loop: ControlLoop, q_first: np.ndarray, q_capture: np.ndarray) -> float | None:
+    """The extra time [s] of a joint move to ``q_first`` (7,) [rad] that goes up to the capture posture ``q_capture``
+    first, or None for the direct move: a move that starts low over the object (away from the capture posture,
+    after a lift-off) and turns the forearm's roll or the wrist's pitch (:data:`WRIST_BEND_JOINTS`) by more than
+    :data:`LOW_MOVE_MAX_JOINT_RAD` swings the tool's tip, a tool length from the wrist, through the object (down a
+    bowl's far wall); from high above the object it clears it. The other joints carry the wrist between two poses
+    above the surface, and the last turns the tool about its own axis."""
+    q_now = loop.state.q
+    if (float(np.max(np.abs(q_now - q_capture))) <= AT_CAPTURE_JOINT_RAD
+            or float(np.max(np.abs(q_first - q_now)[WRIST_BEND_JOINTS])) <= LOW_MOVE_MAX_JOINT_RAD):
+        return None
+    return (loop.joint_move_duration(q_capture) + loop.joint_move_duration(q_first, q_from=q_capture)
+            - loop.joint_move_duration(q_first))
 
 
 def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.ndarray, q_capture: np.ndarray,

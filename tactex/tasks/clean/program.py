@@ -329,7 +329,7 @@ class CleanProgram:
                             if cfg.line_normal_feedback > 0 else None)
         self.vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
         self.islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
-        self.island_moves = 0  # those relocations
+        self.island_moves = self.moves_via_capture = 0  # those relocations; far moves via the capture posture
         # control ticks between wear-model updates (the pad moves well under a millimetre)
         self.wear_ticks = _WearTicks(wear, self.backend.dt, every=10) if wear is not None else None
         # the posture of the capture pose keeps the redundant elbow where it was planned
@@ -440,10 +440,11 @@ class CleanProgram:
         touch-down)."""
         self.first_leg: IslandStroke | None = None
         self.first_plan: SweepPlan | None = None
+        self.first_leg_choice = ""  # what it is and why (none planned: a raster, keep-out zones)
         if self.strokes:
             t_plan = time.perf_counter()
-            self.first_leg, self.first_plan = legs._first_leg(self.cloud, self.wear, self.cmd.point, self.leg_from,
-                                                              self.cfg, self.stroke_step_m, self.support_z)
+            self.first_leg, self.first_plan, self.first_leg_choice = legs._first_leg(
+                self.cloud, self.wear, self.cmd.point, self.leg_from, self.cfg, self.stroke_step_m, self.support_z)
             self.start_plan_s += time.perf_counter() - t_plan
         self.first_sweep = self.first_leg if self.first_plan is not None else None
         self.first_leg_due = self.strokes  # the next leg is the first: its stroke is planned already
@@ -474,8 +475,12 @@ class CleanProgram:
         if not plan:
             return plan
         q_above, q_hover, move_s = plan
-        if loop.t + move_s + HOVER_SETTLE_S >= self.t_end:
+        detour_s = motion._detour_via_capture(loop, q_hover if q_above is None else q_above, self.q_capture)
+        if loop.t + move_s + (detour_s or 0.0) + HOVER_SETTLE_S >= self.t_end:
             return False  # the move alone would use up the budget
+        if detour_s is not None:  # a far move from low over the object: up to the capture posture first
+            self.moves_via_capture += 1
+            loop.move_joints(self.q_capture, settle_s=0.0)
         if q_above is not None:
             loop.move_joints(q_above, settle_s=0.0)
         check = self._load_check()
@@ -541,14 +546,9 @@ class CleanProgram:
 
     def _skip_along_raster(self) -> bool | None:
         """A raster's touch-down out of reach (a bowl's rim): on along its path (None), or False at its end."""
-        out, name = np.round(self.cmd.point, 3).tolist(), self.cfg.baseline.replace("_", " ")
-        cmd = legs.skip_along(self.path, self.cmd.point)
+        cmd = legs.skip_along(self.path, self.cmd.point, self.cfg.baseline.replace("_", " "))
         if cmd is None:
-            warnings.warn(f"clean: no hover pose over {out} m within reach and the {name} ends there; ending the "
-                          "program", RuntimeWarning, stacklevel=3)
             return False
-        warnings.warn(f"clean: no hover pose over {out} m within reach; the {name} goes on at "
-                      f"{np.round(cmd.point, 3).tolist()} m", RuntimeWarning, stacklevel=3)
         self.cmd, self.new_leg = cmd, True
         return None
 

@@ -9,17 +9,22 @@ long passes is what a person does on a mug's side; HEDAC's step-by-step gradient
 of the marking, first loops around it. After the sweep the explorer takes over with the wear model's
 view of what is left.
 
-The polyline's corners are searched among the cloud points within a pad radius of the dirt (random
-polylines, then each corner moved at random while the slide gets no longer). A leg is the chord between
-two corners brought onto the surface along the nearest cloud point's normal (on a convex wall: the arc),
-raised where the pad's disc would touch the support the object stands on. A leg whose chord runs above
-the surface or beside it (across a bowl's hollow or a hole in the capture) by more than
-:data:`~tactex.tasks.stroke.MAX_LINE_GAP_M` is not used; under the surface (a convex wall) is fine. None
-when no polyline of at most ``max_corners`` legs reaches the goal: the explorer then starts from the
-touch-down without a planned sweep.
+The polyline's corners are searched among the cloud points within a pad radius of the dirt: random
+polylines, and the dirt's extreme points (a stroke's ends, an X's tips, pushed out beyond the dirt by the
+slide their points need) in every order, then each corner moved at random while the slide gets no longer.
+A leg is the chord between two corners brought onto the surface along the nearest cloud point's normal (on
+a convex wall: the arc; over a concave one: its floor), raised where the pad's disc would touch the support
+the object stands on. A leg whose chord runs beside the surface by more than
+:data:`~tactex.tasks.stroke.MAX_LINE_GAP_M` (across a hole in the capture) is not used, nor one whose chord
+runs above it by more and whose path on the surface has a step over :data:`MAX_STEP_OVER_CHORD_STEP` of the
+chord's or is more than :data:`MAX_SURFACE_DETOUR` times the chord (down into a deep hollow and up again). None
+when no polyline of at most ``max_corners`` legs reaches the goal: the explorer then starts from the touch-down
+without a planned sweep.
 
 The sweep is planned for the island of dirt the touch-down is on (dirt joined within two pad radii), not
-for islands far apart, between which a lift-off and a flight are quicker than a slide.
+for islands far apart, between which a lift-off and a flight are quicker than a slide, and only where that
+island is made of strokes (:func:`stroke_like`): a few long legs then wipe it, each stroke once; a blob as
+wide as the pad takes passes side by side, where the explorer's feedback does as well without a plan.
 
 On a cloud finer than :data:`PLAN_GRID_M` the planner works on the dirt merged per cell of that grid and
 samples its legs no closer than the grid: its cost then follows the dirt's area, not the cloud's density
@@ -43,13 +48,21 @@ from tactex.pointcloud.cloud import SurfaceCloud
 from tactex.pointcloud.voxel import voxel_indices
 from tactex.tasks.stroke import MAX_LINE_GAP_M
 
-__all__ = ["MAX_CORNERS", "PLAN_GRID_M", "SweepPlan", "dirt_island", "plan_sweep"]
+__all__ = ["MAX_CORNERS", "PLAN_GRID_M", "SweepPlan", "dirt_island", "plan_sweep", "stroke_like"]
 
 #: Random polylines tried before refining the best [-].
 N_RANDOM = 300
 #: Refinement trials (one corner moved at a time), shared by the climbs [-].
 N_REFINE = 1500
-#: Hill climbs, from the best random polylines [-].
+#: Extreme points of the dirt whose orderings seed the search besides the random polylines [-]: an X's four tips
+#: and two more (at most 720 orderings of five).
+N_EXTREMES = 6
+#: How far the sweep's path runs past the point where the wear model reaches its goal [pad radii].
+END_BEYOND_RADII = 0.5
+#: A point with fewer neighbours than this share of the median count is on the cloud's edge (stroke_like) [-]:
+#: within two spacings a point on a grid's straight edge has about 60 % of an interior point's, a corner 40 %.
+EDGE_NEIGHBOUR_SHARE = 0.75
+#: Hill climbs, from the best random polylines (and one more from the best ordering of the dirt's extremes) [-].
 N_CLIMBS = 3
 #: Most candidate corners (cloud points near the dirt, thinned evenly) [-].
 MAX_CANDIDATES = 400
@@ -82,12 +95,36 @@ def _merged_dirt(points_m: np.ndarray, mass: np.ndarray, spacing_m: float) -> tu
 class SweepPlan:
     """A planned sweep: ``waypoints`` (M, 3) [m] on the cloud from the touch-down, ``corners`` (K, 3) [m]
     the polyline's corners (the touch-down first), ``length_m`` [m] the slide until the wear model predicts
-    ``goal`` of the dirt off (the waypoints go to the last corner, a little beyond)."""
+    ``goal`` of the dirt off (the waypoints end :data:`END_BEYOND_RADII` pad radii beyond the point where it does,
+    or at the last corner)."""
 
     waypoints: np.ndarray
     corners: np.ndarray
     length_m: float
     goal: float
+
+
+#: Longest a leg's path on the surface may be against its chord, where the chord runs above the surface (across
+#: a concave part: a bowl's side) [-]: a leg over a gentle hollow follows its floor; across a deep one (from one
+#: side of a bowl to the other) the path dives and climbs, and a lift-off is the quicker way.
+MAX_SURFACE_DETOUR = 1.3
+#: Longest step of a leg's path on the surface, in steps of its chord [-]. Over a hollow of radius ρ the steps grow
+#: by about ρ over the chord's distance from the hollow's centre, so this refuses a chord nearer the centre than
+#: half the radius (a leg over more than 120° of a bowl's arc, whose path is 1.2 times the chord): on the bench's
+#: bowl such legs turned the tool faster than it follows, and a sweep allowed them was slower to clean. It also
+#: refuses a jump of the nearest surface point to another part of the cloud (across a gap).
+MAX_STEP_OVER_CHORD_STEP = 2.0
+
+
+def _follows_surface(ds_m: np.ndarray, chord_m: float) -> bool:
+    """Whether a leg whose chord runs above the surface may slide on the surface below it: its path's steps
+    ``ds_m`` [m] (one per chord sample, the chord's samples ``chord_m`` [m] / ``len(ds_m)`` apart, brought onto the
+    surface) are none longer than :data:`MAX_STEP_OVER_CHORD_STEP` chord steps and add up to at most
+    :data:`MAX_SURFACE_DETOUR` times the chord."""
+    if ds_m.size == 0:
+        return True
+    step = chord_m / ds_m.size
+    return bool(ds_m.max() <= MAX_STEP_OVER_CHORD_STEP * step + 1e-12 and ds_m.sum() <= MAX_SURFACE_DETOUR * chord_m)
 
 
 class _Predictor:
@@ -128,14 +165,15 @@ class _Predictor:
             off = chord - pts[idx]
             out = np.einsum("ij,ij->i", off, nrm[idx])  # > 0: above the surface (air)
             side = np.linalg.norm(off - out[:, None] * nrm[idx], axis=1)
-            if np.any(np.maximum(out, 0.0) > MAX_LINE_GAP_M) or np.any(side > MAX_LINE_GAP_M):
+            # onto the surface along each nearest point's normal: a smooth line on it (the snapped points
+            # themselves zigzag over the voxel grid, a longer slide for the same sweep)
+            samples = chord - out[:, None] * nrm[idx]
+            samples[:, 2] = np.maximum(samples[:, 2], self.lowest_z(nrm[idx]))
+            ds = np.linalg.norm(np.diff(np.vstack([a, samples]), axis=0), axis=1)
+            if np.any(side > MAX_LINE_GAP_M) or (np.any(np.maximum(out, 0.0) > MAX_LINE_GAP_M)
+                                                  and not _follows_surface(ds, np.linalg.norm(b - a))):
                 self._legs[key] = None
             else:
-                # onto the surface along each nearest point's normal: a smooth line on it (the snapped points
-                # themselves zigzag over the voxel grid, a longer slide for the same sweep)
-                samples = chord - out[:, None] * nrm[idx]
-                samples[:, 2] = np.maximum(samples[:, 2], self.lowest_z(nrm[idx]))
-                ds = np.linalg.norm(np.diff(np.vstack([a, samples]), axis=0), axis=1)
                 under = self.dirt_tree.query_ball_point(samples, self.radius)
                 counts = np.fromiter((len(u) for u in under), dtype=np.int64, count=len(under))
                 s_idx = np.repeat(np.arange(len(samples)), counts)
@@ -208,6 +246,62 @@ def dirt_island(points_m: np.ndarray, target: np.ndarray, here_m: np.ndarray, li
     return mask
 
 
+def _extreme_orderings(pred: _Predictor, cloud: SurfaceCloud, near: np.ndarray, cand_tree: cKDTree, start: int,
+                       n_corners: int) -> list[list[int]]:
+    """Polylines from ``start`` through the dirt's extreme points in every order: a stroke's ends, an X's four
+    arm tips, a letter's corners (at most :data:`N_EXTREMES`, by farthest-point sampling of the dirt), each pushed
+    out beyond the dirt by the slide its point needs and moved to the nearest candidate corner of ``near`` (found
+    in ``cand_tree``); the polylines have ``n_corners`` corners after the start (fewer with fewer extremes).
+    Random corners rarely land near all the tips of a thin marking at once, and a sweep that misses one never
+    reaches its goal."""
+    dirt = pred.dirt_tree.data
+    # the farthest from the start first, then farthest from the tips so far (not from the start: the dirt around a
+    # touch-down on a tip is cleaned only by a leg out beyond it)
+    tips = [int(np.argmax(np.linalg.norm(dirt - cloud.points[start], axis=1)))]
+    far = np.full(len(dirt), np.inf)
+    for _ in range(N_EXTREMES - 1):
+        far = np.minimum(far, np.linalg.norm(dirt - dirt[tips[-1]], axis=1))
+        if far.max() < 2.0 * pred.radius:  # the rest of the dirt is within a pad width of a tip
+            break
+        tips.append(int(np.argmax(far)))
+    # a tip is cleaned only if the pad passes beyond it: each tip away from the dirt's middle is pushed out by
+    # the slide its point needs under the pad beyond the pad's own radius (at most one more radius)
+    mid = dirt.mean(axis=0)
+    away = dirt[tips] - mid
+    dist = np.linalg.norm(away, axis=1, keepdims=True)
+    beyond = min(max(1.0 / pred.per_m - pred.radius, 0.0) + pred.step, pred.radius)
+    ends = dirt[tips] + np.where(dist > 2.0 * pred.radius, beyond * away / np.maximum(dist, 1e-12), 0.0)
+    corners = np.unique(near[cand_tree.query(ends)[1]])
+    k = min(n_corners, len(corners))
+    return [[start, *map(int, order)] for order in itertools.permutations(corners.tolist(), k)]
+
+
+def stroke_like(points_m: np.ndarray, island: np.ndarray, pad_radius_m: float, spacing_m: float) -> bool:
+    """Whether the dirt ``island`` (N,) (bool over ``points_m`` (N, 3) [m], spaced ``spacing_m`` [m]) is made of
+    strokes a pad of radius ``pad_radius_m`` [m] wipes in one pass along each: 90 % of its points lie within half a
+    pad radius of the clean surface around it or of the cloud's edge (a stroke along the view's edge or a hole in
+    the capture is still a stroke), so a pass along a stroke's middle slides at least 1.7 pad radii of the disc over
+    each of them. Then a few long legs are the quickest way (a planned sweep); over a blob as wide as the pad or
+    wider, passes side by side overlap, and the explorer's feedback does as well without a plan. The work is done
+    on the cloud within a pad radius of the island."""
+    points_m = np.asarray(points_m, dtype=float)
+    island = np.asarray(island, dtype=bool)
+    if not island.any():
+        return False
+    lo, hi = points_m[island].min(axis=0) - pad_radius_m, points_m[island].max(axis=0) + pad_radius_m
+    reach = 2.0 * spacing_m
+    wide = np.all((points_m >= lo - reach) & (points_m <= hi + reach), axis=1)
+    around = np.flatnonzero(np.all((points_m >= lo) & (points_m <= hi), axis=1))
+    # the cloud's edge: points with clearly fewer neighbours within two spacings than the cloud's interior has
+    counts = cKDTree(points_m[wide]).query_ball_point(points_m[around], reach, return_length=True)
+    edge = counts < EDGE_NEIGHBOUR_SHARE * float(np.median(counts))
+    clean_or_edge = ~island[around] | edge
+    if not clean_or_edge.any():
+        return False
+    depth, _ = cKDTree(points_m[around][clean_or_edge]).query(points_m[island])
+    return bool(np.percentile(depth, 90) <= 0.5 * pad_radius_m)
+
+
 def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: np.ndarray,
                pad_radius_m: float, removal_per_m: float, step_m: float, goal: float = 0.95,
                max_corners: int = 5, max_length_m: float = np.inf, support_z_m: float | None = None,
@@ -263,14 +357,20 @@ def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: 
         length = pred.length_to_goal(corners, goal)
         if length < np.inf:
             drawn.append((length, corners))
-    if not drawn:
-        return None
     drawn.sort(key=lambda d: d[0])
+    ordered = [(pred.length_to_goal(c, goal), c) for c in _extreme_orderings(pred, cloud, near, cand_tree, start,
+                                                                             n_corners)]
+    # a few climbs, from the best random polylines and the best ordering of the extremes: the slide's length has
+    # many local minima
+    starts = [*drawn[:N_CLIMBS], min(ordered, key=lambda d: d[0], default=(np.inf, []))]
+    starts = [(length, corners) for length, corners in starts if length < np.inf]
+    if not starts:
+        return None
     scale = 2.0 * pad_radius_m  # how far a corner moves in one refinement trial (about one pad width)
-    best_len, best = np.inf, drawn[0][1]
-    for length0, corners0 in drawn[:N_CLIMBS]:  # a few climbs: the slide's length has many local minima
+    best_len, best = np.inf, starts[0][1]
+    for length0, corners0 in starts:
         climb, climb_len = corners0, length0
-        for _ in range(N_REFINE // N_CLIMBS):
+        for _ in range(N_REFINE // len(starts)):
             k = int(rng.integers(1, len(climb)))
             trial = list(climb)
             trial[k] = int(near[cand_tree.query(cloud.points[climb[k]] + rng.normal(0.0, scale, 3))[1]])
@@ -296,4 +396,9 @@ def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: 
     waypoints = [cloud.points[used[0]][None]]
     for i, j in itertools.pairwise(used):
         waypoints.append(pred.leg(i, j)[0])
-    return SweepPlan(np.concatenate(waypoints), cloud.points[used], float(best_len), float(goal))
+    path = np.concatenate(waypoints)
+    # the last leg ends where the goal is reached, plus END_BEYOND_RADII of the pad (the pad's centre trails the
+    # agent, and rounds the corners): beyond, it would slide over what is already clean
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    path = path[: int(np.searchsorted(along, best_len + END_BEYOND_RADII * pad_radius_m, side="right")) + 1]
+    return SweepPlan(path, cloud.points[used], float(best_len), float(goal))
