@@ -342,9 +342,9 @@ def test_a_stroke_along_the_cloud_s_edge_is_still_a_stroke() -> None:
     cloud = _plane(lambda p: np.zeros(len(p)))
     edge_x = cloud.points[:, 0].max()
     strip = (cloud.points[:, 0] >= edge_x - 0.02) & (np.abs(cloud.points[:, 1]) <= 0.08)
-    assert sweep_plan.stroke_like(cloud.points, strip, R, cloud.spacing)
+    assert sweep_plan.stroke_like(cloud.points, cKDTree(cloud.points), strip, R, cloud.spacing)
     square = (cloud.points[:, 0] >= edge_x - 0.06) & (np.abs(cloud.points[:, 1]) <= 0.03)
-    assert not sweep_plan.stroke_like(cloud.points, square, R, cloud.spacing)
+    assert not sweep_plan.stroke_like(cloud.points, cKDTree(cloud.points), square, R, cloud.spacing)
 
 
 @pytest.mark.parametrize(("marking", "strokes"), [(_x, True), (_strip, True),
@@ -355,7 +355,8 @@ def test_strokes_get_a_planned_sweep_and_a_blob_the_explorer(marking, strokes: b
     radius, wider than the pad, with the explorer, and the choice is said in one line."""
     cloud = _plane(marking)
     cfg = CleanConfig()
-    assert sweep_plan.stroke_like(cloud.points, cloud.target > 0, cfg.pad_radius_m, cloud.spacing) == strokes
+    tree = cKDTree(cloud.points)
+    assert sweep_plan.stroke_like(cloud.points, tree, cloud.target > 0, cfg.pad_radius_m, cloud.spacing) == strokes
     wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
     here = cloud.points[np.flatnonzero(cloud.target > 0)[0]]
     stroke, plan, choice = _first_leg(cloud, wear, here, np.array([0.0, -0.3, 0.3]), cfg, STEP, None)

@@ -135,7 +135,7 @@ def _first_leg(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m:
     share = float(view_dirt[island].sum()) / float(view_dirt.sum())
     if share < SWEEP_MIN_SHARE:
         return None, None, f"the explorer (the island there holds {100 * share:.0f} % of the dirt, one of several)"
-    if not stroke_like(cloud.points, island, cfg.pad_radius_m, cloud.spacing):
+    if not stroke_like(cloud.points, wear.tree, island, cfg.pad_radius_m, cloud.spacing):
         return None, None, "the explorer (the dirt is a blob as wide as the pad or wider)"
     plan = plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
                       cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m, goal=SWEEP_GOAL,

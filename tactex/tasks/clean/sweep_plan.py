@@ -276,8 +276,10 @@ def _extreme_orderings(pred: _Predictor, cloud: SurfaceCloud, near: np.ndarray, 
     return [[start, *map(int, order)] for order in itertools.permutations(corners.tolist(), k)]
 
 
-def stroke_like(points_m: np.ndarray, island: np.ndarray, pad_radius_m: float, spacing_m: float) -> bool:
-    """Whether the dirt ``island`` (N,) (bool over ``points_m`` (N, 3) [m], spaced ``spacing_m`` [m]) is made of
+def stroke_like(points_m: np.ndarray, tree: cKDTree, island: np.ndarray, pad_radius_m: float,
+                spacing_m: float) -> bool:
+    """Whether the dirt ``island`` (N,) (bool over ``points_m`` (N, 3) [m], spaced ``spacing_m`` [m], whose KD-tree
+    is ``tree``) is made of
     strokes a pad of radius ``pad_radius_m`` [m] wipes in one pass along each: 90 % of its points lie within half a
     pad radius of the clean surface around it or of the cloud's edge (a stroke along the view's edge or a hole in
     the capture is still a stroke), so a pass along a stroke's middle slides at least 1.7 pad radii of the disc over
@@ -289,11 +291,9 @@ def stroke_like(points_m: np.ndarray, island: np.ndarray, pad_radius_m: float, s
     if not island.any():
         return False
     lo, hi = points_m[island].min(axis=0) - pad_radius_m, points_m[island].max(axis=0) + pad_radius_m
-    reach = 2.0 * spacing_m
-    wide = np.all((points_m >= lo - reach) & (points_m <= hi + reach), axis=1)
     around = np.flatnonzero(np.all((points_m >= lo) & (points_m <= hi), axis=1))
     # the cloud's edge: points with clearly fewer neighbours within two spacings than the cloud's interior has
-    counts = cKDTree(points_m[wide]).query_ball_point(points_m[around], reach, return_length=True)
+    counts = tree.query_ball_point(points_m[around], 2.0 * spacing_m, return_length=True)
     edge = counts < EDGE_NEIGHBOUR_SHARE * float(np.median(counts))
     clean_or_edge = ~island[around] | edge
     if not clean_or_edge.any():
