@@ -84,3 +84,25 @@ def test_start_pose_above_a_height_field_and_beside_the_cup_wall() -> None:
     assert np.allclose(r[:, 2], [0.0, 1.0, 0.0])  # the tool axis into the wall
     assert np.allclose(r[:, 0], [1.0, 0.0, 0.0]) and np.allclose(r[:, 1], [0.0, 0.0, -1.0])  # u along it, v down
     assert np.isclose(np.linalg.det(r), 1.0)
+
+
+def test_a_policy_that_waits_for_the_alignment_starts_there_and_runs_whole() -> None:
+    r = run_wipe(WipeConfig(policy_waits_for_alignment=True, record_hz=100.0), policy=POLICY, progress=False)
+    s, m = r.series, r.metrics
+    waited = m["policy_waited_s"]
+    assert 0.5 < waited < WipeConfig().align_wait_max_s  # it aligned, and then the policy started
+    assert m["aligned_at_s"] is not None and waited == pytest.approx(m["aligned_at_s"], abs=0.05)
+    before = s["t"] < waited - 0.02
+    assert before.any() and np.allclose(s["policy_uv_m"][before], 0.0)  # held at its start
+    assert np.all(s["force_set_n"][before] == 8.0)  # at its first set point
+    assert s["t"][-1] == pytest.approx(waited + 3.0, abs=0.02)  # then the whole policy
+    assert np.allclose(s["policy_uv_m"][-1], POLICY.at(3.0)[:2], atol=1e-4)
+
+
+@pytest.mark.parametrize(("kw", "match"), [
+    ({"policy_waits_for_alignment": True, "baseline": "cartesian"}, "no alignment to wait for"),
+    ({"align_wait_max_s": 0.0}, "align_wait_max_s must be a positive number"),
+])
+def test_waiting_for_the_alignment_is_checked(kw, match) -> None:
+    with pytest.raises(ConfigError, match=match):
+        WipeConfig(**kw)

@@ -135,6 +135,12 @@ class WipeConfig(SimWorldParams):
     replan_learn_gain: float = param(
         0.8, "share of the first pass's force and in-plane errors a re-plan corrects in advance at the same policy "
         "time (one step of iterative learning control, tactex.tasks.pass_learning); 0: the surface only [-]")
+    policy_waits_for_alignment: bool = param(
+        False, "hold the policy at its start, pressing with its first set point, until VA-UFIC has aligned "
+        "(ρ_align = 1; at most align_wait_max_s), then run it whole, the run that much longer: a policy that moves "
+        "while the controller is still compliant drags a tool it cannot yet carry round a strongly curved part "
+        "(the cup's wall) until it slips; VA-UFIC only")
+    align_wait_max_s: float = param(12.0, "longest the policy waits for the alignment [s]")
     passes: int = param(
         1, "1: the policy once; 2: once, then once more planned on the surface the first pass explored (as "
         "--replan-from it; the result is the second pass's, with the first's figures in its metrics' replan)")
@@ -143,7 +149,10 @@ class WipeConfig(SimWorldParams):
         super().__post_init__()
         if self.baseline not in WIPE_BASELINES:
             raise ConfigError(f"unknown baseline '{self.baseline}'; valid: cartesian (or none)")
-        for name in ("duration_s", "force_n", "camera_rate_hz"):
+        if self.policy_waits_for_alignment and self.baseline:
+            raise ConfigError(f"--policy-waits-for-alignment holds the policy until VA-UFIC aligns; the "
+                              f"{self.baseline} baseline has no alignment to wait for")
+        for name in ("duration_s", "force_n", "camera_rate_hz", "align_wait_max_s"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
@@ -597,7 +606,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
             policy.advance(loop.state, loop.t - t0)
             log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
             log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
-        while not aborted and loop.t - t0 < run_s - 1e-9:
+        while not aborted and loop.t - t0 < run_s + policy.waited_s - 1e-9:
             loop.tick(policy.reference, after_send=after_send)
     except ROBOT_STOPS as exc:
         # the robot has stopped (libfranka ends torque control on its errors; close() on ours): keep the data
@@ -634,6 +643,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "force_mae_aligned_n": float(np.mean(np.abs(f_err_al))) if f_err_al.size else float("nan"),
         "force_rmse_aligned_n": float(np.sqrt(np.mean(f_err_al**2))) if f_err_al.size else float("nan"),
         "aligned_at_s": t_aligned,
+        # [s] how long the policy waited for the alignment before it started (policy_waits_for_alignment)
+        "policy_waited_s": policy.waited_s,
         "tank_impedance_energy_j": {"min": min(log.tank_i, default=float("nan")),
                                     "max": max(log.tank_i, default=float("nan"))},
         "tank_force_energy_j": {"min": min(log.tank_f, default=float("nan")),

@@ -40,6 +40,8 @@ class WipeSettings(Protocol):
     baseline: str
     contact_threshold_n: float
     replan_lead_s: float
+    policy_waits_for_alignment: bool
+    align_wait_max_s: float
 
 
 class WipeReferences:
@@ -63,6 +65,9 @@ class WipeReferences:
         # whether the controller has aligned (ρ_align = 1): the correction, learned where the first pass was
         # aligned, is applied from where this one is, faded in over LEARN_FADE_IN_S; None: from the start
         self.aligned, self.learn_from_s = aligned, (None if aligned is not None else -LEARN_FADE_IN_S)
+        # with cfg.policy_waits_for_alignment: the run time [s] the policy started at (None: still waiting)
+        self.started_s: float | None = None if cfg.policy_waits_for_alignment and aligned is not None else 0.0
+        self.waited_s = 0.0  # [s] how long the policy has waited so far
         self.pos_ref = p_start.copy()
         self.estimate: SurfaceEstimate | None = None  # the camera's newest
         # with a re-plan: the explored surface, and how many references it placed
@@ -83,9 +88,14 @@ class WipeReferences:
         self.wrench_d = np.array([0.0, 0.0, first.force_n if self._const is None else self._const, 0.0, 0.0, 0.0])
 
     def advance(self, state, tau_t: float) -> None:
-        """:attr:`reference` at policy time ``tau_t`` [s], with the newest surface estimate and
-        ``state``'s tool frame."""
+        """:attr:`reference` at run time ``tau_t`` [s] (the policy's own time is that less :attr:`waited_s`, the
+        time it waited for the alignment), with the newest surface estimate and ``state``'s tool frame."""
         cfg = self.cfg
+        if self.started_s is None:  # waiting for the alignment: the policy's start, at its first set point
+            if self.aligned() or tau_t >= cfg.align_wait_max_s:
+                self.started_s = tau_t
+            self.waited_s = tau_t
+        tau_t = max(tau_t - self.waited_s, 0.0)  # the policy's own time
         new_estimate = self.vision.update(state)
         if new_estimate is not None:
             self.estimate = new_estimate
