@@ -102,7 +102,25 @@ def test_a_policy_that_waits_for_the_alignment_starts_there_and_runs_whole() -> 
 @pytest.mark.parametrize(("kw", "match"), [
     ({"policy_waits_for_alignment": True, "baseline": "cartesian"}, "no alignment to wait for"),
     ({"align_wait_max_s": 0.0}, "align_wait_max_s must be a positive number"),
+    ({"compliant_below": 1.0}, r"compliant_below must be a share of ρ_align in \[0, 1\)"),
+    ({"compliant_below": float("nan")}, "compliant_below must be"),
 ])
-def test_waiting_for_the_alignment_is_checked(kw, match) -> None:
+def test_waiting_for_the_alignment_and_the_compliant_share_are_checked(kw, match) -> None:
     with pytest.raises(ConfigError, match=match):
         WipeConfig(**kw)
+
+
+def test_the_compliant_share_reaches_the_controller(monkeypatch) -> None:
+    import tactex.tasks.wipe as wipe
+    from tactex.control.va_ufic import VaUficController
+
+    seen = []
+
+    class Spy(VaUficController):
+        def __init__(self, params=None, port_feedforward=None):
+            seen.append(params.compliant_below)
+            super().__init__(params, port_feedforward)
+
+    monkeypatch.setattr(wipe, "VaUficController", Spy)
+    run_wipe(WipeConfig(compliant_below=0.1, duration_s=0.05), progress=False)
+    assert seen == [0.1]

@@ -141,6 +141,11 @@ class WipeConfig(SimWorldParams):
         "while the controller is still compliant drags a tool it cannot yet carry round a strongly curved part "
         "(the cup's wall) until it slips; VA-UFIC only")
     align_wait_max_s: float = param(12.0, "longest the policy waits for the alignment [s]")
+    compliant_below: float = param(
+        VaUficParams().compliant_below, "ρ_align under which VA-UFIC counts as compliant: it feeds the tool's position "
+        "back as the desired one and re-orients the tool to the camera's normal (VaUficParams.compliant_below); above "
+        "it the variable stiffness ρ_align·K_max holds the tool, which on a convex part (the cup's wall) is too weak "
+        "for the pull of a tilted tool's pressing force until ρ_align is a good share of 1 [-]")
     passes: int = param(
         1, "1: the policy once; 2: once, then once more planned on the surface the first pass explored (as "
         "--replan-from it; the result is the second pass's, with the first's figures in its metrics' replan)")
@@ -152,6 +157,8 @@ class WipeConfig(SimWorldParams):
         if self.policy_waits_for_alignment and self.baseline:
             raise ConfigError(f"--policy-waits-for-alignment holds the policy until VA-UFIC aligns; the "
                               f"{self.baseline} baseline has no alignment to wait for")
+        if not (np.isfinite(self.compliant_below) and 0.0 <= self.compliant_below < 1.0):
+            raise ConfigError(f"compliant_below must be a share of ρ_align in [0, 1), got {self.compliant_below!r}")
         for name in ("duration_s", "force_n", "camera_rate_hz", "align_wait_max_s"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
@@ -572,7 +579,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         inner: Any = CartesianImpedanceController()
     else:
         compensator = FrictionCompensator(cfg.friction_params()) if cfg.friction_compensation else None
-        inner = VaUficController(VaUficParams(tanks_enabled=cfg.tanks_enabled), port_feedforward=compensator)
+        inner = VaUficController(VaUficParams(tanks_enabled=cfg.tanks_enabled, compliant_below=cfg.compliant_below),
+                                 port_feedforward=compensator)
     controller = NullspacePosture(inner, q_posture=q_posture)
     loop.use(controller)
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
