@@ -1,8 +1,8 @@
 """Where the arm cannot go on: a touch-down whose hover is out of reach, and a tool that can no longer follow the
 agent in contact, because a joint reached its limit's margin (the safety layer's repulsion, not the controller, then
-moves the arm) or the wall it is dragged against holds it half a pad radius behind the agent while it presses ever
-harder. Pressing on there scrapes the pad sideways at twice the set point and more: the program lifts off and
-touches down again from a posture planned afresh, or moves on."""
+moves the arm) or the wall it is dragged against holds it a pad radius behind the agent. Pressing on there scrapes
+the pad sideways at twice the set point and more: the program lifts off and touches down again from a posture
+planned afresh, or moves on."""
 
 from __future__ import annotations
 
