@@ -249,14 +249,6 @@ def test_a_clean_says_what_its_first_leg_was_and_why() -> None:
     assert lines == [f"first leg (tactex): {sweep}"]
 
 
-def test_a_clean_says_where_its_tool_could_not_follow_the_agent() -> None:
-    from tactex.experiments.run import remark_lines
-
-    lines = remark_lines([("tactex", {"regrips": 2}), ("region raster", {"regrips": 0}), ("wipe", {})])
-    assert len(lines) == 1 and lines[0].startswith("reach (tactex): lifted off 2 times where the tool could not follow")
-    assert remark_lines([("tactex", {"regrips": 1})])[0].count("1 time ") == 1
-
-
 @pytest.mark.slow
 def test_a_run_whose_safety_layer_stepped_in_says_so_in_its_last_lines(tmp_path, capsys, monkeypatch) -> None:
     """A clean at 60 N retreated 22 times and the terminal said only "dirt removed 43.6 %"."""

@@ -250,22 +250,6 @@ def test_joint_limit_repulsion():
     assert layer.events[-1].kind == "joint_limit"
 
 
-@pytest.mark.parametrize("compiled", [True, False])
-def test_repelling_says_whether_the_last_command_pushed_a_joint_from_its_limit(compiled):
-    layer, _ = _layer(np.zeros(N_JOINTS), tau_rate_max=1e6)
-    if not compiled:
-        layer._limit_kernel = None
-    assert not layer.repelling
-    q = Q_MID.copy()
-    layer.torque(_state(0, q=q), None)
-    assert not layer.repelling
-    q[3] = FRANKA_Q_MAX[3] - 0.05
-    layer.torque(_state(1, q=q), None)
-    assert layer.repelling
-    layer.torque(_state(2, q=Q_MID), None)
-    assert not layer.repelling
-
-
 def test_wrong_joint_count_is_a_config_error():
     layer, _ = _layer(np.zeros(N_JOINTS))
     bad = replace(_state(0), q=np.zeros(6), dq=np.zeros(6))

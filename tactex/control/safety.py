@@ -264,12 +264,6 @@ class SafetyLayer(Controller):
     def retreating(self) -> bool:
         return self._retreat_until is not None
 
-    @property
-    def repelling(self) -> bool:
-        """A joint was within ``joint_limit_margin`` of its limit at the last command: the repulsion acts, and
-        a task in contact is being pushed by it, not by its controller."""
-        return self._held
-
     # -- the tick ---------------------------------------------------------------------------
     def _hold(self) -> list[float]:
         """The last command, decayed by one tick of ``hold_decay_time``."""

@@ -257,18 +257,8 @@ def run_remarks(metrics: Mapping[str, Any]) -> list[tuple[str, str]]:
     wipe learned (:func:`learning_summary`) and a clean's first leg in contact (a planned sweep over strokes, the
     explorer over a blob: ``first_leg``), each only when there is something to say."""
     said = (("safety layer", safety_summary(metrics)), ("motion", alignment_summary(metrics)),
-            ("re-plan", learning_summary(metrics)), ("first leg", metrics.get("first_leg") or ""),
-            ("reach", _regrip_line(metrics.get("regrips") or 0)))
+            ("re-plan", learning_summary(metrics)), ("first leg", metrics.get("first_leg") or ""))
     return [(topic, line) for topic, line in said if line]
-
-
-def _regrip_line(regrips: int) -> str:
-    """A clean's lift-offs where the tool could not follow its agent (``regrips``), or nothing."""
-    if not regrips:
-        return ""
-    times = f"{regrips} time{'s' if regrips != 1 else ''}"
-    return (f"lifted off {times} where the tool could not follow the agent (a joint at its limit's margin, or held "
-            "back half a pad radius behind it), to touch down again from a posture planned afresh or elsewhere")
 
 
 def summary_table(rows: Mapping[str, Mapping[str, Any]] | Sequence[tuple[str, Mapping[str, Any]]]) -> str:

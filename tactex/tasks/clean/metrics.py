@@ -43,10 +43,6 @@ def clean_metrics(program: Any, series: dict[str, np.ndarray]) -> dict:
         # far joint moves from low over the object that went up to the capture posture first
         # (motion.LOW_MOVE_MAX_JOINT_RAD)
         "moves_via_capture": program.moves_via_capture,
-        # lift-offs in contact where the tool could not follow the agent (a joint at its limit's margin, or held back
-        # half a pad radius behind it: tactex.tasks.clean.reach), each to a touch-down planned afresh (counted in
-        # island_relocations too) or to the camera
-        "regrips": program.n_regrips,
         "island_strokes": program.n_strokes,
         # what the first leg in contact was and why (legs._first_leg: a stroke, a planned sweep or the explorer)
         "first_leg": program.first_leg_choice,

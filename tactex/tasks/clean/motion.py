@@ -227,19 +227,15 @@ def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndar
 
 
 def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4,
-              pressing: LineForceReference | None = None, release_at_m: np.ndarray | None = None) -> None:
+              pressing: LineForceReference | None = None) -> None:
     """Back along the tool axis by ``distance_m`` [m] in steps of at most :data:`RETRACT_STEP_M`, each
     re-linearised where the last ended, taking ``duration_s`` [s] at least. From contact (``pressing``: the
     reference the pressing controller was last given), the force first ramps to zero along its line over
-    :data:`UNLOAD_S`, while the line moves smoothly to ``release_at_m`` (3,) [m] if given (where a tool held
-    back from its line is: the line would drag it on, and a jump of the line is a step in the torque)."""
+    :data:`UNLOAD_S`."""
     if pressing is not None and pressing.force_n > 0.0:
         t0 = loop.t
-        p0 = pressing.point_world
-        shift = None if release_at_m is None else np.asarray(release_at_m, dtype=float) - p0
         while (left := 1.0 - (loop.t - t0) / UNLOAD_S) > 0.0:
-            point = p0 if shift is None else p0 + (1.0 - left) ** 2 * (1.0 + 2.0 * left) * shift  # smoothstep
-            loop.tick(LineForceReference(point, pressing.normal_world, pressing.force_n * left))
+            loop.tick(LineForceReference(pressing.point_world, pressing.normal_world, pressing.force_n * left))
     n = max(int(np.ceil(distance_m / RETRACT_STEP_M - 1e-9)), 1)
     for _ in range(n):
         loop.retract(distance_m / n, duration_s=duration_s / n)

@@ -26,7 +26,7 @@ from tactex.sim.dirt import PrestonParams
 from tactex.sim.scene import SceneConfig
 from tactex.spectral.basis import build_basis
 from tactex.spectral.modes import auto_n_eigen
-from tactex.tasks.clean import legs, motion, reach
+from tactex.tasks.clean import legs, motion
 from tactex.tasks.clean.bound import CleanBound
 from tactex.tasks.clean.config import RASTER_BASELINES, CleanConfig
 from tactex.tasks.clean.legs import MAX_HOLD_STEPS, _after_stroke, _Legs, _WearTicks
@@ -138,7 +138,6 @@ class _Contact:
         self.covered = False  # the phase ends after this tick: the dirt is gone by the model (or the coverage)
         self.relocation: RelocationCommand | None = None  # the explorer's flight that ends the phase
         self.relocate_to: np.ndarray | None = None  # the island [m] a lift-off goes to
-        self.release_at: np.ndarray | None = None  # [m] where a tool that could not follow is unloaded (reach)
         self.t_phase = now_s
         self.predicted_left: list[float] = []  # the wear model's remaining fraction at each update
         # done when the model says the camera would stop (see CleanProgram._contact)
@@ -330,9 +329,7 @@ class CleanProgram:
                             if cfg.line_normal_feedback > 0 else None)
         self.vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
         self.islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
-        self.island_moves = self.moves_via_capture = self.n_regrips = 0  # those relocations; far moves via the capture
-        # posture; lift-offs where the tool could not follow the agent
-        self.regrips: list[np.ndarray] = []  # [m] where the tool could not follow the agent since the last view
+        self.island_moves = self.moves_via_capture = 0  # those relocations; far moves via the capture posture
         # control ticks between wear-model updates (the pad moves well under a millimetre)
         self.wear_ticks = _WearTicks(wear, self.backend.dt, every=10) if wear is not None else None
         # the posture of the capture pose keeps the redundant elbow where it was planned
@@ -525,21 +522,35 @@ class CleanProgram:
         try:
             return motion._hover_plan(self.loop, cmd.point, cmd.normal, self.q_capture, cfg.hover_height_m)
         except SimulationError:
+            island = None
+            if self.wear is not None:
+                self.islands_tried.append(cmd.point.copy())
+                island = self.wear.next_island(cmd.point, self.islands_tried, 2.0 * cfg.pad_radius_m,
+                                               self.touch_down_ok)
             if self.wear is None:
                 if cfg.baseline not in RASTER_BASELINES:
                     raise
-                # a raster's touch-down out of reach (a bowl's rim): on along its path (None), or False at its end
-                if (nxt := legs.skip_along(self.path, cmd.point, cfg.baseline.replace("_", " "))) is None:
-                    return False
-                self.cmd, self.new_leg = nxt, True
-                return None
-            island = reach.past_hover(cmd.point, self.wear, self.islands_tried, cfg.pad_radius_m, self.touch_down_ok)
+                return self._skip_along_raster()
             if island is None:
+                warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach and "
+                              "no other dirt left to the wear model; ending the program", RuntimeWarning,
+                              stacklevel=2)
                 return False
+            warnings.warn(f"clean: no hover pose over {np.round(cmd.point, 3).tolist()} m within reach; "
+                          f"moving on to the dirt at {np.round(island, 3).tolist()} m", RuntimeWarning,
+                          stacklevel=2)
             # a stroke planned there goes with it: the new island starts a leg of its own
             self.stroke, self.new_leg = None, True
             self.cmd = self.legs.restart(island)
             return None
+
+    def _skip_along_raster(self) -> bool | None:
+        """A raster's touch-down out of reach (a bowl's rim): on along its path (None), or False at its end."""
+        cmd = legs.skip_along(self.path, self.cmd.point, self.cfg.baseline.replace("_", " "))
+        if cmd is None:
+            return False
+        self.cmd, self.new_leg = cmd, True
+        return None
 
     # -- 3b. explore ------------------------------------------------------------------------------------------
     def explore(self) -> bool:
@@ -560,7 +571,7 @@ class CleanProgram:
                 c.prev, c.n_prev, c.next_step = self.cmd, c.n_next, c.next_step + self.dt_step
             elif due and not self._step(c):
                 break
-            if not self._tick(c) or (self.wear is not None and self._regrip(c)):
+            if not self._tick(c):
                 break
         if self.wear_ticks is not None:
             self.wear_ticks.settle()  # the phase's last tick
@@ -574,23 +585,13 @@ class CleanProgram:
         if c.relocate_to is not None:
             # to the next island through the air: lift off here, then the hover and approach
             self.log.activity("retract", "transit")
-            _lift_off(loop, RETRACT_M, pressing=self.pressing, release_at_m=c.release_at)
+            _lift_off(loop, RETRACT_M, pressing=self.pressing)
             self.island_moves += 1
             self.leg_from, self.new_leg, self.t_move = self.cmd.point, True, loop.t
             self._end_stroke()
             self.cmd = self.legs.restart(c.relocate_to)
             return True
         return False
-
-    def _regrip(self, c: _Contact) -> bool:
-        """True when the tool cannot follow the agent (:mod:`.reach`): a lift-off to a new touch-down or the camera."""
-        if (why := reach.cannot_follow(self.loop, self.cmd, self.cfg.pad_radius_m, self.cfg.force_n)) is not None:
-            c.relocate_to = reach.regrip_at(self.cmd.point, self.regrips, self.wear, self.islands_tried,
-                                             self.cfg.pad_radius_m, self.touch_down_ok)
-            c.covered, self.n_regrips = c.relocate_to is None, self.n_regrips + 1
-            c.release_at = self.loop.state.ee_position.copy()
-            self.bar.note(f"lifting off at {np.round(self.loop.state.ee_position, 3).tolist()} m: {why}")
-        return why is not None
 
     def _contact(self) -> _Contact:
         """A new contact phase's state, with the step taken ahead of the tick that needs it."""
@@ -765,7 +766,6 @@ class CleanProgram:
         if self.wear is not None:
             self.wear.reset(mass)  # the camera's view replaces the prediction
             self.islands_tried.clear()
-            self.regrips.clear()
         # restart from the dirt nearest to where the robot is
         left = _touchable(np.flatnonzero(mass > 0), self.touch_down_ok)
         x0 = cloud.points[left[np.argmin(np.linalg.norm(cloud.points[left] - self.cmd.point, axis=1))]]
