@@ -86,14 +86,14 @@ def _one(obj: str, marking: str, baseline: str, seed: int, budget_s: float) -> d
         nan = float("nan")
         return {"t95": nan, "reached": 0.0, "removed": nan, "within": nan, "max_force": nan, "sim": nan,
                 "vision": nan, "breakdown": {}, "breakdown_to_95": {}, "start_plan": nan, "ideal": nan,
-                "ideal_parts": {}, "area": nan, "clips": 0, "regrips": 0, "error": f"{type(exc).__name__}: {exc}"}
+                "ideal_parts": {}, "area": nan, "clips": 0, "error": f"{type(exc).__name__}: {exc}"}
     t95 = m["time_to_95pct_s"]
     return {"t95": m["sim_time_s"] if t95 is None else t95, "reached": float(t95 is not None),
             "removed": m["dirt_removed_fraction"], "within": m["force_within_20pct_fraction"],
             "max_force": m["max_contact_force_n"], "sim": m["sim_time_s"], "vision": m["vision_updates"],
             "breakdown": m["time_breakdown_s"], "breakdown_to_95": m["time_breakdown_to_95pct_s"] or {},
             "start_plan": m["start_plan_time_s"], "ideal": m["ideal_time_s"], "ideal_parts": m["ideal_time_parts_s"],
-            "area": m["dirty_area_m2"], "clips": m["torque_rate_clip_ticks"], "regrips": m.get("regrips", 0)}
+            "area": m["dirty_area_m2"], "clips": m["torque_rate_clip_ticks"]}
 
 
 def _case(obj: str, marking: str, seeds: tuple[int, ...], budget_s: float = CleanConfig().budget_s) -> dict:
@@ -125,8 +125,6 @@ def _case(obj: str, marking: str, seeds: tuple[int, ...], budget_s: float = Clea
             "dirty_area_m2": float(np.mean([r["area"] for r in runs])),
             "time_to_95pct_over_ideal": float(np.mean([r["t95"] / r["ideal"] for r in runs])),
             "torque_rate_clip_ticks": int(max(r["clips"] for r in runs)),
-            # lift-offs where the tool could not follow the agent (tactex.tasks.clean.reach), summed over the seeds
-            "regrips": int(sum(r["regrips"] for r in runs)),
             "n_seeds": len(runs),
             "budget_s": budget_s,
             "failed_runs": sum("error" in r for r in runs),
