@@ -65,8 +65,8 @@ class WipeReferences:
         # whether the controller has aligned (ρ_align = 1): the correction, learned where the first pass was
         # aligned, is applied from where this one is, faded in over LEARN_FADE_IN_S; None: from the start
         self.aligned, self.learn_from_s = aligned, (None if aligned is not None else -LEARN_FADE_IN_S)
-        # with cfg.policy_waits_for_alignment: the run time [s] the policy started at (None: still waiting)
-        self.started_s: float | None = None if cfg.policy_waits_for_alignment and aligned is not None else 0.0
+        # with cfg.policy_waits_for_alignment: the policy held at its start until the controller aligns
+        self.waiting = cfg.policy_waits_for_alignment and aligned is not None
         self.waited_s = 0.0  # [s] how long the policy has waited so far
         self.pos_ref = p_start.copy()
         self.estimate: SurfaceEstimate | None = None  # the camera's newest
@@ -91,10 +91,9 @@ class WipeReferences:
         """:attr:`reference` at run time ``tau_t`` [s] (the policy's own time is that less :attr:`waited_s`, the
         time it waited for the alignment), with the newest surface estimate and ``state``'s tool frame."""
         cfg = self.cfg
-        if self.started_s is None:  # waiting for the alignment: the policy's start, at its first set point
-            if self.aligned() or tau_t >= cfg.align_wait_max_s:
-                self.started_s = tau_t
+        if self.waiting:  # the policy's start, at its first set point, until the alignment (or the longest wait)
             self.waited_s = tau_t
+            self.waiting = not (self.aligned() or tau_t >= cfg.align_wait_max_s)
         tau_t = max(tau_t - self.waited_s, 0.0)  # the policy's own time
         new_estimate = self.vision.update(state)
         if new_estimate is not None:
