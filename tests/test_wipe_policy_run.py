@@ -96,6 +96,7 @@ def test_a_policy_that_waits_for_the_alignment_starts_there_and_runs_whole() -> 
     assert before.any() and np.allclose(s["policy_uv_m"][before], 0.0)  # held at its start
     assert np.all(s["force_set_n"][before] == 8.0)  # at its first set point
     assert s["t"][-1] == pytest.approx(waited + 3.0, abs=0.02)  # then the whole policy
+    assert m["explore_time_s"] == pytest.approx(waited + 3.0 - m["first_contact_s"], abs=0.02)  # the wait counts
     assert np.allclose(s["policy_uv_m"][-1], POLICY.at(3.0)[:2], atol=1e-4)
 
 

@@ -663,7 +663,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "contact_fraction_after_first_contact": n_contact / max(after_first, 1),
         "first_contact_s": first_contact,
         # time spent exploring in contact: from the first touch to the end of the policy
-        "explore_time_s": (run_s - first_contact) if first_contact is not None else None,
+        "explore_time_s": (run_s + policy.waited_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
         # the highest contact force as a multiple of the policy's set point at its tick
         "max_force_over_set_point": float(np.max(np.asarray(forces) / f_set)) if f_set.size else float("nan"),
