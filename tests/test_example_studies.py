@@ -31,6 +31,6 @@ def test_the_cup_policies_are_sized_for_its_wall(monkeypatch) -> None:
     monkeypatch.chdir(ROOT)
     from tactex.errors import PolicyFileError
 
-    with pytest.raises(PolicyFileError, match="leaves the cup's surface"):
+    with pytest.raises(PolicyFileError, match="leaves the cup's wall"):
         WipeConfig(object_name="cup", policy="examples/policies/sinusoid.toml", start_y_m=0.0)
     WipeConfig(object_name="cup", policy="examples/policies/cup/sinusoid.toml", start_y_m=0.0)

@@ -152,10 +152,10 @@ def test_samples_file_is_found_beside_the_policy_file(tmp_path) -> None:
 
 
 def test_the_cup_wall_reach_is_its_arc_and_height(monkeypatch) -> None:
-    WipeConfig(object_name="cup", policy=str(EXAMPLES / "spiral.toml"))  # 3.5 cm around mid-height: on the wall
+    WipeConfig(object_name="cup", policy=str(EXAMPLES / "cup" / "spiral.toml"))  # the cup's own: on the wall
     # the sinusoid drifts 8 cm down the tool's −y, which beside the wall is up: above the 10 cm rim
     with pytest.raises(ConfigError, match=r"segment 1 \(sinusoid\): amplitude_m/omega_rad_s: the path leaves the "
-                                          r"cup's surface"):
+                                          r"cup's wall"):
         WipeConfig(object_name="cup", policy=str(EXAMPLES / "sinusoid.toml"))
     import types
 
@@ -164,3 +164,18 @@ def test_the_cup_wall_reach_is_its_arc_and_height(monkeypatch) -> None:
     monkeypatch.setattr(wp, "object_or_part", lambda name, units="m": types.SimpleNamespace(surface=object()))
     with pytest.raises(ConfigError, match="neither"):
         wp.check_wipe_policy(WipeConfig(), load_policy_file(EXAMPLES / "spiral.toml"))
+
+
+def test_the_cup_wall_keeps_the_pad_above_the_table(tmp_path) -> None:
+    # from mid-height (5 cm) a figure eight 5 cm tall reaches 2.5 cm: the 2.5 cm pad, on its edge, touches the table
+    # just below that; one 4.8 cm tall stays on the wall
+    def figure8(height_m: float) -> Path:
+        path = tmp_path / f"f8_{height_m}.toml"
+        path.write_text(f'[[segment]]\nkind = "figure8"\nduration_s = 12.0\nforce_n = 12.0\nwidth_m = 0.025\n'
+                        f"height_m = {height_m}\n")
+        return path
+
+    WipeConfig(object_name="cup", policy=str(figure8(0.048)))
+    with pytest.raises(ConfigError, match=r"segment 1 \(figure8\): width_m/height_m: the path leaves the cup's wall "
+                                          r"\(.*the pad's centre at least the pad's radius, 25 mm, above the table\)"):
+        WipeConfig(object_name="cup", policy=str(figure8(0.052)))

@@ -11,13 +11,18 @@ Per tick:
    interpolated over T (eq. 28–29); the energy that moving R_d puts into the constant rotational
    spring is paid from the impedance tank (R_d waits while the tank cannot pay), so eq. 64's storage
    stays a storage;
+   In contact the tool's tangent plane (tool x, y) keeps a stiffness of at least ``tangent_hold``·K_max:
+   while compliant a spring to where the tool touched down, above it a floor under ρ_align K_max
+   (see ``tangent_hold``; 0 gives the paper's law);
 5. force shaping ρ_frc (eq. 30) with margin δ_c;
 6. energy tanks (eq. 37–45, 55–63) and the final law eq. 72–73:
    f = −K_const x̃ − D ẋ + σ_i (−ρ_align K_max x̃ + D ẋ_d) + ρ_frc (λ + σ_f (1−λ)) f_f,  τ = Jᵀ f,
+   (with the tangential hold of step 4 in the variable spring's place on tool x, y),
    where the damping feed-forward D ẋ_d (``damping_feedforward``, on by default; eq. 8 has none)
    shares the impedance tank's port with the variable spring, as does any extra active wrench of
    a ``port_feedforward`` (e.g. :class:`tactex.control.friction.FrictionCompensator`; none by
-   default, the wiping task turns it on): the tank pays for whatever is added there.
+   default, the wiping task turns it on), and the tangential hold: the tank pays for whatever is
+   added there.
 
 Where the other equations live: eq. 1–2 and 13 are the torque interface (gravity added by the
 robot), eq. 7–12 :mod:`tactex.control.ufic`, eq. 14–16 :mod:`tactex.perception` (θ is re-evaluated
@@ -81,6 +86,15 @@ class VaUficParams:
         "ρ_align under which the robot counts as fully compliant (the paper's ρ_align = 0): with ρ_min > 0, "
         "eq. 20–21 settle at −ρ_min/h > 0 when misaligned and never reach 0 exactly [-]",
     )
+    tangent_hold: float = param(
+        0.5,
+        "share of K_max,t kept in the tool's tangent plane (x, y) while in contact (f_z ≥ the UFIC contact "
+        "threshold), whatever ρ_align: pressing f_d on a convex part of radius r acts on the tool as a tangential "
+        "stiffness of −f_d/r (−375 N/m at 15 N on a 4 cm cup), which the paper's compliance (ρ_align ≈ 0, the "
+        "position fed back) leaves unopposed, so the tool rolls round the part and off it. While compliant it is a "
+        "spring to where the tool touched down; above, a floor under ρ_align. Both through the impedance tank's "
+        "port. 0: the paper's law [-]",
+    )
     stiffness_const: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 0.0, 200.0, 200.0, 200.0),
         "K_const, tool frame (eq. 56); the rotational part of K_max is kept constant (eq. 19 shapes "
@@ -110,7 +124,8 @@ class VaUficParams:
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and > 0, got {v!r}")
-        for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age", "compliant_below"):
+        for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age", "compliant_below",
+                     "tangent_hold"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and ≥ 0, got {v!r}")
@@ -180,6 +195,8 @@ class VaUficController(UficController):
         self._neg_k_const_f = tuple((-self._k_const).tolist())  # the same gains as Python floats (hot path)
         self._k_max_t_f = tuple(self._k_max_t.tolist())
         self._offset = (0.0, 0.0, 0.0)
+        # where the tool touched down while compliant (world [m]): the tangential hold's anchor; None out of it
+        self._anchor: tuple[float, float, float] | None = None
         # R_d and R_init as rows of Python floats (see tactex.geometry.so3: the re-orienting tick is
         # cheaper on floats than with numpy 3×3 products)
         self._rot_d: list[list[float]] | None = None
@@ -258,6 +275,7 @@ class VaUficController(UficController):
             self._port_feedforward.reset()
         self._shaper.reset()
         self._offset = (0.0, 0.0, 0.0)
+        self._anchor = None
         self._realign = None
         self._raw = None
 
@@ -338,6 +356,18 @@ class VaUficController(UficController):
         h = alignment_coefficient(c, v.c_margin)  # eq. 18
         rho_align = self._shaper.step(h, dt)  # eq. 20–21
 
+        # the tangential hold (tangent_hold): in contact, a spring to the touch-down point while compliant
+        hold = v.tangent_hold if wm[2] >= self.params.contact_threshold_n else 0.0
+        a0 = a1 = 0.0
+        if rho_align <= v.compliant_below and hold > 0.0:
+            if self._anchor is None:
+                self._anchor = (px, py, pz)
+            qx, qy, qz = px - self._anchor[0], py - self._anchor[1], pz - self._anchor[2]
+            a0 = -hold * self._k_max_t_f[0] * (r00 * qx + r10 * qy + r20 * qz)
+            a1 = -hold * self._k_max_t_f[1] * (r01 * qx + r11 * qy + r21 * qz)
+        else:
+            self._anchor = None
+
         if rho_align <= v.compliant_below:  # fully compliant: feed the actual translation back as desired
             self._offset = (px - dx, py - dy, pz - dz)
             e0 = e1 = e2 = 0.0
@@ -368,8 +398,9 @@ class VaUficController(UficController):
         # damping_feedforward the damping acts on the velocity error; its active part +D ẋ_d joins the
         # variable spring at the impedance tank's port (both are non-passive), so σ_i scales both.
         neg_rho = -rho_align
+        neg_t = -hold if rho_align < hold else neg_rho  # the hold's floor in the tangent plane
         k0, k1, k2, k3, k4, k5 = self._k_max_t_f
-        port = [neg_rho * k0 * e0, neg_rho * k1 * e1, neg_rho * k2 * e2,  # −K_var(t)·x̃, eq. 56
+        port = [neg_t * k0 * e0 + a0, neg_t * k1 * e1 + a1, neg_rho * k2 * e2,  # −K_var(t)·x̃, eq. 56
                 neg_rho * k3 * e3, neg_rho * k4 * e4, neg_rho * k5 * e5]
         if v.damping_feedforward:
             ux, uy, uz, qx, qy, qz = reference.twist_world.tolist()

@@ -81,6 +81,7 @@ class CompiledTick:
                                         (m.P_TF_ON, m.P_TF_UP, m.P_TF_LOW, m.P_TF_BAND, c._tank_f)):
             kp[on], kp[up], kp[low], kp[band] = float(tank.enabled), tank.upper, tank.lower, tank.band
         kp[m.P_TF_LAM_BAND] = c._tank_f.lambda_band_w
+        kp[m.P_HOLD] = v.tangent_hold
         ff = c._port_feedforward
         if ff is not None:
             p = ff.params
@@ -101,6 +102,8 @@ class CompiledTick:
         ks[m.S_D:m.S_D + 6] = c._d_tool_f
         ks[m.S_RHO] = c._shaper.rho
         ks[m.S_OFFSET:m.S_OFFSET + 3] = c._offset
+        ks[m.S_ANCHOR_OK] = float(c._anchor is not None)
+        ks[m.S_ANCHOR:m.S_ANCHOR + 3] = c._anchor if c._anchor is not None else 0.0
         ks[m.S_ROT_D_OK] = float(c._rot_d is not None)
         ks[m.S_ROT_D:m.S_ROT_D + 9] = np.ravel(c._rot_d) if c._rot_d is not None else 0.0
         ks[m.S_RE_ON] = float(c._realign is not None)
@@ -155,6 +158,7 @@ class CompiledTick:
         c._d_tool = np.array(c._d_tool_f)
         c._shaper.rho = ks[m.S_RHO]
         c._offset = tuple(ks[m.S_OFFSET:m.S_OFFSET + 3])
+        c._anchor = tuple(ks[m.S_ANCHOR:m.S_ANCHOR + 3]) if ks[m.S_ANCHOR_OK] else None
         rows = ks[m.S_ROT_D:m.S_ROT_D + 9]
         c._rot_d = [rows[0:3], rows[3:6], rows[6:9]] if ks[m.S_ROT_D_OK] else None
         if ks[m.S_RE_ON]:

@@ -45,7 +45,9 @@ S_TANK_F = 59  # 12: the same and damping_harvested_w
 S_FRIC = 71  # 11: f0, f1, started, a, a_dt, last (6)
 S_RAW = 82  # 16: ρ_align, ρ_frc, C, h, θ, l_s, usable, σ_i, m_f, f_err, x̃^ee (6)
 S_RAW_OK = 98  # 1: S_RAW holds a tick
-S_SIZE = 99
+S_ANCHOR_OK = 99  # 1: the tangential hold's anchor is set
+S_ANCHOR = 100  # 3: where the tool touched down while compliant, world [m]
+S_SIZE = 103
 # offsets inside a tank's block
 T_ENERGY, T_DELIVERED, T_HARVESTED, T_HAS_LAST, T_LAST, T_DAMP_HARVESTED = 0, 1, 2, 3, 4, 11
 
@@ -62,7 +64,8 @@ P_TI_ON, P_TI_UP, P_TI_LOW, P_TI_BAND = 48, 49, 50, 51
 P_TF_ON, P_TF_UP, P_TF_LOW, P_TF_BAND = 52, 53, 54, 55
 P_FR_ON, P_FR_GAIN, P_FR_CUTOFF, P_FR_MU, P_FR_MAX = 56, 57, 58, 59, 60
 P_TF_LAM_BAND = 61  # the force tank's λ ramp [W] (ForceTank.lambda_band_w)
-P_SIZE = 62
+P_HOLD = 62  # VaUficParams.tangent_hold [-]
+P_SIZE = 63
 
 OK = 0
 FAULT_FRICTION_FORCE = 1  # the friction feed-forward got a non-finite measured force
@@ -338,6 +341,25 @@ def _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls):
 
 
 @_jit
+def _tangent_hold(ks, kp, rl, px, py, pz, fz, rho_align):
+    """The tangential hold (VaUficParams.tangent_hold): (its share now, the anchor spring's tool x and y
+    force [N]); the anchor set at the first compliant tick in contact, cleared otherwise."""
+    hold = kp[P_HOLD] if fz >= kp[P_CONTACT_N] else 0.0
+    a0 = 0.0
+    a1 = 0.0
+    if rho_align <= kp[P_COMPLIANT] and hold > 0.0:
+        if ks[S_ANCHOR_OK] == 0.0:
+            ks[S_ANCHOR_OK] = 1.0
+            ks[S_ANCHOR], ks[S_ANCHOR + 1], ks[S_ANCHOR + 2] = px, py, pz
+        qx, qy, qz = px - ks[S_ANCHOR], py - ks[S_ANCHOR + 1], pz - ks[S_ANCHOR + 2]
+        a0 = -hold * kp[P_K_MAX_T] * (rl[0] * qx + rl[3] * qy + rl[6] * qz)
+        a1 = -hold * kp[P_K_MAX_T + 1] * (rl[1] * qx + rl[4] * qy + rl[7] * qz)
+    else:
+        ks[S_ANCHOR_OK] = 0.0
+    return hold, a0, a1
+
+
+@_jit
 def _go_compliant(ks, kp, rl, ox, oy, oz, usable, zx, zy, zz, t):
     """Compliant (ρ_align low): the position offset ``o`` [m] fed back, and a re-orientation to the surface
     normal started when the tool is tilted from it. Returns OK or FAULT_ROTATION."""
@@ -501,6 +523,7 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
     usable, theta, ls, zx, zy, zz = _surface(surf_ok, normal, curvature, r02, r12, r22)
     wm = _filter_wrench(ks, kp, dt, wrench)
     c, h, rho_align = _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls)
+    hold, a0, a1 = _tangent_hold(ks, kp, rl, px, py, pz, wm[2], rho_align)
     if rho_align <= kp[P_COMPLIANT]:
         e0 = e1 = e2 = 0.0
         code = _go_compliant(ks, kp, rl, px - dx, py - dy, pz - dz, usable, zx, zy, zz, t)
@@ -519,8 +542,9 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
 
     # the variable stiffness's port wrench, and the damping feed-forward of the reference's twist
     neg_rho = -rho_align
+    neg_t = -hold if rho_align < hold else neg_rho  # the hold's floor in the tangent plane
     km = P_K_MAX_T
-    p0, p1, p2 = neg_rho * kp[km] * e0, neg_rho * kp[km + 1] * e1, neg_rho * kp[km + 2] * e2
+    p0, p1, p2 = neg_t * kp[km] * e0 + a0, neg_t * kp[km + 1] * e1 + a1, neg_rho * kp[km + 2] * e2
     p3, p4, p5 = neg_rho * kp[km + 3] * e3, neg_rho * kp[km + 4] * e4, neg_rho * kp[km + 5] * e5
     if kp[P_DAMP_FF] != 0.0:
         ux, uy, uz, qx, qy, qz = ref_twist[0], ref_twist[1], ref_twist[2], ref_twist[3], ref_twist[4], ref_twist[5]

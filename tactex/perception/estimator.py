@@ -36,6 +36,7 @@ import numpy as np
 
 from tactex.config import param
 from tactex.errors import CloudError, ConfigError, PerceptionError
+from tactex.perception.axis_normal import normal_at_axis
 from tactex.perception.depth import check_pose, depth_in_meters
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.frame import CameraFrame, CameraIntrinsics
@@ -69,6 +70,10 @@ class SurfaceEstimatorConfig:
     curvature_threshold: float = param(0.05, "region growing: max curvature of a growing point [-]")
     min_cluster_size: int = param(50, "region growing: smallest segment [points]")
     max_cluster_size: int = param(1_000_000, "region growing: largest segment [points]")
+    normal_at_axis: bool = param(
+        False, "the normal where the tool axis meets the segment, from a quadric fitted to it "
+        "(tactex.perception.axis_normal); False: PCA's normal, the paper's, which on a curved part is the normal "
+        "near the segment's centroid, off the axis on the side the camera sees")
 
     def __post_init__(self) -> None:
         for name in ("roi_radius_m", "depth_window_m", "capture_radius_m", "normal_radius_m", "edge_gate"):
@@ -328,13 +333,15 @@ class SurfaceEstimator:
             pca = segment_pca(points[seg])
         except CloudError as exc:
             return SurfaceEstimate.invalid(ts, f"segment PCA failed: {exc}", n_valid)
-        theta = orientation_error(pca.normal, patch.axis_dir)
+        normal = normal_at_axis(points[seg], pca, patch.axis_origin, patch.axis_dir) if cfg.normal_at_axis \
+            else pca.normal
+        theta = orientation_error(normal, patch.axis_dir)
         rot, trans = patch.world_T_camera[:3, :3], patch.world_T_camera[:3, 3]
         est = SurfaceEstimate(
             valid=True,
             timestamp=ts,
-            normal_camera=pca.normal,
-            normal_world=rot @ pca.normal,
+            normal_camera=normal,
+            normal_world=rot @ normal,
             e1_world=rot @ pca.e1,
             e2_world=rot @ pca.e2,
             centroid_world=rot @ pca.centroid + trans,

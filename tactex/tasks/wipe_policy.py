@@ -36,14 +36,18 @@ __all__ = ["check_wipe_policy", "policy_segments", "wipe_limits", "wipe_policy"]
 def wipe_limits(cfg: Any) -> PolicyLimits:
     """Speed, acceleration, force range and reach a wipe allows a policy."""
     surface = object_or_part(cfg.object_name, cfg.units).surface
-    inside = None
+    inside, hint = None, f"the {cfg.object_name}'s surface"
     if isinstance(surface, CylinderWallSurface):
         half_arc_m = np.deg2rad(min(surface.arc_deg, 360.0)) / 2 * surface.radius_m
         z0, top = 0.5 * surface.height_m, surface.height_m
+        # the pad stands on its edge against the wall: its centre cannot come nearer the table than its radius
+        bottom = cfg.scene().tool.pad_radius_m
+        hint = (f"the {cfg.object_name}'s wall (its arc, and its height with the pad's centre at least the pad's "
+                f"radius, {1e3 * bottom:.0f} mm, above the table)")
 
         def inside(u: np.ndarray, v: np.ndarray) -> np.ndarray:  # u along the wall, v down it
             z = z0 - np.asarray(v)
-            return (np.abs(np.asarray(u)) <= half_arc_m) & (z >= 0.0) & (z <= top)
+            return (np.abs(np.asarray(u)) <= half_arc_m) & (z >= bottom) & (z <= top)
     elif isinstance(surface, HeightFieldSurface):
         y0 = cfg.start_y_m
 
@@ -51,7 +55,7 @@ def wipe_limits(cfg: Any) -> PolicyLimits:
             return surface.inside(np.asarray(u), y0 - np.asarray(v))
     return PolicyLimits(max_speed_m_s=cfg.policy_max_speed_m_s, max_accel_m_s2=cfg.policy_max_accel_m_s2,
                         min_force_n=cfg.contact_threshold_n, max_force_n=MAX_FORCE_SET_POINT_N, inside=inside,
-                        reach_hint=f"the {cfg.object_name}'s surface")
+                        reach_hint=hint)
 
 
 def wipe_policy(cfg: Any, policy: ForceMotionPolicy | None = None) -> ForceMotionPolicy:
