@@ -10,7 +10,8 @@ Per tick:
    surface tilted w.r.t. the tool a re-orientation to the surface normal starts (eq. 22–27),
    interpolated over T (eq. 28–29); the energy that moving R_d puts into the constant rotational
    spring is paid from the impedance tank (R_d waits while the tank cannot pay), so eq. 64's storage
-   stays a storage;
+   stays a storage. Once aligned, R_d turns toward a *planned* normal (a re-plan's explored surface,
+   ``SurfaceEstimate.planned``) at ``follow_planned_rate`` at most, paid the same way;
    In contact the tool's tangent plane (tool x, y) keeps a stiffness of at least ``tangent_hold``·K_max:
    while compliant a spring to where the tool touched down, above it a floor under ρ_align K_max
    (see ``tangent_hold``; 0 gives the paper's law);
@@ -95,6 +96,14 @@ class VaUficParams:
         "spring to where the tool touched down; above, a floor under ρ_align. Both through the impedance tank's "
         "port. 0: the paper's law [-]",
     )
+    follow_planned_rate: float = param(
+        0.3,
+        "while aligned (ρ_align above compliant_below), R_d turns toward a planned surface normal (SurfaceEstimate."
+        "planned: a re-plan's explored surface, not the camera) at most this fast, once the tilt passes half of "
+        "realign_min_angle, paid from the impedance tank; the paper re-orients only while compliant, so on a curved "
+        "part the aligned tool keeps its orientation while the surface turns under it (up to 34° on the bowl's wall). "
+        "0: never [rad/s]",
+    )
     stiffness_const: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 0.0, 200.0, 200.0, 200.0),
         "K_const, tool frame (eq. 56); the rotational part of K_max is kept constant (eq. 19 shapes "
@@ -125,7 +134,7 @@ class VaUficParams:
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and > 0, got {v!r}")
         for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age", "compliant_below",
-                     "tangent_hold"):
+                     "tangent_hold", "follow_planned_rate"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and ≥ 0, got {v!r}")
@@ -322,6 +331,26 @@ class VaUficController(UficController):
         if zeta >= 1.0:
             self._realign = None
 
+    def _follow_planned(self, z_des: tuple[float, float, float], dt: float, rl: list[list[float]]) -> None:
+        """Turn R_d toward the planned inward normal ``z_des`` by at most follow_planned_rate·dt, paying the
+        constant rotational spring's extra energy from the impedance tank (no turn while it cannot pay)."""
+        rd = self._rot_d
+        cos_tilt = rd[0][2] * z_des[0] + rd[1][2] * z_des[1] + rd[2][2] * z_des[2]
+        cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
+        cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
+        if math.acos(cos_tilt) < 0.5 * self.va.realign_min_angle:
+            return
+        rd_np = np.array(rd)
+        wx, wy, wz = log_so3(desired_rotation_from_normal(rd_np, np.array(z_des)) @ rd_np.T).tolist()
+        angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+        step = self.va.follow_planned_rate * dt / angle if angle > 1e-12 else 1.0
+        step = step if step < 1.0 else 1.0
+        rot_new = matmul3_rows(exp_so3_rows(step * wx, step * wy, step * wz), rd)
+        cost = self._rotational_spring_energy(rot_new, rl) - self._rotational_spring_energy(rd, rl)
+        if cost > 0.0 and not self._tank_i.withdraw(cost):
+            return
+        self._rot_d = rot_new
+
     def torque(self, state: RobotState, reference: PoseForceReference) -> np.ndarray:
         if not isinstance(reference, PoseForceReference):
             raise ControllerFault(f"{self.name} needs a PoseForceReference, got {type(reference).__name__}")
@@ -379,6 +408,9 @@ class VaUficController(UficController):
                     r_goal = desired_rotation_from_normal(rot, np.array(z_des))
                     w_goal = log_so3(r_goal @ np.array(rd).T).tolist()
                     self._realign = (state.t, rd, (w_goal[0], w_goal[1], w_goal[2]))
+        elif (usable and v.follow_planned_rate > 0.0 and self._realign is None and reference.surface is not None
+              and reference.surface.planned):
+            self._follow_planned(z_des, dt, rl)
         e = (e0, e1, e2, e3, e4, e5)
 
         wd = reference.wrench_tool.tolist()

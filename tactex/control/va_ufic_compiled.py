@@ -82,6 +82,7 @@ class CompiledTick:
             kp[on], kp[up], kp[low], kp[band] = float(tank.enabled), tank.upper, tank.lower, tank.band
         kp[m.P_TF_LAM_BAND] = c._tank_f.lambda_band_w
         kp[m.P_HOLD] = v.tangent_hold
+        kp[m.P_FOLLOW] = v.follow_planned_rate
         ff = c._port_feedforward
         if ff is not None:
             p = ff.params
@@ -193,7 +194,7 @@ class CompiledTick:
         if est is None or not est.valid or not (0.0 <= state.t - est.timestamp <= self.ctrl.va.surface_max_age):
             ok, normal, curvature = 0.0, _NO_NORMAL, 0.0
         else:
-            ok, normal, curvature = 1.0, est.normal_world, est.curvature
+            ok, normal, curvature = (2.0 if est.planned else 1.0), est.normal_world, est.curvature
         try:
             code = self.kernel(self.ks, self.kp, state.t, state.ee_rotation, state.ee_position, state.ee_twist,
                                state.wrench_tool, reference.position_world, reference.rotation_world,

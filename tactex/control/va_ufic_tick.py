@@ -65,7 +65,8 @@ P_TF_ON, P_TF_UP, P_TF_LOW, P_TF_BAND = 52, 53, 54, 55
 P_FR_ON, P_FR_GAIN, P_FR_CUTOFF, P_FR_MU, P_FR_MAX = 56, 57, 58, 59, 60
 P_TF_LAM_BAND = 61  # the force tank's λ ramp [W] (ForceTank.lambda_band_w)
 P_HOLD = 62  # VaUficParams.tangent_hold [-]
-P_SIZE = 63
+P_FOLLOW = 63  # VaUficParams.follow_planned_rate [rad/s]
+P_SIZE = 64
 
 OK = 0
 FAULT_FRICTION_FORCE = 1  # the friction feed-forward got a non-finite measured force
@@ -228,8 +229,8 @@ def _advance_realign(ks, kp, t, dt, rl):
 
 
 @_jit
-def _start_realign(ks, rl, zx, zy, zz, t):
-    """desired_rotation_from_normal(R, z_des) and log(R_goal R_dᵀ): a re-orientation from R_d."""
+def _goal_log(ks, rl, zx, zy, zz):
+    """log(R_goal R_dᵀ) with R_goal = desired_rotation_from_normal(``rl``, z_des) for the rows ``rl``."""
     nz = math.sqrt(zx * zx + zy * zy + zz * zz)
     zx, zy, zz = zx / nz, zy / nz, zz / nz
     rx0 = rl[0] - (rl[0] * zx + rl[3] * zy + rl[6] * zz) * zx
@@ -254,7 +255,14 @@ def _start_realign(ks, rl, zx, zy, zz, t):
         for j in range(3):
             g_rdt[3 * i + j] = (goal[3 * i] * rd[3 * j] + goal[3 * i + 1] * rd[3 * j + 1]
                                 + goal[3 * i + 2] * rd[3 * j + 2])
-    wx, wy, wz = _log_rows(g_rdt)
+    return _log_rows(g_rdt)
+
+
+@_jit
+def _start_realign(ks, rl, zx, zy, zz, t):
+    """desired_rotation_from_normal(R, z_des) and log(R_goal R_dᵀ): a re-orientation from R_d."""
+    wx, wy, wz = _goal_log(ks, rl, zx, zy, zz)
+    rd = ks[S_ROT_D:S_ROT_D + 9]
     ks[S_RE_ON] = 1.0
     ks[S_RE_T0] = t
     ks[S_RE_INIT:S_RE_INIT + 9] = rd
@@ -338,6 +346,27 @@ def _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls):
     rho_align = rho_new if rho_new < 1.0 else 1.0
     ks[S_RHO] = rho_align
     return c, h, rho_align
+
+
+@_jit
+def _follow_planned(ks, kp, dt, rl, zx, zy, zz):
+    """VaUficController._follow_planned: R_d turned toward the planned inward normal z by at most
+    follow_planned_rate·dt, the spring's extra energy paid from the impedance tank."""
+    rd = ks[S_ROT_D:S_ROT_D + 9]
+    cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
+    cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
+    cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
+    if math.acos(cos_tilt) < 0.5 * kp[P_REALIGN_MIN]:
+        return
+    wx, wy, wz = _goal_log(ks, rd.copy(), zx, zy, zz)
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+    step = kp[P_FOLLOW] * dt / angle if angle > 1e-12 else 1.0
+    step = step if step < 1.0 else 1.0
+    rot_new = _rows_nn(_exp_rows(step * wx, step * wy, step * wz), rd)
+    cost = _spring_energy(kp, rot_new, rl) - _spring_energy(kp, rd, rl)
+    if cost > 0.0 and not _withdraw(ks, kp, cost):
+        return
+    rd[:] = rot_new
 
 
 @_jit
@@ -505,7 +534,8 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
         world [m/s, rad/s]. wrench: (6,) measured wrench, tool frame [N, N·m].
         ref_pos, ref_rot, ref_wrench, ref_twist: the reference's (3,), (3, 3), (6,) tool frame, (6,) world.
         surf_ok: 1.0 when the surface estimate is valid and fresh (its normal and curvature are then
-        checked here as in VaUficController._surface). normal: (3,) its outward normal, world.
+        checked here as in VaUficController._surface), 2.0 when it is besides planned (SurfaceEstimate.planned).
+        normal: (3,) its outward normal, world.
         curvature: its l_s [-].
 
     Returns:
@@ -529,6 +559,8 @@ def va_ufic_tick(ks, kp, t, rot, pos, twist, wrench, ref_pos, ref_rot, ref_wrenc
         code = _go_compliant(ks, kp, rl, px - dx, py - dy, pz - dz, usable, zx, zy, zz, t)
         if code != OK:
             return code
+    elif usable and kp[P_FOLLOW] > 0.0 and ks[S_RE_ON] == 0.0 and surf_ok == 2.0:
+        _follow_planned(ks, kp, dt, rl, zx, zy, zz)
     rho_frc = _force_shaping(kp, ref_wrench, e0, e1, e2, e3, e4, e5)
 
     vx, vy, vz, wx, wy, wz = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]

@@ -33,6 +33,9 @@ class SurfaceEstimate:
         centroid_camera: (3,) segment centroid in the camera frame [m].
         eigenvalues: (3,) λ1 ≥ λ2 ≥ λ3 of the segment covariance Σ [m²].
         roi_points: number of valid points in the region of interest around the tool axis.
+        planned: True when the normal is not a camera's but planned from a surface already explored (a
+            re-planned wipe, tactex.tasks.wipe_references): VA-UFIC follows it while aligned as well
+            (VaUficParams.follow_planned_rate).
     """
 
     valid: bool
@@ -51,6 +54,7 @@ class SurfaceEstimate:
     centroid_camera: np.ndarray = field(default_factory=lambda: _NAN3.copy())
     eigenvalues: np.ndarray = field(default_factory=lambda: _NAN3.copy())
     roi_points: int = 0
+    planned: bool = False
 
     @classmethod
     def invalid(cls, timestamp: float, reason: str, roi_points: int = 0) -> SurfaceEstimate:

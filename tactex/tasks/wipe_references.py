@@ -62,8 +62,9 @@ class WipeReferences:
         # with a re-plan: what the first pass's errors call for at each policy time (the policy's own set point
         # and path stay what the run is measured against)
         self.learned = learned
-        # whether the controller has aligned (ρ_align = 1): the correction, learned where the first pass was
-        # aligned, is applied from where this one is, faded in over LEARN_FADE_IN_S; None: from the start
+        # whether the controller has aligned (ρ_align = 1): the in-plane correction, learned where the first pass
+        # was aligned, is applied from where this one is, faded in over LEARN_FADE_IN_S (None: from the start); the
+        # force correction over the whole pass
         self.aligned, self.learn_from_s = aligned, (None if aligned is not None else -LEARN_FADE_IN_S)
         # with cfg.policy_waits_for_alignment: the policy held at its start until the controller aligns
         self.waiting = cfg.policy_waits_for_alignment and aligned is not None
@@ -123,7 +124,8 @@ class WipeReferences:
             if self.learn_from_s is None and self.aligned():
                 self.learn_from_s = tau_t
             share = 0.0 if self.learn_from_s is None else min(1.0, (tau_t - self.learn_from_s) / LEARN_FADE_IN_S)
-            df, du, dv, vu, vv = (share * x for x in self.learned.at(tau_t))
+            df, du, dv, vu, vv = self.learned.at(tau_t)  # the force's over the whole pass (PassCorrection)
+            du, dv, vu, vv = share * du, share * dv, share * vu, share * vv
             self.wrench_d = np.array((0.0, 0.0, min(max(force + df, cfg.contact_threshold_n), MAX_FORCE_SET_POINT_N),
                                       0.0, 0.0, 0.0))
             position = self.pos_ref + np.array((r00 * du + r01 * dv, r10 * du + r11 * dv, r20 * du + r21 * dv))
@@ -160,5 +162,5 @@ class WipeReferences:
         if not np.isfinite(curvature):
             est = self.estimate
             curvature = float(est.curvature) if est is not None and est.valid else 0.0
-        surface = SurfaceEstimate(valid=True, timestamp=t, normal_world=ahead.normal, curvature=curvature)
+        surface = SurfaceEstimate(valid=True, timestamp=t, normal_world=ahead.normal, curvature=curvature, planned=True)
         return (t, here.point_m, here.normal, surface)
