@@ -239,20 +239,25 @@ def test_a_learned_correction_moves_the_commands_not_what_the_run_is_measured_ag
     assert taught.force_set_n == pytest.approx(cfg.force_n)
 
 
-def test_the_correction_waits_for_this_pass_to_align_and_fades_in() -> None:
-    """Learned where the first pass was aligned, applied from where this one is (ρ_align = 1), faded in."""
+def test_the_path_correction_waits_for_this_pass_to_align_and_fades_in() -> None:
+    """The in-plane correction, learned where the first pass was aligned, is applied from where this one is
+    (ρ_align = 1), faded in; the force correction, learned over all settled contact, over the whole pass."""
     from tactex.tasks.pass_learning import PassCorrection
     from tactex.tasks.wipe_policy import wipe_policy
     from tactex.tasks.wipe_references import LEARN_FADE_IN_S, WipeReferences
 
     cfg = WipeConfig()
     t = 0.01 * np.arange(400)
-    learned = PassCorrection(t, np.full(len(t), 2.0), np.zeros((len(t), 2)), 0.8)
+    learned = PassCorrection(t, np.full(len(t), 2.0), np.column_stack([np.full(len(t), 0.003), np.zeros(len(t))]),
+                             0.8)
     is_aligned = [False]
     refs = WipeReferences(cfg, _NoCamera(), np.zeros(3), np.eye(3), wipe_policy(cfg, None), learned=learned,
                           aligned=lambda: is_aligned[0])
-    for tau, aligned, extra in ((0.5, False, 0.0), (1.0, False, 0.0), (1.5, True, 0.0),
-                                (1.5 + LEARN_FADE_IN_S / 2, False, 1.0), (3.0, False, 2.0)):
+    for tau, aligned, share in ((0.5, False, 0.0), (1.0, False, 0.0), (1.5, True, 0.0),
+                                (1.5 + LEARN_FADE_IN_S / 2, False, 0.5), (3.0, False, 1.0)):
         is_aligned[0] = aligned  # once aligned, it stays on whatever ρ_align does later
         refs.advance(_State(tau, np.eye(3)), tau)
-        assert refs.reference.wrench_tool[2] == pytest.approx(refs.force_set_n + extra), tau
+        assert refs.reference.wrench_tool[2] == pytest.approx(refs.force_set_n + 2.0), tau
+        # the tool frame is the world's here: the path's correction is along world x
+        offset = refs.reference.position_world - refs.pos_ref
+        assert offset == pytest.approx([share * 0.003, 0.0, 0.0], abs=1e-12), tau

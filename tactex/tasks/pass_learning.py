@@ -11,11 +11,14 @@ frame [m]. The second pass commands, at policy time τ,
 
 with ``g`` the learning gain and LP a second-order Butterworth low-pass run forwards and backwards (no lag):
 what repeats is slow (the policy's own rates), what is faster is noise the next pass will not see again.
-Both are learned over the first pass's aligned contact ticks (ρ_align = 1), where the controller tracks what it is
-given: while the alignment monitor keeps VA-UFIC compliant it yields on purpose, and a re-planned pass, started
-aligned, meets a different contact there. Elsewhere the error counts as zero, so the correction fades in and out
-through the filter; the wipe applies it from the moment the second pass aligns
-(:class:`~tactex.tasks.wipe_references.WipeReferences`). A first pass that did not hold its force
+The force is learned over the first pass's contact from :data:`SETTLE_S` after its first contact, aligned or not:
+with VA-UFIC's tangential hold the tool stays where it touched down while the controller is compliant, so the
+force error of that phase repeats too, and the wipe applies the force correction over the whole second pass.
+The in-plane motion is learned over the aligned contact ticks only (ρ_align = 1), where the controller tracks
+what it is given: while the alignment monitor keeps VA-UFIC compliant the desired position follows the tool on
+purpose, and the wipe applies that correction from the moment the second pass aligns
+(:class:`~tactex.tasks.wipe_references.WipeReferences`). Elsewhere the error counts as zero, so the corrections
+fade in and out through the filter. A first pass that did not hold its force
 (:data:`LEARN_MIN_HELD`) teaches nothing. Both corrections are bounded (:data:`MAX_FORCE_SHARE`,
 :data:`MAX_OFFSET_M`). The second pass's figures stay measured against the policy's own set point and path,
 not the corrected commands.
@@ -118,7 +121,7 @@ class PassCorrection:
                 f"its contact (< {100 * LEARN_MIN_HELD:.0f} %): it slipped or lost the part, so its errors do not "
                 "repeat"))
         aligned = contact & (np.asarray(series["rho_align"], dtype=float) >= ALIGNED_RHO)
-        settled = aligned & (t >= t[np.argmax(contact)] + SETTLE_S)
+        settled = contact & (t >= t[np.argmax(contact)] + SETTLE_S)
         force = -gain * _low_pass(dt, FORCE_CUTOFF_HZ)(np.where(settled, err_f, 0.0))
         tracked = aligned & np.isfinite(err_xy).all(axis=1)
         uv = -gain * _low_pass(dt, MOTION_CUTOFF_HZ)(np.where(tracked[:, None], err_xy, 0.0))
