@@ -11,7 +11,7 @@ Per tick:
    interpolated over T (eq. 28–29); the energy that moving R_d puts into the constant rotational
    spring is paid from the impedance tank (R_d waits while the tank cannot pay), so eq. 64's storage
    stays a storage. Once aligned, R_d turns toward a *planned* normal (a re-plan's explored surface,
-   ``SurfaceEstimate.planned``) at ``follow_planned_rate`` at most, paid the same way;
+   ``SurfaceEstimate.planned``) at ``follow_planned_rate`` at most, paid the same way.
    In contact the tool's tangent plane (tool x, y) keeps a stiffness of at least ``tangent_hold``·K_max:
    while compliant a spring to where the tool touched down, above it a floor under ρ_align K_max
    (see ``tangent_hold``; 0 gives the paper's law);
@@ -101,7 +101,8 @@ class VaUficParams:
         "while aligned (ρ_align above compliant_below), R_d turns toward a planned surface normal (SurfaceEstimate."
         "planned: a re-plan's explored surface, not the camera) at most this fast, once the tilt passes half of "
         "realign_min_angle, paid from the impedance tank; the paper re-orients only while compliant, so on a curved "
-        "part the aligned tool keeps its orientation while the surface turns under it (up to 34° on the bowl's wall). "
+        "part the aligned tool keeps its orientation while the surface turns under it (tens of degrees on a bowl's "
+        "wall). "
         "0: never [rad/s]",
     )
     stiffness_const: tuple[float, float, float, float, float, float] = param(

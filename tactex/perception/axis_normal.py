@@ -2,12 +2,13 @@
 
 PCA (:mod:`tactex.perception.pca`) gives the normal of a segment's best plane, which on a curved part is
 the normal near the segment's centroid. The wrist camera sees the surface around the pad, not under it,
-and from one side: on a cylinder of 4 cm radius the centroid lies 3-17 mm off the tool axis, where the
-normal is 4-25 degrees from the one under the tool. A controller re-orienting to that normal turns the tool
-away from the contact's normal, its pressing force then pushes the tool round the part, the camera's view
-moves with it, and the tool rolls off the wall. Fitting w = a u² + b uv + c v² + d u + e v + f in the PCA
-frame (u, v along e1, e2, w along the normal) and taking the fitted surface's normal where the tool axis
-crosses it removes that offset; on a plane the fit is the plane and the normal PCA's.
+and from one side: on a cylinder of a few centimetres' radius the centroid lies millimetres to centimetres
+off the tool axis, where the normal is degrees to tens of degrees from the one under the tool. A controller
+re-orienting to that normal turns the tool away from the contact's normal, its pressing force then pushes
+the tool round the part, the camera's view moves with it, and the tool rolls off the wall. Fitting
+w = a u² + b uv + c v² + d u + e v + f in the PCA frame (u, v along e1, e2, w along the normal) and taking
+the fitted surface's normal where the tool axis crosses it removes that offset; on a plane the fit is the
+plane and the normal PCA's.
 """
 
 from __future__ import annotations
