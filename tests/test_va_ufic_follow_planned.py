@@ -23,9 +23,10 @@ NORMAL = np.array([0.0, -math.sin(TILT), math.cos(TILT)])
 DT, TICKS = 1e-3, 100
 
 
-def _run(rate: float, planned: bool, python: bool) -> tuple[VaUficController, float]:
+def _run(rate: float, planned: bool, python: bool, tau: float = 0.0) -> tuple[VaUficController, float]:
     ufic = UficParams(latency_horizon_ticks=0.0, kp=0.0, ki=0.0)
-    ctrl = VaUficController(VaUficParams(rho_align_initial=1.0, follow_planned_rate=rate, ufic=ufic))
+    ctrl = VaUficController(VaUficParams(rho_align_initial=1.0, follow_planned_rate=rate, follow_planned_tau=tau,
+                                         ufic=ufic))
     if python:
         ctrl._compiled = None
     before = ctrl.tank_i.energy
@@ -46,7 +47,7 @@ def _turned(ctrl: VaUficController) -> float:
 
 @pytest.mark.parametrize("python", [False, True])
 def test_an_aligned_controller_turns_toward_a_planned_normal_at_its_rate(python) -> None:
-    ctrl, before = _run(0.3, planned=True, python=python)
+    ctrl, before = _run(0.3, planned=True, python=python)  # tau 0: the cap all the way
     z = ctrl.rotation_desired[:, 2]
     # toward the inward normal, by the rate times the ticks after the first (R_d is set at the first tick)
     assert _turned(ctrl) == pytest.approx(0.3 * DT * (TICKS - 1), rel=0.02)
@@ -61,8 +62,18 @@ def test_the_camera_s_normal_or_a_zero_rate_leaves_an_aligned_tool_as_it_is(pyth
     assert _turned(_run(0.0, planned=True, python=python)[0]) == pytest.approx(0.0, abs=1e-12)
 
 
-def test_the_compiled_tick_turns_as_the_python_one() -> None:
-    compiled, _ = _run(0.3, planned=True, python=False)
-    python, _ = _run(0.3, planned=True, python=True)
+@pytest.mark.parametrize("python", [False, True])
+def test_near_the_planned_normal_the_turn_slows_as_a_first_order_approach(python) -> None:
+    # the 10° tilt is below rate × tau (0.3 rad/s × 2 s = 34°): the tilt decays by dt/tau each tick
+    ctrl, _ = _run(0.3, planned=True, python=python, tau=2.0)
+    remaining = TILT * (1.0 - DT / 2.0) ** (TICKS - 1)
+    assert _turned(ctrl) == pytest.approx(TILT - remaining, rel=0.01)
+    assert _turned(ctrl) < 0.3 * DT * (TICKS - 1)  # slower than the cap
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.35])
+def test_the_compiled_tick_turns_as_the_python_one(tau) -> None:
+    compiled, _ = _run(0.3, planned=True, python=False, tau=tau)
+    python, _ = _run(0.3, planned=True, python=True, tau=tau)
     np.testing.assert_allclose(compiled.rotation_desired, python.rotation_desired, atol=1e-12)
     assert compiled.tank_i.energy == pytest.approx(python.tank_i.energy, abs=1e-12)

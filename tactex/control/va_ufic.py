@@ -97,13 +97,19 @@ class VaUficParams:
         "port. 0: the paper's law [-]",
     )
     follow_planned_rate: float = param(
-        0.3,
+        0.4,
         "while aligned (ρ_align above compliant_below), R_d turns toward a planned surface normal (SurfaceEstimate."
         "planned: a re-plan's explored surface, not the camera) at most this fast, once the tilt passes half of "
         "realign_min_angle, paid from the impedance tank; the paper re-orients only while compliant, so on a curved "
         "part the aligned tool keeps its orientation while the surface turns under it (tens of degrees on a bowl's "
         "wall). "
         "0: never [rad/s]",
+    )
+    follow_planned_tau: float = param(
+        0.35,
+        "time constant of the planned turn: below follow_planned_rate × it of tilt the turn's rate is the tilt over "
+        "it, a first-order approach, so that the small corrections a gently curved part asks for do not jerk the "
+        "pressed tool; 0: always at follow_planned_rate [s]",
     )
     stiffness_const: tuple[float, float, float, float, float, float] = param(
         (0.0, 0.0, 0.0, 200.0, 200.0, 200.0),
@@ -135,7 +141,7 @@ class VaUficParams:
             if not np.isfinite(v) or v <= 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and > 0, got {v!r}")
         for name in ("alpha", "xi", "gamma", "rho_min", "realign_min_angle", "surface_max_age", "compliant_below",
-                     "tangent_hold", "follow_planned_rate"):
+                     "tangent_hold", "follow_planned_rate", "follow_planned_tau"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ConfigError(f"VaUficParams.{name} must be finite and ≥ 0, got {v!r}")
@@ -333,8 +339,8 @@ class VaUficController(UficController):
             self._realign = None
 
     def _follow_planned(self, z_des: tuple[float, float, float], dt: float, rl: list[list[float]]) -> None:
-        """Turn R_d toward the planned inward normal ``z_des`` by at most follow_planned_rate·dt, paying the
-        constant rotational spring's extra energy from the impedance tank (no turn while it cannot pay)."""
+        """Turn R_d toward the planned inward normal ``z_des`` at min(follow_planned_rate, tilt / follow_planned_tau),
+        paying the constant rotational spring's extra energy from the impedance tank (no turn while it cannot pay)."""
         rd = self._rot_d
         cos_tilt = rd[0][2] * z_des[0] + rd[1][2] * z_des[1] + rd[2][2] * z_des[2]
         cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
@@ -344,7 +350,10 @@ class VaUficController(UficController):
         rd_np = np.array(rd)
         wx, wy, wz = log_so3(desired_rotation_from_normal(rd_np, np.array(z_des)) @ rd_np.T).tolist()
         angle = math.sqrt(wx * wx + wy * wy + wz * wz)
-        step = self.va.follow_planned_rate * dt / angle if angle > 1e-12 else 1.0
+        rate, tau = self.va.follow_planned_rate, self.va.follow_planned_tau
+        if tau > 0.0 and angle < rate * tau:
+            rate = angle / tau
+        step = rate * dt / angle if angle > 1e-12 else 1.0
         step = step if step < 1.0 else 1.0
         rot_new = matmul3_rows(exp_so3_rows(step * wx, step * wy, step * wz), rd)
         cost = self._rotational_spring_energy(rot_new, rl) - self._rotational_spring_energy(rd, rl)

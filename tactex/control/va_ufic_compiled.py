@@ -82,7 +82,7 @@ class CompiledTick:
             kp[on], kp[up], kp[low], kp[band] = float(tank.enabled), tank.upper, tank.lower, tank.band
         kp[m.P_TF_LAM_BAND] = c._tank_f.lambda_band_w
         kp[m.P_HOLD] = v.tangent_hold
-        kp[m.P_FOLLOW] = v.follow_planned_rate
+        kp[m.P_FOLLOW], kp[m.P_FOLLOW_TAU] = v.follow_planned_rate, v.follow_planned_tau
         ff = c._port_feedforward
         if ff is not None:
             p = ff.params

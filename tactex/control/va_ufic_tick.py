@@ -66,7 +66,8 @@ P_FR_ON, P_FR_GAIN, P_FR_CUTOFF, P_FR_MU, P_FR_MAX = 56, 57, 58, 59, 60
 P_TF_LAM_BAND = 61  # the force tank's λ ramp [W] (ForceTank.lambda_band_w)
 P_HOLD = 62  # VaUficParams.tangent_hold [-]
 P_FOLLOW = 63  # VaUficParams.follow_planned_rate [rad/s]
-P_SIZE = 64
+P_FOLLOW_TAU = 64  # VaUficParams.follow_planned_tau [s]
+P_SIZE = 65
 
 OK = 0
 FAULT_FRICTION_FORCE = 1  # the friction feed-forward got a non-finite measured force
@@ -350,8 +351,8 @@ def _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls):
 
 @_jit
 def _follow_planned(ks, kp, dt, rl, zx, zy, zz):
-    """VaUficController._follow_planned: R_d turned toward the planned inward normal z by at most
-    follow_planned_rate·dt, the spring's extra energy paid from the impedance tank."""
+    """VaUficController._follow_planned: R_d turned toward the planned inward normal z at
+    min(follow_planned_rate, tilt / follow_planned_tau), the spring's extra energy paid from the impedance tank."""
     rd = ks[S_ROT_D:S_ROT_D + 9]
     cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
     cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
@@ -360,7 +361,10 @@ def _follow_planned(ks, kp, dt, rl, zx, zy, zz):
         return
     wx, wy, wz = _goal_log(ks, rd.copy(), zx, zy, zz)
     angle = math.sqrt(wx * wx + wy * wy + wz * wz)
-    step = kp[P_FOLLOW] * dt / angle if angle > 1e-12 else 1.0
+    rate, tau = kp[P_FOLLOW], kp[P_FOLLOW_TAU]
+    if tau > 0.0 and angle < rate * tau:
+        rate = angle / tau
+    step = rate * dt / angle if angle > 1e-12 else 1.0
     step = step if step < 1.0 else 1.0
     rot_new = _rows_nn(_exp_rows(step * wx, step * wy, step * wz), rd)
     cost = _spring_energy(kp, rot_new, rl) - _spring_energy(kp, rd, rl)
