@@ -177,6 +177,15 @@ def desired_rotation_from_normal(rot_current: np.ndarray, tool_z_world: np.ndarr
     return np.column_stack([rx, np.cross(rz, rx), rz])
 
 
+def _tilt(rows: list[list[float]], z: tuple[float, float, float]) -> float:
+    """The angle [rad] between the z axis of the rotation given as ``rows`` (Python floats) and the unit
+    vector ``z``; the cosine clamped to [−1, 1] as the compiled tick clamps it, NaN included."""
+    cos_tilt = rows[0][2] * z[0] + rows[1][2] * z[1] + rows[2][2] * z[2]
+    cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
+    cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
+    return math.acos(cos_tilt)
+
+
 class PortFeedforward(Protocol):
     """An extra active tool-frame wrench [N, N·m] that VA-UFIC applies through the impedance tank's
     port (so the tank pays for it), e.g. :class:`tactex.control.friction.FrictionCompensator`;
@@ -342,10 +351,7 @@ class VaUficController(UficController):
         """Turn R_d toward the planned inward normal ``z_des`` at min(follow_planned_rate, tilt / follow_planned_tau),
         paying the constant rotational spring's extra energy from the impedance tank (no turn while it cannot pay)."""
         rd = self._rot_d
-        cos_tilt = rd[0][2] * z_des[0] + rd[1][2] * z_des[1] + rd[2][2] * z_des[2]
-        cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
-        cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
-        if math.acos(cos_tilt) < 0.5 * self.va.realign_min_angle:
+        if _tilt(rd, z_des) < 0.5 * self.va.realign_min_angle:
             return
         rd_np = np.array(rd)
         wx, wy, wz = log_so3(desired_rotation_from_normal(rd_np, np.array(z_des)) @ rd_np.T).tolist()
@@ -412,9 +418,7 @@ class VaUficController(UficController):
             e0 = e1 = e2 = 0.0
             if usable and self._realign is None:
                 rd = self._rot_d
-                cos_tilt = rd[0][2] * z_des[0] + rd[1][2] * z_des[1] + rd[2][2] * z_des[2]
-                tilt = math.acos(max(-1.0, min(1.0, cos_tilt)))
-                if tilt > v.realign_min_angle:  # eq. 22–27 (once per re-orientation: numpy is fine here)
+                if _tilt(rd, z_des) > v.realign_min_angle:  # eq. 22–27 (once per re-orientation: numpy is fine here)
                     r_goal = desired_rotation_from_normal(rot, np.array(z_des))
                     w_goal = log_so3(r_goal @ np.array(rd).T).tolist()
                     self._realign = (state.t, rd, (w_goal[0], w_goal[1], w_goal[2]))

@@ -350,16 +350,22 @@ def _alignment(ks, kp, dt, wm, e0, e1, e2, e3, e4, e5, theta, ls):
 
 
 @_jit
+def _tilt(rd, zx, zy, zz):
+    """The angle [rad] between R_d's z axis (rows ``rd``) and the unit vector z (VaUficController._tilt)."""
+    cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
+    cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
+    cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
+    return math.acos(cos_tilt)
+
+
+@_jit
 def _follow_planned(ks, kp, dt, rl, zx, zy, zz):
     """VaUficController._follow_planned: R_d turned toward the planned inward normal z at
     min(follow_planned_rate, tilt / follow_planned_tau), the spring's extra energy paid from the impedance tank."""
     rd = ks[S_ROT_D:S_ROT_D + 9]
-    cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
-    cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
-    cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
-    if math.acos(cos_tilt) < 0.5 * kp[P_REALIGN_MIN]:
+    if _tilt(rd, zx, zy, zz) < 0.5 * kp[P_REALIGN_MIN]:
         return
-    wx, wy, wz = _goal_log(ks, rd.copy(), zx, zy, zz)
+    wx, wy, wz = _goal_log(ks, rd, zx, zy, zz)  # reads its base rows only: R_d itself
     angle = math.sqrt(wx * wx + wy * wy + wz * wz)
     rate, tau = kp[P_FOLLOW], kp[P_FOLLOW_TAU]
     if tau > 0.0 and angle < rate * tau:
@@ -399,10 +405,7 @@ def _go_compliant(ks, kp, rl, ox, oy, oz, usable, zx, zy, zz, t):
     ks[S_OFFSET], ks[S_OFFSET + 1], ks[S_OFFSET + 2] = ox, oy, oz
     if usable and ks[S_RE_ON] == 0.0:
         rd = ks[S_ROT_D:S_ROT_D + 9]
-        cos_tilt = rd[2] * zx + rd[5] * zy + rd[8] * zz
-        cos_tilt = cos_tilt if cos_tilt < 1.0 else 1.0
-        cos_tilt = cos_tilt if cos_tilt > -1.0 else -1.0
-        if math.acos(cos_tilt) > kp[P_REALIGN_MIN]:
+        if _tilt(rd, zx, zy, zz) > kp[P_REALIGN_MIN]:
             for x in rl:  # desired_rotation_from_normal refuses a non-finite rotation
                 if not math.isfinite(x):
                     return FAULT_ROTATION
