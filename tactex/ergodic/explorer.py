@@ -153,6 +153,9 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         # Read-only views whatever the caller's arrays: the compiled step is typed by its arguments'
         # flags too, and one set of types means one compilation.
         self._points = _read_only(cloud.points)
+        # the cloud's own normals (oriented to the sensor when it has them): the outward side the agent's fitted
+        # normal is kept on, so a poor local fit at a rim cannot carry it round to the inside
+        self._outward = None if cloud.normals is None else np.ascontiguousarray(cloud.normals, dtype=np.float64)
         self._phi = _read_only(np.ascontiguousarray(evecs[:, :k]))
         self._mass = np.asarray(basis.mass, dtype=np.float64)
         self._evals = np.asarray(basis.evals, dtype=np.float64)[:k]

@@ -99,6 +99,7 @@ class HedacStep:
             return self._bridge_step(i)
         x = self._x[i]
         cand = self._candidates(i, x, True) if exact else self._ball[self._near[i]]
+        self._nrm_t[i] = self._outward_side(self._nrm_t[i], self._near.item(i))
         if self._walk_compiled is not None and self._pass == WHOLE:
             cmd = self._compiled_step(i, x, cand)
             if cmd is not None:
@@ -184,7 +185,7 @@ class HedacStep:
                 g = g - go * inward
                 if guide is not None:
                     self._check_blocked(g, guide)
-        return self._move_agent(i, x, patch, sf, nt, nrm, g, inward, tb, scale, d, dd)
+        return self._move_agent(i, x, patch, sf, nt, nrm, g, inward, tb, scale, cand, d, dd)
 
     def _cubic_gradient(self, uv: np.ndarray, u: np.ndarray, cand: np.ndarray, g1uv: np.ndarray, d2: np.ndarray,
                         tb: np.ndarray, scale: float, scale2: float) -> tuple[np.ndarray, float]:
@@ -225,12 +226,13 @@ class HedacStep:
         return g, u0
 
     def _move_agent(self, i: int, x: np.ndarray, patch: SurfacePatch, sf: tuple, nt: tuple, nrm: np.ndarray,
-                    g: np.ndarray, inward: np.ndarray | None, tb: np.ndarray, scale: float, d: np.ndarray,
-                    dd: np.ndarray) -> ExplorationCommand:
+                    g: np.ndarray, inward: np.ndarray | None, tb: np.ndarray, scale: float, cand: np.ndarray,
+                    d: np.ndarray, dd: np.ndarray) -> ExplorationCommand:
         """Agent i at x [m] one step along the gradient g (3,) (a random heading when g vanishes): the agent's
         update (braking first at a scan edge, unit ``inward``), back onto the fitted patch (projected agent ``sf``,
         normal ``nt`` as float triples and ``nrm``; tangent basis ``tb``; the fit's ``scale`` [m]), within
-        max_off_cloud_voxels of the candidates (offsets ``d``, squared norms ``dd``), the step ≤ v_max·dt."""
+        max_off_cloud_voxels of the candidates (cloud indices ``cand``, offsets ``d``, squared norms ``dd``), the
+        step ≤ v_max·dt, its normal on the cloud's outward side."""
         g0, g1, g2 = g.tolist()
         gn = (g0 * g0 + g1 * g1 + g2 * g2) ** 0.5  # np.dot's order for three numbers
         if gn > 0.0 and gn < np.inf:
@@ -288,10 +290,11 @@ class HedacStep:
         v_t = (v0 - vn * m0, v1 - vn * m1, v2 - vn * m2)
         agent.velocity = np.array(v_t)
         self.path_lengths[i] = self.path_lengths.item(i) + sl
+        n_new = self._outward_side(n_new, cand.item(k))
         self._nrm_t[i] = n_new
         # the command's frame at the landing point: the tangent basis of its normal, the velocity's
         # tangential part (the step is a chord)
-        u0, u1, u2, w0, w1, w2 = tangent_floats(m0, m1, m2)
+        u0, u1, u2, w0, w1, w2 = tangent_floats(*n_new)
         x_new, n_new = np.array((x0 + s0, x1 + s1, x2 + s2)), np.array(n_new)
         self._x[i] = x_new
         return ExplorationCommand(x_new, np.array(v_t), n_new, np.array((u0, u1, u2)), np.array((w0, w1, w2)),
@@ -352,6 +355,21 @@ class HedacStep:
         coef = self._coef
         coef += dcoef
         coef *= self._decay
+
+    def _outward_side(self, n: tuple, near: int) -> tuple:
+        """The unit normal ``n`` (3 floats) on the cloud's outward side at its point ``near`` (its own normal
+        there, TEC eq. 28's agent side): ``n`` itself when it agrees or the cloud has no normals, else −n.
+
+        The fit orients each step's normal along the last one; where a local fit is poor (a bowl's rim, a
+        noisy patch) the normal can turn by most of a right angle in a step, and the next step's orientation
+        then follows it round to the inside of the part: a pressing line from beneath the surface."""
+        out = self._outward
+        if out is None:
+            return n
+        n0, n1, n2 = n
+        if n0 * out.item(near, 0) + n1 * out.item(near, 1) + n2 * out.item(near, 2) >= 0.0:
+            return n
+        return (-n0, -n1, -n2)
 
     def _land(self, patch: SurfacePatch, shift: tuple, v: tuple, nrm: tuple, scale: float,
               d: np.ndarray, dd: np.ndarray) -> tuple[tuple, tuple, float, np.ndarray, int]:
@@ -421,6 +439,11 @@ class HedacStep:
             return None
         self.compiled_steps += 1
         o = out.copy()  # the command, the agent and the explorer keep views of this one copy
+        n_out = tuple(o[6:9].tolist())
+        n_side = self._outward_side(n_out, int(o.item(19)))
+        if n_side is not n_out:
+            o[6:9] = n_side
+            o[9:15] = tangent_floats(*n_side)
         agent.velocity = o[15:18]
         self.path_lengths[i] = self.path_lengths.item(i) + o.item(18)
         self._near[i] = int(o.item(19))
