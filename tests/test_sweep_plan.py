@@ -370,3 +370,42 @@ def test_with_no_dirt_the_first_leg_is_the_explorer_and_says_why() -> None:
     wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
     assert _first_leg(cloud, wear, np.zeros(3), np.array([0.0, -0.3, 0.3]), cfg, STEP, None) == (
         None, None, "the explorer (the wear model sees no dirt left)")
+
+
+def test_no_leg_shorter_than_the_corner_the_tool_rounds() -> None:
+    """The tool trails the agent and rounds each corner: an out-and-back jiggle of a centimetre to an X's tip was
+    planned as wiping it and left the tip dirty. No corner turns back next to a leg shorter than MIN_LEG_RADII pad
+    radii, whatever the search's draws."""
+    cloud = _bowl(_x, sphere_m=0.15, rim_m=0.09)
+    tree = cKDTree(cloud.points)
+    tip = cloud.points[np.argmin(np.linalg.norm(cloud.points[:, :2] - [0.03, 0.035], axis=1))]
+    for seed in range(4):
+        plan = plan_sweep(cloud, tree, cloud.target, tip, R, PER_M, STEP, goal=0.97, seed=seed)
+        assert plan is not None
+        legs = np.diff(plan.corners, axis=0)
+        short = np.linalg.norm(legs, axis=1) < sweep_plan.MIN_LEG_RADII * R
+        back = np.einsum("ij,ij->i", legs[:-1], legs[1:]) < 0.0
+        assert not np.any(back & (short[:-1] | short[1:])), f"seed {seed}: corners {np.round(plan.corners, 3)} m"
+
+
+@pytest.mark.parametrize("five_reach", [True, False])
+def test_the_fewest_corners_are_searched_first(monkeypatch: pytest.MonkeyPatch, five_reach: bool) -> None:
+    """A sweep of FEW_CORNERS legs when one reaches the goal; one of up to sweep_corners only when none does."""
+    import tactex.tasks.clean.legs as legs_module
+
+    calls: list[int] = []
+    plan_real = legs_module.plan_sweep
+
+    def recording(*args, **kwargs):
+        calls.append(kwargs["max_corners"])
+        if kwargs["max_corners"] == legs_module.FEW_CORNERS and not five_reach:
+            return None
+        return plan_real(*args, **kwargs)
+
+    monkeypatch.setattr(legs_module, "plan_sweep", recording)
+    cloud = _plane(_strip)
+    cfg = CleanConfig(sweep_corners=8)
+    wear = WearModel(cloud, cfg.preston_coefficient, cfg.pad_radius_m)
+    _, plan, choice = _first_leg(cloud, wear, np.array([0.0, 0.0, 0.0]), np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
+    assert plan is not None and choice.startswith("a planned sweep over strokes")
+    assert calls == ([legs_module.FEW_CORNERS] if five_reach else [legs_module.FEW_CORNERS, 8])

@@ -125,6 +125,18 @@ def test_a_far_joint_move_after_a_lift_off_goes_up_to_the_capture_posture_first(
     assert m["dirt_removed_fraction"] > 0.95
 
 
+def test_the_way_up_to_the_capture_posture_leaves_the_bowl_straight_up_first() -> None:
+    """The bowl's RLI, seed 2: after the planned sweep the lift-off ends low in the bowl and the next dirt's hover
+    is a far wrist turn away, so the move goes up to the capture posture first; a straight joint move there from
+    inside the bowl swung the tool through its wall (104-146 N, 229 clipped ticks). Now straight up first, then
+    along the line of IK waypoints, as the trip to the camera does."""
+    cfg = CleanConfig(object_name="bowl", marking="RLI", seed=2)
+    m = run_clean(cfg, progress=False).metrics
+    assert m["moves_via_capture"] >= 1, "no move up to the capture posture: the scenario does not test the rule"
+    assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
+    assert m["torque_rate_clip_ticks"] == 0
+
+
 def test_the_cup_is_cleaned_from_a_reachable_side_view() -> None:
     """`clean --object-name cup` failed at once: the side capture pose 0.45 m out was out of reach."""
     # TEC's loop: with the default objective the trip to the camera starts where the wear model calls the

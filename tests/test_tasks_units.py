@@ -822,3 +822,38 @@ def test_a_far_wrist_bend_from_low_over_the_object_goes_up_to_the_capture_postur
         assert motion._detour_via_capture(loop_at(low), low + np.array(turn), q_capture) is None, turn
     near_capture = q_capture + 0.01
     assert motion._detour_via_capture(loop_at(near_capture), near_capture + bend, q_capture) is None
+
+
+def test_a_joint_move_that_brings_the_pad_near_the_surface_on_its_way_is_found():
+    """passes_near samples the move's straight line in joint space on the backend's kinematics (MuJoCo's model, as
+    the robot's IK uses): a surface a centimetre under the pad's path halfway is near, one 5 cm under it is not, nor
+    one 2 cm under the move's ends, and a backend without kinematics says no."""
+    from types import SimpleNamespace
+
+    from scipy.spatial import cKDTree
+
+    from tactex.robots.mujoco_backend import MujocoBackend
+    from tactex.sim.franka import FRANKA_HOME_Q
+    from tactex.tasks.clean import motion
+
+    backend = MujocoBackend()
+    loop = SimpleNamespace(tcp_pose=backend.tcp_pose)
+    q_from = np.asarray(FRANKA_HOME_Q, dtype=float)
+    q_to = q_from + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # the base turns: the tool sweeps an arc
+    mid, _ = backend.tcp_pose(0.5 * (q_from + q_to))
+    ends = [backend.tcp_pose(q)[0] for q in (q_from, q_to)]
+    grid = np.stack(np.meshgrid(np.linspace(-0.02, 0.02, 9), np.linspace(-0.02, 0.02, 9)), -1).reshape(-1, 2)
+
+    def patch_under(p: np.ndarray, depth_m: float) -> np.ndarray:
+        return np.column_stack([p[0] + grid[:, 0], p[1] + grid[:, 1], np.full(len(grid), p[2] - depth_m)])
+
+    near = cKDTree(patch_under(mid, 0.01))
+    assert motion.passes_near(loop, q_from, q_to, near, pad_radius_m=0.025)
+    assert not motion.passes_near(loop, q_from, q_to, cKDTree(patch_under(mid, 0.05)), pad_radius_m=0.025)
+    # surface 2 cm under the move's ends only (a hover is 3 cm above it, a lift-off 5 cm): clear
+    at_ends = cKDTree(np.vstack([patch_under(e, 0.02) for e in ends]))
+    assert not motion.passes_near(loop, q_from, q_to, at_ends, pad_radius_m=0.0)
+    assert not motion.passes_near(SimpleNamespace(tcp_pose=lambda q: None), q_from, q_to, near, pad_radius_m=0.025)
+    # the pose is the model's own: the TCP where MuJoCo's forward kinematics puts it
+    backend.reset(q0=q_to)
+    np.testing.assert_allclose(backend.tcp_pose(q_to)[0], backend.state().ee_position, atol=1e-9)

@@ -598,6 +598,11 @@ class LibfrankaBackend:
         return self._kinematics().solve_ik(position_world, rotation_world, q0, q_posture,
                                            settled_step_rad=settled_step_rad, max_iter=max_iter)
 
+    def tcp_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The TCP's position (3,) [m] and orientation (3, 3) in the base frame at joint positions ``q`` (7,) [rad],
+        on tactex's kinematic model of the arm and tool (the robot does not move; microseconds, no pause)."""
+        return self._kinematics().tcp_pose(q)
+
     @property
     def torque_paused(self) -> bool:
         """Torque control is not running (paused, or not started yet): the robot holds its posture itself."""

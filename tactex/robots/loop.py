@@ -188,6 +188,12 @@ class ControlLoop:
         return self.backend.solve_ik(position_world, rotation_world, seed, q_posture,  # type: ignore[attr-defined]
                                      **extra)
 
+    def tcp_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The TCP's position (3,) [m] and orientation (3, 3) at joint positions ``q`` (7,) [rad] on the backend's
+        kinematic model (the robot does not move), or None from a backend without one."""
+        fk = getattr(self.backend, "tcp_pose", None)
+        return None if fk is None else fk(q)
+
     def move_to_pose(self, position_world: np.ndarray, rotation_world: np.ndarray, duration_s: float | None = None,
                      settle_s: float = 0.2, q_seed: np.ndarray | None = None) -> RobotState:
         """Joint move to the IK solution of a TCP pose, searched from ``q_seed`` (default: the
@@ -248,8 +254,9 @@ class ControlLoop:
         if last_leg is None:
             return self._run_joint_target(replace(target, duration_s=duration_s), settle_s)
         self._run_joint_target(replace(target, duration_s=duration_s), 0.0)
-        return self.move_joints(last_leg, self.joint_move_duration(last_leg, max_joint_speed, min_duration_s=0.1),
-                                settle_s)
+        # a joint move of its own, as long as any other (a tenth of a second to turn a wrist saturates the torque
+        # rate: it starts while the arm still moves along the path)
+        return self.move_joints(last_leg, self.joint_move_duration(last_leg, max_joint_speed), settle_s)
 
     def retract(self, distance_m: float, duration_s: float = 0.4,
                 direction_world: np.ndarray | None = None) -> RobotState:

@@ -53,6 +53,7 @@ class MujocoBackend:
         self.scene: Scene = build_scene(self.config)
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
+        self._fk_data: mujoco.MjData | None = None  # tcp_pose's scratch state
         self.dt = float(self.model.opt.timestep)
         ids = self.scene.ids
         self._ids = ids
@@ -313,6 +314,17 @@ class MujocoBackend:
             self.model, self._ids["tcp"], self._qadr, self._dadr, position_world, rotation_world, q_start, posture,
             settled_step_rad=settled_step_rad, max_iter=max_iter,
         )
+
+    def tcp_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The TCP's position (3,) [m] and orientation (3, 3) in the world at joint positions ``q`` (7,) [rad], on
+        the model's kinematics (the robot does not move; a scratch copy of the state)."""
+        if self._fk_data is None:
+            self._fk_data = mujoco.MjData(self.model)
+        d = self._fk_data
+        d.qpos[self._qadr] = self._check_q(q, "q")
+        mujoco.mj_kinematics(self.model, d)
+        site = self._ids["tcp"]
+        return d.site_xpos[site].copy(), d.site_xmat[site].reshape(3, 3).copy()
 
     def render_rgb(self, width: int = 640, height: int = 480, camera: str | int = -1) -> np.ndarray:
         """An OpenGL image (H, W, 3) uint8 of the scene (needs MUJOCO_GL=egl/osmesa/glfw)."""

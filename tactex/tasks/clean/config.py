@@ -119,10 +119,10 @@ class CleanConfig(SimWorldParams):
     model_update_steps: int = param(10, "exploration steps between updates of the explorer's target from the "
                                         "wear model [-]")
     sweep_corners: int = param(
-        5, "with --objective clean, the first stretch in contact is a planned sweep: a polyline of at most this "
+        8, "with --objective clean, the first stretch in contact is a planned sweep: a polyline of at most this "
         f"many straight legs from the touch-down that the wear model predicts takes {100 * SWEEP_GOAL:.0f} % of the "
-        "island of dirt there off in the shortest slide (then the explorer goes on); none with a keep-out zone "
-        "(a sweep knows none); 0 = none, the explorer from the touch-down [-]")
+        "island of dirt there off in the shortest slide (then the explorer goes on), searched with at most 5 legs "
+        "first; none with a keep-out zone (a sweep knows none); 0 = none, the explorer from the touch-down [-]")
     model_stall_steps: int = param(
         60, "with --objective clean, back to the camera (or on to the next island of dirt) when the wear model "
         "predicts less than a tenth of what is left removed over this many exploration steps [-]")

@@ -19,7 +19,12 @@ from tactex.tasks.raster import WaypointPath
 from tactex.tasks.stroke import MAX_PASSES, IslandStroke, plan_stroke
 from tactex.tasks.wear_model import WearModel
 
-__all__ = ["MAX_HOLD_STEPS", "RASTER_SKIP_M", "SWEEP_MIN_SHARE", "plan_stroke", "plan_sweep", "skip_along"]
+#: A sweep of at most this many legs is searched first; one of up to ``CleanConfig.sweep_corners`` only when none
+#: of these reaches the goal [-].
+FEW_CORNERS = 5
+
+__all__ = ["FEW_CORNERS", "MAX_HOLD_STEPS", "RASTER_SKIP_M", "SWEEP_MIN_SHARE", "plan_stroke", "plan_sweep",
+           "skip_along"]
 
 #: A raster whose touch-down is out of the arm's reach goes on along its path this far before trying again [m].
 RASTER_SKIP_M = 0.02
@@ -121,8 +126,8 @@ def _first_leg(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m:
     from the touch-down) when the model sees no dirt, when the island is a blob as wide as the pad (passes side by
     side: the explorer's feedback does as well), holds less than :data:`SWEEP_MIN_SHARE` of the view's dirt (after
     a sweep of one island among several the explorer's route over the others is longer than from its own start)
-    or no polyline of ``cfg.sweep_corners`` legs reaches :data:`SWEEP_GOAL` within the camera's steps of
-    ``step_m`` [m]. ``support_z_m`` [m]: the plane the object stands on (None: none)."""
+    or no polyline of ``cfg.sweep_corners`` legs (:data:`FEW_CORNERS` tried first) reaches :data:`SWEEP_GOAL` within
+    the camera's steps of ``step_m`` [m]. ``support_z_m`` [m]: the plane the object stands on (None: none)."""
     stroke = plan_stroke(cloud, wear.tree, wear, here_m, from_m, cfg.pad_radius_m, step_m)
     if stroke is not None:
         return stroke, None, "a stroke over a small island"
@@ -137,10 +142,15 @@ def _first_leg(cloud: SurfaceCloud, wear: WearModel, here_m: np.ndarray, from_m:
         return None, None, f"the explorer (the island there holds {100 * share:.0f} % of the dirt, one of several)"
     if not stroke_like(cloud.points, wear.tree, island, cfg.pad_radius_m, cloud.spacing):
         return None, None, "the explorer (the dirt is a blob as wide as the pad or wider)"
-    plan = plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
-                      cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m, goal=SWEEP_GOAL,
-                      max_corners=cfg.sweep_corners, support_z_m=support_z_m,
-                      max_length_m=cfg.vision_max_steps * step_m, seed=cfg.seed)
+    # the fewest legs first: a search over more corners finds longer detours as easily as shorter sweeps, and
+    # the tool rounds every corner the plan has
+    for n_corners in sorted({min(FEW_CORNERS, cfg.sweep_corners), cfg.sweep_corners}):
+        plan = plan_sweep(cloud, wear.tree, view_dirt * island, here_m, cfg.pad_radius_m,
+                          cfg.preston_coefficient * cfg.force_n / (np.pi * cfg.pad_radius_m**2), step_m,
+                          goal=SWEEP_GOAL, max_corners=n_corners, support_z_m=support_z_m,
+                          max_length_m=cfg.vision_max_steps * step_m, seed=cfg.seed)
+        if plan is not None:
+            break
     if plan is None:
         return None, None, (f"the explorer (strokes, but no sweep of {cfg.sweep_corners} legs takes "
                             f"{100 * SWEEP_GOAL:.0f} % of them off)")

@@ -4,6 +4,8 @@ the pad kept above the table and the lift-off."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from tactex.control.references import LineForceReference
@@ -39,6 +41,12 @@ WAYPOINT_MAX_JOINT_RAD = 0.5
 #: cleans the moves that bent the wrist by 1.3-1.5 rad in a bowl swung the tool against its wall or near it, those
 #: of about 0.6 rad passed clear of the cup and the bowl.
 LOW_MOVE_MAX_JOINT_RAD = 1.0
+#: Closest the pad's disc may come to the captured surface on a joint move's way from low over the object [m]: half
+#: the hover height (CleanConfig.hover_height_m), so the move's own ends, a hover and a lift-off, are clear of it.
+SWEEP_CLEARANCE_M = 0.015
+#: Postures checked along a joint move's path (ends included) [-]: on a move of a radian or two, a few centimetres
+#: of the tool's travel between two of them.
+SWEEP_CHECK_SAMPLES = 32
 #: The Franka's joints that swing the tool's tip about the wrist: the forearm's roll and the wrist's pitch (joints 5
 #: and 6; indices into q).
 WRIST_BEND_JOINTS = [4, 5]
@@ -129,19 +137,44 @@ def _hover_plan(loop: ControlLoop, point_m: np.ndarray, normal: np.ndarray, q_se
                               + loop.joint_move_duration(q_hover, q_from=q_above))
 
 
-def _detour_via_capture(loop: ControlLoop, q_first: np.ndarray, q_capture: np.ndarray) -> float | None:
+def _detour_via_capture(loop: ControlLoop, q_first: np.ndarray, q_capture: np.ndarray, surface=None,
+                        pad_radius_m: float = 0.0) -> float | None:
     """The extra time [s] of a joint move to ``q_first`` (7,) [rad] that goes up to the capture posture ``q_capture``
     first, or None for the direct move: a move that starts low over the object (away from the capture posture,
-    after a lift-off) and turns the forearm's roll or the wrist's pitch (:data:`WRIST_BEND_JOINTS`) by more than
-    :data:`LOW_MOVE_MAX_JOINT_RAD` swings the tool's tip, a tool length from the wrist, through the object (down a
-    bowl's far wall); from high above the object it clears it. The other joints carry the wrist between two poses
-    above the surface, and the last turns the tool about its own axis."""
+    after a lift-off) goes up first when it turns the forearm's roll or the wrist's pitch (:data:`WRIST_BEND_JOINTS`)
+    by more than :data:`LOW_MOVE_MAX_JOINT_RAD`, which swings the tool's tip, a tool length from the wrist, through
+    the object (down a bowl's far wall), or when its path brings the pad within :data:`SWEEP_CLEARANCE_M` of the
+    captured surface (``surface``: a KD-tree of its points [m], or None; :func:`passes_near`); from high above the
+    object it clears it."""
     q_now = loop.state.q
-    if (float(np.max(np.abs(q_now - q_capture))) <= AT_CAPTURE_JOINT_RAD
-            or float(np.max(np.abs(q_first - q_now)[WRIST_BEND_JOINTS])) <= LOW_MOVE_MAX_JOINT_RAD):
+    if float(np.max(np.abs(q_now - q_capture))) <= AT_CAPTURE_JOINT_RAD:
+        return None
+    if (float(np.max(np.abs(q_first - q_now)[WRIST_BEND_JOINTS])) <= LOW_MOVE_MAX_JOINT_RAD
+            and (surface is None or not passes_near(loop, q_now, q_first, surface, pad_radius_m))):
         return None
     return (loop.joint_move_duration(q_capture) + loop.joint_move_duration(q_first, q_from=q_capture)
             - loop.joint_move_duration(q_first))
+
+
+def passes_near(loop: ControlLoop, q_from: np.ndarray, q_to: np.ndarray, surface, pad_radius_m: float,
+                clearance_m: float = SWEEP_CLEARANCE_M) -> bool:
+    """Whether the joint move ``q_from`` → ``q_to`` (7,) [rad] brings the pad, a disc of ``pad_radius_m`` [m] at the
+    TCP ⟂ the tool axis, within ``clearance_m`` [m] of the captured surface (``surface``: a KD-tree of its points
+    [m]) on its way: the posture sampled along the move's straight line in joint space (a minimum-jerk move keeps to
+    it), the ends left out (a lift-off's and a hover's own heights are above the clearance). False from a backend
+    without a kinematic model."""
+    q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
+    ring = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    disc = np.vstack([[0.0, 0.0], pad_radius_m * np.column_stack([np.cos(ring), np.sin(ring)])])  # (9, 2) [m]
+    for s in np.linspace(0.0, 1.0, SWEEP_CHECK_SAMPLES)[1:-1]:
+        pose = loop.tcp_pose(q_from + s * (q_to - q_from))
+        if pose is None:
+            return False
+        position, rotation = pose
+        pad = position + disc @ rotation[:, :2].T
+        if float(surface.query(pad)[0].min()) < clearance_m:
+            return True
+    return False
 
 
 def _quickest_touch_down(loop: ControlLoop, cloud: SurfaceCloud, targets: np.ndarray, q_capture: np.ndarray,
@@ -224,6 +257,59 @@ def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndar
     if touch_down_ok is not None and touch_down_ok[indices].any():
         return indices[touch_down_ok[indices]]
     return indices
+
+
+def rise(loop: ControlLoop, hold_s: float = 0.0) -> None:
+    """Straight up by :data:`CLEARANCE_M` along a line of IK waypoints (:meth:`ControlLoop.move_cartesian`, one smooth
+    joint path); a single linearised step up from a bent posture moves sideways too. ``hold_s`` [s]: a hold before
+    the line's IK (on a real robot the IK pauses torque control and the robot holds the arm meanwhile; one still
+    moving would be elsewhere when the next command comes, a step of the joint spring's torque). Where the line
+    leaves the arm's reach, one linearised step instead."""
+    if hold_s > 0.0:
+        loop.hold(hold_s)
+    up = np.array([0.0, 0.0, CLEARANCE_M])
+    try:
+        loop.move_cartesian(loop.state.ee_position + up, loop.state.ee_rotation, settle_s=0.0)
+    except SimulationError:
+        loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=up)
+
+
+def rise_to_capture(loop: ControlLoop, cap_pos_m: np.ndarray, cap_rot: np.ndarray, q_capture: np.ndarray,
+                    hold_s: float = 0.0) -> None:
+    """From low over the object (after a lift-off) towards the capture pose ``cap_pos_m`` (3,) [m], ``cap_rot``
+    (3, 3), posture ``q_capture`` (7,) [rad]: :func:`rise`, then along the straight line to the capture pose through
+    IK waypoints. A single joint move from inside a bowl can swing the tool through its wall on the way. Without a
+    straight way the caller's joint move to ``q_capture`` still reaches the camera."""
+    rise(loop, hold_s)
+    if hold_s > 0.0:
+        loop.hold(hold_s)
+    try:
+        loop.move_cartesian(cap_pos_m, cap_rot, settle_s=0.0, q_goal=q_capture)
+    except SimulationError as exc:
+        warnings.warn(f"clean: no straight way back to the camera ({exc}); moving in joint space", RuntimeWarning,
+                      stacklevel=3)
+
+
+def clear_of_the_object(loop: ControlLoop, q_first: np.ndarray, cap_pos_m: np.ndarray, cap_rot: np.ndarray,
+                        q_capture: np.ndarray, surface, pad_radius_m: float, hold_s: float = 0.0) -> bool:
+    """Before a joint move to ``q_first`` (7,) [rad] that :func:`_detour_via_capture` finds unsafe from low over the
+    object: :func:`rise`, and when the move from up there still brings the pad near the captured surface
+    (:func:`passes_near`; ``surface`` a KD-tree of its points [m], ``pad_radius_m`` [m]), on to the capture posture
+    (:func:`rise_to_capture`'s line, then the joint move to ``q_capture``). True when it went to the capture
+    posture. Going up first is a fraction of the trip to the capture posture and its way back."""
+    rise(loop, hold_s)
+    if not passes_near(loop, loop.state.q, q_first, surface, pad_radius_m) \
+            and float(np.max(np.abs(q_first - loop.state.q)[WRIST_BEND_JOINTS])) <= LOW_MOVE_MAX_JOINT_RAD:
+        return False
+    if hold_s > 0.0:
+        loop.hold(hold_s)
+    try:
+        loop.move_cartesian(cap_pos_m, cap_rot, settle_s=0.0, q_goal=q_capture)
+    except SimulationError as exc:
+        warnings.warn(f"clean: no straight way up to the camera ({exc}); moving in joint space", RuntimeWarning,
+                      stacklevel=3)
+    loop.move_joints(q_capture, settle_s=0.0)
+    return True
 
 
 def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4,

@@ -8,6 +8,7 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from tactex.control.ga_line_force import GaLineForceController, GaLineForceParams
 from tactex.control.load_error import LoadError, LoadErrorEstimator
@@ -34,7 +35,6 @@ from tactex.tasks.clean.line_reference import LineLead, ToolNormal, blend_normal
 from tactex.tasks.clean.metrics import clean_metrics
 from tactex.tasks.clean.motion import (
     APPROACH_ACCEL_M_S2,
-    CLEARANCE_M,
     HOVER_SETTLE_S,
     RETRACT_M,
     SUPPORT_Z_M,
@@ -225,6 +225,12 @@ class CleanProgram:
             self.bar.note(f"stopped early: {self.aborted}")
         return self.finish()
 
+    def _rise_to_capture(self) -> None:
+        """From low over the object towards the capture pose: straight up, then along a line of IK waypoints (a
+        single joint move from inside a bowl can swing the tool through its wall), ending near the capture posture."""
+        motion.rise_to_capture(self.loop, self.cap_pos, self.cap_rot, self.q_capture,
+                               ROBOT_SETTLE_S if self.robot is not None else 0.0)
+
     def _left(self) -> np.ndarray:
         """What the robot believes is left per cloud point (N,), in the target's units: the wear model's
         prediction, else the target no footprint has touched yet (the live page's colours)."""
@@ -239,19 +245,7 @@ class CleanProgram:
         loop = self.loop
         self.log.activity("move", "vision")
         if lift:
-            # From a retract inside a bowl a single joint move to the capture pose can dip the tool back into
-            # the bowl: straight up first, then along a line of IK waypoints.
-            loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=np.array([0.0, 0.0, 1.0]))
-            if self.robot is not None:
-                # the path's IK below pauses torque control: the robot holds the arm meanwhile, and one still
-                # moving at the end of the retract would be somewhere else when the next command comes (a step
-                # of the joint spring's torque, clipped by the torque-rate limit)
-                loop.hold(ROBOT_SETTLE_S)
-            try:
-                loop.move_cartesian(self.cap_pos, self.cap_rot, settle_s=0.0, q_goal=self.q_capture)
-            except SimulationError as exc:  # the joint move below still reaches the camera
-                warnings.warn(f"clean: no straight way back to the camera ({exc}); moving in joint space",
-                              RuntimeWarning, stacklevel=2)
+            self._rise_to_capture()
         check = self._load_check()
         loop.move_joints(self.q_capture, settle_s=0.3, load_check=check)
         self._compensate_load(check)
@@ -325,8 +319,8 @@ class CleanProgram:
             wear.reset(self.cleanable_target)  # dirt the robot may not touch is never predicted left: no goal
         self.target0 = float(self.cleanable_target.sum())
         self.lead = LineLead(cfg.line_lead_s, self.dt_step)
-        self.tool_normal = (ToolNormal(cloud, tree=wear.tree if wear is not None else None)
-                            if cfg.line_normal_feedback > 0 else None)
+        self.surface_tree = wear.tree if wear is not None else cKDTree(cloud.points)  # the moves' clearance check
+        self.tool_normal = ToolNormal(cloud, tree=self.surface_tree) if cfg.line_normal_feedback > 0 else None
         self.vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
         self.islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
         self.island_moves = self.moves_via_capture = 0  # those relocations; far moves via the capture posture
@@ -475,12 +469,14 @@ class CleanProgram:
         if not plan:
             return plan
         q_above, q_hover, move_s = plan
-        detour_s = motion._detour_via_capture(loop, q_hover if q_above is None else q_above, self.q_capture)
+        detour_s = motion._detour_via_capture(loop, q_hover if q_above is None else q_above, self.q_capture,
+                                              self.surface_tree, cfg.pad_radius_m)
         if loop.t + move_s + (detour_s or 0.0) + HOVER_SETTLE_S >= self.t_end:
             return False  # the move alone would use up the budget
-        if detour_s is not None:  # a far move from low over the object: up to the capture posture first
-            self.moves_via_capture += 1
-            loop.move_joints(self.q_capture, settle_s=0.0)
+        if detour_s is not None:  # a far move from low over the object: up first, to the capture posture if need be
+            self.moves_via_capture += motion.clear_of_the_object(
+                loop, q_hover if q_above is None else q_above, self.cap_pos, self.cap_rot, self.q_capture,
+                self.surface_tree, cfg.pad_radius_m, ROBOT_SETTLE_S if self.robot is not None else 0.0)
         if q_above is not None:
             loop.move_joints(q_above, settle_s=0.0)
         check = self._load_check()

@@ -50,6 +50,10 @@ from tactex.tasks.stroke import MAX_LINE_GAP_M
 
 __all__ = ["MAX_CORNERS", "PLAN_GRID_M", "SweepPlan", "dirt_island", "plan_sweep", "stroke_like"]
 
+#: Shortest leg on either side of a corner that turns back (by more than a right angle) [pad radii]: the tool
+#: trails the agent and rounds each corner, so an out-and-back jiggle to a stroke's tip shorter than this does not
+#: take the pad where the plan's prediction has it.
+MIN_LEG_RADII = 0.8
 #: Random polylines tried before refining the best [-].
 N_RANDOM = 300
 #: Refinement trials (one corner moved at a time), shared by the climbs [-].
@@ -181,9 +185,22 @@ class _Predictor:
                 self._legs[key] = (samples, ds, s_idx, d_idx)
         return self._legs[key]
 
+    def jiggles(self, corners: list[int]) -> bool:
+        """Whether the polyline through the cloud points ``corners`` turns back (by more than a right angle) at a
+        corner next to a leg shorter than :data:`MIN_LEG_RADII` pad radii."""
+        if len(corners) < 3:
+            return False
+        p = self.cloud.points[corners]
+        legs = np.diff(p, axis=0)
+        short = np.linalg.norm(legs, axis=1) < MIN_LEG_RADII * self.radius
+        back = np.einsum("ij,ij->i", legs[:-1], legs[1:]) < 0.0
+        return bool(np.any(back & (short[:-1] | short[1:])))
+
     def length_to_goal(self, corners: list[int], goal: float) -> float:
         """Slide [m] along the polyline through the cloud points ``corners`` until ``goal`` of the dirt mass
         is predicted off; inf when it never is or a leg leaves the surface."""
+        if self.jiggles(corners):
+            return np.inf
         ds_all, s_all, d_all = [], [], []
         offset = 0
         for i, j in itertools.pairwise(corners):
