@@ -479,3 +479,16 @@ def test_painting_the_dirt_field_from_points() -> None:
         field.paint(np.zeros((0, 3)), 0.006)
     with pytest.raises(ConfigError):
         field.paint(grid, 0.0)
+
+
+def test_a_move_past_the_cups_wall_backs_off_along_the_tool_axis_instead_of_the_capture_posture() -> None:
+    """The region raster on the cup's blobs: the move from one blob's lift-off to the next blob's hover passes
+    within 1.5 cm of the cup's wall, and going straight up runs along the wall. Backing off along the tool axis
+    clears it, without the trip to the capture posture and back."""
+    cfg = CleanConfig(object_name="cup", marking="blobs", baseline="region_raster")
+    m = run_clean(cfg, progress=False).metrics
+    assert m["moves_backed_off"] >= 1, "no move backed off the cup's wall: the scenario does not test the rule"
+    assert m["moves_via_capture"] == 0
+    assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
+    assert m["torque_rate_clip_ticks"] == 0
+    assert m["dirt_removed_fraction"] > 0.95

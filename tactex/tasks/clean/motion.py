@@ -274,6 +274,18 @@ def rise(loop: ControlLoop, hold_s: float = 0.0) -> None:
         loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=up)
 
 
+def back_off(loop: ControlLoop, hold_s: float = 0.0) -> None:
+    """Straight back along the tool axis (away from the surface the tool last pressed) by :data:`CLEARANCE_M`, as
+    :func:`rise` goes up (``hold_s`` [s] the same)."""
+    if hold_s > 0.0:
+        loop.hold(hold_s)
+    out = -loop.state.ee_rotation[:, 2] * CLEARANCE_M
+    try:
+        loop.move_cartesian(loop.state.ee_position + out, loop.state.ee_rotation, settle_s=0.0)
+    except SimulationError:
+        loop.retract(CLEARANCE_M, duration_s=0.4)
+
+
 def rise_to_capture(loop: ControlLoop, cap_pos_m: np.ndarray, cap_rot: np.ndarray, q_capture: np.ndarray,
                     hold_s: float = 0.0) -> None:
     """From low over the object (after a lift-off) towards the capture pose ``cap_pos_m`` (3,) [m], ``cap_rot``
@@ -291,16 +303,18 @@ def rise_to_capture(loop: ControlLoop, cap_pos_m: np.ndarray, cap_rot: np.ndarra
 
 
 def clear_of_the_object(loop: ControlLoop, q_first: np.ndarray, cap_pos_m: np.ndarray, cap_rot: np.ndarray,
-                        q_capture: np.ndarray, surface, pad_radius_m: float, hold_s: float = 0.0) -> bool:
+                        q_capture: np.ndarray, surface, pad_radius_m: float, hold_s: float = 0.0) -> str:
     """Before a joint move to ``q_first`` (7,) [rad] that :func:`_detour_via_capture` finds unsafe from low over the
-    object: :func:`rise`, and when the move from up there still brings the pad near the captured surface
-    (:func:`passes_near`; ``surface`` a KD-tree of its points [m], ``pad_radius_m`` [m]), on to the capture posture
-    (:func:`rise_to_capture`'s line, then the joint move to ``q_capture``). True when it went to the capture
-    posture. Going up first is a fraction of the trip to the capture posture and its way back."""
-    rise(loop, hold_s)
-    if not passes_near(loop, loop.state.q, q_first, surface, pad_radius_m) \
-            and float(np.max(np.abs(q_first - loop.state.q)[WRIST_BEND_JOINTS])) <= LOW_MOVE_MAX_JOINT_RAD:
-        return False
+    object: :func:`rise`; when the move from up there still brings the pad near the captured surface
+    (:func:`passes_near`; ``surface`` a KD-tree of its points [m], ``pad_radius_m`` [m]), :func:`back_off` along the
+    tool axis (up is along a cup's wall, out is away from it); when it still does, on to the capture posture
+    (:func:`rise_to_capture`'s line, then the joint move to ``q_capture``). The way it went: ``"up"``, ``"out"`` or
+    ``"capture"``. Going up or out first is a fraction of the trip to the capture posture and its way back."""
+    for way, away in (("up", rise), ("out", back_off)):
+        away(loop, hold_s)
+        if not passes_near(loop, loop.state.q, q_first, surface, pad_radius_m) \
+                and float(np.max(np.abs(q_first - loop.state.q)[WRIST_BEND_JOINTS])) <= LOW_MOVE_MAX_JOINT_RAD:
+            return way
     if hold_s > 0.0:
         loop.hold(hold_s)
     try:
@@ -309,7 +323,7 @@ def clear_of_the_object(loop: ControlLoop, q_first: np.ndarray, cap_pos_m: np.nd
         warnings.warn(f"clean: no straight way up to the camera ({exc}); moving in joint space", RuntimeWarning,
                       stacklevel=3)
     loop.move_joints(q_capture, settle_s=0.0)
-    return True
+    return "capture"
 
 
 def _lift_off(loop: ControlLoop, distance_m: float, duration_s: float = 0.4,

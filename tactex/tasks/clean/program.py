@@ -323,7 +323,8 @@ class CleanProgram:
         self.tool_normal = ToolNormal(cloud, tree=self.surface_tree) if cfg.line_normal_feedback > 0 else None
         self.vision_steps = cfg.vision_every_steps if wear is None else cfg.vision_max_steps
         self.islands_tried: list[np.ndarray] = []  # [m] touch-down points of the relocations since the last view
-        self.island_moves = self.moves_via_capture = 0  # those relocations; far moves via the capture posture
+        # those relocations; far moves from low over the object that went via the capture posture, or out first
+        self.island_moves = self.moves_via_capture = self.moves_backed_off = 0
         # control ticks between wear-model updates (the pad moves well under a millimetre)
         self.wear_ticks = _WearTicks(wear, self.backend.dt, every=10) if wear is not None else None
         # the posture of the capture pose keeps the redundant elbow where it was planned
@@ -474,9 +475,11 @@ class CleanProgram:
         if loop.t + move_s + (detour_s or 0.0) + HOVER_SETTLE_S >= self.t_end:
             return False  # the move alone would use up the budget
         if detour_s is not None:  # a far move from low over the object: up first, to the capture posture if need be
-            self.moves_via_capture += motion.clear_of_the_object(
+            way = motion.clear_of_the_object(
                 loop, q_hover if q_above is None else q_above, self.cap_pos, self.cap_rot, self.q_capture,
                 self.surface_tree, cfg.pad_radius_m, ROBOT_SETTLE_S if self.robot is not None else 0.0)
+            self.moves_via_capture += way == "capture"
+            self.moves_backed_off += way == "out"
         if q_above is not None:
             loop.move_joints(q_above, settle_s=0.0)
         check = self._load_check()
