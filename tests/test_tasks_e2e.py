@@ -117,8 +117,8 @@ def test_a_far_joint_move_after_a_lift_off_goes_up_to_the_capture_posture_first(
     capture posture first."""
     from tactex.tasks.clean import sweep_plan
 
-    monkeypatch.setattr(sweep_plan, "END_BEYOND_RADII", np.inf)  # the scenario: the sweep to its last corner
-    cfg = CleanConfig(object_name="bowl", marking="RLI", seed=1)
+    monkeypatch.setattr(sweep_plan, "END_BEYOND_RADII", np.inf)  # the scenario: the sweep to its last corner,
+    cfg = CleanConfig(object_name="bowl", marking="RLI", seed=1, line_lead_s=0.2)  # followed as when it was found
     m = run_clean(cfg, progress=False).metrics
     assert m["moves_via_capture"] >= 1, "no far move from low over the bowl: the scenario does not test the rule"
     assert m["max_contact_force_n"] <= 2.0 * cfg.force_n

@@ -171,11 +171,13 @@ class CleanConfig(SimWorldParams):
         0.0, "the agent waits (its step is put off) while the tool lags the commanded point by more than this "
         "along the surface; 0 = never waits [m]")
     line_lead_s: float = param(
-        0.2, "the commanded line's point runs this far ahead of the agent along its step (velocity "
+        0.28, "the commanded line's point runs this far ahead of the agent along its step (velocity "
         "feed-forward): the line impedance damps the tool's own speed, so a tool following a moving agent "
-        "trails it by speed × D/K (tool x/y: 150/750 = 0.2 s, 1.2 cm at the agent's 6 cm/s), on a strongly "
-        "curved wall an angle between the surface under the pad and the commanded line; 0 = the agent's "
-        "point itself (TEC eq. 28) [s]")
+        "trails it by speed × D/K (tool x/y: 150/750 = 0.2 s, 1.2 cm at the agent's 6 cm/s), and the pad's "
+        "sliding friction holds it back by μ·F/K more (5 mm at μ = 0.4 and 10 N: 0.09 s at 6 cm/s), which the "
+        "default makes up for in most part (a larger lead swings the line's point further at each reversal); on "
+        "a strongly curved wall the trail is an angle between the surface under the pad and the commanded "
+        "line; 0 = the agent's point itself (TEC eq. 28) [s]")
     line_normal_feedback: float = param(
         0.5, "how far the commanded line's direction leans from the agent's normal towards the captured "
         "surface's normal under the measured tool, 0–1: the tool presses along the surface where it is while "

@@ -12,7 +12,8 @@ along the tool axis leaves its band and the line's pull around the wall fights t
 Two general remedies, both zero-effect on a plane:
 
 - **Lead** (:class:`LineLead`): the line's point runs ``lead_s`` times the agent's velocity ahead, a
-  velocity feed-forward: K·(x_a + τ·ẋ_a − x) − D·ẋ = K·(x_a − x) − D·(ẋ − ẋ_a) for τ = D/K. The point
+  velocity feed-forward: K·(x_a + τ·ẋ_a − x) − D·ẋ = K·(x_a − x) − D·(ẋ − ẋ_a) for τ = D/K, and a
+  little more makes up for the pad's sliding friction μ·F, which holds the tool μ·F/K back. The point
   leaves the surface along the tangent (by s²/2R, about along the line, where the line impedance
   does not act).
 - **Normal feedback** (:class:`ToolNormal`, :func:`blend_normals`): the line's direction leans from
@@ -32,8 +33,8 @@ from tactex.pointcloud.cloud import SurfaceCloud
 
 __all__ = ["LEAD_SMOOTHING_S", "LineLead", "ToolNormal", "blend_normals"]
 
-#: [s] time constant of the lead's low-pass, as long as the default lead: the offset follows a change of the
-#: agent's velocity over about the time it leads by (a shorter 0.1 s leaves torque-rate clips on the cup's wall)
+#: [s] time constant of the lead's low-pass, the line impedance's D/K: the offset follows a change of the agent's
+#: velocity about as quickly as the tool itself can (a shorter 0.1 s leaves torque-rate clips on the cup's wall)
 LEAD_SMOOTHING_S = 0.2
 
 
@@ -46,7 +47,7 @@ class LineLead:
     change (1.2 cm at a hold), a step in the reference the line stiffness turns into a torque step.
 
     Args:
-        lead_s: how far ahead [s], ≥ 0 (the line impedance's D/K: 0.2 s).
+        lead_s: how far ahead [s], ≥ 0 (the line impedance's D/K, 0.2 s, and the friction's share).
         step_s: the agent's step duration [s], > 0.
         smoothing_s: time constant of the low-pass [s], > 0.
     """
