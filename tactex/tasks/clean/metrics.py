@@ -43,7 +43,7 @@ def clean_metrics(program: Any, series: dict[str, np.ndarray]) -> dict:
         # far joint moves from low over the object that went up to the capture posture first
         # (motion.LOW_MOVE_MAX_JOINT_RAD)
         "moves_via_capture": program.moves_via_capture,
-        # those that backed off along the tool axis (after going up) instead (away from a cup's wall)
+        # far moves that went up, then backed off along the tool axis (out from a cup's wall) instead
         "moves_backed_off": program.moves_backed_off,
         "island_strokes": program.n_strokes,
         # what the first leg in contact was and why (legs._first_leg: a stroke, a planned sweep or the explorer)

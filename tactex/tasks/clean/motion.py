@@ -259,31 +259,30 @@ def _touchable(indices: np.ndarray, touch_down_ok: np.ndarray | None) -> np.ndar
     return indices
 
 
-def rise(loop: ControlLoop, hold_s: float = 0.0) -> None:
-    """Straight up by :data:`CLEARANCE_M` along a line of IK waypoints (:meth:`ControlLoop.move_cartesian`, one smooth
-    joint path); a single linearised step up from a bent posture moves sideways too. ``hold_s`` [s]: a hold before
-    the line's IK (on a real robot the IK pauses torque control and the robot holds the arm meanwhile; one still
-    moving would be elsewhere when the next command comes, a step of the joint spring's torque). Where the line
-    leaves the arm's reach, one linearised step instead."""
+def _straight_away(loop: ControlLoop, hold_s: float, along_tool_axis: bool) -> None:
+    """By :data:`CLEARANCE_M` straight up, or back along the tool axis (``along_tool_axis``), along a line of IK
+    waypoints (:meth:`ControlLoop.move_cartesian`, one smooth joint path); a single linearised step from a bent
+    posture moves sideways too. ``hold_s`` [s]: a hold before the line's IK (on a real robot the IK pauses torque
+    control and the robot holds the arm meanwhile; one still moving would be elsewhere when the next command comes,
+    a step of the joint spring's torque). Where the line leaves the arm's reach, one linearised step instead."""
     if hold_s > 0.0:
         loop.hold(hold_s)
-    up = np.array([0.0, 0.0, CLEARANCE_M])
+    direction = -loop.state.ee_rotation[:, 2] if along_tool_axis else np.array([0.0, 0.0, 1.0])
     try:
-        loop.move_cartesian(loop.state.ee_position + up, loop.state.ee_rotation, settle_s=0.0)
+        loop.move_cartesian(loop.state.ee_position + CLEARANCE_M * direction, loop.state.ee_rotation, settle_s=0.0)
     except SimulationError:
-        loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=up)
+        loop.retract(CLEARANCE_M, duration_s=0.4, direction_world=direction)
+
+
+def rise(loop: ControlLoop, hold_s: float = 0.0) -> None:
+    """Straight up by :data:`CLEARANCE_M` (:func:`_straight_away`; ``hold_s`` [s] a hold before it)."""
+    _straight_away(loop, hold_s, along_tool_axis=False)
 
 
 def back_off(loop: ControlLoop, hold_s: float = 0.0) -> None:
-    """Straight back along the tool axis (away from the surface the tool last pressed) by :data:`CLEARANCE_M`, as
-    :func:`rise` goes up (``hold_s`` [s] the same)."""
-    if hold_s > 0.0:
-        loop.hold(hold_s)
-    out = -loop.state.ee_rotation[:, 2] * CLEARANCE_M
-    try:
-        loop.move_cartesian(loop.state.ee_position + out, loop.state.ee_rotation, settle_s=0.0)
-    except SimulationError:
-        loop.retract(CLEARANCE_M, duration_s=0.4)
+    """Straight back along the tool axis (away from the surface the tool last pressed) by :data:`CLEARANCE_M`
+    (:func:`_straight_away`; ``hold_s`` [s] a hold before it)."""
+    _straight_away(loop, hold_s, along_tool_axis=True)
 
 
 def rise_to_capture(loop: ControlLoop, cap_pos_m: np.ndarray, cap_rot: np.ndarray, q_capture: np.ndarray,

@@ -474,7 +474,7 @@ class CleanProgram:
                                               self.surface_tree, cfg.pad_radius_m)
         if loop.t + move_s + (detour_s or 0.0) + HOVER_SETTLE_S >= self.t_end:
             return False  # the move alone would use up the budget
-        if detour_s is not None:  # a far move from low over the object: up first, to the capture posture if need be
+        if detour_s is not None:  # a far move from low over the object: up, then out, then via the capture posture
             way = motion.clear_of_the_object(
                 loop, q_hover if q_above is None else q_above, self.cap_pos, self.cap_rot, self.q_capture,
                 self.surface_tree, cfg.pad_radius_m, ROBOT_SETTLE_S if self.robot is not None else 0.0)
