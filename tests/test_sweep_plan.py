@@ -409,3 +409,45 @@ def test_the_fewest_corners_are_searched_first(monkeypatch: pytest.MonkeyPatch, 
     _, plan, choice = _first_leg(cloud, wear, np.array([0.0, 0.0, 0.0]), np.array([0.0, -0.3, 0.3]), cfg, STEP, None)
     assert plan is not None and choice.startswith("a planned sweep over strokes")
     assert calls == ([legs_module.FEW_CORNERS] if five_reach else [legs_module.FEW_CORNERS, 8])
+
+
+def test_the_annealing_takes_a_longer_trial_as_often_as_its_temperature_says() -> None:
+    rng = np.random.default_rng(0)
+    taken = np.mean([sweep_plan._uphill_taken(0.005, 0.005, rng) for _ in range(20000)])
+    assert abs(taken - np.exp(-1.0)) < 0.015
+    assert not sweep_plan._uphill_taken(np.inf, 0.005, rng)  # a trial that never reaches the goal: never
+    assert not any(sweep_plan._uphill_taken(1e-9, 0.0, rng) for _ in range(100))  # cooled: a pure descent
+
+
+def _letters(p: np.ndarray) -> np.ndarray:
+    """Three letters side by side (8 cm tall, 1 cm wide strokes): an R, an L and an I, joined within two pad
+    radii into one island of strokes whose shortest sweep has many local minima."""
+    x, y, w = p[:, 0], p[:, 1], 0.005
+    r = ((np.abs(x + 0.06) <= w) & (np.abs(y) <= 0.04)) | ((np.abs(y - 0.04) <= w) & (x >= -0.06) & (x <= -0.03)) \
+        | ((np.abs(x + 0.03) <= w) & (y >= 0.0) & (y <= 0.04)) | ((np.abs(y) <= w) & (x >= -0.06) & (x <= -0.03)) \
+        | ((np.abs(x + 0.045 + 0.375 * y) <= w) & (y <= 0.0) & (y >= -0.04))
+    ell = ((np.abs(x) <= w) & (np.abs(y) <= 0.04)) | ((np.abs(y + 0.04) <= w) & (x >= 0.0) & (x <= 0.03))
+    i = (np.abs(x - 0.06) <= w) & (np.abs(y) <= 0.04)
+    return (r | ell | i).astype(float)
+
+
+def test_the_annealed_search_plans_shorter_sweeps_than_a_descent_moving_one_corner(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    cloud = _plane(_letters, half=0.1)
+    tree, start = cKDTree(cloud.points), np.zeros(3)
+
+    def mean_length() -> float:
+        plans = [plan_sweep(cloud, tree, cloud.target, start, R, PER_M, STEP, goal=0.97, max_corners=8, seed=s)
+                 for s in range(4)]
+        assert all(p is not None for p in plans)
+        return float(np.mean([p.length_m for p in plans]))
+
+    annealed = mean_length()
+    monkeypatch.setattr(sweep_plan, "ANNEAL_START_M", 0.0)
+    monkeypatch.setattr(sweep_plan, "STEP_SHRINK", 1.0)
+    monkeypatch.setattr(sweep_plan, "REVERSE_SHARE", 0.0)
+    monkeypatch.setattr(sweep_plan, "RECUT_SHARE", 0.0)
+    descent = mean_length()
+    # the same trials' budget: the descent keeps its polylines' order and legs and stops in the first local minimum
+    # it meets
+    assert annealed < descent - 0.01

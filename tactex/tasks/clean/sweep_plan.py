@@ -11,7 +11,9 @@ view of what is left.
 
 The polyline's corners are searched among the cloud points within a pad radius of the dirt: random
 polylines, and the dirt's extreme points (a stroke's ends, an X's tips, pushed out beyond the dirt by the
-slide their points need) in every order, then each corner moved at random while the slide gets no longer.
+slide their points need) in every order, then the best few refined by simulated annealing: corners moved, added or
+dropped and runs of them reversed at random, a longer slide taken now and then, less often as the search goes on, so
+that it does not stop in the first local minimum.
 A leg is the chord between two corners brought onto the surface along the nearest cloud point's normal (on
 a convex wall: the arc; over a concave one: its floor), raised where the pad's disc would touch the support
 the object stands on. A leg whose chord runs beside the surface by more than
@@ -56,7 +58,7 @@ __all__ = ["MAX_CORNERS", "PLAN_GRID_M", "SweepPlan", "dirt_island", "plan_sweep
 MIN_LEG_RADII = 0.8
 #: Random polylines tried before refining the best [-].
 N_RANDOM = 300
-#: Refinement trials (one corner moved at a time), shared by the climbs [-].
+#: Refinement trials (a corner moved, added or dropped, or a run of corners reversed), shared by the walks [-].
 N_REFINE = 1500
 #: Extreme points of the dirt whose orderings seed the search besides the random polylines [-]: an X's four tips
 #: and two more (at most 720 orderings of five).
@@ -66,8 +68,23 @@ END_BEYOND_RADII = 0.5
 #: A point with fewer neighbours than this share of the median count is on the cloud's edge (stroke_like) [-]:
 #: within two spacings a point on a grid's straight edge has about 60 % of an interior point's, a corner 40 %.
 EDGE_NEIGHBOUR_SHARE = 0.75
-#: Hill climbs, from the best random polylines (and one more from the best ordering of the dirt's extremes) [-].
-N_CLIMBS = 3
+#: Annealed walks that refine a polyline, from the best random ones (and one more from the best ordering of the
+#: dirt's extremes) [-].
+N_WALKS = 3
+#: A walk's temperature at its start [m of slide]: a trial this much longer than the polyline it changes is
+#: taken with probability 1/e, the temperature falling linearly to zero (then only a trial no longer is taken):
+#: simulated annealing. The slide's length has many local minima; a pure descent stops in the first one it meets,
+#: and each of a few descents stopping in a different one makes the plan, and the time to clean, vary from one
+#: seed to the next.
+ANNEAL_START_M = 0.005
+#: How far a corner moves in a trial at a walk's end, against its start (about one pad width) [-]: the
+#: trials' spread shrinks geometrically, from moves between strokes to fine adjustments along one.
+STEP_SHRINK = 0.1
+#: Shares of a walk's trials that reverse a run of corners (the order the sweep visits them in), and that
+#: drop a corner or add one (a leg split in two), the count kept [-]; the others move one corner. Moving one corner
+#: at a time keeps the order the polyline was drawn in and its number of legs up to the goal.
+REVERSE_SHARE = 0.15
+RECUT_SHARE = 0.15
 #: Most candidate corners (cloud points near the dirt, thinned evenly) [-].
 MAX_CANDIDATES = 400
 #: Most corners a sweep may have after its start [-]: the search's cost grows with them, and a longer sweep
@@ -319,6 +336,42 @@ def stroke_like(points_m: np.ndarray, tree: cKDTree, island: np.ndarray, pad_rad
     return bool(np.percentile(depth, 90) <= 0.5 * pad_radius_m)
 
 
+def _trial(walk: list[int], rng: np.random.Generator, spread_m: float, near: np.ndarray, cand_tree: cKDTree,
+           points_m: np.ndarray) -> list[int]:
+    """A polyline changed at random from ``walk`` (cloud point indices into ``points_m`` (N, 3) [m], the start
+    first and kept): a run of corners reversed (:data:`REVERSE_SHARE` of the trials), a corner dropped and one added
+    beyond the last or one added within a leg and the last dropped (:data:`RECUT_SHARE`), else one corner moved. A
+    new or moved corner is the candidate of ``near`` (found in ``cand_tree``) nearest a normal draw of spread
+    ``spread_m`` [m] around where it goes."""
+    def land(at_m: np.ndarray) -> int:
+        return int(near[cand_tree.query(at_m + rng.normal(0.0, spread_m, 3))[1]])
+
+    k = int(rng.integers(1, len(walk)))
+    trial = list(walk)
+    u = rng.random() if REVERSE_SHARE + RECUT_SHARE > 0.0 else 1.0  # no draw when every trial moves a corner
+    if u < REVERSE_SHARE and len(walk) > 3:
+        a, b = sorted(rng.choice(np.arange(1, len(walk)), 2, replace=False))
+        trial[a:b + 1] = trial[a:b + 1][::-1]
+    elif u < REVERSE_SHARE + RECUT_SHARE and len(walk) > 2:
+        if rng.random() < 0.5:
+            del trial[k]
+            trial.append(land(points_m[trial[-1]]))
+        else:
+            trial.insert(k, land(0.5 * (points_m[trial[k - 1]] + points_m[trial[k]])))
+            trial.pop()
+    else:
+        trial[k] = land(points_m[walk[k]])
+    return trial
+
+
+def _uphill_taken(longer_m: float, temperature_m: float, rng: np.random.Generator) -> bool:
+    """Whether the annealing takes a trial ``longer_m`` [m] (> 0, inf: it never reaches its goal) longer than the
+    polyline it changes, at ``temperature_m`` [m]: with probability exp(−longer/temperature)."""
+    if not (temperature_m > 0.0 and np.isfinite(longer_m)):
+        return False
+    return bool(rng.random() < np.exp(-longer_m / temperature_m))
+
+
 def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: np.ndarray,
                pad_radius_m: float, removal_per_m: float, step_m: float, goal: float = 0.95,
                max_corners: int = 5, max_length_m: float = np.inf, support_z_m: float | None = None,
@@ -377,25 +430,24 @@ def plan_sweep(cloud: SurfaceCloud, tree: cKDTree, target: np.ndarray, start_m: 
     drawn.sort(key=lambda d: d[0])
     ordered = [(pred.length_to_goal(c, goal), c) for c in _extreme_orderings(pred, cloud, near, cand_tree, start,
                                                                              n_corners)]
-    # a few climbs, from the best random polylines and the best ordering of the extremes: the slide's length has
-    # many local minima
-    starts = [*drawn[:N_CLIMBS], min(ordered, key=lambda d: d[0], default=(np.inf, []))]
+    # a few annealed refinements, from the best random polylines and the best ordering of the extremes
+    starts = [*drawn[:N_WALKS], min(ordered, key=lambda d: d[0], default=(np.inf, []))]
     starts = [(length, corners) for length, corners in starts if length < np.inf]
     if not starts:
         return None
-    scale = 2.0 * pad_radius_m  # how far a corner moves in one refinement trial (about one pad width)
-    best_len, best = np.inf, starts[0][1]
+    best_len, best = min(starts, key=lambda d: d[0])
+    n_trials = N_REFINE // len(starts)
     for length0, corners0 in starts:
-        climb, climb_len = corners0, length0
-        for _ in range(N_REFINE // len(starts)):
-            k = int(rng.integers(1, len(climb)))
-            trial = list(climb)
-            trial[k] = int(near[cand_tree.query(cloud.points[climb[k]] + rng.normal(0.0, scale, 3))[1]])
+        walk, walk_len = corners0, length0
+        for n in range(n_trials):
+            done = n / n_trials
+            # a corner moves about a pad width at first, STEP_SHRINK of it at the end
+            trial = _trial(walk, rng, 2.0 * pad_radius_m * STEP_SHRINK**done, near, cand_tree, cloud.points)
             length = pred.length_to_goal(trial, goal)
-            if length <= climb_len:
-                climb, climb_len = trial, length
-        if climb_len < best_len:
-            best, best_len = climb, climb_len
+            if length <= walk_len or _uphill_taken(length - walk_len, ANNEAL_START_M * (1.0 - done), rng):
+                walk, walk_len = trial, length
+                if walk_len < best_len:
+                    best, best_len = walk, walk_len
     if not best_len <= max_length_m:
         return None
     # the corners the goal needs (the rest of the polyline is not driven), measured on every dirty point: a
