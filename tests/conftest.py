@@ -80,6 +80,18 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
 
 
+@pytest.fixture
+def descent_sweep_search(monkeypatch) -> None:
+    """The planned sweep's search as a pure descent moving one corner at a time (no annealing, reversals or recuts):
+    the search that planned the sweeps some scenarios were found with, reproduced draw for draw."""
+    from tactex.tasks.clean import sweep_plan
+
+    monkeypatch.setattr(sweep_plan, "ANNEAL_START_M", 0.0)
+    monkeypatch.setattr(sweep_plan, "STEP_SHRINK", 1.0)
+    monkeypatch.setattr(sweep_plan, "REVERSE_SHARE", 0.0)
+    monkeypatch.setattr(sweep_plan, "RECUT_SHARE", 0.0)
+
+
 @pytest.fixture(autouse=True)
 def _no_machine_wide_idle_request(monkeypatch) -> None:
     """No test makes the CPUs of the machine running the suite poll (a PM QoS request is system-wide);

@@ -431,8 +431,7 @@ def _letters(p: np.ndarray) -> np.ndarray:
     return (r | ell | i).astype(float)
 
 
-def test_the_annealed_search_plans_shorter_sweeps_than_a_descent_moving_one_corner(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_annealed_search_plans_shorter_sweeps_than_a_descent_moving_one_corner(request) -> None:
     cloud = _plane(_letters, half=0.1)
     tree, start = cKDTree(cloud.points), np.zeros(3)
 
@@ -443,10 +442,7 @@ def test_the_annealed_search_plans_shorter_sweeps_than_a_descent_moving_one_corn
         return float(np.mean([p.length_m for p in plans]))
 
     annealed = mean_length()
-    monkeypatch.setattr(sweep_plan, "ANNEAL_START_M", 0.0)
-    monkeypatch.setattr(sweep_plan, "STEP_SHRINK", 1.0)
-    monkeypatch.setattr(sweep_plan, "REVERSE_SHARE", 0.0)
-    monkeypatch.setattr(sweep_plan, "RECUT_SHARE", 0.0)
+    request.getfixturevalue("descent_sweep_search")
     descent = mean_length()
     # the same trials' budget: the descent keeps its polylines' order and legs and stops in the first local minimum
     # it meets

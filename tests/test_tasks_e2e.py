@@ -110,18 +110,16 @@ def test_bowl_with_the_rli_marking_stays_within_the_force_band() -> None:
     assert kinds.count(PHASES["capture"]) == m["vision_updates"] + 1  # the first capture and each update
 
 
-def test_a_far_joint_move_after_a_lift_off_goes_up_to_the_capture_posture_first(monkeypatch) -> None:
+def test_a_far_joint_move_after_a_lift_off_goes_up_to_the_capture_posture_first(monkeypatch,
+                                                                                 descent_sweep_search) -> None:
     """The bowl's RLI, seed 1, with the planned sweep run to its last corner: after the lift-off low in the bowl the
     hover over the next dirt is an IK posture 1.4 rad away in the wrist, and the straight joint move there swung the
     tool down the bowl's far wall (24.5 N against a 10 N set point, during a move). Such a move now goes up to the
     capture posture first."""
     from tactex.tasks.clean import sweep_plan
 
-    monkeypatch.setattr(sweep_plan, "END_BEYOND_RADII", np.inf)  # the scenario: the sweep to its last corner,
-    monkeypatch.setattr(sweep_plan, "ANNEAL_START_M", 0.0)  # planned and followed as when it was found
-    monkeypatch.setattr(sweep_plan, "STEP_SHRINK", 1.0)
-    monkeypatch.setattr(sweep_plan, "REVERSE_SHARE", 0.0)
-    monkeypatch.setattr(sweep_plan, "RECUT_SHARE", 0.0)
+    # the scenario: the sweep to its last corner, planned (descent_sweep_search) and followed as when it was found
+    monkeypatch.setattr(sweep_plan, "END_BEYOND_RADII", np.inf)
     cfg = CleanConfig(object_name="bowl", marking="RLI", seed=1, line_lead_s=0.2)
     m = run_clean(cfg, progress=False).metrics
     assert m["moves_via_capture"] >= 1, "no far move from low over the bowl: the scenario does not test the rule"
@@ -129,18 +127,12 @@ def test_a_far_joint_move_after_a_lift_off_goes_up_to_the_capture_posture_first(
     assert m["dirt_removed_fraction"] > 0.95
 
 
-def test_the_way_up_to_the_capture_posture_leaves_the_bowl_straight_up_first(monkeypatch) -> None:
+def test_the_way_up_to_the_capture_posture_leaves_the_bowl_straight_up_first(descent_sweep_search) -> None:
     """The bowl's RLI, seed 2: after the planned sweep the lift-off ends low in the bowl and the next dirt's hover
     is a far wrist turn away, so the move goes up to the capture posture first; a straight joint move there from
     inside the bowl swung the tool through its wall (104-146 N, 229 clipped ticks). Now straight up first, then
     along the line of IK waypoints, as the trip to the camera does."""
-    from tactex.tasks.clean import sweep_plan
-
-    monkeypatch.setattr(sweep_plan, "ANNEAL_START_M", 0.0)  # the scenario: the sweep planned as when it was found
-    monkeypatch.setattr(sweep_plan, "STEP_SHRINK", 1.0)
-    monkeypatch.setattr(sweep_plan, "REVERSE_SHARE", 0.0)
-    monkeypatch.setattr(sweep_plan, "RECUT_SHARE", 0.0)
-    cfg = CleanConfig(object_name="bowl", marking="RLI", seed=2)
+    cfg = CleanConfig(object_name="bowl", marking="RLI", seed=2)  # the sweep planned as when it was found
     m = run_clean(cfg, progress=False).metrics
     assert m["moves_via_capture"] >= 1, "no move up to the capture posture: the scenario does not test the rule"
     assert m["max_contact_force_n"] <= 2.0 * cfg.force_n
