@@ -15,13 +15,19 @@ BALANCE_TOL = 1e-9
 D = np.diag([50.0, 50.0, 50.0, 2.0, 2.0, 2.0])
 
 
-def _check_balance(tank, energy_before: float) -> None:
+def _check_balance(tank, energy_before: float, vented_before: float) -> None:
     step = tank.last
     # eq. 42 / 61: f_varᵀẋ + u_t y_t = 0 (power-preserving interconnection)
     assert step.port_power + step.tank_port_power == pytest.approx(0.0, abs=BALANCE_TOL)
-    # and the tank's energy changes by exactly the port and harvest powers over the step
-    expected = DT * (step.harvest_power + step.tank_port_power)
+    # and the tank's energy changes by exactly the port and harvest powers over the step, less what a full
+    # tank vents; it only ever vents inflow above S̄
+    vented = tank.vented - vented_before
+    assert vented >= -BALANCE_TOL
+    if vented > BALANCE_TOL:
+        assert tank.energy == pytest.approx(tank.upper, abs=BALANCE_TOL)
+    expected = DT * (step.harvest_power + step.tank_port_power) - vented
     assert tank.energy - energy_before == pytest.approx(expected, abs=BALANCE_TOL)
+    assert tank.energy <= tank.upper + BALANCE_TOL
 
 
 def test_impedance_tank_balance_per_step(rng):
@@ -29,9 +35,9 @@ def test_impedance_tank_balance_per_step(rng):
     for _ in range(2000):
         xdot = rng.normal(size=6) * 0.2
         kvar_err = rng.normal(size=6) * 20.0
-        s0 = tank.energy
+        s0, v0 = tank.energy, tank.vented
         sigma = tank.step(float(xdot @ D @ xdot), float(xdot @ kvar_err), DT)
-        _check_balance(tank, s0)
+        _check_balance(tank, s0, v0)
         # the port force is −σ K_var x̃; its power is what the tank reports as delivered
         assert float(xdot @ (-sigma * kvar_err)) == pytest.approx(tank.last.port_power, abs=BALANCE_TOL)
 
@@ -41,9 +47,9 @@ def test_force_tank_balance_per_step(rng):
     for _ in range(2000):
         xdot = rng.normal(size=6) * 0.2
         f_f = rng.normal(size=6) * 10.0
-        s0 = tank.energy
+        s0, v0 = tank.energy, tank.vented
         m = tank.step(float(xdot @ D @ xdot), float(xdot @ f_f), DT)
-        _check_balance(tank, s0)
+        _check_balance(tank, s0, v0)
         lam = 1.0 if xdot @ f_f < 0 else 0.0
         assert tank.last.lam == lam  # eq. 38
         if lam == 1.0:
@@ -72,6 +78,21 @@ def test_valve_clamps_a_large_single_draw_at_the_lower_limit():
     assert tank.energy == pytest.approx(1.0, abs=1e-12)  # drew exactly the 1 J above the limit
     assert sigma == pytest.approx(1.0 / 5.0)
     assert tank.step(0.0, -5000.0, DT) == 0.0
+
+
+def test_what_the_port_gives_back_past_the_upper_limit_is_vented_not_stored():
+    """A variable spring relaxing (spring power ẋᵀK_var x̃ > 0: the port gives energy back) fills the tank
+    only up to S̄; the rest is vented and the books still balance."""
+    tank = ImpedanceTank(x0=7.0, upper_j=32.0, lower_j=1.0)  # 24.5 J
+    for _ in range(5000):
+        tank.step(0.0, 50.0, DT)  # 50 W back through the port for 5 s: 250 J offered
+        assert tank.energy <= 32.0 + 1e-12
+    assert tank.energy == pytest.approx(32.0)
+    assert tank.delivered == pytest.approx(-250.0)  # the port's own books: it took 250 J from the robot
+    assert tank.vented == pytest.approx(250.0 - 7.5)  # all but the 7.5 J of room was let go
+    assert tank.last.tank_port_power == pytest.approx(50.0)
+    tank.step(0.0, -10.0, DT)  # and it pays from the top, as a full tank does
+    assert tank.energy == pytest.approx(32.0 - 10.0 * DT)
 
 
 def test_force_valve_closes_at_lower_limit():

@@ -69,7 +69,14 @@ class TankStep:
 
 
 class EnergyTank:
-    """State x_t, energy S_t = ½x_t², limits S_low < S_up, smooth valve and fill gate."""
+    """State x_t, energy S_t = ½x_t², limits S_low < S_up, smooth valve and fill gate.
+
+    The tank never holds more than S_up: the fill gate β stops the harvest below it (eq. 45/60), and the
+    energy a port gives back once the tank is full (the variable spring relaxing) is vented, not stored. The
+    paper bounds only the harvest, so a spring driven far off its set point could fill the tank through its
+    port without bound and hand it all back later; venting is dissipation, so the tank stays passive.
+    :attr:`vented` [J] is what was vented (the books: S = S(0) + harvested − delivered − vented).
+    """
 
     def __init__(self, x0: float, upper_j: float, lower_j: float, band_j: float = 0.1, enabled: bool = True) -> None:
         if not (np.isfinite([x0, upper_j, lower_j, band_j]).all() and 0.0 < lower_j < upper_j and band_j >= 0.0):
@@ -96,6 +103,11 @@ class EnergyTank:
         self.delivered = 0.0
         self.harvested = 0.0
         self._last = None
+
+    @property
+    def vented(self) -> float:
+        """Energy [J] the port gave back while the tank was full, let go instead of stored."""
+        return 0.5 * self.x0 * self.x0 + self.harvested - self.delivered - self.energy
 
     @property
     def last(self) -> TankStep | None:
@@ -140,7 +152,10 @@ class EnergyTank:
             room = (self.upper - self.energy) / dt
             room = room if room > 0.0 else 0.0
             harvest = room if room < harvest else harvest
-        self.energy += dt * (harvest - port)
+        # what the port gives back beyond S̄ is vented, not stored (see the class docstring)
+        energy = self.energy + dt * (harvest - port)
+        top = self.upper if self.upper > self.energy else self.energy
+        self.energy = top if energy > top else energy
         self.delivered += dt * port
         self.harvested += dt * harvest
         self._last = (port, -port, harvest, valve, gate, lam, self.energy)

@@ -108,7 +108,9 @@ def _commit(ks, b, on, upper, lower, demand_w, valve, harvest_w, gate, lam, dt):
         room = (upper - ks[b]) / dt
         room = room if room > 0.0 else 0.0
         harvest = room if room < harvest else harvest
-    ks[b] += dt * (harvest - port)
+    energy = ks[b] + dt * (harvest - port)
+    top = upper if upper > ks[b] else ks[b]
+    ks[b] = top if energy > top else energy
     ks[b + 1] += dt * port
     ks[b + 2] += dt * harvest
     ks[b + 3] = 1.0
