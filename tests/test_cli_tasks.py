@@ -236,8 +236,19 @@ def test_safety_summary_says_how_often_and_why() -> None:
     said = safety_summary({"safety_counts": {"force_limit": 22, "retreat_end": 22, "torque_rate_limit": 310},
                            "safety_limits": {"max_contact_force_n": 40.0, "tau_rate_max_n_m_s": 1000.0},
                            "max_contact_force_n": 61.24})
-    assert said == ("retreated 22× from a contact force above 40 N, peak 61.2 N; "
+    assert said == ("retreated 22× from a contact force above 40 N, peak |F| 61.2 N; "
                     "clipped the torque rate (1000 N·m/s) on 310 tick(s)")
+
+
+def test_a_wipe_says_when_its_duration_cut_the_policy_file_short() -> None:
+    from tactex.report.run_pages import run_remarks
+
+    cut = {"policy": {"file": "long.toml", "duration_s": 20.0, "own_duration_s": 5000.0}}
+    assert run_remarks(cut) == [("policy", "the run ended at --duration-s 20 s, 4980 s before the policy's end "
+                                           "(5000 s): give --duration-s 5000 to run all of it")]
+    for whole in ({"file": "short.toml", "duration_s": 12.0, "own_duration_s": 12.0},
+                  {"file": "", "duration_s": 20.0, "own_duration_s": float("inf")}):  # the sinusoid: no end
+        assert run_remarks({"policy": whole}) == []
 
 
 def test_a_clean_says_what_its_first_leg_was_and_why() -> None:
@@ -272,6 +283,9 @@ def test_a_run_whose_safety_layer_stepped_in_says_so_in_its_last_lines(tmp_path,
     n = m["safety_counts"]["force_limit"]
     assert n >= 1 and m["safety_limits"]["max_contact_force_n"] == 8.0
     # after the table, before the report's path (a motion line on the alignment may follow it)
-    said = f"safety layer (tactex): retreated {n}× from a contact force above 8 N, peak "
-    assert any(line.startswith(said) for line in lines[-3:-1]), lines
+    said = f"safety layer (tactex): retreated {n}× from a contact force above 8 N, peak |F| "
+    line = next(line for line in lines[-3:-1] if line.startswith(said))
+    # the peak it quotes is the magnitude the layer judged, over every tick: above the cap that tripped it
+    assert float(line[len(said):].split(" N")[0]) == pytest.approx(m["max_force_norm_n"], abs=0.05)
+    assert m["max_force_norm_n"] > 8.0 and m["max_force_norm_n"] >= m["max_force_n"]
     assert lines[-1] == f"report: {out / 'report.html'}"

@@ -165,11 +165,16 @@ def test_a_part_without_a_marking_takes_a_named_one(tmp_path, capsys):
     (["--object", "{dome}", "--units", "ft"], ("units='ft'",)),
     (["--object", "{dome}", "--object-position", "0.9", "0", "0"], ("beyond the arm's reach",)),
     (["--object", "{lip}"], ("under a higher one",)),
+    (["--object", "{flat}"], ("rises 0 mm above its lowest point", "cannot tell so flat a part from the table")),
 ])
 def test_clean_bad_part_input_is_one_line_and_exit_2(tmp_path, capsys, dome_stl, argv, words):
     lip = tmp_path / "lip.stl"
     lip_mesh().export(lip)
-    argv = [a.format(dome=dome_stl, lip=lip) for a in argv]
+    g = np.linspace(-0.1, 0.1, 41)  # a scan of a flat face: no thickness
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    np.savez(tmp_path / "flat.npz", points=np.column_stack([x, y, np.zeros(x.size)]),
+             target=(np.hypot(x, y) < 0.05).astype(float))
+    argv = [a.format(dome=dome_stl, lip=lip, flat=tmp_path / "flat.npz") for a in argv]
     code = main(["clean", *argv, "--quiet", "--no-video", "--out", str(tmp_path / "run")])
     _one_line(capsys, code, "tactex clean: error:", *words)
 
@@ -177,7 +182,7 @@ def test_clean_bad_part_input_is_one_line_and_exit_2(tmp_path, capsys, dome_stl,
 def test_wipe_and_twin_take_a_part(dome_stl):
     from tactex.tasks.wipe import WipeConfig
 
-    cfg = WipeConfig(object_name=str(dome_stl))
+    cfg = WipeConfig(object_name=str(dome_stl), start_y_m=-0.07)  # the default start is near its edge
     assert cfg.scene().sim_object is load_part(dome_stl)
     with pytest.raises(InputError, match="not a file"):
         WipeConfig(object_name="nope.obj")

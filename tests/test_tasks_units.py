@@ -167,6 +167,11 @@ def test_recorder_and_progress() -> None:
         ({"approach_speed_m_s": -0.1}, "approach_speed_m_s"),
         ({"approach_slow_m": float("nan")}, "approach_slow_m"),
         ({"joint_speed_rad_s": 0.0}, "joint_speed_rad_s"),
+        ({"joint_speed_rad_s": 2.5}, "over the Franka's 2.175 rad/s"),
+        ({"pad_radius_m": 25.0}, "pad_radius_m = 25.0 m is over 0.2 m: it is in metres .the default 0.025 m is 25 mm"),
+        ({"hover_height_m": 30.0}, "hover_height_m = 30.0 m is over 0.3 m: it is in metres"),
+        ({"approach_slow_m": 10.0}, "approach_slow_m = 10.0 m is over 0.1 m"),
+        ({"capture_distance_m": 450.0}, "capture_distance_m = 450.0 m is over 1 m"),
     ],
 )
 def test_clean_config_validation(kwargs, match) -> None:
@@ -176,7 +181,15 @@ def test_clean_config_validation(kwargs, match) -> None:
 
 @pytest.mark.parametrize(
     ("kwargs", "match"),
-    [({"force_n": 0.0}, "force_n"), ({"baseline": "pid"}, "cartesian"), ({"drift_m_s": float("nan")}, "drift")],
+    [({"force_n": 0.0}, "force_n"), ({"baseline": "pid"}, "cartesian"), ({"drift_m_s": float("nan")}, "drift"),
+     # the §III sinusoid has the limits of a policy file: speed, acceleration, reach
+     ({"omega_rad_s": 100.0}, "slides at up to 4.005 m/s .amplitude·ω \\+ drift., over --policy-max-speed-m-s 0.15"),
+     ({"amplitude_m": 40.0}, "metres and m/s: 0.04 is 40 mm"),
+     ({"amplitude_m": 0.01, "omega_rad_s": 12.0}, "accelerates at 1.44 m/s² .amplitude·ω²., over --policy-max-accel"),
+     ({"object_name": "bowl"}, "leaves the bowl's surface .* from --start-y-m 0.08 .*start at --start-y-m -0.09"),
+     ({"object_name": "cup"}, "leaves the cup's wall .*; make it smaller or shorten the run .--duration-s.$"),
+     ({"duration_s": 200.0}, "leaves the sine_panel's surface at t = 20"),
+     ],
 )
 def test_wipe_config_validation(kwargs, match) -> None:
     with pytest.raises(ConfigError, match=match):

@@ -79,7 +79,8 @@ def test_start_pose_above_a_height_field_and_beside_the_cup_wall() -> None:
     z = float(get_object("sine_panel").surface.project(np.array([[0.0, 0.08, 0.0]]))[0][0, 2])
     assert np.array_equal(p, pos + np.array([0.0, 0.08, z + cfg.start_height_m])) and np.array_equal(r, TOOL_DOWN)
     cup = get_object("cup").surface
-    p, r = wipe_start_pose(WipeConfig(object_name="cup", start_tilt_deg=0.0), cup, pos, rot)
+    on_wall = WipeConfig(object_name="cup", start_tilt_deg=0.0, amplitude_m=0.02, drift_m_s=0.0)  # a sinusoid it holds
+    p, r = wipe_start_pose(on_wall, cup, pos, rot)
     assert np.allclose(p, pos + np.array([0.0, -cup.radius_m - cfg.start_height_m, 0.5 * cup.height_m]))
     assert np.allclose(r[:, 2], [0.0, 1.0, 0.0])  # the tool axis into the wall
     assert np.allclose(r[:, 0], [1.0, 0.0, 0.0]) and np.allclose(r[:, 1], [0.0, 0.0, -1.0])  # u along it, v down

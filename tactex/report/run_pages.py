@@ -188,8 +188,10 @@ def safety_summary(metrics: Mapping[str, Any]) -> str | None:
     limits = metrics.get("safety_limits") or {}
     cap = float(limits.get("max_contact_force_n", SafetyLimits.max_contact_force))
     rate = float(limits.get("tau_rate_max_n_m_s", SafetyLimits.tau_rate_max))
-    peak = metrics.get("max_contact_force_n", metrics.get("max_force_n"))  # clean: the magnitude; wipe: the normal
-    peak_text = f", peak {float(peak):.1f} N" if isinstance(peak, (int, float)) and math.isfinite(peak) else ""
+    # the force's magnitude, as the safety layer judges it (clean: max_contact_force_n; wipe: max_force_norm_n; a
+    # wipe recorded before it had only the normal force's peak)
+    peak = metrics.get("max_contact_force_n", metrics.get("max_force_norm_n", metrics.get("max_force_n")))
+    peak_text = f", peak |F| {float(peak):.1f} N" if isinstance(peak, (int, float)) and math.isfinite(peak) else ""
     said = {
         "force_limit": lambda n: f"retreated {n}× from a contact force above {cap:g} N{peak_text}",
         "wrench_lost": lambda n: f"lost the F/T sensor {n}× (backed off, then held until it was back)",
@@ -251,13 +253,28 @@ def learning_summary(metrics: Mapping[str, Any]) -> str | None:
         return None
 
 
+def policy_cut_summary(metrics: Mapping[str, Any]) -> str | None:
+    """One line when a wipe's policy file is longer than the run (``--duration-s`` ended it first), None
+    otherwise: the tail it did not run is easy to miss in the figures."""
+    policy = metrics.get("policy") or {}
+    own, ran = policy.get("own_duration_s"), policy.get("duration_s")
+    if not (policy.get("file") and isinstance(own, (int, float)) and isinstance(ran, (int, float))):
+        return None
+    if not (math.isfinite(own) and own > ran + 1e-9):
+        return None
+    return (f"the run ended at --duration-s {ran:g} s, {own - ran:g} s before the policy's end ({own:g} s): "
+            f"give --duration-s {own:g} to run all of it")
+
+
 def run_remarks(metrics: Mapping[str, Any]) -> list[tuple[str, str]]:
     """What a run's last lines say beside its table, as (topic, line): the safety layer's interventions
     (:func:`safety_summary`), the wipe's alignment transient (:func:`alignment_summary`), what a re-planned
-    wipe learned (:func:`learning_summary`) and a clean's first leg in contact (a planned sweep over strokes, the
-    explorer over a blob: ``first_leg``), each only when there is something to say."""
+    wipe learned (:func:`learning_summary`), a policy file the run's duration cut short
+    (:func:`policy_cut_summary`) and a clean's first leg in contact (a planned sweep over strokes, the explorer
+    over a blob: ``first_leg``), each only when there is something to say."""
     said = (("safety layer", safety_summary(metrics)), ("motion", alignment_summary(metrics)),
-            ("re-plan", learning_summary(metrics)), ("first leg", metrics.get("first_leg") or ""))
+            ("re-plan", learning_summary(metrics)), ("policy", policy_cut_summary(metrics)),
+            ("first leg", metrics.get("first_leg") or ""))
     return [(topic, line) for topic, line in said if line]
 
 

@@ -35,6 +35,7 @@ not the tool's force axis: with the tool tilted up to 18° on the sine panel the
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -69,7 +70,7 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
-from tactex.tasks.wipe_policy import check_wipe_policy, policy_segments, wipe_policy, wipe_start_pose
+from tactex.tasks.wipe_policy import check_sinusoid, check_wipe_policy, policy_segments, wipe_policy, wipe_start_pose
 from tactex.tasks.wipe_references import WipeReferences
 from tactex.tasks.world import SimWorldParams
 
@@ -205,6 +206,8 @@ class WipeConfig(SimWorldParams):
                 check_wipe_policy(self, loaded)
             except ConfigError as exc:
                 raise PolicyFileError(f"policy file '{self.policy}': {exc}") from None
+        else:  # the §III sinusoid: the limits a policy file has
+            check_sinusoid(self)
 
     def friction_params(self) -> FrictionCompensatorParams:
         return FrictionCompensatorParams(gain=self.friction_gain, cutoff_hz=self.friction_cutoff_hz)
@@ -326,6 +329,7 @@ class _WipeLog:
         self.first_contact: float | None = None
         self.t_aligned: float | None = None
         self.comp_energy = 0.0
+        self.max_force_norm = 0.0  # [N] the measured force's magnitude, every tick (what the safety layer judges)
         self.forces: list[float] = []
         self.errors_world: list[np.ndarray] = []
         self.aligned_errors: list[np.ndarray] = []
@@ -380,7 +384,9 @@ class _WipeLog:
         _, desired, tel, friction, estimate, (f_set, segment, uv) = self._pending
         self.n_ticks += 1
         t = state.t - self.t0
-        fz = float(state.wrench_tool[2])
+        w = state.wrench_tool
+        fz = float(w[2])
+        self.max_force_norm = max(self.max_force_norm, math.sqrt(float(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])))
         in_contact = fz >= cfg.contact_threshold_n
         # x − x_d in the base frame, as the paper's Fig. 3b and its per-axis MAE/RMSE (§IV); the
         # tool-frame error is kept beside it
@@ -665,9 +671,13 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         # time spent exploring in contact: from the first touch to the end of the policy
         "explore_time_s": (run_s + policy.waited_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
+        # [N] the peak magnitude of the measured force over every tick (normal and friction, in contact or not)
+        "max_force_norm_n": float(log.max_force_norm),
         # the highest contact force as a multiple of the policy's set point at its tick
         "max_force_over_set_point": float(np.max(np.asarray(forces) / f_set)) if f_set.size else float("nan"),
-        "policy": {"file": cfg.policy, "duration_s": run_s, "segments": policy_segments(the_policy, run_s, log)},
+        "policy": {"file": cfg.policy, "duration_s": run_s, "segments": policy_segments(the_policy, run_s, log),
+                   # [s] the policy's own length (inf: the sinusoid, which the run's duration ends)
+                   "own_duration_s": float(the_policy.duration_s)},
         "friction_compensation": compensator is not None,
         "friction_compensation_energy_j": log.comp_energy if compensator is not None else float("nan"),
         "vision_valid_fraction": policy.estimates_valid / max(policy.estimates_total, 1),

@@ -28,7 +28,7 @@ from tactex.tasks.policies import (
 )
 from tactex.tasks.runner import TOOL_DOWN
 
-__all__ = ["check_wipe_policy", "policy_segments", "wipe_limits", "wipe_policy"]
+__all__ = ["check_sinusoid", "check_wipe_policy", "policy_segments", "wipe_limits", "wipe_policy"]
 
 # ``cfg`` below is a ``tactex.tasks.wipe.WipeConfig`` (typed Any: wipe imports this module)
 
@@ -78,6 +78,46 @@ def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> None:
         raise ConfigError(f"a policy wipe starts above a height-field surface or beside a cup's wall; "
                           f"'{cfg.object_name}' is neither")
     check_policy(policy, wipe_limits(cfg), horizon_s=cfg.duration_s)
+
+
+def check_sinusoid(cfg: Any) -> None:
+    """Refuse (one-line :class:`ConfigError`, naming the options) the §III sinusoid of ``cfg`` when it is faster,
+    accelerates harder or reaches further within ``cfg.duration_s`` than the wipe allows a policy file
+    (:func:`wipe_limits`; the reach only on a height field or a cup's wall, where it is known). Its in-plane
+    speed peaks at amplitude·ω + drift [m/s], its acceleration at amplitude·ω² [m/s²]."""
+    a, w, d = float(cfg.amplitude_m), float(cfg.omega_rad_s), float(cfg.drift_m_s)
+    shape = f"--amplitude-m {a:g} --omega-rad-s {w:g} --drift-m-s {d:g}"
+    speed, accel = a * w + d, a * w * w
+    if speed > cfg.policy_max_speed_m_s:
+        raise ConfigError(f"the sinusoid ({shape}) slides at up to {speed:.3f} m/s (amplitude·ω + drift), over "
+                          f"--policy-max-speed-m-s {cfg.policy_max_speed_m_s:g}; lower --omega-rad-s, --amplitude-m or "
+                          "--drift-m-s (metres and m/s: 0.04 is 40 mm)")
+    if accel > cfg.policy_max_accel_m_s2:
+        raise ConfigError(f"the sinusoid ({shape}) accelerates at {accel:.2f} m/s² (amplitude·ω²), over "
+                          f"--policy-max-accel-m-s2 {cfg.policy_max_accel_m_s2:g}; lower --omega-rad-s or "
+                          "--amplitude-m")
+    surface = object_or_part(cfg.object_name, cfg.units).surface
+    if not isinstance(surface, (HeightFieldSurface, CylinderWallSurface)):
+        return
+    limits = wipe_limits(cfg)
+    t = np.linspace(0.0, float(cfg.duration_s), min(int(float(cfg.duration_s) / 0.01) + 2, 100_000))
+    u, v = a * np.sin(w * t), a * (np.cos(w * t) - 1.0) - d * t
+    ok = np.asarray(limits.inside(u, v), dtype=bool)
+    if np.all(ok):
+        return
+    i = int(np.flatnonzero(~ok)[0])
+    fix = "make it smaller or shorten the run (--duration-s)"
+    if isinstance(surface, HeightFieldSurface):
+        # the nearest start along the object's y (centimetre steps) from which the whole path stays on it
+        starts = np.round(np.arange(-0.5, 0.5, 0.01), 2)
+        for y0 in starts[np.argsort(np.abs(starts - cfg.start_y_m), kind="stable")]:
+            if np.all(surface.inside(u, y0 - v)):
+                fix = f"start at --start-y-m {y0:g} (the whole path fits there), or {fix}"
+                break
+    start = f" from --start-y-m {cfg.start_y_m:g}" if isinstance(surface, HeightFieldSurface) else ""
+    raise ConfigError(f"the sinusoid ({shape}) leaves {limits.reach_hint} at t = {t[i]:.2f} s of --duration-s "
+                      f"{cfg.duration_s:g}{start} (offset u, v = {1e3 * u[i]:.0f}, {1e3 * v[i]:.0f} mm from the "
+                      f"start); {fix}")
 
 
 def policy_segments(policy: ForceMotionPolicy, run_s: float, log: Any) -> list[dict]:
