@@ -14,7 +14,7 @@ from tactex.errors import ConfigError, UnitsError
 from tactex.experiments import ExploreConfig
 from tactex.experiments.sweep import SweepConfig
 from tactex.pointcloud.io import read_cloud
-from tactex.pointcloud.units import check_units, inch_hint, to_metres
+from tactex.pointcloud.units import check_units, inch_hint, metre_hint, to_metres
 from tactex.tasks.clean.config import CleanConfig
 
 #: A box whose edges are whole millimetres and powers of two in metres: the mm file divided by 1000 gives the
@@ -67,6 +67,22 @@ def test_millimetre_cloud_refused_naming_the_option(tmp_path, capsys) -> None:
     assert "give --units mm" in capsys.readouterr().err
     read = read_cloud(tmp_path / "mm.npz", units="mm")
     assert np.ptp(read.cloud.points[:, 0]) == pytest.approx(0.1)
+
+
+def test_metre_cloud_read_as_millimetres_is_refused_naming_the_option(tmp_path, capsys) -> None:
+    g = np.linspace(0.0, 0.2, 30)  # a 20 cm plate in metres
+    x, y = np.meshgrid(g, g)
+    np.savez(tmp_path / "m.npz", points=np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)]))
+    with pytest.raises(UnitsError, match=r"spans 0.2 mm read with units=mm, smaller than any part a sponge cleans; it "
+                                         r"is probably in metres \(0.2 m wide then\): give units=m"):
+        read_cloud(tmp_path / "m.npz", units="mm")
+    for argv in (["explore", str(tmp_path / "m.npz"), "--target", "all"],
+                 ["clean", "--cloud", str(tmp_path / "m.npz")]):
+        assert main([*argv, "--units", "mm", "--out", str(tmp_path / argv[0]), "--quiet"]) == 2
+        assert "probably in metres (0.2 m wide then): give --units m" in capsys.readouterr().err
+    assert read_cloud(tmp_path / "m.npz").cloud.points.shape == (900, 3)  # in its own unit it reads
+    assert metre_hint(0.004, "in") and not metre_hint(0.004, "m") and not metre_hint(0.006, "mm")
+    assert not metre_hint(1e-6, "mm")  # 1 mm as metres is no part either: no advice
 
 
 def test_inch_part_gets_the_inch_hint_and_runs_with_units_in(tmp_path, capsys) -> None:

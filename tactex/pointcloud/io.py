@@ -19,7 +19,7 @@ import numpy as np
 
 from tactex.errors import CloudError, InputError, MissingDependencyError, UnitsError
 from tactex.pointcloud.cloud import CloudFile, SurfaceCloud
-from tactex.pointcloud.units import check_units, inch_hint, to_metres
+from tactex.pointcloud.units import check_units, inch_hint, metre_hint, to_metres
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -338,6 +338,9 @@ def read_cloud(path: str | Path, *, mesh_spacing_m: float = DEFAULT_MESH_SPACING
         read = _read_by_suffix(p, suffix, mesh_spacing_m, units)
     points = read.cloud.points
     extent = float(np.max(np.ptp(points, axis=0))) if len(points) else 0.0
+    tiny = metre_hint(extent, units)
+    if tiny:  # refused here: every later check (its colours, its size against a voxel) would point elsewhere
+        raise UnitsError(f"'{p}': {tiny}")
     hint = inch_hint(extent) if units == "m" else ""
     if hint:  # a part this wide is beyond an arm's reach: more likely a file in inches
         read = replace(read, notes=(*read.notes, f"it spans {extent:.3g} m, more than a robot arm reaches; "

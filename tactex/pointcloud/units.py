@@ -12,8 +12,8 @@ import numpy as np
 
 from tactex.errors import ConfigError
 
-__all__ = ["INCH_HINT_MAX_UNITS", "INCH_HINT_MIN_M", "METRES_PER", "UNITS", "check_units", "inch_hint",
-           "millimetre_hint", "to_metres"]
+__all__ = ["INCH_HINT_MAX_UNITS", "INCH_HINT_MIN_M", "METRES_PER", "METRE_HINT_MAX_M", "UNITS", "check_units",
+           "inch_hint", "metre_hint", "millimetre_hint", "to_metres"]
 
 #: Metres per file unit.
 METRES_PER = {"m": 1.0, "mm": 1e-3, "in": 0.0254}
@@ -52,6 +52,23 @@ def inch_hint(extent: float) -> str:
     if not INCH_HINT_MIN_M < extent <= INCH_HINT_MAX_UNITS:
         return ""
     return f"if it is in inches ({extent * METRES_PER['in']:.3g} m wide then), give units=in"
+
+
+#: Below this extent [m] a file read in millimetres or inches is smaller than any part a sponge cleans; when its
+#: size as metres is a part's, it is a file in metres read in the wrong unit.
+METRE_HINT_MAX_M = 0.005
+
+
+def metre_hint(extent_m: float, units: str) -> str:
+    """For a file ``extent_m`` [m] wide after reading it in ``units``: the clause saying it is probably in metres,
+    '' when it is not that small or its size in metres would not be a part's either."""
+    if units == "m" or not 0.0 < extent_m < METRE_HINT_MAX_M:
+        return ""
+    as_metres = extent_m / METRES_PER[units]
+    if not METRE_HINT_MAX_M <= as_metres <= 2.0:
+        return ""
+    return (f"it spans {extent_m * 1e3:.3g} mm read with units={units}, smaller than any part a sponge cleans; it is "
+            f"probably in metres ({as_metres:.3g} m wide then): give units=m")
 
 
 def millimetre_hint(extent: float) -> str:

@@ -55,6 +55,9 @@ REACH_MAX_M = 0.8
 REACH_MIN_M = 0.25
 #: The part's top may be at most this high above the table [m] (pressing from above with the camera above).
 MAX_HEIGHT_M = 0.4
+#: Lowest top a part may have above its lowest point [m]: the capture cuts the table 2 mm above its top, so a
+#: flatter part (a scan of a flat face, without its thickness) is not told from the table.
+MIN_HEIGHT_M = 0.005
 #: The part's clean colour when the file has none.
 PART_RGB = (0.85, 0.85, 0.82)
 
@@ -170,6 +173,11 @@ def _raster(path: Path, units: str) -> tuple[HeightRaster, np.ndarray]:
         raise ConfigError(f"--object '{path}' is {size[0]:.3g} × {size[1]:.3g} × {size[2]:.3g} m: too big for the "
                           f"arm's reach (at most {2 * REACH_MAX_M:g} m across and {MAX_HEIGHT_M:g} m high); "
                           "check --units or clean it in sections")
+    if size[2] < MIN_HEIGHT_M:
+        raise ConfigError(f"--object '{path}' rises {size[2] * 1e3:.2g} mm above its lowest point: the camera's "
+                          "capture cannot tell so flat a part from the table it stands on (it keeps what is 2 mm "
+                          f"or more above it); give the part with its thickness (at least {MIN_HEIGHT_M * 1e3:g} "
+                          "mm: a closed mesh, or a scan that includes its sides)")
     if min(size[0], size[1]) < 0.02:
         raise ConfigError(f"--object '{path}' is {size[0] * 1e3:.3g} × {size[1] * 1e3:.3g} mm seen from above: "
                           "smaller than the sponge; check --units (a file in metres read as mm?)")

@@ -57,6 +57,12 @@ EXPLORER_OPTIONS = ("alpha", "agent_radius_m", "max_velocity", "cooling", "seed"
 
 #: The rasters' lanes apart, in agent radii (CleanConfig.lane_spacing_m).
 LANE_SPACING_RADII = 1.5
+#: The largest value a length option may take [m]; beyond it the value is millimetres typed as metres (a sponge
+#: 40 cm wide, a hover 30 cm up: the arm would clean nothing) [m].
+LENGTH_TOPS_M = {"pad_radius_m": 0.2, "hover_height_m": 0.3, "approach_slow_m": 0.1, "capture_distance_m": 1.0,
+                 "side_capture_distance_m": 1.0}
+#: The Franka's lowest joint speed limit (joints 1-4; 5-7 allow 2.61) [rad/s].
+FRANKA_JOINT_SPEED_RAD_S = 2.175
 
 
 def _approach_too_weak(cfg: CleanConfig) -> bool:
@@ -243,6 +249,14 @@ class CleanConfig(SimWorldParams):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        for name, top_m in LENGTH_TOPS_M.items():
+            if float(getattr(self, name)) > top_m:
+                raise ConfigError(f"{name} = {getattr(self, name)!r} m is over {top_m:g} m: it is in metres "
+                                  f"(the default {type(self).__dataclass_fields__[name].default:g} m is "
+                                  f"{1e3 * type(self).__dataclass_fields__[name].default:g} mm)")
+        if self.joint_speed_rad_s > FRANKA_JOINT_SPEED_RAD_S:
+            raise ConfigError(f"joint_speed_rad_s = {self.joint_speed_rad_s:g} rad/s is over the Franka's "
+                              f"{FRANKA_JOINT_SPEED_RAD_S} rad/s (its shoulder and elbow joints' limit)")
         if self.max_normal_rate_deg_s / self.explorer_rate_hz >= 90.0:
             raise ConfigError(
                 f"max_normal_rate_deg_s = {self.max_normal_rate_deg_s} turns the normal by 90° or more per "
