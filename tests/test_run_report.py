@@ -68,10 +68,11 @@ def fake_clean(baseline: str = "") -> SimpleNamespace:
     metrics = {
         "dirt_removed_fraction": 0.62, "force_within_20pct_fraction": 0.91, "max_contact_force_n": 14.5,
         "sim_time_s": float(t[-1]), "vision_updates": 1, "force_set_point_n": 10.0, "baseline": baseline or "tactex",
-        "object": "plate", "ergodicity": [] if baseline == "raster" else [(1.0, 0.9), (2.0, 0.7), (3.0, 0.55)],
+        "object": "plate",
+        "ergodicity": [] if baseline in ("raster", "region_raster") else [(1.0, 0.9), (2.0, 0.7), (3.0, 0.55)],
     }
     fields = {"target_initial": cloud.target.copy()}
-    if baseline != "raster":
+    if baseline not in ("raster", "region_raster"):
         fields.update(target=cloud.target * 0.5, coverage=np.linspace(0, 1, len(cloud)),
                       potential=np.cos(cloud.points[:, 0]))
     return SimpleNamespace(
@@ -167,10 +168,11 @@ def test_clean_report_shows_the_time_breakdown(tmp_path) -> None:
     assert "time_breakdown.png" not in _pngs_ok(rep) and any("time breakdown" in n for n in rep.notes)
 
 
-def test_clean_report_raster_baseline_notes_missing_ergodicity(tmp_path) -> None:
-    rep = write_run_report(fake_clean("raster"), tmp_path / "raster")
-    assert rep.label == "raster" and "ergodicity_png" not in rep.files
-    assert any("ergodicity" in n for n in rep.notes)
+@pytest.mark.parametrize(("baseline", "name"), [("raster", "raster"), ("region_raster", "region raster")])
+def test_clean_report_raster_baseline_notes_missing_ergodicity(tmp_path, baseline, name) -> None:
+    rep = write_run_report(fake_clean(baseline), tmp_path / baseline)
+    assert rep.label == baseline and "ergodicity_png" not in rep.files
+    assert f"no ergodicity series (the {name} baseline has no target distribution to compare)" in rep.notes
     assert '"dirt (first capture)"' in rep.html.read_text()
 
 

@@ -92,6 +92,10 @@ def test_plan_is_grid_times_draws_times_seeds_and_reproducible():
     ({"random": {"force_n": {"normal": [5, 1]}}, "draws": 1}, "unknown distribution"),
     ({"random": {"force_n": {"uniform": [15, 5]}}, "draws": 1}, "low < high"),
     ({"grid": {"object_name": ["teapot"]}}, "teapot"),
+    # every level is checked before the first run, not only the first combination
+    ({"grid": {"object_name": ["plate", "teapot"]}}, "^grid: object_name = 'teapot': unknown object 'teapot'"),
+    ({"grid": {"force_n": [10.0, 500.0]}}, "^grid: force_n = 500.0"),
+    ({"random": {"force_n": {"choice": [10.0, 500.0]}}, "draws": 1}, "force_n = 500"),
     ({"fixed": {"budget_s": -1.0}}, "budget_s"),
 ])
 def test_spec_validation(changes, match):
@@ -201,6 +205,22 @@ def test_cli_lists_build_the_spec_and_bad_options_exit_2(tmp_path, capsys):
     assert "NAME=VALUE" in capsys.readouterr().err
     assert main(["study", "--out", str(tmp_path / "x"), "--seeds", "two"]) == 2
     assert main(["study", "--out", str(tmp_path / "x"), "--set", "budget_s=1,2"]) == 2
+
+
+def test_the_cli_exits_1_when_a_run_failed_and_says_so(tmp_path, monkeypatch, capsys):
+    import types
+
+    import tactex.experiments.study as study
+
+    ok, bad = {"factors": {"seed": 0}, "error": ""}, {"factors": {"seed": 1}, "error": "SimulationError: boom\nmore"}
+    done = types.SimpleNamespace(files={}, records=[ok, bad], skipped=0, out_dir=tmp_path / "s")
+    done.failed = [bad]
+    monkeypatch.setattr(study, "run_study", lambda *a, **k: done)
+    assert main(["study", "--out", str(tmp_path / "s"), "--set", "budget_s=3", "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "failed: {'seed': 1}: SimulationError: boom" in err and "1 of 2 runs failed" in err
+    done.failed = []
+    assert main(["study", "--out", str(tmp_path / "t"), "--set", "budget_s=3", "--quiet"]) == 0
 
 
 def test_ray_without_the_extra_says_how_to_get_it(monkeypatch):

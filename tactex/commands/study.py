@@ -115,4 +115,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(result.records)} runs ({result.skipped} resumed), {len(failed)} failed; study: {result.out_dir}")
     for rec in failed[:5]:
         print(f"  failed: {rec['factors']}: {rec['error'].splitlines()[0] if rec['error'] else ''}", file=sys.stderr)
+    if failed:  # a script that runs a study must see it (the table and runs.jsonl have the finished runs)
+        print(f"tactex study: {len(failed)} of {len(result.records)} runs failed (--retry-failed runs them again)",
+              file=sys.stderr)
+        return 1
     return 0

@@ -139,7 +139,7 @@ class ExploreConfig:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be an integer ≥ 0, got {self.seed!r}")
         if not math.isfinite(self.voxel_size_m) or self.voxel_size_m < 0:
-            raise ConfigError(f"voxel_size_m={self.voxel_size_m} is negative; give metres ≥ 0 (0 keeps the cloud)")
+            raise ConfigError(f"voxel_size_m={self.voxel_size_m} is not a length; give metres ≥ 0 (0 keeps the cloud)")
         if self.voxel_size_m > 0.1:
             raise ConfigError(f"voxel_size_m={self.voxel_size_m} is over 10 cm; it is in metres (0.003 = 3 mm)")
         for name in ("steps", "n_eigen", "n_neighbors"):

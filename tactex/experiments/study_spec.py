@@ -184,9 +184,16 @@ class StudySpec:
         object.__setattr__(self, "seeds", seeds)
         object.__setattr__(self, "success_metric", metric)
         object.__setattr__(self, "success_at_least", at_least)
-        # every combination must make a valid config: check the extremes now, not in the 500th run
-        for run in self.runs()[:1]:
-            self._check_config(cls, run.config)
+        # every level must make a valid config: check each one now (with the first run's other factors), not in
+        # the 500th run; what only a combination of levels refuses still fails in its run
+        first = self.runs()[0].config
+        self._check_config(cls, first)
+        for name, values in grid.items():
+            for value in values[1:]:
+                self._check_config(cls, {**first, name: value}, f"grid: {name} = {value!r}: ")
+        for name, (kind, *args) in random.items():
+            for value in args[0] if kind == "choice" else [int(args[0])] if kind == "integers" else args:
+                self._check_config(cls, {**first, name: value}, f"random: {name} = {value!r}: ")
 
     @staticmethod
     def _distribution(cls: type, name: str, spec: Any) -> tuple:
@@ -217,11 +224,15 @@ class StudySpec:
         return (kind, float(low), float(high))
 
     @staticmethod
-    def _check_config(cls: type, config: dict[str, Any]) -> None:
+    def _check_config(cls: type, config: dict[str, Any], where: str = "") -> None:
         try:
             cls(**config)
         except TypeError as exc:
-            raise ConfigError(f"invalid parameters for {cls.__name__}: {exc}") from exc
+            raise ConfigError(f"{where}invalid parameters for {cls.__name__}: {exc}") from exc
+        except ConfigError as exc:
+            if not where:
+                raise
+            raise type(exc)(f"{where}{exc}") from None
 
     @property
     def factors(self) -> tuple[str, ...]:

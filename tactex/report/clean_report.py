@@ -15,6 +15,7 @@ from tactex.report.html import cloud_html
 from tactex.report.run_common import RunReport, figure, finite_rows, save_png, start_report, try_plot
 from tactex.report.run_pages import add_sections, plain_page
 from tactex.report.series import plot_series
+from tactex.tasks.clean.config import RASTER_BASELINES
 from tactex.tasks.clean_phases import CLEAN_PHASES
 
 __all__ = [
@@ -244,8 +245,8 @@ def write_clean_report(
             title="Ergodicity (TEC eq. 48); the line breaks at each vision update (a new target)",
         )
     else:
-        why = ("the raster baseline has no target distribution to compare" if metrics.get("baseline") == "raster"
-               else "the run ended before any exploration in contact")
+        why = (f"the {metrics['baseline'].replace('_', ' ')} baseline has no target distribution to compare"
+               if metrics.get("baseline") in RASTER_BASELINES else "the run ended before any exploration in contact")
         rep.notes.append(f"no ergodicity series ({why})")
     title = f"tactex clean — {label} ({metrics.get('object', getattr(cfg, 'object_name', ''))})"
     if cloud is None:  # a run on a robot stopped before its first capture was made

@@ -381,9 +381,11 @@ class LibfrankaBackend:
                 "(docs/real_robot.md), or pass --realtime ignore for a test on a normal kernel") from exc
         except Exception as exc:
             self._restore_scheduling()
-            raise RobotConnectionError(
-                f"cannot connect to the Franka at {config.robot_ip} ({exc}): check the FCI address, that FCI is "
-                "activated in Desk, the brakes are open and no other program holds the robot") from exc
+            loopback = str(config.robot_ip).startswith("127.") or config.robot_ip == "localhost"
+            what = ("is `tactex twin` running (and ready) on this machine?" if loopback else
+                    "check the FCI address, that FCI is activated in Desk, the brakes are open and no other program "
+                    "holds the robot")
+            raise RobotConnectionError(f"cannot connect to the Franka at {config.robot_ip} ({exc}): {what}") from exc
         try:
             self._configure()
             self.model = self.robot.load_model()
