@@ -142,8 +142,10 @@ def _show_warning(args: argparse.Namespace, typed: dict[str, str]):
     parameters it names named as options."""
 
     def show(message, category, filename, lineno, file=None, line=None) -> None:
-        print(f"tactex {args.command}: warning: {_cli_words(str(message), args, typed)}", file=sys.stderr,
-              flush=True)
+        text = _cli_words(str(message), args, typed)
+        own = f"{args.command}: "
+        text = text[len(own):] if text.startswith(own) else text  # the library's "clean: ..." says it twice
+        print(f"tactex {args.command}: warning: {text}", file=sys.stderr, flush=True)
 
     return show
 

@@ -421,3 +421,16 @@ def test_long_runs_keep_small_files_and_say_how_long(tmp_path, capsys, monkeypat
     short = cloud_html(pts, None, tmp_path / "short.html", trajectory=long_path[:4000], include_plotlyjs=False)
     long = cloud_html(pts, None, tmp_path / "long.html", trajectory=long_path, include_plotlyjs=False)
     assert long.stat().st_size < 1.2 * short.stat().st_size
+
+
+def test_a_warning_names_its_command_once(capsys) -> None:
+    import argparse
+
+    from tactex.cli import _show_warning
+
+    show = _show_warning(argparse.Namespace(command="clean"), {})
+    show("clean: no hover pose over [0.5, 0.0, 0.1] m within reach", RuntimeWarning, "program.py", 1)
+    show("cleaning ends early", RuntimeWarning, "program.py", 2)  # a word that only starts like the command
+    assert capsys.readouterr().err.splitlines() == [
+        "tactex clean: warning: no hover pose over [0.5, 0.0, 0.1] m within reach",
+        "tactex clean: warning: cleaning ends early"]

@@ -166,6 +166,8 @@ def test_a_part_without_a_marking_takes_a_named_one(tmp_path, capsys):
     (["--object", "{dome}", "--object-position", "0.9", "0", "0"], ("beyond the arm's reach",)),
     (["--object", "{lip}"], ("under a higher one",)),
     (["--object", "{flat}"], ("rises 0 mm above its lowest point", "cannot tell so flat a part from the table")),
+    (["--object", "plate", "--object-position", "5", "0", "0"],
+     ("--object plate at [5.0, 0.0, 0.0] m stands 5.00 m from the robot's base axis", "--object-position")),
 ])
 def test_clean_bad_part_input_is_one_line_and_exit_2(tmp_path, capsys, dome_stl, argv, words):
     lip = tmp_path / "lip.stl"

@@ -80,7 +80,7 @@ def test_a_replan_needs_a_wipe_of_the_same_part(tmp_path) -> None:
         WipeConfig(object_name="bowl", replan_from=str(tmp_path), passes=2)
     with pytest.raises(ConfigError, match="drop --baseline"):
         WipeConfig(passes=2, baseline="cartesian")
-    assert WipeConfig(object_name="bowl", replan_from=str(tmp_path)).replan_from == str(tmp_path)
+    assert WipeConfig(object_name="bowl", replan_from=str(tmp_path), start_y_m=-0.09).replan_from == str(tmp_path)
 
 
 def _depths(surface: ExploredSurface, desired_m: np.ndarray) -> np.ndarray:

@@ -327,7 +327,13 @@ def check_reach(obj: SimObject, position_m, rotation: np.ndarray) -> None:
     """Refuse a part whose surface, placed at ``position_m`` [m] turned by ``rotation`` (robot base frame),
     is not all within the arm's reach: :data:`REACH_MIN_M`–:data:`REACH_MAX_M` from the base's axis."""
     info = part_info(obj)
-    if info is None:
+    if info is None:  # a built-in object: its centre at least (the door spans more than the reach allows)
+        r = float(np.hypot(*np.asarray(position_m, dtype=float)[:2]))
+        if not REACH_MIN_M <= r <= REACH_MAX_M:
+            raise ConfigError(
+                f"--object {obj.name} at {np.round(np.asarray(position_m, float), 3).tolist()} m stands {r:.2f} m "
+                f"from the robot's base axis: beyond the arm's reach ({REACH_MIN_M:g}–{REACH_MAX_M:g} m); move "
+                "it with --object-position")
         return
     xs, ys, _ = obj.heightfield()
     gx, gy = np.meshgrid(xs, ys)

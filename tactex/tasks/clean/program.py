@@ -785,8 +785,8 @@ class CleanProgram:
             _lift_off(loop, RETRACT_M, pressing=self.pressing)
         if self.camera is not None:
             self.camera.refresh()
-        self.bar.close(f"dirt removed {100 * (1 - self.dirt()):.1f} %" if log.truth
-                       else "done (the dirt is not measured here)")
+        left = self.dirt()  # the simulation's count, the twin's, or NaN on a robot (nobody counts its dirt)
+        self.bar.close(f"dirt removed {100 * (1 - left):.1f} %" if np.isfinite(left) else "done (dirt not measured)")
         series = log.rec.arrays()
         fields = {"target_initial": self.cloud.target.copy()}
         if self.explorer is not None:
