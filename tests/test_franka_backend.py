@@ -116,6 +116,13 @@ def test_loop_timing_statistics():
     assert m["loop_ticks"] == 10 and m["lost_cycles"] == 2
     assert m["loop_compute_us"]["max"] == 109.0 and m["loop_compute_us"]["p50"] == pytest.approx(104.5)
     assert m["min_command_success_rate"] == pytest.approx(0.91)
+    assert m["loop_stalls"] == 0 and m["loop_stalls_t_s"] == []
+    timing.add(100.0, 6000.0, 5, 0.9)  # the PC stalled 6 ms before this tick
+    timing.stall(12.5, 6000.0)
+    timing.stall(12.6, 2000.0)  # two cycles late: no stall
+    timing.stall(12.7, float("nan"))  # the first tick has no period
+    m = timing.metrics()
+    assert m["loop_stalls"] == 1 and m["loop_stalls_t_s"] == [12.5]
 
 
 def test_no_robot_there_is_one_line_and_names_the_address():

@@ -248,6 +248,12 @@ def pin_control_thread(cpu: int, priority: int = 80) -> str:
         return f"cpu {cpu}, normal priority (no permission for SCHED_FIFO)"
 
 
+#: A loop period over this is a stall of the control PC [µs]: three cycles a Franka would count as lost.
+STALL_US = 3000.0
+#: Most stalled ticks whose time a run keeps (metrics ``loop_stalls_t_s``) [-].
+STALLS_KEPT = 200
+
+
 class LoopTiming:
     """Per-tick timing of the 1 kHz loop, kept in preallocated arrays (grown in blocks).
 
@@ -264,6 +270,13 @@ class LoopTiming:
         self.period_us = np.zeros(block)
         self.lost = np.zeros(block, dtype=np.int64)
         self.success = np.ones(block)
+        self.stalls_t_s: list[float] = []  # the robot time [s] of the first STALLS_KEPT stalled ticks
+
+    def stall(self, t_s: float, period_us: float) -> None:
+        """Note the tick read at robot time ``t_s`` [s] when its wall-clock period ``period_us`` [µs] was a
+        stall (over :data:`STALL_US`): what the robot does next answers a state that jumped."""
+        if period_us > STALL_US and len(self.stalls_t_s) < STALLS_KEPT:
+            self.stalls_t_s.append(float(t_s))
 
     def add(self, compute_us: float, period_us: float, lost: int, success: float) -> None:
         if self.n == self.compute_us.size:
@@ -294,6 +307,9 @@ class LoopTiming:
             "loop_period_us": pct(self.period_us[1:n]),
             "lost_cycles": int(self.lost[:n].sum()),
             "min_command_success_rate": float(self.success[:n].min()) if n else float("nan"),
+            # ticks whose period was a stall of the PC (or of the twin beside it), and when the first were read
+            "loop_stalls": int(np.count_nonzero(self.period_us[1:n] > STALL_US)),
+            "loop_stalls_t_s": list(self.stalls_t_s),
         }
 
 
@@ -519,6 +535,7 @@ class LibfrankaBackend:
         if not math.isnan(compute_us):
             self.timing.add(compute_us, period_us, lost, float(franka_state.control_command_success_rate))
         self._t += max(period_ms, 1.0) * 1e-3
+        self.timing.stall(self._t, period_us)
         self._t_read = now
         self._franka_state = franka_state
         self._state = self._convert(franka_state, terms)
