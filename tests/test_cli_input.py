@@ -434,3 +434,14 @@ def test_a_warning_names_its_command_once(capsys) -> None:
     assert capsys.readouterr().err.splitlines() == [
         "tactex clean: warning: no hover pose over [0.5, 0.0, 0.1] m within reach",
         "tactex clean: warning: cleaning ends early"]
+
+
+def test_a_start_off_the_surface_is_refused_before_the_basis(tmp_path, capsys, monkeypatch) -> None:
+    import tactex.experiments.explore as explore
+
+    def no_basis(*args, **kwargs):
+        raise AssertionError("the basis was built before the start was checked")
+
+    monkeypatch.setattr(explore, "_set_up", no_basis)
+    assert main(["explore", "plate", "--x0", "5", "5", "5", "--out", str(tmp_path / "r"), "--quiet"]) == 2
+    assert "--x0 [5.0, 5.0, 5.0] m is 8543.7 mm from the nearest cloud point" in capsys.readouterr().err

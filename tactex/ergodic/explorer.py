@@ -86,7 +86,7 @@ from tactex.pointcloud import SurfaceCloud
 
 # The explorer's own names, and its parts' constants importable from here too (their home is the part).
 __all__ = ["EDGE_OFFSET", "KEEP_OUT_MARGIN", "PASS_REACH", "REBUILD_STEPS", "REPAIR_RADIUS", "REPAIR_STEPS",
-           "SPECK_POINTS", "Exploration", "HedacExplorer", "explore"]
+           "SPECK_POINTS", "Exploration", "HedacExplorer", "check_snap_distance", "explore"]
 
 _project_local = project_local
 _sum = np.add.reduce
@@ -99,6 +99,21 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     view.setflags(write=False)
     return view
 
+
+
+def check_snap_distance(tree: cKDTree, x_m: np.ndarray, name: str, max_voxels: float, spacing_m: float) -> float:
+    """The distance [m] from ``x_m`` (3,) to the nearest point of the cloud in ``tree``; an
+    :class:`ExplorationError` naming ``name`` when it is over ``max_voxels`` voxels of ``spacing_m`` [m]
+    (``HedacConfig.max_snap_distance_voxels``): a start that far from the surface is no start on it."""
+    d = float(tree.query(x_m)[0])
+    snap = max_voxels * spacing_m
+    if d > snap:
+        raise ExplorationError(
+            f"{name} = {np.round(x_m, 4).tolist()} m is {d * 1e3:.1f} mm from the nearest cloud point, farther "
+            f"than max_snap_distance_voxels = {max_voxels:g} ({snap * 1e3:.1f} mm); "
+            "start on (or just above) the surface, or raise HedacConfig.max_snap_distance_voxels"
+        )
+    return d
 
 class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAgent):
     """Spectral HEDAC on a :class:`SurfaceCloud` with a Laplace eigenbasis.
@@ -376,15 +391,7 @@ class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAge
         return _Z.copy()
 
     def _check_distance(self, x: np.ndarray, name: str) -> float:
-        d = float(self._tree.query(x)[0])
-        if d > self._snap:
-            raise ExplorationError(
-                f"{name} = {np.round(x, 4).tolist()} m is {d * 1e3:.1f} mm from the nearest cloud point, farther "
-                f"than max_snap_distance_voxels = {self.config.max_snap_distance_voxels:g} "
-                f"({self._snap * 1e3:.1f} mm); "
-                "start on (or just above) the surface, or raise HedacConfig.max_snap_distance_voxels"
-            )
-        return d
+        return check_snap_distance(self._tree, x, name, self.config.max_snap_distance_voxels, self.spacing)
 
     def update_target(self, mass: np.ndarray, keep_coverage: bool = False) -> None:
         """Replace the target mass (N,) while running (vision feedback); the basis is kept.

@@ -341,6 +341,13 @@ def run_explore(
         # Each point of a voxelised cloud stands for about h² of surface.
         cfg = replace(cfg, n_eigen=auto_n_eigen(len(cloud) * cloud.spacing**2, radius, len(cloud)))
     hcfg = _hedac_config(cfg, hedac, radius)
+    if cfg.x0 is not None:  # a start off the surface is refused before the basis, which takes the time
+        from scipy.spatial import cKDTree
+
+        from tactex.ergodic.explorer import check_snap_distance
+
+        check_snap_distance(cKDTree(cloud.points), np.asarray(cfg.x0, dtype=float), "x0",
+                            hcfg.max_snap_distance_voxels, cloud.spacing)
     for note in source_info.get("notes", []):
         say(f"cloud: {note}")
     say(f"cloud: {len(cloud)} points, spacing {cloud.spacing * 1e3:.2f} mm")
