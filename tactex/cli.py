@@ -6,9 +6,12 @@ import argparse
 import contextlib
 import importlib
 import json
+import os
 import pkgutil
 import re
+import signal
 import sys
+import threading
 import time
 import typing
 import warnings
@@ -192,13 +195,50 @@ def _canonical_options(parser: argparse.ArgumentParser, command: str | None) -> 
             if a.option_strings and a.help != argparse.SUPPRESS and a.dest not in ("help",)}
 
 
+#: Signals that end a run as Ctrl-C does (torque control ended, what was done saved, ``status.json``): a
+#: ``kill``, ``timeout``, ``docker stop`` or ``systemctl stop`` (SIGTERM), a closed terminal or SSH session
+#: (SIGHUP).
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+
+
+@contextlib.contextmanager
+def _stop_on_signals():
+    """While in the block, :data:`STOP_SIGNALS` raise ``KeyboardInterrupt`` in the main thread (once: a second one
+    while the run saves its data is ignored); the dict it gives gets the first one received under ``"signal"``.
+    After a SIGHUP the terminal is gone: output goes to /dev/null, so that writing progress cannot fail the
+    saving. The handlers before are put back after the block (a caller's own process, a test's)."""
+    received: dict[str, signal.Signals] = {}
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+
+    def stop(signum, frame) -> None:
+        if received:
+            return
+        received["signal"] = signal.Signals(signum)
+        if signum == getattr(signal, "SIGHUP", None):
+            with contextlib.suppress(OSError):
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, 1)
+                os.dup2(null, 2)
+        raise KeyboardInterrupt(received["signal"].name)
+
+    kinds = [getattr(signal, name) for name in STOP_SIGNALS if hasattr(signal, name)]
+    before = {kind: signal.signal(kind, stop) for kind in kinds}
+    try:
+        yield received
+    finally:
+        for kind, handler in before.items():
+            signal.signal(kind, handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; bad input prints one line and returns a non-zero code, never a traceback.
 
     Python warnings reach the user as one line each, without a source path. When the command made
     its run folder (``--out``), ``status.json`` there says how the run ended: done, failed (with the
     error) or interrupted (Ctrl-C, exit code 130: explore, sweep, clean and wipe save what they had
-    done first, marked ``"partial": true``)."""
+    done first, marked ``"partial": true``; SIGTERM and SIGHUP the same, exit code 143 and 129)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -212,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     typed = _typed_options(parser, argv, args.command)
     _held_run(args)
     started = time.time()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), _stop_on_signals() as received:
         warnings.showwarning = _show_warning(args, typed)
         try:
             code = int(args._run(args) or 0)
@@ -230,9 +270,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         except KeyboardInterrupt as exc:  # a RunInterrupted says what the run saved, and where
             kept = f"; {exc}" if isinstance(exc, RunInterrupted) and str(exc) else ""
-            print(f"tactex {args.command}: interrupted{kept}", file=sys.stderr)
-            _write_status(args, argv, "interrupted", started, f"interrupted by the user (Ctrl-C){kept}")
-            return 130
+            by = received.get("signal")
+            print(f"tactex {args.command}: interrupted{f' by {by.name}' if by else ''}{kept}", file=sys.stderr)
+            _write_status(args, argv, "interrupted", started,
+                          f"interrupted by {by.name if by else 'the user (Ctrl-C)'}{kept}")
+            return 128 + int(by) if by else 130
     _write_status(args, argv, "done" if code == 0 else "stopped early", started)
     return code
 

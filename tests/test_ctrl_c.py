@@ -53,8 +53,8 @@ class _Run:
         self.proc.kill()
         raise AssertionError("the run showed no progress:\n" + "\n".join(self.err))
 
-    def interrupt(self) -> int:
-        self.proc.send_signal(signal.SIGINT)
+    def interrupt(self, sig: signal.Signals = signal.SIGINT) -> int:
+        self.proc.send_signal(sig)
         try:
             code = self.proc.wait(timeout=EXIT_GUARD_S)
         finally:
@@ -94,6 +94,26 @@ def test_ctrl_c_on_explore_keeps_the_steps_done(tmp_path) -> None:
     assert m["final_ergodicity"] == pytest.approx(float(ergodicity[-1]))
     assert (out / "cloud.png").is_file() and (out / "metrics.png").is_file()
     assert _status(out)["status"] == "interrupted" and str(out) in _status(out)["error"]
+
+
+@pytest.mark.timeout(1200)
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_a_kill_or_a_closed_terminal_keeps_the_steps_done_as_ctrl_c_does(tmp_path, sig) -> None:
+    """SIGTERM (kill, timeout, docker stop) and SIGHUP (a closed SSH session) killed a run outright: nothing
+    saved, and on a robot nothing ended torque control but the robot's own reflex."""
+    out = tmp_path / "explore"
+    run = _Run(["explore", "cup", "--steps", "1000000", "--n-eigen", "8", "--voxel-size-m", "0.006", "--no-html",
+                "--no-cache", "--out", str(out)])
+    run.wait_for(lambda line: line.startswith("tactex explore: step "))
+    code = run.interrupt(sig)
+    assert code == 128 + int(sig), "\n".join(run.err)
+    if sig == signal.SIGTERM:  # after a SIGHUP the terminal is gone: its output goes nowhere
+        assert run.last_error_line().startswith("tactex explore: interrupted by SIGTERM; the ")
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["partial"] is True and 0 < m["steps_done"] < 1_000_000
+    assert np.load(out / "trajectory.npy").shape == (m["steps_done"], 3)
+    status = _status(out)
+    assert status["status"] == "interrupted" and status["error"].startswith(f"interrupted by {sig.name}; the ")
 
 
 @pytest.mark.timeout(1200)

@@ -456,20 +456,23 @@ def test_twin_killed_mid_run_ends_cleanly_with_data(tmp_path):
     assert (out / "series.npz").is_file()
 
 
-def test_ctrl_c_ends_torque_control_and_saves(panel, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["Ctrl-C", "SIGTERM"])
+def test_ctrl_c_ends_torque_control_and_saves(panel, tmp_path, sig):
+    """Ctrl-C, and a SIGTERM (kill, timeout, docker stop) alike: torque control ended, the data saved."""
     out = tmp_path / "run"
     proc = _cli(["wipe", "--robot", "franka", "--robot-ip", panel.hostname, *TWIN_LATE, "--camera", "none",
                  "--duration-s", "20",
                  "--out", str(out)])
     try:
         _wait_for_contact(proc, 60.0)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         _wait_for_stop(proc, STOP_WITHIN_S)
         code = proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert code == 130  # Ctrl-C, as in simulation: what was recorded is written first
+    assert code == 128 + int(sig)  # as in simulation: what was recorded is written first
+    assert json.loads((out / "status.json").read_text())["status"] == "interrupted"
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["aborted"].startswith("KeyboardInterrupt") and metrics["partial"] is True
     # the robot is free again: a new connection can take control at once
