@@ -784,7 +784,7 @@ class CleanProgram:
         if not self.aborted and loop.state.wrench_tool[2] > cfg.contact_threshold_n:
             _lift_off(loop, RETRACT_M, pressing=self.pressing)
         if self.camera is not None:
-            self.camera.refresh()
+            self.camera.refresh(final=True)
         left = self.dirt()  # the simulation's count, the twin's, or NaN on a robot (nobody counts its dirt)
         self.bar.close(f"dirt removed {100 * (1 - left):.1f} %" if np.isfinite(left) else "done (dirt not measured)")
         series = log.rec.arrays()
