@@ -488,10 +488,15 @@ class LibfrankaBackend:
         a twin would keep the last torque on an arm nobody controls."""
         if late_us > self.config.late_abort_ms * 1e3:
             self.close()
+            ip = str(self.config.robot_ip)
+            twin = ip.startswith("127.") or ip == "localhost"
             raise RobotCommunicationError(
-                f"the control loop answered {late_us / 1e3:.0f} ms late (budget 1 ms): something slow ran between "
-                "two ticks while torque control was on (end it first: ControlLoop.pause); a real Franka stops "
-                "with communication_constraints_violation. Torque control ended")
+                f"the control loop answered {late_us / 1e3:.0f} ms late (--late-abort-ms "
+                f"{self.config.late_abort_ms:g}; a cycle is 1 ms): the PC stalled, or something slow ran between "
+                "two ticks while torque control was on; a real Franka stops there "
+                "(communication_constraints_violation). Torque control ended"
+                + ("; on the twin, a machine this busy needs --late-abort-ms 5000 (loopback only)" if twin else
+                   "; see docs/real_robot.md for the PC's set-up (real-time kernel, performance governor)"))
 
     def step(self) -> RobotState:
         """Send the torque set by :meth:`apply_torque` (unless it went already) and wait for the next
