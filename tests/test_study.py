@@ -354,3 +354,26 @@ def test_a_ray_client_session_that_fails_to_start_is_tried_again_and_a_dead_addr
     with pytest.raises(ConfigError, match="--ray-address 'ray://head:10001'"):
         executor._connect(dead, "ray://head:10001")
     assert dead.inits == 1
+
+
+def test_a_folder_holding_another_study_is_refused_without_force(tmp_path, monkeypatch, capsys):
+    import types
+
+    import tactex.experiments.study as study
+    from tactex.experiments.study import check_same_study
+
+    clean = spec_from_dict({"task": "clean", "fixed": {"budget_s": 3.0}, "seeds": 2})
+    out = tmp_path / "s"
+    out.mkdir()
+    (out / "runs.jsonl").write_text(json.dumps({"run_id": clean.runs()[0].run_id, "task": "clean"}) + "\n")
+    check_same_study(clean, out)  # the same study: resumed
+    check_same_study(spec_from_dict({"task": "clean", "fixed": {"budget_s": 3.0}, "seeds": 4}), out)  # more seeds
+    with pytest.raises(ConfigError, match=r"holds another study \(1 clean runs, none of this wipe study's plan\)"):
+        check_same_study(spec_from_dict({"task": "wipe", "fixed": {"duration_s": 1.0}}), out)
+    with pytest.raises(ConfigError, match="none of this clean study's plan"):  # every run's config differs
+        check_same_study(spec_from_dict({"task": "clean", "fixed": {"budget_s": 4.0}}), out)
+    done = types.SimpleNamespace(files={}, records=[], skipped=0, out_dir=out, failed=[])
+    monkeypatch.setattr(study, "run_study", lambda *a, **k: done)
+    argv = ["study", "--task", "wipe", "--set", "duration_s=1", "--out", str(out), "--quiet"]
+    assert main(argv) == 2 and "--force to record these runs beside them" in capsys.readouterr().err
+    assert main([*argv, "--force"]) == 0

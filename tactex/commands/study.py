@@ -96,10 +96,12 @@ def spec_from_args(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from tactex.experiments.executor import make_executor
-    from tactex.experiments.study import print_to_stderr, run_study
+    from tactex.experiments.study import check_same_study, print_to_stderr, run_study
 
     spec = spec_from_args(args)
     check_out(args, NAME)
+    if not args.force:
+        check_same_study(spec, args.out)
     say = None if args.quiet else print_to_stderr("tactex study")
     with make_executor(args.workers, ray=args.ray, ray_address=args.ray_address) as ex:
         try:

@@ -39,7 +39,7 @@ from tactex.experiments.study_report import write_study_outputs
 from tactex.experiments.study_spec import StudyRun, StudySpec, level_label
 from tactex.experiments.study_table import table_rows, write_csv
 
-__all__ = ["StudyResult", "run_study", "run_study_task"]
+__all__ = ["StudyResult", "check_same_study", "run_study", "run_study_task"]
 
 Say = Callable[[str], None]
 
@@ -92,6 +92,23 @@ def _read_records(path: Path) -> dict[str, dict[str, Any]]:
         if isinstance(rec, dict) and "run_id" in rec:
             records[rec["run_id"]] = rec
     return records
+
+
+def check_same_study(spec: StudySpec, out_dir: str | Path) -> None:
+    """Refuse (:class:`ConfigError`) to run ``spec`` into ``out_dir`` when the study recorded there is another:
+    another task, or runs of which none is in ``spec``'s plan (its table would mix the two). A study resumed,
+    or given more seeds or levels, shares runs with it and passes."""
+    out = Path(out_dir)
+    known = _read_records(out / "runs.jsonl")
+    if not known:
+        return
+    tasks = sorted({str(rec.get("task", "")) for rec in known.values()})
+    planned = {run.run_id for run in spec.runs()}
+    other = tasks != [spec.task] or not planned & set(known)
+    if other:
+        raise ConfigError(f"--out {out} holds another study ({len(known)} {'/'.join(tasks)} runs, none of this "
+                          f"{spec.task} study's plan): give another --out, or --force to record these runs beside "
+                          "them")
 
 
 def _append_record(path: Path, rec: dict[str, Any]) -> None:
