@@ -377,3 +377,26 @@ def test_a_folder_holding_another_study_is_refused_without_force(tmp_path, monke
     argv = ["study", "--task", "wipe", "--set", "duration_s=1", "--out", str(out), "--quiet"]
     assert main(argv) == 2 and "--force to record these runs beside them" in capsys.readouterr().err
     assert main([*argv, "--force"]) == 0
+
+
+def test_a_ray_address_that_is_malformed_or_dead_is_refused_at_once():
+    import socket
+
+    from tactex.experiments.executor import check_ray_address
+
+    for bad in ("nonsense", "head:", ":6379", "ray://head", "head:99999"):
+        with pytest.raises(ConfigError, match=f"--ray-address '{bad}' is not HOST:PORT"):
+            check_ray_address(bad)
+    with socket.socket() as s:  # a port nobody serves
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(ConfigError, match=rf"nothing answers at --ray-address '127.0.0.1:{port}' within 5 s .*"
+                                          rf"ray start --head --port {port}"):
+        check_ray_address(f"127.0.0.1:{port}")
+    with pytest.raises(ConfigError, match=rf"ray start --head --ray-client-server-port {port}"):
+        check_ray_address(f"ray://127.0.0.1:{port}")
+    with socket.socket() as s:  # a port that answers: on to Ray
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        check_ray_address(f"127.0.0.1:{s.getsockname()[1]}")
+        check_ray_address("auto")

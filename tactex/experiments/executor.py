@@ -39,8 +39,8 @@ from typing import Any
 
 from tactex.errors import ConfigError, ExecutorError, MissingDependencyError
 
-__all__ = ["Executor", "LocalExecutor", "Outcome", "RayExecutor", "cluster_runtime_env", "echo", "make_executor",
-           "start_local_ray"]
+__all__ = ["RAY_PROBE_S", "Executor", "LocalExecutor", "Outcome", "RayExecutor", "check_ray_address",
+           "cluster_runtime_env", "echo", "make_executor", "start_local_ray"]
 
 #: A run: ``fn(task, shared)`` → a picklable result. Must be a module-level function.
 RunFn = Callable[[Any, Any], Any]
@@ -328,6 +328,7 @@ class RayExecutor(Executor):
             if address is None:
                 start_local_ray(workers or None)
             else:
+                check_ray_address(address.strip())
                 _connect(ray, address)
             self._owns = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
@@ -375,6 +376,31 @@ class RayExecutor(Executor):
         if self._owns and self._ray.is_initialized():
             self._ray.shutdown()
         self._owns = False
+
+
+#: How long a --ray-address's host may take to answer a TCP connection before the study is refused [s]: Ray's
+#: own connection to a GCS address nobody serves retries without end.
+RAY_PROBE_S = 5.0
+
+
+def check_ray_address(address: str) -> None:
+    """Refuse (:class:`ConfigError`) a ``--ray-address`` that is not ``auto``, ``HOST:PORT`` or
+    ``ray://HOST:PORT``, or whose port does not accept a TCP connection within :data:`RAY_PROBE_S`."""
+    if address == "auto":
+        return
+    client = address.startswith("ray://")
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"--ray-address '{address}' is not HOST:PORT (the head's GCS, e.g. 10.0.0.2:6379), "
+                          "ray://HOST:PORT (its Ray client server, e.g. ray://10.0.0.2:10001) or auto")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_PROBE_S).close()
+    except OSError as exc:
+        started = (f"ray start --head --ray-client-server-port {port}" if client else
+                   f"ray start --head --port {port}")
+        raise ConfigError(f"nothing answers at --ray-address '{address}' within {RAY_PROBE_S:g} s "
+                          f"({exc.strerror or exc}): is the head started there ({started}) and its port open to "
+                          "this machine? (docs/distributed.md)") from None
 
 
 def make_executor(workers: int = 0, *, ray: bool = False, ray_address: str | None = None) -> Executor:
