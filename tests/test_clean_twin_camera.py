@@ -170,3 +170,18 @@ def test_a_recording_that_ends_in_the_first_capture_keeps_the_moves_to_the_camer
         assert len(z["t"]) > 0 and float(z["t"][-1]) > 0.5
     assert not (out / "cloud.npz").exists()
     assert "no cloud: the run stopped before its first capture" in (out / "report.html").read_text()
+
+
+def test_a_twin_camera_port_that_does_not_answer_is_named_before_the_robot_is_touched(tmp_path, capsys):
+    import socket
+
+    from tactex.cli import main
+
+    with socket.socket() as s:  # a port nobody serves
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    # no twin runs either: had the robot been connected first, its refusal would be the error
+    code = main(["clean", "--robot", "franka", "--robot-ip", "127.0.0.1", "--camera", "twin", "--camera-port",
+                 str(port), "--quiet", "--no-video", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and f"127.0.0.1:{port}" in err and "Franka" not in err, err

@@ -259,8 +259,9 @@ def open_capture_camera(robot: RealRobotParams, scene_config, tool_pose):
     tool_T_camera = load_hand_eye(robot.hand_eye) if robot.hand_eye else nominal_tool_T_camera(scene_config)
     mount = CameraMount(tool_T_camera)
     if kind == "twin":
-        from tactex.perception.twin_camera import TwinCameraSource
+        from tactex.perception.twin_camera import TwinCameraSource, twin_status
 
+        twin_status(robot.robot_ip, robot.camera_port)  # its port answers before the arm moves to the capture
         return TwinCameraSource(robot.robot_ip, robot.camera_port, mount=mount, tool_pose_provider=tool_pose)
     from tactex.perception.realsense import RealSenseSource
 
