@@ -238,6 +238,8 @@ def test_safety_summary_says_how_often_and_why() -> None:
                            "max_contact_force_n": 61.24})
     assert said == ("retreated 22× from a contact force above 40 N, peak |F| 61.2 N; "
                     "clipped the torque rate (1000 N·m/s) on 310 tick(s)")
+    dry = safety_summary({"safety_counts": {"torque_limit": 4362}, "dry_run": True})
+    assert dry == "dry run, on torques computed but not sent; saturated the torque at the joint limits on 4362 tick(s)"
 
 
 def test_a_wipe_says_when_its_duration_cut_the_policy_file_short() -> None:

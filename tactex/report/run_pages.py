@@ -205,6 +205,8 @@ def safety_summary(metrics: Mapping[str, Any]) -> str | None:
     }
     parts = [say(counts[kind]) for kind, say in said.items() if counts.get(kind)]
     parts += [f"{kind} {n}×" for kind, n in counts.items() if kind not in said and kind != "retreat_end"]
+    if parts and metrics.get("dry_run"):  # the arm held still on its brakes while the controller chased the task
+        parts.insert(0, "dry run, on torques computed but not sent")
     return "; ".join(parts) if parts else None
 
 

@@ -64,12 +64,20 @@ def _read_rigid(path: str | Path, what: tuple[str, str]) -> tuple[Path, np.ndarr
     pose = np.asarray(pose, dtype=float)
     rot = pose[:3, :3] if pose.shape == (4, 4) else None
     # a finite rotation's entries are within ±1: larger ones fail the check without overflowing in it
-    if rot is None or not np.isfinite(pose).all() or np.abs(rot).max() > 1.0 + 1e-4 \
-            or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4) \
-            or not np.allclose(pose[3], [0, 0, 0, 1]) or np.linalg.det(rot) < 0:
-        raise InputError(f"{what[0]} '{p}' must hold a 4×4 rigid transform (rotation, translation in "
-                         f"metres, last row 0 0 0 1), got shape {pose.shape}")
-    return p, pose
+    if rot is None:
+        why = f"got shape {pose.shape}"
+    elif not np.isfinite(pose).all():
+        why = "it holds NaN or inf"
+    elif np.abs(rot).max() > 1.0 + 1e-4 or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-4):
+        why = "its upper-left 3×3 is no rotation (Rᵀ·R is not the identity: a scale or a shear?)"
+    elif not np.allclose(pose[3], [0, 0, 0, 1]):
+        why = f"its last row is {np.round(pose[3], 4).tolist()}"
+    elif np.linalg.det(rot) < 0:
+        why = "its 3×3 is a reflection (determinant −1)"
+    else:
+        return p, pose
+    raise InputError(f"{what[0]} '{p}' must hold a 4×4 rigid transform (rotation, translation in metres, last row "
+                     f"0 0 0 1): {why}")
 
 
 def load_pose_file(path: str | Path, what: str = "camera pose", name: str = "base_T_camera",
@@ -88,6 +96,6 @@ def load_hand_eye(path: str | Path) -> np.ndarray:
     """tool_T_camera (4, 4) from a ``.npy`` array or a ``.json`` nested list (no pickle)."""
     p, pose = _read_rigid(path, _HAND_EYE)
     if np.abs(pose[:3, 3]).max() > 1.0:
-        raise InputError(f"hand-eye calibration '{p}': the camera sits {np.abs(pose[:3, 3]).max():.3g} from the "
-                         "tool; give the translation in metres")
+        raise InputError(f"hand-eye calibration '{p}': the camera sits {np.abs(pose[:3, 3]).max():.3g} m from the "
+                         "tool, farther than 1 m: give the translation in metres (not millimetres)")
     return pose
