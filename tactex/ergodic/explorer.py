@@ -100,7 +100,6 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return view
 
 
-
 def check_snap_distance(tree: cKDTree, x_m: np.ndarray, name: str, max_voxels: float, spacing_m: float) -> float:
     """The distance [m] from ``x_m`` (3,) to the nearest point of the cloud in ``tree``; an
     :class:`ExplorationError` naming ``name`` when it is over ``max_voxels`` voxels of ``spacing_m`` [m]
@@ -114,6 +113,7 @@ def check_snap_distance(tree: cKDTree, x_m: np.ndarray, name: str, max_voxels: f
             "start on (or just above) the surface, or raise HedacConfig.max_snap_distance_voxels"
         )
     return d
+
 
 class HedacExplorer(HedacStep, PassGuidance, Hops, Relocating, KeepOut, MultiAgent):
     """Spectral HEDAC on a :class:`SurfaceCloud` with a Laplace eigenbasis.

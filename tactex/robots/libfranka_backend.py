@@ -397,8 +397,7 @@ class LibfrankaBackend:
                 "(docs/real_robot.md), or pass --realtime ignore for a test on a normal kernel") from exc
         except Exception as exc:
             self._restore_scheduling()
-            loopback = str(config.robot_ip).startswith("127.") or config.robot_ip == "localhost"
-            what = ("is `tactex twin` running (and ready) on this machine?" if loopback else
+            what = ("is `tactex twin` running (and ready) on this machine?" if config.is_loopback else
                     "check the FCI address, that FCI is activated in Desk, the brakes are open and no other program "
                     "holds the robot")
             raise RobotConnectionError(f"cannot connect to the Franka at {config.robot_ip} ({exc}): {what}") from exc
@@ -488,14 +487,13 @@ class LibfrankaBackend:
         a twin would keep the last torque on an arm nobody controls."""
         if late_us > self.config.late_abort_ms * 1e3:
             self.close()
-            ip = str(self.config.robot_ip)
-            twin = ip.startswith("127.") or ip == "localhost"
             raise RobotCommunicationError(
                 f"the control loop answered {late_us / 1e3:.0f} ms late (--late-abort-ms "
                 f"{self.config.late_abort_ms:g}; a cycle is 1 ms): the PC stalled, or something slow ran between "
                 "two ticks while torque control was on; a real Franka stops there "
                 "(communication_constraints_violation). Torque control ended"
-                + ("; on the twin, a machine this busy needs --late-abort-ms 5000 (loopback only)" if twin else
+                + ("; on the twin, a machine this busy needs --late-abort-ms 5000 (loopback only)"
+                   if self.config.is_loopback else
                    "; see docs/real_robot.md for the PC's set-up (real-time kernel, performance governor)"))
 
     def step(self) -> RobotState:

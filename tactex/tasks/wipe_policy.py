@@ -25,6 +25,7 @@ from tactex.tasks.policies import (
     SinusoidPolicy,
     check_policy,
     load_policy_file,
+    sample_policy,
 )
 from tactex.tasks.runner import TOOL_DOWN
 
@@ -80,6 +81,10 @@ def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> None:
     check_policy(policy, wipe_limits(cfg), horizon_s=cfg.duration_s)
 
 
+#: The sinusoid's path is checked against the part every this often [s] (a circle of omega 2 rad/s: every 1.1 deg).
+REACH_STEP_S = 0.01
+
+
 def check_sinusoid(cfg: Any) -> None:
     """Refuse (one-line :class:`ConfigError`, naming the options) the §III sinusoid of ``cfg`` when it is faster,
     accelerates harder or reaches further within ``cfg.duration_s`` than the wipe allows a policy file
@@ -100,8 +105,8 @@ def check_sinusoid(cfg: Any) -> None:
     if not isinstance(surface, (HeightFieldSurface, CylinderWallSurface)):
         return
     limits = wipe_limits(cfg)
-    t = np.linspace(0.0, float(cfg.duration_s), min(int(float(cfg.duration_s) / 0.01) + 2, 100_000))
-    u, v = a * np.sin(w * t), a * (np.cos(w * t) - 1.0) - d * t
+    s = sample_policy(wipe_policy(cfg), float(cfg.duration_s), REACH_STEP_S)
+    t, u, v = s["t"], s["u"], s["v"]
     ok = np.asarray(limits.inside(u, v), dtype=bool)
     if np.all(ok):
         return

@@ -251,9 +251,9 @@ class CleanConfig(SimWorldParams):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
         for name, top_m in LENGTH_TOPS_M.items():
             if float(getattr(self, name)) > top_m:
+                default = type(self).__dataclass_fields__[name].default
                 raise ConfigError(f"{name} = {getattr(self, name)!r} m is over {top_m:g} m: it is in metres "
-                                  f"(the default {type(self).__dataclass_fields__[name].default:g} m is "
-                                  f"{1e3 * type(self).__dataclass_fields__[name].default:g} mm)")
+                                  f"(the default {default:g} m is {1e3 * default:g} mm)")
         if self.joint_speed_rad_s > FRANKA_JOINT_SPEED_RAD_S:
             raise ConfigError(f"joint_speed_rad_s = {self.joint_speed_rad_s:g} rad/s is over the Franka's "
                               f"{FRANKA_JOINT_SPEED_RAD_S} rad/s (its shoulder and elbow joints' limit)")
