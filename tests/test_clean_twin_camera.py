@@ -62,6 +62,9 @@ def test_tec_loop_on_the_twin_with_its_camera(tmp_path):
     assert m["dirt_removed_fraction"] >= 0.95
     assert m["vision_updates"] >= 1 and m["captures"] == m["vision_updates"] + 1
     assert m["force_within_20pct_fraction"] >= 0.9
+    # the arm's wrench estimate is what the flange feels through the sponge, not the pad's contact force,
+    # whose steps over the height field jump (tactex.twin.wrench)
+    assert m["max_contact_force_n"] <= 2.0 * m["force_set_point_n"]
     # a restart of torque control after a capture's or an IK's pause stepped the torque (8 clipped ticks on
     # the way back to the camera) before it was blended in from the robot's own command; runs since clip
     # none. A machine loaded enough to stall the loop (or the twin beside it) still clips in the ticks after a

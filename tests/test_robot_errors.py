@@ -119,3 +119,43 @@ def test_a_closed_backend_says_so_by_type() -> None:
     backend._closed = True
     with pytest.raises(RobotClosedError, match="closed"):
         backend.step()
+
+
+def test_the_connect_is_announced_before_libfranka_waits(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """An address where nothing answers holds libfranka silent for its TCP timeout: the task says first what it
+    waits for, and how long it may."""
+    pylibfranka = pytest.importorskip("pylibfranka")
+    from tactex.robots.libfranka_backend import CONNECT_TIMEOUT_S
+    from tactex.sim.scene import SceneConfig
+    from tactex.tasks.robot import RealRobotParams, open_backend
+
+    said: list[str] = []  # stderr as it stood when libfranka was called
+
+    def refused(*_args):
+        said.append(capsys.readouterr().err)
+        raise pylibfranka.NetworkException("connection refused")
+
+    monkeypatch.setattr(pylibfranka, "Robot", refused)
+    with pytest.raises(RobotConnectionError):
+        open_backend(SceneConfig(), RealRobotParams(robot_ip="127.0.0.254"), announce=True)
+    with pytest.raises(RobotConnectionError):
+        open_backend(SceneConfig(), RealRobotParams(robot_ip="127.0.0.254"), announce=False)
+    assert len(said) == 2
+    assert f"connecting to the Franka at 127.0.0.254 (libfranka waits up to {CONNECT_TIMEOUT_S} s" in said[0]
+    assert "connecting" not in said[1]
+    assert CONNECT_TIMEOUT_S == 60  # libfranka's Network default tcp_timeout
+
+
+def test_the_wipe_refuses_the_twins_capture_camera_before_the_robot_is_touched(monkeypatch: pytest.MonkeyPatch) -> None:
+    """--camera twin serves clean's captures and calibrate's views; the wipe's surface estimate needs a stream
+    (--camera sim on the twin): refused before libfranka is called."""
+    pylibfranka = pytest.importorskip("pylibfranka")
+    from tactex.errors import ConfigError
+    from tactex.tasks.robot import RealRobotParams
+    from tactex.tasks.wipe import WipeConfig, run_wipe
+
+    calls: list = []
+    monkeypatch.setattr(pylibfranka, "Robot", lambda *args: calls.append(args))
+    with pytest.raises(ConfigError, match="--camera sim"):
+        run_wipe(WipeConfig(), progress=False, robot=RealRobotParams(robot_ip="127.0.0.254", camera="twin"))
+    assert calls == []

@@ -32,6 +32,8 @@ TOOL = ToolGeometry()  # the twin's default tool
 PLANE_TOP_Z = 0.41  # plane object at z = 0.40 (+ its 1 cm lift) [m]
 FORCE_TOLERANCE = 0.2  # relative agreement of the two wrench sources and the command [-]
 PRESS_N = 15.0  # commanded force [N] (VA-UFIC)
+WRONG_LOAD_KG = 0.5  # a load declared this much heavier than the tool [kg]
+NO_CONTACT_N = 0.05  # the robot's wrench estimate without contact stays below this [N, N·m]
 STREAM_HANG_GUARD_S = 30.0  # a Net F/T stream that sends nothing for this long has stopped [s]
 
 
@@ -146,9 +148,30 @@ def test_client_connects_and_reads_state(twin, robot):
     assert pose[2, 2] < -0.99
     assert 0.03 < pose[2, 3] - PLANE_TOP_Z < 0.08
     assert state.m_load == pytest.approx(TOOL.calibrated_mass_properties()[0])
-    assert np.allclose(state.K_F_ext_hat_K, 0.0)  # no contact
+    # no contact: the estimate (the flange's reading less the declared load) is the arm's small sway only
+    assert np.abs(state.K_F_ext_hat_K).max() < NO_CONTACT_N
     status = twin.wait_status(lambda s: s.get("connected"), 30.0)
     assert status["connected"] and status["ticks"] > 0
+
+
+def test_a_load_declared_heavier_than_the_tool_reads_as_a_push_down_as_on_a_franka(twin, robot):
+    """The twin's wrench estimate is the flange's reading less the load the client declared (set_load), as a
+    Franka's is from its joint torques: declared 0.5 kg too heavy, the robot seems to push down by its weight."""
+    mass, com = TOOL.calibrated_mass_properties()
+    inertia = (np.eye(3) * 1e-3).reshape(9).tolist()
+    com_flange = (flange_R_tool() @ com).tolist()
+    robot.set_load(float(mass) + WRONG_LOAD_KG, com_flange, inertia)
+    try:
+        for _ in range(20):  # the first state read after a command can be one from before it
+            state = robot.read_once()
+        assert state.m_load == pytest.approx(mass + WRONG_LOAD_KG)
+        # K's z points down at the start pose: the robot's force on the environment is +z
+        assert state.K_F_ext_hat_K[2] == pytest.approx(WRONG_LOAD_KG * 9.81, abs=0.05)
+        assert np.abs(state.K_F_ext_hat_K[:2]).max() < 0.05
+    finally:
+        robot.set_load(float(mass), com_flange, inertia)
+        for _ in range(20):
+            robot.read_once()
 
 
 def test_netft_stream_reads_tool_weight_then_zero_after_tare(twin):

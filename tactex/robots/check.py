@@ -19,7 +19,7 @@ import numpy as np
 
 from tactex.control import joint_kernels
 from tactex.errors import ConfigError, RobotError, SensorFault
-from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, _col_major, flange_T_tcp
+from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend, _col_major, connecting_line, flange_T_tcp
 from tactex.sim.tool import ToolGeometry
 
 __all__ = ["LINK_MAX_LOST_FRACTION", "LINK_MIN_SUCCESS_RATE", "CheckResult", "check_robot", "link_verdict",
@@ -91,6 +91,8 @@ def check_robot(config: FrankaConfig, duration_s: float = 10.0, tool: ToolGeomet
     if bare and config.dry_run:
         raise ConfigError("--bare holds the arm with torques: it cannot run in a dry run (drop --dry-run)")
     tool = tool or ToolGeometry()
+    if note is not None:
+        note(connecting_line(config.robot_ip))
     t0 = time.perf_counter()
     backend = LibfrankaBackend(config, tool=tool)
     info: dict[str, Any] = {"robot_ip": config.robot_ip, "connect_s": time.perf_counter() - t0}

@@ -61,10 +61,12 @@ from tactex.robots.wrench import FrankaWrenchSource, NetFTWrenchSource, WrenchSo
 from tactex.sim.tool import ToolGeometry, flange_R_tool
 
 __all__ = [
+    "CONNECT_TIMEOUT_S",
     "FrankaConfig",
     "LibfrankaBackend",
     "LoopTiming",
     "ModelTerms",
+    "connecting_line",
     "flange_T_tcp",
     "franka_model_terms",
     "franka_state_to_robot_state",
@@ -333,6 +335,15 @@ def libfranka_error_kind(exc: BaseException, plf: Any) -> type[RobotError]:
     if "communication_constraints_violation" in str(exc):
         return RobotCommunicationError
     return RobotReflexError
+
+
+#: libfranka's wait for the robot's answer before it gives up [s] (its Network's default TCP timeout).
+CONNECT_TIMEOUT_S = 60
+
+
+def connecting_line(robot_ip: str) -> str:
+    """What to say before connecting: an address where nothing answers holds libfranka silent this long."""
+    return f"connecting to the Franka at {robot_ip} (libfranka waits up to {CONNECT_TIMEOUT_S} s for it to answer)"
 
 
 class LibfrankaBackend:

@@ -107,7 +107,7 @@ def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene
     opened: list = []
     camera = _wrist_camera(robot, scene_cfg, lambda: opened[0].state().ee_pose)
     try:
-        backend = open_backend(scene_cfg, robot)
+        backend = open_backend(scene_cfg, robot, announce=note is not None)
     except BaseException:
         camera.close()
         raise

@@ -13,6 +13,7 @@ newest estimate, so a slow frame never delays a torque command.
 from __future__ import annotations
 
 import os
+import sys
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields
 from typing import Any
@@ -24,7 +25,7 @@ from tactex.errors import ConfigError, InputError, RobotError, SensorFault, Surf
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.perception.twin_camera import TWIN_CAMERA_PORT
-from tactex.robots.libfranka_backend import FrankaConfig
+from tactex.robots.libfranka_backend import FrankaConfig, connecting_line
 from tactex.tasks.hand_eye import load_hand_eye
 
 __all__ = [
@@ -81,10 +82,10 @@ class RealRobotParams(FrankaConfig):
     """``--robot franka``: the robot (see FrankaConfig) and its camera."""
 
     robot_ip: str = param("", "the robot's FCI address, e.g. 172.16.0.2 (127.0.0.1 for tactex twin)")
-    camera: str = param("auto", "wrist camera: twin (the frames tactex twin serves), realsense, sim (a vision process "
-                                "rendering its own copy of the twin's scene: the wipe's surface estimate), none, or "
-                                "auto (sim on a loopback robot address, realsense otherwise); tactex clean captures "
-                                "its target with twin or realsense")
+    camera: str = param("auto", "wrist camera: twin (the frames tactex twin serves: clean and calibrate only), "
+                                "realsense, sim (a vision process rendering its own copy of the twin's scene: the "
+                                "wipe's surface estimate), none, or auto (sim on a loopback robot address, realsense "
+                                "otherwise); tactex clean captures its target with twin or realsense")
     camera_port: int = param(TWIN_CAMERA_PORT, "--camera twin: the twin's camera TCP port (tactex twin --port-camera)")
     serial: str = param("", "--camera realsense: the RealSense's serial number (default: the first one connected)")
     playback: str = param("", "--camera realsense: play this RealSense recording (.db3 or .bag) instead of a live "
@@ -189,16 +190,26 @@ class NoVision(SurfaceVision):
         return None
 
 
-def open_backend(scene_config, robot: RealRobotParams | None):
+def open_backend(scene_config, robot: RealRobotParams | None, *, announce: bool = False):
     """The task's robot: the MuJoCo scene of ``scene_config``, or the real Franka with that scene's tool
-    (its kinematics serve the transit IK)."""
+    (its kinematics serve the transit IK). ``announce``: say on stderr that the robot is being connected,
+    since an address where nothing answers holds libfranka silent for a minute."""
     if robot is None:
         from tactex.robots.mujoco_backend import MujocoBackend
 
         return MujocoBackend(scene_config)
     from tactex.robots.libfranka_backend import LibfrankaBackend
 
+    if announce:
+        print(f"robot: {connecting_line(robot.robot_ip)}", file=sys.stderr, flush=True)
     return LibfrankaBackend(robot.franka(), tool=scene_config.tool, ik_scene=scene_config)
+
+
+def check_estimate_camera(robot: RealRobotParams | None) -> None:
+    """Refuse a camera that cannot feed a surface estimate (the wipe's vision) before the robot is touched."""
+    if robot is not None and robot.camera_kind == "twin":
+        raise ConfigError("--camera twin serves tactex clean's captures and calibrate's views; a surface estimate "
+                          "on the twin comes from --camera sim (a vision process rendering the twin's scene)")
 
 
 def open_vision(backend, estimator_config: SurfaceEstimatorConfig, scene_config, robot: RealRobotParams | None,
@@ -207,12 +218,10 @@ def open_vision(backend, estimator_config: SurfaceEstimatorConfig, scene_config,
     twin's simulated camera (``scene_config``'s object) or a RealSense posed by ``hand_eye``."""
     if robot is None:
         return InLoopVision(backend, SurfaceEstimator(estimator_config))
+    check_estimate_camera(robot)
     kind = robot.camera_kind
     if kind == "none":
         return NoVision()
-    if kind == "twin":
-        raise ConfigError("--camera twin serves tactex clean's captures; a surface estimate on the twin comes from "
-                          "--camera sim (a vision process rendering the twin's scene)")
     from dataclasses import asdict
 
     from tactex.robots.vision_process import VisionProcess

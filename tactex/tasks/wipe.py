@@ -65,6 +65,7 @@ from tactex.tasks.robot import (
     ROBOT_STOPS,
     RealRobotParams,
     SurfaceVision,
+    check_estimate_camera,
     end_on_robot,
     open_backend,
     open_vision,
@@ -495,8 +496,9 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         explored = ExploredSurface(first.explored.points, first.explored.normals, first.explored_curvature,
                                    first.explored.spacing, source="the first pass", metrics=first.metrics)
         learned = PassCorrection.from_series(first.series, cfg.replan_learn_gain, "the first pass")
+    check_estimate_camera(robot)
     scene_cfg = cfg.scene()
-    backend = open_backend(scene_cfg, robot)
+    backend = open_backend(scene_cfg, robot, announce=progress)
     try:
         # the vision process starts before the arm moves: nothing slow may run once torque control is on
         # the TCP is the uncompressed pad tip: in contact the surface lies up to the pad's maximum

@@ -34,7 +34,7 @@ from tactex.twin.clock import CommandRate, TwinClock, fine_timer_slack
 from tactex.twin.command_channel import CommandChannel, check_franky_internals
 from tactex.twin.config import TwinConfig
 from tactex.twin.scene import ROBOT_PREFIX, STUB_MASS_KG, STUB_Z_M, add_scene
-from tactex.twin.wrench import contact_aware_robot_class
+from tactex.twin.wrench import contact_aware_robot_class, tool_wrench_on_environment
 
 __all__ = ["FRANKA_PORTS", "Twin", "run_twin"]
 
@@ -134,7 +134,14 @@ class Twin:
         self._ft_force, self._ft_torque = d.sensordata[a:a + 3], d.sensordata[b:b + 3]
         robot_bodies = np.array([m.body(i).name.startswith(ROBOT_PREFIX) or i in self._tool_bodies(m)
                                  for i in range(m.nbody)])
-        self._geom_robot = robot_bodies[m.geom_bodyid].tolist()
+        tool = self._tool_bodies(m)
+        # the arm's links: their contacts count directly (the tool's reach the arm through the flange)
+        self._geom_arm = (robot_bodies[m.geom_bodyid] & ~np.isin(m.geom_bodyid, sorted(tool))).tolist()
+        self._flange_body = m.body("flange").id
+        self._ft_site = m.site("ft_site").id
+        self._jacr = np.zeros((3, m.nv))
+        self._flange_acc = np.zeros(6)
+        self._flange_vel = np.zeros(6)
         self._geom_body = m.geom_bodyid.tolist()
         self._dofs = list(self.robot._dof_addrs)
         # the firmware's friction compensation (see TwinConfig.joint_friction_residual)
@@ -189,40 +196,70 @@ class Twin:
         self.ticks += 1
         if self.netft is not None and self.ticks % self._ft_every == 0:
             self.netft.pump(self._ft)  # sampled at the physics step, sent at once: no thread, no lag
+        self.robot._twin_ext = self._external_wrench()
         if d.ncon == 0:
-            self.robot._twin_ext = None
             self.pad_force_n = 0.0
             return
-        # contact wrench on the robot: force (world), moment about the world origin, joint torques
-        fx = fy = fz = mx = my = mz = 0.0
-        tau = None
         pad_fx = pad_fy = pad_fz = 0.0
-        is_robot, body_of, c6, jacp = self._geom_robot, self._geom_body, self._c6, self._jacp
-        m = self.model
+        m, c6, pad = self.model, self._c6, self._pad_geom
         for i in range(d.ncon):
             con = d.contact[i]
-            g1, g2 = int(con.geom1), int(con.geom2)
-            r1, r2 = is_robot[g1], is_robot[g2]
-            if r1 == r2:
+            if con.geom1 != pad and con.geom2 != pad:
                 continue
             self._mj_contact_force(m, d, i, c6)
-            f = con.frame.reshape(3, 3).T @ c6[:3]  # on geom2, world frame
-            if not r2:
-                f = -f
-            px, py, pz = con.pos.tolist()
-            ux, uy, uz = f.tolist()
-            fx, fy, fz = fx + ux, fy + uy, fz + uz
-            mx, my, mz = mx + py * uz - pz * uy, my + pz * ux - px * uz, mz + px * uy - py * ux
-            self._mj_jac(m, d, jacp, None, con.pos, body_of[g2 if r2 else g1])
-            t = jacp[:, self._dofs].T @ f
-            tau = t if tau is None else tau + t
-            if g1 == self._pad_geom or g2 == self._pad_geom:
-                pad_fx, pad_fy, pad_fz = pad_fx + ux, pad_fy + uy, pad_fz + uz
-        self.robot._twin_ext = None if tau is None else ((fx, fy, fz), (mx, my, mz), tau)
+            ux, uy, uz = (con.frame.reshape(3, 3).T @ c6[:3]).tolist()
+            pad_fx, pad_fy, pad_fz = pad_fx + ux, pad_fy + uy, pad_fz + uz
         self.pad_force_n = math.sqrt(pad_fx * pad_fx + pad_fy * pad_fy + pad_fz * pad_fz)
         self.max_contact_force_n = max(self.max_contact_force_n, self.pad_force_n)
         if self.ticks % self._sample == 0:
             self._wipe_due = True  # done after the state has left (Twin._serve), off the step's time
+
+    def _external_wrench(self) -> tuple:
+        """What the robot's joint torques would say of the outside world this step (see
+        :mod:`tactex.twin.wrench`): (force on the robot [N] and its moment about the world origin [N·m],
+        world frame, and the joint torques [N·m]), from the flange's interaction with the tool less
+        the declared load, plus the contacts on the arm's links."""
+        m, d, mujoco = self.model, self.data, self._mujoco
+        body, site = self._flange_body, self._ft_site
+        rot = d.site_xmat[site].reshape(3, 3)
+        p = d.site_xpos[site]
+        robot = self.robot
+        flange_rot = d.xmat[body].reshape(3, 3)
+        com = p + flange_rot @ np.asarray(robot.F_x_Cload, dtype=float)
+        # the acceleration of the load's centre of mass, a point of the flange: the origin's, plus the
+        # angular acceleration's and the rotation's terms
+        mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_BODY, body, self._flange_acc, 0)
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, body, self._flange_vel, 0)
+        r = com - d.xpos[body]
+        w = self._flange_vel[:3]
+        acc = self._flange_acc[3:] + np.cross(self._flange_acc[:3], r) + np.cross(w, np.cross(w, r))
+        force, moment = tool_wrench_on_environment(
+            (rot @ self._ft_force).tolist(), (rot @ self._ft_torque).tolist(), p.tolist(), robot.m_load,
+            com.tolist(), acc.tolist())
+        fx, fy, fz = -force[0], -force[1], -force[2]  # on the robot
+        mx, my, mz = -moment[0], -moment[1], -moment[2]
+        jacp, jacr = self._jacp, self._jacr
+        self._mj_jac(m, d, jacp, jacr, p, body)
+        px, py, pz = p.tolist()
+        m_at_p = np.array([mx - (py * fz - pz * fy), my - (pz * fx - px * fz), mz - (px * fy - py * fx)])
+        tau = jacp[:, self._dofs].T @ np.array([fx, fy, fz]) + jacr[:, self._dofs].T @ m_at_p
+        arm, body_of, c6 = self._geom_arm, self._geom_body, self._c6
+        for i in range(d.ncon):
+            con = d.contact[i]
+            g1, g2 = int(con.geom1), int(con.geom2)
+            if arm[g1] == arm[g2]:
+                continue
+            self._mj_contact_force(m, d, i, c6)
+            f = con.frame.reshape(3, 3).T @ c6[:3]  # on geom2, world frame
+            if not arm[g2]:
+                f = -f
+            cx, cy, cz = con.pos.tolist()
+            ux, uy, uz = f.tolist()
+            fx, fy, fz = fx + ux, fy + uy, fz + uz
+            mx, my, mz = mx + cy * uz - cz * uy, my + cz * ux - cx * uz, mz + cx * uy - cy * ux
+            self._mj_jac(m, d, jacp, None, con.pos, body_of[g2 if arm[g2] else g1])
+            tau = tau + jacp[:, self._dofs].T @ f
+        return (fx, fy, fz), (mx, my, mz), tau
 
     def _wipe(self) -> None:
         """Preston wear under the pad from its contacts with the object (as MujocoBackend._wipe)."""

@@ -1,7 +1,12 @@
-"""The contact wrench in franky-sim's robot state, where stock franky-sim reports zero.
+"""The external wrench in franky-sim's robot state, where stock franky-sim reports zero.
 
-``K_F_ext_hat_K`` / ``O_F_ext_hat_K`` / ``tau_ext_hat_filtered`` come from the MuJoCo contact forces
-on the robot, with libfranka's documented sign: the wrench the robot exerts on the environment is
+``K_F_ext_hat_K`` / ``O_F_ext_hat_K`` / ``tau_ext_hat_filtered`` are what a Franka estimates from its
+joint torques: what the tool does to the flange, less the weight and inertia of the load the client
+declared (``set_load``; a wrongly declared load shows, as on the robot), plus the contacts on the arm's
+own links. Not the contact forces under the pad: the tool's sponge is a spring between them and the
+flange, and MuJoCo's contact force on a pad sliding over a height field jumps from one step to the next
+(a step without force, then one at nearly twice it) where the flange feels a smooth push. Sign as
+libfranka documents it: the wrench the robot exerts on the environment is
 positive (``robot_state.h``: "Forces applied by the robot to the environment are positive, while
 forces applied by the environment on the robot are negative"), about the K frame's origin
 (``O_T_EE · EE_T_K``). ``TwinConfig.ext_wrench_on_robot`` flips it, for clients written the other
@@ -14,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["contact_aware_robot_class", "wrench_about_k"]
+__all__ = ["contact_aware_robot_class", "tool_wrench_on_environment", "wrench_about_k"]
 
 _IDENTITY16 = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 
@@ -39,6 +44,32 @@ def wrench_about_k(o_t_ee, ee_t_k, force_on_robot, moment_on_robot, sign: float)
     k = (a[0] * fx + a[1] * fy + a[2] * fz, a[4] * fx + a[5] * fy + a[6] * fz, a[8] * fx + a[9] * fy + a[10] * fz,
          a[0] * mx + a[1] * my + a[2] * mz, a[4] * mx + a[5] * my + a[6] * mz, a[8] * mx + a[9] * my + a[10] * mz)
     return world, k
+
+
+def tool_wrench_on_environment(force_flange_on_tool, moment_flange_on_tool, flange_m, load_mass_kg, load_com_m,
+                               load_acc_m_s2):
+    """The wrench the tool exerts on the environment as the robot's model sees it: (force [N], moment
+    about the world origin [N·m]), each 3 floats, world frame.
+
+    ``force_flange_on_tool`` / ``moment_flange_on_tool``: what the flange exerts on the tool (a wrist
+    F/T sensor at the flange reads it), world frame, the moment about ``flange_m`` (the flange's origin,
+    world [m]). The declared load (``load_mass_kg`` at ``load_com_m``, world [m]) moves with the flange:
+    ``load_acc_m_s2`` is its centre of mass's acceleration less gravity (+9.81 m/s² up at rest, what an
+    accelerometer reads), world. The load's balance, m·(a − g) = f_flange + f_environment, gives the
+    force; the moment follows about the load's centre of mass. A rigid load: the sponge's own motion is
+    not modelled, as the robot's model does not know it. Python floats, for the twin's 1 kHz tick."""
+    fx, fy, fz = force_flange_on_tool
+    ax, ay, az = load_acc_m_s2
+    m = float(load_mass_kg)
+    # the tool's force on the environment: minus the environment's on the tool
+    ex, ey, ez = fx - m * ax, fy - m * ay, fz - m * az
+    px, py, pz = flange_m
+    cx, cy, cz = load_com_m
+    lx, ly, lz = -m * ax, -m * ay, -m * az  # the load's inertial force (with its weight), at its centre of mass
+    mx = moment_flange_on_tool[0] + (py * fz - pz * fy) + (cy * lz - cz * ly)
+    my = moment_flange_on_tool[1] + (pz * fx - px * fz) + (cz * lx - cx * lz)
+    mz = moment_flange_on_tool[2] + (px * fy - py * fx) + (cx * ly - cy * lx)
+    return (ex, ey, ez), (mx, my, mz)
 
 
 _ZERO6, _ZERO7 = (0.0,) * 6, (0.0,) * 7

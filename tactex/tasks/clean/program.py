@@ -104,7 +104,7 @@ def run_clean(config: CleanConfig | None = None, *, progress: bool = True,
     camera = (open_capture_camera(robot, scene_cfg, lambda: opened[0].state().ee_pose)
               if robot is not None and not cfg.cloud else None)
     try:
-        backend = open_backend(scene_cfg, robot)
+        backend = open_backend(scene_cfg, robot, announce=progress)
     except BaseException:
         if camera is not None:
             camera.close()
