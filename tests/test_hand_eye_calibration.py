@@ -112,3 +112,28 @@ def test_rotations_about_one_axis_are_refused() -> None:
     tilted[1][:3, :3] = _rot_z(20.0)
     tilted[2][:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
     check_motions(tilted)
+
+
+@pytest.mark.parametrize("answer", [None, "done"])
+def test_taught_poses_ended_before_the_first_one_say_so(monkeypatch, answer) -> None:
+    """--taught whose input ends (EOF) or says 'done' before a pose is taught: said as such, not as a board found
+    from 0 of 0 poses; no robot or camera is asked for anything."""
+    import tactex.tasks.hand_eye_robot as her
+    from tactex.sim.board import ChessBoard
+    from tactex.tasks.hand_eye_calibration import HandEyeConfig
+    from tactex.tasks.robot import RealRobotParams
+
+    class _Camera:
+        def close(self) -> None:
+            pass
+
+    def ask(_prompt: str) -> str:
+        if answer is None:
+            raise EOFError
+        return answer
+
+    monkeypatch.setattr(her, "_wrist_camera", lambda *args: _Camera())
+    with pytest.raises(InputError, match="no pose was taught: " + ("the end of the input" if answer is None else
+                                                                  "'done'")):
+        her.calibrate_taught(HandEyeConfig(poses=4), ChessBoard(), RealRobotParams(robot_ip="127.0.0.254",
+                                                                                   camera="twin"), ask=ask)

@@ -124,13 +124,13 @@ def test_a_recording_that_ends_mid_capture_is_a_sensor_fault(recording, tmp_path
     from tactex.tasks.capture import CaptureConfig, capture_cloud
 
     with RealSenseSource(mount=CameraMount(BASE_T_COLOR), playback=recording) as source, \
-            pytest.raises(CameraStreamEnded, match=r"recording .* ended"):
+            pytest.raises(CameraStreamEnded, match=r"after \d of the 5 frames of the capture: .*recording .* ended"):
         capture_cloud(source, CaptureConfig(views=5))
     out = tmp_path / "scan.ply"
     code = main(["capture", "--camera", "realsense", "--playback", str(recording), "--camera-pose",
                  str(_pose(tmp_path)), "--views", "5", "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 1 and len(err.strip().splitlines()) == 1 and "ended" in err, err
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "ended" in err and "of the 5 frames" in err, err
     assert not out.exists()
 
 

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out '{args.out}': the capture is written as a PLY file (a name ending in .ply)")
     source, what, warm_up = _source(args)
     try:
-        read_views(source, warm_up, what)
+        read_views(source, warm_up, what, "frames dropped while its exposure settles")
         cloud = capture_cloud(source, cfg, what)
     except SensorFault as exc:  # a stream that ended: nothing to write, and not the user's input
         print(f"tactex capture: error: {exc}", file=sys.stderr)

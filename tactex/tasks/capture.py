@@ -73,14 +73,18 @@ class CaptureConfig:
                                  sor_mean_k=self.sor_mean_k, color_method="hsv")
 
 
-def read_views(source, views: int, what: str = "the camera") -> list[CameraFrame]:
+def read_views(source, views: int, what: str = "the camera",
+               purpose: str = "frames of the capture") -> list[CameraFrame]:
     """``views`` frames from ``source`` (``read() -> CameraFrame | None``); a source that ends
-    first is a :class:`~tactex.errors.CameraStreamEnded` naming how many came."""
+    first is a :class:`~tactex.errors.CameraStreamEnded` naming how many of the ``purpose`` came."""
     frames: list[CameraFrame] = []
     for _ in range(views):
-        frame = source.read()
+        try:
+            frame = source.read()
+        except CameraStreamEnded as exc:  # a source that says why it ended (a recording's end, a timeout)
+            raise CameraStreamEnded(f"{what} stopped after {len(frames)} of the {views} {purpose}: {exc}") from exc
         if frame is None:
-            raise CameraStreamEnded(f"{what} stopped after {len(frames)} of the {views} frames of the capture")
+            raise CameraStreamEnded(f"{what} stopped after {len(frames)} of the {views} {purpose}")
         frames.append(frame)
     return frames
 

@@ -25,7 +25,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tactex.errors import ConfigError, SimulationError
+from tactex.errors import ConfigError, InputError, SimulationError
 from tactex.sim.board import ChessBoard
 from tactex.tasks.hand_eye_calibration import (
     HandEyeConfig,
@@ -143,17 +143,23 @@ def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Ca
     scene_cfg = scene_config or SceneConfig()
     camera = _wrist_camera(robot, scene_cfg, lambda: np.eye(4))
     views = _Views(board, note or (lambda msg: None))
+    ended = "'done'"
     try:
         for i in range(config.poses):
             try:
                 answer = ask(f"pose {i + 1}/{config.poses}: guide the arm until the camera sees the whole board, let "
                              "it rest, press Enter ('done' to solve now): ")
             except EOFError:
+                ended = "the end of the input"
                 break
             if answer.strip().lower() == "done":
                 break
             views.take(i, f"{i + 1}", camera, robot.capture_frames, read_tool_pose(robot.robot_ip, scene_cfg.tool))
     finally:
         camera.close()
+    if not views.tools and not views.skipped:
+        raise InputError(f"no pose was taught: {ended} came before the first one. --taught asks for each pose on "
+                         "the terminal (Enter takes a view): run it where you can answer, or give it one line per "
+                         "pose on its input")
     return views.solve(len(views.tools) + len(views.skipped), config.method,
                        " where the camera sees it whole at the poses you taught and")
