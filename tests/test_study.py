@@ -182,8 +182,10 @@ def test_resume_after_ctrl_c_runs_only_what_is_missing(tmp_path):
                 if i == 0:
                     raise KeyboardInterrupt
 
+    from tactex.errors import RunInterrupted
+
     spec = spec_from_dict(SMALL)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(RunInterrupted, match=r"1 runs finished in this session, 1 in all, are recorded in .*jsonl"):
         run_study(spec, tmp_path, InterruptAfterOne(1))
     assert len((tmp_path / "runs.jsonl").read_text().splitlines()) == 1
     assert len((tmp_path / "table.csv").read_text().splitlines()) == 2  # the finished run is in the table

@@ -104,12 +104,8 @@ def run(args: argparse.Namespace) -> int:
         check_same_study(spec, args.out)
     say = None if args.quiet else print_to_stderr("tactex study")
     with make_executor(args.workers, ray=args.ray, ray_address=args.ray_address) as ex:
-        try:
-            result = run_study(spec, args.out, ex, retry_failed=args.retry_failed, progress=say)
-        except KeyboardInterrupt:
-            print(f"tactex study: the finished runs are in {args.out}/runs.jsonl — run the same command again "
-                  "to resume", file=sys.stderr)
-            raise  # the CLI reports the interruption (exit code 130, status.json)
+        # Ctrl-C: a RunInterrupted saying where the finished runs are, which the CLI reports (exit 130)
+        result = run_study(spec, args.out, ex, retry_failed=args.retry_failed, progress=say)
     text = result.files.get("summary_text")
     if text is not None:
         print(text.read_text().rstrip())

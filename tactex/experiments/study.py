@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from tactex.config import to_jsonable, write_json
-from tactex.errors import ConfigError
+from tactex.errors import ConfigError, RunInterrupted
 from tactex.experiments.executor import Executor, LocalExecutor
 from tactex.experiments.run_folder import prepare_out_dir
 from tactex.experiments.study_files import pack_files
@@ -147,8 +147,9 @@ def _minutes(seconds: float) -> str:
 def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = None, *,
               retry_failed: bool = False, progress: Say | None = None) -> StudyResult:
     """Run every run of ``spec`` not yet in ``out_dir/runs.jsonl``, then write the table, the
-    summary, the plots and ``study.json``. Ctrl-C stops the runs (what finished stays recorded:
-    run the same study again to go on)."""
+    summary, the plots and ``study.json``. Ctrl-C stops the runs and raises
+    :class:`~tactex.errors.RunInterrupted` once those files are written (what finished stays recorded: run the
+    same study again to go on)."""
     out = prepare_out_dir(out_dir)
     runs = spec.runs()
     if not runs:
@@ -185,8 +186,6 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
             _write_table(out, spec, runs, known)  # the table so far: a crash loses nothing finished
     except KeyboardInterrupt:
         interrupted = True
-        say(f"interrupted: {bar.done} runs finished in this session are recorded in {jsonl}; "
-            "run the same study again to go on")
     finally:
         if executor is None:
             ex.close()
@@ -195,7 +194,8 @@ def run_study(spec: StudySpec, out_dir: str | Path, executor: Executor | None = 
                                          elapsed_s=time.perf_counter() - t0)
     result = StudyResult(out_dir=out, records=records, summary=summary, files=files, skipped=skipped)
     if interrupted:
-        raise KeyboardInterrupt
+        raise RunInterrupted(f"{bar.done} runs finished in this session, {len(records)} in all, are recorded in "
+                             f"{jsonl}; run the same study again to go on")
     return result
 
 
