@@ -126,6 +126,11 @@ class SensorFault(TactexError, RuntimeError):
     """A sensor or the vision process stopped delivering (no data within its timeout)."""
 
 
+class PolicyFault(TactexError, RuntimeError):
+    """A force-motion policy broke its contract while a run followed it (it raised, returned something that is
+    not a finite ``PolicyPoint``, or left the limits it was checked against): the run stops, its data kept."""
+
+
 class SafetyFault(ControllerFault):
     """The safety layer tripped and the controller is holding or retreating."""
 

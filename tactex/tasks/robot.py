@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from tactex.config import param
-from tactex.errors import ConfigError, InputError, RobotError, SensorFault, SurfaceNotFound
+from tactex.errors import ConfigError, InputError, PolicyFault, RobotError, SensorFault, SurfaceNotFound
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimator, SurfaceEstimatorConfig
 from tactex.perception.twin_camera import TWIN_CAMERA_PORT
@@ -46,9 +46,10 @@ __all__ = [
 ]
 
 #: What ends a run on a robot early and keeps its data: a libfranka error or lost link, a lost
-#: sensor or vision process, a surface that is not where the plan expects it, Ctrl-C (torque control
-#: has ended by the time they reach the task: a task pauses the loop before it raises SurfaceNotFound).
-ROBOT_STOPS = (RobotError, SensorFault, SurfaceNotFound, KeyboardInterrupt)
+#: sensor or vision process, a surface that is not where the plan expects it, a policy that broke its
+#: contract, Ctrl-C (torque control has ended by the time they reach the task: a task pauses the loop
+#: before it raises SurfaceNotFound or a PolicyFault).
+ROBOT_STOPS = (RobotError, SensorFault, SurfaceNotFound, PolicyFault, KeyboardInterrupt)
 
 
 def stop_reason(exc: BaseException) -> str:

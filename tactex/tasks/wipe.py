@@ -49,7 +49,7 @@ from tactex.control.friction import FrictionCompensator, FrictionCompensatorPara
 from tactex.control.nullspace import NullspacePosture
 from tactex.control.safety import MAX_FORCE_SET_POINT_N, SafetyLimits, check_force_set_point
 from tactex.control.va_ufic import VaUficController, VaUficParams, desired_rotation_from_normal
-from tactex.errors import ConfigError, PolicyFileError, SurfaceNotFound, TactexError
+from tactex.errors import ConfigError, PolicyFault, PolicyFileError, SurfaceNotFound, TactexError
 from tactex.perception.estimate import SurfaceEstimate
 from tactex.perception.estimator import SurfaceEstimatorConfig
 from tactex.pointcloud.cloud import SurfaceCloud
@@ -59,6 +59,7 @@ from tactex.sim.scene import SceneConfig
 from tactex.tasks.explored_surface import ExploredSurface
 from tactex.tasks.pass_learning import PassCorrection
 from tactex.tasks.policies import ForceMotionPolicy, sinusoid_xy
+from tactex.tasks.policies.guard import PolicyGuard
 from tactex.tasks.progress import Progress
 from tactex.tasks.recorder import Recorder
 from tactex.tasks.robot import (
@@ -71,7 +72,15 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
-from tactex.tasks.wipe_policy import check_sinusoid, check_wipe_policy, policy_segments, wipe_policy, wipe_start_pose
+from tactex.tasks.wipe_policy import (
+    check_policy_call_time,
+    check_sinusoid,
+    check_wipe_policy,
+    policy_segments,
+    wipe_limits,
+    wipe_policy,
+    wipe_start_pose,
+)
 from tactex.tasks.wipe_references import WipeReferences
 from tactex.tasks.world import SimWorldParams
 
@@ -445,11 +454,12 @@ class _WipeLive:
     surface (red where the pad has not been, green where it has), the TCP, the tool, the force against its set
     point and where the time went. Called from :meth:`_WipeLog._complete`, while a command executes."""
 
-    def __init__(self, feed, surface, obj_pos: np.ndarray, obj_rot: np.ndarray, pad_radius_m: float) -> None:
+    def __init__(self, feed, surface, obj_pos: np.ndarray, obj_rot: np.ndarray, pad_radius_m: float,
+                 run_s: float) -> None:
         from scipy.spatial import cKDTree
 
         pts = obj_pos + surface.sample(LIVE_SPACING_M).points @ obj_rot.T
-        self.feed, self.radius = feed, float(pad_radius_m)
+        self.feed, self.radius, self.run_s = feed, float(pad_radius_m), float(run_s)
         self.left = np.ones(len(pts))  # 1 where the pad has not been yet
         self.tree = cKDTree(pts)
         feed.set_cloud(pts, None, np.ones(len(pts)))
@@ -460,8 +470,8 @@ class _WipeLive:
         approach = log.first_contact if log.first_contact is not None else t
         contact = log.n_contact * log.dt
         self.feed.publish(
-            t, phase="approach" if log.first_contact is None else "wipe", force_n=fz, set_point_n=log.cfg.force_n,
-            tcp_m=state.ee_position, world_R_tool=state.ee_rotation, progress=t / log.cfg.duration_s, field=self.left,
+            t, phase="approach" if log.first_contact is None else "wipe", force_n=fz, set_point_n=log.force_set_n,
+            tcp_m=state.ee_position, world_R_tool=state.ee_rotation, progress=t / self.run_s, field=self.left,
             breakdown_s={"approach": approach, "contact": contact, "no_contact_after_touch": max(0.0, t - approach -
                                                                                                contact)},
             figures={"surface touched [-]": 1.0 - float(self.left.mean())})
@@ -485,7 +495,7 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
     wall0 = time.perf_counter()
     the_policy = wipe_policy(cfg, policy)
     if policy is not None:
-        check_wipe_policy(cfg, the_policy)
+        check_policy_call_time(check_wipe_policy(cfg, the_policy), robot is not None)
     explored = ExploredSurface.from_run(Path(cfg.replan_from).expanduser()) if cfg.replan_from else None
     learned = (PassCorrection.from_run(Path(cfg.replan_from).expanduser(), cfg.replan_learn_gain)
                if cfg.replan_from else None)
@@ -577,7 +587,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     if explored is not None:
         r_start = desired_rotation_from_normal(r_start, -explored.near(p_start).normal)
     # the live page's surface is made before torque control starts (sampling it takes milliseconds)
-    shown = _WipeLive(live, surface, obj_pos, obj_rot, scene_cfg.tool.pad_radius_m) if live is not None else None
+    shown = (_WipeLive(live, surface, obj_pos, obj_rot, scene_cfg.tool.pad_radius_m, run_s) if live is not None
+             else None)
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
@@ -597,7 +608,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
     log.live = shown
 
-    policy = WipeReferences(cfg, vision, p_start, r_start, the_policy, explored,
+    # the policy as the run follows it: a fault of its own at run time stops the run, its data kept
+    policy = WipeReferences(cfg, vision, p_start, r_start, PolicyGuard(the_policy, wipe_limits(cfg)), explored,
                             (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned,
                             lambda: inner.tick_telemetry().get("rho_align", 0.0) >= ALIGNED_RHO)
 
@@ -611,7 +623,11 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         log.sent(state_ctrl)
         # the next tick's reference, from this state: nothing of it is left between the next state
         # and its command
-        policy.advance(state_ctrl, state_ctrl.t + backend.dt - t0)
+        try:
+            policy.advance(state_ctrl, state_ctrl.t + backend.dt - t0)
+        except PolicyFault:
+            loop.pause()  # a real robot holds itself while the run's data is written
+            raise
         log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
         log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
 

@@ -10,6 +10,7 @@ x along the wall, y down it: u must stay within the wall's arc length, the heigh
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -29,7 +30,8 @@ from tactex.tasks.policies import (
 )
 from tactex.tasks.runner import TOOL_DOWN
 
-__all__ = ["check_sinusoid", "check_wipe_policy", "policy_segments", "wipe_limits", "wipe_policy"]
+__all__ = ["POLICY_CALL_BUDGET_S", "check_policy_call_time", "check_sinusoid", "check_wipe_policy", "policy_segments",
+           "wipe_limits", "wipe_policy"]
 
 # ``cfg`` below is a ``tactex.tasks.wipe.WipeConfig`` (typed Any: wipe imports this module)
 
@@ -70,15 +72,34 @@ def wipe_policy(cfg: Any, policy: ForceMotionPolicy | None = None) -> ForceMotio
                           cfg.drift_m_s)
 
 
-def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> None:
+def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> float:
     """Refuse (one-line :class:`ConfigError`) a policy the wipe does not allow: see :func:`wipe_limits`.
-    The surface must be a height field (the wipe starts above it, tool down)."""
+    The surface must be a height field (the wipe starts above it, tool down). Returns the mean wall time of
+    one call of the policy's ``at`` [s]."""
     if not isinstance(policy, ForceMotionPolicy):
         raise ConfigError(f"policy must be a ForceMotionPolicy (tactex.tasks.policies), got {type(policy).__name__}")
     if not isinstance(object_or_part(cfg.object_name, cfg.units).surface, (HeightFieldSurface, CylinderWallSurface)):
         raise ConfigError(f"a policy wipe starts above a height-field surface or beside a cup's wall; "
                           f"'{cfg.object_name}' is neither")
-    check_policy(policy, wipe_limits(cfg), horizon_s=cfg.duration_s)
+    return check_policy(policy, wipe_limits(cfg), horizon_s=cfg.duration_s)
+
+
+#: A policy's ``at`` may take this long per call [s]: the wipe calls it at every tick of the robot's 1 ms
+#: cycle, beside the controller, whose whole answer must come within a few hundred microseconds.
+POLICY_CALL_BUDGET_S = 2e-4
+
+
+def check_policy_call_time(call_s: float, robot: bool) -> None:
+    """A policy whose ``at`` takes more than :data:`POLICY_CALL_BUDGET_S` per call (``call_s`` [s], measured by
+    the check): refused for a robot, whose cycle it would break; a warning in simulation, which only slows."""
+    if call_s <= POLICY_CALL_BUDGET_S:
+        return
+    text = (f"the policy takes {1e3 * call_s:.2f} ms per call of at(); the wipe calls it at every 1 ms tick of "
+            f"the robot's cycle, beside the controller: keep it under {1e3 * POLICY_CALL_BUDGET_S:g} ms "
+            "(compute what you can before the run)")
+    if robot:
+        raise ConfigError(text)
+    warnings.warn(text, stacklevel=3)
 
 
 #: The sinusoid's path is checked against the part every this often [s] (a circle of omega 2 rad/s: every 1.1 deg).

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 from tactex.errors import ConfigError
 
-__all__ = ["ForceMotionPolicy", "ForceRamp", "PolicyPoint", "PolicySegment"]
+__all__ = ["ForceMotionPolicy", "ForceRamp", "PolicyPoint", "PolicySegment", "point_problem"]
 
 
 class PolicyPoint(NamedTuple):
@@ -30,6 +30,19 @@ class PolicyPoint(NamedTuple):
     du_m_s: float
     dv_m_s: float
     force_n: float
+
+
+def point_problem(point: object) -> str | None:
+    """What is wrong with what a policy's ``at`` returned, or None for a :class:`PolicyPoint` of finite floats."""
+    if not isinstance(point, PolicyPoint):
+        return (f"at() returned {type(point).__name__}, not a PolicyPoint(u_m, v_m, du_m_s, dv_m_s, force_n) "
+                "(tactex.tasks.policies.PolicyPoint)")
+    try:
+        if all(math.isfinite(x) for x in point):
+            return None
+    except TypeError:
+        pass
+    return f"at() returned {point}: every field must be a finite number"
 
 
 @dataclass(frozen=True)
@@ -57,7 +70,14 @@ class ForceRamp:
 
 
 class ForceMotionPolicy(ABC):
-    """What the wipe follows: :meth:`at` gives the reference at policy time t [s]."""
+    """What the wipe follows: :meth:`at` gives the reference at policy time t [s].
+
+    The contract a policy of one's own keeps (the wipe checks it before the arm moves, over the run's
+    length every 2 ms, and again at every tick while the run follows it): ``at`` returns a
+    :class:`PolicyPoint` of finite floats; its rates are those of its offsets (du = d(u)/dt); speed,
+    acceleration and force stay within the task's limits; ``duration_s`` is finite, or ``math.inf`` for a
+    policy the run's duration ends; ``at`` is cheap (it runs inside the robot's 1 ms cycle) and gives the
+    same answer for the same time."""
 
     #: how long the policy runs [s]; ``math.inf`` for one that runs until the task stops it
     duration_s: float

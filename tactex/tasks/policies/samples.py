@@ -29,12 +29,14 @@ def read_samples(path: str | Path) -> np.ndarray:
     if not p.is_file():
         raise InputError(f"samples file '{p}' does not exist")
     try:
-        with p.open(newline="") as fh:
+        with p.open(newline="", encoding="utf-8-sig") as fh:  # a spreadsheet's "CSV UTF-8" starts with a BOM
             rows = [r for r in csv.reader(fh) if r and any(c.strip() for c in r)]
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"samples file '{p}' cannot be read as CSV text: {exc}") from exc
     if not rows or tuple(c.strip() for c in rows[0]) != SAMPLE_COLUMNS:
-        raise InputError(f"samples file '{p}': the first line must be the header {','.join(SAMPLE_COLUMNS)}")
+        found = f"'{','.join(rows[0])}'" if rows else "nothing"
+        raise InputError(f"samples file '{p}': the first line must be the header {','.join(SAMPLE_COLUMNS)}, "
+                         f"found {found}")
     data = np.empty((len(rows) - 1, 4))
     for i, row in enumerate(rows[1:], start=2):
         if len(row) != 4:
