@@ -573,6 +573,15 @@ def _profile(cfg: WipeConfig, surface) -> np.ndarray:
     return surface.project(np.column_stack([np.zeros_like(ys), ys, np.zeros_like(ys)]))[0]
 
 
+def _controllers(cfg: WipeConfig) -> tuple[Any, FrictionCompensator | None]:
+    """The wipe's controller (VA-UFIC, or the Cartesian impedance baseline) and its friction feed-forward."""
+    if cfg.baseline == "cartesian":
+        return CartesianImpedanceController(), None
+    compensator = FrictionCompensator(cfg.friction_params()) if cfg.friction_compensation else None
+    return VaUficController(VaUficParams(tanks_enabled=cfg.tanks_enabled, compliant_below=cfg.compliant_below),
+                            port_feedforward=compensator), compensator
+
+
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
               progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None,
               explored: ExploredSurface | None = None, learned: PassCorrection | None = None) -> WipeResult:
@@ -593,13 +602,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
 
-    compensator: FrictionCompensator | None = None
-    if cfg.baseline == "cartesian":
-        inner: Any = CartesianImpedanceController()
-    else:
-        compensator = FrictionCompensator(cfg.friction_params()) if cfg.friction_compensation else None
-        inner = VaUficController(VaUficParams(tanks_enabled=cfg.tanks_enabled, compliant_below=cfg.compliant_below),
-                                 port_feedforward=compensator)
+    inner, compensator = _controllers(cfg)
     controller = NullspacePosture(inner, q_posture=q_posture)
     loop.use(controller)
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
