@@ -467,3 +467,17 @@ def test_a_joint_entering_its_limit_band_at_speed_gets_no_step_of_damping(compil
     assert np.abs(np.diff(taus)).max() < 0.1
     depth = 0.7 * 59e-3 - 0.01  # past the ramp: the whole damping
     assert taus[-1] == pytest.approx(-(50.0 * depth + 2.0 * 0.7), rel=1e-9)
+
+
+def test_the_layer_keeps_the_peak_contact_force_of_every_tick():
+    """What a task's metrics quote as the run's peak |F|, moves included: the layer sees every tick's wrench."""
+    layer, inner = _layer(np.zeros(N_JOINTS))
+    assert layer.peak_force_n == 0.0
+    for k, f in enumerate([(0, 0, 5.0), (3.0, 4.0, 12.0), (0, 0, 2.0)]):
+        layer.torque(_state(k, wrench_tool=np.array([*f, 0.0, 0.0, 0.0])), None)
+    assert layer.peak_force_n == pytest.approx(13.0)
+    layer.inner = Constant(np.zeros(N_JOINTS))  # another controller (a move, then the task): the peak stays
+    layer.torque(_state(3, wrench_tool=np.array([0, 0, 1.0, 0, 0, 0])), None)
+    assert layer.peak_force_n == pytest.approx(13.0)
+    layer.reset(make_state(q=Q_MID))
+    assert layer.peak_force_n == 0.0

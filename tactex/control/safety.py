@@ -189,6 +189,9 @@ class SafetyLayer(Controller):
         self._lost_in_contact = False  # its last finite reading showed contact
         self._nan_event_t = -math.inf  # time of the last nan_wrench event [s]
         self._over = 0
+        #: [N] the largest contact force magnitude the layer has seen since it was made or reset (every tick,
+        #: whatever the inner controller: a move's as well as a task's)
+        self.peak_force_n = 0.0
         self._retreat_until: float | None = None
         self._saturating = {"torque_limit": False, "torque_rate_limit": False}
         self._held = False
@@ -216,6 +219,7 @@ class SafetyLayer(Controller):
         self._lost_at = None
         self._nan_event_t = -math.inf
         self._over = 0
+        self.peak_force_n = 0.0
         self._retreat_until = None
         self._held = False
         self._last_inner = self.inner
@@ -313,6 +317,8 @@ class SafetyLayer(Controller):
 
         fx, fy, fz = wrench[0], wrench[1], wrench[2]
         force = math.sqrt(fx * fx + fy * fy + fz * fz)
+        if force > self.peak_force_n:
+            self.peak_force_n = force
         self._over = self._over + 1 if force > lim.max_contact_force else 0
         if self._retreat_until is None and self._over >= lim.force_trip_ticks:
             self._retreat_until = state.t + lim.retreat_time

@@ -692,8 +692,9 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         # time spent exploring in contact: from the first touch to the end of the policy
         "explore_time_s": (run_s + policy.waited_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
-        # [N] the peak magnitude of the measured force over every tick (normal and friction, in contact or not)
-        "max_force_norm_n": float(log.max_force_norm),
+        # [N] the peak magnitude of the measured force over every tick of the run (normal and friction, in contact
+        # or not; the move to the start included, which the safety layer watches as it does the policy)
+        "max_force_norm_n": float(max(log.max_force_norm, loop.safety.peak_force_n)),
         # the highest contact force as a multiple of the policy's set point at its tick
         "max_force_over_set_point": float(np.max(np.asarray(forces) / f_set)) if f_set.size else float("nan"),
         "policy": {"file": cfg.policy, "duration_s": run_s, "segments": policy_segments(the_policy, run_s, log),
