@@ -22,7 +22,9 @@ def test_sim_capture_writes_a_base_frame_scan_with_normals(tmp_path, capsys) -> 
     assert "target: red by hue" in said and "points are target" in said
     cloud = load_ply(out)
     assert cloud.colors is not None and cloud.normals is not None and cloud.n_target == 0
-    assert cloud.points[:, 2].min() >= 0.005  # the table is cut away
+    assert cloud.points[:, 2].min() >= 0.002  # the table is cut away
+    # ... and the plate's well is kept: its middle, 4 mm above the table, is in the scan
+    assert np.min(np.linalg.norm(cloud.points[:, :2] - [0.5, 0.0], axis=1)) < 0.005
     assert np.median(cloud.normals[:, 2]) > 0.9  # the plate's inside, normals up towards the camera
     # the plate sits at 0.5 0 0: the scan is in the robot base frame
     np.testing.assert_allclose(np.median(cloud.points[:, :2], axis=0), [0.5, 0.0], atol=0.02)
