@@ -471,7 +471,7 @@ def test_a_joint_entering_its_limit_band_at_speed_gets_no_step_of_damping(compil
 
 def test_the_layer_keeps_the_peak_contact_force_of_every_tick():
     """What a task's metrics quote as the run's peak |F|, moves included: the layer sees every tick's wrench."""
-    layer, inner = _layer(np.zeros(N_JOINTS))
+    layer, _ = _layer(np.zeros(N_JOINTS))
     assert layer.peak_force_n == 0.0
     for k, f in enumerate([(0, 0, 5.0), (3.0, 4.0, 12.0), (0, 0, 2.0)]):
         layer.torque(_state(k, wrench_tool=np.array([*f, 0.0, 0.0, 0.0])), None)

@@ -167,3 +167,17 @@ def test_clean_cloud_in_millimetres_is_the_metre_cloud(tmp_path) -> None:
     np.testing.assert_array_equal(a.points, b.points)
     np.testing.assert_array_equal(a.target, b.target)
     assert a.n_target > 0
+
+
+def test_a_millimetre_part_read_in_inches_is_told_to_use_millimetres(tmp_path, capsys) -> None:
+    """A 600 mm part given --units in spans 15 m: the hint names millimetres and the width in them, not inches
+    again (it advised the --units in it was given, with a width converted twice)."""
+    import trimesh
+
+    part = tmp_path / "section_mm.stl"
+    mesh = trimesh.creation.box(extents=[600.0, 500.0, 20.0])
+    mesh.apply_translation([0.0, 0.0, 10.0])
+    mesh.export(part)
+    assert main(["clean", "--object", str(part), "--units", "in", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "if it is in millimetres (0.6 m wide then), give --units mm" in err and "give --units in" not in err, err

@@ -37,7 +37,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--box", dest="box_m", type=float, nargs=6, default=None,
                         metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                         help=f"workspace box in the robot base frame [m] (default: {lo}: in front of the robot, "
-                             "the surface it stands on cut away 2 mm above z = 0: a table at another height needs its own ZMIN)")
+                             "the surface it stands on cut away 2 mm above z = 0: a table at another height needs "
+                             "its own ZMIN)")
 
 
 #: Frames a live RealSense delivers before its auto-exposure has settled, read and dropped [-].

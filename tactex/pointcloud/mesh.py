@@ -45,7 +45,7 @@ def read_mesh(path: Path, spacing_m: float, units: str = "m") -> CloudFile:
     if dropped:
         mesh.update_faces(good[mesh.faces].all(axis=1))
         mesh.remove_unreferenced_vertices()
-    cloud = sample_mesh(mesh, spacing_m, f"'{path}'")
+    cloud = sample_mesh(mesh, spacing_m, f"'{path}'", units)
     notes = [f"a mesh of {n_faces} faces ({mesh.area:.4g} m² of surface), sampled every {spacing_m * 1e3:.3g} mm",
              *load_notes]
     if dropped:
@@ -53,8 +53,9 @@ def read_mesh(path: Path, spacing_m: float, units: str = "m") -> CloudFile:
     return CloudFile(cloud, dropped, n_faces=n_faces, notes=tuple(notes))
 
 
-def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
-    """A cloud with one point per ``spacing_m`` voxel of ``mesh``'s surface (a ``trimesh.Trimesh``).
+def sample_mesh(mesh, spacing_m: float, name: str = "the mesh", units: str = "m") -> SurfaceCloud:
+    """A cloud with one point per ``spacing_m`` voxel of ``mesh``'s surface (a ``trimesh.Trimesh``, in metres,
+    read from a file in ``units``: for the hint when it is too wide).
 
     Raises:
         UnitsError: the mesh spans more than :data:`MAX_EXTENT_M` (it is probably in millimetres).
@@ -71,7 +72,7 @@ def sample_mesh(mesh, spacing_m: float, name: str = "the mesh") -> SurfaceCloud:
     extent = float(np.max(np.ptp(mesh.vertices, axis=0)))
     if extent > MAX_EXTENT_M:
         raise UnitsError(f"{name} spans {extent:.4g} along one axis; tactex works in metres, an object over "
-                         f"{MAX_EXTENT_M:g} m is out of reach, and {millimetre_hint(extent)}")
+                         f"{MAX_EXTENT_M:g} m is out of reach, and {millimetre_hint(extent, units)}")
     area = float(mesh.area)
     if not (math.isfinite(area) and area > 0):
         raise CloudError(f"{name} has no surface area (all its triangles are degenerate)")

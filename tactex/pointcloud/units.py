@@ -71,7 +71,15 @@ def metre_hint(extent_m: float, units: str) -> str:
             f"probably in metres ({as_metres:.3g} m wide then): give units=m")
 
 
-def millimetre_hint(extent: float) -> str:
-    """What to do with a file ``extent`` units wide, refused as too wide for metres."""
-    inches = inch_hint(extent)
-    return "it is probably in millimetres: give units=mm (or convert it to metres)" + (f"; {inches}" if inches else "")
+def millimetre_hint(extent: float, units: str = "m") -> str:
+    """What to do with a file ``extent`` [m] wide once read in ``units``, refused as too wide (in metres, its
+    numbers are ``extent``; in inches or millimetres they are that over the unit)."""
+    if units == "m":
+        inches = inch_hint(extent)
+        return ("it is probably in millimetres: give units=mm (or convert it to metres)"
+                + (f"; {inches}" if inches else ""))
+    numbers = extent / METRES_PER[check_units(units)]  # its width in the file's own numbers
+    if units == "in":
+        return (f"read in inches it is {extent:.3g} m wide; if it is in millimetres ({numbers * 1e-3:.3g} m wide "
+                "then), give units=mm")
+    return f"even read in millimetres it is {extent:.3g} m wide: check the file's unit and scale"

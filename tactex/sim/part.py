@@ -166,7 +166,7 @@ def _raster(path: Path, units: str) -> tuple[HeightRaster, np.ndarray]:
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     extent = float(np.max(hi - lo))
     if extent > MAX_EXTENT_M:
-        raise UnitsError(f"--object '{path}' spans {extent:.4g} m along one axis: {millimetre_hint(extent)}")
+        raise UnitsError(f"--object '{path}' spans {extent:.4g} m along one axis: {millimetre_hint(extent, units)}")
     origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
     size = hi - lo
     if max(size[0], size[1]) > 2 * REACH_MAX_M or size[2] > MAX_HEIGHT_M:
