@@ -147,6 +147,10 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
           "--port", "0"], "does not exist"),
         (["annotate", str(scan), "--out", str(scan), "--no-browser", "--port", "0"], "--force"),
         (["annotate", str(scan), "--out", str(tmp_path / "o.npz"), "--no-browser", "--port", "0"], ".ply"),
+        # the page's Save would fail there, after the marks were painted: said before the page opens
+        (["annotate", str(scan), "--out", str(tmp_path / "no_such_folder" / "o.ply"), "--no-browser", "--port", "0"],
+         "does not exist (the page's Save could not write there"),
+        (["annotate", str(scan), "--out", str(scan / "o.ply"), "--no-browser", "--port", "0"], "does not exist"),
     ]
     not_cloud = tmp_path / "notes.ply"
     not_cloud.write_text("this is not a point cloud\n")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import webbrowser
@@ -19,6 +20,12 @@ def check_annotation_out(scan: str | Path, out: str | Path, force: bool = False)
         raise InputError(f"--out '{out}' must end in .ply (the marks are PLY vertex properties)")
     if out.is_dir():
         raise InputError(f"--out '{out}' is a directory; give a file name ending in .ply")
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"--out '{out}': its folder '{folder}' does not exist (the page's Save could not write "
+                         "there, and your marks would be lost): make it first, or give another file")
+    if not os.access(folder, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
+        raise InputError(f"--out '{out}' cannot be written (no permission): give a file you can write")
     if scan.is_file() and out.exists() and out.resolve() == scan.resolve() and not force:
         raise InputError(f"--out '{out}' is the scan itself: saving would replace it; give another file, or --force")
 

@@ -169,6 +169,8 @@ class AnnotateView:
     def _redraw(self) -> None:
         self.points.colors = self.colors()
         self.counts_md.content = self.counts_text()
+        if self.saved is not None:  # the last save's line no longer says what the file holds
+            self.status_md.content = f"{self.unsaved} change(s) since `{self.saved}` was saved"
 
     def _clicked(self, event: Any, from_last: bool = False) -> None:
         if event.ray_origin is None or event.ray_direction is None:
