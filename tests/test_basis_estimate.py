@@ -171,3 +171,18 @@ def test_clean_refuses_a_cloud_over_the_cap_before_the_run(tmp_path, monkeypatch
     check_cloud_size(CleanConfig(cloud=str(tmp_path / "c.npz"), baseline="raster"), force=False)  # no basis
     monkeypatch.setattr(estimate, "MAX_BASIS_POINTS", 2_000)
     check_cloud_size(cfg, force=False)  # under the cap
+
+
+def test_explore_says_when_the_basis_came_from_the_cache(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.setenv("TACTEX_CACHE_DIR", str(tmp_path / "basis"))
+    g = np.arange(0.0, 0.06, 0.003)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    np.savez(tmp_path / "c.npz", points=pts, colors=np.where(pts[:, :1] < 0.03, [1.0, 0.0, 0.0], [0.7, 0.7, 0.7]))
+    said = []
+    for k in range(2):
+        assert main(["explore", str(tmp_path / "c.npz"), "--out", str(tmp_path / f"r{k}"), "--steps", "5",
+                     "--n-eigen", "20"]) == 0
+        said.append(capsys.readouterr().err)
+    assert "eigensolver" in said[0].split("basis: ")[2] and "read from the cache" not in said[0]
+    assert "read from the cache" in said[1]

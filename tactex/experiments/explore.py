@@ -465,7 +465,9 @@ def _set_up(cloud: SurfaceCloud, cfg: ExploreConfig, hcfg, keep_out: np.ndarray 
                         eigensolver=cfg.eigensolver, eigen_tol=cfg.eigen_tol,
                         progress=say if len(cloud) >= estimate.PROGRESS_MIN_POINTS else None)
     basis_s = time.perf_counter() - t0
-    say(f"basis: {basis_s:.3f} s, {basis.eigensolver} eigensolver ({basis.n_components} connected part(s))")
+    say(f"basis: {basis_s:.3f} s, " + ("read from the cache" if basis.from_cache else
+                                        f"{basis.eigensolver} eigensolver")
+        + f" ({basis.n_components} connected part(s))")
     # the sweep source steps in numpy (the explorer also leaves the keep-out zone's clearance band out; a target
     # uniform outside the zone is uniform outside the band too)
     if hcfg.compiled and not sweeps(hcfg.source_mode, cloud.target, keep_out) and compile_pending():

@@ -542,7 +542,8 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot
 
 #: The first pass's figures a re-planned wipe's metrics repeat beside its own.
 FIRST_PASS_KEYS = ("force_mae_n", "force_within_20pct_fraction", "motion_mae_m", "motion_mae_tool_m",
-                   "motion_mae_tangent_m", "aligned_at_s", "max_force_over_set_point", "torque_rate_clip_ticks")
+                   "motion_mae_tangent_m", "motion_mae_all_contact_m", "aligned_at_s", "max_force_over_set_point",
+                   "torque_rate_clip_ticks")
 
 
 def _motion_figures(log: _WipeLog) -> dict[str, list[float]]:
