@@ -92,7 +92,8 @@ def test_csv_with_time_not_increasing(tmp_path, capsys) -> None:
 def test_path_out_of_reach(tmp_path, capsys) -> None:
     # the sine panel is 26 cm across: a 20 cm stroke along x from its middle leaves it
     body = f"[[segment]]\n{SPIRAL}\n[[segment]]\nkind = \"line\"\nduration_s = 8.0\nforce_n = 10.0\nlength_m = 0.2\n"
-    _refused(tmp_path, capsys, body, "segment 2 (line)", "length_m/direction_deg", "leaves the sine_panel's surface")
+    _refused(tmp_path, capsys, body, "segment 2 (line)", "length_m/direction_deg", "leaves the sine_panel's surface",
+             "move the start (--start-y-m moves it along the part's y, from 0.08 m now)")
 
 
 def test_too_fast_and_too_sharp(tmp_path, capsys) -> None:
@@ -119,6 +120,8 @@ def test_unblended_velocity_jump(tmp_path, capsys) -> None:
      "lanes = 2.5\n", "lanes must be a whole number"),
     ("[[segment]]\n" + SPIRAL + "[[segment]]\n" + SPIRAL, None),
     ("[[segment\n", "not valid TOML"),
+    ("[segment]\n" + SPIRAL, "[segment] is one table; write [[segment]] (double brackets)"),
+    ("[[segment]]\n" + SPIRAL.replace("radius_m = 0.035", "radius_m = 35"), "lengths are in metres (35 mm is 0.035)"),
 ])
 def test_loader_refusals(tmp_path, body, needle) -> None:
     path = _write(tmp_path, body)
@@ -179,3 +182,11 @@ def test_the_cup_wall_keeps_the_pad_above_the_table(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"segment 1 \(figure8\): width_m/height_m: the path leaves the cup's wall "
                                           r"\(.*the pad's centre at least the pad's radius, 25 mm, above the table\)"):
         WipeConfig(object_name="cup", policy=str(figure8(0.052)))
+
+
+def test_a_csv_given_as_the_policy_says_how_to_wrap_it(tmp_path) -> None:
+    path = tmp_path / "drawn.csv"
+    path.write_text(GOOD_CSV)
+    with pytest.raises(ConfigError) as info:
+        load_policy_file(path)
+    assert 'as a [[segment]] with kind = "samples" and file = "drawn.csv"' in str(info.value)

@@ -6,6 +6,7 @@ The full-length numbers (≥ 95 % dirt, force bands, MAE/RMSE) come from `make b
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -222,6 +223,8 @@ def test_clean_relocates_over_a_keep_out_strip_within_the_force_limits(tmp_path,
     r = run_clean(cfg, progress=False)
     m = r.metrics
     assert m["relocations"] >= 1 and m["air_path_length_m"] > 0.0
+    # a given cloud is never re-measured: nothing the camera saw is reported (it said 1.0)
+    assert m["vision_updates"] == 0 and math.isnan(m["vision_remaining_fraction"])
     assert m["keep_out_points"] >= int((np.abs(x) <= 0.01).sum()) // 2  # on the 3 mm voxels of the file
     assert m["keep_out_contacts"] == 0
     # touched down on both sides: the agent's path holds points left and right of the strip

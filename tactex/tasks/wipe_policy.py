@@ -39,7 +39,7 @@ __all__ = ["POLICY_CALL_BUDGET_S", "check_policy_call_time", "check_sinusoid", "
 def wipe_limits(cfg: Any) -> PolicyLimits:
     """Speed, acceleration, force range and reach a wipe allows a policy."""
     surface = object_or_part(cfg.object_name, cfg.units).surface
-    inside, hint = None, f"the {cfg.object_name}'s surface"
+    inside, hint, start = None, f"the {cfg.object_name}'s surface", ""
     if isinstance(surface, CylinderWallSurface):
         half_arc_m = np.deg2rad(min(surface.arc_deg, 360.0)) / 2 * surface.radius_m
         z0, top = 0.5 * surface.height_m, surface.height_m
@@ -53,12 +53,13 @@ def wipe_limits(cfg: Any) -> PolicyLimits:
             return (np.abs(np.asarray(u)) <= half_arc_m) & (z >= bottom) & (z <= top)
     elif isinstance(surface, HeightFieldSurface):
         y0 = cfg.start_y_m
+        start = f"--start-y-m moves it along the part's y, from {y0:g} m now"
 
         def inside(u: np.ndarray, v: np.ndarray) -> np.ndarray:
             return surface.inside(np.asarray(u), y0 - np.asarray(v))
     return PolicyLimits(max_speed_m_s=cfg.policy_max_speed_m_s, max_accel_m_s2=cfg.policy_max_accel_m_s2,
                         min_force_n=cfg.contact_threshold_n, max_force_n=MAX_FORCE_SET_POINT_N, inside=inside,
-                        reach_hint=hint)
+                        reach_hint=hint, start_hint=start)
 
 
 def wipe_policy(cfg: Any, policy: ForceMotionPolicy | None = None) -> ForceMotionPolicy:

@@ -347,7 +347,7 @@ class CleanProgram:
         self.n_strokes = self.n_transfers = 0  # strokes through small islands; slides in contact to the next island
         self.new_leg = True  # the next touch-down starts a leg (the first, after an island move or a camera view)
         self.leg_from = self.cap_pos  # where the robot comes from to that leg
-        self.remaining_seen = 1.0
+        self.remaining_seen = float("nan")  # the share of the dirt the last re-measure saw left: none yet
         self.agent_path: list[np.ndarray] = []
         self.ergodicity: list[tuple[float, float]] = []
         self.explore_time = 0.0

@@ -42,6 +42,8 @@ class PolicyLimits:
     max_force_n: float
     inside: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
     reach_hint: str = "the object"
+    #: how the start is moved, if it can be (e.g. an option), for the reach refusal
+    start_hint: str = ""
 
 
 def sample_policy(policy: ForceMotionPolicy, horizon_s: float, dt_s: float = 0.002) -> dict[str, np.ndarray]:
@@ -175,5 +177,6 @@ def check_policy(policy: ForceMotionPolicy, limits: PolicyLimits, horizon_s: flo
             i = int(np.flatnonzero(~ok)[0])
             raise ConfigError(f"{_name(policy, seg[i])}: {_shape_field(policy, seg[i])}: the path leaves "
                               f"{limits.reach_hint} at t = {s['t'][i]:.2f} s (offset u, v = {1e3 * s['u'][i]:.0f}, "
-                              f"{1e3 * s['v'][i]:.0f} mm from the start); make it smaller or move the start")
+                              f"{1e3 * s['v'][i]:.0f} mm from the start); make it smaller or move the start"
+                              + (f" ({limits.start_hint})" if limits.start_hint else ""))
     return float(s["call_s"])

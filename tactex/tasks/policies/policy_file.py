@@ -44,11 +44,18 @@ _MAY_BE_ZERO = {"drift_m_s", "direction_deg", "amplitude_m"}
 _MAY_BE_NEGATIVE = {"direction_deg"}
 
 
+#: A length in a policy file over this is no stroke an arm makes on a part [m]: millimetres typed as metres.
+MAX_LENGTH_M = 1.0
+
+
 def _number(where: str, name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ConfigError(f"{where}: {name} must be a finite number, got {value!r:.40}")
     if name not in _MAY_BE_NEGATIVE and (value < 0 or (value == 0 and name not in _MAY_BE_ZERO)):
         raise ConfigError(f"{where}: {name} = {value!r} must be {'≥' if name in _MAY_BE_ZERO else '>'} 0")
+    if name.endswith("_m") and value > MAX_LENGTH_M:
+        raise ConfigError(f"{where}: {name} = {value!r} m is longer than any stroke on a part: lengths are in "
+                          f"metres ({value!r} mm is {value / 1000:g})")
     return float(value)
 
 
@@ -115,6 +122,8 @@ def policy_from_dict(data: dict[str, Any], folder: str | Path = ".") -> PolicySe
     if unknown:
         raise ConfigError(f"policy: unknown key '{unknown[0]}' at the top; valid: blend_s, [[segment]]")
     segments = data.get("segment")
+    if isinstance(segments, dict):  # [segment]: one table, not an array of them
+        raise ConfigError("policy: [segment] is one table; write [[segment]] (double brackets) above each segment")
     if not isinstance(segments, list) or not segments:
         raise ConfigError("policy: no [[segment]] tables; give at least one segment")
     blend = data.get("blend_s", 0.0)
@@ -136,7 +145,9 @@ def load_policy_file(path: str | Path) -> PolicySequence:
                                          fix="pip install tomli") from exc
     p = Path(path).expanduser()
     if p.suffix.lower() != ".toml":
-        raise PolicyFileError(f"policy file '{p}': give a .toml file")
+        hint = (f"; a CSV of samples goes in one, as a [[segment]] with kind = \"samples\" and file = \"{p.name}\""
+                if p.suffix.lower() == ".csv" else "")
+        raise PolicyFileError(f"policy file '{p}': give a .toml file{hint}")
     if not p.is_file():
         raise PolicyFileError(f"policy file '{p}' does not exist")
     try:
