@@ -384,8 +384,8 @@ def _report(say: Progress, done: int, total: int, job: tuple, r: dict[str, np.nd
     final = r["ergodicity"][:, -1]
     elapsed = time.perf_counter() - t0
     eta = elapsed / done * (total - done)
-    say(f"[{done}/{total}] {key} n_K={k} α={a:g}: final ergodicity {final.mean():.4f} ± {final.std():.4f} "
-        f"({elapsed:.0f} s, about {eta:.0f} s left)")
+    say(f"[{done}/{total}] {key} n_K={k} α={a:g}: final ergodicity {final.mean():.4f} ± {final.std():.4f} (std of "
+        f"{final.size} starts; {elapsed:.0f} s, about {eta:.0f} s left)")
 
 
 class _SettingStore:
