@@ -137,11 +137,14 @@ class Twin:
         tool = self._tool_bodies(m)
         # the arm's links: their contacts count directly (the tool's reach the arm through the flange)
         self._geom_arm = (robot_bodies[m.geom_bodyid] & ~np.isin(m.geom_bodyid, sorted(tool))).tolist()
+        self._geom_robot = robot_bodies[m.geom_bodyid].tolist()
         self._flange_body = m.body("flange").id
         self._ft_site = m.site("ft_site").id
         self._jacr = np.zeros((3, m.nv))
         self._flange_acc = np.zeros(6)
         self._flange_vel = np.zeros(6)
+        self._w6 = np.zeros(6)  # the flange's wrench on the robot: force, moment about its origin
+        self._tau_nv = np.zeros(m.nv)
         self._geom_body = m.geom_bodyid.tolist()
         self._dofs = list(self.robot._dof_addrs)
         # the firmware's friction compensation (see TwinConfig.joint_friction_residual)
@@ -218,36 +221,44 @@ class Twin:
         """What the robot's joint torques would say of the outside world this step (see
         :mod:`tactex.twin.wrench`): (force on the robot [N] and its moment about the world origin [N·m],
         world frame, and the joint torques [N·m]), from the flange's interaction with the tool less
-        the declared load, plus the contacts on the arm's links."""
+        the declared load, plus the contacts on the arm's links. Plain floats: it runs every step, where
+        numpy's per-call overhead on 3-vectors would cost several times the physics step."""
         m, d, mujoco = self.model, self.data, self._mujoco
-        body, site = self._flange_body, self._ft_site
-        rot = d.site_xmat[site].reshape(3, 3)
-        p = d.site_xpos[site]
+        body = self._flange_body
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = d.site_xmat[self._ft_site].tolist()
+        fx, fy, fz = self._ft_force.tolist()
+        tx, ty, tz = self._ft_torque.tolist()
+        f_world = (r00 * fx + r01 * fy + r02 * fz, r10 * fx + r11 * fy + r12 * fz, r20 * fx + r21 * fy + r22 * fz)
+        t_world = (r00 * tx + r01 * ty + r02 * tz, r10 * tx + r11 * ty + r12 * tz, r20 * tx + r21 * ty + r22 * tz)
         robot = self.robot
-        flange_rot = d.xmat[body].reshape(3, 3)
-        com = p + flange_rot @ np.asarray(robot.F_x_Cload, dtype=float)
-        # the acceleration of the load's centre of mass, a point of the flange: the origin's, plus the
-        # angular acceleration's and the rotation's terms
+        cx, cy, cz = robot.F_x_Cload
+        q00, q01, q02, q10, q11, q12, q20, q21, q22 = d.xmat[body].tolist()
+        rx, ry, rz = q00 * cx + q01 * cy + q02 * cz, q10 * cx + q11 * cy + q12 * cz, q20 * cx + q21 * cy + q22 * cz
+        px, py, pz = d.xpos[body].tolist()  # the flange's origin, where the sensor's site is
+        # the acceleration (less gravity) of the load's centre of mass, a point r of the flange: the origin's,
+        # plus the angular acceleration's and the rotation's terms
         mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_BODY, body, self._flange_acc, 0)
         mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, body, self._flange_vel, 0)
-        r = com - d.xpos[body]
-        w = self._flange_vel[:3]
-        acc = self._flange_acc[3:] + np.cross(self._flange_acc[:3], r) + np.cross(w, np.cross(w, r))
-        force, moment = tool_wrench_on_environment(
-            (rot @ self._ft_force).tolist(), (rot @ self._ft_torque).tolist(), p.tolist(), robot.m_load,
-            com.tolist(), acc.tolist())
+        bx, by, bz, ax, ay, az = self._flange_acc.tolist()
+        wx, wy, wz = self._flange_vel[:3].tolist()
+        vx, vy, vz = wy * rz - wz * ry, wz * rx - wx * rz, wx * ry - wy * rx  # ω × r
+        acc = (ax + by * rz - bz * ry + wy * vz - wz * vy, ay + bz * rx - bx * rz + wz * vx - wx * vz,
+               az + bx * ry - by * rx + wx * vy - wy * vx)
+        force, moment = tool_wrench_on_environment(f_world, t_world, (px, py, pz), robot.m_load,
+                                                   (px + rx, py + ry, pz + rz), acc)
         fx, fy, fz = -force[0], -force[1], -force[2]  # on the robot
         mx, my, mz = -moment[0], -moment[1], -moment[2]
         jacp, jacr = self._jacp, self._jacr
-        self._mj_jac(m, d, jacp, jacr, p, body)
-        px, py, pz = p.tolist()
-        m_at_p = np.array([mx - (py * fz - pz * fy), my - (pz * fx - px * fz), mz - (px * fy - py * fx)])
-        tau = jacp[:, self._dofs].T @ np.array([fx, fy, fz]) + jacr[:, self._dofs].T @ m_at_p
-        arm, body_of, c6 = self._geom_arm, self._geom_body, self._c6
+        self._mj_jac(m, d, jacp, jacr, d.xpos[body], body)
+        self._w6[:] = (fx, fy, fz, mx - (py * fz - pz * fy), my - (pz * fx - px * fz), mz - (px * fy - py * fx))
+        np.dot(self._w6[:3], jacp, out=self._tau_nv)
+        self._tau_nv += np.dot(self._w6[3:], jacr)
+        tau = self._tau_nv[self._dofs]
+        arm, robot_geom, body_of, c6 = self._geom_arm, self._geom_robot, self._geom_body, self._c6
         for i in range(d.ncon):
             con = d.contact[i]
             g1, g2 = int(con.geom1), int(con.geom2)
-            if arm[g1] == arm[g2]:
+            if arm[g1] == arm[g2] or robot_geom[g1] == robot_geom[g2]:  # not an arm link's, or the robot's own
                 continue
             self._mj_contact_force(m, d, i, c6)
             f = con.frame.reshape(3, 3).T @ c6[:3]  # on geom2, world frame
