@@ -126,10 +126,10 @@ def plot_cloud(
         ax.view_init(*view)
         if name == "cloud":
             ax.set_title(name)
-        for axis, label in ((ax.xaxis, "x [m]"), (ax.yaxis, "y [m]"), (ax.zaxis, "z [m]")):
+        for axis, label, pad in ((ax.xaxis, "x [m]", 8), (ax.yaxis, "y [m]", 8), (ax.zaxis, "z [m]", 2)):
             axis.set_major_locator(MaxNLocator(4))  # few ticks: 3-D axes crowd their labels together
             axis.set_label_text(label, fontsize=8)
-            axis.labelpad = 8
+            axis.labelpad = pad  # z's label sits beyond its tick labels, at the next panel's edge when padded
         ax.tick_params(labelsize=6, pad=1)
     if title:
         fig.suptitle(title)
