@@ -12,7 +12,7 @@ import pytest
 
 from tactex.errors import ConfigError, InputError, PolicyFault
 from tactex.tasks.policies import ForceMotionPolicy, ForceRamp, PolicyLimits, PolicyPoint, SinusoidPolicy, check_policy
-from tactex.tasks.policies.guard import SPEED_SLACK, PolicyGuard
+from tactex.tasks.policies.guard import SLACK, PolicyGuard
 
 LIMITS = PolicyLimits(max_speed_m_s=0.15, max_accel_m_s2=2.0, min_force_n=1.0, max_force_n=20.0)
 DT_S = 0.001  # the robot's tick [s]
@@ -43,6 +43,8 @@ def _still(force: float = 10.0):
     (lambda t, n: (0.0, 0.0, 0.0, 0.0, 10.0), "returned tuple, not a PolicyPoint"),
     (lambda t, n: PolicyPoint(0.0, math.nan, 0.0, 0.0, 10.0), "every field must be a finite number"),
     (lambda t, n: 1 / 0 if t > 0.5 else PolicyPoint(0.0, 0.0, 0.0, 0.0, 10.0), "raised ZeroDivisionError"),
+    # absolute coordinates instead of offsets from the start
+    (lambda t, n: PolicyPoint(0.05, 0.0, 0.0, 0.0, 10.0), "offset is u, v = 50.0, 0.0 mm"),
 ])
 def test_the_check_refuses_what_a_python_policy_gets_wrong(fn, words) -> None:
     with pytest.raises(ConfigError, match=words):
@@ -63,6 +65,17 @@ def test_the_guard_stops_a_policy_that_changes_its_mind_after_the_check() -> Non
         (lambda t, n: PolicyPoint(0.0 if n < 1500 else 0.01, 0.0, 0.0, 0.0, 12.0), "offsets moved 10.00 mm in 1.0 ms"),
         (lambda t, n: PolicyPoint(0.0, 0.0, 0.0 if n < 1500 else 1.0, 0.0, 12.0), "rates say 1.000 m/s"),
         (lambda t, n: PolicyPoint(0.0, 0.0, 0.0, 0.0, 12.0) if n < 1500 else None, "returned NoneType"),
+        # 0.2 mm back and forth every tick, rates 0: 0.2 m/s and 400 m/s² that no rate says
+        (lambda t, n: PolicyPoint(0.0 if n < 1500 or n % 2 else 2e-4, 0.0, 0.0, 0.0, 12.0), "offsets moved 0.20 mm"),
+        # 1.47x the speed limit, steadily, rates and offsets in agreement
+        (lambda t, n: PolicyPoint(0.22 * max(t - 1.5, 0.0), 0.0, 0.22 if t > 1.5 else 0.0, 0.0, 12.0),
+         "rates say 0.220 m/s"),
+        # rates that jump by 0.1 m/s within a tick: an acceleration of 100 m/s²
+        (lambda t, n: PolicyPoint(0.0, 0.0, 0.0 if n < 1500 else 0.1 * (n % 2), 0.0, 12.0), "rates changed by 0.100"),
+        # offsets that move at 0.1 m/s while the rates say the opposite way
+        (lambda t, n: PolicyPoint(0.1 * t, 0.0, 0.1 if n < 1500 else -0.1, 0.0, 12.0), "rates changed by 0.200"),
+        # offsets that move at 0.1 m/s, within the limit, while the rates say the tool stands still
+        (lambda t, n: PolicyPoint(0.1 * t, 0.0, 0.0, 0.0, 12.0), "while its rates said 0.000, 0.000 m/s"),
     ]
     for fn, words in cases:
         guard = PolicyGuard(_Policy(fn), LIMITS)
@@ -78,8 +91,8 @@ def test_the_guard_lets_a_lawful_policy_run_and_allows_a_stalled_tick() -> None:
     points = [guard.at(float(x)) for x in t]
     assert points[-1] == sinus.at(float(t[-1]))
     assert guard.at(float(t[-1])) == points[-1]  # the same time again (the policy waits): no step
-    # the slack is the only margin: a path at (1 + SPEED_SLACK) x the limit and a little more is a fault
-    fast = 1.02 * (1.0 + SPEED_SLACK) * LIMITS.max_speed_m_s
+    # the slack is the only margin: a path at (1 + SLACK) x the limit and a little more is a fault
+    fast = 1.02 * (1.0 + SLACK) * LIMITS.max_speed_m_s
     guard = PolicyGuard(_Policy(lambda t, n: PolicyPoint(fast * t, 0.0, 0.0, 0.0, 10.0)), LIMITS)
     with pytest.raises(PolicyFault, match="offsets moved"):
         for k in range(10):
@@ -173,3 +186,36 @@ def test_the_sinusoids_options_beside_a_policy_file_are_said_to_be_unused(tmp_pa
     err = capsys.readouterr().err
     assert code == 0, err
     assert "warning: --force-n, --amplitude-m set the built-in sinusoid" in err and "not used" in err, err
+
+
+def test_a_samples_force_the_run_never_reaches_is_not_refused(tmp_path) -> None:
+    from tactex.tasks.policies import SamplesPolicy, read_samples
+
+    path = tmp_path / "long.csv"
+    path.write_text("t_s,u_m,v_m,force_n\n0,0,0,10\n5,0.01,0,10\n10,0.02,0,0\n")
+    policy = SamplesPolicy(read_samples(path), source=str(path))
+    check_policy(policy, LIMITS, horizon_s=5.0)  # the 0 N sample at 10 s is past the run's 5 s
+    with pytest.raises(ConfigError, match="line 4: force_n = 0 N"):
+        check_policy(policy, LIMITS, horizon_s=10.0)
+
+
+def test_the_sinusoids_force_below_the_contact_threshold_is_refused_with_the_options() -> None:
+    """The run holds every policy to [contact threshold, 20 N]: the built-in sinusoid is refused before, not
+    stopped after the move to the start."""
+    from tactex.tasks.wipe import WipeConfig
+
+    with pytest.raises(ConfigError, match="--force-n 0.8 N is below --contact-threshold-n 1 N"):
+        WipeConfig(force_n=0.8)
+
+
+def test_a_policy_that_faults_at_its_first_run_time_point_stops_before_the_arm_moves(monkeypatch) -> None:
+    from tactex.robots.loop import ControlLoop
+    from tactex.tasks.wipe import WipeConfig, run_wipe
+
+    moved: list = []
+    monkeypatch.setattr(ControlLoop, "move_to_pose", lambda *args, **kw: moved.append(args))
+    checked = math.ceil(2.0 / 0.002) + 1
+    policy = _Policy(lambda t, n: PolicyPoint(0.0, 0.0, 0.0, 0.0, 12.0 if n <= checked else 80.0))
+    with pytest.raises(PolicyFault, match="force_n = 80 N"):
+        run_wipe(WipeConfig(duration_s=2.0), policy=policy, progress=False)
+    assert moved == []

@@ -20,7 +20,7 @@ def check_annotation_out(scan: str | Path, out: str | Path, force: bool = False)
         raise InputError(f"--out '{out}' must end in .ply (the marks are PLY vertex properties)")
     if out.is_dir():
         raise InputError(f"--out '{out}' is a directory; give a file name ending in .ply")
-    folder = out.parent if str(out.parent) else Path(".")
+    folder = out.parent
     if not folder.is_dir():
         raise InputError(f"--out '{out}': its folder '{folder}' does not exist (the page's Save could not write "
                          "there, and your marks would be lost): make it first, or give another file")

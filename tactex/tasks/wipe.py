@@ -583,6 +583,16 @@ def _controllers(cfg: WipeConfig) -> tuple[Any, FrictionCompensator | None]:
                             port_feedforward=compensator), compensator
 
 
+def _references(cfg: WipeConfig, vision: SurfaceVision, p_start: np.ndarray, r_start: np.ndarray,
+                the_policy: ForceMotionPolicy, explored: ExploredSurface | None, learned: PassCorrection | None,
+                inner) -> WipeReferences:
+    """The policy as the run follows it, held to its limits at every tick (:class:`PolicyGuard`: a fault of its own
+    stops the run, its data kept), with the controller's offset and alignment where VA-UFIC has them."""
+    return WipeReferences(cfg, vision, p_start, r_start, PolicyGuard(the_policy, wipe_limits(cfg)), explored,
+                          (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned,
+                          lambda: inner.tick_telemetry().get("rho_align", 0.0) >= ALIGNED_RHO)
+
+
 def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot: RealRobotParams | None,
               progress: bool, wall0: float, the_policy: ForceMotionPolicy, live=None,
               explored: ExploredSurface | None = None, learned: PassCorrection | None = None) -> WipeResult:
@@ -599,11 +609,13 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     # the live page's surface is made before torque control starts (sampling it takes milliseconds)
     shown = (_WipeLive(live, surface, obj_pos, obj_rot, scene_cfg.tool.pad_radius_m, run_s) if live is not None
              else None)
+    inner, compensator = _controllers(cfg)
+    # made before the arm moves: the policy's first point (and a fault there) comes before any motion
+    policy = _references(cfg, vision, p_start, r_start, the_policy, explored, learned, inner)
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
     aborted = _to_start(loop, p_start, r_start, robot)
     q_posture = loop.state.q.copy()
 
-    inner, compensator = _controllers(cfg)
     controller = NullspacePosture(inner, q_posture=q_posture)
     loop.use(controller)
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
@@ -611,13 +623,17 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     t0 = loop.t
     log = _WipeLog(cfg, inner, compensator, backend.dt, rec, bar, t0, obj_pos, obj_rot)
     log.live = shown
-
-    # the policy as the run follows it: a fault of its own at run time stops the run, its data kept
-    policy = WipeReferences(cfg, vision, p_start, r_start, PolicyGuard(the_policy, wipe_limits(cfg)), explored,
-                            (lambda: inner.position_offset) if isinstance(inner, VaUficController) else None, learned,
-                            lambda: inner.tick_telemetry().get("rho_align", 0.0) >= ALIGNED_RHO)
-
     approach = _Approach(cfg, p_start, r_start[:, 2])
+
+    def advance(state, tau_t: float) -> None:  # the next tick's reference, at run time tau_t [s]
+        # a policy's fault pauses the loop first: a real robot holds itself while the run's data is written
+        try:
+            policy.advance(state, tau_t)
+        except PolicyFault:
+            loop.pause()
+            raise
+        log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
+        log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
 
     def after_send(state_ctrl) -> None:  # while the robot executes the tick's command
         if approach.searching and approach.gave_up(state_ctrl):
@@ -627,21 +643,13 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         log.sent(state_ctrl)
         # the next tick's reference, from this state: nothing of it is left between the next state
         # and its command
-        try:
-            policy.advance(state_ctrl, state_ctrl.t + backend.dt - t0)
-        except PolicyFault:
-            loop.pause()  # a real robot holds itself while the run's data is written
-            raise
-        log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
-        log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
+        advance(state_ctrl, state_ctrl.t + backend.dt - t0)
 
     try:
         if aborted:  # log.finish keeps the state where the robot stopped as the run's one row
             bar.note(f"stopped on the way to the start pose: {aborted}")
         else:
-            policy.advance(loop.state, loop.t - t0)
-            log.pos_ref, log.estimate = policy.pos_ref, policy.estimate
-            log.force_set_n, log.segment, log.uv = policy.force_set_n, policy.segment, policy.uv
+            advance(loop.state, loop.t - t0)
         while not aborted and loop.t - t0 < run_s + policy.waited_s - 1e-9:
             loop.tick(policy.reference, after_send=after_send)
     except ROBOT_STOPS as exc:
@@ -694,7 +702,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "explore_time_s": (run_s + policy.waited_s - first_contact) if first_contact is not None else None,
         "max_force_n": float(max(forces, default=0.0)),
         # [N] the peak magnitude of the measured force over every tick of the run (normal and friction, in contact
-        # or not; the move to the start included, which the safety layer watches as it does the policy)
+        # or not; the move to the start and the lift-off included, which the safety layer watches as it does the
+        # policy)
         "max_force_norm_n": float(max(log.max_force_norm, loop.safety.peak_force_n)),
         # the highest contact force as a multiple of the policy's set point at its tick
         "max_force_over_set_point": float(np.max(np.asarray(forces) / f_set)) if f_set.size else float("nan"),

@@ -75,8 +75,8 @@ def wipe_policy(cfg: Any, policy: ForceMotionPolicy | None = None) -> ForceMotio
 
 def check_wipe_policy(cfg: Any, policy: ForceMotionPolicy) -> float:
     """Refuse (one-line :class:`ConfigError`) a policy the wipe does not allow: see :func:`wipe_limits`.
-    The surface must be a height field (the wipe starts above it, tool down). Returns the mean wall time of
-    one call of the policy's ``at`` [s]."""
+    The surface must be a height field (the wipe starts above it, tool down). Returns the wall time of one
+    call of the policy's ``at``, its 99th percentile [s]."""
     if not isinstance(policy, ForceMotionPolicy):
         raise ConfigError(f"policy must be a ForceMotionPolicy (tactex.tasks.policies), got {type(policy).__name__}")
     if not isinstance(object_or_part(cfg.object_name, cfg.units).surface, (HeightFieldSurface, CylinderWallSurface)):
@@ -91,12 +91,13 @@ POLICY_CALL_BUDGET_S = 2e-4
 
 
 def check_policy_call_time(call_s: float, robot: bool) -> None:
-    """A policy whose ``at`` takes more than :data:`POLICY_CALL_BUDGET_S` per call (``call_s`` [s], measured by
-    the check): refused for a robot, whose cycle it would break; a warning in simulation, which only slows."""
+    """A policy whose ``at`` takes more than :data:`POLICY_CALL_BUDGET_S` per call (``call_s`` [s], the 99th
+    percentile the check measured): refused for a robot, whose cycle it would break; a warning in simulation,
+    which it only slows."""
     if call_s <= POLICY_CALL_BUDGET_S:
         return
-    text = (f"the policy takes {1e3 * call_s:.2f} ms per call of at(); the wipe calls it at every 1 ms tick of "
-            f"the robot's cycle, beside the controller: keep it under {1e3 * POLICY_CALL_BUDGET_S:g} ms "
+    text = (f"the policy takes {1e3 * call_s:.2f} ms per call of at() (99th percentile); the wipe calls it at every "
+            f"1 ms tick of the robot's cycle, beside the controller: keep it under {1e3 * POLICY_CALL_BUDGET_S:g} ms "
             "(compute what you can before the run)")
     if robot:
         raise ConfigError(text)
@@ -108,10 +109,14 @@ REACH_STEP_S = 0.01
 
 
 def check_sinusoid(cfg: Any) -> None:
-    """Refuse (one-line :class:`ConfigError`, naming the options) the §III sinusoid of ``cfg`` when it is faster,
-    accelerates harder or reaches further within ``cfg.duration_s`` than the wipe allows a policy file
+    """Refuse (one-line :class:`ConfigError`, naming the options) the §III sinusoid of ``cfg`` when it presses less
+    than the contact threshold, or is faster, accelerates harder or reaches further within ``cfg.duration_s`` than
+    the wipe allows a policy file
     (:func:`wipe_limits`; the reach only on a height field or a cup's wall, where it is known). Its in-plane
     speed peaks at amplitude·ω + drift [m/s], its acceleration at amplitude·ω² [m/s²]."""
+    if cfg.force_n < cfg.contact_threshold_n:
+        raise ConfigError(f"--force-n {cfg.force_n:g} N is below --contact-threshold-n {cfg.contact_threshold_n:g} N: "
+                          "the wipe would press less than what it counts as contact; raise --force-n")
     a, w, d = float(cfg.amplitude_m), float(cfg.omega_rad_s), float(cfg.drift_m_s)
     shape = f"--amplitude-m {a:g} --omega-rad-s {w:g} --drift-m-s {d:g}"
     speed, accel = a * w + d, a * w * w

@@ -221,7 +221,8 @@ class Twin:
         """What the robot's joint torques would say of the outside world this step (see
         :mod:`tactex.twin.wrench`): (force on the robot [N] and its moment about the world origin [N·m],
         world frame, and the joint torques [N·m]), from the flange's interaction with the tool less
-        the declared load, plus the contacts on the arm's links. Plain floats: it runs every step, where
+        the declared load (a point mass: its weight and translational inertia), plus the contacts on the
+        arm's links. Plain floats: it runs every step, where
         numpy's per-call overhead on 3-vectors would cost several times the physics step."""
         m, d, mujoco = self.model, self.data, self._mujoco
         body = self._flange_body
@@ -234,7 +235,8 @@ class Twin:
         cx, cy, cz = robot.F_x_Cload
         q00, q01, q02, q10, q11, q12, q20, q21, q22 = d.xmat[body].tolist()
         rx, ry, rz = q00 * cx + q01 * cy + q02 * cz, q10 * cx + q11 * cy + q12 * cz, q20 * cx + q21 * cy + q22 * cz
-        px, py, pz = d.xpos[body].tolist()  # the flange's origin, where the sensor's site is
+        ox, oy, oz = d.xpos[body].tolist()  # the flange's origin, where F_x_Cload is measured from
+        px, py, pz = d.site_xpos[self._ft_site].tolist()  # the sensor's site: its moment is about it
         # the acceleration (less gravity) of the load's centre of mass, a point r of the flange: the origin's,
         # plus the angular acceleration's and the rotation's terms
         mujoco.mj_objectAcceleration(m, d, mujoco.mjtObj.mjOBJ_BODY, body, self._flange_acc, 0)
@@ -245,11 +247,11 @@ class Twin:
         acc = (ax + by * rz - bz * ry + wy * vz - wz * vy, ay + bz * rx - bx * rz + wz * vx - wx * vz,
                az + bx * ry - by * rx + wx * vy - wy * vx)
         force, moment = tool_wrench_on_environment(f_world, t_world, (px, py, pz), robot.m_load,
-                                                   (px + rx, py + ry, pz + rz), acc)
+                                                   (ox + rx, oy + ry, oz + rz), acc)
         fx, fy, fz = -force[0], -force[1], -force[2]  # on the robot
         mx, my, mz = -moment[0], -moment[1], -moment[2]
         jacp, jacr = self._jacp, self._jacr
-        self._mj_jac(m, d, jacp, jacr, d.xpos[body], body)
+        self._mj_jac(m, d, jacp, jacr, d.site_xpos[self._ft_site], body)
         self._w6[:] = (fx, fy, fz, mx - (py * fz - pz * fy), my - (pz * fx - px * fz), mz - (px * fy - py * fx))
         np.dot(self._w6[:3], jacp, out=self._tau_nv)
         self._tau_nv += np.dot(self._w6[3:], jacr)

@@ -1,16 +1,18 @@
 """The external wrench in franky-sim's robot state, where stock franky-sim reports zero.
 
 ``K_F_ext_hat_K`` / ``O_F_ext_hat_K`` / ``tau_ext_hat_filtered`` are what a Franka estimates from its
-joint torques: what the tool does to the flange, less the weight and inertia of the load the client
-declared (``set_load``; a wrongly declared load shows, as on the robot), plus the contacts on the arm's
-own links. Not the contact forces under the pad: the tool's sponge is a spring between them and the
-flange, and MuJoCo's contact force on a pad sliding over a height field jumps from one step to the next
-(a step without force, then one at nearly twice it) where the flange feels a smooth push. Sign as
-libfranka documents it: the wrench the robot exerts on the environment is
-positive (``robot_state.h``: "Forces applied by the robot to the environment are positive, while
-forces applied by the environment on the robot are negative"), about the K frame's origin
-(``O_T_EE · EE_T_K``). ``TwinConfig.ext_wrench_on_robot`` flips it, for clients written the other
-way round. The state also carries libfranka's ``control_command_success_rate`` as the twin counts it.
+joint torques: what the tool does to the flange, less the weight and translational inertia of the load the
+client declared (``set_load``, as a point mass; a wrongly declared load shows, as on the robot), plus the
+contacts on the arm's own links (summed as a force and its moment: a Franka would report the wrench its
+joint torques imply at K, which differs for a contact on a link; ``tau_ext_hat_filtered`` is exact).
+Not the contact forces under the pad: the tool's sponge is a spring between them and the flange, and
+MuJoCo's contact force on a pad sliding over a height field jumps from one step to the next (a step
+without force, then one at nearly twice it) where the flange feels a smooth push. Sign as libfranka
+documents it: the wrench the robot exerts on the environment is positive (``robot_state.h``: "Forces
+applied by the robot to the environment are positive, while forces applied by the environment on the
+robot are negative"), about the K frame's origin (``O_T_EE · EE_T_K``). ``TwinConfig.ext_wrench_on_robot``
+flips it, for clients written the other way round. The state also carries libfranka's
+``control_command_success_rate`` as the twin counts it.
 """
 
 from __future__ import annotations

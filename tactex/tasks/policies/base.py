@@ -73,11 +73,11 @@ class ForceMotionPolicy(ABC):
     """What the wipe follows: :meth:`at` gives the reference at policy time t [s].
 
     The contract a policy of one's own keeps (the wipe checks it before the arm moves, over the run's
-    length every 2 ms, and again at every tick while the run follows it): ``at`` returns a
+    length every 2 ms, and at every tick while the run follows it, :mod:`.guard`): ``at`` returns a
     :class:`PolicyPoint` of finite floats; its rates are those of its offsets (du = d(u)/dt); speed,
     acceleration and force stay within the task's limits; ``duration_s`` is finite, or ``math.inf`` for a
-    policy the run's duration ends; ``at`` is cheap (it runs inside the robot's 1 ms cycle) and gives the
-    same answer for the same time."""
+    policy the run's duration ends; ``at`` is cheap (it runs inside the robot's 1 ms cycle). Not checkable,
+    so the policy's own to keep: the same time gives the same answer."""
 
     #: how long the policy runs [s]; ``math.inf`` for one that runs until the task stops it
     duration_s: float
