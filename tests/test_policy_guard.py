@@ -204,7 +204,7 @@ def test_the_sinusoids_force_below_the_contact_threshold_is_refused_with_the_opt
     stopped after the move to the start."""
     from tactex.tasks.wipe import WipeConfig
 
-    with pytest.raises(ConfigError, match="--force-n 0.8 N is below --contact-threshold-n 1 N"):
+    with pytest.raises(ConfigError, match=r"--force-n 0\.8 N is below --contact-threshold-n 1 N"):
         WipeConfig(force_n=0.8)
 
 
