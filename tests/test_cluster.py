@@ -192,7 +192,17 @@ _HOLD_HEAD = """
 import pathlib, sys, time
 import ray
 from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
-ray.init(address=sys.argv[1])
+from tactex.experiments.executor import CLIENT_ATTEMPTS
+# as tactex's own client connection (executor._connect): the head's session for a client can fail to start once
+for attempt in range(1, CLIENT_ATTEMPTS + 1):
+    try:
+        ray.init(address=sys.argv[1])
+        break
+    except ConnectionError as exc:
+        ray.shutdown()
+        if "Initialization failure from server" not in str(exc) or attempt == CLIENT_ATTEMPTS:
+            raise
+        time.sleep(1.0)
 head = next(n["NodeID"] for n in ray.nodes() if n["Alive"] and n["NodeManagerAddress"] == sys.argv[2])
 
 @ray.remote(num_cpus=1)
