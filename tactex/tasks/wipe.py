@@ -72,6 +72,7 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
+from tactex.tasks.transit import move_clear_of_part
 from tactex.tasks.wipe_policy import (
     check_policy_call_time,
     check_sinusoid,
@@ -525,19 +526,21 @@ def run_wipe(config: WipeConfig | None = None, *, progress: bool = True,
         backend.close()
 
 
-def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, robot: RealRobotParams | None) -> str:
-    """Move to the policy's start pose [m, rotation matrix]; ``""`` when there, else why the robot
-    stopped on the way (torque control ended, as :func:`end_on_robot` leaves it). In simulation an
-    error of ours is raised."""
+def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, scene_cfg: SceneConfig,
+              robot: RealRobotParams | None) -> tuple[str, str]:
+    """Move to the policy's start pose [m, rotation matrix], clear of the part (:func:`move_clear_of_part`):
+    ``""`` when there, else why the robot stopped on the way (torque control ended, as :func:`end_on_robot`
+    leaves it), and the way it took. In simulation an error of ours is raised."""
+    obj_pos, obj_rot = scene_cfg.object_pose()
     try:
-        loop.move_to_pose(p_start, r_start, settle_s=0.5)
+        return "", move_clear_of_part(loop, p_start, r_start, scene_cfg.sim_object.surface, obj_pos, obj_rot,
+                                      scene_cfg.tool)
     except ROBOT_STOPS as exc:
-        return stop_reason(exc)
+        return stop_reason(exc), ""
     except TactexError as exc:
         if robot is None:
             raise
-        return end_on_robot(loop, exc)
-    return ""
+        return end_on_robot(loop, exc), ""
 
 
 #: The first pass's figures a re-planned wipe's metrics repeat beside its own.
@@ -613,11 +616,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
     # made before the arm moves: the policy's first point (and a fault there) comes before any motion
     policy = _references(cfg, vision, p_start, r_start, the_policy, explored, learned, inner)
     # a stop on the way to the start ends the run like one during the policy: the robot's data are kept
-    aborted = _to_start(loop, p_start, r_start, robot)
-    q_posture = loop.state.q.copy()
-
-    controller = NullspacePosture(inner, q_posture=q_posture)
-    loop.use(controller)
+    aborted, transit = _to_start(loop, p_start, r_start, scene_cfg, robot)
+    loop.use(NullspacePosture(inner, q_posture=loop.state.q.copy()))
     rec = Recorder(every=max(1, round(1.0 / (cfg.record_hz * backend.dt))))
     bar = Progress(run_s, f"wipe {cfg.baseline or 'tactex'}", enabled=progress)
     t0 = loop.t
@@ -646,6 +646,8 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         advance(state_ctrl, state_ctrl.t + backend.dt - t0)
 
     try:
+        if transit not in ("", "direct"):
+            bar.note(f"went to the start {transit}")
         if aborted:  # log.finish keeps the state where the robot stopped as the run's one row
             bar.note(f"stopped on the way to the start pose: {aborted}")
         else:
@@ -728,6 +730,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
         "robot": "franka" if robot is not None else "sim",
         "aborted": aborted,
         "partial": bool(aborted),  # the program stopped before its end (Ctrl-C or the robot): aborted says why
+        "start_transit": transit,  # "direct", or how the move to the start went round the part
         **vision.stats(),
     }
     if explored is not None:
