@@ -213,7 +213,8 @@ def test_a_policy_that_faults_at_its_first_run_time_point_stops_before_the_arm_m
     from tactex.tasks.wipe import WipeConfig, run_wipe
 
     moved: list = []
-    monkeypatch.setattr(ControlLoop, "move_to_pose", lambda *args, **kw: moved.append(args))
+    for move in ("move_joints", "move_cartesian", "move_to_pose"):  # however the arm would go to the start
+        monkeypatch.setattr(ControlLoop, move, lambda *args, **kw: moved.append(args))
     checked = math.ceil(2.0 / 0.002) + 1
     policy = _Policy(lambda t, n: PolicyPoint(0.0, 0.0, 0.0, 0.0, 12.0 if n <= checked else 80.0))
     with pytest.raises(PolicyFault, match="force_n = 80 N"):

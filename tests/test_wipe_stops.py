@@ -16,10 +16,11 @@ from tactex.tasks.wipe import WipeConfig
 
 
 def _stopping_transit(exc: BaseException, ticks: int = 20):
-    """A ``move_to_pose`` that runs ``ticks`` ticks of the real move, then has the robot stop."""
-    real = ControlLoop.move_to_pose
+    """A ``move_joints`` (the move to the start, direct here) that runs ``ticks`` ticks of the real move, then
+    has the robot stop."""
+    real = ControlLoop.move_joints
 
-    def move_to_pose(self, *args, **kwargs):
+    def move_joints(self, *args, **kwargs):
         n = [0]
         real_tick = self.tick
 
@@ -34,7 +35,7 @@ def _stopping_transit(exc: BaseException, ticks: int = 20):
             return real(self, *args, **kwargs)
         finally:
             del self.tick
-    return move_to_pose
+    return move_joints
 
 
 def _read(out):
@@ -45,7 +46,7 @@ def _read(out):
 
 
 def test_a_robot_stop_on_the_way_to_the_start_keeps_the_run(tmp_path, monkeypatch) -> None:
-    monkeypatch.setattr(ControlLoop, "move_to_pose",
+    monkeypatch.setattr(ControlLoop, "move_joints",
                         _stopping_transit(RobotError("communication_constraints_violation")))
     run_task("wipe", WipeConfig(duration_s=1.0), tmp_path / "run", progress=False, video=False, note=None)
     metrics, names = _read(tmp_path / "run")
@@ -56,7 +57,7 @@ def test_a_robot_stop_on_the_way_to_the_start_keeps_the_run(tmp_path, monkeypatc
 
 
 def test_ctrl_c_on_the_way_to_the_start_keeps_the_run_and_says_so(tmp_path, monkeypatch) -> None:
-    monkeypatch.setattr(ControlLoop, "move_to_pose", _stopping_transit(KeyboardInterrupt()))
+    monkeypatch.setattr(ControlLoop, "move_joints", _stopping_transit(KeyboardInterrupt()))
     with pytest.raises(RunInterrupted, match=r"metrics\.json"):
         run_task("wipe", WipeConfig(duration_s=1.0), tmp_path / "run", progress=False, video=False, note=None)
     metrics, _ = _read(tmp_path / "run")

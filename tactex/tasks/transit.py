@@ -3,7 +3,7 @@
 A joint move between two postures sweeps the tool along a curve nobody planned: from the arm's home to
 a start just above a part placed high (or tall), it can pass through the part. :func:`move_clear_of_part`
 checks the move's path first, sampled in joint space as the move follows it, and when the tool would come
-nearer the part than :data:`TRANSIT_CLEARANCE_M` (or than it ends), goes round: up to
+nearer the part than :data:`TRANSIT_CLEARANCE_M` (or than it starts or ends), goes round: up to
 :data:`ABOVE_PART_M` over the part's top, across, and straight down to the pose, each leg checked the
 same way before the arm moves; with no clear way it refuses. The tool is its pad's
 rim, its axis up to the flange and its camera (:func:`tool_points`); the arm's links are not checked. The
@@ -25,7 +25,7 @@ from tactex.sim.tool import ToolGeometry
 __all__ = ["ABOVE_PART_M", "PATH_SAMPLES", "SAMPLE_STEP_M", "TRANSIT_CLEARANCE_M", "clearance_m", "line_clearance_m",
            "move_clear_of_part", "path_clearance_m", "tool_points"]
 
-#: The least distance between the tool and the part a transit keeps [m] (or the end pose's own, if less).
+#: The least distance between the tool and the part a transit keeps [m] (or its ends' own, if less).
 TRANSIT_CLEARANCE_M = 0.005
 
 #: How high over the part's top a transit that goes round it crosses [m].
@@ -119,7 +119,7 @@ def _top_world_z(surface: Surface, obj_pos: np.ndarray, obj_rot: np.ndarray) -> 
 def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world: np.ndarray, surface: Surface,
                        obj_pos: np.ndarray, obj_rot: np.ndarray, tool: ToolGeometry, settle_s: float = 0.5) -> str:
     """Move the TCP to a pose near the part [m, rotation], clear of it; ``"direct"`` when the joint move
-    to its IK solution keeps :data:`TRANSIT_CLEARANCE_M` (or the goal's own clearance, if less) all along,
+    to its IK solution keeps :data:`TRANSIT_CLEARANCE_M` (or its ends' own clearance, if less) all along,
     else how it went round (up, across at :data:`ABOVE_PART_M` over the part's top, down), and why.
     Raises :class:`ConfigError` before the arm moves when the tool is already inside the part (the part's
     position is wrong), or the way round is out of the arm's reach."""
@@ -131,7 +131,7 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
         raise ConfigError(
             f"the tool is inside the part where it stands now ({1e3 * -path[0]:.0f} mm deep): the part at {where} m "
             "overlaps the arm; check --object-position (the part's origin, its base, in the robot's base frame)")
-    if path.min() >= min(TRANSIT_CLEARANCE_M, path[-1]) - 1e-3:
+    if path.min() >= min(TRANSIT_CLEARANCE_M, path[0], path[-1]) - 1e-3:
         loop.move_joints(q_goal, settle_s=settle_s)
         return "direct"
     z_cross = max(_top_world_z(surface, obj_pos, obj_rot) + ABOVE_PART_M + tool.pad_radius_m,
@@ -141,7 +141,7 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
         (np.array([p_goal_world[0], p_goal_world[1], z_cross]), r_goal_world), (p_goal_world, r_goal_world)]
     ends = [(p_now, r_now), *legs]
     least = min(line_clearance_m(*a, *b, surface, obj_pos, obj_rot, tool) for a, b in zip(ends, legs, strict=False))
-    if least < min(TRANSIT_CLEARANCE_M, path[-1]) - 1e-3:
+    if least < min(TRANSIT_CLEARANCE_M, path[0], path[-1]) - 1e-3:
         raise ConfigError(
             f"no clear way to the start: the direct move would pass through the part at {where} m, and the way over "
             f"it (up to z = {z_cross:.2f} m, across, down) would " + (
