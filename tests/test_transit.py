@@ -71,9 +71,9 @@ def test_a_straight_line_through_a_plate_is_seen_however_thin_it_is():
     assert through < 0.0 and over == pytest.approx(0.1 - 0.02, abs=2e-3)  # the plate's rim is 2 cm high
 
 
-def _loop_with_plate_at(position, hold_s: float = 0.05) -> tuple[ControlLoop, object]:
-    """A loop on a scene with the plate at ``position`` [m], held ``hold_s`` [s] at the arm's home."""
-    cfg = SceneConfig(object_name="plate", object_position=tuple(position), camera_width=8, camera_height=8)
+def _loop_with_part_at(position, hold_s: float = 0.05, name: str = "plate") -> tuple[ControlLoop, object]:
+    """A loop on a scene with the object ``name`` at ``position`` [m], held ``hold_s`` [s] at the arm's home."""
+    cfg = SceneConfig(object_name=name, object_position=tuple(position), camera_width=8, camera_height=8)
     loop = ControlLoop(MujocoBackend(cfg))
     if hold_s:
         loop.hold(hold_s)
@@ -86,7 +86,7 @@ def _start(cfg):
 
 
 def test_an_unobstructed_move_to_the_start_is_the_direct_joint_move():
-    loop, cfg = _loop_with_plate_at(SceneConfig(object_name="plate").object_pose()[0])
+    loop, cfg = _loop_with_part_at(SceneConfig(object_name="plate").object_pose()[0])
     p, r, surface, pos, rot = _start(cfg)
     q_direct = loop.solve_pose(p, r)
     assert move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool) == "direct"
@@ -97,7 +97,7 @@ def test_an_unobstructed_move_to_the_start_is_the_direct_joint_move():
 def test_a_part_in_the_way_is_gone_round_and_never_touched():
     # the plate raised to 0.5 m, above the height of the tool at the arm's home: the joint move to the start
     # sweeps the pad through it
-    loop, cfg = _loop_with_plate_at((0.5, 0.0, 0.5))
+    loop, cfg = _loop_with_part_at((0.5, 0.0, 0.5))
     p, r, surface, pos, rot = _start(cfg)
     q0 = loop.state.q.copy()
     assert path_clearance_m(loop, q0, loop.solve_pose(p, r), surface, pos, rot, cfg.tool).min() < 0.0
@@ -112,19 +112,25 @@ def test_a_part_in_the_way_is_gone_round_and_never_touched():
 
 
 def test_a_tool_inside_the_part_or_no_clear_way_is_refused_before_the_arm_moves(monkeypatch):
-    # the pad at the arm's home (0.307, 0, 0.430) m: 2 mm into the plate's 4 mm floor (before the physics pushes
-    # the two apart); then the arm under the plate's rim
-    for position, message in (((0.307, 0.0, 0.428), "the tool is inside the part where it stands now"),
-                              ((0.4, 0.0, 0.6), "no clear way to the start.*pass through it too")):
-        loop, cfg = _loop_with_plate_at(position, hold_s=0.0)
+    # the hull's top 5 cm over the pad at the arm's home (0.307, 0, 0.430) m (before the physics pushes the two
+    # apart: deeper than a pad pressed on a part can be); then the arm under the plate's rim
+    for name, position, message in (("hull", (0.307, 0.0, 0.40), "the tool is inside the part where it stands now"),
+                                    ("plate", (0.4, 0.0, 0.6), "no clear way to the start.*pass through it too")):
+        loop, cfg = _loop_with_part_at(position, hold_s=0.0, name=name)
         p, r, surface, pos, rot = _start(cfg)
         q0 = loop.state.q.copy()
         with pytest.raises(ConfigError, match=message):
             move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool)
         np.testing.assert_allclose(loop.state.q, q0)
+    # a pad pressed on the part (a run stopped there, compressed up to its travel) is not inside it: it goes
+    loop, cfg = _loop_with_part_at((0.307, 0.0, 0.4303 - 0.08 + 0.012), hold_s=0.0, name="hull")  # 12 mm into it
+    p, r, surface, pos, rot = _start(cfg)
+    q0 = loop.state.q.copy()
+    assert path_clearance_m(loop, q0, q0, surface, pos, rot, cfg.tool)[0] == pytest.approx(-0.012, abs=1e-3)
+    assert move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool) == "direct"
     # a way round out of the arm's reach: refused with what to do, before any leg moves
     monkeypatch.setattr(transit, "ABOVE_PART_M", 1.5)
-    loop, cfg = _loop_with_plate_at((0.5, 0.0, 0.5))
+    loop, cfg = _loop_with_part_at((0.5, 0.0, 0.5))
     p, r, surface, pos, rot = _start(cfg)
     q0 = loop.state.q.copy()
     with pytest.raises(ConfigError, match=r"out of the arm.s reach.*place the part lower or nearer the robot"):

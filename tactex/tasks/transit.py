@@ -121,13 +121,14 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
     """Move the TCP to a pose near the part [m, rotation], clear of it; ``"direct"`` when the joint move
     to its IK solution keeps :data:`TRANSIT_CLEARANCE_M` (or its ends' own clearance, if less) all along,
     else how it went round (up, across at :data:`ABOVE_PART_M` over the part's top, down), and why.
-    Raises :class:`ConfigError` before the arm moves when the tool is already inside the part (the part's
-    position is wrong), or the way round is out of the arm's reach."""
+    A move that starts in contact (a run stopped on the part) may start that deep, and goes direct unless
+    it goes deeper. Raises :class:`ConfigError` before the arm moves when the tool is already deeper in the
+    part than its pad's travel (the part's position is wrong), or the way round is out of the arm's reach."""
     q_from = loop.state.q.copy()
     q_goal = loop.solve_pose(p_goal_world, r_goal_world)
     path = path_clearance_m(loop, q_from, q_goal, surface, obj_pos, obj_rot, tool)
     where = np.round(np.asarray(obj_pos, dtype=float), 3).tolist()
-    if path[0] < 0.0:
+    if path[0] < -(tool.max_compression_m + TRANSIT_CLEARANCE_M):  # deeper than a pad pressed on it can be
         raise ConfigError(
             f"the tool is inside the part where it stands now ({1e3 * -path[0]:.0f} mm deep): the part at {where} m "
             "overlaps the arm; check --object-position (the part's origin, its base, in the robot's base frame)")
