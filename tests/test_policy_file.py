@@ -89,6 +89,15 @@ def test_csv_with_time_not_increasing(tmp_path, capsys) -> None:
              csv=GOOD_CSV.replace("2,0.02", "1,0.02"))
 
 
+def test_a_csv_error_names_the_line_a_user_sees_blank_lines_counted(tmp_path, capsys) -> None:
+    # blank lines (a spreadsheet's empty rows) are skipped but counted: the line quoted is the file's own
+    spaced = "t_s,u_m,v_m,force_n\n\n0,0,0,10\n\n\n1,0.01,0,10\n2,0.02,0.01,11\n"
+    _refused(tmp_path, capsys, '[[segment]]\nkind = "samples"\nfile = "drawn.csv"\n', "segment 1 (samples)",
+             "line 7: t_s = 1 does not increase", csv=spaced.replace("2,0.02", "1,0.02"))
+    _refused(tmp_path, capsys, '[[segment]]\nkind = "samples"\nfile = "drawn.csv"\n', "segment 1 (samples)",
+             "line 6: force_n = 45 N is outside [1, 20] N", csv=spaced.replace("1,0.01,0,10", "1,0.01,0,45"))
+
+
 def test_path_out_of_reach(tmp_path, capsys) -> None:
     # the sine panel is 26 cm across: a 20 cm stroke along x from its middle leaves it
     body = f"[[segment]]\n{SPIRAL}\n[[segment]]\nkind = \"line\"\nduration_s = 8.0\nforce_n = 10.0\nlength_m = 0.2\n"

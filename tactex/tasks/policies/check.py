@@ -113,7 +113,8 @@ def _check_sample_forces(policy: ForceMotionPolicy, limits: PolicyLimits, horizo
         if bad.size:
             i = int(bad[0])
             where = f"file '{seg.source}' " if getattr(seg, "source", "") else ""
-            raise ConfigError(f"{_name(policy, k)}: {where}line {i + 2}: force_n = {f[i]:g} N is outside "
+            line = getattr(seg, "lines", np.arange(2, len(f) + 2))[i]
+            raise ConfigError(f"{_name(policy, k)}: {where}line {line}: force_n = {f[i]:g} N is outside "
                               f"[{limits.min_force_n:g}, {limits.max_force_n:g}] N (the contact threshold and the "
                               "safety maximum)")
 

@@ -26,7 +26,7 @@ from tactex.tasks.policies.base import ForceRamp, PolicySegment
 from tactex.tasks.policies.circle import CirclePolicy
 from tactex.tasks.policies.figure8 import Figure8Policy
 from tactex.tasks.policies.line import LinePolicy
-from tactex.tasks.policies.samples import SamplesPolicy, read_samples
+from tactex.tasks.policies.samples import SamplesPolicy, read_sample_lines
 from tactex.tasks.policies.sequence import PolicySequence
 from tactex.tasks.policies.sinusoid import SinusoidPolicy
 from tactex.tasks.policies.spiral import SpiralPolicy
@@ -88,7 +88,8 @@ def _segment(k: int, table: Any, folder: Path) -> PolicySegment:
         if not isinstance(table.get("file"), str) or not table["file"]:
             raise ConfigError(f"{where}: missing field file (a CSV t_s,u_m,v_m,force_n, relative to the policy file)")
         try:
-            return SamplesPolicy(read_samples(folder / table["file"]), source=table["file"])
+            samples, lines = read_sample_lines(folder / table["file"])
+            return SamplesPolicy(samples, source=table["file"], lines=lines)
         except InputError as exc:
             raise ConfigError(f"{where}: file: {exc}") from None
     params = list(inspect.signature(cls.__init__).parameters.values())[3:]  # after self, duration_s, force
