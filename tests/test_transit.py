@@ -7,71 +7,84 @@ import numpy as np
 import pytest
 
 from tactex.errors import ConfigError
+from tactex.geometry import exp_so3
 from tactex.pointcloud.shapes import CylinderWallSurface
 from tactex.robots import MujocoBackend
 from tactex.robots.loop import ControlLoop
 from tactex.sim import SceneConfig
+from tactex.sim.objects import get_object
 from tactex.sim.part import object_or_part
 from tactex.sim.tool import ToolGeometry
 from tactex.tasks import transit
 from tactex.tasks.runner import TOOL_DOWN
-from tactex.tasks.transit import clearance_m, line_clearance_m, move_clear_of_part, path_clearance_m, tool_points
+from tactex.tasks.transit import (
+    PartShape,
+    clearance_m,
+    line_clearance_m,
+    move_clear_of_part,
+    path_clearance_m,
+    tool_points,
+)
 from tactex.tasks.wipe import WipeConfig, run_wipe
 from tactex.tasks.wipe_policy import wipe_start_pose
 
 
 def test_a_points_clearance_from_a_plate_over_beside_inside_and_under_it():
-    plate = object_or_part("plate").surface
+    plate = object_or_part("plate").surface  # a disc of radius 0.13 m
     pos, rot = np.array([0.5, 0.1, 0.2]), np.eye(3)
     h0 = float(plate.height(np.zeros(1), np.zeros(1))[0])
+    h_rim = float(plate.height(np.array([0.13]), np.zeros(1))[0])
     points = np.array([[0.5, 0.1, 0.2 + h0 + 0.03],  # 3 cm over its centre
                        [0.5, 0.1, 0.2 + h0 - 0.002],  # inside, 2 mm under its surface
-                       [0.5 + 0.2, 0.1, 0.21],  # beside its footprint (radius 0.13 m)
-                       [0.5, 0.1, 0.15]])  # under its base: the table's side
-    c = clearance_m(plate, pos, rot, points)
-    np.testing.assert_allclose(c[:2], [0.03, -0.002], atol=1e-9)
-    assert np.isinf(c[2:]).all()
-    # turned a quarter about z, the footprint turns with it: a point over the turned centre is the same
-    quarter = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    np.testing.assert_allclose(clearance_m(plate, pos, quarter, points[:1]), [0.03], atol=1e-9)
+                       [0.5 + 0.2, 0.1, 0.2 + 0.5 * h_rim],  # beside its rim, below the rim's height: 7 cm out
+                       [0.5 + 0.16, 0.1, 0.2 + h_rim + 0.04],  # 3 cm out and 4 cm over the rim
+                       [0.5, 0.1, 0.2 - 0.004],  # in its 1 cm base
+                       [0.5, 0.1, 0.2 - 0.03]])  # 2 cm under its base
+    c = clearance_m(plate, pos, rot, points, base_m=0.01)
+    np.testing.assert_allclose(c, [0.03, -0.002, 0.07, 0.05, -0.006, 0.02], atol=1e-6)  # the base: 6 mm to its bottom
+    # a part turned about an axis: a point given in its own frame is judged the same
+    turn = exp_so3(np.array([0.3, -0.2, 1.1]))
+    local = np.array([[0.08, -0.05, 0.015], [0.2, 0.0, 0.01], [0.0, 0.1, -0.02]])
+    np.testing.assert_allclose(clearance_m(plate, pos, turn, pos + local @ turn.T, base_m=0.01),
+                               clearance_m(plate, np.zeros(3), np.eye(3), local, base_m=0.01), atol=1e-12)
 
 
 def test_a_points_clearance_from_a_cup_side_top_and_inside():
     cup = CylinderWallSurface(name="cup", radius_m=0.04, height_m=0.1)
     pos, rot = np.array([0.5, 0.0, 0.0]), np.eye(3)
     c = clearance_m(cup, pos, rot, np.array([[0.5, -0.06, 0.05],  # 2 cm off its side
-                                             [0.5, -0.03, 0.05],  # inside its cylinder
+                                             [0.5, -0.03, 0.05],  # inside its cylinder, 1 cm from the side
                                              [0.5, 0.0, 0.13],  # 3 cm over its top's centre
                                              [0.5, -0.07, 0.14]]))  # off the top's edge: 3 cm out, 4 cm up
     np.testing.assert_allclose(c, [0.02, -0.01, 0.03, 0.05], atol=1e-9)
 
 
-def test_the_tools_points_are_its_pad_rim_its_axis_and_its_camera():
+def test_the_tools_points_cover_its_pad_axis_sensor_and_camera():
     tool = ToolGeometry()
     p = np.array([0.5, 0.0, 0.3])
     pts = tool_points(p, TOOL_DOWN, tool)
     np.testing.assert_allclose(pts[0], p)
-    rim = pts[1:9] - p
+    rim, inner = pts[1:17] - p, pts[17:25] - p
     np.testing.assert_allclose(np.linalg.norm(rim, axis=1), tool.pad_radius_m)
-    np.testing.assert_allclose(rim @ TOOL_DOWN[:, 2], 0.0, atol=1e-12)  # in the pad's plane
-    length = tool.sensor_height_m + tool.body_length_m + tool.pad_thickness_m
-    flange = p + np.array([0.0, 0.0, length])  # up the axis: the tool points down
-    np.testing.assert_allclose(pts[12], flange)
+    np.testing.assert_allclose(np.linalg.norm(inner, axis=1), tool.pad_radius_m / 2)
+    np.testing.assert_allclose(np.vstack([rim, inner]) @ TOOL_DOWN[:, 2], 0.0, atol=1e-12)  # in the pad's plane
+    np.testing.assert_allclose(pts[28], p + np.array([0.0, 0.0, tool.tcp_offset_m]))  # the flange: the tool points down
+    # the camera's box around its offset from the flange, in the tool frame (x along the world's x here)
+    camera = pts[-8:]
+    np.testing.assert_allclose(camera.mean(axis=0), pts[28] + TOOL_DOWN @ np.asarray(tool.camera_offset_m))
+    assert np.ptp(camera @ TOOL_DOWN[:, 1]) == pytest.approx(0.09)
 
 
 def test_a_straight_line_through_a_plate_is_seen_however_thin_it_is():
     # a line crossing the plate's 4 mm floor between two far poses: sampled finely enough to meet it
-    plate = object_or_part("plate").surface
+    part = PartShape(object_or_part("plate").surface, np.array([0.5, 0.0, 0.0]), np.eye(3))
     tool = ToolGeometry()
-    pos = np.array([0.5, 0.0, 0.0])
-    through = line_clearance_m(np.array([0.5, 0.0, 0.5]), TOOL_DOWN, np.array([0.5, 0.0, -0.3]), TOOL_DOWN, plate,
-                               pos, np.eye(3), tool)
-    over = line_clearance_m(np.array([0.3, 0.0, 0.1]), TOOL_DOWN, np.array([0.7, 0.0, 0.1]), TOOL_DOWN, plate,
-                            pos, np.eye(3), tool)
-    assert through < 0.0 and over == pytest.approx(0.1 - 0.02, abs=2e-3)  # the plate's rim is 2 cm high
+    through = line_clearance_m(np.array([0.5, 0.0, 0.5]), TOOL_DOWN, np.array([0.5, 0.0, -0.3]), TOOL_DOWN, part, tool)
+    over = line_clearance_m(np.array([0.3, 0.0, 0.1]), TOOL_DOWN, np.array([0.7, 0.0, 0.1]), TOOL_DOWN, part, tool)
+    assert through.min() < 0.0 and over.min() == pytest.approx(0.1 - 0.02, abs=2e-3)  # the plate's rim: 2 cm high
 
 
-def _loop_with_part_at(position, hold_s: float = 0.05, name: str = "plate") -> tuple[ControlLoop, object]:
+def _loop_with_part_at(position, hold_s: float = 0.05, name: str = "plate") -> tuple[ControlLoop, SceneConfig]:
     """A loop on a scene with the object ``name`` at ``position`` [m], held ``hold_s`` [s] at the arm's home."""
     cfg = SceneConfig(object_name=name, object_position=tuple(position), camera_width=8, camera_height=8)
     loop = ControlLoop(MujocoBackend(cfg))
@@ -80,61 +93,91 @@ def _loop_with_part_at(position, hold_s: float = 0.05, name: str = "plate") -> t
     return loop, cfg
 
 
-def _start(cfg):
+def _start(cfg: SceneConfig):
+    """The wipe's start [m, rotation] on the scene's object, and the object's shape."""
     pos, rot = cfg.object_pose()
-    return (*wipe_start_pose(WipeConfig(), cfg.sim_object.surface, pos, rot), cfg.sim_object.surface, pos, rot)
+    obj = cfg.sim_object
+    return (*wipe_start_pose(WipeConfig(), obj.surface, pos, rot),
+            PartShape(obj.surface, pos, rot, obj.base_thickness_m, cfg.object_position))
 
 
-def test_an_unobstructed_move_to_the_start_is_the_direct_joint_move():
-    loop, cfg = _loop_with_part_at(SceneConfig(object_name="plate").object_pose()[0])
-    p, r, surface, pos, rot = _start(cfg)
+@pytest.mark.parametrize("name", ["sine_panel", "plate", "bowl", "plane", "tilted_plane", "door", "hull"])
+def test_every_built_in_object_where_it_stands_is_reached_directly(name):
+    # the move every default wipe made before the check: the same joint move, to the same posture
+    loop, cfg = _loop_with_part_at(get_object(name).position_m, name=name)
+    p, r, part = _start(cfg)
     q_direct = loop.solve_pose(p, r)
-    assert move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool) == "direct"
+    assert move_clear_of_part(loop, p, r, part, cfg.tool) == "direct"
     np.testing.assert_allclose(loop.state.q, q_direct, atol=0.02)
     assert np.linalg.norm(loop.state.ee_position - p) < 3e-3
+
+
+def test_the_cups_default_start_goes_over_its_rim_and_ends_in_the_direct_moves_posture():
+    # the direct joint move from home to the start beside the cup's wall passes its top edge within a millimetre
+    loop, cfg = _loop_with_part_at(get_object("cup").position_m, name="cup")
+    p, r, part = _start(cfg)
+    q_direct = loop.solve_pose(p, r)
+    assert path_clearance_m(loop, loop.state.q.copy(), q_direct, part, cfg.tool).min() < 0.005
+    route = move_clear_of_part(loop, p, r, part, cfg.tool)
+    assert route.startswith("over the part at z = "), route
+    np.testing.assert_allclose(loop.state.q, q_direct, atol=0.02)
 
 
 def test_a_part_in_the_way_is_gone_round_and_never_touched():
     # the plate raised to 0.5 m, above the height of the tool at the arm's home: the joint move to the start
     # sweeps the pad through it
     loop, cfg = _loop_with_part_at((0.5, 0.0, 0.5))
-    p, r, surface, pos, rot = _start(cfg)
+    p, r, part = _start(cfg)
     q0 = loop.state.q.copy()
-    assert path_clearance_m(loop, q0, loop.solve_pose(p, r), surface, pos, rot, cfg.tool).min() < 0.0
+    q_direct = loop.solve_pose(p, r)
+    assert path_clearance_m(loop, q0, q_direct, part, cfg.tool).min() < 0.0
     forces = []
     loop.on_tick = lambda state, reference, controller: forces.append(float(np.linalg.norm(state.wrench_tool[:3])))
-    route = move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool)
-    top = pos[2] + surface.bounds_m[1, 2]
-    z_cross = top + transit.ABOVE_PART_M + cfg.tool.pad_radius_m
+    route = move_clear_of_part(loop, p, r, part, cfg.tool)
+    z_cross = part.top_z_m() + transit.ABOVE_PART_M + cfg.tool.pad_radius_m
     assert route == f"over the part at z = {z_cross:.2f} m (the direct move went through it)", route
     assert np.linalg.norm(loop.state.ee_position - p) < 3e-3
+    np.testing.assert_allclose(loop.state.q, q_direct, atol=0.02)
     assert max(forces) < 1.0  # no contact on the way: the pad's weight and the moves' inertia only
 
 
-def test_a_tool_inside_the_part_or_no_clear_way_is_refused_before_the_arm_moves(monkeypatch):
-    # the hull's top 5 cm over the pad at the arm's home (0.307, 0, 0.430) m (before the physics pushes the two
-    # apart: deeper than a pad pressed on a part can be); then the arm under the plate's rim
-    for name, position, message in (("hull", (0.307, 0.0, 0.40), "the tool is inside the part where it stands now"),
-                                    ("plate", (0.4, 0.0, 0.6), "no clear way to the start.*pass through it too")):
-        loop, cfg = _loop_with_part_at(position, hold_s=0.0, name=name)
-        p, r, surface, pos, rot = _start(cfg)
-        q0 = loop.state.q.copy()
-        with pytest.raises(ConfigError, match=message):
-            move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool)
-        np.testing.assert_allclose(loop.state.q, q0)
-    # a pad pressed on the part (a run stopped there, compressed up to its travel) is not inside it: it goes
-    loop, cfg = _loop_with_part_at((0.307, 0.0, 0.4303 - 0.08 + 0.012), hold_s=0.0, name="hull")  # 12 mm into it
-    p, r, surface, pos, rot = _start(cfg)
+def test_a_tool_in_or_on_the_part_backs_out_along_its_axis_first():
+    # the hull declared where its top is over the pad at the arm's home (the scene's own part stands elsewhere,
+    # as a misplaced part would): 12 mm (a pad pressed on it by a stopped run), then 30 mm deep
+    hull = get_object("hull")
+    for depth in (0.012, 0.03):
+        loop, cfg = _loop_with_part_at(get_object("plate").position_m, hold_s=0.0)
+        p0, r0 = loop.state.ee_position.copy(), loop.state.ee_rotation.copy()
+        pos = np.array([p0[0], p0[1], p0[2] - 0.08 + depth])  # the hull's top is 8 cm over its frame
+        part = PartShape(hull.surface, pos, np.eye(3), hull.base_thickness_m)
+        p, r = wipe_start_pose(WipeConfig(), hull.surface, pos, np.eye(3))
+        assert part.clearance_m(tool_points(p0, r0, cfg.tool)).min() == pytest.approx(-depth, abs=1e-3)
+        rise: list[float] = []
+        loop.on_tick = lambda state, reference, controller, p0=p0, rise=rise: rise.append(state.ee_position[2] - p0[2])
+        route = move_clear_of_part(loop, p, r, part, cfg.tool)
+        backed = float(route.split(" mm")[0].removeprefix("backed out "))
+        assert depth + 0.005 <= backed * 1e-3 <= depth + 0.008, route
+        assert f"it stood {1e3 * depth:.0f} mm inside the part as placed" in route, route
+        assert max(rise) > depth  # up, along the tool's axis (it points down)
+        assert np.linalg.norm(loop.state.ee_position - p) < 3e-3
+
+
+def test_no_clear_way_or_a_way_out_of_reach_is_refused_before_the_arm_moves(monkeypatch):
+    # the arm's home under the plate's rim: the way over it would pass through it too
+    loop, cfg = _loop_with_part_at((0.4, 0.0, 0.6), hold_s=0.0)
+    p, r, part = _start(cfg)
     q0 = loop.state.q.copy()
-    assert path_clearance_m(loop, q0, q0, surface, pos, rot, cfg.tool)[0] == pytest.approx(-0.012, abs=1e-3)
-    assert move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool) == "direct"
+    with pytest.raises(ConfigError, match=r"no clear way to the start.*part at \[0\.4, 0\.0, 0\.6\] m.*pass through "
+                                          "it too"):
+        move_clear_of_part(loop, p, r, part, cfg.tool)
+    np.testing.assert_allclose(loop.state.q, q0)
     # a way round out of the arm's reach: refused with what to do, before any leg moves
     monkeypatch.setattr(transit, "ABOVE_PART_M", 1.5)
     loop, cfg = _loop_with_part_at((0.5, 0.0, 0.5))
-    p, r, surface, pos, rot = _start(cfg)
+    p, r, part = _start(cfg)
     q0 = loop.state.q.copy()
     with pytest.raises(ConfigError, match=r"out of the arm.s reach.*place the part lower or nearer the robot"):
-        move_clear_of_part(loop, p, r, surface, pos, rot, cfg.tool)
+        move_clear_of_part(loop, p, r, part, cfg.tool)
     np.testing.assert_allclose(loop.state.q, q0)
 
 
@@ -142,6 +185,6 @@ def test_a_wipe_of_a_raised_part_goes_over_it_and_says_so(capsys):
     result = run_wipe(WipeConfig(object_position=(0.5, 0.0, 0.5), duration_s=1.0), progress=True)
     m = result.metrics
     assert m["start_transit"].startswith("over the part"), m["start_transit"]
-    assert "went to the start over the part" in capsys.readouterr().err
+    assert "to the start: over the part" in capsys.readouterr().err
     assert m["max_force_norm_n"] < 2 * WipeConfig().force_n and m["safety_counts"].get("force_limit", 0) == 0
     assert run_wipe(WipeConfig(duration_s=0.2), progress=False).metrics["start_transit"] == "direct"

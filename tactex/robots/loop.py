@@ -201,26 +201,17 @@ class ControlLoop:
         branch would sweep the arm through the scene."""
         return self.move_joints(self.solve_pose(position_world, rotation_world, q_seed), duration_s, settle_s)
 
-    def move_cartesian(self, position_world: np.ndarray, rotation_world: np.ndarray, *, step_m: float = 0.02,
-                       step_rad: float = 0.15, settle_s: float = 0.2, max_joint_speed: float | None = None,
-                       q_goal: np.ndarray | None = None, max_skipped: int = 2) -> RobotState:
-        """Move the TCP along the straight line to ``position_world`` [m] (the orientation along the
-        geodesic to ``rotation_world``), as one joint move through IK waypoints at most ``step_m`` [m]
-        and ``step_rad`` [rad] apart, each solved from the one before (one IK branch). ``q_goal``: the
-        posture of the end pose when it is known (a pre-recorded capture posture); it then ends the
-        path instead of an IK solution. A waypoint the IK misses is skipped, at most ``max_skipped`` in
-        a row (SimulationError beyond, before the arm moves).
-
-        For transits near an object: a single joint move between two far postures (from a cleaning
-        pose inside a bowl to the capture pose above it) can dip the tool back into the object on the
-        way, however high both ends are. The waypoints are joined by a smooth joint path with one
-        minimum-jerk timing (:class:`JointTarget` ``via``), not a stop at each of them."""
-        start = self.state
-        p0, r0 = start.ee_position.copy(), start.ee_rotation.copy()
+    def cartesian_path(self, p0: np.ndarray, r0: np.ndarray, q0: np.ndarray, position_world: np.ndarray,
+                       rotation_world: np.ndarray, *, step_m: float = 0.02, step_rad: float = 0.15,
+                       q_goal: np.ndarray | None = None, max_skipped: int = 2) -> list[np.ndarray]:
+        """The joint waypoints (7,) [rad] of :meth:`move_cartesian` from the TCP pose ``p0`` [m], ``r0`` at
+        posture ``q0`` [rad] to ``position_world``, ``rotation_world``, without moving the arm (a route of
+        several legs is planned whole before its first leg moves). Raises SimulationError as the move would."""
+        p0, r0 = np.asarray(p0, dtype=float), np.asarray(r0, dtype=float)
         goal_p = np.asarray(position_world, dtype=float)
         w = log_so3(r0.T @ np.asarray(rotation_world, dtype=float))
         n = max(1, math.ceil(max(float(np.linalg.norm(goal_p - p0)) / step_m, float(np.linalg.norm(w)) / step_rad)))
-        q = start.q
+        q = np.asarray(q0, dtype=float)
         path: list[np.ndarray] = []
         skipped = 0
         for k in range(1, n + 1):
@@ -241,6 +232,29 @@ class ControlLoop:
                 continue  # a waypoint the IK misses is skipped; the next one is a short step further
             skipped = 0
             path.append(q)
+        return path
+
+    def move_cartesian(self, position_world: np.ndarray, rotation_world: np.ndarray, *, step_m: float = 0.02,
+                       step_rad: float = 0.15, settle_s: float = 0.2, max_joint_speed: float | None = None,
+                       q_goal: np.ndarray | None = None, max_skipped: int = 2,
+                       path: list[np.ndarray] | None = None) -> RobotState:
+        """Move the TCP along the straight line to ``position_world`` [m] (the orientation along the
+        geodesic to ``rotation_world``), as one joint move through IK waypoints at most ``step_m`` [m]
+        and ``step_rad`` [rad] apart, each solved from the one before (one IK branch). ``q_goal``: the
+        posture of the end pose when it is known (a pre-recorded capture posture); it then ends the
+        path instead of an IK solution. ``path``: the waypoints planned already (:meth:`cartesian_path`,
+        from where the arm is now). A waypoint the IK misses is skipped, at most ``max_skipped`` in a row
+        (SimulationError beyond, before the arm moves).
+
+        For transits near an object: a single joint move between two far postures (from a cleaning
+        pose inside a bowl to the capture pose above it) can dip the tool back into the object on the
+        way, however high both ends are. The waypoints are joined by a smooth joint path with one
+        minimum-jerk timing (:class:`JointTarget` ``via``), not a stop at each of them."""
+        if path is None:
+            start = self.state
+            path = self.cartesian_path(start.ee_position, start.ee_rotation, start.q, position_world, rotation_world,
+                                       step_m=step_m, step_rad=step_rad, q_goal=q_goal, max_skipped=max_skipped)
+        path = [np.asarray(q, dtype=float) for q in path]
         self.use(self.joint)
         last_leg = None
         if q_goal is not None and len(path) > 1 and float(np.max(np.abs(path[-1] - path[-2]))) > FINAL_LEG_RAD:

@@ -72,7 +72,7 @@ from tactex.tasks.robot import (
     open_vision,
     stop_reason,
 )
-from tactex.tasks.transit import move_clear_of_part
+from tactex.tasks.transit import PartShape, move_clear_of_part
 from tactex.tasks.wipe_policy import (
     check_policy_call_time,
     check_sinusoid,
@@ -532,9 +532,10 @@ def _to_start(loop: ControlLoop, p_start: np.ndarray, r_start: np.ndarray, scene
     ``""`` when there, else why the robot stopped on the way (torque control ended, as :func:`end_on_robot`
     leaves it), and the way it took. In simulation an error of ours is raised."""
     obj_pos, obj_rot = scene_cfg.object_pose()
+    part = PartShape(scene_cfg.sim_object.surface, obj_pos, obj_rot, scene_cfg.sim_object.base_thickness_m,
+                     scene_cfg.object_position)
     try:
-        return "", move_clear_of_part(loop, p_start, r_start, scene_cfg.sim_object.surface, obj_pos, obj_rot,
-                                      scene_cfg.tool)
+        return "", move_clear_of_part(loop, p_start, r_start, part, scene_cfg.tool)
     except ROBOT_STOPS as exc:
         return stop_reason(exc), ""
     except TactexError as exc:
@@ -647,7 +648,7 @@ def _run_wipe(cfg: WipeConfig, backend, vision: SurfaceVision, scene_cfg, robot:
 
     try:
         if transit not in ("", "direct"):
-            bar.note(f"went to the start {transit}")
+            bar.note(f"to the start: {transit}")
         if aborted:  # log.finish keeps the state where the robot stopped as the run's one row
             bar.note(f"stopped on the way to the start pose: {aborted}")
         else:
