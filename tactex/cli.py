@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from tactex import __version__
-from tactex.errors import PolicyFileError, RunInterrupted, TactexError
+from tactex.errors import PolicyFileError, RunInterrupted, RunStopped, TactexError
 
 __all__ = ["build_parser", "main"]
 
@@ -256,6 +256,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         warnings.showwarning = _show_warning(args, typed)
         try:
             code = int(args._run(args) or 0)
+        except RunStopped as exc:  # a run that started and stopped with nothing to keep: as one that kept its data
+            print(f"tactex {args.command}: stopped early: {exc}", file=sys.stderr)
+            _write_status(args, argv, "stopped early", started, str(exc))
+            return 1
         except TactexError as exc:
             # a policy file's field names are the file's own, not options
             message = str(exc) if isinstance(exc, PolicyFileError) else _cli_words(str(exc), args, typed)

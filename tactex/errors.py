@@ -18,6 +18,7 @@ __all__ = [
     "InputError",
     "MissingDependencyError",
     "PerceptionError",
+    "PolicyFault",
     "PolicyFileError",
     "RobotClosedError",
     "RobotCommunicationError",
@@ -26,6 +27,7 @@ __all__ = [
     "RobotRealtimeError",
     "RobotReflexError",
     "RunInterrupted",
+    "RunStopped",
     "SafetyFault",
     "SensorFault",
     "SimulationError",
@@ -133,6 +135,12 @@ class PolicyFault(TactexError, RuntimeError):
 
 class SafetyFault(ControllerFault):
     """The safety layer tripped and the controller is holding or retreating."""
+
+
+class RunStopped(TactexError, RuntimeError):
+    """A run that had started was stopped by the robot or a sensor (a reflex, a lost link, a camera that
+    ended) with nothing of it to keep: the message says what stopped it. Commands exit with code 1, as a
+    run that stops early with its data kept does (2 is for what is refused before a run starts)."""
 
 
 class RunInterrupted(KeyboardInterrupt):

@@ -69,6 +69,37 @@ def test_no_board_on_the_twins_table_is_one_line_and_the_robot_is_free(tmp_path)
     assert "Traceback" not in done.stderr and not (tmp_path / "cam.json").exists()
 
 
+def test_a_robot_stop_mid_calibration_is_a_stopped_run_exit_1_and_nothing_written(tmp_path, monkeypatch, capsys):
+    # the robot stops the second move (a reflex, staged): as a clean or a wipe stopped by the robot, exit code 1
+    # and "stopped early" (not 2, which says the command was refused before anything ran), and the arm is free
+    from tactex.cli import main
+    from tactex.errors import RobotReflexError
+    from tactex.robots.libfranka_backend import FrankaConfig, LibfrankaBackend
+    from tactex.robots.loop import ControlLoop
+
+    moves = []
+    move_joints = ControlLoop.move_joints
+
+    def stopping(self, *args, **kwargs):
+        moves.append(1)
+        if len(moves) == 2:
+            self.backend.pause()  # torque control ends, as libfranka ends it on a reflex
+            raise RobotReflexError("libfranka ControlException: a reflex, staged by the test")
+        return move_joints(self, *args, **kwargs)
+
+    monkeypatch.setattr(ControlLoop, "move_joints", stopping)
+    out = tmp_path / "cam.json"
+    with TwinProcess("plate", ["--board", "9", "6"]) as twin:
+        code = main(["calibrate", "hand-eye", "--robot", "franka", "--robot-ip", twin.hostname, "--camera", "twin",
+                     "--camera-port", str(twin.camera_port), *TWIN_LATE, "--out", str(out), "--poses", "3"])
+        LibfrankaBackend(FrankaConfig(robot_ip=twin.hostname)).close()  # torque control ended: a new client connects
+    err = capsys.readouterr().err
+    assert code == 1, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("tactex calibrate: stopped early: RobotReflexError: libfranka ControlException: a reflex")
+    assert "(after 1 view(s) of the board; no hand-eye written" in last and not out.exists()
+
+
 def _hand(twin: TwinProcess, poses):
     """A person's hand on the twin's arm: each call moves it (torque control from this process) to the next pose
     and lets go (the connection closed, the arm resting where it was put)."""

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from tactex.config import dataclass_from_args
     from tactex.errors import InputError
     from tactex.sim.board import ChessBoard
-    from tactex.tasks.hand_eye_calibration import HandEyeConfig, calibrate_in_simulation, write_hand_eye
+    from tactex.tasks.hand_eye_calibration import HandEyeConfig, write_hand_eye
 
     cfg = dataclass_from_args(HandEyeConfig, args)
     robot = robot_params(args)
@@ -65,23 +65,7 @@ def run(args: argparse.Namespace) -> int:
     def note(msg: str) -> None:
         print(f"tactex calibrate: {msg}", file=sys.stderr, flush=True)
 
-    if robot is None:
-        result = calibrate_in_simulation(cfg, board, note=note)
-    elif args.taught:
-        from tactex.tasks.hand_eye_robot import calibrate_taught
-
-        def ask(prompt: str) -> str:
-            print(prompt, end="", file=sys.stderr, flush=True)
-            line = sys.stdin.readline()
-            if not line:
-                raise EOFError
-            return line
-
-        result = calibrate_taught(cfg, board, robot, ask=ask, note=note)
-    else:
-        from tactex.tasks.hand_eye_robot import calibrate_on_robot
-
-        result = calibrate_on_robot(cfg, board, robot, note=note)
+    result = _calibrate(cfg, board, robot, args.taught, note)
     for r in result.residuals:
         print(f"pose {r.index + 1:2d}: board {r.position_mm:.2f} mm, {r.rotation_deg:.3f}° from the views' mean")
     out = write_hand_eye(args.out, result.tool_T_camera)
@@ -93,3 +77,25 @@ def run(args: argparse.Namespace) -> int:
         mm, deg = result.error()
         print(f"against the simulated mount: {mm:.2f} mm, {deg:.3f}°")
     return 0
+
+
+def _calibrate(cfg, board, robot, taught: bool, note):
+    """The hand-eye result: in simulation, on the robot from planned poses, or from poses taught by hand."""
+    if robot is None:
+        from tactex.tasks.hand_eye_calibration import calibrate_in_simulation
+
+        return calibrate_in_simulation(cfg, board, note=note)
+    if taught:
+        from tactex.tasks.hand_eye_robot import calibrate_taught
+
+        def ask(prompt: str) -> str:
+            print(prompt, end="", file=sys.stderr, flush=True)
+            line = sys.stdin.readline()
+            if not line:
+                raise EOFError
+            return line
+
+        return calibrate_taught(cfg, board, robot, ask=ask, note=note)
+    from tactex.tasks.hand_eye_robot import calibrate_on_robot
+
+    return calibrate_on_robot(cfg, board, robot, note=note)

@@ -25,7 +25,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tactex.errors import ConfigError, InputError, SimulationError
+from tactex.errors import ConfigError, InputError, RobotError, RunStopped, SensorFault, SimulationError
 from tactex.sim.board import ChessBoard
 from tactex.tasks.hand_eye_calibration import (
     HandEyeConfig,
@@ -124,11 +124,19 @@ def calibrate_on_robot(config: HandEyeConfig, board: ChessBoard, robot, *, scene
             loop.move_joints(q, settle_s=SETTLE_S)
             loop.pause()  # the robot holds itself: the image and the pose are of an arm at rest
             views.take(i, f"{i + 1}/{len(targets)}", camera, robot.capture_frames, lambda: backend.state().ee_pose)
+    except (RobotError, SensorFault) as exc:  # torque control has ended (the backend's fault handling)
+        raise RunStopped(_stopped(exc, views)) from exc
     finally:
         camera.close()
         backend.close()
     return views.solve(len(targets), config.method,
                        f" at --board-centre-m {board.centre_m[0]:g} {board.centre_m[1]:g} in the robot base frame and")
+
+
+def _stopped(exc: Exception, views) -> str:
+    """What stopped a calibration after it started, and what is lost."""
+    return (f"{type(exc).__name__}: {exc} (after {len(views.tools)} view(s) of the board; no hand-eye written: "
+            "run the calibration again)")
 
 
 def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Callable[[str], str] = input,
@@ -155,6 +163,8 @@ def calibrate_taught(config: HandEyeConfig, board: ChessBoard, robot, *, ask: Ca
             if answer.strip().lower() == "done":
                 break
             views.take(i, f"{i + 1}", camera, robot.capture_frames, read_tool_pose(robot.robot_ip, scene_cfg.tool))
+    except (RobotError, SensorFault) as exc:
+        raise RunStopped(_stopped(exc, views)) from exc
     finally:
         camera.close()
     if not views.tools and not views.skipped:
