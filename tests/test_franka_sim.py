@@ -94,10 +94,10 @@ class _LoopWatch:
             self.scheduler_seen = False
         return queued or 0.0
 
-    def _end_gap(self, counted: bool = True) -> None:
+    def _end_gap(self) -> None:
         """The gap since the last state read ends now (a new one starts)."""
         now, queued = time.perf_counter(), self._queued_ms()
-        if counted and self._last is not None:
+        if self._last is not None:
             gap_ms = (now - self._last[0]) * 1e3
             own_ms = gap_ms - (queued - self._last[1] if self.scheduler_seen else 0.0) - self._read_ms
             self.longest_gap_ms = max(self.longest_gap_ms, gap_ms)
@@ -125,7 +125,7 @@ class _LoopWatch:
         def watched(timing, compute_us, period_us, lost, success):
             watch.ticks += 1
             watch.lost_cycles += int(lost)
-            watch._end_gap(counted=np.isfinite(period_us))  # not finite: the first state after a (re)start
+            watch._end_gap()
             return add(timing, compute_us, period_us, lost, success)
 
         def faulted(backend, exc):
@@ -134,6 +134,8 @@ class _LoopWatch:
             return fault(backend, exc)
 
         def paused(backend):
+            if backend._control is not None:  # the gap up to the pause's own answer counts (it may come late)
+                watch._end_gap()
             watch._last = None
             return pause(backend)
 
@@ -275,9 +277,10 @@ def test_a_stall_of_our_loop_is_judged_a_failure_not_the_machines(emulator):
     # the judge's skips must not cover a loop of ours that stops answering: 30 ms of sleep between two ticks
     # (blocked, not waiting for a CPU) ends the hold with the robot's communication abort, and the verdict
     # returns it instead of skipping
-    before, paced = len(emulator.violations()), len(emulator.realtime_factors())
     backend = LibfrankaBackend(FrankaConfig(robot_ip=emulator.hostname))
     try:
+        backend.bare_hold(0.5)  # a first control: the emulator's threads and ours under way before the one judged
+        before, paced = len(emulator.violations()), len(emulator.realtime_factors())
         with _LoopWatch() as watch:
             watched, ticks = LoopTiming.add, [0]
 
@@ -288,10 +291,18 @@ def test_a_stall_of_our_loop_is_judged_a_failure_not_the_machines(emulator):
                 return watched(timing, *args)  # after the sleep: the watch's gap holds it
 
             LoopTiming.add = stalling
-            with pytest.raises(RobotError, match="communication_constraints_violation"):
+            try:
                 backend.bare_hold(3.0)
+                aborted = False
+            except RobotError as exc:
+                assert "communication_constraints_violation" in str(exc), exc
+                aborted = True
     finally:
         backend.close()
+    if not aborted:  # franka-sim counts in its own cycles: where it stalled with us, nothing was lost
+        behind = min(emulator.realtime_factors()[paced:] or [1.0]) < REAL_TIME or watch.lost_cycles > 0
+        assert behind, f"30 ms without an answer and the robot did not stop: {watch.figures()}"
+        pytest.skip(f"franka-sim fell behind during the stall (its clock stopped with ours): {watch.figures()}")
     if not watch.scheduler_seen:
         pytest.skip("the kernel keeps no schedstat here: the judge cannot tell a stall of ours from the machine's")
     if min(emulator.realtime_factors()[paced:] or [1.0]) < REAL_TIME:

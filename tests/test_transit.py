@@ -59,20 +59,32 @@ def test_a_points_clearance_from_a_cup_side_top_and_inside():
     np.testing.assert_allclose(c, [0.02, -0.01, 0.03, 0.05], atol=1e-9)
 
 
-def test_the_tools_points_cover_its_pad_axis_sensor_and_camera():
+def test_the_tools_points_cover_its_surfaces_closer_than_the_clearance():
     tool = ToolGeometry()
     p = np.array([0.5, 0.0, 0.3])
     pts = tool_points(p, TOOL_DOWN, tool)
-    np.testing.assert_allclose(pts[0], p)
-    rim, inner = pts[1:17] - p, pts[17:25] - p
-    np.testing.assert_allclose(np.linalg.norm(rim, axis=1), tool.pad_radius_m)
-    np.testing.assert_allclose(np.linalg.norm(inner, axis=1), tool.pad_radius_m / 2)
-    np.testing.assert_allclose(np.vstack([rim, inner]) @ TOOL_DOWN[:, 2], 0.0, atol=1e-12)  # in the pad's plane
-    np.testing.assert_allclose(pts[28], p + np.array([0.0, 0.0, tool.tcp_offset_m]))  # the flange: the tool points down
-    # the camera's box around its offset from the flange, in the tool frame (x along the world's x here)
-    camera = pts[-8:]
-    np.testing.assert_allclose(camera.mean(axis=0), pts[28] + TOOL_DOWN @ np.asarray(tool.camera_offset_m))
-    assert np.ptp(camera @ TOOL_DOWN[:, 1]) == pytest.approx(0.09)
+    np.testing.assert_allclose(pts[0], p)  # the pad's centre first
+    up = (pts - p) @ -TOOL_DOWN[:, 2]  # along the tool's axis, up from the pad's face
+    radial = np.linalg.norm((pts - p) - np.outer((pts - p) @ TOOL_DOWN[:, 2], TOOL_DOWN[:, 2]), axis=1)
+    face = up < 1e-9
+    assert radial[face].max() == pytest.approx(tool.pad_radius_m)  # the pad's face, to its rim
+    assert up.max() == pytest.approx(tool.tcp_offset_m)  # the flange's side of the sensor
+    assert radial[np.isclose(up, tool.tcp_offset_m)].max() == pytest.approx(0.04)  # the sensor's disc
+    # the camera's box around its offset from the flange (in the tool frame; x along the world's x here)
+    box_centre = p + TOOL_DOWN @ (np.array([0.0, 0.0, -tool.tcp_offset_m]) + np.asarray(tool.camera_offset_m))
+    box = pts[np.all(np.abs(pts - box_centre) <= np.array([0.0125, 0.045, 0.0125]) + 1e-9, axis=1)]
+    assert np.ptp(box, axis=0) == pytest.approx([0.025, 0.09, 0.025])
+    # no point of the pad's face is farther than the clearance from the nearest of the others: a part cannot
+    # reach into it between them unseen by more than that
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(pts[face]).query(pts[face], k=2)
+    assert d[:, 1].max() <= transit.TRANSIT_CLEARANCE_M + 1e-9
+    # a cup's rim 3 mm into the middle of the camera box's underside is seen
+    cup = CylinderWallSurface(name="cup", radius_m=0.04, height_m=0.1)
+    bottom = box_centre[2] - 0.0125
+    seen = clearance_m(cup, np.array([box_centre[0] + 0.04, box_centre[1], bottom + 0.003 - 0.1]), np.eye(3), pts)
+    assert seen.min() < 0.0
 
 
 def test_a_straight_line_through_a_plate_is_seen_however_thin_it_is():
@@ -118,9 +130,13 @@ def test_the_cups_default_start_goes_over_its_rim_and_ends_in_the_direct_moves_p
     p, r, part = _start(cfg)
     q_direct = loop.solve_pose(p, r)
     assert path_clearance_m(loop, loop.state.q.copy(), q_direct, part, cfg.tool).min() < 0.005
+    seen: list[float] = []  # the tool's clearance at every tick of the move made
+    loop.on_tick = lambda state, reference, controller: seen.append(
+        part.clearance_m(tool_points(state.ee_position, state.ee_rotation, cfg.tool)).min())
     route = move_clear_of_part(loop, p, r, part, cfg.tool)
     assert route.startswith("over the part at z = "), route
     np.testing.assert_allclose(loop.state.q, q_direct, atol=0.02)
+    assert min(seen) >= transit.TRANSIT_CLEARANCE_M  # the descent too, into the direct move's posture
 
 
 def test_a_part_in_the_way_is_gone_round_and_never_touched():
@@ -131,14 +147,17 @@ def test_a_part_in_the_way_is_gone_round_and_never_touched():
     q0 = loop.state.q.copy()
     q_direct = loop.solve_pose(p, r)
     assert path_clearance_m(loop, q0, q_direct, part, cfg.tool).min() < 0.0
-    forces = []
-    loop.on_tick = lambda state, reference, controller: forces.append(float(np.linalg.norm(state.wrench_tool[:3])))
+    forces, seen = [], []
+    loop.on_tick = lambda state, reference, controller: (
+        forces.append(float(np.linalg.norm(state.wrench_tool[:3]))),
+        seen.append(part.clearance_m(tool_points(state.ee_position, state.ee_rotation, cfg.tool)).min()))
     route = move_clear_of_part(loop, p, r, part, cfg.tool)
     z_cross = part.top_z_m() + transit.ABOVE_PART_M + cfg.tool.pad_radius_m
     assert route == f"over the part at z = {z_cross:.2f} m (the direct move went through it)", route
     assert np.linalg.norm(loop.state.ee_position - p) < 3e-3
     np.testing.assert_allclose(loop.state.q, q_direct, atol=0.02)
     assert max(forces) < 1.0  # no contact on the way: the pad's weight and the moves' inertia only
+    assert min(seen) >= transit.TRANSIT_CLEARANCE_M
 
 
 def test_a_tool_in_or_on_the_part_backs_out_along_its_axis_first():
@@ -157,20 +176,23 @@ def test_a_tool_in_or_on_the_part_backs_out_along_its_axis_first():
         route = move_clear_of_part(loop, p, r, part, cfg.tool)
         backed = float(route.split(" mm")[0].removeprefix("backed out "))
         assert depth + 0.005 <= backed * 1e-3 <= depth + 0.008, route
-        assert f"it stood {1e3 * depth:.0f} mm inside the part as placed" in route, route
+        assert f"the tool stood {1e3 * depth:.0f} mm inside the part as placed" in route, route
         assert max(rise) > depth  # up, along the tool's axis (it points down)
         assert np.linalg.norm(loop.state.ee_position - p) < 3e-3
 
 
 def test_no_clear_way_or_a_way_out_of_reach_is_refused_before_the_arm_moves(monkeypatch):
-    # the arm's home under the plate's rim: the way over it would pass through it too
-    loop, cfg = _loop_with_part_at((0.4, 0.0, 0.6), hold_s=0.0)
-    p, r, part = _start(cfg)
-    q0 = loop.state.q.copy()
-    with pytest.raises(ConfigError, match=r"no clear way to the start.*part at \[0\.4, 0\.0, 0\.6\] m.*pass through "
-                                          "it too"):
-        move_clear_of_part(loop, p, r, part, cfg.tool)
-    np.testing.assert_allclose(loop.state.q, q0)
+    # the arm's home under the plate's rim: the way over it would pass through it too; 2 cm lower, the F/T sensor
+    # touches the plate's base: moving away (up) would pass through it
+    for z, message in ((0.62, r"no clear way to the start.*part at \[0\.4, 0\.0, 0\.62\] m.*pass through it too"),
+                       (0.6, r"the tool stands touching the part placed at \[0\.4, 0\.0, 0\.6\] m, and moving it away "
+                             r"from the part would bring it nearer first \(the arm stands under")):
+        loop, cfg = _loop_with_part_at((0.4, 0.0, z), hold_s=0.0)
+        p, r, part = _start(cfg)
+        q0 = loop.state.q.copy()
+        with pytest.raises(ConfigError, match=message):
+            move_clear_of_part(loop, p, r, part, cfg.tool)
+        np.testing.assert_allclose(loop.state.q, q0)
     # a way round out of the arm's reach: refused with what to do, before any leg moves
     monkeypatch.setattr(transit, "ABOVE_PART_M", 1.5)
     loop, cfg = _loop_with_part_at((0.5, 0.0, 0.5))

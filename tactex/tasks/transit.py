@@ -3,19 +3,23 @@
 A joint move between two postures sweeps the tool along a curve nobody planned: from the arm's home to
 a start just above a part placed high (or tall), it can pass through the part. :func:`move_clear_of_part`
 plans the move against the part's nominal shape before the arm moves. A tool that starts nearer the part
-than :data:`TRANSIT_CLEARANCE_M` (a run stopped on it, or a part placed where the tool already is) first
-backs out along its own axis, the way an approach came in. Then the direct joint move, if the tool keeps
+than :data:`TRANSIT_CLEARANCE_M` (a run stopped on it, an approach that gave up past the surface, a part
+declared where the tool already is) first moves straight away from it (up over a height field, out from a
+cup's axis), which brings no point of it nearer. Then the direct joint move, if the tool keeps
 :data:`TRANSIT_CLEARANCE_M` (or the goal's own clearance, if less) all along it, sampled in joint space as
 the move follows it; else a way round: up to :data:`ABOVE_PART_M` over the part's top, across, and straight
-down, each leg checked the same way and its waypoints solved before the first moves. With no clear way it
-refuses. The tool is its pad (rim and an inner ring), its axis up to the flange, the F/T sensor's disc and
-the camera's box (:func:`tool_points`); the arm's links are not checked. The part is the solid over its
-footprint from its base (``base_m`` below its frame) to its height field, or the cup's cylinder taken as
-solid (:func:`clearance_m`).
+down into the direct move's posture (the descent planned up from it), every waypoint solved and every joint
+move between them checked before the first moves. With no clear way it refuses. The tool is points on its
+surfaces no farther apart than the clearance (:func:`tool_points`); the arm's links are not checked. The
+part is the solid over its footprint from its base (``base_m`` below its frame) to its height field, its
+clearance measured vertically over the footprint (on a slope the true distance is shorter), or the cup's
+cylinder taken as solid (:func:`clearance_m`).
 """
 
 from __future__ import annotations
 
+import functools
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,7 +33,8 @@ from tactex.robots.loop import ControlLoop
 from tactex.sim.tool import ToolGeometry
 
 __all__ = ["ABOVE_PART_M", "MAX_BACK_OUT_M", "PATH_SAMPLES", "SAMPLE_STEP_M", "TRANSIT_CLEARANCE_M", "PartShape",
-           "clearance_m", "line_clearance_m", "move_clear_of_part", "path_clearance_m", "tool_points"]
+           "clearance_m", "line_clearance_m", "move_clear_of_part", "path_clearance_m", "polyline_clearance_m",
+           "tool_points"]
 
 #: The least distance between the tool and the part a transit keeps [m] (or the goal's own, if less).
 TRANSIT_CLEARANCE_M = 0.005
@@ -37,8 +42,8 @@ TRANSIT_CLEARANCE_M = 0.005
 #: How high over the part's top a transit that goes round it crosses [m] (plus the pad's radius).
 ABOVE_PART_M = 0.05
 
-#: The furthest a tool that starts too near the part backs out along its axis to free itself [m].
-MAX_BACK_OUT_M = 0.10
+#: The furthest a tool that starts too near the part moves away from it to free itself [m].
+MAX_BACK_OUT_M = 0.30
 
 #: Postures sampled along a path for its clearance, at the least [-].
 PATH_SAMPLES = 60
@@ -46,9 +51,10 @@ PATH_SAMPLES = 60
 #: The furthest a point of the tool moves between two samples of a path [m].
 SAMPLE_STEP_M = 0.002
 
-#: The F/T sensor's disc and the camera's box half sizes in the tool frame [m] (as :func:`tactex.sim.tool.tool_xml`
-#: draws them).
+#: The F/T sensor's disc and the tool body's radii, and the camera's box half sizes in the tool frame [m] (as
+#: :func:`tactex.sim.tool.tool_xml` draws them).
 _SENSOR_RADIUS_M = 0.04
+_BODY_RADIUS_M = 0.02
 _CAMERA_HALF_M = (0.0125, 0.045, 0.0125)
 
 
@@ -74,24 +80,48 @@ class PartShape:
         return float((corners @ self.rotation.T + self.position_m)[:, 2].max())
 
 
+def _disc(radius: float, z: float, spacing: float) -> np.ndarray:
+    """Points of a disc in a plane z = const of the tool frame, no two neighbours farther than ``spacing``."""
+    out = [np.array([[0.0, 0.0, z]])]
+    for rk in np.linspace(0.0, radius, math.ceil(radius / spacing) + 1)[1:]:
+        a = np.linspace(0.0, 2.0 * np.pi, math.ceil(2.0 * np.pi * rk / spacing), endpoint=False)
+        out.append(np.column_stack([rk * np.cos(a), rk * np.sin(a), np.full(a.size, z)]))
+    return np.vstack(out)
+
+
+def _cylinder_side(radius: float, z0: float, z1: float, spacing: float) -> np.ndarray:
+    a = np.linspace(0.0, 2.0 * np.pi, math.ceil(2.0 * np.pi * radius / spacing), endpoint=False)
+    zs = np.linspace(z0, z1, math.ceil(abs(z1 - z0) / spacing) + 1)
+    return np.array([[radius * math.cos(t), radius * math.sin(t), z] for z in zs for t in a])
+
+
+def _box_surface(centre: np.ndarray, half: tuple[float, float, float], spacing: float) -> np.ndarray:
+    grids = [np.linspace(-h, h, math.ceil(2.0 * h / spacing) + 1) for h in half]
+    pts = np.array([[x, y, z] for x in grids[0] for y in grids[1] for z in grids[2]])
+    on_face = np.any(np.isclose(np.abs(pts), half), axis=1)
+    return centre + pts[on_face]
+
+
+@functools.lru_cache(maxsize=8)
+def _tool_frame_points(tool: ToolGeometry) -> np.ndarray:
+    """(K, 3) [m] points on the tool's surfaces in the tool frame at the TCP (z out of the pad), no two
+    neighbours farther apart than :data:`TRANSIT_CLEARANCE_M` (nothing reaches into the tool between them by
+    more than the clearance unseen): the pad, the body's cylinder, the F/T sensor's disc and the camera's box
+    (as :func:`tactex.sim.tool.tool_xml` draws them). The pad's centre comes first."""
+    s = TRANSIT_CLEARANCE_M
+    pt, bl, length = tool.pad_thickness_m, tool.body_length_m, tool.tcp_offset_m
+    return np.vstack([
+        _disc(tool.pad_radius_m, 0.0, s), _cylinder_side(tool.pad_radius_m, 0.0, -pt, s),
+        _disc(tool.pad_radius_m, -pt, s), _cylinder_side(_BODY_RADIUS_M, -pt, -(pt + bl), s),
+        _disc(_SENSOR_RADIUS_M, -(pt + bl), s), _cylinder_side(_SENSOR_RADIUS_M, -(pt + bl), -length, s),
+        _disc(_SENSOR_RADIUS_M, -length, s),
+        _box_surface(np.array([0.0, 0.0, -length]) + np.asarray(tool.camera_offset_m), _CAMERA_HALF_M, s)])
+
+
 def tool_points(p_tcp_world: np.ndarray, r_tcp_world: np.ndarray, tool: ToolGeometry) -> np.ndarray:
-    """(K, 3) [m] points of the tool at a TCP pose (world frame): the pad's centre, 16 points of its rim and 8
-    of a ring at half its radius, 4 points up its axis to the flange, 8 of the F/T sensor's rim at the flange,
-    and the camera box's 8 corners."""
-    p = np.asarray(p_tcp_world, dtype=float)
-    r = np.asarray(r_tcp_world, dtype=float)
-
-    def ring(radius: float, n: int, along_m: float) -> np.ndarray:  # in the tool's x-y plane, along_m up its axis
-        a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-        return radius * (np.outer(np.cos(a), r[:, 0]) + np.outer(np.sin(a), r[:, 1])) - along_m * r[:, 2]
-
-    length = tool.tcp_offset_m
-    axis = np.outer(np.linspace(0.25, 1.0, 4) * length, -r[:, 2])  # the tool's z points out of the pad
-    box = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * _CAMERA_HALF_M
-    flange = p - length * r[:, 2]
-    camera = flange + (np.asarray(tool.camera_offset_m, dtype=float) + box) @ r.T  # its centre from the flange
-    return np.vstack([p, p + ring(tool.pad_radius_m, 16, 0.0), p + ring(0.5 * tool.pad_radius_m, 8, 0.0),
-                      p + axis, p + ring(_SENSOR_RADIUS_M, 8, length - tool.sensor_height_m), camera])
+    """(K, 3) [m] points on the tool's surfaces at a TCP pose (world frame), the pad's centre first
+    (:func:`_tool_frame_points`)."""
+    return np.asarray(p_tcp_world, dtype=float) + _tool_frame_points(tool) @ np.asarray(r_tcp_world, dtype=float).T
 
 
 def clearance_m(surface: Surface, obj_pos: np.ndarray, obj_rot: np.ndarray, points_world: np.ndarray,
@@ -137,104 +167,131 @@ def _sampled(tool_points_at: Callable[[float], np.ndarray], n: int = PATH_SAMPLE
 
 
 def path_clearance_m(loop: ControlLoop, q_from: np.ndarray, q_to: np.ndarray, part: PartShape,
-                     tool: ToolGeometry) -> np.ndarray:
+                     tool: ToolGeometry, min_samples: int = PATH_SAMPLES) -> np.ndarray:
     """(n,) [m] the tool's least clearance from the part at postures along the joint move from ``q_from`` to
     ``q_to`` [rad] (a straight line in joint space, as :meth:`ControlLoop.move_joints` goes from rest), both ends
-    included, at least :data:`PATH_SAMPLES` of them."""
+    included, at least ``min_samples`` of them."""
     if loop.tcp_pose(q_from) is None:
         raise ConfigError("this robot's backend has no kinematic model: the transit's clearance cannot be checked")
-    pts = _sampled(lambda s: tool_points(*loop.tcp_pose(q_from + s * (q_to - q_from)), tool))
+    pts = _sampled(lambda s: tool_points(*loop.tcp_pose(q_from + s * (q_to - q_from)), tool), min_samples)
     return part.clearance_m(pts.reshape(-1, 3)).reshape(len(pts), -1).min(axis=1)
+
+
+def polyline_clearance_m(loop: ControlLoop, postures: list[np.ndarray], part: PartShape, tool: ToolGeometry) -> float:
+    """[m] the tool's least clearance from the part along joint moves through ``postures`` [rad] in turn (the
+    waypoints a planned route moves through)."""
+    return min((float(path_clearance_m(loop, a, b, part, tool, min_samples=2).min())
+                for a, b in itertools.pairwise(postures)), default=math.inf)
 
 
 def line_clearance_m(p0: np.ndarray, r0: np.ndarray, p1: np.ndarray, r1: np.ndarray, part: PartShape,
                      tool: ToolGeometry) -> np.ndarray:
     """(n,) [m] the tool's least clearance from the part along the TCP's straight line from ``p0`` to ``p1``
-    [m], its orientation along the geodesic from ``r0`` to ``r1`` (as :meth:`ControlLoop.move_cartesian` goes)."""
+    [m], its orientation along the geodesic from ``r0`` to ``r1``."""
     w = log_so3(np.asarray(r0, dtype=float).T @ r1)
     pts = _sampled(lambda s: tool_points(p0 + s * (p1 - p0), r0 @ exp_so3(s * w), tool))
     return part.clearance_m(pts.reshape(-1, 3)).reshape(len(pts), -1).min(axis=1)
 
 
+def _away(part: PartShape, p_world: np.ndarray) -> np.ndarray:
+    """The unit direction [world] in which every point's clearance grows: up the part's z over a height field,
+    out from the cup's axis beside it."""
+    if isinstance(part.surface, CylinderWallSurface):
+        local = (np.asarray(p_world, dtype=float) - part.position_m) @ part.rotation
+        radial = np.array([local[0], local[1], 0.0])
+        if np.linalg.norm(radial) > 1e-9:
+            return part.rotation @ (radial / np.linalg.norm(radial))
+    return part.rotation[:, 2].copy()
+
+
 def _back_out(p_now: np.ndarray, r_now: np.ndarray, part: PartShape, tool: ToolGeometry) -> np.ndarray | None:
-    """Where the TCP [m] is first :data:`TRANSIT_CLEARANCE_M` clear of the part backing out along the tool's
-    axis (within :data:`MAX_BACK_OUT_M`), or None: that does not free it."""
+    """Where the TCP [m] is first :data:`TRANSIT_CLEARANCE_M` clear of the part moving away from it
+    (:func:`_away`, the tool's orientation kept; within :data:`MAX_BACK_OUT_M`), or None."""
+    away = _away(part, p_now)
     for d in np.arange(SAMPLE_STEP_M, MAX_BACK_OUT_M + 1e-9, SAMPLE_STEP_M):
-        p = p_now - d * r_now[:, 2]
+        p = p_now + d * away
         if part.clearance_m(tool_points(p, r_now, tool)).min() >= TRANSIT_CLEARANCE_M:
             return p
     return None
+
+
+def _passed(least_m: float) -> str:
+    return ("went through it" if least_m < -1e-3 else "touched it" if least_m < 0.0 else
+            f"passed {1e3 * least_m:.1f} mm from it, under {1e3 * TRANSIT_CLEARANCE_M:.0f} mm")
 
 
 def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world: np.ndarray, part: PartShape,
                        tool: ToolGeometry, settle_s: float = 0.5) -> str:
     """Move the TCP to a pose near the part [m, rotation], clear of it (module docstring); returns ``"direct"``,
     or how it went (backed out first, round over the part) and why. Raises :class:`ConfigError` before the arm
-    moves when there is no clear way (the arm stands under or against the part) or the way round is out of
-    reach. The goal's posture is the direct move's (the IK solution from the current posture), however it went."""
+    moves when there is no clear way (the arm stands under or against the part) or the way is out of reach. The
+    goal's posture is the direct move's (the IK solution from the current posture), however it went."""
     q_now, p_now, r_now = loop.state.q.copy(), loop.state.ee_position.copy(), loop.state.ee_rotation.copy()
     q_goal = loop.solve_pose(p_goal_world, r_goal_world)
     where = np.round(np.asarray(part.position_m if part.placed_m is None else part.placed_m, dtype=float), 3).tolist()
-    legs: list[tuple[np.ndarray, np.ndarray]] = []  # Cartesian legs (TCP position, rotation) before the last move
-    said = []
+    moves: list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]] = []  # (p, r, path, q_goal)
+    said: list[str] = []
+    q_from, p_from = q_now, p_now
     start_clear = float(part.clearance_m(tool_points(p_now, r_now, tool)).min())
-    if start_clear < TRANSIT_CLEARANCE_M:
-        p_out = _back_out(p_now, r_now, part, tool)
-        if p_out is None:
-            raise ConfigError(
-                f"the tool stands {1e3 * -start_clear:.0f} mm inside the part placed at {where} m, and backing out "
-                f"{1e3 * MAX_BACK_OUT_M:.0f} mm along its axis does not free it: "
-                "check --object-position, or move the arm clear (Franka's guiding mode)")
-        legs.append((p_out, r_now))
-        said.append(f"backed out {1e3 * np.linalg.norm(p_out - p_now):.0f} mm along the tool's axis first (it stood "
-                    + (f"{1e3 * -start_clear:.0f} mm inside the part as placed)" if start_clear < 0.0 else
-                       f"{1e3 * start_clear:.0f} mm from it)"))
-    q_from = q_now
-    plans: list[list[np.ndarray]] = []
     try:
-        for p, r in legs:
-            plans.append(loop.cartesian_path(p_now, r_now, q_from, p, r))
-            q_from = plans[-1][-1]
+        if start_clear < TRANSIT_CLEARANCE_M:
+            p_out = _back_out(p_now, r_now, part, tool)
+            stands = (f"{1e3 * -start_clear:.0f} mm inside the part" if start_clear < -1e-3 else
+                      "touching the part" if start_clear < 0.0 else f"{1e3 * start_clear:.0f} mm from the part")
+            out = [] if p_out is None else loop.cartesian_path(p_now, r_now, q_now, p_out, r_now)
+            deeper = p_out is not None and polyline_clearance_m(loop, [q_now, *out], part, tool) < start_clear - 1e-3
+            if p_out is None or deeper:
+                why = ("moving it away from the part would bring it nearer first (the arm stands under or against "
+                       "the part)" if deeper else f"moving it {1e3 * MAX_BACK_OUT_M:.0f} mm away does not free it")
+                raise ConfigError(f"the tool stands {stands} placed at {where} m, and {why}: check --object-position, "
+                                  "or move the arm clear (Franka's guiding mode)")
+            moves.append((p_out, r_now, out, None))
+            said.append(f"backed out {1e3 * np.linalg.norm(p_out - p_now):.0f} mm first (the tool stood {stands} as "
+                        "placed)")
+            q_from, p_from = out[-1], p_out
+        direct = path_clearance_m(loop, q_from, q_goal, part, tool)
+        need = min(TRANSIT_CLEARANCE_M, direct[-1]) - 1e-3
+        if direct.min() >= need:
+            _run(loop, moves, settle_s, q_goal)
+            return "; ".join([*said, "then direct"]) if said else "direct"
+        z_cross = max(part.top_z_m() + ABOVE_PART_M + tool.pad_radius_m, float(p_goal_world[2]))
+        p_above = np.array([p_goal_world[0], p_goal_world[1], z_cross])
+        route: list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]] = []
+        q = q_from
+        if p_from[2] < z_cross:
+            p_up = np.array([p_from[0], p_from[1], z_cross])
+            route.append((p_up, r_now, loop.cartesian_path(p_from, r_now, q, p_up, r_now), None))
+            p_from, q = p_up, route[-1][2][-1]
+        if np.linalg.norm(p_above - p_goal_world) > 1e-6:
+            # the descent planned up from the goal's posture, on its branch: the across leg ends where it begins
+            down = loop.cartesian_path(p_goal_world, r_goal_world, q_goal, p_above, r_goal_world)
+            route.append((p_above, r_goal_world, loop.cartesian_path(p_from, r_now, q, p_above, r_goal_world,
+                                                                     q_goal=down[-1]), down[-1]))
+            route.append((p_goal_world, r_goal_world, [*reversed(down[:-1]), q_goal], q_goal))
+        else:
+            route.append((p_goal_world, r_goal_world, loop.cartesian_path(p_from, r_now, q, p_goal_world,
+                                                                          r_goal_world, q_goal=q_goal), q_goal))
     except SimulationError as exc:
-        raise ConfigError(f"the tool cannot back out along its axis ({exc}): move the arm clear of the part") from exc
-    path = path_clearance_m(loop, q_from, q_goal, part, tool)
-    need = min(TRANSIT_CLEARANCE_M, path[-1]) - 1e-3
-    if path.min() >= need:
-        _run(loop, legs, plans, q_goal, None, settle_s)
-        return "; ".join([*said, "then direct"]) if said else "direct"
-    z_cross = max(part.top_z_m() + ABOVE_PART_M + tool.pad_radius_m, float(p_goal_world[2]))
-    p_from, r_from = legs[-1] if legs else (p_now, r_now)
-    round_legs = ([(np.array([p_from[0], p_from[1], z_cross]), r_from)] if p_from[2] < z_cross else []) + [
-        (np.array([p_goal_world[0], p_goal_world[1], z_cross]), r_goal_world), (p_goal_world, r_goal_world)]
-    ends = [(p_from, r_from), *round_legs]
-    least = min(float(line_clearance_m(*a, *b, part, tool).min()) for a, b in zip(ends, round_legs, strict=False))
+        raise ConfigError(
+            f"the move to the start near the part at {where} m needs a way out of the arm's reach ({exc}): place "
+            "the part lower or nearer the robot") from exc
+    least = polyline_clearance_m(loop, [q_from, *(q for m in route for q in m[2])], part, tool)
     if least < need:
         raise ConfigError(
             f"no clear way to the start: the direct move would pass through the part at {where} m, and the way over "
             f"it (up to z = {z_cross:.2f} m, across, down) would " + (
                 f"bring the tool within {1e3 * least:.1f} mm of it" if least >= 0.0 else "pass through it too")
             + " (the arm stands under or against the part): place the part elsewhere")
-    try:  # every leg's waypoints solved before the arm moves: a way round out of reach is refused, not begun
-        for i, (p, r) in enumerate(round_legs):
-            last = i == len(round_legs) - 1
-            plans.append(loop.cartesian_path(*ends[i], q_from, p, r, q_goal=q_goal if last else None))
-            q_from = plans[-1][-1]
-    except SimulationError as exc:
-        raise ConfigError(
-            f"the move to the start would pass through the part at {where} m, and the way over its top, at z = "
-            f"{z_cross:.2f} m, is out of the arm's reach ({exc}): place the part lower or nearer the robot") from exc
-    _run(loop, [*legs, *round_legs], plans, None, q_goal, settle_s)
-    passed = ("went through it" if path.min() < 0.0 else
-              f"passed {1e3 * path.min():.1f} mm from it, under {1e3 * TRANSIT_CLEARANCE_M:.0f} mm")
-    return "; ".join([*said, f"over the part at z = {z_cross:.2f} m (the direct move {passed})"])
+    _run(loop, moves + route, settle_s)
+    return "; ".join([*said, f"over the part at z = {z_cross:.2f} m (the direct move {_passed(direct.min())})"])
 
 
-def _run(loop: ControlLoop, legs: list[tuple[np.ndarray, np.ndarray]], plans: list[list[np.ndarray]],
-         q_last: np.ndarray | None, q_goal: np.ndarray | None, settle_s: float) -> None:
-    """Move along the planned Cartesian legs, then to ``q_last`` by a joint move when given; the last move
-    settles ``settle_s`` [s], the others a tenth of a second."""
-    for i, ((p, r), plan) in enumerate(zip(legs, plans, strict=True)):
-        final = q_last is None and i == len(legs) - 1
-        loop.move_cartesian(p, r, path=plan, q_goal=q_goal if final else None, settle_s=settle_s if final else 0.1)
+def _run(loop: ControlLoop, moves: list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]],
+         settle_s: float, q_last: np.ndarray | None = None) -> None:
+    """Move along the planned Cartesian legs (TCP position, rotation, waypoints, the posture each ends in), then to
+    ``q_last`` by a joint move when given; the last move settles ``settle_s`` [s], the others a tenth of a second."""
+    for i, (p, r, path, q_end) in enumerate(moves):
+        final = q_last is None and i == len(moves) - 1
+        loop.move_cartesian(p, r, path=path, q_goal=q_end, settle_s=settle_s if final else 0.1)
     if q_last is not None:
         loop.move_joints(q_last, settle_s=settle_s)
