@@ -184,7 +184,8 @@ def test_a_tool_in_or_on_the_part_backs_out_along_its_axis_first():
 def test_no_clear_way_or_a_way_out_of_reach_is_refused_before_the_arm_moves(monkeypatch):
     # the arm's home under the plate's rim: the way over it would pass through it too; 2 cm lower, the F/T sensor
     # touches the plate's base: moving away (up) would pass through it
-    for z, message in ((0.62, r"no clear way to the start.*part at \[0\.4, 0\.0, 0\.62\] m.*pass through it too"),
+    for z, message in ((0.62, r"no clear way to the start: the direct move went through it \(the part at "
+                              r"\[0\.4, 0\.0, 0\.62\] m\).*pass through it too"),
                        (0.6, r"the tool stands touching the part placed at \[0\.4, 0\.0, 0\.6\] m, and moving it away "
                              r"from the part would bring it nearer first \(the arm stands under")):
         loop, cfg = _loop_with_part_at((0.4, 0.0, z), hold_s=0.0)

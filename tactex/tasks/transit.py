@@ -278,8 +278,8 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
     least = polyline_clearance_m(loop, [q_from, *(q for m in route for q in m[2])], part, tool)
     if least < need:
         raise ConfigError(
-            f"no clear way to the start: the direct move would pass through the part at {where} m, and the way over "
-            f"it (up to z = {z_cross:.2f} m, across, down) would " + (
+            f"no clear way to the start: the direct move {_passed(direct.min())} (the part at {where} m), and the way "
+            f"over it (up to z = {z_cross:.2f} m, across, down) would " + (
                 f"bring the tool within {1e3 * least:.1f} mm of it" if least >= 0.0 else "pass through it too")
             + " (the arm stands under or against the part): place the part elsewhere")
     _run(loop, moves + route, settle_s)
