@@ -20,7 +20,6 @@ from tactex.tasks.runner import TOOL_DOWN
 from tactex.tasks.transit import (
     PartShape,
     clearance_m,
-    line_clearance_m,
     move_clear_of_part,
     path_clearance_m,
     tool_points,
@@ -87,13 +86,17 @@ def test_the_tools_points_cover_its_surfaces_closer_than_the_clearance():
     assert seen.min() < 0.0
 
 
-def test_a_straight_line_through_a_plate_is_seen_however_thin_it_is():
-    # a line crossing the plate's 4 mm floor between two far poses: sampled finely enough to meet it
-    part = PartShape(object_or_part("plate").surface, np.array([0.5, 0.0, 0.0]), np.eye(3))
-    tool = ToolGeometry()
-    through = line_clearance_m(np.array([0.5, 0.0, 0.5]), TOOL_DOWN, np.array([0.5, 0.0, -0.3]), TOOL_DOWN, part, tool)
-    over = line_clearance_m(np.array([0.3, 0.0, 0.1]), TOOL_DOWN, np.array([0.7, 0.0, 0.1]), TOOL_DOWN, part, tool)
-    assert through.min() < 0.0 and over.min() == pytest.approx(0.1 - 0.02, abs=2e-3)  # the plate's rim: 2 cm high
+def test_a_move_through_a_plate_is_seen_however_thin_it_is():
+    # a joint move straight down through the plate's 4 mm floor, from two postures 40 cm apart (the fewest samples
+    # a planned route's waypoint pair starts from): sampled finely enough to meet it; and one across, over it
+    loop, cfg = _loop_with_part_at(get_object("plate").position_m)
+    p0, r0 = loop.state.ee_position.copy(), loop.state.ee_rotation.copy()
+    part = PartShape(object_or_part("plate").surface, p0 - np.array([0.0, 0.0, 0.006]), np.eye(3))  # declared only
+    tool = cfg.tool
+    high, low = (loop.solve_pose(p0 + np.array([0.0, 0.0, dz]), r0) for dz in (0.2, -0.2))
+    assert path_clearance_m(loop, high, low, part, tool, min_samples=2).min() < 0.0
+    left, right = (loop.solve_pose(p0 + np.array([dx, 0.0, 0.1]), r0) for dx in (-0.1, 0.1))
+    assert path_clearance_m(loop, left, right, part, tool, min_samples=2).min() > 0.05
 
 
 def _loop_with_part_at(position, hold_s: float = 0.05, name: str = "plate") -> tuple[ControlLoop, SceneConfig]:

@@ -27,13 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from tactex.errors import ConfigError, SimulationError
-from tactex.geometry import exp_so3, log_so3
 from tactex.pointcloud.shapes import CylinderWallSurface, HeightFieldSurface, Surface
 from tactex.robots.loop import ControlLoop
 from tactex.sim.tool import ToolGeometry
 
 __all__ = ["ABOVE_PART_M", "MAX_BACK_OUT_M", "PATH_SAMPLES", "SAMPLE_STEP_M", "TRANSIT_CLEARANCE_M", "PartShape",
-           "clearance_m", "line_clearance_m", "move_clear_of_part", "path_clearance_m", "polyline_clearance_m",
+           "clearance_m", "move_clear_of_part", "path_clearance_m", "polyline_clearance_m",
            "tool_points"]
 
 #: The least distance between the tool and the part a transit keeps [m] (or the goal's own, if less).
@@ -56,6 +55,10 @@ SAMPLE_STEP_M = 0.002
 _SENSOR_RADIUS_M = 0.04
 _BODY_RADIUS_M = 0.02
 _CAMERA_HALF_M = (0.0125, 0.045, 0.0125)
+
+#: A planned Cartesian leg: where the TCP ends [m] and its rotation, the joint waypoints [rad] to it, and the
+#: posture it must end in (None: its own last waypoint).
+_Leg = tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]
 
 
 @dataclass(frozen=True)
@@ -184,15 +187,6 @@ def polyline_clearance_m(loop: ControlLoop, postures: list[np.ndarray], part: Pa
                 for a, b in itertools.pairwise(postures)), default=math.inf)
 
 
-def line_clearance_m(p0: np.ndarray, r0: np.ndarray, p1: np.ndarray, r1: np.ndarray, part: PartShape,
-                     tool: ToolGeometry) -> np.ndarray:
-    """(n,) [m] the tool's least clearance from the part along the TCP's straight line from ``p0`` to ``p1``
-    [m], its orientation along the geodesic from ``r0`` to ``r1``."""
-    w = log_so3(np.asarray(r0, dtype=float).T @ r1)
-    pts = _sampled(lambda s: tool_points(p0 + s * (p1 - p0), r0 @ exp_so3(s * w), tool))
-    return part.clearance_m(pts.reshape(-1, 3)).reshape(len(pts), -1).min(axis=1)
-
-
 def _away(part: PartShape, p_world: np.ndarray) -> np.ndarray:
     """The unit direction [world] in which every point's clearance grows: up the part's z over a height field,
     out from the cup's axis beside it."""
@@ -220,6 +214,31 @@ def _passed(least_m: float) -> str:
             f"passed {1e3 * least_m:.1f} mm from it, under {1e3 * TRANSIT_CLEARANCE_M:.0f} mm")
 
 
+def _route_over(loop: ControlLoop, part: PartShape, tool: ToolGeometry, q_from: np.ndarray, p_from: np.ndarray,
+                r_from: np.ndarray, q_goal: np.ndarray, p_goal: np.ndarray,
+                r_goal: np.ndarray) -> tuple[list[_Leg], float]:
+    """The legs over the part from the TCP at ``p_from`` [m], ``r_from`` (posture ``q_from`` [rad]) to the goal
+    pose in posture ``q_goal``: up to the crossing height, across, down; and that height [m]. Raises
+    SimulationError where the IK cannot follow them."""
+    z_cross = max(part.top_z_m() + ABOVE_PART_M + tool.pad_radius_m, float(p_goal[2]))
+    p_above = np.array([p_goal[0], p_goal[1], z_cross])
+    route: list[_Leg] = []
+    q = q_from
+    if p_from[2] < z_cross:
+        p_up = np.array([p_from[0], p_from[1], z_cross])
+        route.append((p_up, r_from, loop.cartesian_path(p_from, r_from, q, p_up, r_from), None))
+        p_from, q = p_up, route[-1][2][-1]
+    if np.linalg.norm(p_above - p_goal) > 1e-6:
+        # the descent planned up from the goal's posture, on its branch: the across leg ends where it begins
+        down = loop.cartesian_path(p_goal, r_goal, q_goal, p_above, r_goal)
+        route.append((p_above, r_goal, loop.cartesian_path(p_from, r_from, q, p_above, r_goal, q_goal=down[-1]),
+                      down[-1]))
+        route.append((p_goal, r_goal, [*reversed(down[:-1]), q_goal], q_goal))
+    else:
+        route.append((p_goal, r_goal, loop.cartesian_path(p_from, r_from, q, p_goal, r_goal, q_goal=q_goal), q_goal))
+    return route, z_cross
+
+
 def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world: np.ndarray, part: PartShape,
                        tool: ToolGeometry, settle_s: float = 0.5) -> str:
     """Move the TCP to a pose near the part [m, rotation], clear of it (module docstring); returns ``"direct"``,
@@ -229,11 +248,11 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
     q_now, p_now, r_now = loop.state.q.copy(), loop.state.ee_position.copy(), loop.state.ee_rotation.copy()
     q_goal = loop.solve_pose(p_goal_world, r_goal_world)
     where = np.round(np.asarray(part.position_m if part.placed_m is None else part.placed_m, dtype=float), 3).tolist()
-    moves: list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]] = []  # (p, r, path, q_goal)
+    moves: list[_Leg] = []  # moving away from the part first
     said: list[str] = []
     q_from, p_from = q_now, p_now
     start_clear = float(part.clearance_m(tool_points(p_now, r_now, tool)).min())
-    try:
+    try:  # planned whole before the arm moves
         if start_clear < TRANSIT_CLEARANCE_M:
             p_out = _back_out(p_now, r_now, part, tool)
             stands = (f"{1e3 * -start_clear:.0f} mm inside the part" if start_clear < -1e-3 else
@@ -251,30 +270,15 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
             q_from, p_from = out[-1], p_out
         direct = path_clearance_m(loop, q_from, q_goal, part, tool)
         need = min(TRANSIT_CLEARANCE_M, direct[-1]) - 1e-3
-        if direct.min() >= need:
-            _run(loop, moves, settle_s, q_goal)
-            return "; ".join([*said, "then direct"]) if said else "direct"
-        z_cross = max(part.top_z_m() + ABOVE_PART_M + tool.pad_radius_m, float(p_goal_world[2]))
-        p_above = np.array([p_goal_world[0], p_goal_world[1], z_cross])
-        route: list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]] = []
-        q = q_from
-        if p_from[2] < z_cross:
-            p_up = np.array([p_from[0], p_from[1], z_cross])
-            route.append((p_up, r_now, loop.cartesian_path(p_from, r_now, q, p_up, r_now), None))
-            p_from, q = p_up, route[-1][2][-1]
-        if np.linalg.norm(p_above - p_goal_world) > 1e-6:
-            # the descent planned up from the goal's posture, on its branch: the across leg ends where it begins
-            down = loop.cartesian_path(p_goal_world, r_goal_world, q_goal, p_above, r_goal_world)
-            route.append((p_above, r_goal_world, loop.cartesian_path(p_from, r_now, q, p_above, r_goal_world,
-                                                                     q_goal=down[-1]), down[-1]))
-            route.append((p_goal_world, r_goal_world, [*reversed(down[:-1]), q_goal], q_goal))
-        else:
-            route.append((p_goal_world, r_goal_world, loop.cartesian_path(p_from, r_now, q, p_goal_world,
-                                                                          r_goal_world, q_goal=q_goal), q_goal))
+        route, z_cross = (([], 0.0) if direct.min() >= need else
+                          _route_over(loop, part, tool, q_from, p_from, r_now, q_goal, p_goal_world, r_goal_world))
     except SimulationError as exc:
         raise ConfigError(
             f"the move to the start near the part at {where} m needs a way out of the arm's reach ({exc}): place "
             "the part lower or nearer the robot") from exc
+    if not route:  # the direct move; an error while the arm moves is the move's own, not the plan's
+        _run(loop, moves, settle_s, q_goal)
+        return "; ".join([*said, "then direct"]) if said else "direct"
     least = polyline_clearance_m(loop, [q_from, *(q for m in route for q in m[2])], part, tool)
     if least < need:
         raise ConfigError(
@@ -286,8 +290,7 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
     return "; ".join([*said, f"over the part at z = {z_cross:.2f} m (the direct move {_passed(direct.min())})"])
 
 
-def _run(loop: ControlLoop, moves: list[tuple[np.ndarray, np.ndarray, list[np.ndarray], np.ndarray | None]],
-         settle_s: float, q_last: np.ndarray | None = None) -> None:
+def _run(loop: ControlLoop, moves: list[_Leg], settle_s: float, q_last: np.ndarray | None = None) -> None:
     """Move along the planned Cartesian legs (TCP position, rotation, waypoints, the posture each ends in), then to
     ``q_last`` by a joint move when given; the last move settles ``settle_s`` [s], the others a tenth of a second."""
     for i, (p, r, path, q_end) in enumerate(moves):
