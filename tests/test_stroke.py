@@ -73,7 +73,8 @@ def test_a_small_island_gets_a_stroke_through_its_centre_that_cleans_it() -> Non
         wiped = len(stroke.path.waypoints) - 1
         if stroke.clean(wear) or not stroke.next_pass(STEP):
             break
-    assert stroke.clean(wear) and stroke.passes == 2
+        assert not stroke.wiped(wear)  # after the first pass: not yet
+    assert stroke.clean(wear) and stroke.wiped(wear) and stroke.passes == 2
     assert not wear.island_left(np.array([0.02, 0.01, 0.0]), 2 * R)
 
 
@@ -101,6 +102,7 @@ def test_a_large_island_is_left_to_the_explorer_or_reached_by_a_slide() -> None:
     assert np.allclose(slide.path.waypoints[0], [0.0, -0.05, 0.0], atol=cloud.spacing)
     assert np.allclose(slide.path.waypoints[-1], island, atol=cloud.spacing)
     assert slide.clean(wear)  # nothing of its own to wipe: the explorer takes over where it ends
+    assert not slide.wiped(wear)  # ... but only once it has slid there
 
 
 def test_no_slide_across_a_hollow() -> None:

@@ -397,6 +397,35 @@ def test_the_first_stroke_is_planned_once(tmp_path, monkeypatch: pytest.MonkeyPa
     assert len(set(starts)) == len(starts), starts  # no stroke planned twice from the same point
 
 
+def test_a_stroke_ends_where_the_wear_model_calls_its_island_wiped(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A spot 2.2 cm across (just under the pad's radius): one pass of its stroke leaves the spot's ends short of
+    the wear margin, so a pass back follows; the stroke ends where the model first calls every spot point wiped,
+    not at the far end of that pass."""
+    from tactex.tasks import clean
+
+    ended: list[tuple] = []  # (passes, path slid [m], one pass's length [m], island wiped by the model)
+    after_stroke = clean.program._after_stroke
+
+    def record(stroke, cmd, wear, *args, **kwargs):
+        if not stroke.transfer_only:
+            ended.append((stroke.passes, stroke.path.path_length, float(np.linalg.norm(stroke.b - stroke.a)),
+                          stroke.clean(wear)))
+        return after_stroke(stroke, cmd, wear, *args, **kwargs)
+
+    monkeypatch.setattr(clean.program, "_after_stroke", record)
+    _, path, _, _, _ = _plate_with_keep_out(tmp_path, lambda x, y: np.hypot(x - 0.05, y) <= 0.011,
+                                            lambda x, y: np.zeros_like(x, dtype=bool))
+    cfg = CleanConfig(object_name="plate", budget_s=8.0, n_eigen=60, cloud=str(path), eigensolver="arpack")
+    m = run_clean(cfg, progress=False).metrics
+    assert ended, "no stroke ended: the scenario does not test the stroke's end"
+    passes, slid_m, pass_m, wiped = ended[0]
+    assert passes == 2 and wiped
+    # two whole passes slide twice the pass; the model calls the spot wiped before the second one ends
+    assert slid_m < 1.95 * pass_m, (slid_m, pass_m)
+    assert slid_m > 1.2 * pass_m  # the pass back was needed: the first pass alone leaves the margin unmet
+    assert m["dirt_removed_fraction"] > 0.95
+
+
 def test_sparse_spots_are_cleaned_island_by_island() -> None:
     """Issue 21: three 1 cm spots far apart on the plate. Each spot is smaller than the pad: the robot wipes
     it with a straight stroke (back and forth until the wear model calls it clean) and moves on to the

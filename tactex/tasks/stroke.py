@@ -2,7 +2,8 @@
 
 An island of dirt smaller than the pad needs no ergodic coverage: one straight pass of the pad over it
 wipes every point of it, back and forth until the robot's wear model
-(:class:`~tactex.tasks.wear_model.WearModel`) says it is clean. HEDAC's potential, cooled to stay
+(:class:`~tactex.tasks.wear_model.WearModel`) says it is clean (the task ends the stroke there, part-way
+through a pass if need be). HEDAC's potential, cooled to stay
 local, would instead hold the agent dithering on the island's peak, where it slides slowly and wipes
 little. Islands larger than the pad stay with the explorer.
 
@@ -69,6 +70,12 @@ class IslandStroke:
     def clean(self, wear: WearModel) -> bool:
         """Whether the wear model has every point of the island wiped with its margin."""
         return bool(np.all(wear.removed[self.island] >= wear.margin))
+
+    def wiped(self, wear: WearModel) -> bool:
+        """Whether the stroke may end before its path does: the wear model calls the island wiped (a pass back over
+        a small island is needed only until the first pass's worst-wiped points, at its ends, have their margin;
+        the rest of it would slide over what the model calls clean). A slide to another island runs to its end."""
+        return not self.transfer_only and self.clean(wear)
 
     def next_pass(self, step_m: float) -> bool:
         """Back over the island once more (from the end the pad is at); False after :data:`MAX_PASSES`."""

@@ -616,8 +616,9 @@ class CleanProgram:
         cfg, wear = self.cfg, self.wear
         c.prev = self.cmd
         measured = self.loop.state.ee_position if cfg.agent_feedback else None
-        if self.stroke is not None and self.stroke.path.done:
+        if self.stroke is not None:  # it ends where the wear model calls its island wiped, mid-pass if need be
             self.wear_ticks.settle()
+        if self.stroke is not None and (self.stroke.path.done or self.stroke.wiped(wear)):
             if self.stroke.clean(wear) or not self.stroke.next_pass(self.stroke_step_m):
                 self.stroke, c.relocate_to, c.covered = _after_stroke(
                     self.stroke, self.cmd, wear, cfg, self.cloud, self.target0, self.islands_tried, self.legs,
