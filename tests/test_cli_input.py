@@ -14,6 +14,7 @@ import pytest
 
 from tactex.cli import build_parser, main
 from tactex.config import dataclass_from_args
+from tactex.errors import ConfigError
 from tactex.pointcloud import SurfaceCloud, save_ply
 from tests.format_fixtures import box_mesh, camera_like_cloud, write_pcd
 
@@ -223,6 +224,20 @@ def test_clean_takes_its_preston_estimate_by_the_old_name_too() -> None:
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
     shown = {s for a in sub.choices["clean"]._actions if a.help != "==SUPPRESS==" for s in a.option_strings}
     assert "--preston-estimate" in shown and "--preston-coefficient" not in shown
+
+
+def test_clean_sets_the_simulated_dirts_true_coefficient_apart_from_its_estimate() -> None:
+    """--dirt-preston-coefficient is the simulated dirt's k_p (the scene's), --preston-estimate the wear model's: a
+    miscalibrated estimate is one set apart from the other; a value that is no coefficient is refused by name."""
+    from tactex.tasks.clean import CleanConfig
+
+    args = build_parser().parse_args(["clean", "--dirt-preston-coefficient", "0.0035", "--out", "o"])
+    cfg = dataclass_from_args(CleanConfig, args)
+    assert cfg.scene().preston_coefficient == 0.0035 and cfg.preston_coefficient == CleanConfig().preston_coefficient
+    assert CleanConfig().scene().preston_coefficient == CleanConfig().preston_coefficient  # calibrated by default
+    for bad in (0.0, -1e-3, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="dirt_preston_coefficient must be a positive number"):
+            CleanConfig(dirt_preston_coefficient=bad)
 
 
 def test_help_shows_each_default_once_as_typed(capsys) -> None:

@@ -118,6 +118,10 @@ class CleanConfig(SimWorldParams):
         "simulated sponge's true value is --preston-coefficient of tactex twin and of the scene; calibrate the "
         "estimate on a real sponge: dirt level removed per pascal per metre slid)",
         option="preston_estimate", aliases=("--preston-coefficient",))
+    dirt_preston_coefficient: float = param(
+        SceneConfig().preston_coefficient, "in simulation, the simulated dirt's true Preston coefficient k_p "
+        "[1/(Pa·m)] (what tactex twin --preston-coefficient sets on the twin): below --preston-estimate the dirt is "
+        "tougher than the wear model thinks (a miscalibrated estimate); not read on a robot, whose dirt is real")
     pad_radius_m: float = param(0.025, "radius of the sponge's pressure disc for the wear model [m]")
     wear_margin: float = param(
         1.5, "predicted removal a point needs before the wear model calls it clean (1 = the model exactly; more "
@@ -299,7 +303,7 @@ class CleanConfig(SimWorldParams):
         check_eigensolver(self.eigensolver, self.eigen_tol)
         if self.objective not in CLEAN_OBJECTIVES:
             raise ConfigError(f"unknown objective '{self.objective}'; valid: {', '.join(CLEAN_OBJECTIVES)}")
-        for name in ("preston_coefficient", "pad_radius_m", "wear_margin"):
+        for name in ("preston_coefficient", "dirt_preston_coefficient", "pad_radius_m", "wear_margin"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be a positive number, got {getattr(self, name)!r}")
@@ -338,7 +342,7 @@ class CleanConfig(SimWorldParams):
         object.__setattr__(self, "explorer", explorer)
 
     def scene(self) -> SceneConfig:
-        return super().scene(marking=self.marking)
+        return super().scene(marking=self.marking, preston_coefficient=self.dirt_preston_coefficient)
 
     @property
     def lane_spacing_m(self) -> float:
