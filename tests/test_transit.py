@@ -99,6 +99,30 @@ def test_a_move_through_a_plate_is_seen_however_thin_it_is():
     assert path_clearance_m(loop, left, right, part, tool, min_samples=2).min() > 0.05
 
 
+def test_the_arms_links_are_checked_as_capsules():
+    """A part declared where the arm's elbow stands, away from the tool: the tool's points alone keep
+    clear of it, the links' capsules do not; each capsule is points along its axis no farther apart than the
+    clearance, each with the capsule's radius."""
+    loop, cfg = _loop_with_part_at(get_object("plate").position_m)
+    q = loop.state.q.copy()
+    ends, radii = loop.link_capsules(q)
+    assert ends.shape == (len(radii), 2, 3) and np.all((radii >= 0.03) & (radii <= 0.08))
+    elbow = ends[int(np.argmax(ends[:, :, 2].max(axis=1) * (ends[:, :, 0].min(axis=1) < -0.1)))].mean(axis=0)
+    plate = object_or_part("plate").surface
+    part = PartShape(plate, elbow - np.array([0.0, 0.0, float(plate.height(np.zeros(1), np.zeros(1))[0])]),
+                     np.eye(3))  # its surface's centre at the elbow's axis: declared only
+    assert part.clearance_m(tool_points(*loop.tcp_pose(q), cfg.tool)).min() > 0.1
+    assert path_clearance_m(loop, q, q, part, cfg.tool, min_samples=2).min() < -0.03  # the elbow's capsule in it
+    pts, r = transit.link_points(ends, radii)
+    assert len(pts) == len(r) and set(np.round(r, 6)) == set(np.round(radii, 6))
+    for (a, b), radius in zip(ends, radii, strict=True):  # every axis covered from end to end, densely
+        on = np.isclose(r, radius) & (np.linalg.norm(np.cross(pts - a, b - a), axis=1)
+                                      <= 1e-9 + 1e-6 * np.linalg.norm(b - a))
+        d = np.sort((pts[on] - a) @ (b - a) / max(float(np.linalg.norm(b - a)), 1e-12))
+        assert d[0] <= 1e-9 and d[-1] >= np.linalg.norm(b - a) - 1e-9
+        assert np.diff(d).max(initial=0.0) <= transit.TRANSIT_CLEARANCE_M + 1e-9
+
+
 def _loop_with_part_at(position, hold_s: float = 0.05, name: str = "plate") -> tuple[ControlLoop, SceneConfig]:
     """A loop on a scene with the object ``name`` at ``position`` [m], held ``hold_s`` [s] at the arm's home."""
     cfg = SceneConfig(object_name=name, object_position=tuple(position), camera_width=8, camera_height=8)

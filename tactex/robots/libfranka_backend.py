@@ -636,6 +636,11 @@ class LibfrankaBackend:
         on tactex's kinematic model of the arm and tool (the robot does not move; microseconds, no pause)."""
         return self._kinematics().tcp_pose(q)
 
+    def link_capsules(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The arm's links at joint positions ``q`` (7,) [rad] as capsules of tactex's kinematic model (an
+        approximation of the Panda's shape): axes' ends (K, 2, 3) [m] in the base frame, radii (K,) [m]."""
+        return self._kinematics().link_capsules(q)
+
     @property
     def torque_paused(self) -> bool:
         """Torque control is not running (paused, or not started yet): the robot holds its posture itself."""

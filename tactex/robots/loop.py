@@ -194,6 +194,12 @@ class ControlLoop:
         fk = getattr(self.backend, "tcp_pose", None)
         return None if fk is None else fk(q)
 
+    def link_capsules(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The arm's links at joint positions ``q`` (7,) [rad] as capsules on the backend's kinematic model: their
+        axes' ends (K, 2, 3) [m] and radii (K,) [m]; None from a backend without one."""
+        fk = getattr(self.backend, "link_capsules", None)
+        return None if fk is None else fk(q)
+
     def move_to_pose(self, position_world: np.ndarray, rotation_world: np.ndarray, duration_s: float | None = None,
                      settle_s: float = 0.2, q_seed: np.ndarray | None = None) -> RobotState:
         """Joint move to the IK solution of a TCP pose, searched from ``q_seed`` (default: the

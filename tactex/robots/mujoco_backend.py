@@ -20,7 +20,7 @@ from tactex.errors import ControllerFault, InputError, MissingDependencyError, S
 from tactex.perception.frame import CameraFrame
 from tactex.sim.camera import RayCastCamera
 from tactex.sim.camera_worker import CameraWorker
-from tactex.sim.franka import FRANKA_HOME_Q
+from tactex.sim.franka import ARM_BODY_PREFIX, FRANKA_HOME_Q
 from tactex.sim.ft_sensor import FTSensorModel
 from tactex.sim.ik import solve_site_ik
 from tactex.sim.raycast import SceneRayCaster
@@ -54,6 +54,7 @@ class MujocoBackend:
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self._fk_data: mujoco.MjData | None = None  # tcp_pose's scratch state
+        self._link_geoms: np.ndarray | None = None  # the arm's capsule geoms (link_capsules)
         self.dt = float(self.model.opt.timestep)
         ids = self.scene.ids
         self._ids = ids
@@ -315,16 +316,36 @@ class MujocoBackend:
             settled_step_rad=settled_step_rad, max_iter=max_iter,
         )
 
-    def tcp_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The TCP's position (3,) [m] and orientation (3, 3) in the world at joint positions ``q`` (7,) [rad], on
-        the model's kinematics (the robot does not move; a scratch copy of the state)."""
+    def _fk(self, q: np.ndarray) -> mujoco.MjData:
+        """A scratch copy of the state with the arm at joint positions ``q`` (7,) [rad] and its kinematics."""
         if self._fk_data is None:
             self._fk_data = mujoco.MjData(self.model)
         d = self._fk_data
         d.qpos[self._qadr] = self._check_q(q, "q")
         mujoco.mj_kinematics(self.model, d)
+        return d
+
+    def tcp_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The TCP's position (3,) [m] and orientation (3, 3) in the world at joint positions ``q`` (7,) [rad], on
+        the model's kinematics (the robot does not move; a scratch copy of the state)."""
+        d = self._fk(q)
         site = self._ids["tcp"]
         return d.site_xpos[site].copy(), d.site_xmat[site].reshape(3, 3).copy()
+
+    def link_capsules(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The arm's links at joint positions ``q`` (7,) [rad] as the model's capsules (an approximation of the
+        Panda's shape, :mod:`tactex.sim.franka`): their axes' ends (K, 2, 3) [m] in the world and their radii (K,)
+        [m]. The tool on the flange is not among them."""
+        if self._link_geoms is None:
+            m = self.model
+            self._link_geoms = np.array([
+                g for g in range(m.ngeom) if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE
+                and (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])) or "").startswith(
+                    ARM_BODY_PREFIX)], dtype=int)
+        d, ids = self._fk(q), self._link_geoms
+        centre = d.geom_xpos[ids]
+        half = (d.geom_xmat[ids].reshape(-1, 3, 3)[:, :, 2] * self.model.geom_size[ids, 1:2])
+        return np.stack([centre - half, centre + half], axis=1), self.model.geom_size[ids, 0].copy()
 
     def render_rgb(self, width: int = 640, height: int = 480, camera: str | int = -1) -> np.ndarray:
         """An OpenGL image (H, W, 3) uint8 of the scene (needs MUJOCO_GL=egl/osmesa/glfw)."""

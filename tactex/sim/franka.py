@@ -18,6 +18,7 @@ import numpy as np
 from tactex.errors import PYGAFRO_FIX, MissingDependencyError
 
 __all__ = [
+    "ARM_BODY_PREFIX",
     "FRANKA_HOME_Q",
     "FRANKA_TORQUE_LIMITS",
     "FrankaLink",
@@ -169,6 +170,9 @@ def _inertial_xml(mass: float, com: np.ndarray, inertia: np.ndarray) -> str:
 
 
 # Capsules approximating the link shapes (link-frame end points [m], radius [m]), for viewing only.
+#: The arm's bodies' names begin so (panda_link0 … panda_link7); the tool's bodies on the flange do not.
+ARM_BODY_PREFIX = "panda_link"
+
 _VISUALS: dict[str, list[tuple[tuple[float, ...], float]]] = {
     "panda_link0": [((0.0, 0.0, 0.0, 0.0, 0.0, 0.25), 0.07)],
     "panda_link1": [((0.0, 0.0, -0.19, 0.0, 0.0, 0.0), 0.06)],

@@ -10,7 +10,8 @@ cup's axis), which brings no point of it nearer. Then the direct joint move, if 
 the move follows it; else a way round: up to :data:`ABOVE_PART_M` over the part's top, across, and straight
 down into the direct move's posture (the descent planned up from it), every waypoint solved and every joint
 move between them checked before the first moves. With no clear way it refuses. The tool is points on its
-surfaces no farther apart than the clearance (:func:`tool_points`); the arm's links are not checked. The
+surfaces no farther apart than the clearance (:func:`tool_points`), the arm's links the kinematic model's
+capsules (:func:`link_points`: an approximation of the Panda's shape, not its exact hull). The
 part is the solid over its footprint from its base (``base_m`` below its frame) to its height field, its
 clearance measured vertically over the footprint (on a slope the true distance is shorter), or the cup's
 cylinder taken as solid (:func:`clearance_m`).
@@ -32,7 +33,7 @@ from tactex.robots.loop import ControlLoop
 from tactex.sim.tool import ToolGeometry
 
 __all__ = ["ABOVE_PART_M", "MAX_BACK_OUT_M", "PATH_SAMPLES", "SAMPLE_STEP_M", "TRANSIT_CLEARANCE_M", "PartShape",
-           "clearance_m", "move_clear_of_part", "path_clearance_m", "polyline_clearance_m",
+           "clearance_m", "link_points", "move_clear_of_part", "path_clearance_m", "polyline_clearance_m",
            "tool_points"]
 
 #: The least distance between the tool and the part a transit keeps [m] (or the goal's own, if less).
@@ -157,8 +158,33 @@ def clearance_m(surface: Surface, obj_pos: np.ndarray, obj_rot: np.ndarray, poin
     raise ConfigError(f"no transit clearance for a {type(surface).__name__}: a height field or a cup's wall")
 
 
+def link_points(ends_m: np.ndarray, radii_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (L, 3) [m] along the axes of capsules (ends (K, 2, 3) [m]) no farther apart than
+    :data:`TRANSIT_CLEARANCE_M`, and each one's capsule radius (L,) [m]: a point's clearance less its radius is
+    its ball's, and the balls along an axis this dense make up the capsule to a hundredth of a millimetre."""
+    ends = np.asarray(ends_m, dtype=float)
+    # rounded first: a capsule keeps its count of points at every posture (its length moves by round-off only)
+    n = np.maximum(np.ceil(np.round(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) / TRANSIT_CLEARANCE_M, 6)), 1)
+    n = n.astype(int) + 1
+    s = [np.linspace(0.0, 1.0, k)[:, None] for k in n]
+    pts = np.concatenate([a + si * (b - a) for (a, b), si in zip(ends, s, strict=True)])
+    return pts, np.repeat(np.asarray(radii_m, dtype=float), n)
+
+
+def _robot_points(loop: ControlLoop, q: np.ndarray, tool: ToolGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """The points (P, 3) [m] of the tool (:func:`tool_points`) and of the arm's links (:func:`link_points`, when
+    the backend models them) at posture ``q`` [rad], and how far each one's surface lies out from it (P,) [m]: 0
+    on the tool's surfaces, the capsule's radius on a link's axis."""
+    pts = tool_points(*loop.tcp_pose(q), tool)
+    links = loop.link_capsules(q)
+    if links is None:
+        return pts, np.zeros(len(pts))
+    axis, radii = link_points(*links)
+    return np.vstack([pts, axis]), np.concatenate([np.zeros(len(pts)), radii])
+
+
 def _sampled(tool_points_at: Callable[[float], np.ndarray], n: int = PATH_SAMPLES) -> np.ndarray:
-    """(n', K, 3) [m] the tool's points at n' >= ``n`` evenly spaced fractions s in [0, 1] of a path
+    """(n', K, 3) [m] the robot's points at n' >= ``n`` evenly spaced fractions s in [0, 1] of a path
     (``tool_points_at(s)``), so fine that no point moves more than :data:`SAMPLE_STEP_M` between two samples
     (a thin part between two samples would be missed)."""
     while True:
@@ -171,17 +197,18 @@ def _sampled(tool_points_at: Callable[[float], np.ndarray], n: int = PATH_SAMPLE
 
 def path_clearance_m(loop: ControlLoop, q_from: np.ndarray, q_to: np.ndarray, part: PartShape,
                      tool: ToolGeometry, min_samples: int = PATH_SAMPLES) -> np.ndarray:
-    """(n,) [m] the tool's least clearance from the part at postures along the joint move from ``q_from`` to
-    ``q_to`` [rad] (a straight line in joint space, as :meth:`ControlLoop.move_joints` goes from rest), both ends
-    included, at least ``min_samples`` of them."""
+    """(n,) [m] the robot's least clearance from the part (its tool's and its links', :func:`_robot_points`) at
+    postures along the joint move from ``q_from`` to ``q_to`` [rad] (a straight line in joint space, as
+    :meth:`ControlLoop.move_joints` goes from rest), both ends included, at least ``min_samples`` of them."""
     if loop.tcp_pose(q_from) is None:
         raise ConfigError("this robot's backend has no kinematic model: the transit's clearance cannot be checked")
-    pts = _sampled(lambda s: tool_points(*loop.tcp_pose(q_from + s * (q_to - q_from)), tool), min_samples)
-    return part.clearance_m(pts.reshape(-1, 3)).reshape(len(pts), -1).min(axis=1)
+    out = _robot_points(loop, q_from, tool)[1]
+    pts = _sampled(lambda s: _robot_points(loop, q_from + s * (q_to - q_from), tool)[0], min_samples)
+    return (part.clearance_m(pts.reshape(-1, 3)).reshape(len(pts), -1) - out).min(axis=1)
 
 
 def polyline_clearance_m(loop: ControlLoop, postures: list[np.ndarray], part: PartShape, tool: ToolGeometry) -> float:
-    """[m] the tool's least clearance from the part along joint moves through ``postures`` [rad] in turn (the
+    """[m] the robot's least clearance from the part along joint moves through ``postures`` [rad] in turn (the
     waypoints a planned route moves through)."""
     return min((float(path_clearance_m(loop, a, b, part, tool, min_samples=2).min())
                 for a, b in itertools.pairwise(postures)), default=math.inf)
