@@ -164,12 +164,12 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
                      "tasks/clean_time/sparse/region_raster/time_to_95pct_s",
                      "tasks/clean_time/sparse/ratio_to_region_raster"),
           lambda t, rs, q: f"{t:.1f} / {rs:.1f} s ({q:.2f}×)", lambda t, rs, q: q <= 0.5)
-    tough = [("sparse", "door"), ("cup/X", "cup X"), ("plate/X", "plate X")]
+    tough = [("door/spots", "door"), ("cup/X", "cup X"), ("plate/X", "plate X")]
     scale = _get(data, "tasks/clean_time/tough/cup/X/dirt_preston_scale")
     r.add(f"dirt tougher than the wear model's estimate (true k_p {scale if scale is None else f'{scale:g}'}× the "
           "estimate; " + "; ".join(n for _, n in tough) + "): removed, "
           "tactex / region raster (its time to 95 %, or where it stopped)", "–",
-          tuple(f"tasks/clean_time/tough/{'door/spots' if c == 'sparse' else c}/{m}/{k}" for c, _ in tough
+          tuple(f"tasks/clean_time/tough/{c}/{m}/{k}" for c, _ in tough
                 for m in ("tactex", "region_raster")
                 for k in ("dirt_removed_fraction", "reached_95pct", "time_to_95pct_s")),
           lambda *v: "; ".join(" / ".join(f"{v[i + 3 * j] * 100:.0f} % ("
