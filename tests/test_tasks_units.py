@@ -798,8 +798,10 @@ def test_a_joint_move_across_a_stall_of_the_loop_neither_steps_its_command_nor_e
         t0 = loop.t
         loop.move_joints(q_goal, duration_s=0.5, settle_s=0.0)
         assert loop.safety.counts.get("torque_rate_limit", 0) == 0
-        assert loop.joint.lag_s == pytest.approx(0.015, abs=1e-6)
-        assert loop.t >= t0 + 0.5 + 0.015 - 1e-9
+        # the arm ran on under the last command: the target's clock is held back by the part of the 15 ms the arm
+        # did not go along the move, not by all of it (a frozen state, franka-sim's, holds it back by all of it)
+        assert 0.0 < loop.joint.lag_s < 0.015
+        assert loop.t >= t0 + 0.5 + loop.joint.lag_s - 1e-9
     finally:
         backend.close()
 

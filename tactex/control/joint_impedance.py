@@ -175,6 +175,7 @@ class JointImpedanceController(Controller):
         self._target: JointTarget | None = None
         self._t_prev = 0.0
         self.lag_s = 0.0  # how far the target's clock runs behind the robot's [s]
+        self._q_prev: np.ndarray | None = None  # the joint positions of the last command's state [rad]
 
     def reset(self, state: RobotState) -> None:
         self._target = None
@@ -183,6 +184,19 @@ class JointImpedanceController(Controller):
         """The effective damping M (M + h·D)⁻¹ D [N·m·s/rad] for the joint-space inertia ``mass_matrix`` [kg·m²]."""
         m = np.asarray(mass_matrix, dtype=float)
         return m @ solve(m + self._dt_d_mat, self._d_mat)
+
+    def _progress_s(self, reference: JointTarget, q: np.ndarray, gap_s: float) -> float:
+        """How far along ``reference`` [s of its clock] the arm went from the last command's state to ``q``
+        over a gap of ``gap_s`` [s]: its joint displacement projected on the target's velocity at the last
+        command, between one period and the gap (the gap where the target stands still: nothing to hold back)."""
+        dt = self.params.dt
+        if self._q_prev is None or self._q_prev.shape != q.shape:
+            return dt
+        _, v = reference.at(self._t_prev - self.lag_s)
+        vv = float(v @ v)
+        if not vv > 1e-12:
+            return gap_s
+        return min(max(float((q - self._q_prev) @ v) / vv, dt), gap_s)
 
     def torque(self, state: RobotState, reference: JointTarget) -> np.ndarray:
         if not isinstance(reference, JointTarget):
@@ -194,11 +208,16 @@ class JointImpedanceController(Controller):
         if reference is not self._target:
             self._target, self.lag_s = reference, 0.0
         elif t - self._t_prev > STALL_TICKS * self.params.dt:
-            # the loop answered late (a stall of the machine, or torque control paused): the target's clock
-            # advances one period, so the command continues from the last one instead of stepping by the
-            # stall's share of the move, which the robot's torque-rate check would see
-            self.lag_s += t - self._t_prev - self.params.dt
+            # the loop answered late (a stall of the machine, lost cycles, or torque control paused): the target's
+            # clock advances by as much of the gap as the arm itself went along the move meanwhile (at least one
+            # period), so the command continues from the last one. A robot (and the twin) runs on under the last
+            # command through lost cycles: holding the target back by the whole gap then steps the command
+            # backwards by the arm's own progress; an emulator that repeats a frozen state with its clock run on
+            # (franka-sim) gets the whole gap held back, as before.
+            gap = t - self._t_prev
+            self.lag_s += gap - self._progress_s(reference, state.q, gap)
         self._t_prev = t
+        self._q_prev = state.q.copy()
         q_d, dq_d = reference.at(t - self.lag_s)
         m = state.mass_matrix
         if self.params.latency_horizon_ticks <= 0:  # stiffness explicit, damping over one period
