@@ -806,6 +806,33 @@ def test_a_joint_move_across_a_stall_of_the_loop_neither_steps_its_command_nor_e
         backend.close()
 
 
+def test_a_joint_move_across_a_frozen_state_holds_its_target_back_by_the_whole_gap():
+    # franka-sim's lost cycles: the state repeats while its clock runs on 15 ms (the arm did not move): the move's
+    # target is held back by the whole gap less the one period, and the commands go on without a torque-rate clip
+    from tactex.robots import MujocoBackend
+    from tactex.robots.loop import ControlLoop
+    from tactex.sim import SceneConfig
+
+    class Frozen(MujocoBackend):
+        ticks = 0
+
+        def step(self):
+            self.ticks += 1
+            if self.ticks == 30:
+                self.data.time += 0.015
+            return super().step()
+
+    backend = Frozen(SceneConfig(object_name="plate"))
+    try:
+        loop = ControlLoop(backend)
+        q_goal = loop.state.q + np.array([0.0, 0.15, 0.0, -0.15, 0.0, 0.1, 0.0])
+        loop.move_joints(q_goal, duration_s=0.5, settle_s=0.0)
+        assert loop.safety.counts.get("torque_rate_limit", 0) == 0
+        assert loop.joint.lag_s == pytest.approx(0.015, abs=1e-6)
+    finally:
+        backend.close()
+
+
 def test_a_far_wrist_bend_from_low_over_the_object_goes_up_to_the_capture_posture_first() -> None:
     """A joint move that starts away from the capture posture (after a lift-off) and bends the wrist (joints 5, 6)
     by more than LOW_MOVE_MAX_JOINT_RAD goes through the capture posture, and says how much longer that takes;
