@@ -240,6 +240,14 @@ def test_clean_sets_the_simulated_dirts_true_coefficient_apart_from_its_estimate
             CleanConfig(dirt_preston_coefficient=bad)
 
 
+def test_the_simulated_dirts_coefficient_is_refused_on_a_robot(tmp_path, capsys) -> None:
+    code = main(["clean", "--robot", "franka", "--robot-ip", "127.0.0.1", "--dirt-preston-coefficient", "0.003",
+                 "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--dirt-preston-coefficient sets the simulated dirt's" in err
+    assert "tactex twin --preston-coefficient" in err and not (tmp_path / "run").exists()
+
+
 def test_help_shows_each_default_once_as_typed(capsys) -> None:
     parser = build_parser()
     for command in ("explore", "sweep", "clean", "wipe", "demo", "twin"):

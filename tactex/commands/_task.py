@@ -57,6 +57,9 @@ def run_task_command(kind: str, config_cls: type, args: argparse.Namespace) -> i
         raise ConfigError(f"--compare runs tactex and every baseline; drop --baseline {cfg.baseline}")
     if args.compare and robot is not None:
         raise ConfigError("--compare runs in simulation only; on a robot run tactex and a --baseline one at a time")
+    if robot is not None and getattr(args, "dirt_preston_coefficient", None) is not None:
+        raise ConfigError("--dirt-preston-coefficient sets the simulated dirt's; a robot's dirt is what it is (the "
+                          "twin's: tactex twin --preston-coefficient); the wear model's estimate is --preston-estimate")
     if kind == "clean":
         check_cloud_size(cfg, args.force)  # before the simulation starts, or the robot moves
     if args.compare and args.view:
