@@ -151,6 +151,12 @@ class JointTarget:
 #: A step of the robot's clock longer than this many control periods between two commands is a stall [-].
 STALL_TICKS = 1.5
 
+#: A target that moves less than this over a stall has nothing to hold back [rad] (the encoders' resolution).
+PROGRESS_MIN_RAD = 1e-6
+
+#: Bisections of the arm's progress along the target over a stall: the gap over 2^30, far under a period [-].
+PROGRESS_BISECTIONS = 30
+
 
 class JointImpedanceController(Controller):
     """τ = M (M + h·D + h²·K)⁻¹ (K (q_d − q) + D (dq_d − dq)) + C(q, dq)·dq on a :class:`JointTarget`
@@ -186,17 +192,34 @@ class JointImpedanceController(Controller):
         return m @ solve(m + self._dt_d_mat, self._d_mat)
 
     def _progress_s(self, reference: JointTarget, q: np.ndarray, gap_s: float) -> float:
-        """How far along ``reference`` [s of its clock] the arm went from the last command's state to ``q``
-        over a gap of ``gap_s`` [s]: its joint displacement projected on the target's velocity at the last
-        command, between one period and the gap (the gap where the target stands still: nothing to hold back)."""
+        """How far along ``reference`` [s of its clock] the arm went from the last command's state to ``q`` over
+        a gap of ``gap_s`` [s]: the time s in [one period, the gap] after the last command's target time at which
+        the target's own displacement, along the way it goes over the gap, equals the arm's (bisected: a move's
+        target goes on along its way); the whole gap where the target does not move over it (nothing to hold
+        back). A frozen arm gives one period, an arm that ran on along the move the time it took."""
         dt = self.params.dt
         if self._q_prev is None or self._q_prev.shape != q.shape:
             return dt
-        _, v = reference.at(self._t_prev - self.lag_s)
-        vv = float(v @ v)
-        if not vv > 1e-12:
+        t0 = self._t_prev - self.lag_s
+        q0 = reference.at(t0)[0]
+        span = reference.at(t0 + gap_s)[0] - q0
+        norm = float(np.linalg.norm(span))
+        if not norm > PROGRESS_MIN_RAD:
             return gap_s
-        return min(max(float((q - self._q_prev) @ v) / vv, dt), gap_s)
+        u = span / norm
+        went = float((q - self._q_prev) @ u)
+        lo, hi = dt, gap_s
+        if not float((reference.at(t0 + lo)[0] - q0) @ u) < went:  # not even a period's way (or NaN): held back
+            return lo
+        if went >= norm:
+            return hi
+        for _ in range(PROGRESS_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            if float((reference.at(t0 + mid)[0] - q0) @ u) < went:
+                lo = mid
+            else:
+                hi = mid
+        return 0.5 * (lo + hi)
 
     def torque(self, state: RobotState, reference: JointTarget) -> np.ndarray:
         if not isinstance(reference, JointTarget):
@@ -208,12 +231,12 @@ class JointImpedanceController(Controller):
         if reference is not self._target:
             self._target, self.lag_s = reference, 0.0
         elif t - self._t_prev > STALL_TICKS * self.params.dt:
-            # the loop answered late (a stall of the machine, lost cycles, or torque control paused): the target's
-            # clock advances by as much of the gap as the arm itself went along the move meanwhile (at least one
-            # period), so the command continues from the last one. A robot (and the twin) runs on under the last
-            # command through lost cycles: holding the target back by the whole gap then steps the command
-            # backwards by the arm's own progress; an emulator that repeats a frozen state with its clock run on
-            # (franka-sim) gets the whole gap held back, as before.
+            # the loop answered late (a stall of the machine, lost cycles): the target's clock advances by as much
+            # of the gap as the arm itself went along the move meanwhile (at least one period), so the command
+            # goes on from where the arm is instead of stepping. A robot (and the twin) runs on under the last
+            # command through lost cycles: holding the target back by the whole gap would step the command
+            # backwards by the arm's progress; an emulator that repeats a frozen state while its clock runs on
+            # (franka-sim) has the whole gap held back.
             gap = t - self._t_prev
             self.lag_s += gap - self._progress_s(reference, state.q, gap)
         self._t_prev = t
