@@ -71,6 +71,14 @@ def _robustness_reached(rob: dict) -> str:
     return text
 
 
+def _removed_where(removed: float, reached: float, t_s: float) -> str:
+    """A method's dirt removed and its time to 95 % (every run reached it), where it stopped (none did), or the
+    share of runs that reached it (``t_s`` then mixes times to 95 % with the others' ends)."""
+    when = (f"{t_s:.1f} s" if reached == 1 else f"stopped at {t_s:.1f} s" if reached == 0 else
+            f"{reached * 100:.0f} % of the runs reached 95 %")
+    return f"{removed * 100:.0f} % ({when})"
+
+
 def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
     r = _Rows(data)
     for key, name in CLOUDS:
@@ -172,9 +180,8 @@ def status_rows(data: dict) -> list[tuple[str, str, str, str]]:
           tuple(f"tasks/clean_time/tough/{c}/{m}/{k}" for c, _ in tough
                 for m in ("tactex", "region_raster")
                 for k in ("dirt_removed_fraction", "reached_95pct", "time_to_95pct_s")),
-          lambda *v: "; ".join(" / ".join(f"{v[i + 3 * j] * 100:.0f} % ("
-                                          f"{'' if v[i + 3 * j + 1] == 1 else 'stopped at '}{v[i + 3 * j + 2]:.1f} s)"
-                                          for j in (0, 1)) for i in (0, 6, 12)))
+          lambda *v: "; ".join(" / ".join(_removed_where(*v[i + 3 * j:i + 3 * j + 3]) for j in (0, 1))
+                               for i in (0, 6, 12)))
     r.add("time to 95 % removed, whole surface dirty (plate; bowl), tactex / region raster", "≤ 1.1× the region "
           "raster", tuple(f"tasks/clean_time/{o}/full/{k}" for o in ("plate", "bowl")
                           for k in ("tactex/time_to_95pct_s", "region_raster/time_to_95pct_s",

@@ -169,10 +169,11 @@ def _inertial_xml(mass: float, com: np.ndarray, inertia: np.ndarray) -> str:
     return f'<inertial pos="{_fmt(com)}" mass="{mass:.10g}" fullinertia="{_fmt(full)}"/>'
 
 
-# Capsules approximating the link shapes (link-frame end points [m], radius [m]), for viewing only.
 #: The arm's bodies' names begin so (panda_link0 … panda_link7); the tool's bodies on the flange do not.
 ARM_BODY_PREFIX = "panda_link"
 
+# Capsules approximating the link shapes (link-frame end points [m], radius [m]): drawn, and the arm's shape in
+# the transit check (tactex.tasks.transit); they do not collide in the simulation.
 _VISUALS: dict[str, list[tuple[tuple[float, ...], float]]] = {
     "panda_link0": [((0.0, 0.0, 0.0, 0.0, 0.0, 0.25), 0.07)],
     "panda_link1": [((0.0, 0.0, -0.19, 0.0, 0.0, 0.0), 0.06)],

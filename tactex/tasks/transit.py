@@ -161,7 +161,7 @@ def clearance_m(surface: Surface, obj_pos: np.ndarray, obj_rot: np.ndarray, poin
 def link_points(ends_m: np.ndarray, radii_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Points (L, 3) [m] along the axes of capsules (ends (K, 2, 3) [m]) no farther apart than
     :data:`TRANSIT_CLEARANCE_M`, and each one's capsule radius (L,) [m]: a point's clearance less its radius is
-    its ball's, and the balls along an axis this dense make up the capsule to a hundredth of a millimetre."""
+    its ball's, and the balls along an axis this dense make up the capsule to under a tenth of a millimetre."""
     ends = np.asarray(ends_m, dtype=float)
     # rounded first: a capsule keeps its count of points at every posture (its length moves by round-off only)
     n = np.maximum(np.ceil(np.round(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) / TRANSIT_CLEARANCE_M, 6)), 1)
@@ -285,6 +285,8 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
             stands = (f"{1e3 * -start_clear:.0f} mm inside the part" if start_clear < -1e-3 else
                       "touching the part" if start_clear < 0.0 else f"{1e3 * start_clear:.0f} mm from the part")
             out = [] if p_out is None else loop.cartesian_path(p_now, r_now, q_now, p_out, r_now)
+            # the way out (tool and links) nearer than the tool stands: a link as near refuses it too (the arm
+            # stands against the part), on the safe side
             deeper = p_out is not None and polyline_clearance_m(loop, [q_now, *out], part, tool) < start_clear - 1e-3
             if p_out is None or deeper:
                 why = ("moving it away from the part would bring it nearer first (the arm stands under or against "
@@ -311,7 +313,8 @@ def move_clear_of_part(loop: ControlLoop, p_goal_world: np.ndarray, r_goal_world
         raise ConfigError(
             f"no clear way to the start: the direct move {_passed(direct.min())} (the part at {where} m), and the way "
             f"over it (up to z = {z_cross:.2f} m, across, down) would " + (
-                f"bring the tool within {1e3 * least:.1f} mm of it" if least >= 0.0 else "pass through it too")
+                f"bring the tool or the arm within {1e3 * least:.1f} mm of it" if least >= 0.0 else
+                "pass through it too")
             + " (the arm stands under or against the part): place the part elsewhere")
     _run(loop, moves + route, settle_s)
     return "; ".join([*said, f"over the part at z = {z_cross:.2f} m (the direct move {_passed(direct.min())})"])
